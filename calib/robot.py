@@ -1,0 +1,506 @@
+"""The robot model: a serial chain read from a URDF with Pinocchio, described by TM-MDH parameters.
+
+A :class:`RobotModel` is immutable. It holds the chain's joints (names, types, limits) and one
+value per TM-MDH parameter:
+
+    T_meas_tool(q) = T_meas_base_ref . T(u) . prod_i L_i(q_i) . T(v) . T_flange_tool_ref
+
+with ``L_i`` the link transform of Eq. (1) (:func:`calib.mdh.link_transform`), ``T(u)`` and
+``T(v)`` the ZYX transforms of Eq. (3) (:func:`calib.spatial.zyx_transform`), and two constant
+reference transforms. ``meas`` is the chosen base frame of the URDF (the measurement frame),
+``base`` is MDH frame 0 (z on axis 1), ``flange`` is MDH frame n, ``tool`` the chosen tool frame.
+For a URDF derived model u = v = 0 and the reference transforms carry the nominal geometry; for the
+bundled BRTIRUS0707A both references are the identity, as in the paper.
+
+Parameters are named ``theta1``, ``d1``, ``a1``, ``alpha1``, ``beta2`` (only for joints whose
+axis is parallel to the next one), ``u_x``, ``u_y``, ``u_z``, ``u_alpha``, ``u_beta``,
+``u_gamma`` and ``v_x`` ... ``v_gamma`` (alpha = yaw about z, beta = pitch about y, gamma = roll
+about x, as in Eq. (3)). Lengths in metres, angles in radians.
+"""
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from .errors import ChainError, FrameNotFound, ParameterError, URDFError
+from .mdh import PARALLEL_THRESHOLD_RAD, derive_mdh, link_transform
+from .spatial import inverse, zyx_parameters, zyx_transform
+
+JOINT_KINDS = ("revolute", "continuous", "prismatic")
+_STRUCTURAL_KINDS = ("theta", "d", "a", "alpha", "beta")
+_FRAME_KINDS = ("x", "y", "z", "alpha", "beta", "gamma")
+
+
+@dataclass(frozen=True)
+class ChainJoint:
+    """One moving joint of the chain: URDF name, kind, limits (rad or m; +-inf if unlimited)."""
+
+    name: str
+    kind: str
+    lower: float
+    upper: float
+
+    @property
+    def is_prismatic(self) -> bool:
+        return self.kind == "prismatic"
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One TM-MDH parameter.
+
+    ``group`` is ``"joint"`` (structural, of joint ``joint``, 1-based), ``"u"`` (meas->base) or
+    ``"v"`` (flange->tool); ``kind`` is theta, d, a, alpha, beta for joints and x, y, z, alpha,
+    beta, gamma for u and v; ``unit`` is ``"m"`` or ``"rad"``.
+    """
+
+    name: str
+    group: str
+    kind: str
+    joint: int | None
+    unit: str
+
+    @property
+    def is_angular(self) -> bool:
+        return self.unit == "rad"
+
+    @property
+    def symbol(self) -> str:
+        """The paper's symbol: theta1, d2, x, alpha, x', gamma' ..."""
+        if self.group == "joint":
+            return self.name
+        return self.kind + ("'" if self.group == "v" else "")
+
+
+def make_parameters(n_joints: int, beta_joints: Iterable[int]) -> tuple[Parameter, ...]:
+    """The parameter list in the order of Eq. (23): theta, d, a, alpha, beta, u, v.
+
+    ``beta_joints`` are the 1-based joints that carry a beta parameter.
+    """
+    params: list[Parameter] = []
+    for kind in ("theta", "d", "a", "alpha"):
+        unit = "m" if kind in ("d", "a") else "rad"
+        params += [Parameter(f"{kind}{i}", "joint", kind, i, unit) for i in range(1, n_joints + 1)]
+    params += [Parameter(f"beta{i}", "joint", "beta", i, "rad") for i in sorted(beta_joints)]
+    for group in ("u", "v"):
+        for kind in _FRAME_KINDS:
+            unit = "m" if kind in ("x", "y", "z") else "rad"
+            params.append(Parameter(f"{group}_{kind}", group, kind, None, unit))
+    return tuple(params)
+
+
+@dataclass(frozen=True, eq=False)
+class RobotModel:
+    """A serial arm described by TM-MDH parameters (immutable; see the module docstring).
+
+    Attributes
+    ----------
+    joints : the moving joints from base to tool, in chain order.
+    parameters : the TM-MDH parameters, in the order of Eq. (23).
+    values : (n_params,) float, metres / radians: one value per parameter (read-only array).
+    T_meas_base_ref, T_flange_tool_ref : (4, 4) constant reference transforms.
+    base_frame, tool_frame : names of the URDF frames the chain runs between.
+    urdf_path : the URDF the model was read from (None for a model built in code).
+    """
+
+    joints: tuple[ChainJoint, ...]
+    parameters: tuple[Parameter, ...]
+    values: np.ndarray
+    T_meas_base_ref: np.ndarray = field(default_factory=lambda: np.eye(4))
+    T_flange_tool_ref: np.ndarray = field(default_factory=lambda: np.eye(4))
+    base_frame: str = "meas"
+    tool_frame: str = "tool"
+    urdf_path: Path | None = None
+    parallel_threshold: float = PARALLEL_THRESHOLD_RAD
+
+    def __post_init__(self):
+        vals = np.array(self.values, dtype=float)
+        if vals.shape != (len(self.parameters),):
+            raise ParameterError(f"expected {len(self.parameters)} parameter values, got {vals.shape}")
+        vals.setflags(write=False)
+        object.__setattr__(self, "values", vals)
+        for name in ("T_meas_base_ref", "T_flange_tool_ref"):
+            T = np.array(getattr(self, name), dtype=float)
+            T.setflags(write=False)
+            object.__setattr__(self, name, T)
+        object.__setattr__(self, "_index", {p.name: k for k, p in enumerate(self.parameters)})
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_mdh(cls, joints: Sequence[ChainJoint], theta, d, a, alpha, beta=None, u=None, v=None,
+                 T_meas_base_ref=None, T_flange_tool_ref=None, **kwargs) -> "RobotModel":
+        """A model from MDH tables (arrays of length n; ``beta`` may hold NaN where a joint has no
+        beta parameter, or be None for none), and optional u, v (6 each, Eq. 3 order)."""
+        n = len(joints)
+        beta = np.full(n, np.nan) if beta is None else np.asarray(beta, float)
+        beta_joints = [i + 1 for i in range(n) if not np.isnan(beta[i])]
+        params = make_parameters(n, beta_joints)
+        vals = np.concatenate([theta, d, a, alpha, beta[~np.isnan(beta)],
+                               np.zeros(6) if u is None else u, np.zeros(6) if v is None else v])
+        return cls(joints=tuple(joints), parameters=params, values=vals,
+                   T_meas_base_ref=np.eye(4) if T_meas_base_ref is None else T_meas_base_ref,
+                   T_flange_tool_ref=np.eye(4) if T_flange_tool_ref is None else T_flange_tool_ref,
+                   **kwargs)
+
+    def with_values(self, values: np.ndarray) -> "RobotModel":
+        """A copy of this model with other parameter values (full vector, same order)."""
+        return replace(self, values=np.asarray(values, float))
+
+    def with_changes(self, **deltas: float) -> "RobotModel":
+        """A copy with parameter values changed by the given amounts: ``with_changes(d2=1e-4)``."""
+        vals = self.values.copy()
+        for name, delta in deltas.items():
+            vals[self.index(name)] += delta
+        return self.with_values(vals)
+
+    # ------------------------------------------------------------------ lookup
+    @property
+    def n_joints(self) -> int:
+        return len(self.joints)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.parameters)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.parameters)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(j.name for j in self.joints)
+
+    @property
+    def lower(self) -> np.ndarray:
+        """(n,) lower joint limits (rad or m)."""
+        return np.array([j.lower for j in self.joints])
+
+    @property
+    def upper(self) -> np.ndarray:
+        """(n,) upper joint limits (rad or m)."""
+        return np.array([j.upper for j in self.joints])
+
+    @property
+    def prismatic(self) -> np.ndarray:
+        """(n,) bool: which joints are prismatic."""
+        return np.array([j.is_prismatic for j in self.joints])
+
+    def index(self, name: str) -> int:
+        """Position of the parameter ``name`` in :attr:`values`."""
+        try:
+            return self._index[name]
+        except KeyError:
+            raise ParameterError(f"unknown parameter {name!r}; known: {', '.join(self.names)}") from None
+
+    def indices(self, names: Iterable[str]) -> np.ndarray:
+        return np.array([self.index(n) for n in names], dtype=int)
+
+    def value(self, name: str) -> float:
+        return float(self.values[self.index(name)])
+
+    def has_beta(self, joint: int) -> bool:
+        return f"beta{joint}" in self._index
+
+    def mdh_table(self) -> dict[str, np.ndarray]:
+        """Arrays theta, d, a, alpha, beta (NaN where absent), each (n,), SI units."""
+        n = self.n_joints
+        table = {k: np.array([self.value(f"{k}{i}") for i in range(1, n + 1)])
+                 for k in ("theta", "d", "a", "alpha")}
+        table["beta"] = np.array([self.value(f"beta{i}") if self.has_beta(i) else np.nan
+                                  for i in range(1, n + 1)])
+        return table
+
+    def u(self) -> np.ndarray:
+        """(6,) u = (x, y, z, alpha, beta, gamma), metres / radians."""
+        return self.values[self.indices([f"u_{k}" for k in _FRAME_KINDS])]
+
+    def v(self) -> np.ndarray:
+        """(6,) v = (x', y', z', alpha', beta', gamma'), metres / radians."""
+        return self.values[self.indices([f"v_{k}" for k in _FRAME_KINDS])]
+
+    # ------------------------------------------------------------------ kinematics (reference)
+    def T_meas_base(self) -> np.ndarray:
+        """(4, 4) pose of MDH frame 0 (base) in the meas frame."""
+        return self.T_meas_base_ref @ zyx_transform(*self.u())
+
+    def T_flange_tool(self) -> np.ndarray:
+        """(4, 4) pose of the tool frame in MDH frame n (flange)."""
+        return zyx_transform(*self.v()) @ self.T_flange_tool_ref
+
+    def T_base_flange(self, q: np.ndarray) -> np.ndarray:
+        """(4, 4) pose of the flange in the base frame at one configuration q (n,), rad / m.
+
+        A direct product of Eq. (1) matrices, kept simple on purpose: it is the reference that
+        the Pinocchio-based batch kinematics (:mod:`calib.kinematics`) is tested against.
+        """
+        t = self.mdh_table()
+        T = np.eye(4)
+        for i, joint in enumerate(self.joints):
+            beta = 0.0 if np.isnan(t["beta"][i]) else t["beta"][i]
+            if joint.is_prismatic:
+                T = T @ link_transform(t["theta"][i], t["d"][i] + q[i], t["a"][i], t["alpha"][i], beta)
+            else:
+                T = T @ link_transform(t["theta"][i] + q[i], t["d"][i], t["a"][i], t["alpha"][i], beta)
+        return T
+
+    def T_meas_tool(self, q: np.ndarray) -> np.ndarray:
+        """(4, 4) pose of the tool in the meas frame at one configuration q (n,)."""
+        return self.T_meas_base() @ self.T_base_flange(q) @ self.T_flange_tool()
+
+    def random_configurations(self, n: int, rng: np.random.Generator | int | None = None,
+                              unlimited_range: float = math.pi) -> np.ndarray:
+        """(n, n_joints) configurations uniform within the joint limits (radians / metres).
+
+        Unlimited (continuous) joints are drawn in [-unlimited_range, unlimited_range].
+        """
+        rng = np.random.default_rng(rng)
+        lo = np.where(np.isfinite(self.lower), self.lower, -unlimited_range)
+        hi = np.where(np.isfinite(self.upper), self.upper, unlimited_range)
+        return rng.uniform(lo, hi, size=(n, self.n_joints))
+
+    def describe(self) -> str:
+        """A human-readable table of the MDH parameters (mm, rad) and the two frame transforms."""
+        t = self.mdh_table()
+        lines = [f"{'joint':<16}{'type':<11}{'theta/rad':>11}{'d/mm':>11}{'a/mm':>11}"
+                 f"{'alpha/rad':>11}{'beta/rad':>11}"]
+        for i, j in enumerate(self.joints):
+            beta = "/" if np.isnan(t["beta"][i]) else f"{t['beta'][i]:.6g}"
+            lines.append(f"{j.name:<16}{j.kind:<11}{t['theta'][i]:>11.6g}{t['d'][i] * 1e3:>11.6g}"
+                         f"{t['a'][i] * 1e3:>11.6g}{t['alpha'][i]:>11.6g}{beta:>11}")
+        for label, T in (("meas->base", self.T_meas_base()), ("flange->tool", self.T_flange_tool())):
+            x = zyx_parameters(T)
+            lines.append(f"{label:<14} x,y,z/mm = {x[0] * 1e3:.6g}, {x[1] * 1e3:.6g}, {x[2] * 1e3:.6g};"
+                         f"  alpha,beta,gamma/rad = {x[3]:.6g}, {x[4]:.6g}, {x[5]:.6g}")
+        return "\n".join(lines)
+
+
+# ====================================================================== URDF reading
+@dataclass(frozen=True)
+class UrdfChain:
+    """A serial chain found in a URDF, with the Pinocchio model of the whole file.
+
+    ``model`` is Pinocchio's model of the URDF; ``joint_ids`` the Pinocchio ids of the chain's
+    moving joints (base to tool); ``base_frame_id``/``tool_frame_id`` Pinocchio frame ids.
+    """
+
+    path: Path
+    model: pin.Model
+    joints: tuple[ChainJoint, ...]
+    joint_ids: tuple[int, ...]
+    base_frame: str
+    tool_frame: str
+    base_frame_id: int
+    tool_frame_id: int
+
+    def configuration(self, q: np.ndarray) -> np.ndarray:
+        """Pinocchio configuration of the whole URDF model for chain joint values q (n,).
+
+        Joints off the chain stay at their neutral value; continuous joints take (cos, sin).
+        """
+        qf = pin.neutral(self.model)
+        for k, jid in enumerate(self.joint_ids):
+            jm = self.model.joints[jid]
+            if jm.nq == 2:
+                qf[jm.idx_q], qf[jm.idx_q + 1] = math.cos(q[k]), math.sin(q[k])
+            else:
+                qf[jm.idx_q] = q[k]
+        return qf
+
+    def T_meas_tool(self, Q: np.ndarray) -> np.ndarray:
+        """(N, 4, 4) pose of the tool frame in the base (meas) frame by Pinocchio, for Q (N, n)."""
+        data = self.model.createData()
+        out = np.empty((len(Q), 4, 4))
+        for k, q in enumerate(np.atleast_2d(Q)):
+            pin.framesForwardKinematics(self.model, data, self.configuration(q))
+            out[k] = (data.oMf[self.base_frame_id].actInv(data.oMf[self.tool_frame_id])).homogeneous
+        return out
+
+
+def _parse_urdf_xml(path: Path) -> ET.Element:
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise URDFError(path, "file not found") from None
+    except IsADirectoryError:
+        raise URDFError(path, "is a directory, expected a URDF file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise URDFError(path, f"cannot be read: {exc}") from None
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        line, col = exc.position
+        raise URDFError(path, f"malformed XML at line {line}, column {col + 1}: "
+                              f"{str(exc).split(':')[0]}") from None
+    if root.tag != "robot":
+        raise URDFError(path, f"root element is <{root.tag}>, expected <robot>")
+    if root.find("link") is None:
+        raise URDFError(path, "has no <link> element")
+    return root
+
+
+def _urdf_structure(path: Path, root: ET.Element):
+    """Joint records (name, type, parent, child, mimic) and the root link, checked for sanity."""
+    links = [l.get("name") for l in root.findall("link")]
+    joints = {}
+    for j in root.findall("joint"):
+        name, jtype = j.get("name"), j.get("type")
+        parent, child = j.find("parent"), j.find("child")
+        if name is None or jtype is None or parent is None or child is None:
+            raise URDFError(path, f"joint {name!r} lacks a name, type, <parent> or <child>")
+        joints[name] = dict(type=jtype, parent=parent.get("link"), child=child.get("link"),
+                            mimic=j.find("mimic") is not None, element=j)
+    children = {c["child"] for c in joints.values()}
+    roots = [l for l in links if l not in children]
+    if len(roots) != 1:
+        raise URDFError(path, f"expected one root link, found {len(roots)}: {roots}")
+    return joints, roots[0]
+
+
+def _default_tool_frame(joints: dict, root_link: str) -> str:
+    """Follow the tree from the root while it does not branch (or only one branch moves)."""
+    children: dict[str, list[str]] = {}
+    for name, j in joints.items():
+        children.setdefault(j["parent"], []).append(name)
+
+    def moves(link: str) -> bool:
+        return any(joints[j]["type"] != "fixed" or moves(joints[j]["child"])
+                   for j in children.get(link, []))
+
+    link = root_link
+    while children.get(link):
+        kids = children[link]
+        if len(kids) > 1:
+            kids = [j for j in kids if joints[j]["type"] != "fixed" or moves(joints[j]["child"])]
+            if len(kids) != 1:
+                break
+        link = joints[kids[0]]["child"]
+    return link
+
+
+def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
+                    tool_frame: str | None = None) -> UrdfChain:
+    """Read a URDF and find the serial chain of moving joints between two of its frames.
+
+    ``base_frame`` defaults to the root link; ``tool_frame`` to the last link reached from the
+    root before the tree branches into several moving branches. Frames may be link or joint names.
+    Raises :class:`URDFError`, :class:`FrameNotFound` or :class:`ChainError`.
+    """
+    path = Path(urdf_path)
+    xml_root = _parse_urdf_xml(path)
+    joints_xml, root_link = _urdf_structure(path, xml_root)
+    try:
+        model = pin.buildModelFromUrdf(str(path))
+    except (RuntimeError, ValueError) as exc:
+        msg = " ".join(str(exc).split())
+        raise URDFError(path, f"Pinocchio cannot build a model: {msg}") from None
+
+    base_frame = base_frame or root_link
+    tool_frame = tool_frame or _default_tool_frame(joints_xml, root_link)
+    frame_names = [f.name for f in model.frames]
+    available = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
+    ids = {}
+    for role, name in (("base", base_frame), ("tool", tool_frame)):
+        if name not in frame_names:
+            raise FrameNotFound(name, available, path)
+        # prefer the body (link) frame when a joint of the same name exists
+        cands = [k for k, f in enumerate(model.frames) if f.name == name]
+        ids[role] = next((k for k in cands if model.frames[k].type == pin.FrameType.BODY), cands[0])
+
+    base_joint = model.frames[ids["base"]].parentJoint
+    tool_joint = model.frames[ids["tool"]].parentJoint
+    chain = []
+    j = tool_joint
+    while j != base_joint:
+        if j == 0:
+            raise ChainError(path, f"base frame {base_frame!r} and tool frame {tool_frame!r} are not "
+                                   f"on one serial chain: {base_frame!r} is not between the root "
+                                   f"and {tool_frame!r}")
+        chain.append(j)
+        j = model.parents[j]
+    chain.reverse()
+    if not chain:
+        raise ChainError(path, f"no moving joint between base frame {base_frame!r} and tool frame "
+                               f"{tool_frame!r}")
+
+    cj = []
+    for jid in chain:
+        name = model.names[jid]
+        rec = joints_xml.get(name)
+        jtype = rec["type"] if rec else model.joints[jid].shortname()
+        if rec is not None and rec["mimic"]:
+            raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} is a "
+                                   f"mimic joint: unsupported (it has no independent value)")
+        if jtype not in JOINT_KINDS or model.joints[jid].nv != 1:
+            raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} is of "
+                                   f"type {jtype!r}: unsupported (supported: revolute, continuous, "
+                                   f"prismatic)")
+        if jtype == "continuous":
+            lo, hi = -math.inf, math.inf
+        else:
+            jm = model.joints[jid]
+            lo, hi = float(model.lowerPositionLimit[jm.idx_q]), float(model.upperPositionLimit[jm.idx_q])
+            lim = rec["element"].find("limit") if rec else None
+            if lim is None or (lim.get("lower") is None and lim.get("upper") is None):
+                lo, hi = -math.inf, math.inf
+        cj.append(ChainJoint(name, jtype, lo, hi))
+    return UrdfChain(path=path, model=model, joints=tuple(cj), joint_ids=tuple(chain),
+                     base_frame=base_frame, tool_frame=tool_frame,
+                     base_frame_id=ids["base"], tool_frame_id=ids["tool"])
+
+
+def chain_axes(chain: UrdfChain) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Joint axes of a URDF chain at q = 0, in the base (meas) frame.
+
+    Returns (points (n, 3), directions (n, 3), T_meas_tool (4, 4)), from Pinocchio's joint
+    Jacobians: a joint's twist gives its axis direction and, for a revolute joint, a point on it.
+    """
+    model = chain.model
+    data = model.createData()
+    q0 = chain.configuration(np.zeros(len(chain.joints)))
+    pin.computeJointJacobians(model, data, q0)
+    pin.updateFramePlacements(model, data)
+    oMb = data.oMf[chain.base_frame_id]
+    pts, dirs = [], []
+    for jid, joint in zip(chain.joint_ids, chain.joints):
+        col = pin.getJointJacobian(model, data, jid, pin.WORLD)[:, model.joints[jid].idx_v]
+        v, w = col[:3], col[3:]
+        if joint.is_prismatic:
+            direction, point = v, data.oMi[jid].translation
+        else:
+            direction, point = w, np.cross(w, v) / (w @ w)
+        pts.append(oMb.actInv(point))
+        dirs.append(oMb.rotation.T @ direction / np.linalg.norm(direction))
+    T_meas_tool = oMb.actInv(data.oMf[chain.tool_frame_id]).homogeneous
+    return np.array(pts), np.array(dirs), T_meas_tool
+
+
+def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame: str | None = None,
+               parallel_threshold: float = PARALLEL_THRESHOLD_RAD) -> RobotModel:
+    """Load a serial arm from a URDF and derive its TM-MDH model.
+
+    Parameters
+    ----------
+    urdf_path : the URDF file.
+    base_frame : URDF frame (link) that plays the measurement frame; default: the root link.
+    tool_frame : URDF frame (link) whose pose is measured; default: the last link before the
+        tree branches (``tool`` for the bundled robot).
+    parallel_threshold : radians; see :data:`calib.mdh.PARALLEL_THRESHOLD_RAD`.
+
+    The model reproduces Pinocchio's forward kinematics of ``tool_frame`` in ``base_frame``
+    exactly (to rounding). Raises :class:`calib.CalibError` subclasses on bad input.
+    """
+    chain = read_urdf_chain(urdf_path, base_frame, tool_frame)
+    pts, dirs, T_meas_tool = chain_axes(chain)
+    geo = derive_mdh(pts, dirs, T_meas_tool, parallel_threshold)
+    return RobotModel.from_mdh(
+        chain.joints, geo.theta, geo.d, geo.a, geo.alpha,
+        beta=np.where(geo.has_beta, geo.beta, np.nan),
+        T_meas_base_ref=geo.T_meas_base_ref, T_flange_tool_ref=geo.T_flange_tool_ref,
+        base_frame=chain.base_frame, tool_frame=chain.tool_frame, urdf_path=chain.path,
+        parallel_threshold=parallel_threshold)
