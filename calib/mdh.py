@@ -42,6 +42,9 @@ from .spatial import elementary, inverse
 #: beyond this angle.
 PARALLEL_THRESHOLD_RAD = 0.1
 
+#: Axes closer to parallel than this always get beta, whatever the threshold: DH is undefined.
+_MIN_PARALLEL_RAD = 1e-9
+
 #: Lengths below this (metres) are treated as zero when choosing directions.
 _EPS_LENGTH = 1e-9
 
@@ -101,7 +104,8 @@ def derive_mdh(axis_points: np.ndarray, axis_dirs: np.ndarray, T_meas_tool: np.n
     axis_dirs : (n, 3) float, unit, in the meas frame: each axis direction (positive joint motion
         is a right-handed rotation about it, or a translation along it).
     T_meas_tool : (4, 4) float: pose of the tool frame in the meas frame at q = 0.
-    parallel_threshold : radians; consecutive axes closer to parallel than this get Hayati's beta.
+    parallel_threshold : radians; consecutive axes closer to parallel than this get Hayati's beta
+        (exactly parallel axes always do).
     """
     n = len(axis_dirs)
     dirs = np.array([_unit(np.asarray(v, float)) for v in axis_dirs])
@@ -123,7 +127,7 @@ def derive_mdh(axis_points: np.ndarray, axis_dirs: np.ndarray, T_meas_tool: np.n
         z_next, p_next = dirs[i + 1], pts[i + 1]
         c = float(np.clip(z @ z_next, -1.0, 1.0))
         line_angle = np.arccos(abs(c))
-        if line_angle < parallel_threshold:
+        if line_angle < max(parallel_threshold, _MIN_PARALLEL_RAD):
             # Hayati: origin where the next axis meets the plane through o normal to z.
             t = ((o - p_next) @ z) / (z_next @ z)
             w = p_next + t * z_next - o
