@@ -31,6 +31,8 @@ def pose_jacobian(kin: ChainKinematics, Q: np.ndarray):
     Returns (R (N, 3, 3), p (N, 3) metres, J (N, 6, n_params)) with J[:, :3] = dp and
     J[:, 3:] = dw, both in the meas frame.
     """
+    if kin.placement_twists is None:
+        kin.set_values(kin.values)
     R, p, reg = kin.tool_poses_and_regressors(Q)
     N, _, n6 = reg.shape
     J = (reg.reshape(N * 6, n6) @ kin.placement_twists).reshape(N, 6, -1)

@@ -81,6 +81,21 @@ def _rotation(axis: int, angle: float) -> np.ndarray:
     return R
 
 
+def _product(factors, values: np.ndarray) -> np.ndarray:
+    """Product of the factors, 4x4."""
+    M = np.eye(4)
+    for f in factors:
+        if f.kind == "const":
+            M = M @ f.const
+            continue
+        k = _AXIS[f.kind[1]]
+        if f.kind[0] == "t":
+            M[:3, 3] += values[f.param] * M[:3, k]
+        else:
+            M[:3, :3] = M[:3, :3] @ _rotation(k, values[f.param])
+    return M
+
+
 def _product_and_twists(factors, values: np.ndarray, n_params: int):
     """Product of the factors (4x4) and the local twist of each parameter (6, n_params).
 
@@ -140,22 +155,24 @@ class ChainKinematics:
         self.data = model.createData()
         self.set_values(robot.values)
 
-    def set_values(self, values: np.ndarray) -> None:
-        """Update the joint and frame placements (and their twists) to parameter ``values``."""
+    def set_values(self, values: np.ndarray, twists: bool = True) -> None:
+        """Update the joint and frame placements to parameter ``values``; with ``twists`` also
+        the placement twists needed by the Jacobian (:attr:`placement_twists`)."""
         values = np.asarray(values, float)
         n = self.n_joints
-        twists = np.zeros((6 * (n + 1), self.n_params))
+        if twists:
+            tw = np.zeros((6 * (n + 1), self.n_params))
         for k, factors in enumerate(self.factors):
-            M, tw = _product_and_twists(factors, values, self.n_params)
-            twists[6 * k:6 * k + 6] = tw
+            if twists:
+                M, tw[6 * k:6 * k + 6] = _product_and_twists(factors, values, self.n_params)
+            else:
+                M = _product(factors, values)
             self.model.jointPlacements[k + 1] = to_se3(M)
         # flange: the tool factors without T(v) and the reference (7 factors); base: the first
         # placement's reference and T(u) (7 factors)
-        F, _ = _product_and_twists(self.factors[n][:-7], values, self.n_params)
-        self.model.frames[self.flange_frame_id].placement = to_se3(F)
-        B, _ = _product_and_twists(self.factors[0][:7], values, self.n_params)
-        self.model.frames[self.base_frame_id].placement = to_se3(B)
-        self.placement_twists = twists
+        self.model.frames[self.flange_frame_id].placement = to_se3(_product(self.factors[n][:-7], values))
+        self.model.frames[self.base_frame_id].placement = to_se3(_product(self.factors[0][:7], values))
+        self.placement_twists = tw if twists else None
         self.values = values.copy()
 
     def _padded(self, Q: np.ndarray) -> np.ndarray:

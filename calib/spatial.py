@@ -85,8 +85,43 @@ def skew(w: np.ndarray) -> np.ndarray:
 
 
 def log3_batch(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors (n, 3), radians, of rotation matrices (n, 3, 3); exact up to pi."""
-    return Rotation.from_matrix(R).as_rotvec()
+    """Rotation vectors (n, 3), radians, of rotation matrices (n, 3, 3).
+
+    Through the unit quaternion (Shepperd's method: the largest of w, x, y, z is computed from
+    the diagonal, the others from it), so it is accurate for every angle up to pi.
+    """
+    R = np.asarray(R, float)
+    m00, m11, m22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
+    tr = m00 + m11 + m22
+    n = len(R)
+    quat = np.empty((n, 4))
+    cand = np.stack([tr, m00, m11, m22], axis=1)
+    k = np.argmax(cand, axis=1)
+    # w largest
+    i = k == 0
+    s = np.sqrt(1.0 + tr[i]) * 2.0
+    quat[i] = np.stack([0.25 * s, (R[i, 2, 1] - R[i, 1, 2]) / s, (R[i, 0, 2] - R[i, 2, 0]) / s,
+                        (R[i, 1, 0] - R[i, 0, 1]) / s], axis=1)
+    i = k == 1
+    s = np.sqrt(1.0 + m00[i] - m11[i] - m22[i]) * 2.0
+    quat[i] = np.stack([(R[i, 2, 1] - R[i, 1, 2]) / s, 0.25 * s, (R[i, 0, 1] + R[i, 1, 0]) / s,
+                        (R[i, 0, 2] + R[i, 2, 0]) / s], axis=1)
+    i = k == 2
+    s = np.sqrt(1.0 + m11[i] - m00[i] - m22[i]) * 2.0
+    quat[i] = np.stack([(R[i, 0, 2] - R[i, 2, 0]) / s, (R[i, 0, 1] + R[i, 1, 0]) / s, 0.25 * s,
+                        (R[i, 1, 2] + R[i, 2, 1]) / s], axis=1)
+    i = k == 3
+    s = np.sqrt(1.0 + m22[i] - m00[i] - m11[i]) * 2.0
+    quat[i] = np.stack([(R[i, 1, 0] - R[i, 0, 1]) / s, (R[i, 0, 2] + R[i, 2, 0]) / s,
+                        (R[i, 1, 2] + R[i, 2, 1]) / s, 0.25 * s], axis=1)
+    quat[quat[:, 0] < 0] *= -1.0
+    v = quat[:, 1:]
+    nv = np.linalg.norm(v, axis=1)
+    angle = 2.0 * np.arctan2(nv, quat[:, 0])
+    # angle / sin(angle / 2), with its limit 2 at zero
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = np.where(nv > 1e-12, angle / np.where(nv > 1e-12, nv, 1.0), 2.0 / quat[:, 0])
+    return v * f[:, None]
 
 
 def left_jacobian_inverse_batch(r: np.ndarray) -> np.ndarray:
