@@ -1,15 +1,33 @@
 """calib: kinematic calibration of serial robots (TM-MDH error model, C-LM identification).
 
-See README.md for the command line; the Python API is re-exported here.
+Python API (SI units everywhere: metres, radians)::
+
+    import calib
+    robot = calib.load_robot("robots/brtirus0707a/brtirus0707a.urdf")
+    meas = calib.read_measurements("measurements.csv", robot)
+    result = calib.calibrate(robot, meas)          # C-LM, identifiable parameter set
+    print(result.format())
+    result.write_urdf("calibrated.urdf")
+    calib.evaluate(result.robot, meas)
+
+See README.md for the command line.
 """
 from .errors import (CalibError, ChainError, DataError, FrameNotFound, MeasurementFormatError,
                      ParameterError, URDFError)
 from .robot import ChainJoint, Parameter, RobotModel, load_robot
 from .jacobian import identification_jacobian
+from .identifiability import IdentifiabilityReport, analyze_identifiability
+from .measurements import Measurements, read_measurements, write_measurements
+from .calibration import AccuracyStats, CalibrationResult, ParameterEstimate, calibrate, evaluate
+from .simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
 
 __all__ = [
     "CalibError", "ChainError", "DataError", "FrameNotFound", "MeasurementFormatError",
     "ParameterError", "URDFError",
     "ChainJoint", "Parameter", "RobotModel", "load_robot",
     "identification_jacobian",
+    "IdentifiabilityReport", "analyze_identifiability",
+    "Measurements", "read_measurements", "write_measurements",
+    "AccuracyStats", "CalibrationResult", "ParameterEstimate", "calibrate", "evaluate",
+    "PAPER_DEVIATIONS", "apply_deviations", "random_deviations", "simulate_measurements",
 ]
