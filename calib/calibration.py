@@ -303,8 +303,9 @@ def select_parameters(robot: RobotModel, params, Q: np.ndarray, measure: str, si
     return "list", tuple(n for n in robot.names if n in names)
 
 
-def _rebase_frames(robot: RobotModel, m: Measurements, notes: list) -> RobotModel:
-    """Move the reference frames to closed-form estimates when the data put them far away."""
+def _rebase_frames(robot: RobotModel, m: Measurements, notes: list, always: bool = False) -> RobotModel:
+    """Move the reference frames to closed-form estimates when the data put them far away
+    (or ``always``)."""
     try:
         X, Y = estimate_frames(robot, m.q, m.position, m.rotation)
     except DataError as exc:
@@ -316,7 +317,7 @@ def _rebase_frames(robot: RobotModel, m: Measurements, notes: list) -> RobotMode
         dT = inverse(T_nom) @ T_est
         dist = float(np.linalg.norm(dT[:3, 3]))
         ang = float(np.linalg.norm(log3_batch(dT[None, :3, :3])[0]))
-        if dist > FRAME_REBASE_M or ang > FRAME_REBASE_RAD:
+        if always or dist > FRAME_REBASE_M or ang > FRAME_REBASE_RAD:
             if label == "measurement->base":
                 out = replace(out, T_meas_base_ref=T_est @ inverse(zyx_transform(*robot.u())))
             else:
@@ -370,7 +371,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "c-lm
     sigma_rot : orientation noise per axis, radians (default 0.002 rad).
     init_frames : "auto" (closed-form estimate of the measurement and tool frames, used when the
         data put them more than 10 mm / 0.02 rad from the nominal ones), True (always use it),
-        False (never).
+        False (never). With the estimate, the reference transforms move to it and u, v keep their
+        nominal values relative to it.
     max_rounds : C-LM rounds at most (LM: ``options.max_iterations``); ``fixed_rounds`` runs
         exactly that many C-LM rounds (see :func:`calib.solvers.cross_lm`).
     validation : extra validation measurements (added to the ``val`` rows).
@@ -395,20 +397,17 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "c-lm
     measure = "pose" if cal.has_orientation else "position"
     notes: list[str] = []
 
-    label, free = select_parameters(robot, params, cal.q, measure, sigma_pos, sigma_rot)
     rows_per_pose = 6 if measure == "pose" else 3
-    rank = len(free) if label != "base" else len(free)
-    if cal.n_poses * rows_per_pose <= rank:
+    # the identifiable set needs as many equations as parameters at the very least
+    needed = analyze_identifiability(robot, robot.random_configurations(50, 0), measure=measure).rank
+    if cal.n_poses * rows_per_pose < needed:
         raise DataError(f"{cal.n_poses} calibration poses give {cal.n_poses * rows_per_pose} equations, "
-                        f"fewer than needed for {rank} parameters; measure at least "
-                        f"{rank // rows_per_pose + 1} poses (several times more for accuracy)")
+                        f"fewer than the {needed} identifiable parameters need; measure at least "
+                        f"{-(-needed // rows_per_pose)} poses (several times more for accuracy)")
 
-    start = robot
-    if init_frames:
-        if init_frames == "auto":
-            start = _rebase_frames(robot, cal, notes)
-        else:
-            start = _rebase_frames(replace(robot), cal, notes)  # same rule; "True" documented as always
+    start = _rebase_frames(robot, cal, notes, always=init_frames is True) if init_frames else robot
+    # after the frame estimate: where the tool point lies decides what positions can identify
+    label, free = select_parameters(start, params, cal.q, measure, sigma_pos, sigma_rot)
     kin = ChainKinematics(start)
     free_idx = start.indices(free)
     problem = Problem(kin, cal.q, cal.position, cal.rotation, start.values, free_idx, sigma_pos, sigma_rot)
