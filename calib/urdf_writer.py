@@ -46,7 +46,6 @@ Origins that do not change (to 1e-13 m / rad) keep their original text.
 from __future__ import annotations
 
 import copy
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -166,7 +165,6 @@ class _Joint:
     kind: str
     parent: str
     child: str
-    element: etree._Element
 
 
 class _UrdfDocument:
@@ -182,7 +180,7 @@ class _UrdfDocument:
         for el in root.findall("joint"):
             parent, child = el.find("parent"), el.find("child")
             self.joints[el.get("name")] = _Joint(el.get("name"), el.get("type"), parent.get("link"),
-                                                 child.get("link"), el)
+                                                 child.get("link"))
         self.parent_joint = {j.child: j for j in self.joints.values()}
         roots = [l for l in self.links if l not in self.parent_joint]
         self.root_link = roots[0]
@@ -224,13 +222,6 @@ class _UrdfDocument:
                 raise ChainError(self.path, f"joint {j.name!r} of type {j.kind!r} lies between links "
                                             f"{start!r} and {end!r} where a fixed joint was expected")
         return path
-
-    def unique_name(self, wanted: str, taken) -> str:
-        name, k = wanted, 1
-        while name in taken:
-            name = f"{wanted}_calibrated" if k == 1 else f"{wanted}_calibrated{k}"
-            k += 1
-        return name
 
     def render(self, plan: "_Plan") -> str:
         """The output document as text: ``plan`` applied to a copy of the input tree."""
@@ -275,6 +266,15 @@ def _serialize(tree: etree._ElementTree) -> str:
     return "\n".join(parts) + "\n"
 
 
+def _unique_name(wanted: str, taken) -> str:
+    """``wanted``, or ``wanted_calibrated`` (``..._calibrated2``, ...) if that name is taken."""
+    name, k = wanted, 1
+    while name in taken:
+        name = f"{wanted}_calibrated" if k == 1 else f"{wanted}_calibrated{k}"
+        k += 1
+    return name
+
+
 def _child_indent(root: etree._Element) -> str:
     """The whitespace before the children of ``root`` ("\\n  " if none can be seen)."""
     if root.text is not None and root.text.strip() == "" and "\n" in root.text:
@@ -289,38 +289,19 @@ def _fmt(x: float) -> str:
     return repr(float(x))
 
 
-def _rpy_from_matrix(R: np.ndarray) -> np.ndarray:
-    """URDF roll, pitch, yaw (R = Rz(yaw) Ry(pitch) Rx(roll)) of a rotation matrix.
-
-    Yaw is taken from the first column, then removed; pitch and roll come from what is left.
-    The rebuilt matrix matches R to rounding even near pitch = +-pi/2, where yaw and roll are
-    individually ill-conditioned.
-    """
-    yaw = math.atan2(R[1, 0], R[0, 0])
-    c, s = math.cos(yaw), math.sin(yaw)
-    Rz_T = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    Rp = Rz_T @ R          # = Ry(pitch) Rx(roll)
-    pitch = math.atan2(-Rp[2, 0], Rp[0, 0])
-    roll = math.atan2(-Rp[1, 2], Rp[1, 1])
-    return np.array([roll, pitch, yaw])
-
-
 def _origin_attrib(T: np.ndarray) -> dict[str, str]:
     return {"xyz": " ".join(_fmt(v) for v in T[:3, 3]),
-            "rpy": " ".join(_fmt(v) for v in _rpy_from_matrix(T[:3, :3]))}
+            "rpy": " ".join(_fmt(v) for v in pin.rpy.matrixToRpy(T[:3, :3]))}   # URDF's convention
 
 
 def _set_origin(joint: etree._Element, T: np.ndarray, indent: str) -> None:
     origin = joint.find("origin")
     attrib = _origin_attrib(T)
-    if origin is None:
-        origin = etree.SubElement(joint, "origin")
-        # place it after <child>, indented like its siblings
+    if origin is None:            # no <origin> (identity): add one after <child>
+        origin = etree.Element("origin")
         child = joint.find("child")
-        joint.remove(origin)
-        joint.insert(list(joint).index(child) + 1, origin)
-        origin.tail = child.tail
-        child.tail = indent
+        child.addnext(origin)
+        origin.tail, child.tail = child.tail, indent
     origin.set("xyz", attrib["xyz"])
     origin.set("rpy", attrib["rpy"])
 
@@ -360,18 +341,19 @@ def _mdh_poses(robot: RobotModel) -> dict:
             "base": kin.data.oMf[kin.base_frame_id].homogeneous}
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Plan:
-    """What to change: new origins (joint name -> 4x4) and the links to add."""
+    """What to change in the document: new joint origins (joint name -> 4x4 ``T_parent_child``
+    at q = 0) and the links to add (with their fixed joints)."""
 
+    source: str
     origins: dict
     new_root: tuple | None = None      # (link, joint, T_link_oldroot)
     new_tool: tuple | None = None      # (link, joint, parent link, T_parent_link)
-    source: str = ""
 
     def summary(self) -> str:
-        parts = [f"Kinematics calibrated by calib from {self.source}."]
-        parts.append("Recomputed joint origins: " + (", ".join(self.origins) or "none") + ".")
+        parts = [f"Kinematics calibrated by calib from {self.source}.",
+                 "Recomputed joint origins: " + (", ".join(self.origins) or "none") + "."]
         if self.new_root is not None:
             parts.append(f"Added root link {self.new_root[0]!r} (the measurement frame) "
                          f"with fixed joint {self.new_root[1]!r}.")
@@ -381,6 +363,7 @@ class _Plan:
 
 
 def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocument) -> _Plan:
+    """The new origins, from the nominal URDF poses and the two models' MDH frames at q = 0."""
     model = chain.model
     data = model.createData()
     pin.framesForwardKinematics(model, data, chain.configuration(np.zeros(robot.n_joints)))
@@ -396,7 +379,7 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
     tool_link = doc.link_of_frame(robot.tool_frame)
     chain_joints = [doc.joints[j.name] for j in robot.joints]
     origins: dict[str, np.ndarray] = {}
-    plan = _Plan(origins=origins, source=doc.path.name)
+    new_root = new_tool = None
 
     # ---- base side: the robot base moves by K relative to the meas frame
     K = robot.T_meas_base() @ inverse(nominal.T_meas_base())
@@ -407,9 +390,8 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
         O = inverse(T_nom(j.parent)) @ T_nom(j.child)
         origins[j.name] = K @ O if down else O @ inverse(K)
     elif base_link == doc.root_link:
-        link = doc.unique_name("meas", set(doc.links))
-        joint = doc.unique_name(f"{link}_to_{base_link}", set(doc.joints))
-        plan.new_root = (link, joint, K)
+        link = _unique_name("meas", set(doc.links))
+        new_root = (link, _unique_name(f"{link}_to_{base_link}", set(doc.joints)), K)
     else:
         raise ChainError(doc.path, f"base frame {robot.base_frame!r} is the parent link of the first "
                                    f"joint {chain_joints[0].name!r} and not the root link: there is "
@@ -425,33 +407,29 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
         W_L = cal["X"][i] @ C
         if i == 0:
             W_P = W_P1
-        else:
-            prev = chain_joints[i - 1].child
-            W_P = W_prev @ inverse(T_nom(prev)) @ T_nom(j.parent)
+        else:   # P_i rides on L_{i-1} with its nominal offset
+            W_P = W_prev @ inverse(T_nom(chain_joints[i - 1].child)) @ T_nom(j.parent)
         origins[j.name] = inverse(W_P) @ W_L
         W_prev = W_L
-    W_Ln = W_prev
-    Ln = chain_joints[-1].child
+    W_Ln, Ln = W_prev, chain_joints[-1].child
 
-    # ---- tool side
+    # ---- tool side; links between L_n and the tool ride on the MDH flange
     tool_cal = cal["tool"]
-    flange_change = cal["flange"] @ inverse(nom["flange"])   # applied to links riding on the flange
+    flange_motion = cal["flange"] @ inverse(nom["flange"])   # in meas coordinates
     path = doc.fixed_path(Ln, tool_link)
     if not path:
-        link = doc.unique_name("tool", set(doc.links))
-        joint = doc.unique_name(f"{Ln}_to_{link}", set(doc.joints))
-        plan.new_tool = (link, joint, Ln, inverse(W_Ln) @ tool_cal)
+        link = _unique_name("tool", set(doc.links))
+        new_tool = (link, _unique_name(f"{Ln}_to_{link}", set(doc.joints)), Ln, inverse(W_Ln) @ tool_cal)
     elif len(path) == 1:
         origins[path[0][0].name] = inverse(W_Ln) @ tool_cal
     else:
         first, last = path[0][0], path[-1][0]
-        origins[first.name] = inverse(W_Ln) @ flange_change @ T_nom(first.child)
-        origins[last.name] = inverse(flange_change @ T_nom(last.parent)) @ tool_cal
+        origins[first.name] = inverse(W_Ln) @ flange_motion @ T_nom(first.child)
+        origins[last.name] = inverse(flange_motion @ T_nom(last.parent)) @ tool_cal
 
     # keep the text of origins that do not change
     for name in list(origins):
         j = doc.joints[name]
-        O_nom = inverse(T_nom(j.parent)) @ T_nom(j.child)
-        if np.abs(origins[name] - O_nom).max() < _UNCHANGED_TOL:
+        if np.abs(origins[name] - inverse(T_nom(j.parent)) @ T_nom(j.child)).max() < _UNCHANGED_TOL:
             del origins[name]
-    return plan
+    return _Plan(source=doc.path.name, origins=origins, new_root=new_root, new_tool=new_tool)
