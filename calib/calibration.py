@@ -399,7 +399,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "c-lm
 
     rows_per_pose = 6 if measure == "pose" else 3
     # the identifiable set needs as many equations as parameters at the very least
-    needed = analyze_identifiability(robot, robot.random_configurations(50, 0), measure=measure).rank
+    needed = 0
+    if cal.n_poses * rows_per_pose < robot.n_params:
+        needed = analyze_identifiability(robot, robot.random_configurations(50, 0), measure=measure).rank
     if cal.n_poses * rows_per_pose < needed:
         raise DataError(f"{cal.n_poses} calibration poses give {cal.n_poses * rows_per_pose} equations, "
                         f"fewer than the {needed} identifiable parameters need; measure at least "

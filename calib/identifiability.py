@@ -175,7 +175,8 @@ def select_identifiable(J: np.ndarray, order: Sequence[int], tol: float = RANK_T
 def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, measure: str = "pose",
                             n_poses: int = 100, seed: int | None = 0, tol: float = RANK_TOL,
                             sigma_pos: float = SIGMA_POS_M, sigma_rot: float = SIGMA_ROT_RAD,
-                            priority: Sequence[str] | None = None) -> IdentifiabilityReport:
+                            priority: Sequence[str] | None = None,
+                            max_poses: int | None = 500) -> IdentifiabilityReport:
     """Identifiable parameter set, relations and observability of ``robot``'s parameters.
 
     Parameters
@@ -188,12 +189,17 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
     sigma_pos, sigma_rot : noise for row weighting, metres and radians.
     priority : parameter names in the order in which they should be kept (default: Eq. 23 order);
         names not listed follow in the default order.
+    max_poses : analyse at most this many of the configurations (an evenly spaced subset): which
+        parameters are tied does not depend on the number of poses once there are a few dozen,
+        and the cost grows with it. None for all.
     """
     if measure not in MEASURES:
         raise ValueError(f"measure must be one of {MEASURES}, got {measure!r}")
     if Q is None:
         Q = robot.random_configurations(n_poses, seed)
     Q = np.atleast_2d(np.asarray(Q, float))
+    if max_poses is not None and len(Q) > max_poses:
+        Q = Q[np.linspace(0, len(Q) - 1, max_poses).astype(int)]
     J = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot)
     order = list(robot.indices(priority)) if priority else []
     order += [k for k in range(robot.n_params) if k not in order]

@@ -1,0 +1,621 @@
+"""The ``calib`` command: a thin layer over the Python API, one subcommand per job.
+
+    calib identifiability ROBOT.urdf            which parameters the data can identify
+    calib simulate ROBOT.urdf -o meas.csv       synthetic measurements of a perturbed robot
+    calib calibrate ROBOT.urdf MEAS.csv -o calibrated.urdf
+    calib evaluate ROBOT.urdf MEAS.csv          accuracy of a model against measurements
+
+Exit codes: 0 success; 2 bad input or usage (one line ``calib: error: ...`` on stderr, no
+output file created or changed); 3 ``calibrate`` ran but the fit did not converge (outputs are
+written so that they can be inspected, the status is printed on stderr); 1 is left to Python
+for unexpected internal errors (a bug: the traceback says where).
+
+Outputs are produced in memory first and written only when everything succeeded, each
+atomically (temporary file, then rename); an output path that names an input is refused.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import shlex
+import sys
+import tempfile
+import textwrap
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from . import (CalibError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
+               apply_deviations, calibrate, evaluate, load_robot, random_deviations,
+               read_measurements, simulate_measurements, write_measurements)
+from .calibration import METHODS, format_accuracy_table
+from .fileio import atomic_write_bytes, check_not_input
+
+__all__ = ["main", "main_entry"]
+
+log = logging.getLogger("calib")
+
+PROG = "calib"
+EXIT_OK = 0
+EXIT_INPUT = 2
+EXIT_NOT_CONVERGED = 3
+
+
+# ====================================================================== outputs
+class Outputs:
+    """Output files staged in memory and written together at the end.
+
+    :meth:`add` checks a path at once (not an input, not another output, its folder exists, not
+    a folder itself), so that a bad path fails before any work is done; :meth:`commit` writes
+    every staged file atomically.
+    """
+
+    def __init__(self, inputs: Sequence[str | Path | None]):
+        self.inputs = [Path(p) for p in inputs if p is not None]
+        self.paths: list[Path] = []
+        self.data: dict[Path, bytes] = {}
+        self.folders: list[Path] = []
+
+    def add(self, path: str | Path, *, make_folder: bool = False) -> Path:
+        """Reserve ``path`` as an output; with ``make_folder`` its folder may not exist yet (it
+        is created by :meth:`commit`)."""
+        path = Path(path)
+        check_not_input(path, self.inputs)
+        check_not_input(path, self.paths)
+        if path.is_dir():
+            raise CalibError(f"{path}: is a folder, expected a file name for the output")
+        folder = path.parent
+        if not folder.is_dir():
+            if make_folder and not folder.exists() and folder.parent.is_dir():
+                if folder not in self.folders:
+                    self.folders.append(folder)
+            elif folder.exists():
+                raise CalibError(f"{path}: {folder} is not a folder")
+            else:
+                raise CalibError(f"{path}: folder {folder} does not exist")
+        self.paths.append(path)
+        return path
+
+    def stage(self, path: Path, data: bytes | str) -> None:
+        if path not in self.paths:
+            raise ValueError(f"{path} was not reserved with Outputs.add")
+        self.data[path] = data.encode("utf-8") if isinstance(data, str) else data
+
+    def stage_from_file(self, path: Path, write: Callable[[Path], None]) -> None:
+        """Stage what ``write(temporary_path)`` writes (for API writers that take a path)."""
+        with tempfile.TemporaryDirectory(prefix="calib-") as tmp:
+            target = Path(tmp) / path.name
+            write(target)
+            self.stage(path, target.read_bytes())
+
+    def commit(self) -> None:
+        for folder in self.folders:
+            folder.mkdir(exist_ok=True)
+        for path in self.paths:
+            if path in self.data:
+                atomic_write_bytes(path, self.data[path])
+                log.info("wrote %s (%d bytes)", path, len(self.data[path]))
+
+
+def _json_text(obj) -> str:
+    """Strict JSON (NaN and infinities become null), indented, newline-terminated."""
+    def clean(o):
+        if isinstance(o, float):
+            return o if math.isfinite(o) else None
+        if isinstance(o, dict):
+            return {k: clean(v) for k, v in o.items()}
+        if isinstance(o, (list, tuple)):
+            return [clean(v) for v in o]
+        if isinstance(o, np.generic):
+            return clean(o.item())
+        return o
+    return json.dumps(clean(obj), indent=2, allow_nan=False) + "\n"
+
+
+# ====================================================================== common pieces
+def _load(args):
+    robot = load_robot(args.robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
+    log.info("robot %s: %d joints (%s), base frame %r, tool frame %r, %d parameters",
+             args.robot, robot.n_joints, ", ".join(robot.joint_names), robot.base_frame,
+             robot.tool_frame, robot.n_params)
+    log.debug("nominal model:\n%s", robot.describe())
+    return robot
+
+
+def _read(path, robot):
+    m = read_measurements(path, robot)
+    log.info("read %r", m)
+    return m
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text} must be at least 1")
+    return value
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text} must not be negative")
+    return value
+
+
+def _nonnegative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number >= 0")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _nonnegative(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"{text} must be > 0")
+    return value
+
+
+# ====================================================================== identifiability
+def cmd_identifiability(args) -> int:
+    robot = _load(args)
+    report = analyze_identifiability(robot, measure=args.measure, n_poses=args.poses, seed=args.seed)
+    if args.json:
+        out = {"robot": str(args.robot), "base_frame": robot.base_frame,
+               "tool_frame": robot.tool_frame, "seed": args.seed}
+        out.update(report.to_dict())
+        sys.stdout.write(_json_text(out))
+        return EXIT_OK
+    tied = {r.parameter: r for r in report.unidentifiable}
+    lines = [f"Robot {args.robot}: {robot.n_joints} joints, base frame {robot.base_frame!r}, "
+             f"tool frame {robot.tool_frame!r}; {report.n_poses} random configurations within the "
+             f"joint limits (seed {args.seed})", "",
+             f"{'parameter':<10}{'unit':>5}  {'of':<14}{'identifiable':<13}tied to"]
+    for p in robot.parameters:
+        of = (robot.joints[p.joint - 1].name if p.group == "joint"
+              else {"u": "meas->base", "v": "flange->tool"}[p.group])
+        r = tied.get(p.name)
+        if r is None:
+            status, partners = "yes", ""
+        elif r.partners:
+            status, partners = "no", " ".join(f"{c:+.4g}*{n}" for n, c in r.partners)
+        else:
+            status, partners = "no", f"({r.reason})"
+        lines.append(f"{p.name:<10}{'mm' if p.unit == 'm' else 'rad':>5}  {of:<14}{status:<13}"
+                     f"{partners}".rstrip())
+    lines += ["", report.format(), ""]
+    sys.stdout.write("\n".join(lines))
+    return EXIT_OK
+
+
+# ====================================================================== simulate
+def _deviations(spec: str, robot, rng) -> tuple[dict[str, float], str]:
+    """(deviations in SI units, description) from --deviations."""
+    if spec == "paper":
+        missing = [n for n in PAPER_DEVIATIONS if n not in robot.names]
+        if missing:
+            raise ParameterError(f"--deviations paper: the paper's deviations (Tables 4-5, for the "
+                                 f"BRTIRUS0707A) name parameters this robot does not have: "
+                                 f"{', '.join(missing)}; use --deviations random:SCALE_MM or "
+                                 f"FILE.json")
+        return dict(PAPER_DEVIATIONS), "the paper's Tables 4-5"
+    if spec.startswith("random:"):
+        text = spec[len("random:"):]
+        try:
+            scale_mm = float(text)
+        except ValueError:
+            scale_mm = math.nan
+        if not (math.isfinite(scale_mm) and scale_mm >= 0):
+            raise CalibError(f"--deviations {spec}: expected random:SCALE_MM with SCALE_MM a number "
+                             f">= 0 (millimetres), e.g. random:0.5")
+        return random_deviations(robot, scale_mm * 1e-3, rng), f"random, scale {scale_mm:g} mm"
+    path = Path(spec)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise CalibError(f"{path}: file not found (--deviations takes paper, random:SCALE_MM or a "
+                         f"JSON file)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibError(f"{path}: cannot be read: {exc}") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CalibError(f"{path}: not valid JSON: {exc.msg} at line {exc.lineno}, column "
+                         f"{exc.colno}") from None
+    if not isinstance(data, dict):
+        raise CalibError(f"{path}: expected a JSON object of parameter deviations in SI units, "
+                         f"e.g. {{\"d2\": 0.0001, \"theta3\": -0.002}}")
+    out = {}
+    for key, value in data.items():
+        if key not in robot.names:
+            raise CalibError(f"{path}: key {key!r} is not a parameter of this robot; parameters: "
+                             f"{', '.join(robot.names)}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise CalibError(f"{path}: key {key!r}: {json.dumps(value)} is not a finite number "
+                             f"(deviations are in metres and radians)")
+        out[key] = float(value)
+    return out, str(path)
+
+
+def cmd_simulate(args) -> int:
+    dev_file = None if args.deviations == "paper" or args.deviations.startswith("random:") \
+        else args.deviations
+    outputs = Outputs([args.robot, dev_file])
+    out_csv = outputs.add(args.output)
+    out_truth = outputs.add(args.truth_urdf) if args.truth_urdf else None
+
+    robot = _load(args)
+    rng = np.random.default_rng(args.seed)
+    deviations, described = _deviations(args.deviations, robot, rng)
+    true_robot = apply_deviations(robot, deviations)
+    n_cal, n_val = args.poses, args.val_poses
+    Q = robot.random_configurations(n_cal + n_val, rng)
+    sets = np.array(["cal"] * n_cal + ["val"] * n_val) if n_val else None
+    meas = simulate_measurements(true_robot, Q, sigma_pos=args.sigma_pos_mm * 1e-3,
+                                 sigma_rot=args.sigma_rot_rad, position_only=args.position_only,
+                                 rng=rng, sets=sets)
+    command = " ".join(shlex.quote(a) for a in ["calib", *args.argv])
+    comment = (f"Simulated by: {command}\n"
+               f"True model: {args.robot} with deviations from {described}; noise sigma_pos "
+               f"{args.sigma_pos_mm:g} mm per axis"
+               + ("" if args.position_only else f", sigma_rot {args.sigma_rot_rad:g} rad per axis")
+               + f"; {n_cal} calibration + {n_val} validation poses")
+    outputs.stage_from_file(out_csv, lambda p: write_measurements(p, meas, comment=comment))
+    if out_truth is not None:
+        from .urdf_writer import write_calibrated_urdf
+
+        outputs.stage_from_file(out_truth, lambda p: write_calibrated_urdf(true_robot, p, nominal=robot))
+    outputs.commit()
+
+    kind = "positions only" if args.position_only else "positions and orientations"
+    lines = [f"Simulated {n_cal} calibration + {n_val} validation poses of {args.robot} "
+             f"({kind}) -> {out_csv}",
+             f"  configurations uniform within the joint limits, seed {args.seed}; noise sigma_pos "
+             f"{args.sigma_pos_mm:g} mm" + ("" if args.position_only else
+                                            f", sigma_rot {args.sigma_rot_rad:g} rad") + " per axis",
+             f"  true model: deviations from {described}" +
+             (f", written to {out_truth}" if out_truth else ""), "",
+             f"{'parameter':<10}{'unit':>5}{'deviation':>14}"]
+    for p in robot.parameters:
+        if p.name in deviations:
+            scale = 1e3 if p.unit == "m" else 1.0
+            lines.append(f"{p.name:<10}{'mm' if p.unit == 'm' else 'rad':>5}"
+                         f"{deviations[p.name] * scale:>14.6g}")
+    sys.stdout.write("\n".join(lines) + "\n")
+    return EXIT_OK
+
+
+# ====================================================================== calibrate
+def cmd_calibrate(args) -> int:
+    outputs = Outputs([args.robot, args.measurements, args.validate])
+    out_urdf = outputs.add(args.output)
+    out_report = outputs.add(args.report) if args.report else None
+    plot_paths = {}
+    if args.plots:
+        from .report import PLOT_FILES
+
+        for name in PLOT_FILES:
+            plot_paths[name] = outputs.add(Path(args.plots) / name, make_folder=True)
+
+    robot = _load(args)
+    meas = _read(args.measurements, robot)
+    validation = _read(args.validate, robot) if args.validate else None
+    result = calibrate(robot, meas, method=args.method, params=args.params,
+                       sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,
+                       validation=validation)
+    log.info("calibration: %s after %d iterations, %.3f s", result.status, result.iterations,
+             result.wall_time)
+
+    outputs.stage_from_file(out_urdf, result.write_urdf)
+    if out_report is not None:
+        report = {"inputs": {"robot": str(args.robot), "measurements": str(args.measurements),
+                             "validation": None if args.validate is None else str(args.validate),
+                             "base_frame": robot.base_frame, "tool_frame": robot.tool_frame},
+                  "calibrated_urdf": str(out_urdf)}
+        report.update(result.to_dict())
+        outputs.stage(out_report, _json_text(report))
+    if plot_paths:
+        from .report import render_plots
+
+        images = render_plots(result, meas, validation)
+        for name, path in plot_paths.items():
+            if name in images:
+                outputs.stage(path, images[name])
+    outputs.commit()
+
+    written = [out_urdf] + ([out_report] if out_report else []) + \
+              [p for p in plot_paths.values() if p in outputs.data]
+    sys.stdout.write(result.format() + "\n\nwrote " + ", ".join(str(p) for p in written) + "\n")
+    if not result.success:
+        sys.stderr.write(f"{PROG}: warning: the calibration did NOT converge (status "
+                         f"{result.status}: {result.message}); the outputs were written for "
+                         f"inspection, do not use them as a calibrated model\n")
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
+
+
+# ====================================================================== evaluate
+def cmd_evaluate(args) -> int:
+    robot = _load(args)
+    meas = _read(args.measurements, robot)
+    rows = [("all rows", evaluate(robot, meas))]
+    if meas.sets is not None:
+        for label, part in (("calibration rows (cal)", meas.calibration()),
+                            ("validation rows (val)", meas.validation())):
+            if part.n_poses:
+                rows.append((label, evaluate(robot, part)))
+    if args.json:
+        keys = {"all rows": "all", "calibration rows (cal)": "cal", "validation rows (val)": "val"}
+        out = {"robot": str(args.robot), "measurements": str(args.measurements),
+               "base_frame": robot.base_frame, "tool_frame": robot.tool_frame}
+        out.update({keys[label]: s.to_dict() for label, s in rows})
+        sys.stdout.write(_json_text(out))
+        return EXIT_OK
+    sys.stdout.write(f"Accuracy of {args.robot} (tool frame {robot.tool_frame!r} in base frame "
+                     f"{robot.base_frame!r}) against {args.measurements}:\n\n"
+                     + format_accuracy_table(rows) + "\n")
+    return EXIT_OK
+
+
+# ====================================================================== parser
+_COMMON_EPILOG = """
+Units: the measurement CSV carries its units in its column names (joint1_deg, x_mm, ...); printed
+positions are in mm, orientations in rad. Exit codes: 0 success, 2 bad input (one-line message on
+stderr, no file written)."""
+
+_IDENT_DESC = """\
+Which TM-MDH parameters of a robot pose (or position) measurements can identify.
+
+Linearises the error model at random configurations uniform within the joint limits, weights
+the rows by the measurement noise (0.02 mm, 0.002 rad), and keeps parameters in the order of
+the paper's Eq. (23) as long as they add rank. Prints each parameter with whether it is
+identifiable and, if not, the identifiable parameters it is tied to (a change of the tied
+parameter acts like the listed multiples of its partners: mm per mm, mm per rad, ...), the rank,
+and the observability indices O1, O3, O4 and the condition number."""
+
+_IDENT_EPILOG = """\
+examples:
+  calib identifiability robots/brtirus0707a/brtirus0707a.urdf
+  calib identifiability robots/brtirus0707a/brtirus0707a.urdf --measure position --json
+""" + _COMMON_EPILOG
+
+_SIM_DESC = """\
+Synthetic measurements of a perturbed ("true") robot, as in Section 4 of the paper.
+
+Draws --poses + --val-poses configurations uniformly within the joint limits, perturbs the
+nominal model by --deviations, and writes the tool poses of the true model (in the base frame
+of the URDF, the meas frame) with Gaussian noise: sigma-pos-mm per axis on positions,
+sigma-rot-rad per axis (a rotation vector in the meas frame) on orientations. The last
+--val-poses rows are marked set=val (held out for validation; they are noisy like the others).
+
+--deviations:
+  paper            the deviations of the paper's Tables 4-5 (for the bundled BRTIRUS0707A)
+  random:SCALE_MM  Gaussian deviations of every parameter: lengths with standard deviation
+                   SCALE_MM mm, angles SCALE_MM/500 rad (moves a point 0.5 m away by as much)
+  FILE.json        a JSON object of deviations in SI units (metres, radians), parameter names
+                   as printed by `calib identifiability`, e.g. {"d2": 0.0001, "theta3": -0.002}"""
+
+_SIM_EPILOG = """\
+examples:
+  calib simulate robots/brtirus0707a/brtirus0707a.urdf -o meas.csv --poses 100 --val-poses 200 \\
+      --deviations paper --seed 1 --truth-urdf true.urdf
+  calib simulate robot.urdf -o meas.csv --deviations random:0.5 --position-only
+""" + _COMMON_EPILOG
+
+_CAL_DESC = """\
+Identify a robot's TM-MDH parameters from measured tool poses and write the calibrated URDF.
+
+Reads the nominal model from ROBOT.urdf and the measurements (CSV, see README.md: joint values
+and the tool pose in the base frame of the URDF, which plays the measurement frame). Rows with
+set=val, and the rows of --validate, are held out for validation. Prints the parameter table
+(nominal, identified, deviation, standard deviation; mm and rad) and the accuracy before and
+after calibration (mean, RMS, max, min of the position error in mm and the orientation error in
+rad, as the paper's Tables 10-11), then writes the calibrated URDF: a copy of ROBOT.urdf with the
+joint origins that carry the kinematics recomputed, so that its forward kinematics equal the
+calibrated model's.
+
+--params:
+  base   the identifiable set at these poses (default): redundant partners held at nominal
+  paper  all but u_z, u_alpha, v_x, v_z, v_alpha, v_gamma (the paper's Section 4.2)
+  all    every parameter, the rank deficiency left to the damping
+  LIST   comma-separated parameter names, e.g. theta2,d2,a2,alpha2,beta2
+
+Exit codes: 0 converged; 3 the fit did not converge (outputs written for inspection, status on
+stderr); 2 bad input (nothing written)."""
+
+_CAL_EPILOG = """\
+examples:
+  calib calibrate robots/brtirus0707a/brtirus0707a.urdf examples/brtirus0707a/measurements.csv \\
+      -o calibrated.urdf --report report.json --plots plots
+  calib calibrate robot.urdf meas.csv -o calibrated.urdf --method lm --params paper \\
+      --sigma-pos-mm 0.05 --validate val.csv
+
+Units: the measurement CSV carries its units in its column names (joint1_deg, x_mm, ...); the
+noise sigmas weight position against orientation residuals (mm and rad per axis)."""
+
+_EVAL_DESC = """\
+Accuracy of a robot model against measurements: mean, RMS, max and min of the tool position
+error (mm) and orientation error (rad, the angle of R_model R_measured^T), over all rows and,
+when the file has a set column, over the cal and val rows apart. Give it the nominal URDF to see
+the error before calibration, the calibrated one to see it after."""
+
+_EVAL_EPILOG = """\
+examples:
+  calib evaluate robots/brtirus0707a/brtirus0707a.urdf examples/brtirus0707a/measurements.csv
+  calib evaluate calibrated.urdf examples/brtirus0707a/measurements.csv --json
+""" + _COMMON_EPILOG
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the description's line breaks; appends "(default: ...)" where there is one."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if "%(default)" not in text and not any(action.default is v for v in (None, False, argparse.SUPPRESS)) \
+                and action.option_strings and not isinstance(action, argparse._VersionAction):
+            text += " (default: %(default)s)"
+        return text
+
+
+def _add_robot(p: argparse.ArgumentParser) -> None:
+    p.add_argument("robot", metavar="ROBOT.urdf", help="URDF of the robot (the nominal model)")
+
+
+def _add_frames(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("frames")
+    g.add_argument("--base-frame", metavar="F", default=None,
+                   help="URDF link (or joint) that plays the measurement frame; the measured poses "
+                        "are in it (default: the root link)")
+    g.add_argument("--tool-frame", metavar="F", default=None,
+                   help="URDF link (or joint) whose pose is measured (default: the last link before "
+                        "the tree branches)")
+
+
+def _add_verbose(p: argparse.ArgumentParser, top: bool) -> None:
+    p.add_argument("-v", "--verbose", action="count", default=0 if top else argparse.SUPPRESS,
+                   help="log progress on stderr (-vv: also the nominal model)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``calib`` command."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        ver = version("calib")
+    except PackageNotFoundError:
+        ver = "unknown"
+    parser = argparse.ArgumentParser(
+        prog=PROG, formatter_class=_Formatter,
+        description="Kinematic calibration of serial robots: TM-MDH error model, C-LM "
+                    "identification (Lao et al. 2023), on Pinocchio.",
+        epilog="Run `calib COMMAND --help` for each command. Exit codes: 0 success, 2 bad input "
+               "(no file written), 3 calibration did not converge.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {ver}")
+    _add_verbose(parser, top=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    p = sub.add_parser("identifiability", help="which parameters the measurements can identify",
+                       description=_IDENT_DESC, epilog=_IDENT_EPILOG, formatter_class=_Formatter)
+    _add_robot(p)
+    p.add_argument("--measure", choices=("pose", "position"), default="pose",
+                   help="what is measured: position and orientation, or position only")
+    p.add_argument("--poses", type=_positive_int, default=100, metavar="N",
+                   help="number of random configurations")
+    p.add_argument("--seed", type=_count, default=0, metavar="S",
+                   help="random seed of the configurations")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object (n_params, rank, identifiable, unidentifiable with "
+                        "tied partners, condition_number, observability, ...)")
+    _add_frames(p)
+    _add_verbose(p, top=False)
+    p.set_defaults(func=cmd_identifiability)
+
+    p = sub.add_parser("simulate", help="synthetic measurements of a perturbed robot",
+                       description=_SIM_DESC, epilog=_SIM_EPILOG, formatter_class=_Formatter)
+    _add_robot(p)
+    p.add_argument("-o", "--output", required=True, metavar="MEAS.csv",
+                   help="measurement CSV to write (degrees and millimetres, quaternion qw..qz)")
+    p.add_argument("--poses", type=_positive_int, default=100, metavar="N",
+                   help="number of calibration poses (set=cal)")
+    p.add_argument("--val-poses", type=_count, default=0, metavar="M",
+                   help="number of validation poses (set=val), after the calibration ones")
+    p.add_argument("--seed", type=_count, default=0, metavar="S",
+                   help="random seed (configurations, random deviations, noise)")
+    p.add_argument("--deviations", default="paper", metavar="paper|random:SCALE_MM|FILE.json",
+                   help="parameter deviations of the true robot (see above)")
+    p.add_argument("--sigma-pos-mm", type=_nonnegative, default=0.02, metavar="S",
+                   help="position noise per axis, mm (0: noise-free)")
+    p.add_argument("--sigma-rot-rad", type=_nonnegative, default=0.002, metavar="S",
+                   help="orientation noise per axis, rad (0: noise-free)")
+    p.add_argument("--position-only", action="store_true",
+                   help="write positions only (no orientation columns)")
+    p.add_argument("--truth-urdf", metavar="TRUE.urdf", default=None,
+                   help="also write the true model as a URDF (a copy of ROBOT.urdf with its joint "
+                        "origins changed)")
+    _add_frames(p)
+    _add_verbose(p, top=False)
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("calibrate", help="identify the parameters, write the calibrated URDF",
+                       description=_CAL_DESC, epilog=_CAL_EPILOG, formatter_class=_Formatter)
+    _add_robot(p)
+    p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: README.md)")
+    p.add_argument("-o", "--output", required=True, metavar="CALIBRATED.urdf",
+                   help="calibrated URDF to write (must differ from ROBOT.urdf)")
+    p.add_argument("--method", choices=METHODS, default="c-lm",
+                   help="C-LM (cross identification of lengths and angles, the paper's) or plain LM")
+    p.add_argument("--params", default="base", metavar="base|paper|all|LIST",
+                   help="which parameters to identify (see above)")
+    p.add_argument("--sigma-pos-mm", type=_positive, default=0.02, metavar="S",
+                   help="position measurement noise per axis, mm (weights the residuals)")
+    p.add_argument("--sigma-rot-rad", type=_positive, default=0.002, metavar="S",
+                   help="orientation measurement noise per axis, rad (weights the residuals)")
+    p.add_argument("--validate", metavar="VAL.csv", default=None,
+                   help="more validation measurements (all rows held out), same format")
+    p.add_argument("--report", metavar="REPORT.json", default=None,
+                   help="write the full result as JSON (lengths in mm, angles in rad): status, "
+                        "before, after, validation, parameters, ...")
+    p.add_argument("--plots", metavar="DIR", default=None,
+                   help="write PNG plots of the per-pose errors before and after and their "
+                        "histograms into DIR (created if missing; its parent must exist)")
+    _add_frames(p)
+    _add_verbose(p, top=False)
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("evaluate", help="accuracy of a model against measurements",
+                       description=_EVAL_DESC, epilog=_EVAL_EPILOG, formatter_class=_Formatter)
+    _add_robot(p)
+    p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: README.md)")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object: n_poses, position_mm and rotation_rad statistics "
+                        "(mean, rms, max, min) for all, cal and val rows")
+    _add_frames(p)
+    _add_verbose(p, top=False)
+    p.set_defaults(func=cmd_evaluate)
+    return parser
+
+
+# ====================================================================== entry points
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``calib`` command with ``argv`` (default ``sys.argv[1:]``); return the exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version (0) and usage errors (2)
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else EXIT_INPUT)
+    args.argv = argv
+
+    handler = None
+    if args.verbose:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter(f"{PROG}: %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.DEBUG if args.verbose > 1 else logging.INFO)
+    try:
+        return args.func(args)
+    except CalibError as exc:
+        message = " ".join(str(exc).split())  # one line, whatever the message holds
+        sys.stderr.write(f"{PROG}: error: {message}\n")
+        return EXIT_INPUT
+    finally:
+        if handler is not None:
+            log.removeHandler(handler)
+            log.setLevel(logging.NOTSET)
+
+
+def main_entry() -> None:
+    """Console-script entry point: ``sys.exit(main())``."""
+    sys.exit(main())
