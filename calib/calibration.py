@@ -110,6 +110,40 @@ def evaluate(robot: RobotModel, measurements: Measurements) -> AccuracyStats:
 
 # ====================================================================== result
 @dataclass(frozen=True)
+class Outlier:
+    """A calibration row left out of the fit: its line in the file, its errors after the fit
+    (metres, radians; rotation NaN for position-only data) and its residual RMS in sigma."""
+
+    row: int
+    position_error: float
+    rotation_error: float
+    sigmas: float
+
+
+def _flag_outliers(model: RobotModel, cal: Measurements, keep: np.ndarray, sigma_pos: float,
+                   sigma_rot: float, k: float, notes: list) -> list[Outlier]:
+    """Rows still kept whose whitened residual RMS per component exceeds k (see calibrate)."""
+    R, p = ChainKinematics(model).frame_poses(cal.q)
+    dp = p - cal.position
+    blocks = [dp / sigma_pos]
+    rot = np.full(cal.n_poses, np.nan)
+    if cal.rotation is not None:
+        dr = log3_batch(R @ np.transpose(cal.rotation, (0, 2, 1)))
+        blocks.append(dr / sigma_rot)
+        rot = np.linalg.norm(dr, axis=1)
+    w = np.concatenate(blocks, axis=1)
+    rms = np.sqrt(np.mean(w ** 2, axis=1))
+    bad = np.flatnonzero(keep & (rms > k))
+    if len(bad) > 0.25 * keep.sum():
+        notes.append(f"{len(bad)} of {int(keep.sum())} rows have residuals above {k:g} sigma: the noise "
+                     f"is larger than sigma_pos / sigma_rot, so no row was removed as an outlier")
+        return []
+    return [Outlier(int(cal.rows[i]), float(np.linalg.norm(dp[i])), float(rot[i]), float(rms[i]))
+            for i in bad]
+
+
+
+@dataclass(frozen=True)
 class ParameterEstimate:
     """One row of the parameter table. Values in SI units (``unit``: m or rad).
 
@@ -170,6 +204,8 @@ class CalibrationResult:
     sigma_pos: float
     sigma_rot: float
     notes: tuple[str, ...] = ()
+    outliers: tuple["Outlier", ...] = ()
+    loss: str = "linear"
 
     @property
     def success(self) -> bool:
@@ -212,6 +248,10 @@ class CalibrationResult:
             "sigma_pos_mm": self.sigma_pos * 1e3,
             "sigma_rot_rad": self.sigma_rot,
             "notes": list(self.notes),
+            "loss": self.loss,
+            "outliers": [{"row": o.row, "position_error_mm": o.position_error * 1e3,
+                          "rotation_error_rad": None if math.isnan(o.rotation_error) else o.rotation_error,
+                          "sigmas": o.sigmas} for o in self.outliers],
             "before": self.before.to_dict(),
             "after": self.after.to_dict(),
             "validation": None if self.validation_after is None else {
@@ -235,6 +275,9 @@ class CalibrationResult:
                  f"reduced chi^2 {self.reduced_chi2:.3g} (1 when sigma_pos = {self.sigma_pos * 1e3:g} mm "
                  f"and sigma_rot = {self.sigma_rot:g} rad match the data)"]
         lines += [f"  note: {n}" for n in self.notes]
+        for o in self.outliers:
+            rot = "" if math.isnan(o.rotation_error) else f", {o.rotation_error:.3g} rad"
+            lines.append(f"  outlier: row {o.row}: {o.position_error * 1e3:.3f} mm{rot} ({o.sigmas:.0f} sigma)")
         lines += ["", f"{'parameter':<10}{'unit':>5}{'nominal':>14}{'identified':>14}{'deviation':>13}{'std':>11}"]
         for p in self.parameters:
             unit = "mm" if p.unit == "m" else "rad"
@@ -357,7 +400,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "c-lm
               params: str | Sequence[str] = "base", sigma_pos: float = SIGMA_POS_M,
               sigma_rot: float = SIGMA_ROT_RAD, *, init_frames: bool | str = "auto",
               max_rounds: int = 20, fixed_rounds: int | None = None, options: LMOptions | None = None,
-              validation: Measurements | None = None) -> CalibrationResult:
+              validation: Measurements | None = None, loss: str = "linear", loss_scale: float = 3.0,
+              outlier_k: float | None = 5.0) -> CalibrationResult:
     """Identify the TM-MDH parameters of ``robot`` from ``measurements``.
 
     Parameters
@@ -376,6 +420,14 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "c-lm
     max_rounds : C-LM rounds at most (LM: ``options.max_iterations``); ``fixed_rounds`` runs
         exactly that many C-LM rounds (see :func:`calib.solvers.cross_lm`).
     validation : extra validation measurements (added to the ``val`` rows).
+    loss : "linear" (least squares, the maximum-likelihood fit for Gaussian noise), or a robust
+        loss on each pose's whitened residual: "huber" or "soft_l1", with ``loss_scale`` in units
+        of sigma (see :func:`calib.solvers.robust_scaling`).
+    outlier_k : after the fit, a calibration row whose residual RMS per component exceeds
+        ``outlier_k`` sigma is flagged, listed in the result (``outliers``) and the fit repeated
+        without it (up to 3 passes). If more than a quarter of the rows exceed it, nothing is
+        removed: the noise is then larger than sigma_pos / sigma_rot, and a note says so.
+        None disables the check.
 
     Returns a :class:`CalibrationResult`; a non-converged or diverged fit is reported in its
     ``status``, never raised. Raises :class:`calib.CalibError` for unusable input.
@@ -412,22 +464,50 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "c-lm
     label, free = select_parameters(start, params, cal.q, measure, sigma_pos, sigma_rot)
     kin = ChainKinematics(start)
     free_idx = start.indices(free)
-    problem = Problem(kin, cal.q, cal.position, cal.rotation, start.values, free_idx, sigma_pos, sigma_rot)
     opts = options or LMOptions()
     trace = LMTrace()
-    x0 = start.values[free_idx]
-    if method == "c-lm" and measure == "pose":
-        angular = np.array([start.parameters[k].is_angular for k in free_idx])
-        x, cost, status, message, rounds = cross_lm(problem, x0, angular, max_rounds=max_rounds,
-                                                    fixed_rounds=fixed_rounds, options=opts, trace=trace)
-    else:
-        if method == "c-lm":
-            notes.append("position-only data: C-LM's rotation step needs orientation; ran LM")
-        x, cost, status, message = levenberg_marquardt(problem, x0, "pose", opts, trace)
-        rounds = 1
-    calibrated = start.with_values(problem.full(x))
+    if method == "c-lm" and measure == "position":
+        notes.append("position-only data: C-LM's rotation step needs orientation; ran LM")
+    keep = np.ones(cal.n_poses, bool)
+    outliers: list[Outlier] = []
+    x = start.values[free_idx]
 
-    r, J = problem.residuals_and_jacobian(x)
+    def solve(x, fit_loss):
+        fit = cal.subset(keep)
+        problem = Problem(kin, fit.q, fit.position, fit.rotation, start.values, free_idx, sigma_pos,
+                          sigma_rot, fit_loss, loss_scale)
+        if method == "c-lm" and measure == "pose":
+            angular = np.array([start.parameters[k].is_angular for k in free_idx])
+            return problem, *cross_lm(problem, x, angular, max_rounds=max_rounds,
+                                      fixed_rounds=fixed_rounds, options=opts, trace=trace)
+        return problem, *levenberg_marquardt(problem, x, "pose", opts, trace), 1
+
+    for _pass in range(4):
+        problem, x, cost, status, message, rounds = solve(x, loss)
+        if outlier_k is None or _pass == 3 or status == "diverged":
+            break
+        new = _flag_outliers(start.with_values(problem.full(x)), cal, keep, sigma_pos, sigma_rot, outlier_k, notes)
+        if new and loss == "linear":
+            # a least-squares fit spreads a gross error over its neighbours: judge the rows
+            # against a robust (Huber) fit instead, then refit by least squares without them
+            problem, x_robust, *_ = solve(x, "huber")
+            new = _flag_outliers(start.with_values(problem.full(x_robust)), cal, keep, sigma_pos,
+                                 sigma_rot, outlier_k, notes)
+            x = x_robust
+        if not new:
+            if problem.loss != loss:  # the robust fit found nothing: back to the requested loss
+                problem, x, cost, status, message, rounds = solve(x, loss)
+            break
+        outliers += new
+        keep[[int(np.flatnonzero(cal.rows == o.row)[0]) for o in new]] = False
+    calibrated = start.with_values(problem.full(x))
+    if outliers:
+        notes.append(f"{len(outliers)} outlier rows removed and the fit repeated without them: rows "
+                     + ", ".join(str(o.row) for o in outliers))
+
+    linear = Problem(kin, problem.Q, problem.p_meas, None, problem.values, free_idx, sigma_pos, sigma_rot)
+    linear.R_meas_T = problem.R_meas_T
+    r, J = linear.residuals_and_jacobian(x)
     cov, full_rank = _covariance(J)
     if not full_rank:
         notes.append("the free parameters are not all identifiable (rank-deficient set): standard "
@@ -450,7 +530,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "c-lm
         va = pose_errors(calibrated, val.q, val.position, val.rotation, kin)
 
     table = _parameter_table(robot, calibrated, free, cov)
-    return CalibrationResult(
+    return CalibrationResult(outliers=tuple(outliers), loss=loss,
         robot=calibrated, nominal=robot, method=method, param_set=label, parameters=table,
         free=free, status=status, message=message, iterations=trace.iterations, rounds=rounds,
         wall_time=time.perf_counter() - t0, cost=float(cost), reduced_chi2=chi2, covariance=cov,

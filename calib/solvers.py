@@ -54,6 +54,9 @@ class LMTrace:
     jacobians: int = 0
 
 
+LOSSES = ("linear", "huber", "soft_l1")
+
+
 class Problem:
     """Weighted residuals of a set of measurements for a chain model, over free parameters.
 
@@ -61,7 +64,12 @@ class Problem:
     values : full parameter vector (start); free : indices of the free parameters.
     """
 
-    def __init__(self, kin: ChainKinematics, Q, p_meas, R_meas, values, free, sigma_pos, sigma_rot):
+    def __init__(self, kin: ChainKinematics, Q, p_meas, R_meas, values, free, sigma_pos, sigma_rot,
+                 loss: str = "linear", loss_scale: float = 3.0):
+        if loss not in LOSSES:
+            raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+        self.loss = loss
+        self.loss_scale = float(loss_scale)
         self.kin = kin
         self.Q = np.asarray(Q, float)
         self.p_meas = np.asarray(p_meas, float)
@@ -102,10 +110,41 @@ class Problem:
             res.append(r / self.sigma_rot)
             if J is not None:
                 jac.append(left_jacobian_inverse_batch(r) @ J[:, 3:] / self.sigma_rot)
-        r = np.concatenate(res, axis=1).reshape(-1)
-        if J is None:
+        r = np.concatenate(res, axis=1)
+        J_all = None if J is None else np.concatenate(jac, axis=1)
+        if self.loss != "linear":
+            r, J_all = robust_scaling(r, J_all, self.loss, self.loss_scale)
+        r = r.reshape(-1)
+        if J_all is None:
             return r, None
-        return r, np.concatenate(jac, axis=1).reshape(len(r), -1)
+        return r, J_all.reshape(len(r), -1)
+
+
+def robust_scaling(r: np.ndarray, J: np.ndarray | None, loss: str, c: float):
+    """Rescale per-pose residual blocks r (N, k) and Jacobian blocks J (N, k, m) for a robust loss.
+
+    With z = |r_i|^2 (the whitened squared residual of pose i) and rho the loss ("huber":
+    z below c^2, 2 c sqrt(z) - c^2 above; "soft_l1": 2 c^2 (sqrt(1 + z / c^2) - 1)), the returned
+    residuals have |r~_i|^2 = rho(z_i), so the LM cost is 1/2 sum rho, and the Jacobian is scaled
+    so that J~^T r~ = sum rho'(z_i) J_i^T r_i, the exact gradient (the Gauss-Newton matrix is
+    approximated, as in iteratively reweighted least squares). c is in units of sigma.
+    """
+    z = np.einsum("nk,nk->n", r, r)
+    if loss == "huber":
+        big = z > c * c
+        sz = np.sqrt(z)
+        rho = np.where(big, 2 * c * sz - c * c, z)
+        drho = np.where(big, c / np.where(big, sz, 1.0), 1.0)
+    else:  # soft_l1
+        t = np.sqrt(1.0 + z / (c * c))
+        rho = 2 * c * c * (t - 1.0)
+        drho = 1.0 / t
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = np.where(z > 0, np.sqrt(rho / np.where(z > 0, z, 1.0)), 1.0)
+    r_out = r * f[:, None]
+    if J is None:
+        return r_out, None
+    return r_out, J * (drho / f)[:, None, None]
 
 
 def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
@@ -186,7 +225,7 @@ def cross_lm(problem: Problem, x0: np.ndarray, angular: np.ndarray, *, max_round
     n_rounds = fixed_rounds or max_rounds
     for rnd in range(1, n_rounds + 1):
         sub = Problem(problem.kin, problem.Q, problem.p_meas, None, problem.full(x), problem.free[ang],
-                      problem.sigma_pos, problem.sigma_rot)
+                      problem.sigma_pos, problem.sigma_rot, problem.loss, problem.loss_scale)
         sub.R_meas_T = problem.R_meas_T
         xa, _, status1, _ = levenberg_marquardt(sub, x[ang], "rotation", options, trace)
         x = x.copy()

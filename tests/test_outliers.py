@@ -1,0 +1,61 @@
+"""Outliers: robust losses and automatic flagging (5% of rows with 1-5 mm gross errors)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import calib
+from calib.measurements import Measurements
+from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+
+
+@pytest.fixture(scope="module")
+def data(bundled_robot):
+    true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
+    rng = np.random.default_rng(5)
+    Q = bundled_robot.random_configurations(100, rng)
+    val = simulate_measurements(true, bundled_robot.random_configurations(200, rng), sigma_pos=0, sigma_rot=0)
+    clean = simulate_measurements(true, Q, rng=6)
+    p = np.array(clean.position)
+    bad = rng.choice(100, 5, replace=False)
+    d = rng.normal(size=(5, 3))
+    p[bad] += d / np.linalg.norm(d, axis=1)[:, None] * rng.uniform(1e-3, 5e-3, (5, 1))
+    dirty = Measurements(q=clean.q, position=p, rotation=clean.rotation, joint_names=clean.joint_names)
+    return bundled_robot, clean, dirty, val, set((bad + 1).tolist())
+
+
+def test_least_squares_alone_is_ruined(data):
+    robot, clean, dirty, val, _ = data
+    ref = calib.calibrate(robot, clean, validation=val, outlier_k=None).validation_after.position["rms"]
+    res = calib.calibrate(robot, dirty, validation=val, outlier_k=None)
+    assert res.validation_after.position["rms"] > 5 * ref
+
+
+@pytest.mark.parametrize("loss", ["linear", "huber", "soft_l1"])
+def test_flagging_finds_the_corrupted_rows(data, loss):
+    robot, clean, dirty, val, bad_rows = data
+    ref = calib.calibrate(robot, clean, validation=val).validation_after.position["rms"]
+    res = calib.calibrate(robot, dirty, validation=val, loss=loss)
+    assert {o.row for o in res.outliers} == bad_rows
+    assert all(o.position_error > 0.9e-3 for o in res.outliers)
+    assert res.validation_after.position["rms"] < 1.2 * ref       # within 20% of the clean fit
+    assert "outlier" in res.format() and res.to_dict()["outliers"][0]["row"] in bad_rows
+
+
+@pytest.mark.parametrize("loss", ["huber", "soft_l1"])
+def test_robust_loss_without_flagging(data, loss):
+    robot, clean, dirty, val, _ = data
+    ref = calib.calibrate(robot, clean, validation=val).validation_after.position["rms"]
+    res = calib.calibrate(robot, dirty, validation=val, loss=loss, outlier_k=None)
+    assert res.validation_after.position["rms"] < 1.5 * ref
+
+
+def test_no_false_alarms_on_clean_data(data):
+    robot, clean, _, val, _ = data
+    assert calib.calibrate(robot, clean).outliers == ()
+
+
+def test_wrong_sigma_removes_nothing(data):
+    robot, clean, _, _, _ = data
+    res = calib.calibrate(robot, clean, sigma_pos=0.002e-3, sigma_rot=0.0002)
+    assert res.outliers == () and any("noise is larger" in n for n in res.notes)
