@@ -28,7 +28,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from . import (CalibError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
+from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
                read_measurements, simulate_measurements, write_measurements)
 from .calibration import METHODS, format_accuracy_table
@@ -266,12 +266,15 @@ def cmd_simulate(args) -> int:
     meas = simulate_measurements(true_robot, Q, sigma_pos=args.sigma_pos_mm * 1e-3,
                                  sigma_rot=args.sigma_rot_rad, position_only=args.position_only,
                                  rng=rng, sets=sets)
+    kind = "positions only" if args.position_only else "positions and orientations"
+    noise = [f"sigma_pos {args.sigma_pos_mm:g} mm"] + \
+        ([] if args.position_only else [f"sigma_rot {args.sigma_rot_rad:g} rad"])
+    noise_text = ("no noise" if args.sigma_pos_mm == 0 and (args.position_only or args.sigma_rot_rad == 0)
+                  else "noise " + ", ".join(noise) + " per axis")
     command = " ".join(shlex.quote(a) for a in ["calib", *args.argv])
     comment = (f"Simulated by: {command}\n"
-               f"True model: {args.robot} with deviations from {described}; noise sigma_pos "
-               f"{args.sigma_pos_mm:g} mm per axis"
-               + ("" if args.position_only else f", sigma_rot {args.sigma_rot_rad:g} rad per axis")
-               + f"; {n_cal} calibration + {n_val} validation poses")
+               f"True model: {args.robot} with deviations from {described}; {noise_text}; "
+               f"{n_cal} calibration + {n_val} validation poses")
     outputs.stage_from_file(out_csv, lambda p: write_measurements(p, meas, comment=comment))
     if out_truth is not None:
         from .urdf_writer import write_calibrated_urdf
@@ -279,12 +282,10 @@ def cmd_simulate(args) -> int:
         outputs.stage_from_file(out_truth, lambda p: write_calibrated_urdf(true_robot, p, nominal=robot))
     outputs.commit()
 
-    kind = "positions only" if args.position_only else "positions and orientations"
-    lines = [f"Simulated {n_cal} calibration + {n_val} validation poses of {args.robot} "
-             f"({kind}) -> {out_csv}",
-             f"  configurations uniform within the joint limits, seed {args.seed}; noise sigma_pos "
-             f"{args.sigma_pos_mm:g} mm" + ("" if args.position_only else
-                                            f", sigma_rot {args.sigma_rot_rad:g} rad") + " per axis",
+    counts = (f"{n_cal} calibration (set=cal) + {n_val} validation (set=val) poses" if n_val
+              else f"{n_cal} poses")
+    lines = [f"Simulated {counts} of {args.robot} ({kind}) -> {out_csv}",
+             f"  configurations uniform within the joint limits, seed {args.seed}; {noise_text}",
              f"  true model: deviations from {described}" +
              (f", written to {out_truth}" if out_truth else ""), "",
              f"{'parameter':<10}{'unit':>5}{'deviation':>14}"]
@@ -312,9 +313,14 @@ def cmd_calibrate(args) -> int:
     robot = _load(args)
     meas = _read(args.measurements, robot)
     validation = _read(args.validate, robot) if args.validate else None
-    result = calibrate(robot, meas, method=args.method, params=args.params,
-                       sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,
-                       validation=validation)
+    try:
+        result = calibrate(robot, meas, method=args.method, params=args.params,
+                           sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,
+                           validation=validation)
+    except DataError as exc:  # about the data as a whole (too few poses): name the file
+        if str(exc).startswith(str(args.measurements)):
+            raise
+        raise DataError(f"{args.measurements}: {exc}") from None
     log.info("calibration: %s after %d iterations, %.3f s", result.status, result.iterations,
              result.wall_time)
 
