@@ -33,6 +33,7 @@ from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_
                read_measurements, simulate_measurements, write_measurements)
 from .calibration import METHODS, format_accuracy_table
 from .fileio import atomic_write_bytes, check_not_input
+from .solvers import LOSSES
 
 __all__ = ["main", "main_entry"]
 
@@ -168,6 +169,12 @@ def _positive(text: str) -> float:
     return value
 
 
+def _outlier_k(text: str) -> float | None:
+    if text.strip().lower() == "off":
+        return None
+    return _positive(text)
+
+
 # ====================================================================== identifiability
 def cmd_identifiability(args) -> int:
     robot = _load(args)
@@ -220,7 +227,9 @@ def _deviations(spec: str, robot, rng) -> tuple[dict[str, float], str]:
         if not (math.isfinite(scale_mm) and scale_mm >= 0):
             raise CalibError(f"--deviations {spec}: expected random:SCALE_MM with SCALE_MM a number "
                              f">= 0 (millimetres), e.g. random:0.5")
-        return random_deviations(robot, scale_mm * 1e-3, rng), f"random, scale {scale_mm:g} mm"
+        return (random_deviations(robot, scale_mm * 1e-3, rng),
+                f"random:{scale_mm:g} (Gaussian, standard deviation {scale_mm:g} mm and "
+                f"{scale_mm * 2e-3:g} rad)")
     path = Path(spec)
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -316,7 +325,7 @@ def cmd_calibrate(args) -> int:
     try:
         result = calibrate(robot, meas, method=args.method, params=args.params,
                            sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,
-                           validation=validation)
+                           validation=validation, loss=args.loss, outlier_k=args.outlier_k)
     except DataError as exc:  # about the data as a whole (too few poses): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
@@ -568,6 +577,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="position measurement noise per axis, mm (weights the residuals)")
     p.add_argument("--sigma-rot-rad", type=_positive, default=0.002, metavar="S",
                    help="orientation measurement noise per axis, rad (weights the residuals)")
+    p.add_argument("--loss", choices=LOSSES, default="linear",
+                   help="linear: least squares (Gaussian noise); huber or soft_l1: robust to "
+                        "outliers, applied to each pose's noise-weighted residual")
+    p.add_argument("--outlier-k", type=_outlier_k, default=5.0, metavar="K|off",
+                   help="after the fit, drop calibration rows whose residual exceeds K sigma and "
+                        "fit again (listed in the report); off disables")
     p.add_argument("--validate", metavar="VAL.csv", default=None,
                    help="more validation measurements (all rows held out), same format")
     p.add_argument("--report", metavar="REPORT.json", default=None,

@@ -72,7 +72,8 @@ def test_simulate_writes_noisy_measurements_of_the_true_model(job, bundled_robot
     d, res = job
     code, out, err = res["sim_cal"]
     assert (code, err) == (0, "")
-    assert "100 calibration + 0 validation poses" in out
+    assert "Simulated 100 poses of " in out and "seed 1; noise sigma_pos 0.02 mm, sigma_rot 0.002 rad" in out
+    assert (d / "cal.csv").read_text().startswith("# Simulated by: calib simulate ")
     true_robot = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
     meas = calib.read_measurements(d / "cal.csv", bundled_robot)
     assert meas.n_poses == 100 and meas.has_orientation and meas.sets is None
@@ -487,3 +488,78 @@ def test_not_converged_exits_3_and_still_writes(good_csv, tmp_path, capsys, monk
     assert code == 3 and report["status"] != "converged" and report["success"] is False
     assert err.startswith(f"calib: warning: the calibration did NOT converge (status {report['status']}")
     assert (tmp_path / "out.urdf").stat().st_size > 1000
+
+
+def test_outlier_options_reach_the_fit(good_csv, tmp_path, capsys):
+    """A row 1 mm off is flagged and dropped by default (--outlier-k 5), kept with off."""
+    lines = list(good_csv)
+    row = 10
+    k = _columns(lines).index("x_mm")
+    f = lines[row - 1].split(",")
+    f[k] = repr(float(f[k]) + 1.0)
+    lines[row - 1] = ",".join(f)
+    csv = tmp_path / "m.csv"
+    csv.write_text("\n".join(lines) + "\n")
+    code, out, _ = run(capsys, "calibrate", URDF, csv, "-o", tmp_path / "a.urdf", "--report", tmp_path / "a.json")
+    report = json.loads((tmp_path / "a.json").read_text())
+    assert code == 0 and [o["row"] for o in report["outliers"]] == [row]
+    assert f"outlier: row {row}: " in out
+    code, _, _ = run(capsys, "calibrate", URDF, csv, "-o", tmp_path / "b.urdf", "--report", tmp_path / "b.json",
+                     "--outlier-k", "off", "--loss", "huber")
+    report = json.loads((tmp_path / "b.json").read_text())
+    assert code == 0 and report["outliers"] == [] and report["loss"] == "huber"
+
+
+# ====================================================================== docs and the bundled example
+def _readme_commands(path: Path) -> list[str]:
+    text = path.read_text()
+    blocks = text.split("```sh\n")[1:]
+    return [line for block in blocks for line in block.split("```")[0].splitlines() if line.strip()]
+
+
+def test_readme_opens_with_the_two_setup_commands_and_ci_runs_the_test_one():
+    commands = _readme_commands(ROOT / "README.md")
+    assert commands[0] == ("pip install -e . && calib calibrate robots/brtirus0707a/brtirus0707a.urdf "
+                           "examples/brtirus0707a/measurements.csv -o calibrated.urdf")
+    assert commands[1] == 'pip install -e ".[test]" && python -m pytest -q'
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert ci.startswith("#!/usr/bin/env bash") and "set -euo pipefail" in ci
+    assert '\npip install -e ".[test]"\n' in ci and "python -m pytest -q" in ci
+    assert '"$status" -eq 5' in ci          # "no tests collected" fails CI
+    assert os.access(ROOT / ".ci" / "run", os.X_OK)
+
+
+def test_every_calib_command_in_the_docs_parses():
+    from calib.cli import build_parser
+
+    shown = [c for doc in (ROOT / "README.md", ROOT / "examples" / "README.md")
+             for c in _readme_commands(doc)]
+    calib_commands = [c.split("&& ")[-1] for c in shown if "calib " in c]
+    assert len(calib_commands) >= 12
+    parser = build_parser()
+    import shlex
+    for command in calib_commands:
+        argv = shlex.split(command)
+        assert argv[0] == "calib"
+        parser.parse_args(argv[1:])   # exits (fails the test) on an unknown option
+
+
+def test_bundled_example_is_reproduced_by_its_command(tmp_path):
+    """examples/README.md's command, run again, gives the same data and the same truth URDF."""
+    ex = ROOT / "examples" / "brtirus0707a"
+    first = ex.joinpath("measurements.csv").read_text().splitlines()[0]
+    assert first.startswith("# Simulated by: calib simulate ")
+    argv = first[len("# Simulated by: calib "):].split()
+    argv[argv.index("-o") + 1] = str(tmp_path / "m.csv")
+    argv[argv.index("--truth-urdf") + 1] = str(tmp_path / "t.urdf")
+    old = os.getcwd()
+    os.chdir(ROOT)   # the command names the robot relative to the repository root
+    try:
+        code, _, _ = _run_captured(argv)
+    finally:
+        os.chdir(old)
+    assert code == 0
+    assert (tmp_path / "m.csv").read_text().splitlines()[1:] == \
+        ex.joinpath("measurements.csv").read_text().splitlines()[1:]
+    assert (tmp_path / "t.urdf").read_bytes() == ex.joinpath("true.urdf").read_bytes()
+    assert ex.joinpath("measurements.csv").stat().st_size < 100_000
