@@ -121,8 +121,9 @@ class Outlier:
 
 
 def _flag_outliers(model: RobotModel, cal: Measurements, keep: np.ndarray, sigma_pos: float,
-                   sigma_rot: float, k: float, notes: list) -> list[Outlier]:
-    """Rows still kept whose whitened residual RMS per component exceeds k (see calibrate)."""
+                   sigma_rot: float, k: float) -> tuple[list[Outlier], bool]:
+    """Rows still kept whose whitened residual RMS per component exceeds k (see calibrate), and
+    whether they are too many (more than a quarter of the kept rows) to be outliers."""
     R, p = ChainKinematics(model).frame_poses(cal.q)
     dp = p - cal.position
     blocks = [dp / sigma_pos]
@@ -134,13 +135,9 @@ def _flag_outliers(model: RobotModel, cal: Measurements, keep: np.ndarray, sigma
     w = np.concatenate(blocks, axis=1)
     rms = np.sqrt(np.mean(w ** 2, axis=1))
     bad = np.flatnonzero(keep & (rms > k))
-    if len(bad) > 0.25 * keep.sum():
-        notes.append(f"{len(bad)} of {int(keep.sum())} rows have residuals above {k:g} sigma: the noise "
-                     f"is larger than sigma_pos / sigma_rot, so no row was removed as an outlier")
-        return []
-    return [Outlier(int(cal.rows[i]), float(np.linalg.norm(dp[i])), float(rot[i]), float(rms[i]))
-            for i in bad]
-
+    found = [Outlier(int(cal.rows[i]), float(np.linalg.norm(dp[i])), float(rot[i]), float(rms[i]))
+             for i in bad]
+    return found, len(bad) > 0.25 * keep.sum()
 
 
 @dataclass(frozen=True)
@@ -260,12 +257,13 @@ class CalibrationResult:
                               "rotation_rad": self.predicted.get("rotation_rms")},
             "parameters": [{"name": p.name, "unit": "mm" if p.unit == "m" else "rad",
                             "nominal": _out(p.nominal, p.unit), "identified": _out(p.identified, p.unit),
-                            "deviation": _out(p.deviation, p.unit), "std": _out(p.std, p.unit),
+                            "deviation": _out(p.deviation, p.unit),
+                            "std": None if math.isnan(p.std) else _out(p.std, p.unit),
                             "free": p.free} for p in self.parameters],
         }
 
     def to_json(self) -> str:
-        return json.dumps(self.to_dict(), indent=2, allow_nan=True)
+        return json.dumps(self.to_dict(), indent=2, allow_nan=False)
 
     def format(self) -> str:
         """The report for a person: parameter table, accuracy before/after, status."""
@@ -419,7 +417,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "c-lm
         nominal values relative to it.
     max_rounds : C-LM rounds at most (LM: ``options.max_iterations``); ``fixed_rounds`` runs
         exactly that many C-LM rounds (see :func:`calib.solvers.cross_lm`).
-    validation : extra validation measurements (added to the ``val`` rows).
+    validation : separate validation measurements; the statistics then use these, and the
+        ``val`` rows of ``measurements`` are only held out.
     loss : "linear" (least squares, the maximum-likelihood fit for Gaussian noise), or a robust
         loss on each pose's whitened residual: "huber" or "soft_l1", with ``loss_scale`` in units
         of sigma (see :func:`calib.solvers.robust_scaling`).
@@ -439,15 +438,18 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "c-lm
     if not (sigma_pos > 0 and sigma_rot > 0):
         raise ParameterError("sigma_pos and sigma_rot must be positive")
     _check_compatible(robot, measurements)
+    notes: list[str] = []
     cal = measurements.calibration()
     val = measurements.validation()
     if validation is not None:
         _check_compatible(robot, validation)
-        val = validation if val is None or val.n_poses == 0 else _concat(val, validation)
+        if val is not None and val.n_poses:
+            notes.append(f"the {val.n_poses} 'val' rows of the measurements are held out; the "
+                         f"validation statistics use the separate validation set")
+        val = validation
     if val is not None and val.n_poses == 0:
         val = None
     measure = "pose" if cal.has_orientation else "position"
-    notes: list[str] = []
 
     rows_per_pose = 6 if measure == "pose" else 3
     # the identifiable set needs as many equations as parameters at the very least
@@ -455,7 +457,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "c-lm
     if cal.n_poses * rows_per_pose < robot.n_params:
         needed = analyze_identifiability(robot, robot.random_configurations(50, 0), measure=measure).rank
     if cal.n_poses * rows_per_pose < needed:
-        raise DataError(f"{cal.n_poses} calibration poses give {cal.n_poses * rows_per_pose} equations, "
+        where = f"{measurements.source}: " if measurements.source is not None else ""
+        raise DataError(f"{where}{cal.n_poses} calibration poses give {cal.n_poses * rows_per_pose} equations, "
                         f"fewer than the {needed} identifiable parameters need; measure at least "
                         f"{-(-needed // rows_per_pose)} poses (several times more for accuracy)")
 
@@ -486,14 +489,20 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "c-lm
         problem, x, cost, status, message, rounds = solve(x, loss)
         if outlier_k is None or _pass == 3 or status == "diverged":
             break
-        new = _flag_outliers(start.with_values(problem.full(x)), cal, keep, sigma_pos, sigma_rot, outlier_k, notes)
+        new, too_many = _flag_outliers(start.with_values(problem.full(x)), cal, keep, sigma_pos,
+                                       sigma_rot, outlier_k)
         if new and loss == "linear":
             # a least-squares fit spreads a gross error over its neighbours: judge the rows
             # against a robust (Huber) fit instead, then refit by least squares without them
             problem, x_robust, *_ = solve(x, "huber")
-            new = _flag_outliers(start.with_values(problem.full(x_robust)), cal, keep, sigma_pos,
-                                 sigma_rot, outlier_k, notes)
+            new, too_many = _flag_outliers(start.with_values(problem.full(x_robust)), cal, keep,
+                                           sigma_pos, sigma_rot, outlier_k)
             x = x_robust
+        if too_many:
+            notes.append(f"{len(new)} of {int(keep.sum())} rows have residuals above {outlier_k:g} sigma: "
+                         f"the noise is larger than sigma_pos / sigma_rot, so no row was removed as an "
+                         f"outlier")
+            new = []
         if not new:
             if problem.loss != loss:  # the robust fit found nothing: back to the requested loss
                 problem, x, cost, status, message, rounds = solve(x, loss)
@@ -553,9 +562,3 @@ def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> 
         rows.append(ParameterEstimate(p.name, p.unit, float(nom), float(ide), p.name in std,
                                       float(std.get(p.name, math.nan))))
     return tuple(rows)
-
-
-def _concat(a: Measurements, b: Measurements) -> Measurements:
-    rot = None if (a.rotation is None or b.rotation is None) else np.concatenate([a.rotation, b.rotation])
-    return Measurements(q=np.concatenate([a.q, b.q]), position=np.concatenate([a.position, b.position]),
-                        rotation=rot, rows=np.concatenate([a.rows, b.rows]), joint_names=a.joint_names)

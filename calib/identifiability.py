@@ -34,6 +34,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .errors import ParameterError
 from .jacobian import MEASURES, identification_jacobian
 from .robot import RobotModel
 
@@ -194,7 +195,7 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
         and the cost grows with it. None for all.
     """
     if measure not in MEASURES:
-        raise ValueError(f"measure must be one of {MEASURES}, got {measure!r}")
+        raise ParameterError(f"measure must be one of {', '.join(MEASURES)}, got {measure!r}")
     if Q is None:
         Q = robot.random_configurations(n_poses, seed)
     Q = np.atleast_2d(np.asarray(Q, float))

@@ -270,13 +270,13 @@ class RobotModel:
         lines = [f"{'joint':<16}{'type':<11}{'theta/rad':>11}{'d/mm':>11}{'a/mm':>11}"
                  f"{'alpha/rad':>11}{'beta/rad':>11}"]
         for i, j in enumerate(self.joints):
-            beta = "/" if np.isnan(t["beta"][i]) else f"{t['beta'][i]:.6g}"
-            lines.append(f"{j.name:<16}{j.kind:<11}{t['theta'][i]:>11.6g}{t['d'][i] * 1e3:>11.6g}"
-                         f"{t['a'][i] * 1e3:>11.6g}{t['alpha'][i]:>11.6g}{beta:>11}")
+            beta = "/" if np.isnan(t["beta"][i]) else f"{t['beta'][i]:.6f}"
+            lines.append(f"{j.name:<16}{j.kind:<11}{t['theta'][i]:>11.6f}{t['d'][i] * 1e3:>11.4f}"
+                         f"{t['a'][i] * 1e3:>11.4f}{t['alpha'][i]:>11.6f}{beta:>11}")
         for label, T in (("meas->base", self.T_meas_base()), ("flange->tool", self.T_flange_tool())):
             x = zyx_parameters(T)
-            lines.append(f"{label:<14} x,y,z/mm = {x[0] * 1e3:.6g}, {x[1] * 1e3:.6g}, {x[2] * 1e3:.6g};"
-                         f"  alpha,beta,gamma/rad = {x[3]:.6g}, {x[4]:.6g}, {x[5]:.6g}")
+            lines.append(f"{label:<14} x,y,z/mm = {x[0] * 1e3:.4f}, {x[1] * 1e3:.4f}, {x[2] * 1e3:.4f};"
+                         f"  alpha,beta,gamma/rad = {x[3]:.6f}, {x[4]:.6f}, {x[5]:.6f}")
         return "\n".join(lines)
 
 
