@@ -1,0 +1,320 @@
+"""Subcommands for putting a calibration into practice: ``select-poses`` and ``compensate``.
+
+Thin layers over :mod:`calib.poses` and :mod:`calib.compensation`, to be registered by the main
+parser (:mod:`calib.cli`)::
+
+    add_select_poses_parser(subparsers)      # calib select-poses ROBOT.urdf -n N -o poses.csv
+    add_compensate_parser(subparsers)        # calib compensate CAL.urdf NOM.urdf TARGETS.csv -o out.csv
+
+Each parser sets ``func`` to its ``run_*`` function, which takes the parsed arguments and returns
+the exit code: 0 success; 3 for ``compensate`` when some targets are not ``ok`` (the output is
+written all the same, with the status of each row). Bad input raises :class:`calib.CalibError`,
+which the main command turns into one line on stderr and exit code 2; nothing is written then.
+Outputs are written atomically, and an output path that names an input is refused.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .compensation import (SINGULAR_THRESHOLD, compensate, compensate_poses,
+                           load_compensation_models, read_targets, write_compensation)
+from .errors import CalibError
+from .fileio import check_not_input
+from .poses import CRITERIA, design_poses, write_poses
+from .robot import load_robot
+
+__all__ = ["add_select_poses_parser", "run_select_poses", "add_compensate_parser", "run_compensate"]
+
+log = logging.getLogger("calib")
+
+EXIT_OK = 0
+EXIT_NOT_ALL_OK = 3
+
+_SELECT_DESC = """\
+Choose the configurations to measure for a calibration: N poses that make the identification
+as accurate as possible.
+
+Draws --candidates configurations uniformly within the joint limits, computes the
+identification Jacobian there (rows weighted by the measurement noise, columns restricted to the
+identifiable parameters and scaled once over the pool), and selects N of them that maximise the
+criterion: a greedy D-optimal start, then Fedorov exchange passes.
+
+--criterion:
+  D    log det of the information matrix: the smallest confidence volume of the identified
+       parameters (default; the usual choice)
+  O1   Borm and Menq's index of the column-normalised Jacobian (D-optimality with each
+       parameter normalised over the chosen poses)
+  O4   noise amplification index sigma_min^2 / sigma_max (Nahvi and Hollerbach)
+
+Prints the criteria of the selection against random sets of N poses, and writes the poses as a
+CSV of joint values (degrees; millimetres for prismatic joints), one row per pose. Move the robot
+to each row, measure the tool pose, and add the columns x_mm, y_mm, z_mm (and qw, qx, qy, qz)
+to obtain a measurement file for `calib calibrate`. The advantage over random poses is largest
+with few poses (20 to 30 for a 6-axis arm)."""
+
+_SELECT_EPILOG = """\
+examples:
+  calib select-poses robots/brtirus0707a/brtirus0707a.urdf -n 25 -o poses.csv --seed 1
+  calib select-poses robot.urdf -n 40 -o poses.csv --measure position --criterion O4 \\
+      --candidates 5000 --tool-frame tool0
+
+Same --seed, same poses. Exit codes: 0 success, 2 bad input (one-line message, nothing written)."""
+
+_COMP_DESC = """\
+Corrected joint values: where to send a calibrated robot so that its tool reaches the targets.
+
+The controller computes joint values with the nominal model (NOMINAL.urdf). For each target,
+compensate finds the joint values with which the calibrated model (CALIBRATED.urdf, as written by
+`calib calibrate`) puts the tool at the target pose, by damped Newton iterations from the nominal
+joints, to 1e-10 m and 1e-10 rad.
+
+TARGETS.csv (comments with #, one header row, units in the column names as in measurement files):
+  joint columns only     joint1_deg, ..., joint6_deg (or q1_deg ..., _rad; _mm or _m for
+                         prismatic joints): the joints the controller would use; the target is
+                         the nominal tool pose there
+  x_mm, y_mm, z_mm       a target tool position in the nominal base frame (the meas frame),
+    [+ qw, qx, qy, qz]   with an orientation (unit quaternion, scalar first; or rz_deg, ry_deg,
+                         rx_deg, R = Rz Ry Rx); joint columns, if also given, are the start of the
+                         solver and choose the solution branch (without them, the solution
+                         closest to the middle of the joint ranges from several starts)
+
+Output CSV, one row per target in the same order: the corrected joint columns (degrees;
+millimetres for prismatic joints), then status, residual_mm, residual_rad (pose targets) and
+detail. status is
+  ok             the calibrated model reaches the target within the joint limits
+  limit          reached, but a joint is beyond its limit (detail: which and by how much);
+                 the joint values are written as computed, never clipped
+  singular       the joint Jacobian's smallest singular value is below --singular-threshold
+                 (near a singularity: a tiny pose error needs a large joint motion)
+  not_converged  the target was not reached
+Rows that are not ok must not be sent to the robot as they are.
+
+Frames: --base-frame and --tool-frame name frames of NOMINAL.urdf; the calibrated URDF's matching
+frames are found as calib's URDF writer made them (its root link plays the meas frame when the
+nominal base frame is the root link; a link the writer added under the tool frame is the tool)."""
+
+_COMP_EPILOG = """\
+examples:
+  calib calibrate robot.urdf meas.csv -o calibrated.urdf
+  calib compensate calibrated.urdf robot.urdf program_joints.csv -o corrected.csv
+  calib compensate calibrated.urdf robot.urdf cad_poses.csv -o corrected.csv --tool-frame tool0
+
+Exit codes: 0 every target ok; 3 some targets are not ok (the output is written, see the status
+column; a summary is printed); 2 bad input (one-line message, nothing written)."""
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the description's line breaks; appends "(default: ...)" where there is one."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if "%(default)" not in text and action.option_strings and \
+                not any(action.default is v for v in (None, False, argparse.SUPPRESS)):
+            text += " (default: %(default)s)"
+        return text
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text} must be at least 1")
+    return value
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text} must not be negative")
+    return value
+
+
+def _nonnegative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number >= 0")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _nonnegative(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"{text} must be > 0")
+    return value
+
+
+def _criterion(text: str) -> str:
+    if text.upper() not in CRITERIA:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a criterion; choose from "
+                                         f"{', '.join(CRITERIA)}")
+    return text.upper()
+
+
+def _add_verbose(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                   help="log progress on stderr")
+
+
+def _check_output(output: str | Path, inputs) -> Path:
+    """Fail before any work on an output path that names an input, a folder, or a missing folder."""
+    path = Path(output)
+    check_not_input(path, inputs)
+    if path.is_dir():
+        raise CalibError(f"{path}: is a folder, expected a file name for the output")
+    if not path.parent.is_dir():
+        raise CalibError(f"{path}: folder {path.parent} does not exist")
+    return path
+
+
+def _command_line(args) -> str:
+    argv = getattr(args, "argv", None)
+    if argv is None:
+        return "calib " + args.command if getattr(args, "command", None) else "calib"
+    return " ".join(shlex.quote(a) for a in ["calib", *argv])
+
+
+# ====================================================================== select-poses
+def add_select_poses_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``select-poses`` subcommand to ``subparsers`` (from ``add_subparsers``)."""
+    p = subparsers.add_parser("select-poses", help="choose the poses to measure (optimal design)",
+                              description=_SELECT_DESC, epilog=_SELECT_EPILOG,
+                              formatter_class=_Formatter)
+    p.add_argument("robot", metavar="ROBOT.urdf", help="URDF of the robot (the nominal model)")
+    p.add_argument("-n", "--poses", dest="n", type=_positive_int, required=True, metavar="N",
+                   help="number of poses to select")
+    p.add_argument("-o", "--output", required=True, metavar="POSES.csv",
+                   help="CSV of joint values to write (degrees; mm for prismatic joints)")
+    p.add_argument("--candidates", type=_positive_int, default=2000, metavar="M",
+                   help="size of the random pool of configurations to choose from")
+    p.add_argument("--criterion", type=_criterion, default="D", metavar="D|O1|O4",
+                   help="what to maximise (see above)")
+    p.add_argument("--measure", choices=("pose", "position"), default="pose",
+                   help="what will be measured: position and orientation, or position only")
+    p.add_argument("--seed", type=_count, default=0, metavar="S",
+                   help="random seed of the candidate pool")
+    p.add_argument("--sigma-pos-mm", type=_positive, default=0.02, metavar="S",
+                   help="position measurement noise per axis, mm (weights position rows)")
+    p.add_argument("--sigma-rot-rad", type=_positive, default=0.002, metavar="S",
+                   help="orientation measurement noise per axis, rad (weights orientation rows)")
+    g = p.add_argument_group("frames")
+    g.add_argument("--base-frame", metavar="F", default=None,
+                   help="URDF link (or joint) that plays the measurement frame (default: the root "
+                        "link)")
+    g.add_argument("--tool-frame", metavar="F", default=None,
+                   help="URDF link (or joint) whose pose will be measured (default: the last link "
+                        "before the tree branches)")
+    _add_verbose(p)
+    p.set_defaults(func=run_select_poses)
+    return p
+
+
+def run_select_poses(args) -> int:
+    """Run ``calib select-poses`` with parsed arguments; returns the exit code."""
+    out = _check_output(args.output, [args.robot])
+    robot = load_robot(args.robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
+    log.info("robot %s: %d joints (%s), base frame %r, tool frame %r", args.robot, robot.n_joints,
+             ", ".join(robot.joint_names), robot.base_frame, robot.tool_frame)
+    design = design_poses(robot, args.n, candidates=args.candidates, criterion=args.criterion,
+                          measure=args.measure, seed=args.seed, sigma_pos=args.sigma_pos_mm * 1e-3,
+                          sigma_rot=args.sigma_rot_rad)
+    log.info("selection: %d exchange passes, %d swaps, %.3f s", design.passes, design.swaps,
+             design.elapsed)
+    c, b = design.criteria, design.random_criteria
+    comment = (f"Poses to measure, selected by: {_command_line(args)}\n"
+               f"Robot {args.robot}: base frame {robot.base_frame}, tool frame {robot.tool_frame}; "
+               f"{args.measure} measurements\n"
+               f"Criterion {design.criterion}: log det {c['D']:.6g} (random sets: {b['D']:.6g}), "
+               f"O1 {c['O1']:.4g} ({b['O1']:.4g}), O4 {c['O4']:.4g} ({b['O4']:.4g}), condition "
+               f"number {c['condition_number']:.4g} ({b['condition_number']:.4g})\n"
+               f"After measuring, add x_mm,y_mm,z_mm (and qw,qx,qy,qz) columns for calib calibrate")
+    write_poses(out, robot, design.q, comment=comment)
+    sys.stdout.write(design.format() + f"\n\nwrote {design.n_poses} poses to {out}\n")
+    return EXIT_OK
+
+
+# ====================================================================== compensate
+def add_compensate_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``compensate`` subcommand to ``subparsers`` (from ``add_subparsers``)."""
+    p = subparsers.add_parser("compensate", help="corrected joint values for targets",
+                              description=_COMP_DESC, epilog=_COMP_EPILOG,
+                              formatter_class=_Formatter)
+    p.add_argument("calibrated", metavar="CALIBRATED.urdf",
+                   help="calibrated URDF (written by calib calibrate)")
+    p.add_argument("nominal", metavar="NOMINAL.urdf",
+                   help="nominal URDF (the model the controller uses)")
+    p.add_argument("targets", metavar="TARGETS.csv", help="targets CSV (format above)")
+    p.add_argument("-o", "--output", required=True, metavar="CORRECTED.csv",
+                   help="CSV of corrected joint values with a status per row to write")
+    p.add_argument("--measure", choices=("pose", "position"), default="pose",
+                   help="for joint targets: reach the nominal tool pose, or its position only "
+                        "(least-norm joint change); pose targets follow their columns")
+    p.add_argument("--singular-threshold", type=_nonnegative, default=SINGULAR_THRESHOLD,
+                   metavar="S",
+                   help="smallest singular value of the joint Jacobian (position rows in m/rad, "
+                        "rotation rows in rad/rad) below which a target is reported singular")
+    g = p.add_argument_group("frames")
+    g.add_argument("--base-frame", metavar="F", default=None,
+                   help="link (or joint) of NOMINAL.urdf that plays the meas frame, in which pose "
+                        "targets are given (default: the root link)")
+    g.add_argument("--tool-frame", metavar="F", default=None,
+                   help="link (or joint) of NOMINAL.urdf whose pose is targeted (default: the last "
+                        "link before the tree branches)")
+    _add_verbose(p)
+    p.set_defaults(func=run_compensate)
+    return p
+
+
+def run_compensate(args) -> int:
+    """Run ``calib compensate`` with parsed arguments; returns the exit code."""
+    out = _check_output(args.output, [args.calibrated, args.nominal, args.targets])
+    calibrated, nominal = load_compensation_models(args.calibrated, args.nominal,
+                                                   base_frame=args.base_frame,
+                                                   tool_frame=args.tool_frame)
+    log.info("nominal %s (frames %r -> %r), calibrated %s (frames %r -> %r)", args.nominal,
+             nominal.base_frame, nominal.tool_frame, args.calibrated, calibrated.base_frame,
+             calibrated.tool_frame)
+    targets = read_targets(args.targets, nominal)
+    log.info("read %d %s targets from %s", targets.n_targets, targets.kind, args.targets)
+    opts = dict(singular_threshold=args.singular_threshold)
+    if targets.kind == "joints":
+        result = compensate(calibrated, nominal, targets.q, measure=args.measure, **opts)
+    elif targets.kind == "pose":
+        T = _homogeneous(targets.rotation, targets.position)
+        result = compensate_poses(calibrated, T_meas_tool=T, q_start=targets.q, **opts)
+    else:
+        result = compensate_poses(calibrated, p_meas_tool=targets.position, q_start=targets.q,
+                                  **opts)
+    comment = (f"Corrected joint values, computed by: {_command_line(args)}\n"
+               f"Targets: {targets.kind} targets of {args.targets} (tool frame {nominal.tool_frame} "
+               f"in base frame {nominal.base_frame}); status ok: the calibrated model reaches the "
+               f"target; other rows must not be sent to the robot as they are")
+    write_compensation(out, result, comment=comment)
+    sys.stdout.write(result.format() + f"\n\nwrote {out}\n")
+    if not result.success:
+        bad = result.n_targets - int(result.ok.sum())
+        sys.stderr.write(f"calib: warning: {bad} of {result.n_targets} targets are not ok (see the "
+                         f"status and detail columns of {out})\n")
+        return EXIT_NOT_ALL_OK
+    return EXIT_OK
+
+
+def _homogeneous(R, p):
+    """(N, 4, 4) from rotations (N, 3, 3) and positions (N, 3)."""
+    T = np.zeros((len(p), 4, 4))
+    T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = R, p, 1.0
+    return T
