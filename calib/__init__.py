@@ -20,6 +20,9 @@ from .identifiability import IdentifiabilityReport, analyze_identifiability
 from .measurements import Measurements, read_measurements, write_measurements
 from .calibration import AccuracyStats, CalibrationResult, ParameterEstimate, calibrate, evaluate
 from .simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
+from .urdf_writer import write_calibrated_urdf
+from .poses import PoseDesign, design_poses, read_poses, select_poses, write_poses
+from .compensation import CompensationResult, compensate, compensate_poses
 
 __all__ = [
     "CalibError", "ChainError", "DataError", "FrameNotFound", "MeasurementFormatError",
@@ -30,4 +33,7 @@ __all__ = [
     "Measurements", "read_measurements", "write_measurements",
     "AccuracyStats", "CalibrationResult", "ParameterEstimate", "calibrate", "evaluate",
     "PAPER_DEVIATIONS", "apply_deviations", "random_deviations", "simulate_measurements",
+    "write_calibrated_urdf",
+    "PoseDesign", "design_poses", "read_poses", "select_poses", "write_poses",
+    "CompensationResult", "compensate", "compensate_poses",
 ]

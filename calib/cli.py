@@ -4,11 +4,14 @@
     calib simulate ROBOT.urdf -o meas.csv       synthetic measurements of a perturbed robot
     calib calibrate ROBOT.urdf MEAS.csv -o calibrated.urdf
     calib evaluate ROBOT.urdf MEAS.csv          accuracy of a model against measurements
+    calib select-poses ROBOT.urdf -n N -o poses.csv       configurations worth measuring
+    calib compensate CALIBRATED.urdf NOMINAL.urdf TARGETS.csv -o corrected.csv
 
 Exit codes: 0 success; 2 bad input or usage (one line ``calib: error: ...`` on stderr, no
-output file created or changed); 3 ``calibrate`` ran but the fit did not converge (outputs are
-written so that they can be inspected, the status is printed on stderr); 1 is left to Python
-for unexpected internal errors (a bug: the traceback says where).
+output file created or changed); 3 ``calibrate`` ran but the fit did not converge, or
+``compensate`` could not reach every target (outputs are written so that they can be
+inspected, the status is printed on stderr); 1 is left to Python for unexpected internal
+errors (a bug: the traceback says where).
 
 Outputs are produced in memory first and written only when everything succeeded, each
 atomically (temporary file, then rename); an output path that names an input is refused.
@@ -28,6 +31,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
                read_measurements, simulate_measurements, write_measurements)
@@ -516,7 +520,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Kinematic calibration of serial robots: TM-MDH error model, C-LM "
                     "identification (Lao et al. 2023), on Pinocchio.",
         epilog="Run `calib COMMAND --help` for each command. Exit codes: 0 success, 2 bad input "
-               "(no file written), 3 calibration did not converge.")
+               "(no file written), 3 calibration did not converge or a compensation target was "
+               "not reached.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {ver}")
     _add_verbose(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -605,6 +610,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_frames(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_evaluate)
+
+    add_select_poses_parser(sub)
+    add_compensate_parser(sub)
     return parser
 
 

@@ -102,9 +102,9 @@ nominal base frame is the root link; a link the writer added under the tool fram
 
 _COMP_EPILOG = """\
 examples:
-  calib calibrate robot.urdf meas.csv -o calibrated.urdf
   calib compensate calibrated.urdf robot.urdf program_joints.csv -o corrected.csv
   calib compensate calibrated.urdf robot.urdf cad_poses.csv -o corrected.csv --tool-frame tool0
+  (CALIBRATED.urdf comes from: calib calibrate robot.urdf meas.csv -o calibrated.urdf)
 
 Exit codes: 0 every target ok; 3 some targets are not ok (the output is written, see the status
 column; a summary is printed); 2 bad input (one-line message, nothing written)."""

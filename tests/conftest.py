@@ -1,7 +1,13 @@
 """Shared fixtures: the bundled robot and arms from example-robot-data."""
 from __future__ import annotations
 
-from functools import lru_cache
+import os
+
+# Tiny matrices: BLAS threads only add contention (and made the suite slow under load).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+from functools import lru_cache  # noqa: E402
 from pathlib import Path
 
 import pytest

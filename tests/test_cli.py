@@ -256,7 +256,8 @@ def test_runs_as_a_program(launcher, tmp_path):
 
 
 # ====================================================================== help and usage
-@pytest.mark.parametrize("command", ["identifiability", "simulate", "calibrate", "evaluate"])
+@pytest.mark.parametrize("command", ["identifiability", "simulate", "calibrate", "evaluate",
+                                     "select-poses", "compensate"])
 def test_every_command_has_a_help_that_teaches(command, capsys):
     code, out, _ = run(capsys, command, "--help")
     assert code == 0
@@ -267,7 +268,8 @@ def test_every_command_has_a_help_that_teaches(command, capsys):
 
 def test_top_level_help_and_version(capsys):
     code, out, _ = run(capsys, "--help")
-    assert code == 0 and all(c in out for c in ("identifiability", "simulate", "calibrate", "evaluate"))
+    assert code == 0 and all(c in out for c in ("identifiability", "simulate", "calibrate", "evaluate",
+                                                "select-poses", "compensate"))
     code, out, _ = run(capsys, "--version")
     assert code == 0 and out.startswith("calib ")
 
