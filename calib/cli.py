@@ -25,12 +25,12 @@ import math
 import shlex
 import sys
 import tempfile
-import textwrap
 from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
 
+from .cli_args import HelpFormatter, count, nonnegative, positive, positive_int
 from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
@@ -136,47 +136,10 @@ def _read(path, robot):
     return m
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text} must be at least 1")
-    return value
-
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text} must not be negative")
-    return value
-
-
-def _nonnegative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"{text} must be a finite number >= 0")
-    return value
-
-
-def _positive(text: str) -> float:
-    value = _nonnegative(text)
-    if value == 0:
-        raise argparse.ArgumentTypeError(f"{text} must be > 0")
-    return value
-
-
 def _outlier_k(text: str) -> float | None:
     if text.strip().lower() == "off":
         return None
-    return _positive(text)
+    return positive(text)
 
 
 # ====================================================================== identifiability
@@ -477,17 +440,6 @@ examples:
 """ + _COMMON_EPILOG
 
 
-class _Formatter(argparse.RawDescriptionHelpFormatter):
-    """Keeps the description's line breaks; appends "(default: ...)" where there is one."""
-
-    def _get_help_string(self, action):
-        text = action.help or ""
-        if "%(default)" not in text and not any(action.default is v for v in (None, False, argparse.SUPPRESS)) \
-                and action.option_strings and not isinstance(action, argparse._VersionAction):
-            text += " (default: %(default)s)"
-        return text
-
-
 def _add_robot(p: argparse.ArgumentParser) -> None:
     p.add_argument("robot", metavar="ROBOT.urdf", help="URDF of the robot (the nominal model)")
 
@@ -516,7 +468,7 @@ def build_parser() -> argparse.ArgumentParser:
     except PackageNotFoundError:
         ver = "unknown"
     parser = argparse.ArgumentParser(
-        prog=PROG, formatter_class=_Formatter,
+        prog=PROG, formatter_class=HelpFormatter,
         description="Kinematic calibration of serial robots: TM-MDH error model, C-LM "
                     "identification (Lao et al. 2023), on Pinocchio.",
         epilog="Run `calib COMMAND --help` for each command. Exit codes: 0 success, 2 bad input "
@@ -527,13 +479,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     p = sub.add_parser("identifiability", help="which parameters the measurements can identify",
-                       description=_IDENT_DESC, epilog=_IDENT_EPILOG, formatter_class=_Formatter)
+                       description=_IDENT_DESC, epilog=_IDENT_EPILOG, formatter_class=HelpFormatter)
     _add_robot(p)
     p.add_argument("--measure", choices=("pose", "position"), default="pose",
                    help="what is measured: position and orientation, or position only")
-    p.add_argument("--poses", type=_positive_int, default=100, metavar="N",
+    p.add_argument("--poses", type=positive_int, default=100, metavar="N",
                    help="number of random configurations")
-    p.add_argument("--seed", type=_count, default=0, metavar="S",
+    p.add_argument("--seed", type=count, default=0, metavar="S",
                    help="random seed of the configurations")
     p.add_argument("--json", action="store_true",
                    help="print one JSON object (n_params, rank, identifiable, unidentifiable with "
@@ -543,21 +495,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_identifiability)
 
     p = sub.add_parser("simulate", help="synthetic measurements of a perturbed robot",
-                       description=_SIM_DESC, epilog=_SIM_EPILOG, formatter_class=_Formatter)
+                       description=_SIM_DESC, epilog=_SIM_EPILOG, formatter_class=HelpFormatter)
     _add_robot(p)
     p.add_argument("-o", "--output", required=True, metavar="MEAS.csv",
                    help="measurement CSV to write (degrees and millimetres, quaternion qw..qz)")
-    p.add_argument("--poses", type=_positive_int, default=100, metavar="N",
+    p.add_argument("--poses", type=positive_int, default=100, metavar="N",
                    help="number of calibration poses (set=cal)")
-    p.add_argument("--val-poses", type=_count, default=0, metavar="M",
+    p.add_argument("--val-poses", type=count, default=0, metavar="M",
                    help="number of validation poses (set=val), after the calibration ones")
-    p.add_argument("--seed", type=_count, default=0, metavar="S",
+    p.add_argument("--seed", type=count, default=0, metavar="S",
                    help="random seed (configurations, random deviations, noise)")
     p.add_argument("--deviations", default="paper", metavar="paper|random:SCALE_MM|FILE.json",
                    help="parameter deviations of the true robot (see above)")
-    p.add_argument("--sigma-pos-mm", type=_nonnegative, default=0.02, metavar="S",
+    p.add_argument("--sigma-pos-mm", type=nonnegative, default=0.02, metavar="S",
                    help="position noise per axis, mm (0: noise-free)")
-    p.add_argument("--sigma-rot-rad", type=_nonnegative, default=0.002, metavar="S",
+    p.add_argument("--sigma-rot-rad", type=nonnegative, default=0.002, metavar="S",
                    help="orientation noise per axis, rad (0: noise-free)")
     p.add_argument("--position-only", action="store_true",
                    help="write positions only (no orientation columns)")
@@ -569,7 +521,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("calibrate", help="identify the parameters, write the calibrated URDF",
-                       description=_CAL_DESC, epilog=_CAL_EPILOG, formatter_class=_Formatter)
+                       description=_CAL_DESC, epilog=_CAL_EPILOG, formatter_class=HelpFormatter)
     _add_robot(p)
     p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: README.md)")
     p.add_argument("-o", "--output", required=True, metavar="CALIBRATED.urdf",
@@ -578,9 +530,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="C-LM (cross identification of lengths and angles, the paper's) or plain LM")
     p.add_argument("--params", default="base", metavar="base|paper|all|LIST",
                    help="which parameters to identify (see above)")
-    p.add_argument("--sigma-pos-mm", type=_positive, default=0.02, metavar="S",
+    p.add_argument("--sigma-pos-mm", type=positive, default=0.02, metavar="S",
                    help="position measurement noise per axis, mm (weights the residuals)")
-    p.add_argument("--sigma-rot-rad", type=_positive, default=0.002, metavar="S",
+    p.add_argument("--sigma-rot-rad", type=positive, default=0.002, metavar="S",
                    help="orientation measurement noise per axis, rad (weights the residuals)")
     p.add_argument("--loss", choices=LOSSES, default="linear",
                    help="linear: least squares (Gaussian noise); huber or soft_l1: robust to "
@@ -601,7 +553,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("evaluate", help="accuracy of a model against measurements",
-                       description=_EVAL_DESC, epilog=_EVAL_EPILOG, formatter_class=_Formatter)
+                       description=_EVAL_DESC, epilog=_EVAL_EPILOG, formatter_class=HelpFormatter)
     _add_robot(p)
     p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: README.md)")
     p.add_argument("--json", action="store_true",

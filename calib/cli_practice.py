@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import shlex
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from .cli_args import HelpFormatter, count, nonnegative, positive, positive_int
 from .compensation import (SINGULAR_THRESHOLD, compensate, compensate_poses,
                            load_compensation_models, read_targets, write_compensation)
 from .errors import CalibError
@@ -110,54 +110,6 @@ Exit codes: 0 every target ok; 3 some targets are not ok (the output is written,
 column; a summary is printed); 2 bad input (one-line message, nothing written)."""
 
 
-class _Formatter(argparse.RawDescriptionHelpFormatter):
-    """Keeps the description's line breaks; appends "(default: ...)" where there is one."""
-
-    def _get_help_string(self, action):
-        text = action.help or ""
-        if "%(default)" not in text and action.option_strings and \
-                not any(action.default is v for v in (None, False, argparse.SUPPRESS)):
-            text += " (default: %(default)s)"
-        return text
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text} must be at least 1")
-    return value
-
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text} must not be negative")
-    return value
-
-
-def _nonnegative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"{text} must be a finite number >= 0")
-    return value
-
-
-def _positive(text: str) -> float:
-    value = _nonnegative(text)
-    if value == 0:
-        raise argparse.ArgumentTypeError(f"{text} must be > 0")
-    return value
-
-
 def _criterion(text: str) -> str:
     if text.upper() not in CRITERIA:
         raise argparse.ArgumentTypeError(f"{text!r} is not a criterion; choose from "
@@ -193,23 +145,23 @@ def add_select_poses_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``select-poses`` subcommand to ``subparsers`` (from ``add_subparsers``)."""
     p = subparsers.add_parser("select-poses", help="choose the poses to measure (optimal design)",
                               description=_SELECT_DESC, epilog=_SELECT_EPILOG,
-                              formatter_class=_Formatter)
+                              formatter_class=HelpFormatter)
     p.add_argument("robot", metavar="ROBOT.urdf", help="URDF of the robot (the nominal model)")
-    p.add_argument("-n", "--poses", dest="n", type=_positive_int, required=True, metavar="N",
+    p.add_argument("-n", "--poses", dest="n", type=positive_int, required=True, metavar="N",
                    help="number of poses to select")
     p.add_argument("-o", "--output", required=True, metavar="POSES.csv",
                    help="CSV of joint values to write (degrees; mm for prismatic joints)")
-    p.add_argument("--candidates", type=_positive_int, default=2000, metavar="M",
+    p.add_argument("--candidates", type=positive_int, default=2000, metavar="M",
                    help="size of the random pool of configurations to choose from")
     p.add_argument("--criterion", type=_criterion, default="D", metavar="D|O1|O4",
                    help="what to maximise (see above)")
     p.add_argument("--measure", choices=("pose", "position"), default="pose",
                    help="what will be measured: position and orientation, or position only")
-    p.add_argument("--seed", type=_count, default=0, metavar="S",
+    p.add_argument("--seed", type=count, default=0, metavar="S",
                    help="random seed of the candidate pool")
-    p.add_argument("--sigma-pos-mm", type=_positive, default=0.02, metavar="S",
+    p.add_argument("--sigma-pos-mm", type=positive, default=0.02, metavar="S",
                    help="position measurement noise per axis, mm (weights position rows)")
-    p.add_argument("--sigma-rot-rad", type=_positive, default=0.002, metavar="S",
+    p.add_argument("--sigma-rot-rad", type=positive, default=0.002, metavar="S",
                    help="orientation measurement noise per axis, rad (weights orientation rows)")
     g = p.add_argument_group("frames")
     g.add_argument("--base-frame", metavar="F", default=None,
@@ -252,7 +204,7 @@ def add_compensate_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``compensate`` subcommand to ``subparsers`` (from ``add_subparsers``)."""
     p = subparsers.add_parser("compensate", help="corrected joint values for targets",
                               description=_COMP_DESC, epilog=_COMP_EPILOG,
-                              formatter_class=_Formatter)
+                              formatter_class=HelpFormatter)
     p.add_argument("calibrated", metavar="CALIBRATED.urdf",
                    help="calibrated URDF (written by calib calibrate)")
     p.add_argument("nominal", metavar="NOMINAL.urdf",
@@ -263,7 +215,7 @@ def add_compensate_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--measure", choices=("pose", "position"), default="pose",
                    help="for joint targets: reach the nominal tool pose, or its position only "
                         "(least-norm joint change); pose targets follow their columns")
-    p.add_argument("--singular-threshold", type=_nonnegative, default=SINGULAR_THRESHOLD,
+    p.add_argument("--singular-threshold", type=nonnegative, default=SINGULAR_THRESHOLD,
                    metavar="S",
                    help="smallest singular value of the joint Jacobian (position rows in m/rad, "
                         "rotation rows in rad/rad) below which a target is reported singular")

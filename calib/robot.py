@@ -30,7 +30,7 @@ import pinocchio as pin
 
 from .errors import ChainError, FrameNotFound, ParameterError, URDFError
 from .mdh import PARALLEL_THRESHOLD_RAD, derive_mdh, link_transform
-from .spatial import inverse, zyx_parameters, zyx_transform
+from .spatial import zyx_parameters, zyx_transform
 
 JOINT_KINDS = ("revolute", "continuous", "prismatic")
 _STRUCTURAL_KINDS = ("theta", "d", "a", "alpha", "beta")

@@ -10,8 +10,7 @@ import pytest
 
 from calib import (DataError, MeasurementFormatError, PAPER_DEVIATIONS, apply_deviations,
                    load_robot, random_deviations)
-from calib.cli_practice import (add_compensate_parser, add_select_poses_parser, run_compensate,
-                                run_select_poses)
+from calib.cli_practice import add_compensate_parser, add_select_poses_parser
 from calib.compensation import (compensate, compensate_poses, load_compensation_models,
                                 read_targets, tool_poses_and_joint_jacobians)
 from calib.errors import CalibError

@@ -145,7 +145,7 @@ def test_docstring_examples_read_and_match_nominal_kinematics(tmp_path, bundled_
 def test_comments_blank_lines_whitespace_and_row_numbers(tmp_path, bundled_robot):
     text = ("# a comment before the header\n"
             "\n"
-            f" q1_deg , q2_deg,q3_deg,q4_deg,q5_deg,q6_deg, x_m,y_m ,z_m,set\n"
+            " q1_deg , q2_deg,q3_deg,q4_deg,q5_deg,q6_deg, x_m,y_m ,z_m,set\n"
             "   # an indented comment\n"
             "10,20,30,40,50,60,0.1,0.2,0.3, CAL \n"
             "\n"
