@@ -526,8 +526,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: README.md)")
     p.add_argument("-o", "--output", required=True, metavar="CALIBRATED.urdf",
                    help="calibrated URDF to write (must differ from ROBOT.urdf)")
-    p.add_argument("--method", choices=METHODS, default="c-lm",
-                   help="C-LM (cross identification of lengths and angles, the paper's) or plain LM")
+    p.add_argument("--method", choices=METHODS, default="search-lm",
+                   help="search-lm: closed-form search of the angles on the rotation data, then LM "
+                        "(converges from the largest errors); c-lm: the paper's cross "
+                        "identification; lm: plain Levenberg-Marquardt")
     p.add_argument("--params", default="base", metavar="base|paper|all|LIST",
                    help="which parameters to identify (see above)")
     p.add_argument("--sigma-pos-mm", type=positive, default=0.02, metavar="S",

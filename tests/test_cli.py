@@ -99,7 +99,7 @@ def test_calibrate_recovers_the_paper_accuracy(job):
     assert (code, err) == (0, "")
     report = json.loads((d / "report.json").read_text())
     assert report["status"] == "converged" and report["success"] is True
-    assert report["param_set"] == "paper" and report["method"] == "c-lm"
+    assert report["param_set"] == "paper" and report["method"] == "search-lm"
     val = report["validation"]
     assert val["after"]["n_poses"] == 200
     # Table 10: mean position error after calibration 0.0122 mm (noise-free validation poses)
