@@ -30,7 +30,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .cli_args import HelpFormatter, count, nonnegative, positive, positive_int
+from .cli_args import HelpFormatter, add_frames, count, nonnegative, positive, positive_int
 from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
@@ -444,16 +444,6 @@ def _add_robot(p: argparse.ArgumentParser) -> None:
     p.add_argument("robot", metavar="ROBOT.urdf", help="URDF of the robot (the nominal model)")
 
 
-def _add_frames(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("frames")
-    g.add_argument("--base-frame", metavar="F", default=None,
-                   help="URDF link (or joint) that plays the measurement frame; the measured poses "
-                        "are in it (default: the root link)")
-    g.add_argument("--tool-frame", metavar="F", default=None,
-                   help="URDF link (or joint) whose pose is measured (default: the last link before "
-                        "the tree branches)")
-
-
 def _add_verbose(p: argparse.ArgumentParser, top: bool) -> None:
     p.add_argument("-v", "--verbose", action="count", default=0 if top else argparse.SUPPRESS,
                    help="log progress on stderr (-vv: also the nominal model)")
@@ -490,7 +480,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object (n_params, rank, identifiable, unidentifiable with "
                         "tied partners, condition_number, observability, ...)")
-    _add_frames(p)
+    add_frames(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_identifiability)
 
@@ -516,7 +506,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--truth-urdf", metavar="TRUE.urdf", default=None,
                    help="also write the true model as a URDF (a copy of ROBOT.urdf with its joint "
                         "origins changed)")
-    _add_frames(p)
+    add_frames(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_simulate)
 
@@ -550,7 +540,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plots", metavar="DIR", default=None,
                    help="write PNG plots of the per-pose errors before and after and their "
                         "histograms into DIR (created if missing; its parent must exist)")
-    _add_frames(p)
+    add_frames(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_calibrate)
 
@@ -561,7 +551,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object: n_poses, position_mm and rotation_rad statistics "
                         "(mean, rms, max, min) for all, cal and val rows")
-    _add_frames(p)
+    add_frames(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_evaluate)
 

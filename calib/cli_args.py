@@ -51,3 +51,15 @@ def positive(text: str) -> float:
     if value == 0:
         raise argparse.ArgumentTypeError(f"{text} must be > 0")
     return value
+
+
+def add_frames(p: argparse.ArgumentParser, base_help: str | None = None,
+               tool_help: str | None = None) -> None:
+    """The --base-frame / --tool-frame options, in their own help group."""
+    g = p.add_argument_group("frames")
+    g.add_argument("--base-frame", metavar="F", default=None,
+                   help=base_help or "URDF link (or joint) that plays the measurement frame; the "
+                                     "measured poses are in it (default: the root link)")
+    g.add_argument("--tool-frame", metavar="F", default=None,
+                   help=tool_help or "URDF link (or joint) whose pose is measured (default: the "
+                                     "last link before the tree branches)")

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_args import HelpFormatter, count, nonnegative, positive, positive_int
+from .cli_args import HelpFormatter, add_frames, count, nonnegative, positive, positive_int
 from .compensation import (SINGULAR_THRESHOLD, compensate, compensate_poses,
                            load_compensation_models, read_targets, write_compensation)
 from .errors import CalibError
@@ -163,13 +163,7 @@ def add_select_poses_parser(subparsers) -> argparse.ArgumentParser:
                    help="position measurement noise per axis, mm (weights position rows)")
     p.add_argument("--sigma-rot-rad", type=positive, default=0.002, metavar="S",
                    help="orientation measurement noise per axis, rad (weights orientation rows)")
-    g = p.add_argument_group("frames")
-    g.add_argument("--base-frame", metavar="F", default=None,
-                   help="URDF link (or joint) that plays the measurement frame (default: the root "
-                        "link)")
-    g.add_argument("--tool-frame", metavar="F", default=None,
-                   help="URDF link (or joint) whose pose will be measured (default: the last link "
-                        "before the tree branches)")
+    add_frames(p)
     _add_verbose(p)
     p.set_defaults(func=run_select_poses)
     return p
@@ -219,13 +213,10 @@ def add_compensate_parser(subparsers) -> argparse.ArgumentParser:
                    metavar="S",
                    help="smallest singular value of the joint Jacobian (position rows in m/rad, "
                         "rotation rows in rad/rad) below which a target is reported singular")
-    g = p.add_argument_group("frames")
-    g.add_argument("--base-frame", metavar="F", default=None,
-                   help="link (or joint) of NOMINAL.urdf that plays the meas frame, in which pose "
-                        "targets are given (default: the root link)")
-    g.add_argument("--tool-frame", metavar="F", default=None,
-                   help="link (or joint) of NOMINAL.urdf whose pose is targeted (default: the last "
-                        "link before the tree branches)")
+    add_frames(p, base_help="link (or joint) of NOMINAL.urdf that plays the meas frame, in which "
+                            "pose targets are given (default: the root link)",
+               tool_help="link (or joint) of NOMINAL.urdf whose pose is targeted (default: the "
+                         "last link before the tree branches)")
     _add_verbose(p)
     p.set_defaults(func=run_compensate)
     return p

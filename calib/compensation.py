@@ -66,7 +66,7 @@ from .errors import CalibError, DataError, MeasurementFormatError, ParameterErro
 from .fileio import atomic_write_text
 from .jacobian import MEASURES
 from .kinematics import ChainKinematics
-from .measurements import QUATERNION_NORM_TOLERANCE
+from .measurements import QUATERNION_NORM_TOLERANCE, finite_array
 from .poses import _joint_columns, _write_comment, read_joint_table
 from .robot import RobotModel, load_robot
 from .spatial import log3_batch
@@ -250,7 +250,7 @@ def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None =
     if (T_meas_tool is None) == (p_meas_tool is None):
         raise ParameterError("give exactly one of T_meas_tool (N, 4, 4) and p_meas_tool (N, 3)")
     if T_meas_tool is not None:
-        T = _float_array(T_meas_tool, "T_meas_tool")
+        T = finite_array(T_meas_tool, "T_meas_tool")
         if T.ndim == 2:
             T = T[None]
         if T.ndim != 3 or T.shape[1:] != (4, 4):
@@ -262,7 +262,7 @@ def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None =
             raise DataError(f"T_meas_tool[{bad[0]}] has no rotation matrix in its upper left 3 x 3 "
                             f"block (orthonormal with determinant +1 to 1e-6)")
     else:
-        p_t = _float_array(p_meas_tool, "p_meas_tool")
+        p_t = finite_array(p_meas_tool, "p_meas_tool")
         if p_t.ndim == 1:
             p_t = p_t[None]
         if p_t.ndim != 2 or p_t.shape[1] != 3:
@@ -383,19 +383,9 @@ def _check_options(measure, singular_threshold, tol_pos, tol_rot, max_iterations
         raise ParameterError(f"max_iterations must be a positive integer, got {max_iterations!r}")
 
 
-def _float_array(value, name: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"{name} must be a numeric array: {exc}") from None
-    if not np.isfinite(arr).all():
-        raise DataError(f"{name} holds NaN or infinite values")
-    return arr
-
-
 def _joint_array(q, robot: RobotModel, name: str) -> np.ndarray:
     """(N, n) joint values from an array-like (one configuration may be given as (n,))."""
-    q = _float_array(q, name)
+    q = finite_array(q, name)
     if q.ndim == 1:
         q = q[None]
     if q.ndim != 2 or q.shape[1] != robot.n_joints:

@@ -120,17 +120,17 @@ class Measurements:
     prismatic: np.ndarray | None = None
 
     def __post_init__(self):
-        q = _float_array(self.q, "q")
+        q = finite_array(self.q, "q")
         if q.ndim != 2:
             raise DataError(f"q must be an (N, n) array of joint values, got shape {q.shape}")
         N, n = q.shape
-        position = _float_array(self.position, "position")
+        position = finite_array(self.position, "position")
         if position.shape != (N, 3):
             raise DataError(f"position must be ({N}, 3) (one row per pose of q), got shape "
                             f"{position.shape}")
         rotation = None
         if self.rotation is not None:
-            rotation = _float_array(self.rotation, "rotation")
+            rotation = finite_array(self.rotation, "rotation")
             if rotation.shape != (N, 3, 3):
                 raise DataError(f"rotation must be ({N}, 3, 3) or None, got shape {rotation.shape}")
             err = np.abs(rotation @ np.swapaxes(rotation, 1, 2) - np.eye(3)).max(axis=(1, 2))
@@ -249,7 +249,7 @@ class Measurements:
         return f"Measurements({self.n_poses} poses, {self.n_joints} joints, {kind}{split}{src})"
 
 
-def _float_array(value, name: str) -> np.ndarray:
+def finite_array(value, name: str) -> np.ndarray:
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -435,14 +435,14 @@ def _read_lines(path: Path) -> list[str]:
     return text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
 
 
-def _split(path: Path, row: int, line: str) -> list[str]:
+def split_fields(path: Path, row: int, line: str) -> list[str]:
     try:
         return next(csv.reader([line], strict=True))
     except csv.Error as exc:
         raise MeasurementFormatError(path, f"malformed CSV: {exc}", row=row) from None
 
 
-def _number(path: Path, row: int, column: str, text: str) -> float:
+def parse_number(path: Path, row: int, column: str, text: str) -> float:
     s = text.strip()
     if not s:
         raise MeasurementFormatError(path, "empty value, expected a number", row, column)
@@ -468,6 +468,28 @@ def _looks_numeric(fields: list[str]) -> bool:
     return True
 
 
+def read_records(path: Path) -> tuple[int, list[str], list[tuple[int, str]]]:
+    """The header and data lines of a calib CSV file (comments and blank lines skipped).
+
+    Returns (header line number, column names as written, [(line number, line), ...] of the data
+    rows). Raises :class:`MeasurementFormatError` for an unreadable file, a file without a header
+    row, or a first line that looks like data.
+    """
+    lines = _read_lines(path)
+    records = [(k + 1, line) for k, line in enumerate(lines)
+               if line.strip() and not line.lstrip().startswith("#")]
+    if not records:
+        raise MeasurementFormatError(path, "no header row: the file holds only comments and blank "
+                                           "lines")
+    header_row, header_line = records[0]
+    names = split_fields(path, header_row, header_line)
+    if _looks_numeric(names):
+        raise MeasurementFormatError(path, "this line looks like data, expected the header row "
+                                           "(column names such as joint1_deg, x_mm; a line starting "
+                                           "with # is a comment)", row=header_row)
+    return header_row, names, records[1:]
+
+
 def read_measurements(csv_path: str | Path, robot: RobotModel) -> Measurements:
     """Read a measurement CSV file (format: see the module docstring) for ``robot``.
 
@@ -488,20 +510,8 @@ def read_measurements(csv_path: str | Path, robot: RobotModel) -> Measurements:
     MeasurementFormatError : on any departure from the format, naming file, row and column.
     """
     path = Path(csv_path)
-    lines = _read_lines(path)
-    records = [(k + 1, line) for k, line in enumerate(lines)
-               if line.strip() and not line.lstrip().startswith("#")]
-    if not records:
-        raise MeasurementFormatError(path, "no header row: the file holds only comments and blank "
-                                           "lines")
-    header_row, header_line = records[0]
-    names = _split(path, header_row, header_line)
-    if _looks_numeric(names):
-        raise MeasurementFormatError(path, "this line looks like data, expected the header row "
-                                           "(column names such as joint1_deg, x_mm; a line starting "
-                                           "with # is a comment)", row=header_row)
+    header_row, names, data = read_records(path)
     header = _Header(path, header_row, names, robot)
-    data = records[1:]
     if not data:
         raise MeasurementFormatError(path, "header but no data rows", row=header_row)
 
@@ -514,19 +524,19 @@ def read_measurements(csv_path: str | Path, robot: RobotModel) -> Measurements:
     sets = [] if SET_COLUMN in cols else None
     rows = np.array([r for r, _ in data], dtype=int)
     for k, (row, line) in enumerate(data):
-        fields = _split(path, row, line)
+        fields = split_fields(path, row, line)
         if len(fields) != ncols:
             raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
                                                f"{ncols} (one per header column)", row=row)
         for i in range(n):
             c = cols[i]
-            q[k, i] = _number(path, row, c.name, fields[c.index]) * c.scale
+            q[k, i] = parse_number(path, row, c.name, fields[c.index]) * c.scale
         for j, key in enumerate(POSITION_COLUMNS):
             c = cols[key]
-            position[k, j] = _number(path, row, c.name, fields[c.index]) * c.scale
+            position[k, j] = parse_number(path, row, c.name, fields[c.index]) * c.scale
         for j, key in enumerate(orient_keys):
             c = cols[key]
-            orient[k, j] = _number(path, row, c.name, fields[c.index]) * c.scale
+            orient[k, j] = parse_number(path, row, c.name, fields[c.index]) * c.scale
         if header.orientation == "quaternion":
             norm = float(np.linalg.norm(orient[k]))
             if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
@@ -567,7 +577,7 @@ def _check_limits(path: Path, robot: RobotModel, header: _Header, q: np.ndarray,
     order = sorted(np.flatnonzero(outside[k]), key=lambda i: header.columns[i].index)
     i = int(order[0])
     c, joint = header.columns[i], robot.joints[i]
-    raw = _split(path, int(rows[k]), data[k][1])[c.index].strip()
+    raw = split_fields(path, int(rows[k]), data[k][1])[c.index].strip()
     value = float(raw)
     count = int(outside[:, i].sum())
     others = f" ({count} rows of this column are outside)" if count > 1 else ""

@@ -96,8 +96,8 @@ from .fileio import atomic_write_text
 from .identifiability import (SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability,
                               observability_indices, weighted_jacobian)
 from .jacobian import MEASURES
-from .measurements import (ANGLE_UNITS, LENGTH_UNITS, LIMIT_TOLERANCE, _looks_numeric,
-                           _number, _read_lines, _split)
+from .measurements import (ANGLE_UNITS, LENGTH_UNITS, LIMIT_TOLERANCE, parse_number, read_records,
+                           split_fields)
 from .robot import RobotModel
 
 __all__ = ["CRITERIA", "PoseDesign", "design_poses", "select_poses", "write_poses", "read_poses"]
@@ -478,18 +478,8 @@ def read_joint_table(path: str | Path, robot: RobotModel, *, extra: Mapping[str,
     the joint limits. Errors are :class:`calib.MeasurementFormatError` with file, row, column.
     """
     path = Path(path)
-    lines = _read_lines(path)
-    records = [(k + 1, line) for k, line in enumerate(lines)
-               if line.strip() and not line.lstrip().startswith("#")]
-    if not records:
-        raise MeasurementFormatError(path, "no header row: the file holds only comments and blank "
-                                           "lines")
-    header_row, header_line = records[0]
-    names = [s.strip() for s in _split(path, header_row, header_line)]
-    if _looks_numeric(names):
-        raise MeasurementFormatError(path, "this line looks like data, expected the header row "
-                                           "(column names such as joint1_deg; a line starting with "
-                                           "# is a comment)", row=header_row)
+    header_row, names, records = read_records(path)
+    names = [s.strip() for s in names]
 
     def fail(reason, column=None):
         raise MeasurementFormatError(path, reason, row=header_row, column=column)
@@ -549,7 +539,7 @@ def read_joint_table(path: str | Path, robot: RobotModel, *, extra: Mapping[str,
              f"{', '.join(missing)}: the robot has {robot.n_joints} joints "
              f"({', '.join(robot.joint_names)}); accepted columns: {accepted}")
 
-    data = records[1:]
+    data = records
     if not data:
         raise MeasurementFormatError(path, "header but no data rows", row=header_row)
     N = len(data)
@@ -557,14 +547,14 @@ def read_joint_table(path: str | Path, robot: RobotModel, *, extra: Mapping[str,
     ext = {key: np.empty(N) for key in extra_cols}
     rows = np.array([r for r, _ in data], dtype=int)
     for k, (row, line) in enumerate(data):
-        fields = _split(path, row, line)
+        fields = split_fields(path, row, line)
         if len(fields) != len(names):
             raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
                                                f"{len(names)} (one per header column)", row=row)
         for i, (index, scale, _) in joint_cols.items():
-            q[k, i] = _number(path, row, names[index], fields[index]) * scale
+            q[k, i] = parse_number(path, row, names[index], fields[index]) * scale
         for key, (index, scale, _) in extra_cols.items():
-            ext[key][k] = _number(path, row, names[index], fields[index]) * scale
+            ext[key][k] = parse_number(path, row, names[index], fields[index]) * scale
 
     if q is not None:
         lo, hi = robot.lower, robot.upper
