@@ -494,7 +494,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
             return problem, *cross_lm(problem, x, angular, max_rounds=max_rounds,
                                       fixed_rounds=fixed_rounds, options=opts, trace=trace)
         if method == "search-lm" and measure == "pose":
-            return problem, *_search_lm(start, problem, x, free_idx[angular], fit, opts, trace)
+            return problem, *search_lm(start, problem, x, free_idx[angular], fit, opts, trace)
         return problem, *levenberg_marquardt(problem, x, "pose", opts, trace), 1
 
     for _pass in range(4):
@@ -563,14 +563,15 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         sigma_pos=sigma_pos, sigma_rot=sigma_rot, notes=tuple(notes))
 
 
-def _search_lm(model: RobotModel, problem: Problem, x: np.ndarray, angular_idx: np.ndarray,
-               fit: Measurements, opts: LMOptions, trace: LMTrace, max_escapes: int = 3):
+def search_lm(model: RobotModel, problem: Problem, x: np.ndarray, angular_idx: np.ndarray,
+              fit: Measurements, opts: LMOptions, trace: LMTrace, max_escapes: int = 3,
+              chain: RotationChain | None = None):
     """search-lm: closed-form angle search on the rotation data (:mod:`calib.angles`), then LM
     on all free parameters; while the fit stays above the noise level (reduced chi-square above
     ``CHI2_ESCAPE``), search again from the LM solution and keep the LM result if it is better.
-    ``model`` gives the chain's structure and reference frames. Returns (x, cost, status,
-    message, rounds) like :func:`calib.solvers.cross_lm`."""
-    chain = RotationChain(model)
+    ``model`` gives the chain's structure and reference frames (``chain``: a RotationChain of it
+    to reuse). Returns (x, cost, status, message, rounds) like :func:`calib.solvers.cross_lm`."""
+    chain = chain or RotationChain(model)
     values, _ = chain.search(problem.full(x), fit.q, fit.rotation, angular_idx, problem.sigma_rot)
     x, cost, status, message = levenberg_marquardt(problem, values[problem.free], "pose", opts, trace)
     dof = max(6 * fit.n_poses - len(problem.free), 1)

@@ -47,7 +47,7 @@ from typing import Sequence  # noqa: E402
 import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
-from calib.calibration import PAPER_EXCLUDED, select_parameters  # noqa: E402
+from calib.calibration import CHI2_ESCAPE, PAPER_EXCLUDED, search_lm, select_parameters  # noqa: E402
 from calib.fileio import atomic_write_bytes, atomic_write_text  # noqa: E402
 from calib.angles import RotationChain  # noqa: E402
 from calib.kinematics import ChainKinematics  # noqa: E402
@@ -266,14 +266,15 @@ def identify(start: RobotModel, meas: calib.Measurements, free_names: Sequence[s
 
 
 #: A fit is at the noise level when its reduced chi-square is below this (1 when sigma is right).
-CHI2_OK = 10.0
+CHI2_OK = CHI2_ESCAPE
 
 
 def identify_best(start: RobotModel, meas: calib.Measurements, free_names: Sequence[str], *,
                   options: LMOptions | None = None, sigma_pos: float = SIGMA_POS_M,
                   sigma_rot: float = SIGMA_ROT_RAD, max_escapes: int = 3,
                   kin: ChainKinematics | None = None, chain: RotationChain | None = None) -> Identification:
-    """Our best strategy: closed-form global search of the angles, then LM, escaping local minima.
+    """Our best strategy, the library's ``search-lm`` (:func:`calib.calibration.search_lm`):
+    closed-form global search of the angles, then LM, escaping local minima.
 
     1. :meth:`RotationChain.search` moves the free angular parameters to the global optimum of
        the rotation data (exact 1-D minima along single coordinates, pi-turns of pairs).
@@ -288,23 +289,13 @@ def identify_best(start: RobotModel, meas: calib.Measurements, free_names: Seque
     free = start.indices(free_names)
     problem = Problem(kin, meas.q, meas.position, meas.rotation, start.values, free, sigma_pos, sigma_rot)
     trace = LMTrace()
-    values = np.array(start.values)
+    x0 = start.values[free]
     if meas.rotation is None:
-        chain = None
+        x, cost, status, _ = levenberg_marquardt(problem, x0, "pose", opts, trace)
     else:
-        chain = chain or RotationChain(start)
-        angular = [k for k in free if start.parameters[k].is_angular]
-        values, _ = chain.search(values, meas.q, meas.rotation, angular, sigma_rot)
-    x, cost, status, _ = levenberg_marquardt(problem, values[free], "pose", opts, trace)
-    dof = max(problem.Q.shape[0] * (6 if meas.rotation is not None else 3) - len(free), 1)
-    for _ in range(max_escapes if chain is not None else 0):
-        if 2.0 * cost / dof <= CHI2_OK:
-            break
-        v2, _ = chain.search(problem.full(x), meas.q, meas.rotation, angular, sigma_rot)
-        x2, c2, s2, _ = levenberg_marquardt(problem, v2[free], "pose", opts, trace)
-        if not c2 < cost:
-            break
-        x, cost, status = x2, c2, s2
+        angular = np.array([k for k in free if start.parameters[k].is_angular], dtype=int)
+        x, cost, status, _, _ = search_lm(start, problem, x0, angular, meas, opts, trace,
+                                          max_escapes=max_escapes, chain=chain)
     return Identification(problem.full(x), float(cost), status, trace.iterations, trace.jacobians, *timer.done())
 
 
