@@ -1,25 +1,32 @@
 """The calibration API: identify a robot's TM-MDH parameters from measured tool poses.
 
-``calibrate(robot, measurements)`` runs, in order:
+``calibrate(robot, measurements)`` runs named stages, each returning a small frozen object:
 
-1. parameter selection (``params``): ``"base"`` (default) the identifiable set of
-   :mod:`calib.identifiability` at the calibration configurations, each redundant partner held at
-   its nominal value; ``"paper"`` all but u_z, u_alpha, v_x, v_z, v_alpha, v_gamma (Section 4.2);
-   ``"all"`` every parameter, the rank deficiency left to the LM damping (Tables 6-7); or a list
-   of names.
-2. closed-form frame initialisation (:mod:`calib.frames`) when the data put the measurement or
-   tool frame far from the nominal one (more than ``FRAME_REBASE_M`` or ``FRAME_REBASE_RAD``):
-   the model's constant reference transforms are moved to the estimates, u and v keep their
-   nominal values relative to them.
-3. identification by C-LM (default) or LM (:mod:`calib.solvers`), noise-weighted.
-4. statistics: parameter covariance ``(J^T W J)^-1`` of the free parameters at the solution (the
-   Cramer-Rao bound of an unbiased estimator for the given sigma), standard deviations, the
-   predicted pose accuracy of the calibrated model from that covariance, and the achieved accuracy
-   before and after on the calibration and validation rows.
+1. **prepare** (:class:`Setup`): the calibration and validation rows, what is measured (pose or
+   position), and a closed-form estimate of the measurement and tool frames (:mod:`calib.frames`)
+   when the data put them far from the nominal ones (more than ``FRAME_REBASE_M`` or
+   ``FRAME_REBASE_RAD``): the model's constant reference transforms move to the estimates, u and
+   v keep their nominal values relative to them.
+2. **parameter set** (``params``): the identifiable set of :mod:`calib.identifiability`
+   (``"base"``), the paper's set, all, a list of names, or ``"auto"``: nested candidate sets
+   compared by cross-validated held-out error (:class:`ModelSelection`).
+3. **fit** (:class:`Fit`): identification by search-lm, C-LM or LM (:mod:`calib.solvers`),
+   noise-weighted. Unless the noise levels are given, they are estimated from the residuals by
+   variance-component estimation iterated with the fit (:class:`NoiseEstimate`). Outlier rows are
+   flagged against a robust fit and the fit repeated without them.
+4. **statistics** (:class:`Statistics`): parameter covariance, the predicted accuracy of the
+   calibrated model against the true poses (``predicted_rms``, the Cramer-Rao figure) and against
+   new measured rows (``predicted_holdout_rms``: parameter uncertainty inflated by the measured
+   misfit, plus the measurement noise), chi-square consistency of given noise levels.
+5. **cross-validation** (:class:`CrossValidation`): K-fold held-out error when no validation rows
+   are given.
+6. accuracy before and after on the calibration and validation rows, raw and (for a measurement
+   frame far from the base) after a best-fit registration of the measurement frame only.
 """
 from __future__ import annotations
 
 import json
+import logging
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -28,27 +35,39 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import DataError, ParameterError
 from .angles import RotationChain
+from .errors import DataError, ParameterError
 from .frames import estimate_frames
 from .identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability
 from .jacobian import pose_jacobian
 from .kinematics import ChainKinematics
 from .measurements import Measurements
 from .robot import RobotModel
-from .solvers import LMOptions, LMTrace, Problem, cross_lm, levenberg_marquardt
+from .solvers import (CHI2_ESCAPE, CHUNK_POSES, LOSSES, LMOptions, LMTrace, NormalEquations, Problem,
+                      SolverResult, cross_lm, levenberg_marquardt, search_lm)
 from .spatial import inverse, log3_batch, zyx_parameters, zyx_transform
 
+log = logging.getLogger("calib.calibration")
+
 METHODS = ("search-lm", "c-lm", "lm")
-#: search-lm: a fit whose reduced chi-square stays above this is not at the noise level, and the
-#: angle search is tried again from it (a local minimum is the likely cause).
-CHI2_ESCAPE = 10.0
-PARAM_SETS = ("base", "paper", "all")
+PARAM_SETS = ("base", "paper", "all", "auto")
 #: Parameters that Section 4.2 of the paper leaves out when the frames are well known.
 PAPER_EXCLUDED = ("u_z", "u_alpha", "v_x", "v_z", "v_alpha", "v_gamma")
 #: The closed-form frame estimate replaces the nominal frames beyond these distances.
 FRAME_REBASE_M = 0.010
 FRAME_REBASE_RAD = 0.02
+#: Without ``params``, model selection ("auto") is used when the calibration rows hold fewer
+#: residual components per identifiable parameter than this (scripts/bench_holdout.py).
+AUTO_BELOW_COMPONENTS_PER_PARAM = 10.0
+#: Variance-component estimation: at most this many re-weighted fits, stopping when both noise
+#: levels change by less than VCE_RTOL.
+VCE_MAX_ITERATIONS = 12
+VCE_RTOL = 1e-3
+#: An explicit lm / c-lm fit is called a local minimum when an angle search from it, then LM,
+#: reaches a cost below this fraction of its own.
+LOCAL_MINIMUM_RATIO = 0.9
+#: Default number of cross-validation folds.
+CV_FOLDS = 5
 
 
 # ====================================================================== accuracy
@@ -112,7 +131,7 @@ def evaluate(robot: RobotModel, measurements: Measurements) -> AccuracyStats:
     return pose_errors(robot, measurements.q, measurements.position, measurements.rotation)
 
 
-# ====================================================================== result
+# ====================================================================== stage objects
 @dataclass(frozen=True)
 class Outlier:
     """A calibration row left out of the fit: its line in the file, its errors after the fit
@@ -124,26 +143,165 @@ class Outlier:
     sigmas: float
 
 
-def _flag_outliers(model: RobotModel, cal: Measurements, keep: np.ndarray, sigma_pos: float,
-                   sigma_rot: float, k: float) -> tuple[list[Outlier], bool]:
-    """Rows still kept whose whitened residual RMS per component exceeds k (see calibrate), and
-    whether they are too many (more than a quarter of the kept rows) to be outliers."""
-    R, p = ChainKinematics(model).frame_poses(cal.q)
-    dp = p - cal.position
-    blocks = [dp / sigma_pos]
-    rot = np.full(cal.n_poses, np.nan)
-    if cal.rotation is not None:
-        dr = log3_batch(R @ np.transpose(cal.rotation, (0, 2, 1)))
-        blocks.append(dr / sigma_rot)
-        rot = np.linalg.norm(dr, axis=1)
-    w = np.concatenate(blocks, axis=1)
-    rms = np.sqrt(np.mean(w ** 2, axis=1))
-    bad = np.flatnonzero(keep & (rms > k))
-    found = [Outlier(int(cal.rows[i]), float(np.linalg.norm(dp[i])), float(rot[i]), float(rms[i]))
-             for i in bad]
-    return found, len(bad) > 0.25 * keep.sum()
+@dataclass(frozen=True)
+class Setup:
+    """The prepare stage: what the fit works on.
+
+    nominal : the model calibration started from; start : the same with its reference frames
+    moved to the closed-form estimates (or ``nominal``); cal / val : calibration and validation
+    rows (val None without any); measure : "pose" or "position"; rebased : which of
+    "measurement->base", "flange->tool" were moved.
+    """
+
+    nominal: RobotModel
+    start: RobotModel
+    cal: Measurements = field(repr=False)
+    val: Measurements | None = field(repr=False)
+    measure: str
+    rebased: tuple[str, ...]
+
+    @property
+    def components_per_pose(self) -> int:
+        return 6 if self.measure == "pose" else 3
 
 
+@dataclass(frozen=True)
+class NoiseEstimate:
+    """Measurement noise per axis used to weight the fit, and how well the residuals agree.
+
+    position (m) and rotation (rad, None for position-only data); estimated : True when they come
+    from the residuals (variance-component estimation), False when given. redundancy_pos / _rot :
+    degrees of freedom of each group (its residual components minus its share of the rank of the
+    Jacobian); chi2_pos / chi2_rot : the group's weighted residual sum of squares divided by its
+    redundancy (1 when the noise level matches); chi2, dof, p_value : the chi-square test of the
+    whole fit (p_value the probability of a larger chi-square if the noise levels were right;
+    None when they were estimated). iterations : re-weighted fits of the estimation.
+    """
+
+    position: float
+    rotation: float | None
+    estimated: bool
+    redundancy_pos: float
+    redundancy_rot: float
+    chi2_pos: float
+    chi2_rot: float | None
+    chi2: float
+    dof: float
+    p_value: float | None
+    iterations: int
+
+    @property
+    def reduced_chi2(self) -> float:
+        return self.chi2 / max(self.dof, 1e-300)
+
+    def to_dict(self) -> dict:
+        return {"position_mm": self.position * 1e3, "rotation_rad": self.rotation,
+                "estimated": self.estimated, "iterations": self.iterations,
+                "reduced_chi2": self.reduced_chi2, "dof": self.dof,
+                "chi2_test": None if self.estimated else {
+                    "chi2": self.chi2, "dof": self.dof, "p_value": self.p_value,
+                    "reduced_chi2_position": self.chi2_pos, "reduced_chi2_rotation": self.chi2_rot}}
+
+
+@dataclass(frozen=True)
+class Fit:
+    """The fit stage: the identified model and how it was reached.
+
+    model : the calibrated model; free : names of the identified parameters; solver : the
+    solver's result for the last fit (x, cost in the final noise weights, status, message, ...);
+    keep : (N_cal,) bool, rows used (False for outliers); outliers; noise : the weights used and
+    the residuals' agreement with them; iterations : LM iterations of every fit in the stage.
+    """
+
+    model: RobotModel
+    free: tuple[str, ...]
+    solver: SolverResult
+    keep: np.ndarray = field(repr=False)
+    outliers: tuple[Outlier, ...]
+    noise: NoiseEstimate
+    iterations: int
+    notes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Statistics:
+    """The statistics stage.
+
+    covariance : (n_free, n_free) covariance of the free parameters (SI units), from the noise
+    levels of the fit; full_rank : False when it is a pseudo-inverse. rank : rank of the weighted
+    Jacobian. predicted : RMS error of the calibrated model against the true poses at ``where``
+    (position_rms m, rotation_rms rad): the covariance propagated to the poses. predicted_holdout :
+    RMS error against new measured rows: the covariance inflated by the measured misfit, plus the
+    measurement noise (inflated likewise).
+    """
+
+    covariance: np.ndarray = field(repr=False)
+    full_rank: bool
+    rank: int
+    predicted: dict
+    predicted_holdout: dict
+    where: str
+
+
+@dataclass(frozen=True)
+class CrossValidation:
+    """K-fold cross-validated held-out error of a fit: each fold's rows predicted by the model
+    fitted on the other folds. position_rms (m) and rotation_rms (rad, None position only) pooled
+    over every held-out row; per_fold : per fold (rows, position_rms, rotation_rms);
+    score / score_se : mean whitened squared held-out error per row (position and rotation,
+    weighted by the fit's noise levels) and its standard error."""
+
+    folds: int
+    position_rms: float
+    rotation_rms: float | None
+    per_fold: tuple[tuple[int, float, float | None], ...]
+    score: float
+    score_se: float
+
+    def to_dict(self) -> dict:
+        return {"folds": self.folds, "position_rms_mm": self.position_rms * 1e3,
+                "rotation_rms_rad": self.rotation_rms,
+                "per_fold": [{"rows": n, "position_rms_mm": p * 1e3, "rotation_rms_rad": r}
+                             for n, p, r in self.per_fold]}
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate parameter set of the model selection and its cross-validated error."""
+
+    label: str
+    free: tuple[str, ...]
+    cv: CrossValidation
+
+
+@dataclass(frozen=True)
+class ModelSelection:
+    """``params="auto"``: the candidates (smallest first) and the chosen one: the smallest whose
+    cross-validated score is within one standard error of the best (the one-standard-error rule)."""
+
+    candidates: tuple[Candidate, ...]
+    chosen: str
+    best: str
+
+    def to_dict(self) -> dict:
+        return {"chosen": self.chosen, "best": self.best, "rule": "one standard error",
+                "candidates": [{"label": c.label, "n_free": len(c.free), "score": c.cv.score,
+                                "score_se": c.cv.score_se, "position_rms_mm": c.cv.position_rms * 1e3,
+                                "rotation_rms_rad": c.cv.rotation_rms} for c in self.candidates]}
+
+    def format(self) -> str:
+        lines = [f"model selection ({self.candidates[0].cv.folds}-fold cross-validation, one-standard-error "
+                 f"rule toward the smaller set):",
+                 f"  {'candidate':<26}{'params':>7}{'score':>10}{'+-se':>9}{'pos rms/mm':>12}{'rot rms/rad':>13}"]
+        for c in self.candidates:
+            rot = "-" if c.cv.rotation_rms is None else f"{c.cv.rotation_rms:.3e}"
+            mark = "  <- chosen" if c.label == self.chosen else ("  (lowest)" if c.label == self.best else "")
+            lines.append(f"  {c.label:<26}{len(c.free):>7}{c.cv.score:>10.3f}{c.cv.score_se:>9.3f}"
+                         f"{c.cv.position_rms * 1e3:>12.4f}{rot:>13}{mark}")
+        return "\n".join(lines)
+
+
+# ====================================================================== result
 @dataclass(frozen=True)
 class ParameterEstimate:
     """One row of the parameter table. Values in SI units (``unit``: m or rad).
@@ -175,11 +333,18 @@ class CalibrationResult:
 
     robot : the calibrated model; nominal : the model calibration started from.
     parameters : the parameter table; free : names of the identified parameters.
-    status : "converged", "max_iterations" or "diverged"; success : status == "converged".
+    status : "converged", "max_iterations", "diverged" or "local_minimum" (an explicit lm / c-lm
+    fit that a search from another start beats); success : status == "converged".
     before, after : accuracy on the calibration rows; validation_before/after on the validation
-    rows (None without validation data). predicted : the Cramer-Rao prediction of the calibrated
-    model's RMS error against the true poses (position m, rotation rad) at the validation
-    configurations (the calibration ones when there are none).
+    rows (None without validation data); before_registered / validation_before_registered : the
+    nominal model after a best-fit registration of the measurement frame only (None unless the
+    measurement frame is far from the nominal one).
+    noise : the noise levels of the fit (:class:`NoiseEstimate`); sigma_pos, sigma_rot : the same
+    numbers (sigma_rot is that of the weighting also for position-only data).
+    predicted : the Cramer-Rao prediction of the calibrated model's RMS error against the true
+    poses (position_rms m, rotation_rms rad, where); predicted_holdout : the RMS error expected on
+    new measured rows (:class:`Statistics`). cross_validation, selection : see
+    :class:`CrossValidation`, :class:`ModelSelection` (None when not run).
     covariance : (n_free, n_free) covariance of the free parameters (SI units).
     """
 
@@ -205,8 +370,14 @@ class CalibrationResult:
     sigma_pos: float
     sigma_rot: float
     notes: tuple[str, ...] = ()
-    outliers: tuple["Outlier", ...] = ()
+    outliers: tuple[Outlier, ...] = ()
     loss: str = "linear"
+    noise: NoiseEstimate | None = None
+    predicted_holdout: dict | None = field(default=None, repr=False)
+    cross_validation: CrossValidation | None = field(default=None, repr=False)
+    selection: ModelSelection | None = field(default=None, repr=False)
+    before_registered: AccuracyStats | None = field(default=None, repr=False)
+    validation_before_registered: AccuracyStats | None = field(default=None, repr=False)
 
     @property
     def success(self) -> bool:
@@ -234,7 +405,9 @@ class CalibrationResult:
         write_calibrated_urdf(self.robot, path, nominal=self.nominal)
 
     def to_dict(self) -> dict:
-        """JSON-ready report: keys status, before, after, validation, parameters, ..."""
+        """JSON-ready report: keys status, before, after, validation, parameters, noise, ..."""
+        has_rot = self.predicted.get("rotation_rms") is not None
+        ph = self.predicted_holdout
         return {
             "status": self.status,
             "success": self.success,
@@ -248,6 +421,7 @@ class CalibrationResult:
             "reduced_chi2": self.reduced_chi2,
             "sigma_pos_mm": self.sigma_pos * 1e3,
             "sigma_rot_rad": self.sigma_rot,
+            "noise": None if self.noise is None else self.noise.to_dict(),
             "notes": list(self.notes),
             "loss": self.loss,
             "outliers": [{"row": o.row, "position_error_mm": o.position_error * 1e3,
@@ -255,10 +429,20 @@ class CalibrationResult:
                           "sigmas": o.sigmas} for o in self.outliers],
             "before": self.before.to_dict(),
             "after": self.after.to_dict(),
+            "before_registered": None if self.before_registered is None else {
+                "calibration": self.before_registered.to_dict(),
+                "validation": None if self.validation_before_registered is None
+                else self.validation_before_registered.to_dict()},
             "validation": None if self.validation_after is None else {
                 "before": self.validation_before.to_dict(), "after": self.validation_after.to_dict()},
             "predicted_rms": {"position_mm": self.predicted["position_rms"] * 1e3,
-                              "rotation_rad": self.predicted.get("rotation_rms")},
+                              "rotation_rad": self.predicted.get("rotation_rms"),
+                              "where": self.predicted.get("where")},
+            "predicted_holdout_rms": None if ph is None else {
+                "position_mm": ph["position_rms"] * 1e3,
+                "rotation_rad": ph["rotation_rms"] if has_rot else None},
+            "cross_validation": None if self.cross_validation is None else self.cross_validation.to_dict(),
+            "model_selection": None if self.selection is None else self.selection.to_dict(),
             "parameters": [{"name": p.name, "unit": "mm" if p.unit == "m" else "rad",
                             "nominal": _out(p.nominal, p.unit), "identified": _out(p.identified, p.unit),
                             "deviation": _out(p.deviation, p.unit),
@@ -271,28 +455,53 @@ class CalibrationResult:
 
     def format(self) -> str:
         """The report for a person: parameter table, accuracy before/after, status."""
+        nz = self.noise
         lines = [f"Calibration: {self.method.upper()}, parameter set {self.param_set!r} "
                  f"({len(self.free)} identified of {len(self.parameters)}), {self.status}: {self.message}",
-                 f"  {self.iterations} iterations, {self.rounds} rounds, {self.wall_time * 1e3:.1f} ms; "
-                 f"reduced chi^2 {self.reduced_chi2:.3g} (1 when sigma_pos = {self.sigma_pos * 1e3:g} mm "
-                 f"and sigma_rot = {self.sigma_rot:g} rad match the data)"]
+                 f"  {self.iterations} iterations, {self.rounds} rounds, {self.wall_time * 1e3:.1f} ms"]
+        if nz is not None:
+            rot = "" if nz.rotation is None else f", orientation {nz.rotation:.3g} rad"
+            if nz.estimated:
+                lines.append(f"  noise estimated from the residuals ({nz.iterations} re-weighted fits): "
+                             f"position {nz.position * 1e3:.4g} mm{rot} per axis")
+            else:
+                lines.append(f"  noise given: position {nz.position * 1e3:g} mm{rot} per axis; residuals "
+                             f"vs that noise: reduced chi^2 {nz.reduced_chi2:.3g} over {nz.dof:.0f} degrees "
+                             f"of freedom (p = {nz.p_value:.3g}{', consistent' if nz.p_value > 0.01 else ', NOT consistent'})")
         lines += [f"  note: {n}" for n in self.notes]
         for o in self.outliers:
             rot = "" if math.isnan(o.rotation_error) else f", {o.rotation_error:.3g} rad"
             lines.append(f"  outlier: row {o.row}: {o.position_error * 1e3:.3f} mm{rot} ({o.sigmas:.0f} sigma)")
+        if self.selection is not None:
+            lines += ["", self.selection.format()]
         lines += ["", f"{'parameter':<10}{'unit':>5}{'nominal':>14}{'identified':>14}{'deviation':>13}{'std':>11}"]
         for p in self.parameters:
             unit = "mm" if p.unit == "m" else "rad"
             std = "fixed" if not p.free else f"{_out(p.std, p.unit):.3g}"
             lines.append(f"{p.name:<10}{unit:>5}{_out(p.nominal, p.unit):>14.6f}"
                          f"{_out(p.identified, p.unit):>14.6f}{_out(p.deviation, p.unit):>13.6f}{std:>11}")
-        lines += ["", format_accuracy_table([("calibration rows, before", self.before),
-                                             ("calibration rows, after", self.after)]
-                                            + ([] if self.validation_after is None else
-                                               [("validation rows, before", self.validation_before),
-                                                ("validation rows, after", self.validation_after)]))]
+        rows = [("calibration rows, before", self.before)]
+        if self.before_registered is not None:
+            rows.append(("  before, frame registered", self.before_registered))
+        rows.append(("calibration rows, after", self.after))
+        if self.validation_after is not None:
+            rows.append(("validation rows, before", self.validation_before))
+            if self.validation_before_registered is not None:
+                rows.append(("  before, frame registered", self.validation_before_registered))
+            rows.append(("validation rows, after", self.validation_after))
+        lines += ["", format_accuracy_table(rows)]
+        if self.cross_validation is not None:
+            cv = self.cross_validation
+            rot = "" if cv.rotation_rms is None else f", orientation {cv.rotation_rms:.3g} rad"
+            lines.append(f"cross-validated ({cv.folds}-fold) held-out RMS error: position "
+                         f"{cv.position_rms * 1e3:.4g} mm{rot}")
         pr = self.predicted
-        rot = "" if pr.get("rotation_rms") is None else f", rotation {pr['rotation_rms']:.3g} rad"
+        rot = "" if pr.get("rotation_rms") is None else f", orientation {pr['rotation_rms']:.3g} rad"
+        if self.predicted_holdout is not None:
+            ph = self.predicted_holdout
+            rot_h = "" if pr.get("rotation_rms") is None else f", orientation {ph['rotation_rms']:.3g} rad"
+            lines.append(f"predicted RMS error on new measured rows ({pr['where']}): position "
+                         f"{ph['position_rms'] * 1e3:.4g} mm{rot_h}")
         lines.append(f"predicted RMS error of the calibrated model against the true poses (Cramer-Rao, "
                      f"{pr['where']}): position {pr['position_rms'] * 1e3:.4g} mm{rot}")
         return "\n".join(lines)
@@ -317,135 +526,52 @@ def format_accuracy_table(rows: Sequence[tuple[str, AccuracyStats]]) -> str:
     return "\n".join(lines)
 
 
-# ====================================================================== calibrate
+# ====================================================================== stages
 def _check_compatible(robot: RobotModel, m: Measurements) -> None:
     if m.n_joints != robot.n_joints:
         raise DataError(f"the measurements have {m.n_joints} joint values per pose, the robot "
                         f"{robot.n_joints} joints ({', '.join(robot.joint_names)})")
 
 
-def select_parameters(robot: RobotModel, params, Q: np.ndarray, measure: str, sigma_pos: float,
-                      sigma_rot: float) -> tuple[str, tuple[str, ...]]:
-    """(set label, free parameter names) for a ``params`` choice; see :func:`calibrate`."""
-    if isinstance(params, str):
-        key = params.lower()
-        if key == "base":
-            rep = analyze_identifiability(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot)
-            return "base", rep.identifiable
-        if key == "paper":
-            return "paper", tuple(n for n in robot.names if n not in PAPER_EXCLUDED)
-        if key == "all":
-            return "all", robot.names
-        names = [s.strip() for s in params.split(",") if s.strip()]
-        if len(names) == 1 and names[0] not in robot.names:
-            raise ParameterError(f"unknown parameter set {params!r}: expected base, paper, all or a "
-                                 f"comma-separated list of parameter names ({', '.join(robot.names)})")
-        params = names
-    names = tuple(params)
-    robot.indices(names)  # raises ParameterError for unknown names
-    if len(set(names)) != len(names):
-        raise ParameterError("a parameter is listed twice")
-    return "list", tuple(n for n in robot.names if n in names)
+def _positive_finite(value, name: str, *, allow_none: bool = False) -> None:
+    if value is None and allow_none:
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise ParameterError(f"{name} must be a positive number, got {value!r}")
+    if not (math.isfinite(value) and value > 0):
+        raise ParameterError(f"{name} must be a positive finite number, got {value!r}")
 
 
-def _rebase_frames(robot: RobotModel, m: Measurements, notes: list, always: bool = False) -> RobotModel:
-    """Move the reference frames to closed-form estimates when the data put them far away
-    (or ``always``)."""
-    try:
-        X, Y = estimate_frames(robot, m.q, m.position, m.rotation)
-    except DataError as exc:
-        notes.append(f"frames not initialised in closed form ({exc}); started from the nominal frames")
-        return robot
-    out = robot
-    for label, T_nom, T_est in (("measurement->base", robot.T_meas_base(), X),
-                                ("flange->tool", robot.T_flange_tool(), Y)):
-        dT = inverse(T_nom) @ T_est
-        dist = float(np.linalg.norm(dT[:3, 3]))
-        ang = float(np.linalg.norm(log3_batch(dT[None, :3, :3])[0]))
-        if always or dist > FRAME_REBASE_M or ang > FRAME_REBASE_RAD:
-            if label == "measurement->base":
-                out = replace(out, T_meas_base_ref=T_est @ inverse(zyx_transform(*robot.u())))
-            else:
-                out = replace(out, T_flange_tool_ref=inverse(zyx_transform(*robot.v())) @ T_est)
-            notes.append(f"{label} initialised in closed form: {dist * 1e3:.1f} mm and {ang:.3g} rad "
-                         f"from the nominal transform")
-    return out
-
-
-def _covariance(J: np.ndarray) -> tuple[np.ndarray, bool]:
-    """(J^T J)^-1 of a weighted Jacobian, or its pseudo-inverse when rank deficient."""
-    A = J.T @ J
-    d = np.sqrt(np.diag(A))
-    d[d == 0] = 1.0
-    As = A / np.outer(d, d)
-    s = np.linalg.svd(As, compute_uv=False)
-    full_rank = s[-1] > 1e-12 * s[0]
-    inv = np.linalg.inv(As) if full_rank else np.linalg.pinv(As, rcond=1e-12)
-    return inv / np.outer(d, d), full_rank
-
-
-def predicted_accuracy(robot: RobotModel, Q: np.ndarray, free: Sequence[str], covariance: np.ndarray) -> dict:
-    """Cramer-Rao prediction of the RMS tool pose error at configurations Q (N, n).
-
-    Returns position_rms (m) and rotation_rms (rad): sqrt of the mean over poses of the trace of
-    the propagated 3x3 covariance ``J_v C J_v^T``.
-    """
-    _, _, J = pose_jacobian(ChainKinematics(robot), Q)
-    Jf = J[:, :, robot.indices(free)]
-    cov = (Jf @ covariance) @ np.transpose(Jf, (0, 2, 1))
-    tr_p = np.trace(cov[:, :3, :3], axis1=1, axis2=2)
-    tr_r = np.trace(cov[:, 3:, 3:], axis1=1, axis2=2)
-    return {"position_rms": float(np.sqrt(np.mean(tr_p))), "rotation_rms": float(np.sqrt(np.mean(tr_r)))}
-
-
-def calibrate(robot: RobotModel, measurements: Measurements, method: str = "search-lm",
-              params: str | Sequence[str] = "base", sigma_pos: float = SIGMA_POS_M,
-              sigma_rot: float = SIGMA_ROT_RAD, *, init_frames: bool | str = "auto",
-              max_rounds: int = 20, fixed_rounds: int | None = None, options: LMOptions | None = None,
-              validation: Measurements | None = None, loss: str = "linear", loss_scale: float = 3.0,
-              outlier_k: float | None = 5.0) -> CalibrationResult:
-    """Identify the TM-MDH parameters of ``robot`` from ``measurements``.
-
-    Parameters
-    ----------
-    robot : the nominal model (e.g. from :func:`calib.load_robot`).
-    measurements : measured tool poses; rows with set ``val`` are held out for validation.
-    method : "search-lm" (default): a closed-form search of the angular parameters on the
-        rotation data (:mod:`calib.angles`), then LM on all free parameters, searching again if
-        LM stops above the noise level; it converges from far larger joint-offset and twist
-        errors than C-LM (docs/reproduction.md: 100% of the paper's Table 8 grid, against
-        99.8% for C-LM and 93% for LM) at the same accuracy and speed. "c-lm": the paper's cross
-        identification (Section 3.2.2). "lm": plain Levenberg-Marquardt. With position-only data
-        the first two have no angle step and run as LM (a note in the result says so).
-    params : "base" (identifiable set, default), "paper", "all", or parameter names.
-    sigma_pos : position noise per axis, metres (default 0.02 mm, the paper's simulation).
-    sigma_rot : orientation noise per axis, radians (default 0.002 rad).
-    init_frames : "auto" (closed-form estimate of the measurement and tool frames, used when the
-        data put them more than 10 mm / 0.02 rad from the nominal ones), True (always use it),
-        False (never). With the estimate, the reference transforms move to it and u, v keep their
-        nominal values relative to it.
-    max_rounds : C-LM rounds at most (LM: ``options.max_iterations``); ``fixed_rounds`` runs
-        exactly that many C-LM rounds (see :func:`calib.solvers.cross_lm`).
-    validation : separate validation measurements; the statistics then use these, and the
-        ``val`` rows of ``measurements`` are only held out.
-    loss : "linear" (least squares, the maximum-likelihood fit for Gaussian noise), or a robust
-        loss on each pose's whitened residual: "huber" or "soft_l1", with ``loss_scale`` in units
-        of sigma (see :func:`calib.solvers.robust_scaling`).
-    outlier_k : after the fit, a calibration row whose residual RMS per component exceeds
-        ``outlier_k`` sigma is flagged, listed in the result (``outliers``) and the fit repeated
-        without it (up to 3 passes). If more than a quarter of the rows exceed it, nothing is
-        removed: the noise is then larger than sigma_pos / sigma_rot, and a note says so.
-        None disables the check.
-
-    Returns a :class:`CalibrationResult`; a non-converged or diverged fit is reported in its
-    ``status``, never raised. Raises :class:`calib.CalibError` for unusable input.
-    """
-    t0 = time.perf_counter()
-    method = method.lower()
-    if method not in METHODS:
+def _check_options(method, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds, loss,
+                   loss_scale, outlier_k, cv) -> str:
+    """Every option of :func:`calibrate` checked before any work (as scipy's least_squares does)."""
+    if not isinstance(method, str) or method.lower() not in METHODS:
         raise ParameterError(f"unknown method {method!r}: expected one of {', '.join(METHODS)}")
-    if not (sigma_pos > 0 and sigma_rot > 0):
-        raise ParameterError("sigma_pos and sigma_rot must be positive")
+    _positive_finite(sigma_pos, "sigma_pos", allow_none=True)
+    _positive_finite(sigma_rot, "sigma_rot", allow_none=True)
+    for value, name in ((sigma_pos, "sigma_pos"), (sigma_rot, "sigma_rot")):
+        if value is not None and not 1e-12 <= value <= 1.0:
+            raise ParameterError(f"{name} must be between 1e-12 and 1 (metres / radians), got {value!r}")
+    if init_frames not in (True, False, "auto"):
+        raise ParameterError(f"init_frames must be True, False or 'auto', got {init_frames!r}")
+    for value, name in ((max_rounds, "max_rounds"), (fixed_rounds, "fixed_rounds")):
+        if value is None and name == "fixed_rounds":
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ParameterError(f"{name} must be a positive integer, got {value!r}")
+    if loss not in LOSSES:
+        raise ParameterError(f"unknown loss {loss!r}: expected one of {', '.join(LOSSES)}")
+    _positive_finite(loss_scale, "loss_scale")
+    _positive_finite(outlier_k, "outlier_k", allow_none=True)
+    if cv is not None and (isinstance(cv, bool) or not isinstance(cv, (int, np.integer)) or cv < 0 or cv == 1):
+        raise ParameterError(f"cv must be 0 (off) or a number of folds >= 2, got {cv!r}")
+    return method.lower()
+
+
+def prepare(robot: RobotModel, measurements: Measurements, validation: Measurements | None = None,
+            init_frames: bool | str = "auto") -> tuple[Setup, list[str]]:
+    """The prepare stage: rows, what is measured, closed-form frames (see the module docstring).
+    Returns the :class:`Setup` and notes for the user."""
     _check_compatible(robot, measurements)
     notes: list[str] = []
     cal = measurements.calibration()
@@ -459,9 +585,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     if val is not None and val.n_poses == 0:
         val = None
     measure = "pose" if cal.has_orientation else "position"
-
     rows_per_pose = 6 if measure == "pose" else 3
-    # the identifiable set needs as many equations as parameters at the very least
     needed = 0
     if cal.n_poses * rows_per_pose < robot.n_params:
         needed = analyze_identifiability(robot, robot.random_configurations(50, 0), measure=measure).rank
@@ -470,82 +594,609 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         raise DataError(f"{where}{cal.n_poses} calibration poses give {cal.n_poses * rows_per_pose} equations, "
                         f"fewer than the {needed} identifiable parameters need; measure at least "
                         f"{-(-needed // rows_per_pose)} poses (several times more for accuracy)")
+    start, rebased = robot, ()
+    if init_frames:
+        start, rebased = _rebase_frames(robot, cal, notes, always=init_frames is True)
+    return Setup(robot, start, cal, val, measure, rebased), notes
 
-    start = _rebase_frames(robot, cal, notes, always=init_frames is True) if init_frames else robot
-    # after the frame estimate: where the tool point lies decides what positions can identify
-    label, free = select_parameters(start, params, cal.q, measure, sigma_pos, sigma_rot)
-    kin = ChainKinematics(start)
-    free_idx = start.indices(free)
-    opts = options or LMOptions()
+
+def _rebase_frames(robot: RobotModel, m: Measurements, notes: list,
+                   always: bool = False) -> tuple[RobotModel, tuple[str, ...]]:
+    """Move the reference frames to closed-form estimates when the data put them far away
+    (or ``always``)."""
+    try:
+        X, Y = estimate_frames(robot, m.q, m.position, m.rotation)
+    except DataError as exc:
+        notes.append(f"frames not initialised in closed form ({exc}); started from the nominal frames")
+        return robot, ()
+    out, moved = robot, []
+    for label, T_nom, T_est in (("measurement->base", robot.T_meas_base(), X),
+                                ("flange->tool", robot.T_flange_tool(), Y)):
+        dT = inverse(T_nom) @ T_est
+        dist = float(np.linalg.norm(dT[:3, 3]))
+        ang = float(np.linalg.norm(log3_batch(dT[None, :3, :3])[0]))
+        if always or dist > FRAME_REBASE_M or ang > FRAME_REBASE_RAD:
+            if label == "measurement->base":
+                out = replace(out, T_meas_base_ref=T_est @ inverse(zyx_transform(*robot.u())))
+            else:
+                out = replace(out, T_flange_tool_ref=inverse(zyx_transform(*robot.v())) @ T_est)
+            moved.append(label)
+            notes.append(f"{label} initialised in closed form: {dist * 1e3:.1f} mm and {ang:.3g} rad "
+                         f"from the nominal transform")
+    return out, tuple(moved)
+
+
+# ---------------------------------------------------------------- parameter sets
+def _idealised(robot: RobotModel) -> RobotModel:
+    """The model with its small deviations removed: angles within 0.05 rad of a multiple of pi/2
+    and lengths within 1 mm of zero snapped there. Which parameters tie to which is decided on
+    this model, so that it does not depend on where a perturbed model happens to be linearised."""
+    v = robot.values.copy()
+    for k, p in enumerate(robot.parameters):
+        if p.unit == "rad":
+            snapped = round(v[k] / (math.pi / 2)) * (math.pi / 2)
+            if abs(v[k] - snapped) < 0.05:
+                v[k] = snapped
+        elif abs(v[k]) < 1e-3:
+            v[k] = 0.0
+    return robot.with_values(v)
+
+
+def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
+                     sigma_rot: float = SIGMA_ROT_RAD) -> tuple[str, ...]:
+    """The identifiable parameter names at configurations Q (N, n) (see
+    :func:`calib.identifiability.analyze_identifiability`), chosen start-independently: the
+    partners to hold fixed are picked on the idealised model (:func:`_idealised`) and kept when
+    they are also a valid choice at ``robot``; the rank is ``robot``'s."""
+    ideal = analyze_identifiability(_idealised(robot), Q, measure=measure, sigma_pos=sigma_pos,
+                                    sigma_rot=sigma_rot).identifiable
+    return analyze_identifiability(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
+                                   priority=ideal).identifiable
+
+
+def select_parameters(robot: RobotModel, params, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
+                      sigma_rot: float = SIGMA_ROT_RAD) -> tuple[str, tuple[str, ...]]:
+    """(set label, free parameter names) for a ``params`` choice other than "auto"; see
+    :func:`calibrate`."""
+    if isinstance(params, str):
+        key = params.strip().lower()
+        if key == "base":
+            return "base", identifiable_set(robot, Q, measure, sigma_pos, sigma_rot)
+        if key == "paper":
+            return "paper", tuple(n for n in robot.names if n not in PAPER_EXCLUDED)
+        if key == "all":
+            return "all", robot.names
+        names = [s.strip() for s in params.split(",") if s.strip()]
+        if not names:
+            raise ParameterError(f"empty parameter list {params!r}: expected {', '.join(PARAM_SETS)} "
+                                 f"or a comma-separated list of parameter names")
+        if len(names) == 1 and names[0] not in robot.names:
+            raise ParameterError(f"unknown parameter set {params!r}: expected {', '.join(PARAM_SETS)} or a "
+                                 f"comma-separated list of parameter names ({', '.join(robot.names)})")
+        params = names
+    if isinstance(params, (bytes, dict)) or not hasattr(params, "__iter__"):
+        raise ParameterError(f"params must be a set name or a list of parameter names, got {params!r}")
+    names = tuple(params)
+    if not names:
+        raise ParameterError("params is an empty list: name at least one parameter")
+    if not all(isinstance(n, str) for n in names):
+        raise ParameterError(f"params must be parameter names (strings), got {params!r}")
+    robot.indices(names)  # raises ParameterError for unknown names
+    if len(set(names)) != len(names):
+        raise ParameterError("a parameter is listed twice")
+    return "list", tuple(n for n in robot.names if n in names)
+
+
+def candidate_sets(robot: RobotModel, identifiable: Sequence[str]) -> list[tuple[str, tuple[str, ...]]]:
+    """Nested parameter sets for ``params="auto"``, smallest first, each within the identifiable
+    set: joint offsets (theta, or d of a prismatic joint) with the measurement and tool frames;
+    + lengths (d, a); + twists (alpha, beta); the whole identifiable set. Duplicates dropped."""
+    ident = set(identifiable)
+
+    def offset(p) -> bool:
+        if p.group != "joint":
+            return False
+        prismatic = robot.joints[p.joint - 1].is_prismatic
+        return p.kind == ("d" if prismatic else "theta")
+
+    steps = [("offsets+frames", lambda p: p.group in ("u", "v") or offset(p)),
+             ("+lengths", lambda p: p.kind in ("d", "a")),
+             ("+twists", lambda p: p.kind in ("alpha", "beta"))]
+    out, chosen = [], set()
+    for label, pick in steps:
+        chosen |= {p.name for p in robot.parameters if pick(p)}
+        names = tuple(n for n in robot.names if n in chosen and n in ident)
+        if names and (not out or names != out[-1][1]) and set(names) != ident:
+            out.append((label, names))
+    out.append(("identifiable set", tuple(n for n in robot.names if n in ident)))
+    return out
+
+
+# ---------------------------------------------------------------- fit
+def _inverse(A: np.ndarray) -> tuple[np.ndarray, bool]:
+    """A^-1 of a normal matrix (scaled to unit diagonal first), or its pseudo-inverse when rank
+    deficient."""
+    d = np.sqrt(np.abs(np.diag(A)))
+    d[d == 0] = 1.0
+    As = A / np.outer(d, d)
+    s = np.linalg.svd(As, compute_uv=False)
+    full_rank = bool(s.size) and s[-1] > 1e-12 * s[0]
+    inv = np.linalg.inv(As) if full_rank else np.linalg.pinv(As, rcond=1e-12, hermitian=True)
+    return inv / np.outer(d, d), full_rank
+
+
+def _redundancies(ne: NormalEquations) -> tuple[np.ndarray, float, float, int]:
+    """(A^-1, redundancy of the position group, of the rotation group, rank): a group's
+    redundancy is its number of residual components minus its share tr(A^-1 A_g) of the rank."""
+    Ainv, _ = _inverse(ne.A)
+    share_p = float(np.trace(Ainv @ ne.A_pos)) if ne.A_pos is not None else 0.0
+    share_r = float(np.trace(Ainv @ ne.A_rot)) if ne.A_rot is not None else 0.0
+    return Ainv, ne.n_pos - share_p, ne.n_rot - share_r, int(round(share_p + share_r))
+
+
+def _noise_estimate(problem: Problem, x: np.ndarray, estimated: bool, iterations: int) -> NoiseEstimate:
+    ne = problem.derived(loss="linear").normal_equations(x)
+    _, red_p, red_r, _ = _redundancies(ne)
+    dof = red_p + red_r
+    chi2 = ne.rss_pos + ne.rss_rot
+    p_value = None
+    if not estimated:
+        from scipy.stats import chi2 as chi2_dist
+
+        p_value = float(chi2_dist.sf(chi2, max(dof, 1e-9)))
+    has_rot = problem.has_orientation
+    return NoiseEstimate(problem.sigma_pos, problem.sigma_rot if has_rot else None, estimated,
+                         red_p, red_r, ne.rss_pos / max(red_p, 1e-300),
+                         ne.rss_rot / max(red_r, 1e-300) if has_rot else None, chi2, dof, p_value, iterations)
+
+
+def _flag_outliers(problem: Problem, x: np.ndarray, rows: np.ndarray, keep: np.ndarray, k: float,
+                   sigma_pos: float, sigma_rot: float) -> tuple[list[Outlier], bool]:
+    """Rows still kept whose whitened residual RMS per component exceeds k (with the given noise
+    levels), and whether they are too many (more than a quarter of the kept rows) to be outliers.
+    ``problem`` holds all calibration rows; rows : their line numbers."""
+    dp, dr = problem.pose_residuals(x)
+    blocks = [dp / sigma_pos]
+    rot = np.full(len(dp), np.nan)
+    if dr is not None:
+        blocks.append(dr / sigma_rot)
+        rot = np.linalg.norm(dr, axis=1)
+    w = np.concatenate(blocks, axis=1)
+    rms = np.sqrt(np.mean(w ** 2, axis=1))
+    bad = np.flatnonzero(keep & (rms > k))
+    found = [Outlier(int(rows[i]), float(np.linalg.norm(dp[i])), float(rot[i]), float(rms[i])) for i in bad]
+    return found, len(bad) > 0.25 * keep.sum()
+
+
+def _robust_sigmas(problem: Problem, x: np.ndarray, keep: np.ndarray, red_p: float, red_r: float):
+    """Noise levels from the median absolute residual component of each group (1.4826 MAD,
+    corrected for the fit's share of the degrees of freedom): what outliers cannot inflate."""
+    dp, dr = problem.pose_residuals(x)
+    n = keep.sum()
+    f_p = max(red_p / (3 * n), 1e-3)
+    sp = 1.4826 * float(np.median(np.abs(dp[keep]))) / math.sqrt(f_p)
+    sr = problem.sigma_rot
+    if dr is not None:
+        f_r = max(red_r / (3 * n), 1e-3)
+        sr = 1.4826 * float(np.median(np.abs(dr[keep]))) / math.sqrt(f_r)
+    return max(sp, 1e-12), max(sr, 1e-12)
+
+
+@dataclass(frozen=True)
+class _Solve:
+    """How the fit stage solves: method, options, and the search-lm ingredients."""
+
+    method: str
+    measure: str
+    options: LMOptions
+    max_rounds: int
+    fixed_rounds: int | None
+    angular: np.ndarray
+    chain: RotationChain | None
+
+    def __call__(self, problem: Problem, x: np.ndarray, trace: LMTrace, first: bool) -> SolverResult:
+        if not first or self.measure == "position" or self.method == "lm":
+            return levenberg_marquardt(problem, x, "pose", self.options, trace)
+        if self.method == "c-lm":
+            return cross_lm(problem, x, self.angular, max_rounds=self.max_rounds,
+                            fixed_rounds=self.fixed_rounds, options=self.options, trace=trace)
+        return search_lm(problem, x, self.angular, self.chain, options=self.options, trace=trace)
+
+
+def _solver_for(setup: Setup, free: Sequence[str], method: str, options: LMOptions, max_rounds: int,
+                fixed_rounds: int | None) -> _Solve:
+    idx = setup.start.indices(free)
+    angular = np.array([setup.start.parameters[k].is_angular for k in idx], bool)
+    chain = RotationChain(setup.start) if (method == "search-lm" and setup.measure == "pose") else None
+    return _Solve(method, setup.measure, options, max_rounds, fixed_rounds, angular, chain)
+
+
+def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: float | None,
+              sigma_rot: float | None, loss: str = "linear", loss_scale: float = 3.0,
+              outlier_k: float | None = 5.0, keep: np.ndarray | None = None,
+              kin: ChainKinematics | None = None) -> tuple[Fit, Problem]:
+    """The fit stage: identify ``free`` on the calibration rows of ``setup``.
+
+    sigma_pos (m) / sigma_rot (rad): the noise per axis, or None to estimate it from the residuals
+    (variance-component estimation: each group's weight is re-set to its weighted residual sum of
+    squares over its redundancy, and the fit repeated, until both change by less than VCE_RTOL).
+    With ``outlier_k``, rows whose whitened residual RMS exceeds it (judged against a robust fit,
+    with noise levels that outliers cannot inflate) are removed and the fit repeated.
+    Returns the :class:`Fit` and the final weighted problem on the kept rows.
+    """
+    cal, start = setup.cal, setup.start
+    kin = kin or ChainKinematics(start)
+    free = tuple(free)
+    idx = start.indices(free)
+    estimate = sigma_pos is None or sigma_rot is None
+    sp = SIGMA_POS_M if sigma_pos is None else sigma_pos
+    sr = SIGMA_ROT_RAD if sigma_rot is None else sigma_rot
+    everything = Problem(kin, cal.q, cal.position, cal.rotation, start.values, idx, sp, sr, loss, loss_scale)
+    keep = np.ones(cal.n_poses, bool) if keep is None else keep.copy()
     trace = LMTrace()
-    if method != "lm" and measure == "position":
-        notes.append(f"position-only data: {method.upper()} needs orientations for its angle step; ran LM")
-    keep = np.ones(cal.n_poses, bool)
+    x = start.values[idx]
     outliers: list[Outlier] = []
-    x = start.values[free_idx]
-
-    angular = np.array([start.parameters[k].is_angular for k in free_idx])
-
-    def solve(x, fit_loss):
-        fit = cal.subset(keep)
-        problem = Problem(kin, fit.q, fit.position, fit.rotation, start.values, free_idx, sigma_pos,
-                          sigma_rot, fit_loss, loss_scale)
-        if method == "c-lm" and measure == "pose":
-            return problem, *cross_lm(problem, x, angular, max_rounds=max_rounds,
-                                      fixed_rounds=fixed_rounds, options=opts, trace=trace)
-        if method == "search-lm" and measure == "pose":
-            return problem, *search_lm(start, problem, x, free_idx[angular], fit, opts, trace)
-        return problem, *levenberg_marquardt(problem, x, "pose", opts, trace), 1
-
-    for _pass in range(4):
-        problem, x, cost, status, message, rounds = solve(x, loss)
-        if outlier_k is None or _pass == 3 or status == "diverged":
+    notes: list[str] = []
+    first = True
+    vce_total = 0
+    two_groups = setup.measure == "pose"
+    for outlier_pass in range(4):
+        for _ in range(VCE_MAX_ITERATIONS):
+            problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
+            sol = _solve_logged(solve, problem, x, trace, first)
+            first = False
+            x = sol.x
+            if not estimate or sol.status == "diverged":
+                break
+            ne = problem.derived(loss="linear").normal_equations(x)
+            _, red_p, red_r, _ = _redundancies(ne)
+            vce_total += 1
+            if loss == "linear":
+                est_p = sp * math.sqrt(ne.rss_pos / red_p) if red_p > 0.5 else sp
+                est_r = sr * math.sqrt(ne.rss_rot / red_r) if (two_groups and red_r > 0.5) else sr
+            else:   # a robust fit: a noise level that the outliers it resists cannot inflate
+                est_p, est_r = _robust_sigmas(problem, x, np.ones(problem.n_poses, bool), red_p, red_r)
+            new_sp = est_p if sigma_pos is None else sp
+            new_sr = est_r if (sigma_rot is None and two_groups) else sr
+            new_sp, new_sr = max(new_sp, 1e-12), max(new_sr, 1e-12)
+            change = max(abs(new_sp / sp - 1.0), abs(new_sr / sr - 1.0))
+            sp, sr = new_sp, new_sr
+            if change < VCE_RTOL or (not two_groups and loss == "linear"):
+                break   # (one group: the weights do not change the fit)
+        if outlier_k is None or outlier_pass == 3 or sol.status == "diverged":
             break
-        new, too_many = _flag_outliers(start.with_values(problem.full(x)), cal, keep, sigma_pos,
-                                       sigma_rot, outlier_k)
-        fitted = (problem, x, cost, status, message, rounds)
+        problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
+        fsp, fsr = sp, sr
+        if estimate:
+            ne = problem.derived(loss="linear").normal_equations(x)
+            _, red_p, red_r, _ = _redundancies(ne)
+            rsp, rsr = _robust_sigmas(everything, x, keep, red_p, red_r)
+            fsp = rsp if sigma_pos is None else sp
+            fsr = rsr if sigma_rot is None else sr
+        new, too_many = _flag_outliers(everything, x, cal.rows, keep, outlier_k, fsp, fsr)
         if new and loss == "linear":
             # a least-squares fit spreads a gross error over its neighbours: judge the rows
             # against a robust (Huber) fit instead, then refit by least squares without them
-            robust_problem, x_robust, *_ = solve(x, "huber")
-            new, too_many = _flag_outliers(start.with_values(robust_problem.full(x_robust)), cal, keep,
-                                           sigma_pos, sigma_rot, outlier_k)
-            x = x_robust
+            robust = problem.derived(loss="huber", sigma_pos=fsp, sigma_rot=fsr)
+            x_robust = levenberg_marquardt(robust, x, "pose", solve.options, trace).x
+            new, too_many = _flag_outliers(everything, x_robust, cal.rows, keep, outlier_k, fsp, fsr)
+            if new and not too_many:
+                x = x_robust
         if too_many:
             notes.append(f"{len(new)} of {int(keep.sum())} rows have residuals above {outlier_k:g} sigma: "
-                         f"the noise is larger than sigma_pos / sigma_rot (or the model cannot "
-                         f"describe the data), so no row was removed as an outlier")
+                         f"the noise is larger than the noise levels (or the model cannot describe the "
+                         f"data), so no row was removed as an outlier")
             new = []
         if not new:
-            problem, x, cost, status, message, rounds = fitted  # the fit with the requested loss
             break
         outliers += new
         keep[[int(np.flatnonzero(cal.rows == o.row)[0]) for o in new]] = False
-    calibrated = start.with_values(problem.full(x))
+    problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
+    if sol.x is not x:   # the last change of x was not solved at these weights (robust start)
+        sol = _solve_logged(solve, problem, x, trace, False)
+        x = sol.x
+    noise = _noise_estimate(problem, x, estimate, vce_total)
+    model = start.with_values(problem.full(x))
     if outliers:
         notes.append(f"{len(outliers)} outlier rows removed and the fit repeated without them: rows "
                      + ", ".join(str(o.row) for o in outliers))
+    fit = Fit(model, free, replace(sol, cost=0.5 * float(np.sum(problem.residuals(x) ** 2))),
+              keep, tuple(outliers), noise, trace.iterations, tuple(notes))
+    return fit, problem
 
-    linear = Problem(kin, problem.Q, problem.p_meas, None, problem.values, free_idx, sigma_pos, sigma_rot)
-    linear.R_meas_T = problem.R_meas_T
-    r, J = linear.residuals_and_jacobian(x)
-    cov, full_rank = _covariance(J)
-    if not full_rank:
+
+def _solve_logged(solve: _Solve, problem: Problem, x, trace, first) -> SolverResult:
+    t = time.perf_counter()
+    sol = solve(problem, x, trace, first)
+    log.info("fit (%s%s): %s, cost %.6g, %d iterations, %.1f ms", solve.method if first else "lm",
+             "" if first else " re-weighted", sol.status, sol.cost, sol.iterations,
+             (time.perf_counter() - t) * 1e3)
+    return sol
+
+
+def _check_local_minimum(fit: Fit, problem: Problem, solve: _Solve) -> Fit:
+    """An explicit lm / c-lm fit: an angle search from its solution, then LM; if that reaches a
+    clearly lower cost, the fit stopped in a local minimum and is not called converged."""
+    if solve.measure != "pose" or solve.method == "search-lm" or fit.solver.status != "converged":
+        return fit
+    chain = RotationChain(fit.model)
+    other = search_lm(problem, fit.solver.x, solve.angular, chain, options=solve.options, max_escapes=0)
+    if other.cost < LOCAL_MINIMUM_RATIO * fit.solver.cost:
+        msg = (f"{solve.method.upper()} stopped in a local minimum: an angle search from its solution "
+               f"reaches a cost {other.cost:.4g} below its {fit.solver.cost:.4g} (method search-lm "
+               f"finds the lower one)")
+        return replace(fit, solver=replace(fit.solver, status="local_minimum", message=msg))
+    return fit
+
+
+# ---------------------------------------------------------------- statistics
+def _propagate(model: RobotModel, Q: np.ndarray, free: Sequence[str], C: np.ndarray,
+               kin: ChainKinematics | None = None) -> tuple[float, float]:
+    """(position, rotation) RMS over configurations Q of the pose error that a parameter error of
+    covariance C (free parameters, SI) causes: sqrt of the mean trace of J C J^T (m, rad)."""
+    kin = kin or ChainKinematics(model)
+    kin.set_values(model.values)
+    idx = model.indices(free)
+    tr_p = tr_r = 0.0
+    for s in range(0, len(Q), CHUNK_POSES):
+        _, _, J = pose_jacobian(kin, Q[s:s + CHUNK_POSES])
+        Jf = J[:, :, idx]
+        JC = Jf @ C
+        tr_p += float(np.einsum("nij,nij->", JC[:, :3], Jf[:, :3]))
+        tr_r += float(np.einsum("nij,nij->", JC[:, 3:], Jf[:, 3:]))
+    n = max(len(Q), 1)
+    return math.sqrt(max(tr_p, 0.0) / n), math.sqrt(max(tr_r, 0.0) / n)
+
+
+def predicted_accuracy(robot: RobotModel, Q: np.ndarray, free: Sequence[str], covariance: np.ndarray) -> dict:
+    """Cramer-Rao prediction of the RMS tool pose error at configurations Q (N, n): position_rms
+    (m) and rotation_rms (rad), sqrt of the mean over poses of the trace of J C J^T."""
+    p, r = _propagate(robot, np.asarray(Q, float), free, covariance)
+    return {"position_rms": p, "rotation_rms": r}
+
+
+def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
+    """Covariance and predictions (see :class:`Statistics`)."""
+    x = fit.model.values[fit.model.indices(fit.free)]
+    ne = problem.derived(loss="linear").normal_equations(x)
+    C, full_rank = _inverse(ne.A)
+    rank = int(round(float(np.trace(C @ ne.A))))
+    where = "validation configurations" if setup.val is not None else "calibration configurations"
+    Q = setup.val.q if setup.val is not None else setup.cal.q[fit.keep]
+    kin = problem.kin
+    pos, rot = _propagate(fit.model, Q, fit.free, C, kin)
+    nz = fit.noise
+    has_rot = setup.measure == "pose"
+    # misfit: a group whose residuals exceed the given noise inflates both the parameter
+    # uncertainty and the error of a new measurement (an estimated noise level already holds it)
+    infl_p = 1.0 if nz.estimated else max(1.0, nz.chi2_pos)
+    infl_r = 1.0 if (nz.estimated or not has_rot) else max(1.0, nz.chi2_rot)
+    if infl_p == 1.0 and infl_r == 1.0:
+        pos_e, rot_e = pos, rot
+    else:
+        A_eff = ne.A_pos / infl_p + (ne.A_rot / infl_r if ne.A_rot is not None else 0.0)
+        C_eff, _ = _inverse(A_eff)
+        pos_e, rot_e = _propagate(fit.model, Q, fit.free, C_eff, kin)
+    holdout_p = math.sqrt(pos_e ** 2 + 3.0 * nz.position ** 2 * infl_p)
+    holdout_r = math.sqrt(rot_e ** 2 + 3.0 * nz.rotation ** 2 * infl_r) if has_rot else None
+    predicted = {"position_rms": pos, "rotation_rms": rot if has_rot else None, "where": where}
+    holdout = {"position_rms": holdout_p, "rotation_rms": holdout_r, "where": where}
+    return Statistics(C, full_rank, rank, predicted, holdout, where)
+
+
+# ---------------------------------------------------------------- cross-validation
+def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOLDS, *,
+                   options: LMOptions = LMOptions(), seed: int = 0) -> CrossValidation:
+    """K-fold cross-validated held-out error of ``fit`` (its parameter set, noise weights and
+    kept rows): the kept calibration rows split at random (``seed``) into ``folds`` folds, each
+    predicted by LM refitted on the others from the fit's solution."""
+    cal = setup.cal
+    rows = np.flatnonzero(fit.keep)
+    n = len(rows)
+    if folds > n:
+        raise ParameterError(f"cv: {folds} folds need at least {folds} calibration rows, there are {n}")
+    fold_of = np.empty(n, int)
+    fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
+    base = Problem(problem.kin, cal.q, cal.position, cal.rotation, problem.values, problem.free,
+                   problem.sigma_pos, problem.sigma_rot)
+    x0 = fit.model.values[fit.model.indices(fit.free)]
+    e_p, e_r, per_fold = np.zeros(n), np.zeros(n), []
+    for f in range(folds):
+        train = np.zeros(cal.n_poses, bool)
+        train[rows[fold_of != f]] = True
+        test = np.zeros(cal.n_poses, bool)
+        test[rows[fold_of == f]] = True
+        sol = levenberg_marquardt(base.derived(keep=train), x0, "pose", options)
+        dp, dr = base.derived(keep=test).pose_residuals(sol.x)
+        where = fold_of == f
+        e_p[where] = np.sum(dp ** 2, axis=1)
+        if dr is not None:
+            e_r[where] = np.sum(dr ** 2, axis=1)
+        per_fold.append((int(where.sum()), math.sqrt(float(np.mean(e_p[where]))),
+                         None if dr is None else math.sqrt(float(np.mean(e_r[where])))))
+    has_rot = setup.measure == "pose"
+    score = e_p / problem.sigma_pos ** 2 + (e_r / problem.sigma_rot ** 2 if has_rot else 0.0)
+    return CrossValidation(folds, math.sqrt(float(np.mean(e_p))),
+                           math.sqrt(float(np.mean(e_r))) if has_rot else None, tuple(per_fold),
+                           float(np.mean(score)), float(np.std(score, ddof=1) / math.sqrt(n)) if n > 1 else 0.0)
+
+
+def select_model(setup: Setup, candidates: Sequence[tuple[str, tuple[str, ...]]], full: Fit,
+                 full_problem: Problem, solve: _Solve, folds: int, kin: ChainKinematics,
+                 options: LMOptions) -> tuple[ModelSelection, dict[str, tuple[Fit, Problem]]]:
+    """Cross-validate each candidate set at the noise levels and kept rows of ``full`` (the fit of
+    the largest set) and choose by the one-standard-error rule. Returns the selection and the
+    candidates' fits."""
+    sp, sr = full_problem.sigma_pos, full_problem.sigma_rot
+    fits, cands = {}, []
+    for label, free in candidates:
+        if tuple(free) == full.free:
+            fit, problem = full, full_problem
+        else:
+            s = _solver_for(setup, free, solve.method, options, solve.max_rounds, solve.fixed_rounds)
+            fit, problem = fit_stage(setup, free, s, sigma_pos=sp, sigma_rot=sr, outlier_k=None,
+                                     keep=full.keep, kin=kin)
+        fits[label] = (fit, problem)
+        cands.append(Candidate(label, tuple(free), cross_validate(setup, fit, problem, folds, options=options)))
+    best = min(cands, key=lambda c: c.cv.score)
+    chosen = next(c for c in cands if c.cv.score <= best.cv.score + best.cv.score_se)
+    return ModelSelection(tuple(cands), chosen.label, best.label), fits
+
+
+# ---------------------------------------------------------------- before, registered
+def register_measurement_frame(robot: RobotModel, measurements: Measurements) -> RobotModel:
+    """``robot`` with its measurement frame moved by the rigid transform that best fits its tool
+    positions to the measured ones (least squares over the positions only; the convention of
+    tracker software for "before calibration" errors)."""
+    from scipy.spatial.transform import Rotation
+
+    _, p_nom = ChainKinematics(robot).frame_poses(measurements.q)
+    c_nom, c_meas = p_nom.mean(axis=0), measurements.position.mean(axis=0)
+    R, _ = Rotation.align_vectors(measurements.position - c_meas, p_nom - c_nom)
+    T = np.eye(4)
+    T[:3, :3] = R.as_matrix()
+    T[:3, 3] = c_meas - T[:3, :3] @ c_nom
+    return replace(robot, T_meas_base_ref=T @ robot.T_meas_base_ref)
+
+
+# ====================================================================== calibrate
+def calibrate(robot: RobotModel, measurements: Measurements, method: str = "search-lm",
+              params: str | Sequence[str] | None = None, sigma_pos: float | None = None,
+              sigma_rot: float | None = None, *, init_frames: bool | str = "auto",
+              max_rounds: int = 20, fixed_rounds: int | None = None, options: LMOptions | None = None,
+              validation: Measurements | None = None, loss: str = "linear", loss_scale: float = 3.0,
+              outlier_k: float | None = 5.0, cv: int | None = None) -> CalibrationResult:
+    """Identify the TM-MDH parameters of ``robot`` from ``measurements``.
+
+    Parameters
+    ----------
+    robot : the nominal model (e.g. from :func:`calib.load_robot`).
+    measurements : measured tool poses; rows with set ``val`` are held out for validation.
+    method : "search-lm" (default): a closed-form search of the angular parameters on the
+        rotation data (:mod:`calib.angles`), then LM on all free parameters, searching again if
+        LM stops above the noise level; it converges from far larger joint-offset and twist
+        errors than the others (docs/reproduction.md: 100% of the paper's Table 8 grid).
+        "c-lm": the paper's cross identification scheme (Section 3.2.2: LM on the angular
+        parameters with the rotation residuals, then LM on all, repeated), run with calib's LM
+        (Marquardt scaling, noise-weighted residuals, exact SO(3) residual), not the printed
+        Eq. (27)-(28). "lm": calib's Levenberg-Marquardt alone. With position-only data all run
+        as LM (a note says so). An explicit lm / c-lm fit that an angle search from its solution
+        beats is reported with status "local_minimum".
+    params : "base": the identifiable set, each redundant partner held at its nominal value;
+        "auto": nested candidate sets (joint offsets and frames; + lengths; + twists; the
+        identifiable set) compared by cross-validated held-out error, the smallest within one
+        standard error of the best chosen; "paper": all but u_z, u_alpha, v_x, v_z, v_alpha,
+        v_gamma (Section 4.2); "all": every parameter (rank deficiency left to the damping); or
+        parameter names. Default (None): "auto" when the calibration rows hold fewer than
+        AUTO_BELOW_COMPONENTS_PER_PARAM residual components per identifiable parameter, else "base".
+    sigma_pos : position noise per axis, metres; sigma_rot : orientation noise per axis, radians.
+        None (default): estimated from the residuals (variance-component estimation iterated with
+        the fit). Given values are honoured and the result's ``noise`` says how consistent the
+        residuals are with them (chi-square test).
+    init_frames : "auto" (closed-form estimate of the measurement and tool frames, used when the
+        data put them more than 10 mm / 0.02 rad from the nominal ones), True (always), False.
+    max_rounds : C-LM rounds at most; ``fixed_rounds`` runs exactly that many.
+    validation : separate validation measurements; the statistics then use these, and the
+        ``val`` rows of ``measurements`` are only held out.
+    loss : "linear" (least squares), or a robust loss on each pose's whitened residual: "huber"
+        or "soft_l1", with ``loss_scale`` in units of sigma.
+    outlier_k : a calibration row whose whitened residual RMS per component exceeds ``outlier_k``
+        is flagged against a robust fit, listed in ``outliers`` and the fit repeated without it;
+        None disables the check.
+    cv : folds of the cross-validation run when there are no validation rows (default
+        CV_FOLDS = 5; 0 turns it off).
+
+    Returns a :class:`CalibrationResult`; a fit that did not converge is reported in its
+    ``status``, never raised. Raises :class:`calib.CalibError` for unusable input.
+    """
+    t0 = time.perf_counter()
+    method = _check_options(method, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds, loss,
+                            loss_scale, outlier_k, cv)
+    if options is not None and not isinstance(options, LMOptions):
+        raise ParameterError(f"options must be an LMOptions, got {type(options).__name__}")
+    if not isinstance(robot, RobotModel):
+        raise ParameterError(f"robot must be a RobotModel (calib.load_robot), got {type(robot).__name__}")
+    if not isinstance(measurements, Measurements):
+        raise ParameterError(f"measurements must be a Measurements (calib.read_measurements), got "
+                             f"{type(measurements).__name__}")
+    if validation is not None and not isinstance(validation, Measurements):
+        raise ParameterError(f"validation must be a Measurements, got {type(validation).__name__}")
+    opts = options or LMOptions()
+    setup, notes = prepare(robot, measurements, validation, init_frames)
+    start, cal, val = setup.start, setup.cal, setup.val
+    if setup.measure == "position" and method != "lm":
+        notes.append(f"position-only data: {method.upper()} needs orientations for its angle step; ran LM")
+    log.info("prepare: %d calibration rows, %d validation rows, %s data%s", cal.n_poses,
+             0 if val is None else val.n_poses, setup.measure,
+             "".join(f"; {r} frame estimated" for r in setup.rebased))
+
+    # parameter set (after the frame estimate: where the tool point lies decides what
+    # positions can identify)
+    weights = (sigma_pos or SIGMA_POS_M, sigma_rot or SIGMA_ROT_RAD)
+    want = params
+    ident = None
+    if params is None or (isinstance(params, str) and params.strip().lower() == "auto"):
+        ident = identifiable_set(start, cal.q, setup.measure, *weights)
+        per_param = cal.n_poses * setup.components_per_pose / max(len(ident), 1)
+        if params is None:
+            want = "auto" if per_param < AUTO_BELOW_COMPONENTS_PER_PARAM else "base"
+            notes.append(f"parameter set {want!r} chosen by default: {cal.n_poses * setup.components_per_pose} "
+                         f"residual components for {len(ident)} identifiable parameters "
+                         f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g})")
+        else:
+            want = "auto"
+    folds = CV_FOLDS if cv is None else cv
+    kin = ChainKinematics(start)
+    selection = None
+    if want == "auto":
+        if folds < 2:
+            raise ParameterError("params 'auto' compares candidate sets by cross-validation: cv must be >= 2")
+        label = "auto"
+        full_solve = _solver_for(setup, ident, method, opts, max_rounds, fixed_rounds)
+        full, full_problem = fit_stage(setup, ident, full_solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
+                                       loss=loss, loss_scale=loss_scale, outlier_k=outlier_k, kin=kin)
+        selection, fits = select_model(setup, candidate_sets(start, ident), full, full_problem, full_solve,
+                                       folds, kin, opts)
+        free = next(c.free for c in selection.candidates if c.label == selection.chosen)
+        label = f"auto: {selection.chosen}"
+        solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds)
+        if free == full.free:
+            fit, problem = full, full_problem
+        else:
+            fit, problem = fit_stage(setup, free, solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss=loss,
+                                     loss_scale=loss_scale, outlier_k=None, keep=full.keep, kin=kin)
+            fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes)
+        log.info("model selection: %s", selection.chosen)
+    else:
+        label, free = select_parameters(start, want, cal.q, setup.measure, *weights)
+        solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds)
+        fit, problem = fit_stage(setup, free, solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss=loss,
+                                 loss_scale=loss_scale, outlier_k=outlier_k, kin=kin)
+    fit = _check_local_minimum(fit, problem, solve)
+    notes += fit.notes
+    nz = fit.noise
+    if not nz.estimated and fit.solver.status == "converged" and nz.reduced_chi2 > CHI2_ESCAPE:
+        notes.append(f"the fit converged but its residuals are {math.sqrt(nz.reduced_chi2):.1f} times the given "
+                     f"noise (reduced chi^2 {nz.reduced_chi2:.3g}): a wrong sigma, or errors the model "
+                     f"does not describe; omit the noise levels to estimate them from the data")
+
+    stats = statistics_stage(setup, fit, problem)
+    log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
+             stats.predicted_holdout["position_rms"] * 1e3)
+    if not stats.full_rank:
         notes.append("the free parameters are not all identifiable (rank-deficient set): standard "
                      "deviations come from the pseudo-inverse and describe only the identifiable "
                      "combinations")
-    dof = max(len(r) - len(free), 1)
-    chi2 = float(r @ r) / dof
-    if status == "converged" and chi2 > CHI2_ESCAPE:
-        notes.append(f"the fit converged but its residuals are {math.sqrt(chi2):.1f} times the given noise "
-                     f"(reduced chi^2 {chi2:.3g}): a local minimum, a wrong sigma, or errors the "
-                     f"model does not describe")
-    where = "validation configurations" if val is not None else "calibration configurations"
-    predicted = predicted_accuracy(calibrated, val.q if val is not None else cal.q, free, cov)
-    if measure == "position":
-        predicted["rotation_rms"] = None
-    predicted["where"] = where
+    cross = None
+    if val is None and folds >= 2:
+        if selection is not None:
+            cross = next(c.cv for c in selection.candidates if c.label == selection.chosen)
+        elif fit.keep.sum() >= folds:
+            cross = cross_validate(setup, fit, problem, folds, options=opts)
+        else:
+            notes.append(f"no cross-validation: fewer rows than the {folds} folds")
 
+    calibrated = fit.model
     nominal_kin = ChainKinematics(robot)
     before = pose_errors(robot, cal.q, cal.position, cal.rotation, nominal_kin)
     after = pose_errors(calibrated, cal.q, cal.position, cal.rotation, kin)
@@ -553,39 +1204,24 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     if val is not None:
         vb = pose_errors(robot, val.q, val.position, val.rotation, nominal_kin)
         va = pose_errors(calibrated, val.q, val.position, val.rotation, kin)
+    breg = vbreg = None
+    if "measurement->base" in setup.rebased:
+        registered = register_measurement_frame(robot, cal)
+        breg = pose_errors(registered, cal.q, cal.position, cal.rotation)
+        if val is not None:
+            vbreg = pose_errors(registered, val.q, val.position, val.rotation)
 
-    table = _parameter_table(robot, calibrated, free, cov)
-    return CalibrationResult(outliers=tuple(outliers), loss=loss,
-        robot=calibrated, nominal=robot, method=method, param_set=label, parameters=table,
-        free=free, status=status, message=message, iterations=trace.iterations, rounds=rounds,
-        wall_time=time.perf_counter() - t0, cost=float(cost), reduced_chi2=chi2, covariance=cov,
-        before=before, after=after, validation_before=vb, validation_after=va, predicted=predicted,
-        sigma_pos=sigma_pos, sigma_rot=sigma_rot, notes=tuple(notes))
-
-
-def search_lm(model: RobotModel, problem: Problem, x: np.ndarray, angular_idx: np.ndarray,
-              fit: Measurements, opts: LMOptions, trace: LMTrace, max_escapes: int = 3,
-              chain: RotationChain | None = None):
-    """search-lm: closed-form angle search on the rotation data (:mod:`calib.angles`), then LM
-    on all free parameters; while the fit stays above the noise level (reduced chi-square above
-    ``CHI2_ESCAPE``), search again from the LM solution and keep the LM result if it is better.
-    ``model`` gives the chain's structure and reference frames (``chain``: a RotationChain of it
-    to reuse). Returns (x, cost, status, message, rounds) like :func:`calib.solvers.cross_lm`."""
-    chain = chain or RotationChain(model)
-    values, _ = chain.search(problem.full(x), fit.q, fit.rotation, angular_idx, problem.sigma_rot)
-    x, cost, status, message = levenberg_marquardt(problem, values[problem.free], "pose", opts, trace)
-    dof = max(6 * fit.n_poses - len(problem.free), 1)
-    rounds = 1
-    for _ in range(max_escapes):
-        if 2.0 * cost / dof <= CHI2_ESCAPE:
-            break
-        values, _ = chain.search(problem.full(x), fit.q, fit.rotation, angular_idx, problem.sigma_rot)
-        x2, c2, s2, m2 = levenberg_marquardt(problem, values[problem.free], "pose", opts, trace)
-        rounds += 1
-        if not c2 < cost:
-            break
-        x, cost, status, message = x2, c2, s2, m2
-    return x, cost, status, f"angle search + LM: {message}", rounds
+    table = _parameter_table(robot, calibrated, fit.free, stats.covariance)
+    return CalibrationResult(
+        robot=calibrated, nominal=robot, method=method, param_set=label, parameters=table, free=fit.free,
+        status=fit.solver.status, message=fit.solver.message, iterations=fit.iterations,
+        rounds=fit.solver.rounds, wall_time=time.perf_counter() - t0, cost=float(fit.solver.cost),
+        reduced_chi2=nz.reduced_chi2, covariance=stats.covariance, before=before, after=after,
+        validation_before=vb, validation_after=va, predicted=stats.predicted, sigma_pos=nz.position,
+        sigma_rot=nz.rotation if nz.rotation is not None else weights[1], notes=tuple(notes),
+        outliers=fit.outliers, loss=loss, noise=nz, predicted_holdout=stats.predicted_holdout,
+        cross_validation=cross, selection=selection, before_registered=breg,
+        validation_before_registered=vbreg)
 
 
 def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> tuple[ParameterEstimate, ...]:

@@ -291,8 +291,9 @@ def cmd_calibrate(args) -> int:
     validation = _read(args.validate, robot) if args.validate else None
     try:
         result = calibrate(robot, meas, method=args.method, params=args.params,
-                           sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,
-                           validation=validation, loss=args.loss, outlier_k=args.outlier_k)
+                           sigma_pos=None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3,
+                           sigma_rot=args.sigma_rot_rad, validation=validation, loss=args.loss,
+                           outlier_k=args.outlier_k, cv=args.cv)
     except DataError as exc:  # about the data as a whole (too few poses): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
@@ -408,14 +409,24 @@ rad, as the paper's Tables 10-11), then writes the calibrated URDF: a copy of RO
 joint origins that carry the kinematics recomputed, so that its forward kinematics equal the
 calibrated model's.
 
+Noise: without --sigma-pos-mm / --sigma-rot-rad the noise levels are estimated from the
+residuals (variance-component estimation iterated with the fit) and printed; given ones are
+honoured and a chi-square test says whether the residuals agree with them. The printed
+"predicted RMS error on new measured rows" is what to expect on rows not used in the fit; the
+cross-validated error (--cv K, when there are no validation rows) measures it.
+
 --params:
-  base   the identifiable set at these poses (default): redundant partners held at nominal
+  auto   nested candidate sets (joint offsets + frames; + lengths; + twists; the identifiable
+         set) compared by K-fold cross-validation, the smallest within one standard error of the
+         best chosen (default when the data hold under 10 residuals per identifiable parameter)
+  base   the identifiable set at these poses (the default otherwise): redundant partners held
+         at nominal
   paper  all but u_z, u_alpha, v_x, v_z, v_alpha, v_gamma (the paper's Section 4.2)
   all    every parameter, the rank deficiency left to the damping
   LIST   comma-separated parameter names, e.g. theta2,d2,a2,alpha2,beta2
 
-Exit codes: 0 converged; 3 the fit did not converge (outputs written for inspection, status on
-stderr); 2 bad input (nothing written)."""
+Exit codes: 0 converged; 3 the fit did not converge or stopped in a local minimum (outputs
+written for inspection, status on stderr); 2 bad input (nothing written)."""
 
 _CAL_EPILOG = """\
 examples:
@@ -519,13 +530,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=METHODS, default="search-lm",
                    help="search-lm: closed-form search of the angles on the rotation data, then LM "
                         "(converges from the largest errors); c-lm: the paper's cross "
-                        "identification; lm: plain Levenberg-Marquardt")
-    p.add_argument("--params", default="base", metavar="base|paper|all|LIST",
-                   help="which parameters to identify (see above)")
-    p.add_argument("--sigma-pos-mm", type=positive, default=0.02, metavar="S",
-                   help="position measurement noise per axis, mm (weights the residuals)")
-    p.add_argument("--sigma-rot-rad", type=positive, default=0.002, metavar="S",
-                   help="orientation measurement noise per axis, rad (weights the residuals)")
+                        "identification scheme run with calib's LM; lm: calib's Levenberg-Marquardt "
+                        "alone (lm and c-lm exit 3 when they stop in a local minimum)")
+    p.add_argument("--params", default=None, metavar="auto|base|paper|all|LIST",
+                   help="which parameters to identify (see above); default: auto when the rows "
+                        "hold few residuals per identifiable parameter, else base")
+    p.add_argument("--sigma-pos-mm", type=positive, default=None, metavar="S",
+                   help="position measurement noise per axis, mm (weights the residuals); default: "
+                        "estimated from the residuals")
+    p.add_argument("--sigma-rot-rad", type=positive, default=None, metavar="S",
+                   help="orientation measurement noise per axis, rad (weights the residuals); "
+                        "default: estimated from the residuals")
+    p.add_argument("--cv", type=count, default=5, metavar="K",
+                   help="K-fold cross-validated held-out error when there are no validation rows "
+                        "(0: off)")
     p.add_argument("--loss", choices=LOSSES, default="linear",
                    help="linear: least squares (Gaussian noise); huber or soft_l1: robust to "
                         "outliers, applied to each pose's noise-weighted residual")

@@ -1,4 +1,5 @@
-"""Levenberg-Marquardt identification (Section 3.2.1) and the cross identification C-LM (3.2.2).
+"""The identification solvers: Levenberg-Marquardt (Section 3.2.1), the cross identification
+C-LM (3.2.2) and search-lm (a closed-form angle search, then LM).
 
 The problem: find the free parameter values x that minimise the noise-weighted squared residuals
 
@@ -10,16 +11,20 @@ Every iteration re-linearises the exact model (Pinocchio forward kinematics and 
 rotation residual's Jacobian includes the inverse left Jacobian of SO(3), so the fixed point is
 the exact minimiser, not that of a linearised model.
 
-The LM step is Eq. (27), with residuals defined as model - measured:
-``dx = -(J^T J + mu D)^-1 J^T r``, where D = diag(J^T J) (Marquardt's scaling, so that the
-damping does not depend on the units of the parameters). The damping schedule, Eq. (28):
-``mu_0 = 1e-3``; after a step that lowers the cost mu is divided by lambda, otherwise it is
-multiplied by lambda and the step is retried ("marquardt", the usual rule, the default). The
-text of Eq. (28) resets mu to 0.001 lambda or 0.001 / lambda instead; ``mu_rule="paper"`` does
-that. lambda = 10 (the paper allows 2.5 to 10).
+calib's LM (the default variant) solves ``(J^T J + mu D) dx = -J^T r`` with D = diag(J^T J)
+(Marquardt's scaling, so that the damping does not depend on the units of the parameters), on
+noise-weighted residuals defined as model - measured. mu starts at 1e-3; a step that lowers the
+cost is accepted and mu divided by lambda = 10, otherwise mu is multiplied by lambda and the step
+retried. This differs from the paper's Eq. (27)-(28) as printed (mu I, mu reset to 0.001
+lambda^+-1, unweighted residuals): that variant is :mod:`calib.paper_lm`.
+
+Memory and time are linear in the number of poses: the solvers work on the normal equations
+``J^T J``, ``J^T r`` accumulated over chunks of poses (:meth:`Problem.normal_equations`), never on
+the stacked Jacobian, and a trial step evaluates residuals only.
 """
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 
@@ -29,6 +34,16 @@ from .jacobian import pose_jacobian
 from .kinematics import ChainKinematics
 from .spatial import left_jacobian_inverse_batch, log3_batch
 
+log = logging.getLogger("calib.solvers")
+
+#: Poses per chunk when accumulating the normal equations (bounded memory: ~2 MB per chunk for a
+#: 6-axis arm's 37 parameters).
+CHUNK_POSES = 2048
+#: search-lm: a fit whose reduced chi-square stays above this is not at the noise level, and the
+#: angle search is tried again from it (a local minimum is the likely cause).
+CHI2_ESCAPE = 10.0
+STATUSES = ("converged", "max_iterations", "diverged", "local_minimum")
+
 
 @dataclass(frozen=True)
 class LMOptions:
@@ -37,11 +52,32 @@ class LMOptions:
     max_iterations: int = 100
     mu0: float = 1e-3
     lam: float = 10.0
-    mu_rule: str = "marquardt"     # or "paper"
     ftol: float = 1e-12            # stop when the cost drops by less than ftol * cost
     xtol: float = 1e-12            # ... or the scaled step is below xtol
     gtol: float = 1e-14            # ... or the scaled gradient is below gtol
     max_mu: float = 1e16
+
+
+@dataclass(frozen=True)
+class SolverResult:
+    """What every solver returns (compare scipy's ``OptimizeResult``).
+
+    x : (n_free,) the free parameter values (SI units); cost : 1/2 |r|^2 of the weighted
+    residuals at x; status : "converged", "max_iterations", "diverged" or "local_minimum";
+    message : why it stopped; iterations : LM iterations in all; rounds : C-LM rounds or
+    search-lm searches (1 for LM).
+    """
+
+    x: np.ndarray = field(repr=False)
+    cost: float
+    status: str
+    message: str
+    iterations: int
+    rounds: int = 1
+
+    @property
+    def success(self) -> bool:
+        return self.status == "converged"
 
 
 @dataclass
@@ -55,13 +91,40 @@ class LMTrace:
 
 
 LOSSES = ("linear", "huber", "soft_l1")
+PARTS = ("pose", "position", "rotation")
+
+
+@dataclass(frozen=True)
+class NormalEquations:
+    """``J^T J`` and ``J^T r`` of the weighted residuals, with each group's share.
+
+    A : (m, m) J^T J; g : (m,) J^T r; A_pos / A_rot : the position / rotation rows' share of A
+    (A_rot None without orientation data); rss_pos / rss_rot : sums of squared weighted residuals
+    of each group; n_pos / n_rot : number of residual components of each group.
+    """
+
+    A: np.ndarray
+    g: np.ndarray
+    A_pos: np.ndarray | None
+    A_rot: np.ndarray | None
+    rss_pos: float
+    rss_rot: float
+    n_pos: int
+    n_rot: int
+
+    @property
+    def cost(self) -> float:
+        return 0.5 * (self.rss_pos + self.rss_rot)
 
 
 class Problem:
     """Weighted residuals of a set of measurements for a chain model, over free parameters.
 
-    Q : (N, n) joints; p_meas : (N, 3) metres; R_meas : (N, 3, 3) or None (position only).
-    values : full parameter vector (start); free : indices of the free parameters.
+    kin : the chain's kinematics (scratch workspace, updated in place).
+    Q : (N, n) joints (rad / m); p_meas : (N, 3) metres, meas frame; R_meas : (N, 3, 3) or None
+    (position only). values : full parameter vector (start); free : indices of the free
+    parameters. sigma_pos (m), sigma_rot (rad): noise per axis, the weights. loss: "linear",
+    "huber" or "soft_l1" on each pose's whitened residual (see :func:`robust_scaling`).
     """
 
     def __init__(self, kin: ChainKinematics, Q, p_meas, R_meas, values, free, sigma_pos, sigma_rot,
@@ -83,30 +146,102 @@ class Problem:
     def has_orientation(self) -> bool:
         return self.R_meas_T is not None
 
+    @property
+    def n_poses(self) -> int:
+        return len(self.Q)
+
     def full(self, x: np.ndarray) -> np.ndarray:
         v = self.values.copy()
         v[self.free] = x
         return v
 
+    def derived(self, *, free=None, values=None, sigma_pos=None, sigma_rot=None, loss=None,
+                keep: np.ndarray | None = None) -> "Problem":
+        """The same data with some settings changed (and ``keep``: a row mask)."""
+        p = object.__new__(Problem)
+        p.__dict__.update(self.__dict__)
+        if free is not None:
+            p.free = np.asarray(free, int)
+        if values is not None:
+            p.values = np.array(values, float)
+        if sigma_pos is not None:
+            p.sigma_pos = float(sigma_pos)
+        if sigma_rot is not None:
+            p.sigma_rot = float(sigma_rot)
+        if loss is not None:
+            p.loss = loss
+        if keep is not None:
+            p.Q, p.p_meas = self.Q[keep], self.p_meas[keep]
+            p.R_meas_T = None if self.R_meas_T is None else self.R_meas_T[keep]
+        return p
+
+    def _chunks(self):
+        N = self.n_poses
+        for s in range(0, N, CHUNK_POSES):
+            yield slice(s, min(s + CHUNK_POSES, N))
+
+    def pose_residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Unweighted residuals at x: position (N, 3) metres and rotation (N, 3) radians (None
+        without orientation data), model - measured, in the meas frame."""
+        self.kin.set_values(self.full(x), twists=False)
+        R, p = self.kin.frame_poses(self.Q)
+        dr = None if self.R_meas_T is None else log3_batch(R @ self.R_meas_T)
+        return p - self.p_meas, dr
+
     def residuals(self, x: np.ndarray, parts: str = "pose") -> np.ndarray:
         """Weighted residual vector; parts: "pose" (position and rotation), "position", "rotation"."""
         self.kin.set_values(self.full(x), twists=False)
-        R, p = self.kin.frame_poses(self.Q)
-        return self._assemble(R, p, None, parts)[0]
+        out = []
+        for sl in self._chunks():
+            R, p = self.kin.frame_poses(self.Q[sl])
+            out.append(self._assemble(R, p, None, parts, sl)[0])
+        return np.concatenate(out) if out else np.zeros(0)
 
     def residuals_and_jacobian(self, x: np.ndarray, parts: str = "pose"):
+        """(r, J): the weighted residual vector and its Jacobian (stacked over all poses; use
+        :meth:`normal_equations` for large data)."""
         self.kin.set_values(self.full(x))
         R, p, J = pose_jacobian(self.kin, self.Q)
-        return self._assemble(R, p, J[:, :, self.free], parts)
+        return self._assemble(R, p, J[:, :, self.free], parts, slice(None))
 
-    def _assemble(self, R, p, J, parts):
+    def normal_equations(self, x: np.ndarray, parts: str = "pose") -> NormalEquations:
+        """J^T J and J^T r at x, accumulated over chunks of poses (memory independent of N)."""
+        self.kin.set_values(self.full(x))
+        m = len(self.free)
+        A_pos = np.zeros((m, m))
+        A_rot = np.zeros((m, m)) if (self.has_orientation and parts != "position") else None
+        g = np.zeros(m)
+        rss = [0.0, 0.0]
+        use_pos = parts in ("pose", "position")
+        for sl in self._chunks():
+            R, p, J = pose_jacobian(self.kin, self.Q[sl])
+            r, Jw = self._assemble(R, p, J[:, :, self.free], parts, sl, flat=False)
+            k = r.shape[1]
+            # columns of the per-pose blocks: 0:3 position (when used), the rest rotation
+            npos = 3 if use_pos else 0
+            if npos:
+                Jp = Jw[:, :npos].reshape(-1, m)
+                A_pos += Jp.T @ Jp
+                rss[0] += float(np.sum(r[:, :npos] ** 2))
+            if k > npos:
+                Jr = Jw[:, npos:].reshape(-1, m)
+                A_rot += Jr.T @ Jr
+                rss[1] += float(np.sum(r[:, npos:] ** 2))
+            g += Jw.reshape(-1, m).T @ r.reshape(-1)
+        N = self.n_poses
+        n_pos = 3 * N if use_pos else 0
+        n_rot = 3 * N if A_rot is not None else 0
+        A = A_pos + (A_rot if A_rot is not None else 0.0)
+        return NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1], n_pos, n_rot)
+
+    def _assemble(self, R, p, J, parts, sl, flat=True):
         res, jac = [], []
         if parts in ("pose", "position"):
-            res.append((p - self.p_meas) / self.sigma_pos)
+            res.append((p - self.p_meas[sl]) / self.sigma_pos)
             if J is not None:
                 jac.append(J[:, :3] / self.sigma_pos)
         if parts in ("pose", "rotation") and self.has_orientation:
-            r = log3_batch(R @ self.R_meas_T)
+            r = log3_batch(R @ self.R_meas_T[sl])
             res.append(r / self.sigma_rot)
             if J is not None:
                 jac.append(left_jacobian_inverse_batch(r) @ J[:, 3:] / self.sigma_rot)
@@ -114,6 +249,8 @@ class Problem:
         J_all = None if J is None else np.concatenate(jac, axis=1)
         if self.loss != "linear":
             r, J_all = robust_scaling(r, J_all, self.loss, self.loss_scale)
+        if not flat:
+            return r, J_all
         r = r.reshape(-1)
         if J_all is None:
             return r, None
@@ -148,29 +285,30 @@ def robust_scaling(r: np.ndarray, J: np.ndarray | None, loss: str, c: float):
 
 
 def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
-                        options: LMOptions = LMOptions(), trace: LMTrace | None = None):
-    """Minimise 1/2 |r(x)|^2 from x0. Returns (x, cost, status, message).
+                        options: LMOptions = LMOptions(), trace: LMTrace | None = None) -> SolverResult:
+    """Minimise 1/2 |r(x)|^2 from x0 (calib's LM, see the module docstring).
 
-    status: "converged", "max_iterations" or "diverged" (the cost became non-finite or the
-    damping grew without bound).
+    status: "converged", "max_iterations" or "diverged" (the cost became non-finite).
     """
     trace = trace if trace is not None else LMTrace()
+    t0 = time.perf_counter()
     x = np.array(x0, float)
-    r, J = problem.residuals_and_jacobian(x, parts)
+    ne = problem.normal_equations(x, parts)
     trace.jacobians += 1
-    cost = 0.5 * float(r @ r)
+    cost = ne.cost
+    it0 = trace.iterations
     if not np.isfinite(cost):
-        return x, cost, "diverged", "the cost is not finite at the start"
+        return SolverResult(x, cost, "diverged", "the cost is not finite at the start", 0)
     mu = options.mu0
     trace.costs.append(cost)
     for it in range(options.max_iterations):
         trace.iterations += 1
-        g = J.T @ r
-        A = J.T @ J
+        A, g = ne.A, ne.g
         d = np.diag(A).copy()
         d[d <= 0] = 1.0
-        if np.max(np.abs(g) / np.sqrt(d)) <= options.gtol * max(np.sqrt(2 * cost), 1e-300):
-            return x, cost, "converged", f"gradient below tolerance after {it} iterations"
+        if np.max(np.abs(g) / np.sqrt(d), initial=0.0) <= options.gtol * max(np.sqrt(2 * cost), 1e-300):
+            return SolverResult(x, cost, "converged", f"gradient below tolerance after {it} iterations",
+                                trace.iterations - it0)
         while True:
             try:
                 step = -np.linalg.solve(A + mu * np.diag(d), g)
@@ -178,37 +316,43 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
                 step = None
             if step is not None and np.all(np.isfinite(step)):
                 x_new = x + step
-                r_new, J_new = problem.residuals_and_jacobian(x_new, parts)
+                r_new = problem.residuals(x_new, parts)     # residuals only for a trial step
                 trace.evaluations += 1
-                trace.jacobians += 1
                 cost_new = 0.5 * float(r_new @ r_new)
             else:
                 cost_new = np.inf
             if cost_new < cost:
-                mu = mu / options.lam if options.mu_rule == "marquardt" else options.mu0 / options.lam
+                mu = mu / options.lam
                 break
-            mu = mu * options.lam if options.mu_rule == "marquardt" else max(mu * options.lam, options.mu0 * options.lam)
+            mu = mu * options.lam
             if mu > options.max_mu:
                 small = np.sqrt(np.sum(d * (step if step is not None else 0) ** 2))
-                return x, cost, "converged", (f"no step lowers the cost (damping saturated) after {it} "
-                                              f"iterations; last scaled step {small:.3g}")
+                return SolverResult(x, cost, "converged",
+                                    f"no step lowers the cost (damping saturated) after {it} "
+                                    f"iterations; last scaled step {small:.3g}", trace.iterations - it0)
         scaled_step = np.sqrt(np.sum(d * step ** 2)) / max(np.sqrt(np.sum(d * x ** 2)), 1.0)
         decrease = cost - cost_new
         x, cost = x_new, cost_new
         trace.costs.append(cost)
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("LM iteration %d: cost %.6g, scaled step %.3g, damping %.3g, %.1f ms",
+                      trace.iterations - it0, cost, scaled_step, mu, (time.perf_counter() - t0) * 1e3)
         if decrease <= options.ftol * cost or scaled_step <= options.xtol:
-            return x, cost, "converged", f"converged after {it + 1} iterations"
-        r, J = r_new, J_new
+            return SolverResult(x, cost, "converged", f"converged after {it + 1} iterations",
+                                trace.iterations - it0)
         if not np.isfinite(cost):
-            return x, cost, "diverged", "the cost became non-finite"
-    return x, cost, "max_iterations", f"stopped at the iteration limit ({options.max_iterations})"
+            return SolverResult(x, cost, "diverged", "the cost became non-finite", trace.iterations - it0)
+        ne = problem.normal_equations(x, parts)
+        trace.jacobians += 1
+    return SolverResult(x, cost, "max_iterations",
+                        f"stopped at the iteration limit ({options.max_iterations})", trace.iterations - it0)
 
 
 def cross_lm(problem: Problem, x0: np.ndarray, angular: np.ndarray, *, max_rounds: int = 20,
              fixed_rounds: int | None = None, options: LMOptions = LMOptions(),
-             trace: LMTrace | None = None):
-    """C-LM (Section 3.2.2): rounds of (1) LM on the angular free parameters with the rotation
-    residuals only, then (2) LM on all free parameters with the full residuals.
+             trace: LMTrace | None = None) -> SolverResult:
+    """C-LM (Section 3.2.2) with calib's LM: rounds of (1) LM on the angular free parameters
+    with the rotation residuals only, then (2) LM on all free parameters with the full residuals.
 
     Stopping rule: the rotation residuals depend on the angular parameters only, so step 1 solves
     the same problem in every round and, started from step 2's angles (which differ from its own
@@ -216,28 +360,67 @@ def cross_lm(problem: Problem, x0: np.ndarray, angular: np.ndarray, *, max_round
     then repeats the previous one. The rounds therefore stop after the first round whose two
     steps both converged; only a round with a step stopped at its iteration limit is followed by
     another, up to ``max_rounds``. ``fixed_rounds`` runs exactly that many rounds instead (the
-    paper's "C-LM iterated 20 times").
-    ``angular``: bool mask over the free parameters. Returns (x, cost, status, message, rounds).
+    paper's "C-LM iterated 20 times"). ``angular``: bool mask over the free parameters.
     """
     trace = trace if trace is not None else LMTrace()
+    it0 = trace.iterations
     x = np.array(x0, float)
     ang = np.flatnonzero(angular)
     n_rounds = fixed_rounds or max_rounds
     for rnd in range(1, n_rounds + 1):
-        sub = Problem(problem.kin, problem.Q, problem.p_meas, None, problem.full(x), problem.free[ang],
-                      problem.sigma_pos, problem.sigma_rot, problem.loss, problem.loss_scale)
-        sub.R_meas_T = problem.R_meas_T
-        xa, _, status1, _ = levenberg_marquardt(sub, x[ang], "rotation", options, trace)
+        sub = problem.derived(values=problem.full(x), free=problem.free[ang])
+        step1 = levenberg_marquardt(sub, x[ang], "rotation", options, trace)
         x = x.copy()
-        x[ang] = xa
-        x, cost, status, message = levenberg_marquardt(problem, x, "pose", options, trace)
-        if status == "diverged":
-            return x, cost, status, f"round {rnd}: {message}", rnd
-        if fixed_rounds is None and status == "converged" and status1 == "converged":
-            return x, cost, status, f"C-LM converged in {rnd} round{'s' * (rnd > 1)} ({message})", rnd
+        x[ang] = step1.x
+        res = levenberg_marquardt(problem, x, "pose", options, trace)
+        x = res.x
+        n_it = trace.iterations - it0
+        if res.status == "diverged":
+            return SolverResult(x, res.cost, res.status, f"round {rnd}: {res.message}", n_it, rnd)
+        if fixed_rounds is None and res.status == "converged" and step1.status == "converged":
+            return SolverResult(x, res.cost, "converged",
+                                f"C-LM converged in {rnd} round{'s' * (rnd > 1)} ({res.message})", n_it, rnd)
+    n_it = trace.iterations - it0
     if fixed_rounds is not None:
-        return x, cost, status, f"C-LM ran {fixed_rounds} rounds ({message})", fixed_rounds
-    return x, cost, "max_iterations", f"C-LM stopped at the round limit ({max_rounds})", max_rounds
+        return SolverResult(x, res.cost, res.status, f"C-LM ran {fixed_rounds} rounds ({res.message})",
+                            n_it, fixed_rounds)
+    return SolverResult(x, res.cost, "max_iterations", f"C-LM stopped at the round limit ({max_rounds})",
+                        n_it, max_rounds)
+
+
+def search_lm(problem: Problem, x0: np.ndarray, angular: np.ndarray, chain, *,
+              options: LMOptions = LMOptions(), trace: LMTrace | None = None, max_escapes: int = 3,
+              search_rows: np.ndarray | None = None, escape_chi2: float = CHI2_ESCAPE) -> SolverResult:
+    """search-lm: closed-form angle search on the rotation data (:class:`calib.angles.RotationChain`
+    ``chain`` of the problem's model), then LM on all free parameters; while the fit stays above
+    the noise level (reduced chi-square above ``escape_chi2``), search again from the LM solution
+    and keep the LM result if it is better. ``angular``: bool mask over the free parameters;
+    ``search_rows``: indices of the poses the angle search uses (default all; LM always uses all).
+    Needs orientation data.
+    """
+    trace = trace if trace is not None else LMTrace()
+    it0 = trace.iterations
+    ang_idx = problem.free[np.asarray(angular, bool)]
+    rows = slice(None) if search_rows is None else np.asarray(search_rows)
+    Q_s, R_s = problem.Q[rows], np.transpose(problem.R_meas_T[rows], (0, 2, 1))
+
+    def search(x):
+        values, _ = chain.search(problem.full(x), Q_s, R_s, ang_idx, problem.sigma_rot)
+        return values[problem.free]
+
+    best = levenberg_marquardt(problem, search(x0), "pose", options, trace)
+    dof = max(6 * problem.n_poses - len(problem.free), 1)
+    rounds = 1
+    for _ in range(max_escapes):
+        if 2.0 * best.cost / dof <= escape_chi2:
+            break
+        again = levenberg_marquardt(problem, search(best.x), "pose", options, trace)
+        rounds += 1
+        if not again.cost < best.cost:
+            break
+        best = again
+    return SolverResult(best.x, best.cost, best.status, f"angle search + LM: {best.message}",
+                        trace.iterations - it0, rounds)
 
 
 def timed(fn, *args, **kwargs):

@@ -20,8 +20,8 @@ import calib
 from calib.jacobian import pose_jacobian
 from calib.kinematics import ChainKinematics
 from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
-from calib.calibration import search_lm
-from calib.solvers import LMOptions, LMTrace, Problem, cross_lm, levenberg_marquardt
+from calib.angles import RotationChain
+from calib.solvers import LMOptions, LMTrace, Problem, cross_lm, levenberg_marquardt, search_lm
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,7 +34,7 @@ def iterations_only(robot, meas, free, method):
     trace = LMTrace()
     angular = np.array([robot.parameters[k].is_angular for k in idx])
     if method == "search-lm":
-        search_lm(robot, prob, robot.values[idx], idx[angular], meas, LMOptions(), trace)
+        search_lm(prob, robot.values[idx], angular, RotationChain(robot), options=LMOptions(), trace=trace)
     elif method == "c-lm":
         cross_lm(prob, robot.values[idx], angular, trace=trace)
     else:

@@ -47,13 +47,13 @@ from typing import Sequence  # noqa: E402
 import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
-from calib.calibration import CHI2_ESCAPE, PAPER_EXCLUDED, search_lm, select_parameters  # noqa: E402
+from calib.calibration import PAPER_EXCLUDED, select_parameters  # noqa: E402
 from calib.fileio import atomic_write_bytes, atomic_write_text  # noqa: E402
 from calib.angles import RotationChain  # noqa: E402
 from calib.kinematics import ChainKinematics  # noqa: E402
 from calib.robot import RobotModel  # noqa: E402
 from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements  # noqa: E402
-from calib.solvers import LMOptions, LMTrace, Problem, cross_lm, levenberg_marquardt  # noqa: E402
+from calib.solvers import CHI2_ESCAPE, LMOptions, LMTrace, Problem, cross_lm, levenberg_marquardt, search_lm  # noqa: E402
 from calib.spatial import log3_batch  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -255,14 +255,14 @@ def identify(start: RobotModel, meas: calib.Measurements, free_names: Sequence[s
     trace = LMTrace()
     x0 = start.values[free]
     if method == "lm":
-        x, cost, status, _ = levenberg_marquardt(problem, x0, "pose", opts, trace)
+        res = levenberg_marquardt(problem, x0, "pose", opts, trace)
     elif method == "c-lm":
         angular = np.array([start.parameters[k].is_angular for k in free])
-        x, cost, status, _, _ = cross_lm(problem, x0, angular, max_rounds=max_rounds,
-                                         fixed_rounds=fixed_rounds, options=opts, trace=trace)
+        res = cross_lm(problem, x0, angular, max_rounds=max_rounds, fixed_rounds=fixed_rounds,
+                       options=opts, trace=trace)
     else:
         raise ValueError(f"unknown method {method!r}")
-    return Identification(problem.full(x), float(cost), status, trace.iterations, trace.jacobians, *timer.done())
+    return Identification(problem.full(res.x), float(res.cost), res.status, trace.iterations, trace.jacobians, *timer.done())
 
 
 #: A fit is at the noise level when its reduced chi-square is below this (1 when sigma is right).
@@ -273,7 +273,7 @@ def identify_best(start: RobotModel, meas: calib.Measurements, free_names: Seque
                   options: LMOptions | None = None, sigma_pos: float = SIGMA_POS_M,
                   sigma_rot: float = SIGMA_ROT_RAD, max_escapes: int = 3,
                   kin: ChainKinematics | None = None, chain: RotationChain | None = None) -> Identification:
-    """Our best strategy, the library's ``search-lm`` (:func:`calib.calibration.search_lm`):
+    """Our best strategy, the library's ``search-lm`` (:func:`calib.solvers.search_lm`):
     closed-form global search of the angles, then LM, escaping local minima.
 
     1. :meth:`RotationChain.search` moves the free angular parameters to the global optimum of
@@ -291,12 +291,12 @@ def identify_best(start: RobotModel, meas: calib.Measurements, free_names: Seque
     trace = LMTrace()
     x0 = start.values[free]
     if meas.rotation is None:
-        x, cost, status, _ = levenberg_marquardt(problem, x0, "pose", opts, trace)
+        res = levenberg_marquardt(problem, x0, "pose", opts, trace)
     else:
-        angular = np.array([k for k in free if start.parameters[k].is_angular], dtype=int)
-        x, cost, status, _, _ = search_lm(start, problem, x0, angular, meas, opts, trace,
-                                          max_escapes=max_escapes, chain=chain)
-    return Identification(problem.full(x), float(cost), status, trace.iterations, trace.jacobians, *timer.done())
+        angular = np.array([start.parameters[k].is_angular for k in free])
+        res = search_lm(problem, x0, angular, chain or RotationChain(start), options=opts, trace=trace,
+                        max_escapes=max_escapes)
+    return Identification(problem.full(res.x), float(res.cost), res.status, trace.iterations, trace.jacobians, *timer.done())
 
 
 # ====================================================================== Tables 6-7
