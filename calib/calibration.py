@@ -68,6 +68,8 @@ VCE_RTOL = 1e-3
 LOCAL_MINIMUM_RATIO = 0.9
 #: Default number of cross-validation folds.
 CV_FOLDS = 5
+#: Model selection cross-validates leave-one-out below this many calibration rows.
+LOO_BELOW_ROWS = 80
 
 
 # ====================================================================== accuracy
@@ -248,8 +250,9 @@ class CrossValidation:
     """K-fold cross-validated held-out error of a fit: each fold's rows predicted by the model
     fitted on the other folds. position_rms (m) and rotation_rms (rad, None position only) pooled
     over every held-out row; per_fold : per fold (rows, position_rms, rotation_rms);
-    score / score_se : mean whitened squared held-out error per row (position and rotation,
-    weighted by the fit's noise levels) and its standard error."""
+    row_scores : (n,) whitened squared held-out error of each kept row (position and rotation,
+    weighted by the fit's noise levels; rows in the order of the calibration rows);
+    score / score_se : their mean and its standard error."""
 
     folds: int
     position_rms: float
@@ -257,6 +260,7 @@ class CrossValidation:
     per_fold: tuple[tuple[int, float, float | None], ...]
     score: float
     score_se: float
+    row_scores: np.ndarray = field(repr=False, default=None)
 
     def to_dict(self) -> dict:
         return {"folds": self.folds, "position_rms_mm": self.position_rms * 1e3,
@@ -277,7 +281,8 @@ class Candidate:
 @dataclass(frozen=True)
 class ModelSelection:
     """``params="auto"``: the candidates (smallest first) and the chosen one: the smallest whose
-    cross-validated score is within one standard error of the best (the one-standard-error rule)."""
+    cross-validated score exceeds the best one's by at most one standard error of their paired
+    row-by-row difference (the one-standard-error rule)."""
 
     candidates: tuple[Candidate, ...]
     chosen: str
@@ -291,7 +296,7 @@ class ModelSelection:
 
     def format(self) -> str:
         lines = [f"model selection ({self.candidates[0].cv.folds}-fold cross-validation, one-standard-error "
-                 f"rule toward the smaller set):",
+                 f"rule toward the smaller set; score: mean noise-weighted squared held-out error per row):",
                  f"  {'candidate':<26}{'params':>7}{'score':>10}{'+-se':>9}{'pos rms/mm':>12}{'rot rms/rad':>13}"]
         for c in self.candidates:
             rot = "-" if c.cv.rotation_rms is None else f"{c.cv.rotation_rms:.3e}"
@@ -1018,7 +1023,11 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
     score = e_p / problem.sigma_pos ** 2 + (e_r / problem.sigma_rot ** 2 if has_rot else 0.0)
     return CrossValidation(folds, math.sqrt(float(np.mean(e_p))),
                            math.sqrt(float(np.mean(e_r))) if has_rot else None, tuple(per_fold),
-                           float(np.mean(score)), float(np.std(score, ddof=1) / math.sqrt(n)) if n > 1 else 0.0)
+                           float(np.mean(score)), _standard_error(score), score)
+
+
+def _standard_error(values: np.ndarray) -> float:
+    return float(np.std(values, ddof=1) / math.sqrt(len(values))) if len(values) > 1 else 0.0
 
 
 def select_model(setup: Setup, candidates: Sequence[tuple[str, tuple[str, ...]]], full: Fit,
@@ -1039,7 +1048,10 @@ def select_model(setup: Setup, candidates: Sequence[tuple[str, tuple[str, ...]]]
         fits[label] = (fit, problem)
         cands.append(Candidate(label, tuple(free), cross_validate(setup, fit, problem, folds, options=options)))
     best = min(cands, key=lambda c: c.cv.score)
-    chosen = next(c for c in cands if c.cv.score <= best.cv.score + best.cv.score_se)
+    # one standard error of the paired difference: the candidates are scored on the same rows and
+    # folds, so their row scores are strongly correlated and the difference is what is uncertain
+    chosen = next(c for c in cands
+                  if np.mean(c.cv.row_scores - best.cv.row_scores) <= _standard_error(c.cv.row_scores - best.cv.row_scores))
     return ModelSelection(tuple(cands), chosen.label, best.label), fits
 
 
@@ -1155,8 +1167,10 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         full_solve = _solver_for(setup, ident, method, opts, max_rounds, fixed_rounds)
         full, full_problem = fit_stage(setup, ident, full_solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
                                        loss=loss, loss_scale=loss_scale, outlier_k=outlier_k, kin=kin)
+        # leave-one-out on small sets: far less noisy than K folds at a few ms per refit
+        sel_folds = int(full.keep.sum()) if full.keep.sum() <= LOO_BELOW_ROWS else folds
         selection, fits = select_model(setup, candidate_sets(start, ident), full, full_problem, full_solve,
-                                       folds, kin, opts)
+                                       sel_folds, kin, opts)
         free = next(c.free for c in selection.candidates if c.label == selection.chosen)
         label = f"auto: {selection.chosen}"
         solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds)

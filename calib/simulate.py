@@ -46,15 +46,32 @@ def random_deviations(robot: RobotModel, scale: float, rng=None) -> dict[str, fl
     return {p.name: float(rng.normal(0.0, scale if p.unit == "m" else scale / 0.5)) for p in robot.parameters}
 
 
+def unmodelled_joint_error(robot: RobotModel, Q: np.ndarray, amplitude: float, rng=None) -> np.ndarray:
+    """Joint values as the arm really moves with an error no TM-MDH parameter can absorb:
+    each revolute joint turns by ``q_i + a_i sin(q_i + phi_i)`` (a gear's once-per-turn
+    eccentricity), with a_i uniform in [amplitude / 2, amplitude] radians and phi_i uniform.
+    Prismatic joints are left as they are. Q : (N, n); returns (N, n)."""
+    rng = np.random.default_rng(rng)
+    Q = np.asarray(Q, float)
+    n = Q.shape[1]
+    a = rng.uniform(0.5 * amplitude, amplitude, n) * ~np.asarray(robot.prismatic, bool)
+    phi = rng.uniform(-np.pi, np.pi, n)
+    return Q + a * np.sin(Q + phi)
+
+
 def simulate_measurements(true_robot: RobotModel, Q: np.ndarray, *, sigma_pos: float = 0.02e-3,
                           sigma_rot: float = 0.002, position_only: bool = False, rng=None,
-                          sets=None) -> Measurements:
+                          sets=None, unmodelled: float = 0.0) -> Measurements:
     """Measurements of ``true_robot``'s tool at configurations Q (N, n), with Gaussian noise.
 
     sigma_pos : metres per axis; sigma_rot : radians per axis (0 for noise-free data).
+    unmodelled : amplitude (rad) of a joint-angle-dependent error that the model cannot describe
+    (:func:`unmodelled_joint_error`, phases drawn from ``rng``; 0 for none). The measurements
+    record the commanded joint values Q.
     """
     rng = np.random.default_rng(rng)
-    R, p = ChainKinematics(true_robot).frame_poses(Q)
+    Q_moved = unmodelled_joint_error(true_robot, Q, unmodelled, rng) if unmodelled > 0 else Q
+    R, p = ChainKinematics(true_robot).frame_poses(Q_moved)
     p = p + rng.normal(0.0, sigma_pos, p.shape) if sigma_pos > 0 else p
     rot = None
     if not position_only:
