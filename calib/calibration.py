@@ -498,7 +498,8 @@ class CalibrationResult:
         if self.cross_validation is not None:
             cv = self.cross_validation
             rot = "" if cv.rotation_rms is None else f", orientation {cv.rotation_rms:.3g} rad"
-            lines.append(f"cross-validated ({cv.folds}-fold) held-out RMS error: position "
+            kind = "leave-one-out" if cv.folds == sum(n for n, _, _ in cv.per_fold) else f"{cv.folds}-fold"
+            lines.append(f"cross-validated ({kind}) held-out RMS error: position "
                          f"{cv.position_rms * 1e3:.4g} mm{rot}")
         pr = self.predicted
         rot = "" if pr.get("rotation_rms") is None else f", orientation {pr['rotation_rms']:.3g} rad"
@@ -798,6 +799,7 @@ class _Solve:
     fixed_rounds: int | None
     angular: np.ndarray
     chain: RotationChain | None
+    model: RobotModel
 
     def __call__(self, problem: Problem, x: np.ndarray, trace: LMTrace, first: bool) -> SolverResult:
         if not first or self.measure == "position" or self.method == "lm":
@@ -813,7 +815,7 @@ def _solver_for(setup: Setup, free: Sequence[str], method: str, options: LMOptio
     idx = setup.start.indices(free)
     angular = np.array([setup.start.parameters[k].is_angular for k in idx], bool)
     chain = RotationChain(setup.start) if (method == "search-lm" and setup.measure == "pose") else None
-    return _Solve(method, setup.measure, options, max_rounds, fixed_rounds, angular, chain)
+    return _Solve(method, setup.measure, options, max_rounds, fixed_rounds, angular, chain, setup.start)
 
 
 def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: float | None,
@@ -843,12 +845,16 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     outliers: list[Outlier] = []
     notes: list[str] = []
     first = True
+    stuck = None
     vce_total = 0
     two_groups = setup.measure == "pose"
     for outlier_pass in range(4):
         for _ in range(VCE_MAX_ITERATIONS):
             problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
             sol = _solve_logged(solve, problem, x, trace, first)
+            if first:   # judged at the starting weights, before they adapt to a stuck fit's residuals
+                sol = _check_local_minimum(sol, problem, solve)
+                stuck = sol if sol.status == "local_minimum" else None
             first = False
             x = sol.x
             if not estimate or sol.status == "diverged":
@@ -900,6 +906,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     if sol.x is not x:   # the last change of x was not solved at these weights (robust start)
         sol = _solve_logged(solve, problem, x, trace, False)
         x = sol.x
+    if stuck is not None:
+        sol = replace(sol, status=stuck.status, message=stuck.message)
     noise = _noise_estimate(problem, x, estimate, vce_total)
     model = start.with_values(problem.full(x))
     if outliers:
@@ -919,19 +927,19 @@ def _solve_logged(solve: _Solve, problem: Problem, x, trace, first) -> SolverRes
     return sol
 
 
-def _check_local_minimum(fit: Fit, problem: Problem, solve: _Solve) -> Fit:
+def _check_local_minimum(sol: SolverResult, problem: Problem, solve: _Solve) -> SolverResult:
     """An explicit lm / c-lm fit: an angle search from its solution, then LM; if that reaches a
     clearly lower cost, the fit stopped in a local minimum and is not called converged."""
-    if solve.measure != "pose" or solve.method == "search-lm" or fit.solver.status != "converged":
-        return fit
-    chain = RotationChain(fit.model)
-    other = search_lm(problem, fit.solver.x, solve.angular, chain, options=solve.options, max_escapes=0)
-    if other.cost < LOCAL_MINIMUM_RATIO * fit.solver.cost:
-        msg = (f"{solve.method.upper()} stopped in a local minimum: an angle search from its solution "
-               f"reaches a cost {other.cost:.4g} below its {fit.solver.cost:.4g} (method search-lm "
-               f"finds the lower one)")
-        return replace(fit, solver=replace(fit.solver, status="local_minimum", message=msg))
-    return fit
+    if solve.measure != "pose" or solve.method == "search-lm" or sol.status != "converged":
+        return sol
+    chain = solve.chain or RotationChain(solve.model)
+    other = search_lm(problem, sol.x, solve.angular, chain, options=solve.options, max_escapes=0)
+    if other.cost < LOCAL_MINIMUM_RATIO * sol.cost:
+        msg = (f"{solve.method.upper()} stopped in a local minimum: an angle search from its solution, "
+               f"then LM, reaches a cost {other.cost:.4g} below its {sol.cost:.4g} (method search-lm "
+               f"escapes it)")
+        return replace(sol, status="local_minimum", message=msg)
+    return sol
 
 
 # ---------------------------------------------------------------- statistics
@@ -1186,7 +1194,6 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds)
         fit, problem = fit_stage(setup, free, solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss=loss,
                                  loss_scale=loss_scale, outlier_k=outlier_k, kin=kin)
-    fit = _check_local_minimum(fit, problem, solve)
     notes += fit.notes
     nz = fit.noise
     if not nz.estimated and fit.solver.status == "converged" and nz.reduced_chi2 > CHI2_ESCAPE:

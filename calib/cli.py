@@ -241,12 +241,14 @@ def cmd_simulate(args) -> int:
     sets = np.array(["cal"] * n_cal + ["val"] * n_val) if n_val else None
     meas = simulate_measurements(true_robot, Q, sigma_pos=args.sigma_pos_mm * 1e-3,
                                  sigma_rot=args.sigma_rot_rad, position_only=args.position_only,
-                                 rng=rng, sets=sets)
+                                 rng=rng, sets=sets, unmodelled=args.unmodelled_rad)
     kind = "positions only" if args.position_only else "positions and orientations"
     noise = [f"sigma_pos {args.sigma_pos_mm:g} mm"] + \
         ([] if args.position_only else [f"sigma_rot {args.sigma_rot_rad:g} rad"])
     noise_text = ("no noise" if args.sigma_pos_mm == 0 and (args.position_only or args.sigma_rot_rad == 0)
                   else "noise " + ", ".join(noise) + " per axis")
+    if args.unmodelled_rad > 0:
+        noise_text += f"; unmodelled joint error up to {args.unmodelled_rad:g} rad"
     command = " ".join(shlex.quote(a) for a in ["calib", *args.argv])
     comment = (f"Simulated by: {command}\n"
                f"True model: {args.robot} with deviations from {described}; {noise_text}; "
@@ -512,6 +514,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="position noise per axis, mm (0: noise-free)")
     p.add_argument("--sigma-rot-rad", type=nonnegative, default=0.002, metavar="S",
                    help="orientation noise per axis, rad (0: noise-free)")
+    p.add_argument("--unmodelled-rad", type=nonnegative, default=0.0, metavar="A",
+                   help="add an error the model cannot describe: every revolute joint really turns "
+                        "by q + a sin(q + phi), a in [A/2, A] rad, random phase (default 0)")
     p.add_argument("--position-only", action="store_true",
                    help="write positions only (no orientation columns)")
     p.add_argument("--truth-urdf", metavar="TRUE.urdf", default=None,
