@@ -38,6 +38,7 @@ from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_
                read_measurements, simulate_measurements, write_measurements)
 from .calibration import METHODS, format_accuracy_table
 from .fileio import atomic_write_bytes, check_not_input
+from .progress import working
 from .solvers import LOSSES
 
 __all__ = ["main", "main_entry"]
@@ -132,7 +133,8 @@ def _load(args):
 
 
 def _read(path, robot):
-    m = read_measurements(path, robot)
+    with working(f"reading {path}", logger=log):
+        m = read_measurements(path, robot)
     log.info("read %r", m)
     return m
 
@@ -302,9 +304,10 @@ def cmd_calibrate(args) -> int:
     log.info("calibrating: method %s, parameter set %s, %d calibration rows", args.method,
              args.params, meas.calibration().n_poses)
     try:
-        result = calibrate(robot, meas, method=args.method, params=args.params,
-                           sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,
-                           validation=validation, loss=args.loss, outlier_k=args.outlier_k)
+        with working(f"calibrating ({args.method})", logger=log):
+            result = calibrate(robot, meas, method=args.method, params=args.params,
+                               sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,
+                               validation=validation, loss=args.loss, outlier_k=args.outlier_k)
     except DataError as exc:  # about the data as a whole (too few poses): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
@@ -321,8 +324,8 @@ def cmd_calibrate(args) -> int:
     if plot_paths or out_html is not None:
         from .report import render_plots
 
-        log.info("drawing the plots")
-        images = render_plots(result, meas, validation)
+        with working("drawing the plots", logger=log):
+            images = render_plots(result, meas, validation)
     if out_report is not None or out_html is not None:
         report = build_report(
             result, meas, validation, command_line=["calib", *args.argv],
