@@ -67,7 +67,8 @@ from .jacobian import MEASURES
 from .kinematics import ChainKinematics
 from .measurements import QUATERNION_NORM_TOLERANCE, finite_array
 from .poses import _joint_columns, _write_comment, read_joint_table
-from .robot import RobotModel, load_robot
+from .robot import RobotModel, load_robot, robot_path
+from .urdf import UrdfDocument
 from .spatial import log3_batch
 
 __all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "CompensationTargets",
@@ -296,8 +297,8 @@ def load_compensation_models(calibrated_urdf: str | Path, nominal_urdf: str | Pa
                              tool_frame: str | None = None) -> tuple[RobotModel, RobotModel]:
     """(calibrated, nominal) models whose tool poses are expressed in the same meas frame.
 
-    ``base_frame`` and ``tool_frame`` name frames of the nominal URDF (defaults as
-    :func:`calib.load_robot`). The calibrated URDF written by calib
+    ``base_frame`` and ``tool_frame`` name frames of the nominal URDF (default: the nominal
+    frames the calibrated URDF records, else as :func:`calib.load_robot`). The calibrated URDF written by calib
     (:func:`calib.urdf_writer.write_calibrated_urdf`) records which of its links stand for the
     nominal base and tool frames (it may have added a link ``tool``); :func:`calib.load_robot`
     maps the nominal frames to them (:meth:`calib.urdf.UrdfDocument.resolve_frames`). A URDF
@@ -305,6 +306,10 @@ def load_compensation_models(calibrated_urdf: str | Path, nominal_urdf: str | Pa
 
     Raises :class:`calib.CalibError` when the two chains have different joints.
     """
+    recorded = UrdfDocument.read(robot_path(calibrated_urdf)).frames
+    if recorded is not None:      # default: the nominal frames the calibration was made for
+        base_frame = base_frame or recorded.nominal_base_frame
+        tool_frame = tool_frame or recorded.nominal_tool_frame
     nominal = load_robot(nominal_urdf, base_frame=base_frame, tool_frame=tool_frame)
     calibrated = load_robot(calibrated_urdf, base_frame=nominal.base_frame,
                             tool_frame=nominal.tool_frame)

@@ -246,3 +246,19 @@ def test_readme_compensate_example_runs_as_printed(capsys, tmp_path):
         os.chdir(old)
     rows = [l for l in (tmp_path / "corrected.csv").read_text().splitlines() if not l.startswith("#")]
     assert len(rows) == 6 and all(",ok," in r for r in rows[1:])
+
+
+def test_compensate_defaults_to_the_frames_calibrate_used(tmp_path):
+    """Calibrated with --tool-frame tool0 (not ur5's default): compensation without frame
+    options uses tool0 of the nominal URDF and the same frame of the calibrated one."""
+    from calib.compensation import load_compensation_models
+
+    nominal = load_robot("ur5", tool_frame="tool0")
+    true = nominal.with_changes(v_x=1e-3, a2=5e-4, u_y=-1e-3)
+    out = tmp_path / "cal.urdf"
+    write_calibrated_urdf(true, out)
+    calibrated, nominal2 = load_compensation_models(out, nominal.urdf_path)
+    assert (nominal2.base_frame, nominal2.tool_frame) == ("world", "tool0")
+    assert (calibrated.base_frame, calibrated.tool_frame) == ("world", "tool0")
+    q = nominal.random_configurations(3, rng=4)
+    assert max(np.abs(calibrated.T_meas_tool(x) - true.T_meas_tool(x)).max() for x in q) < 1e-11
