@@ -410,7 +410,7 @@ def robot_path(robot: str | Path) -> Path:
     except OSError as exc:
         raise URDFError(path, f"example-robot-data knows this robot but its URDF is missing: "
                               f"{exc}") from None
-    return Path(folder) / sub
+    return Path(os.path.normpath(os.path.join(folder, sub)))
 
 
 def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
