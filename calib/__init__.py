@@ -14,26 +14,28 @@ See README.md for the command line.
 """
 from .errors import (CalibError, ChainError, DataError, FrameNotFound, MeasurementFormatError,
                      ParameterError, URDFError)
-from .robot import ChainJoint, Parameter, RobotModel, load_robot
+from .robot import ChainJoint, Parameter, RobotModel, load_robot, robot_path
 from .jacobian import identification_jacobian
 from .identifiability import IdentifiabilityReport, analyze_identifiability
 from .measurements import Measurements, read_measurements, write_measurements
 from .calibration import AccuracyStats, CalibrationResult, ParameterEstimate, calibrate, evaluate
 from .simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
-from .urdf_writer import write_calibrated_urdf
+from .urdf_writer import check_writable, write_calibrated_urdf
+from .urdf import RecordedFrames
+from .report import build_report, render_html
 from .poses import PoseDesign, design_poses, read_poses, select_poses, write_poses
 from .compensation import CompensationResult, compensate, compensate_poses
 
 __all__ = [
     "CalibError", "ChainError", "DataError", "FrameNotFound", "MeasurementFormatError",
     "ParameterError", "URDFError",
-    "ChainJoint", "Parameter", "RobotModel", "load_robot",
+    "ChainJoint", "Parameter", "RobotModel", "load_robot", "robot_path",
     "identification_jacobian",
     "IdentifiabilityReport", "analyze_identifiability",
     "Measurements", "read_measurements", "write_measurements",
     "AccuracyStats", "CalibrationResult", "ParameterEstimate", "calibrate", "evaluate",
     "PAPER_DEVIATIONS", "apply_deviations", "random_deviations", "simulate_measurements",
-    "write_calibrated_urdf",
+    "write_calibrated_urdf", "check_writable", "RecordedFrames", "build_report", "render_html",
     "PoseDesign", "design_poses", "read_poses", "select_poses", "write_poses",
     "CompensationResult", "compensate", "compensate_poses",
 ]

@@ -25,6 +25,7 @@ import math
 import shlex
 import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -37,11 +38,12 @@ from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_
                read_measurements, simulate_measurements, write_measurements)
 from .calibration import METHODS, format_accuracy_table
 from .fileio import atomic_write_bytes, check_not_input
+from .progress import working
 from .solvers import LOSSES
 
 __all__ = ["main", "main_entry"]
 
-log = logging.getLogger("calib")
+log = logging.getLogger("calib.cli")
 
 PROG = "calib"
 EXIT_OK = 0
@@ -131,7 +133,8 @@ def _load(args):
 
 
 def _read(path, robot):
-    m = read_measurements(path, robot)
+    with working(f"reading {path}", logger=log):
+        m = read_measurements(path, robot)
     log.info("read %r", m)
     return m
 
@@ -147,8 +150,9 @@ def cmd_identifiability(args) -> int:
     robot = _load(args)
     report = analyze_identifiability(robot, measure=args.measure, n_poses=args.poses, seed=args.seed)
     if args.json:
-        out = {"robot": str(args.robot), "base_frame": robot.base_frame,
-               "tool_frame": robot.tool_frame, "seed": args.seed}
+        out = {"robot": str(args.robot), "urdf": str(robot.urdf_path),
+               "base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
+               "joints": list(robot.joint_names), "seed": args.seed}
         out.update(report.to_dict())
         sys.stdout.write(_json_text(out))
         return EXIT_OK
@@ -278,9 +282,14 @@ def cmd_simulate(args) -> int:
 
 # ====================================================================== calibrate
 def cmd_calibrate(args) -> int:
-    outputs = Outputs([args.robot, args.measurements, args.validate])
+    from .report import build_report
+    from .robot import robot_path
+    from .urdf_writer import check_writable, write_calibrated_urdf
+
+    outputs = Outputs([robot_path(args.robot), args.measurements, args.validate])
     out_urdf = outputs.add(args.output)
     out_report = outputs.add(args.report) if args.report else None
+    out_html = outputs.add(args.html) if args.html else None
     plot_paths = {}
     if args.plots:
         from .report import PLOT_FILES
@@ -289,13 +298,19 @@ def cmd_calibrate(args) -> int:
             plot_paths[name] = outputs.add(Path(args.plots) / name, make_folder=True)
 
     robot = _load(args)
+    frames = check_writable(robot)     # what cannot be written is refused before the fit
+    log.info("the calibrated URDF will hold tool frame %r in base frame %r", frames.tool_frame,
+             frames.base_frame)
     meas = _read(args.measurements, robot)
     validation = _read(args.validate, robot) if args.validate else None
+    log.info("calibrating: method %s, parameter set %s, %d calibration rows", args.method,
+             args.params, meas.calibration().n_poses)
     try:
-        result = calibrate(robot, meas, method=args.method, params=args.params,
-                           sigma_pos=None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3,
-                           sigma_rot=args.sigma_rot_rad, validation=validation, loss=args.loss,
-                           outlier_k=args.outlier_k, cv=args.cv)
+        with working(f"calibrating ({args.method})", logger=log):
+            result = calibrate(robot, meas, method=args.method, params=args.params,
+                               sigma_pos=None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3,
+                               sigma_rot=args.sigma_rot_rad, validation=validation, loss=args.loss,
+                               outlier_k=args.outlier_k, cv=args.cv)
     except DataError as exc:  # about the data as a whole (too few poses): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
@@ -303,26 +318,42 @@ def cmd_calibrate(args) -> int:
     log.info("calibration: %s after %d iterations, %.3f s", result.status, result.iterations,
              result.wall_time)
 
-    outputs.stage_from_file(out_urdf, result.write_urdf)
-    if out_report is not None:
-        report = {"inputs": {"robot": str(args.robot), "measurements": str(args.measurements),
-                             "validation": None if args.validate is None else str(args.validate),
-                             "base_frame": robot.base_frame, "tool_frame": robot.tool_frame},
-                  "calibrated_urdf": str(out_urdf)}
-        report.update(result.to_dict())
-        outputs.stage(out_report, _json_text(report))
-    if plot_paths:
+    written_frames = []
+    outputs.stage_from_file(out_urdf, lambda p: written_frames.append(
+        write_calibrated_urdf(result.robot, p, nominal=result.nominal)))
+    frames = written_frames[0]
+    text = result.format()
+    images = {}
+    if plot_paths or out_html is not None:
         from .report import render_plots
 
-        images = render_plots(result, meas, validation)
-        for name, path in plot_paths.items():
-            if name in images:
-                outputs.stage(path, images[name])
+        with working("drawing the plots", logger=log):
+            images = render_plots(result, meas, validation)
+    if out_report is not None or out_html is not None:
+        report = build_report(
+            result, meas, validation, command_line=["calib", *args.argv],
+            inputs={"robot": robot_path(args.robot), "measurements": args.measurements,
+                    "validation": args.validate},
+            outputs={"calibrated_urdf": out_urdf, "report": out_report, "html": out_html},
+            frames={"written_urdf": frames.to_dict()})
+        if out_report is not None:
+            outputs.stage(out_report, _json_text(report))
+        if out_html is not None:
+            from .report import render_html
+
+            outputs.stage(out_html, render_html(report, text, images))
+    for name, path in plot_paths.items():
+        if name in images:
+            outputs.stage(path, images[name])
     outputs.commit()
 
-    written = [out_urdf] + ([out_report] if out_report else []) + \
+    written = [out_urdf] + [p for p in (out_report, out_html) if p is not None] + \
               [p for p in plot_paths.values() if p in outputs.data]
-    sys.stdout.write(result.format() + "\n\nwrote " + ", ".join(str(p) for p in written) + "\n")
+    sys.stdout.write(text + "\n\nwrote " + ", ".join(str(p) for p in written) + "\n"
+                     + f"{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in "
+                       f"base frame {frames.base_frame!r} (standing for {frames.nominal_tool_frame!r} "
+                       f"and {frames.nominal_base_frame!r} of {args.robot}; evaluate and compensate "
+                       f"use them by default)\n")
     if not result.success:
         sys.stderr.write(f"{PROG}: warning: the calibration did NOT converge (status "
                          f"{result.status}: {result.message}); the outputs were written for "
@@ -344,7 +375,8 @@ def cmd_evaluate(args) -> int:
     if args.json:
         keys = {"all rows": "all", "calibration rows (cal)": "cal", "validation rows (val)": "val"}
         out = {"robot": str(args.robot), "measurements": str(args.measurements),
-               "base_frame": robot.base_frame, "tool_frame": robot.tool_frame}
+               "base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
+               "joints": list(robot.joint_names)}
         out.update({keys[label]: s.to_dict() for label, s in rows})
         sys.stdout.write(_json_text(out))
         return EXIT_OK
@@ -444,7 +476,9 @@ _EVAL_DESC = """\
 Accuracy of a robot model against measurements: mean, RMS, max and min of the tool position
 error (mm) and orientation error (rad, the angle of R_model R_measured^T), over all rows and,
 when the file has a set column, over the cal and val rows apart. Give it the nominal URDF to see
-the error before calibration, the calibrated one to see it after."""
+the error before calibration, the calibrated one to see it after: a calibrated URDF records its
+base and tool frames (and the nominal frames they stand for), so the same options as for
+`calibrate` (or none) measure the same frames and reproduce calibrate's numbers."""
 
 _EVAL_EPILOG = """\
 examples:
@@ -454,7 +488,10 @@ examples:
 
 
 def _add_robot(p: argparse.ArgumentParser) -> None:
-    p.add_argument("robot", metavar="ROBOT.urdf", help="URDF of the robot (the nominal model)")
+    p.add_argument("robot", metavar="ROBOT.urdf",
+                   help="URDF of the robot (the nominal model), or a robot name example-robot-data "
+                        "knows (ur5, panda, ...); a calibrated URDF written by calib brings its own "
+                        "base and tool frames")
 
 
 def _add_verbose(p: argparse.ArgumentParser, top: bool) -> None:
@@ -563,6 +600,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plots", metavar="DIR", default=None,
                    help="write PNG plots of the per-pose errors before and after and their "
                         "histograms into DIR (created if missing; its parent must exist)")
+    p.add_argument("--html", metavar="REPORT.html", default=None,
+                   help="write one self-contained HTML report (tables, the printed report and "
+                        "the plots embedded; no external links) for a person or a customer")
     add_frames(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_calibrate)
@@ -584,6 +624,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 # ====================================================================== entry points
+class _ElapsedFormatter(logging.Formatter):
+    """Log lines with the seconds since the command started (``%(elapsed)``)."""
+
+    def __init__(self, fmt: str):
+        super().__init__(fmt)
+        self.start = time.monotonic()
+
+    def format(self, record: logging.LogRecord) -> str:
+        record.elapsed = time.monotonic() - self.start
+        return super().format(record)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``calib`` command with ``argv`` (default ``sys.argv[1:]``); return the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -594,12 +646,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else EXIT_INPUT)
     args.argv = argv
 
+    root_log = logging.getLogger("calib")     # every module logs as calib.<module>
     handler = None
     if args.verbose:
         handler = logging.StreamHandler(sys.stderr)
-        handler.setFormatter(logging.Formatter(f"{PROG}: %(message)s"))
-        log.addHandler(handler)
-        log.setLevel(logging.DEBUG if args.verbose > 1 else logging.INFO)
+        handler.setFormatter(_ElapsedFormatter(f"{PROG}: %(message)s  [%(elapsed).2f s]"))
+        root_log.addHandler(handler)
+        root_log.setLevel(logging.DEBUG if args.verbose > 1 else logging.INFO)
     try:
         return args.func(args)
     except CalibError as exc:
@@ -608,8 +661,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INPUT
     finally:
         if handler is not None:
-            log.removeHandler(handler)
-            log.setLevel(logging.NOTSET)
+            root_log.removeHandler(handler)
+            root_log.setLevel(logging.NOTSET)
 
 
 def main_entry() -> None:

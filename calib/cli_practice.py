@@ -28,6 +28,7 @@ from .compensation import (SINGULAR_THRESHOLD, compensate, compensate_poses,
 from .errors import CalibError
 from .fileio import check_not_input
 from .poses import CRITERIA, design_poses, write_poses
+from .progress import working
 from .robot import load_robot
 
 __all__ = ["add_select_poses_parser", "run_select_poses", "add_compensate_parser", "run_compensate"]
@@ -175,9 +176,10 @@ def run_select_poses(args) -> int:
     robot = load_robot(args.robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
     log.info("robot %s: %d joints (%s), base frame %r, tool frame %r", args.robot, robot.n_joints,
              ", ".join(robot.joint_names), robot.base_frame, robot.tool_frame)
-    design = design_poses(robot, args.n, candidates=args.candidates, criterion=args.criterion,
-                          measure=args.measure, seed=args.seed, sigma_pos=args.sigma_pos_mm * 1e-3,
-                          sigma_rot=args.sigma_rot_rad)
+    with working(f"selecting {args.n} of {args.candidates} candidate poses", logger=log):
+        design = design_poses(robot, args.n, candidates=args.candidates, criterion=args.criterion,
+                              measure=args.measure, seed=args.seed,
+                              sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad)
     log.info("selection: %d exchange passes, %d swaps, %.3f s", design.passes, design.swaps,
              design.elapsed)
     c, b = design.criteria, design.random_criteria

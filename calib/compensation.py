@@ -53,7 +53,6 @@ from __future__ import annotations
 
 import csv
 import math
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from io import StringIO
 from pathlib import Path
@@ -62,13 +61,14 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
-from .errors import CalibError, DataError, MeasurementFormatError, ParameterError, URDFError
+from .errors import CalibError, DataError, MeasurementFormatError, ParameterError
 from .fileio import atomic_write_text
 from .jacobian import MEASURES
 from .kinematics import ChainKinematics
 from .measurements import QUATERNION_NORM_TOLERANCE, finite_array
 from .poses import _joint_columns, _write_comment, read_joint_table
-from .robot import RobotModel, load_robot
+from .robot import RobotModel, load_robot, robot_path
+from .urdf import UrdfDocument
 from .spatial import log3_batch
 
 __all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "CompensationTargets",
@@ -297,68 +297,24 @@ def load_compensation_models(calibrated_urdf: str | Path, nominal_urdf: str | Pa
                              tool_frame: str | None = None) -> tuple[RobotModel, RobotModel]:
     """(calibrated, nominal) models whose tool poses are expressed in the same meas frame.
 
-    ``base_frame`` and ``tool_frame`` name frames of the nominal URDF (defaults as
-    :func:`calib.load_robot`). The calibrated URDF is expected to come from calib's writer
-    (:func:`calib.urdf_writer.write_calibrated_urdf`), which keeps the meas frame and the tool
-    frame but may add a link for each: the calibrated model uses
-
-    * as base frame, the root link of the calibrated URDF if ``base_frame`` is the root link of
-      the nominal URDF (the writer adds a new root ``meas`` when the nominal root is the parent
-      link of the first joint), else the frame of the same name;
-    * as tool frame, the link the writer added under the tool frame (a link absent from the
-      nominal URDF, fixed to it) when the tool frame is the link moved by the last joint, else
-      the frame of the same name.
+    ``base_frame`` and ``tool_frame`` name frames of the nominal URDF (default: the nominal
+    frames the calibrated URDF records, else as :func:`calib.load_robot`). The calibrated URDF written by calib
+    (:func:`calib.urdf_writer.write_calibrated_urdf`) records which of its links stand for the
+    nominal base and tool frames (it may have added a link ``tool``); :func:`calib.load_robot`
+    maps the nominal frames to them (:meth:`calib.urdf.UrdfDocument.resolve_frames`). A URDF
+    without that record is read with the same frame names.
 
     Raises :class:`calib.CalibError` when the two chains have different joints.
     """
+    recorded = UrdfDocument.read(robot_path(calibrated_urdf)).frames
+    if recorded is not None:      # default: the nominal frames the calibration was made for
+        base_frame = base_frame or recorded.nominal_base_frame
+        tool_frame = tool_frame or recorded.nominal_tool_frame
     nominal = load_robot(nominal_urdf, base_frame=base_frame, tool_frame=tool_frame)
-    nom_tree, cal_tree = _urdf_tree(nominal_urdf), _urdf_tree(calibrated_urdf)
-    base_link = nom_tree.link_of(nominal.base_frame)
-    cal_base = cal_tree.root if base_link == nom_tree.root else nominal.base_frame
-    cal_tool = nominal.tool_frame
-    tool_link = nom_tree.link_of(nominal.tool_frame)
-    last = nominal.joints[-1].name
-    if last in nom_tree.joints and nom_tree.joints[last][1] == tool_link:
-        added = [child for name, (kind, child, parent) in cal_tree.joints.items()
-                 if kind == "fixed" and parent == tool_link and child not in nom_tree.links]
-        if len(added) == 1:
-            cal_tool = added[0]
-    calibrated = load_robot(calibrated_urdf, base_frame=cal_base, tool_frame=cal_tool)
+    calibrated = load_robot(calibrated_urdf, base_frame=nominal.base_frame,
+                            tool_frame=nominal.tool_frame)
     _check_models(calibrated, nominal)
     return calibrated, nominal
-
-
-@dataclass(frozen=True)
-class _UrdfTree:
-    links: frozenset
-    joints: dict        # name -> (type, child link, parent link)
-    root: str
-
-    def link_of(self, frame: str) -> str:
-        if frame in self.links:
-            return frame
-        if frame in self.joints:
-            return self.joints[frame][1]
-        return frame
-
-
-def _urdf_tree(path: str | Path) -> _UrdfTree:
-    """Links, joints and root link of a URDF."""
-    try:
-        root = ET.parse(path).getroot()
-    except FileNotFoundError:
-        raise URDFError(path, "file not found") from None
-    except (OSError, ET.ParseError) as exc:
-        raise URDFError(path, f"cannot be read as XML: {exc}") from None
-    links = frozenset(el.get("name") for el in root.findall("link"))
-    joints = {}
-    for el in root.findall("joint"):
-        child, parent = el.find("child"), el.find("parent")
-        if child is not None and parent is not None:
-            joints[el.get("name")] = (el.get("type"), child.get("link"), parent.get("link"))
-    children = {child for _, child, _ in joints.values()}
-    roots = sorted(links - children)
-    return _UrdfTree(links, joints, roots[0] if roots else "")
 
 
 def _check_models(calibrated: RobotModel, nominal: RobotModel) -> None:

@@ -16,11 +16,22 @@ global backend are left alone):
 The rows are split as :func:`calib.calibrate` splits them: the ``cal`` rows of the measurements
 (all rows without a set column) for identification; their ``val`` rows and the extra validation
 measurements for validation.
+
+:func:`build_report` makes the JSON report of a calibration (schema :data:`SCHEMA_VERSION`):
+the result's own dictionary plus provenance, frames, per-row residuals and the covariance of the
+free parameters; :func:`render_html` one self-contained HTML page of it with the plots.
 """
 from __future__ import annotations
 
+import base64
+import datetime
+import hashlib
+import html
 import io
+import math
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -30,7 +41,8 @@ from .measurements import Measurements
 from .robot import RobotModel
 from .spatial import log3_batch
 
-__all__ = ["PoseDeviations", "pose_deviations", "render_plots"]
+__all__ = ["PoseDeviations", "SCHEMA_VERSION", "build_report", "file_provenance",
+           "pose_deviations", "render_html", "render_plots"]
 
 #: File names of the plots, in the order :func:`render_plots` returns them.
 PLOT_FILES = ("position_errors.png", "orientation_errors.png", "error_histograms.png")
@@ -180,3 +192,177 @@ def render_plots(result: CalibrationResult, measurements: Measurements,
     fig.suptitle("Distribution of the tool pose errors")
     images["error_histograms.png"] = _figure_bytes(fig)
     return images
+
+
+# ====================================================================== JSON report
+#: Version of the JSON report's layout; raised when a key changes meaning or disappears.
+SCHEMA_VERSION = 1
+
+
+def file_provenance(path: str | Path) -> dict:
+    """``{"path", "sha256", "bytes"}`` of an input file (path as given, resolved to absolute)."""
+    path = Path(path)
+    data = path.read_bytes()
+    return {"path": str(path.resolve()), "sha256": hashlib.sha256(data).hexdigest(),
+            "bytes": len(data)}
+
+
+def _calib_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("calib")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _residual_rows(result: CalibrationResult, parts: Sequence[tuple[str, str, Measurements]],
+                   outlier_rows: set) -> list[dict]:
+    out = []
+    for file_role, set_name, m in parts:
+        if m is None or not m.n_poses:
+            continue
+        after, before = pose_deviations(result.robot, m), pose_deviations(result.nominal, m)
+        sets = m.sets if m.sets is not None else [set_name] * m.n_poses
+        for k in range(m.n_poses):
+            rec = {"file": file_role, "row": int(m.rows[k]), "set": str(sets[k]),
+                   "position_mm": [float(v) * 1e3 for v in after.position[k]],
+                   "position_error_mm": float(np.linalg.norm(after.position[k])) * 1e3,
+                   "position_error_before_mm": float(np.linalg.norm(before.position[k])) * 1e3}
+            if after.rotation is not None:
+                rec.update({"rotation_rad": [float(v) for v in after.rotation[k]],
+                            "rotation_error_rad": float(np.linalg.norm(after.rotation[k])),
+                            "rotation_error_before_rad": float(np.linalg.norm(before.rotation[k]))})
+            if file_role == "measurements":
+                rec["outlier"] = int(m.rows[k]) in outlier_rows
+            out.append(rec)
+    return out
+
+
+def _covariance_dict(result: CalibrationResult) -> dict:
+    names = list(result.free)
+    units = ["mm" if result.robot.parameters[result.robot.index(n)].unit == "m" else "rad"
+             for n in names]
+    scale = np.array([1e3 if u == "mm" else 1.0 for u in units])
+    cov = np.asarray(result.covariance, float) * np.outer(scale, scale)
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(std, std)
+    return {"parameters": names, "units": units,
+            "std": std.tolist(),
+            "covariance": cov.tolist(),
+            "correlation": [[float(v) if math.isfinite(v) else None for v in row] for row in corr],
+            "note": "covariance in the parameters' units (mm, rad; products for mixed entries)"}
+
+
+def build_report(result: CalibrationResult, measurements: Measurements,
+                 validation: Measurements | None = None, *, command_line: Sequence[str] = (),
+                 inputs: Mapping[str, str | Path] | None = None, frames: Mapping | None = None,
+                 outputs: Mapping[str, str | Path] | None = None) -> dict:
+    """The JSON report of a calibration: ``result.to_dict()`` plus
+
+    * ``schema_version`` (:data:`SCHEMA_VERSION`);
+    * ``provenance``: calib version, ``command_line`` (list of arguments), UTC date, and path,
+      sha256 and size of every file in ``inputs`` (role -> path, e.g. ``{"robot": ...,
+      "measurements": ...}``), and ``outputs`` (role -> path) as given;
+    * ``frames``: base and tool frame and chain joints of the model, plus ``frames`` given by the
+      caller (e.g. the frames recorded in the written URDF, under ``"written_urdf"``);
+    * ``residuals``: one entry per row of ``measurements`` and ``validation`` (file role, 1-based
+      file row, set, residual p_model - p_measured in mm in the meas frame, its length before and
+      after, rotation vector of R_model R_measured^T in rad and its angle, outlier flag);
+    * ``covariance``: names, units, standard deviations, covariance and correlation of the free
+      parameters (mm and rad).
+
+    ``measurements`` and ``validation`` are the arguments :func:`calib.calibrate` was given.
+    """
+    report = {"schema_version": SCHEMA_VERSION}
+    report["provenance"] = {
+        "calib_version": _calib_version(),
+        "command_line": list(command_line),
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "inputs": {role: file_provenance(path) for role, path in (inputs or {}).items()
+                   if path is not None},
+        "outputs": {role: str(path) for role, path in (outputs or {}).items() if path is not None},
+    }
+    robot = result.robot
+    report["frames"] = {"base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
+                        "joints": list(robot.joint_names), **dict(frames or {})}
+    report.update(result.to_dict())
+    outlier_rows = {int(o.row) for o in getattr(result, "outliers", ())}
+    parts = [("measurements", "cal", measurements), ("validation", "val", validation)]
+    report["residuals"] = _residual_rows(result, parts, outlier_rows)
+    report["covariance"] = _covariance_dict(result)
+    return report
+
+
+# ====================================================================== HTML report
+_CSS = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:3px 8px;
+text-align:right}th{background:#eee}td.l,th.l{text-align:left}pre{background:#f6f6f6;padding:1em;
+overflow-x:auto}img{max-width:100%}.bad{color:#b00}"""
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence], left: int = 1) -> str:
+    def cell(tag, k, v):
+        cls = ' class="l"' if k < left else ""
+        return f"<{tag}{cls}>{html.escape(str(v))}</{tag}>"
+    head = "".join(cell("th", k, h) for k, h in enumerate(header))
+    body = "".join("<tr>" + "".join(cell("td", k, v) for k, v in enumerate(r)) + "</tr>" for r in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _num(v, fmt=".4g") -> str:
+    return "" if v is None else format(v, fmt)
+
+
+def render_html(report: Mapping, text: str, images: Mapping[str, bytes] | None = None, *,
+                title: str = "Kinematic calibration report") -> str:
+    """One self-contained HTML page (no external links; plots embedded as PNG data) of a report
+    from :func:`build_report`, with ``text`` (what the terminal printed) and ``images`` (file
+    name -> PNG bytes, e.g. from :func:`render_plots`)."""
+    e = html.escape
+    prov, frames = report.get("provenance", {}), report.get("frames", {})
+    parts = [f"<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{e(title)}</title>"
+             f"<style>{_CSS}</style></head><body><h1>{e(title)}</h1>"]
+    ok = report.get("success")
+    parts.append(f"<p>Status: <b class=\"{'' if ok else 'bad'}\">{e(str(report.get('status')))}</b>"
+                 f" &mdash; {e(str(report.get('message', '')))}</p>")
+    parts.append("<h2>Robot and frames</h2>" + _table(
+        ["item", "value"],
+        [["base frame (measurement frame)", frames.get("base_frame")],
+         ["tool frame", frames.get("tool_frame")],
+         ["joints", ", ".join(frames.get("joints", []))]]
+        + [[f"written URDF: {k}", v] for k, v in (frames.get("written_urdf") or {}).items()], left=2))
+    acc_rows = []
+    for label, key in (("calibration rows, before", ("before",)), ("calibration rows, after", ("after",)),
+                       ("validation rows, before", ("validation", "before")),
+                       ("validation rows, after", ("validation", "after"))):
+        d = report
+        for k in key:
+            d = d.get(k) if isinstance(d, Mapping) else None
+        if not d:
+            continue
+        pos, rot = d.get("position_mm") or {}, d.get("rotation_rad") or {}
+        acc_rows.append([label, d.get("n_poses")] + [_num(pos.get(k)) for k in ("mean", "rms", "max")]
+                        + [_num(rot.get(k)) if rot else "" for k in ("mean", "rms", "max")])
+    parts.append("<h2>Accuracy</h2>" + _table(
+        ["rows", "poses", "position mean / mm", "RMS / mm", "max / mm", "orientation mean / rad",
+         "RMS / rad", "max / rad"], acc_rows))
+    parts.append("<h2>Parameters</h2>" + _table(
+        ["parameter", "unit", "nominal", "identified", "deviation", "std"],
+        [[p["name"], p["unit"], _num(p["nominal"], ".6f"), _num(p["identified"], ".6f"),
+          _num(p["deviation"], ".6f"), _num(p["std"], ".3g") if p["free"] else "fixed"]
+         for p in report.get("parameters", [])], left=2))
+    for name, data in (images or {}).items():
+        b64 = base64.b64encode(data).decode("ascii")
+        parts.append(f"<h2>{e(name)}</h2><img alt=\"{e(name)}\" src=\"data:image/png;base64,{b64}\">")
+    parts.append(f"<h2>Terminal output</h2><pre>{e(text)}</pre>")
+    inputs = prov.get("inputs", {})
+    parts.append("<h2>Provenance</h2>" + _table(
+        ["item", "value"],
+        [["calib version", prov.get("calib_version")], ["date (UTC)", prov.get("date")],
+         ["command line", " ".join(prov.get("command_line", []))]]
+        + [[f"input {role}", f"{v['path']} (sha256 {v['sha256']}, {v['bytes']} bytes)"]
+           for role, v in inputs.items()], left=2))
+    parts.append("</body></html>\n")
+    return "\n".join(parts)

@@ -20,7 +20,7 @@ about x, as in Eq. (3)). Lengths in metres, angles in radians.
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
+import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -31,6 +31,7 @@ import pinocchio as pin
 from .errors import ChainError, FrameNotFound, ParameterError, URDFError
 from .mdh import PARALLEL_THRESHOLD_RAD, derive_mdh, link_transform
 from .spatial import zyx_parameters, zyx_transform
+from .urdf import UrdfDocument, UrdfJoint
 
 JOINT_KINDS = ("revolute", "continuous", "prismatic")
 _STRUCTURAL_KINDS = ("theta", "d", "a", "alpha", "beta")
@@ -286,7 +287,8 @@ class UrdfChain:
     """A serial chain found in a URDF, with the Pinocchio model of the whole file.
 
     ``model`` is Pinocchio's model of the URDF; ``joint_ids`` the Pinocchio ids of the chain's
-    moving joints (base to tool); ``base_frame_id``/``tool_frame_id`` Pinocchio frame ids.
+    moving joints (base to tool); ``base_frame_id``/``tool_frame_id`` Pinocchio frame ids;
+    ``document`` the URDF's XML document (:class:`calib.urdf.UrdfDocument`).
     """
 
     path: Path
@@ -297,6 +299,7 @@ class UrdfChain:
     tool_frame: str
     base_frame_id: int
     tool_frame_id: int
+    document: UrdfDocument | None = None
 
     def configuration(self, q: np.ndarray) -> np.ndarray:
         """Pinocchio configuration of the whole URDF model for chain joint values q (n,).
@@ -322,88 +325,122 @@ class UrdfChain:
         return out
 
 
-def _parse_urdf_xml(path: Path) -> ET.Element:
+def _moving(j: UrdfJoint) -> bool:
+    return j.kind != "fixed" and not j.mimic
+
+
+def _longest_moving(doc: UrdfDocument, j: UrdfJoint) -> int:
+    """Moving joints on the longest path down from the parent of ``j`` through ``j``."""
+    return _moving(j) + doc.moving_joints_below(j.child)
+
+
+def _is_mechanism(doc: UrdfDocument, j: UrdfJoint) -> bool:
+    """Whether anything moves (or mimics) in the branch that starts with joint ``j``."""
+    return j.kind != "fixed" or j.mimic or any(_is_mechanism(doc, k) for k in doc.children(j.child))
+
+
+def _default_tool_frame(doc: UrdfDocument, start: str) -> str:
+    """The default tool frame: follow the tree down from link ``start``.
+
+    At a link with one child, go on. At a link with several children, compare the branches by
+    the moving joints on their longest path (mimic joints do not count):
+
+    * nothing moves below: stop here;
+    * other branches are mechanisms too (they move or mimic) and the longest branch has fewer
+      moving joints than the chain already followed: an end effector (gripper fingers, a hand):
+      stop here, at the last link before the branch;
+    * one branch is the longest, and it has at least 2 moving joints or no other branch is a
+      mechanism (a fixed sensor mount beside the next joint): go on into it (an arm past a
+      mobile base's wheels, or past a head);
+    * several branches are equally long with at least 2 moving joints (two arms of a humanoid)
+      and the chain followed is shorter: :class:`ChainError` naming the candidates.
+    """
+    link, passed = start, 0
+    while True:
+        kids = doc.children(link)
+        if not kids:
+            return link
+        if len(kids) == 1:
+            passed += _moving(kids[0])
+            link = kids[0].child
+            continue
+        counts = [_longest_moving(doc, j) for j in kids]
+        best = max(counts)
+        top = [j for j, c in zip(kids, counts) if c == best]
+        others_move = [j for j, c in zip(kids, counts) if c < best and _is_mechanism(doc, j)]
+        if best == 0 or ((others_move or len(top) > 1) and best < passed):
+            return link
+        if len(top) == 1 and (best >= 2 or not others_move):
+            passed += _moving(top[0])
+            link = top[0].child
+            continue
+        if len(top) > 1 and best >= 2:
+            candidates = [_default_tool_frame(doc, j.child) for j in top]
+            raise ChainError(doc.path, f"no default tool frame: the tree branches at link {link!r} "
+                                       f"into {len(top)} arms of {best} moving joints; choose one "
+                                       f"with --tool-frame (tool_frame=), e.g. "
+                                       f"{', '.join(candidates)}")
+        return link
+
+
+def robot_path(robot: str | Path) -> Path:
+    """The URDF file of ``robot``: a path, or a robot name example-robot-data knows (``ur5``,
+    ``panda``, ``z1``, ...).
+
+    A name is tried only when no file of that name exists and it has no folder or suffix; an
+    unknown name raises :class:`URDFError` listing the known names.
+    """
+    path = Path(robot)
+    if path.exists() or path.suffix or len(path.parts) != 1:
+        return path
     try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise URDFError(path, "file not found") from None
-    except IsADirectoryError:
-        raise URDFError(path, "is a directory, expected a URDF file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise URDFError(path, f"cannot be read: {exc}") from None
+        from example_robot_data.robots_loader import ROBOTS
+        from example_robot_data.utils import getModelPath
+    except ImportError:       # example-robot-data is a dependency, but may be broken
+        return path
+    name = str(robot)
+    loader = ROBOTS.get(name)
+    if loader is None or not getattr(loader, "urdf_filename", ""):
+        known = sorted(k for k, v in ROBOTS.items() if getattr(v, "urdf_filename", ""))
+        raise URDFError(path, f"file not found, and not a robot name example-robot-data knows "
+                              f"({', '.join(known)})")
+    sub = os.path.join(loader.path, loader.urdf_subpath, loader.urdf_filename)
     try:
-        root = ET.fromstring(text)
-    except ET.ParseError as exc:
-        line, col = exc.position
-        raise URDFError(path, f"malformed XML at line {line}, column {col + 1}: "
-                              f"{str(exc).split(':')[0]}") from None
-    if root.tag != "robot":
-        raise URDFError(path, f"root element is <{root.tag}>, expected <robot>")
-    if root.find("link") is None:
-        raise URDFError(path, "has no <link> element")
-    return root
-
-
-def _urdf_structure(path: Path, root: ET.Element):
-    """Joint records (name, type, parent, child, mimic) and the root link, checked for sanity."""
-    links = [l.get("name") for l in root.findall("link")]
-    joints = {}
-    for j in root.findall("joint"):
-        name, jtype = j.get("name"), j.get("type")
-        parent, child = j.find("parent"), j.find("child")
-        if name is None or jtype is None or parent is None or child is None:
-            raise URDFError(path, f"joint {name!r} lacks a name, type, <parent> or <child>")
-        joints[name] = dict(type=jtype, parent=parent.get("link"), child=child.get("link"),
-                            mimic=j.find("mimic") is not None, element=j)
-    children = {c["child"] for c in joints.values()}
-    roots = [l for l in links if l not in children]
-    if len(roots) != 1:
-        raise URDFError(path, f"expected one root link, found {len(roots)}: {roots}")
-    return joints, roots[0]
-
-
-def _default_tool_frame(joints: dict, root_link: str) -> str:
-    """Follow the tree from the root while it does not branch (or only one branch moves)."""
-    children: dict[str, list[str]] = {}
-    for name, j in joints.items():
-        children.setdefault(j["parent"], []).append(name)
-
-    def moves(link: str) -> bool:
-        return any(joints[j]["type"] != "fixed" or moves(joints[j]["child"])
-                   for j in children.get(link, []))
-
-    link = root_link
-    while children.get(link):
-        kids = children[link]
-        if len(kids) > 1:
-            kids = [j for j in kids if joints[j]["type"] != "fixed" or moves(joints[j]["child"])]
-            if len(kids) != 1:
-                break
-        link = joints[kids[0]]["child"]
-    return link
+        folder = loader.model_path or getModelPath(sub)
+    except OSError as exc:
+        raise URDFError(path, f"example-robot-data knows this robot but its URDF is missing: "
+                              f"{exc}") from None
+    return Path(os.path.normpath(os.path.join(folder, sub)))
 
 
 def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
                     tool_frame: str | None = None) -> UrdfChain:
     """Read a URDF and find the serial chain of moving joints between two of its frames.
 
-    ``base_frame`` defaults to the root link; ``tool_frame`` to the last link reached from the
-    root before the tree branches into several moving branches. Frames may be link or joint names.
-    Raises :class:`URDFError`, :class:`FrameNotFound` or :class:`ChainError`.
+    ``urdf_path`` is a file or a robot name of example-robot-data (:func:`robot_path`).
+    ``base_frame`` defaults to the root link; ``tool_frame`` to the last link before the tree
+    branches into an end effector (see :func:`_default_tool_frame`). A calibrated URDF written
+    by calib records its frames, which are then the defaults (and requests for the nominal
+    frames they stand for map to them; :meth:`calib.urdf.UrdfDocument.resolve_frames`). Frames
+    may be link or joint names. Raises :class:`URDFError`, :class:`FrameNotFound` or
+    :class:`ChainError`.
     """
-    path = Path(urdf_path)
-    xml_root = _parse_urdf_xml(path)
-    joints_xml, root_link = _urdf_structure(path, xml_root)
+    path = robot_path(urdf_path)
+    doc = UrdfDocument.read(path)
     try:
         model = pin.buildModelFromUrdf(str(path))
     except (RuntimeError, ValueError) as exc:
         msg = " ".join(str(exc).split())
         raise URDFError(path, f"Pinocchio cannot build a model: {msg}") from None
 
-    base_frame = base_frame or root_link
-    tool_frame = tool_frame or _default_tool_frame(joints_xml, root_link)
+    base_frame, tool_frame = doc.resolve_frames(base_frame, tool_frame)
+    base_frame = base_frame or doc.root_link
+    requested_tool = tool_frame
     frame_names = [f.name for f in model.frames]
     available = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
+    if base_frame not in frame_names:
+        raise FrameNotFound(base_frame, available, path)
+    tool_frame = tool_frame or _default_tool_frame(doc, doc.link_of(base_frame))
     ids = {}
     for role, name in (("base", base_frame), ("tool", tool_frame)):
         if name not in frame_names:
@@ -425,15 +462,27 @@ def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
         j = model.parents[j]
     chain.reverse()
     if not chain:
+        hint = ""
+        if requested_tool is None:
+            stop = doc.link_of(tool_frame)
+            cands = []
+            for j in doc.children(stop):
+                if _is_mechanism(doc, j):
+                    try:
+                        cands.append(_default_tool_frame(doc, j.child))
+                    except ChainError:
+                        pass
+            hint = (f"; choose one with --tool-frame (tool_frame=), e.g. {', '.join(cands)}"
+                    if cands else "")
         raise ChainError(path, f"no moving joint between base frame {base_frame!r} and tool frame "
-                               f"{tool_frame!r}")
+                               f"{tool_frame!r}{hint}")
 
     cj = []
     for jid in chain:
         name = model.names[jid]
-        rec = joints_xml.get(name)
-        jtype = rec["type"] if rec else model.joints[jid].shortname()
-        if rec is not None and rec["mimic"]:
+        rec = doc.joints.get(name)
+        jtype = rec.kind if rec else model.joints[jid].shortname()
+        if rec is not None and rec.mimic:
             raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} is a "
                                    f"mimic joint: unsupported (it has no independent value)")
         if jtype not in JOINT_KINDS or model.joints[jid].nv != 1:
@@ -445,13 +494,12 @@ def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
         else:
             jm = model.joints[jid]
             lo, hi = float(model.lowerPositionLimit[jm.idx_q]), float(model.upperPositionLimit[jm.idx_q])
-            lim = rec["element"].find("limit") if rec else None
-            if lim is None or (lim.get("lower") is None and lim.get("upper") is None):
+            if rec is None or not rec.has_limits:
                 lo, hi = -math.inf, math.inf
         cj.append(ChainJoint(name, jtype, lo, hi))
     return UrdfChain(path=path, model=model, joints=tuple(cj), joint_ids=tuple(chain),
                      base_frame=base_frame, tool_frame=tool_frame,
-                     base_frame_id=ids["base"], tool_frame_id=ids["tool"])
+                     base_frame_id=ids["base"], tool_frame_id=ids["tool"], document=doc)
 
 
 def chain_axes(chain: UrdfChain) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

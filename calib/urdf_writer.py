@@ -31,21 +31,27 @@ nominal model derived from the URDF, "cal" the calibrated one):
   meas coordinates), the first fixed joint on the path from the base frame to ``P_1`` takes
   ``K`` (its origin becomes ``K . origin``, or ``origin . K^-1`` if the path leaves the base
   frame through its parent joint); the links beyond it move with the robot base. If the base
-  frame is ``P_1`` itself and is the root link, a new root link ``meas`` (``meas_calibrated``
-  if that name is taken) is added with a fixed joint to the old root that carries ``K``: the
-  output's base frame is then that new link. Otherwise a :class:`~calib.errors.ChainError` is
-  raised.
+  frame is ``P_1`` itself (``base_link`` of a UR arm, the root of many arms), joint 1's origin
+  takes ``K`` (exact: the URDF joint axis is expressed in the child link, which keeps its
+  offset ``C_1`` from the MDH frame), and the base frame keeps its name.
 * Tool side: on the fixed path ``L_n -> F_1 -> ... -> F_k = tool``, with k >= 2 the first joint
   takes the change of the MDH flange frame relative to ``L_n`` (``F_1 .. F_{k-1}`` move with the
   flange) and the last the change of flange -> tool; with k = 1 that joint takes both; with
   k = 0 (the tool frame is ``L_n``) a link ``tool`` (``tool_calibrated`` if taken) is added with
-  a fixed joint from ``L_n``: the output's tool frame is then that new link.
+  a fixed joint from ``L_n``: the output's tool frame is then that new link (the calibrated
+  tool is in general off the last joint's axis, where a URDF child link must sit).
 
-Origins that do not change (to 1e-13 m / rad) keep their original text.
+The output records its base and tool frames, and the nominal frames they stand for, in a
+``<calib:frames>`` element (:mod:`calib.urdf`), which :func:`calib.load_robot`, ``evaluate``
+and ``compensate`` use by default. Numbers are written with 12 significant digits
+(:func:`format_number`, error < 1e-12 m / rad), and of the equivalent roll-pitch-yaw triples the
+one nearest the input's (:func:`rpy_nearest`). Origins that do not change (to 1e-13 m / rad)
+keep their original text.
 """
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,13 +59,14 @@ import numpy as np
 import pinocchio as pin
 from lxml import etree
 
-from .errors import CalibError, ChainError, URDFError
+from .errors import CalibError
 from .fileio import atomic_write_text, check_not_input
 from .kinematics import ChainKinematics
 from .robot import RobotModel, chain_axes, load_robot, read_urdf_chain
+from .urdf import FRAMES_TAG, RecordedFrames, UrdfDocument
 from .spatial import inverse
 
-__all__ = ["write_calibrated_urdf"]
+__all__ = ["check_writable", "format_number", "rpy_nearest", "write_calibrated_urdf"]
 
 #: Tolerance (metres, radians) for the check that a ``nominal`` model describes the URDF's joint
 #: axes and tool frame. A model derived by :func:`calib.load_robot` matches to rounding (1e-15).
@@ -72,7 +79,7 @@ _UNCHANGED_TOL = 1e-13
 
 # ====================================================================== public API
 def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
-                          nominal: RobotModel | None = None) -> None:
+                          nominal: RobotModel | None = None) -> RecordedFrames:
     """Write a copy of ``robot.urdf_path`` whose kinematics are exactly ``robot``'s.
 
     Parameters
@@ -84,33 +91,45 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
         ``load_robot(robot.urdf_path, robot.base_frame, robot.tool_frame,
         robot.parallel_threshold)``.
 
-    In the output, Pinocchio's pose of the tool frame in the base frame is ``robot.T_meas_tool(q)``
-    (4x4, metres) for every configuration q (radians / metres), to rounding. The base and tool
-    frames keep their names (``robot.base_frame``, ``robot.tool_frame``) except where the writer
-    has to add a frame (see the module docstring): a new root link ``meas`` (or
-    ``meas_calibrated``) when the base frame is the root link and is the parent of the first
-    joint, and a link ``tool`` (or ``tool_calibrated``) when the tool frame is the child link of
-    the last joint. Only the origins of the chain's joints and of one fixed joint on each side
-    change; everything else of the input is kept.
+    Returns the frames the output records (:class:`calib.urdf.RecordedFrames`): in the output,
+    Pinocchio's pose of ``tool_frame`` in ``base_frame`` is ``robot.T_meas_tool(q)`` (4x4,
+    metres) for every configuration q (radians / metres), to 1e-12 m / rad. The base frame
+    keeps its name; the tool frame too, except when it is the child link of the last joint: a
+    link ``tool`` (or ``tool_calibrated``) is then added (see the module docstring).
+    :func:`calib.load_robot` of the output uses these frames by default. Only the origins of the
+    chain's joints and of at most one fixed joint on each side change; everything else of the
+    input is kept.
 
     Raises :class:`~calib.errors.CalibError` (or a subclass): no URDF to start from, output =
-    input, ``nominal`` incompatible with ``robot`` or not describing the URDF, or a base frame
-    that is neither the root nor separated from the first joint by a fixed joint.
+    input, ``nominal`` incompatible with ``robot`` or not describing the URDF.
     """
+    check_not_input(path, [robot.urdf_path] if robot.urdf_path is not None else [])
+    doc, plan = _prepare(robot, nominal)
+    atomic_write_text(path, doc.render(plan))
+    return plan.frames
+
+
+def check_writable(robot: RobotModel) -> RecordedFrames:
+    """Check, before a fit, that a calibration of ``robot`` (a model from :func:`calib.load_robot`)
+    can be written into its URDF; returns the frames the output will record.
+
+    Raises what :func:`write_calibrated_urdf` would raise for this URDF and these frames.
+    """
+    return _prepare(robot, None)[1].frames
+
+
+def _prepare(robot: RobotModel, nominal: RobotModel | None):
     if robot.urdf_path is None:
         raise CalibError("the robot model was not read from a URDF (urdf_path is None): there is no "
                          "URDF to write calibrated kinematics into")
     src = Path(robot.urdf_path)
-    check_not_input(path, [src])
     if nominal is None:
         nominal = load_robot(src, robot.base_frame, robot.tool_frame, robot.parallel_threshold)
     _check_compatible(robot, nominal)
-
-    doc = _UrdfDocument.read(src)
     chain = read_urdf_chain(src, robot.base_frame, robot.tool_frame)
+    doc = _UrdfDocument(chain.document.path, chain.document.tree)
     _check_nominal_matches_urdf(nominal, chain)
-    plan = _plan_edits(robot, nominal, chain, doc)
-    atomic_write_text(path, doc.render(plan))
+    return doc, _plan_edits(robot, nominal, chain, doc)
 
 
 # ====================================================================== checks
@@ -159,69 +178,8 @@ def _check_nominal_matches_urdf(nominal: RobotModel, chain) -> None:
 
 
 # ====================================================================== the URDF document
-@dataclass(frozen=True)
-class _Joint:
-    name: str
-    kind: str
-    parent: str
-    child: str
-
-
-class _UrdfDocument:
-    """The input URDF as an lxml tree (comments, namespaces and unknown tags kept) plus its
-    joint tree. Edits go through :meth:`render`, which works on a copy."""
-
-    def __init__(self, path: Path, tree: etree._ElementTree):
-        self.path = path
-        self.tree = tree
-        root = tree.getroot()
-        self.links = [el.get("name") for el in root.findall("link")]
-        self.joints: dict[str, _Joint] = {}
-        for el in root.findall("joint"):
-            parent, child = el.find("parent"), el.find("child")
-            self.joints[el.get("name")] = _Joint(el.get("name"), el.get("type"), parent.get("link"),
-                                                 child.get("link"))
-        self.parent_joint = {j.child: j for j in self.joints.values()}
-        roots = [l for l in self.links if l not in self.parent_joint]
-        self.root_link = roots[0]
-
-    @classmethod
-    def read(cls, path: Path) -> "_UrdfDocument":
-        parser = etree.XMLParser(remove_blank_text=False, remove_comments=False,
-                                 resolve_entities=False)
-        try:
-            tree = etree.parse(str(path), parser)
-        except (OSError, etree.XMLSyntaxError) as exc:
-            raise URDFError(path, f"cannot be parsed: {exc}") from None
-        return cls(path, tree)
-
-    def link_of_frame(self, name: str) -> str:
-        """The link a frame name denotes: a link, or the child link of a joint of that name."""
-        if name in self.links:
-            return name
-        return self.joints[name].child
-
-    def fixed_path(self, start: str, end: str) -> list[tuple[_Joint, bool]]:
-        """Joints on the tree path from link ``start`` to link ``end``, each with ``True`` when
-        it is traversed from parent to child. All must be fixed (Pinocchio merged them)."""
-        def up(link):
-            out = []
-            while link in self.parent_joint:
-                j = self.parent_joint[link]
-                out.append(j)
-                link = j.parent
-            return out
-        up_s, up_e = up(start), up(end)
-        ancestors_e = [end] + [j.parent for j in up_e]
-        ancestors_s = [start] + [j.parent for j in up_s]
-        common = next(l for l in ancestors_s if l in ancestors_e)
-        path = [(j, False) for j in up_s[:ancestors_s.index(common)]]
-        path += [(j, True) for j in reversed(up_e[:ancestors_e.index(common)])]
-        for j, _ in path:
-            if j.kind != "fixed":
-                raise ChainError(self.path, f"joint {j.name!r} of type {j.kind!r} lies between links "
-                                            f"{start!r} and {end!r} where a fixed joint was expected")
-        return path
+class _UrdfDocument(UrdfDocument):
+    """The shared URDF document (:class:`calib.urdf.UrdfDocument`) with the writer's render."""
 
     def render(self, plan: "_Plan") -> str:
         """The output document as text: ``plan`` applied to a copy of the input tree."""
@@ -232,12 +190,6 @@ class _UrdfDocument:
         by_name = {el.get("name"): el for el in root.findall("joint")}
         for name, T in plan.origins.items():
             _set_origin(by_name[name], T, indent + unit)
-        if plan.new_root is not None:
-            link, joint, T = plan.new_root
-            pos = list(root).index(root.find("link"))
-            for k, el in enumerate(_new_fixed_link(link, joint, parent=link, child=self.root_link,
-                                                   T=T, indent=indent, unit=unit)):
-                root.insert(pos + k, el)
         if plan.new_tool is not None:
             link, joint, parent, T = plan.new_tool
             closing = root[-1].tail
@@ -246,11 +198,26 @@ class _UrdfDocument:
             for el in els:
                 root.append(el)
             els[-1].tail = closing
-        comment = etree.Comment(_sanitize_comment(plan.summary()))
-        comment.tail = root.text if root.text is not None and not root.text.strip() else indent
+        for old in root.findall(FRAMES_TAG):       # a calibrated input: its record is replaced
+            _remove_keeping_tail(old)
+        frames = plan.frames.element()
+        frames.tail = root.text if root.text is not None and not root.text.strip() else indent
         root.text = indent
+        root.insert(0, frames)
+        comment = etree.Comment(_sanitize_comment(plan.summary()))
+        comment.tail = indent
         root.insert(0, comment)
         return _serialize(tree)
+
+
+def _remove_keeping_tail(el: etree._Element) -> None:
+    parent = el.getparent()
+    prev = el.getprevious()
+    if prev is not None:
+        prev.tail = el.tail
+    else:
+        parent.text = el.tail
+    parent.remove(el)
 
 
 def _serialize(tree: etree._ElementTree) -> str:
@@ -282,21 +249,73 @@ def _child_indent(root: etree._Element) -> str:
     return "\n  "
 
 
-def _fmt(x: float) -> str:
-    """Shortest text that reads back as the same float; rounding noise below 1e-15 is zero."""
-    if abs(x) < 1e-15:
+# ====================================================================== numbers
+#: Largest error (metres, radians) a written number may have (:func:`format_number`).
+ROUND_TRIP_TOL = 1e-12
+
+#: Significant digits of written numbers where they keep the error within ROUND_TRIP_TOL.
+SIGNIFICANT_DIGITS = 12
+
+
+def format_number(x: float) -> str:
+    """``x`` as short text for a URDF: 12 significant digits (``0.117``, not
+    ``0.11700000000000006``), or 12 decimals where 12 significant digits would be off by more
+    than :data:`ROUND_TRIP_TOL` (values of 1 and more: angles near pi); values below 5e-13 are
+    ``0``. The text reads back within 5e-13 of ``x`` (< 1e-12 m or rad)."""
+    x = float(x)
+    if abs(x) < 5e-13:
         return "0"
-    return repr(float(x))
+    text = f"{x:.{SIGNIFICANT_DIGITS}g}"
+    if abs(float(text) - x) > 5e-13:
+        text = f"{x:.12f}".rstrip("0").rstrip(".")
+    return text
 
 
-def _origin_attrib(T: np.ndarray) -> dict[str, str]:
-    return {"xyz": " ".join(_fmt(v) for v in T[:3, 3]),
-            "rpy": " ".join(_fmt(v) for v in pin.rpy.matrixToRpy(T[:3, :3]))}   # URDF's convention
+def rpy_nearest(R: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+    """(3,) URDF roll, pitch, yaw (radians; ``R = Rz(yaw) Ry(pitch) Rx(roll)``) of the rotation
+    matrix ``R`` (3, 3), chosen among the equivalent triples (the two branches, each angle
+    shifted by multiples of 2 pi) as the nearest to ``reference`` (3,) (default: zeros, i.e.
+    Pinocchio's principal triple). At pitch = +-pi/2 (roll and yaw then act about one axis), the
+    roll is taken from ``reference``.
+    """
+    ref = np.zeros(3) if reference is None else np.asarray(reference, float)
+    r, p, y = pin.rpy.matrixToRpy(R)
+    if abs(math.cos(p)) < 1e-9:           # gimbal lock: only yaw -/+ roll is defined
+        s = math.copysign(1.0, p)
+        p = s * math.pi / 2
+        r = ref[0]
+        Rr = R @ pin.rpy.rpyToMatrix(r, p, 0.0).T   # R = Rz(y) Ry(p) Rx(r), so Rr = Rz(y)
+        y = math.atan2(Rr[1, 0], Rr[0, 0])
+        cands = [np.array([r, p, y])]
+    else:
+        cands = [np.array([r, p, y]),
+                 np.array([r + math.pi, math.pi - p if p > 0 else -math.pi - p, y + math.pi])]
+    best, best_d = None, math.inf
+    for c in cands:
+        c = c + 2 * math.pi * np.round((ref - c) / (2 * math.pi))   # nearest 2 pi shift per angle
+        d = float(np.abs(c - ref).sum())
+        if d < best_d:
+            best, best_d = c, d
+    return best
+
+
+def _origin_attrib(T: np.ndarray, rpy_reference=None) -> dict[str, str]:
+    return {"xyz": " ".join(format_number(v) for v in T[:3, 3]),
+            "rpy": " ".join(format_number(v) for v in rpy_nearest(T[:3, :3], rpy_reference))}
+
+
+def _parse_triple(text: str | None) -> np.ndarray | None:
+    try:
+        v = np.array([float(t) for t in (text or "").split()])
+    except ValueError:
+        return None
+    return v if v.shape == (3,) and np.all(np.isfinite(v)) else None
 
 
 def _set_origin(joint: etree._Element, T: np.ndarray, indent: str) -> None:
     origin = joint.find("origin")
-    attrib = _origin_attrib(T)
+    reference = _parse_triple(origin.get("rpy")) if origin is not None else None
+    attrib = _origin_attrib(T, reference)
     if origin is None:            # no <origin> (identity): add one after <child>
         origin = etree.Element("origin")
         child = joint.find("child")
@@ -344,21 +363,20 @@ def _mdh_poses(robot: RobotModel) -> dict:
 @dataclass(frozen=True)
 class _Plan:
     """What to change in the document: new joint origins (joint name -> 4x4 ``T_parent_child``
-    at q = 0) and the links to add (with their fixed joints)."""
+    at q = 0), the tool link to add (with its fixed joint), and the frames to record."""
 
     source: str
     origins: dict
-    new_root: tuple | None = None      # (link, joint, T_link_oldroot)
+    frames: RecordedFrames
     new_tool: tuple | None = None      # (link, joint, parent link, T_parent_link)
 
     def summary(self) -> str:
         parts = [f"Kinematics calibrated by calib from {self.source}.",
                  "Recomputed joint origins: " + (", ".join(self.origins) or "none") + "."]
-        if self.new_root is not None:
-            parts.append(f"Added root link {self.new_root[0]!r} (the measurement frame) "
-                         f"with fixed joint {self.new_root[1]!r}.")
         if self.new_tool is not None:
             parts.append(f"Added tool link {self.new_tool[0]!r} with fixed joint {self.new_tool[1]!r}.")
+        parts.append(f"Calibrated kinematics: tool frame {self.frames.tool_frame!r} in base frame "
+                     f"{self.frames.base_frame!r} (recorded in calib:frames).")
         return " ".join(parts)
 
 
@@ -375,13 +393,14 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
         return oMb.actInv(data.oMf[body[link]]).homogeneous
 
     nom, cal = _mdh_poses(nominal), _mdh_poses(robot)
-    base_link = doc.link_of_frame(robot.base_frame)
-    tool_link = doc.link_of_frame(robot.tool_frame)
+    base_link = doc.link_of(robot.base_frame)
+    tool_link = doc.link_of(robot.tool_frame)
     chain_joints = [doc.joints[j.name] for j in robot.joints]
     origins: dict[str, np.ndarray] = {}
-    new_root = new_tool = None
+    new_tool = None
 
-    # ---- base side: the robot base moves by K relative to the meas frame
+    # ---- base side: the robot base moves by K relative to the meas frame; a fixed joint
+    # between the base frame and the first joint carries K, else the first joint's origin does
     K = robot.T_meas_base() @ inverse(nominal.T_meas_base())
     P1 = chain_joints[0].parent
     path = doc.fixed_path(base_link, P1)
@@ -389,16 +408,9 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
         j, down = path[0]
         O = inverse(T_nom(j.parent)) @ T_nom(j.child)
         origins[j.name] = K @ O if down else O @ inverse(K)
-    elif base_link == doc.root_link:
-        link = _unique_name("meas", set(doc.links))
-        new_root = (link, _unique_name(f"{link}_to_{base_link}", set(doc.joints)), K)
+        W_P1 = K @ T_nom(P1)
     else:
-        raise ChainError(doc.path, f"base frame {robot.base_frame!r} is the parent link of the first "
-                                   f"joint {chain_joints[0].name!r} and not the root link: there is "
-                                   f"no fixed joint to carry the identified meas->base transform. "
-                                   f"Use the root link as base frame, or add a fixed link between "
-                                   f"{robot.base_frame!r} and the first joint")
-    W_P1 = K @ T_nom(P1)
+        W_P1 = T_nom(P1)
 
     # ---- chain joints: each URDF link keeps its offset C_i from the MDH moving frame
     W_prev = None
@@ -417,9 +429,11 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
     tool_cal = cal["tool"]
     flange_motion = cal["flange"] @ inverse(nom["flange"])   # in meas coordinates
     path = doc.fixed_path(Ln, tool_link)
+    out_tool = tool_link
     if not path:
-        link = _unique_name("tool", set(doc.links))
-        new_tool = (link, _unique_name(f"{Ln}_to_{link}", set(doc.joints)), Ln, inverse(W_Ln) @ tool_cal)
+        out_tool = _unique_name("tool", set(doc.links))
+        new_tool = (out_tool, _unique_name(f"{Ln}_to_{out_tool}", set(doc.joints)), Ln,
+                    inverse(W_Ln) @ tool_cal)
     elif len(path) == 1:
         origins[path[0][0].name] = inverse(W_Ln) @ tool_cal
     else:
@@ -432,4 +446,14 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
         j = doc.joints[name]
         if np.abs(origins[name] - inverse(T_nom(j.parent)) @ T_nom(j.child)).max() < _UNCHANGED_TOL:
             del origins[name]
-    return _Plan(source=doc.path.name, origins=origins, new_root=new_root, new_tool=new_tool)
+
+    rec = doc.frames      # a calibrated input: its frames stand for the same nominal frames
+    nominal_base, nominal_tool = robot.base_frame, robot.tool_frame
+    if rec is not None and base_link == rec.base_frame:
+        nominal_base = rec.nominal_base_frame
+    if rec is not None and tool_link == rec.tool_frame:
+        nominal_tool = rec.nominal_tool_frame
+    frames = RecordedFrames(base_frame=base_link, tool_frame=out_tool,
+                            nominal_base_frame=nominal_base, nominal_tool_frame=nominal_tool,
+                            source=(rec.source if rec is not None and rec.source else doc.path.name))
+    return _Plan(source=doc.path.name, origins=origins, frames=frames, new_tool=new_tool)

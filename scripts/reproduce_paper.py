@@ -33,6 +33,7 @@ for _var in _THREAD_VARS:
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
 import subprocess  # noqa: E402
@@ -51,6 +52,7 @@ from calib.calibration import PAPER_EXCLUDED, select_parameters  # noqa: E402
 from calib.fileio import atomic_write_bytes, atomic_write_text  # noqa: E402
 from calib.angles import RotationChain  # noqa: E402
 from calib.kinematics import ChainKinematics  # noqa: E402
+from calib.progress import Progress  # noqa: E402
 from calib.robot import RobotModel  # noqa: E402
 from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements  # noqa: E402
 from calib.solvers import CHI2_ESCAPE, LMOptions, LMTrace, Problem, cross_lm, levenberg_marquardt, search_lm  # noqa: E402
@@ -534,28 +536,28 @@ def _convergence_row(i: int, offsets: np.ndarray, methods: tuple[str, ...], seed
     return i, out
 
 
-class ProgressBar:
-    """A one-line progress bar on stderr."""
+class ProgressBar(Progress):
+    """The stage's progress line on stderr (:class:`calib.progress.Progress`), drawn from the
+    start: the studies report to a person who launched them."""
 
-    def __init__(self, total: int, label: str, width: int = 40):
-        self.total, self.label, self.width, self.done = total, label, width, 0
-        self.t0 = time.perf_counter()
-        self._draw()
+    def __init__(self, total: int, label: str):
+        super().__init__(total, label, show_after=0.0)
+        self.set(0)
 
-    def update(self, k: int = 1):
-        self.done += k
-        self._draw()
-
-    def _draw(self):
-        frac = self.done / max(self.total, 1)
-        bar = "#" * int(frac * self.width)
-        el = time.perf_counter() - self.t0
-        eta = el / frac - el if frac > 0 else float("nan")
-        sys.stderr.write(f"\r{self.label} [{bar:<{self.width}}] {self.done}/{self.total} "
-                         f"{el:5.0f} s elapsed, ~{eta:4.0f} s left ")
+    def set(self, done: int) -> None:
+        super().set(done)
         if self.done >= self.total:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
+            self.close()
+
+
+@contextlib.contextmanager
+def _stage(label: str):
+    """A stage without a count of its work: its start and duration on stderr."""
+    sys.stderr.write(f"{label}...\n")
+    sys.stderr.flush()
+    t0 = time.perf_counter()
+    yield
+    sys.stderr.write(f"{label}: done in {time.perf_counter() - t0:.1f} s\n")
 
 
 @dataclass
@@ -1249,9 +1251,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     timings = {}
 
     t = time.perf_counter()
-    setup = make_setup()
-    _WORKER.setdefault("setups", {})[SEED_CAL] = setup
-    t67 = identify_all_parameters(setup)
+    with _stage("Tables 6-7: simulated measurements and identification of all parameters"):
+        setup = make_setup()
+        _WORKER.setdefault("setups", {})[SEED_CAL] = setup
+        t67 = identify_all_parameters(setup)
     timings["Tables 6-7"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -1261,7 +1264,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     timings["Figure 5"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    cmp = compare_models(setup, args.monte_carlo, args.monte_carlo)
+    with _stage(f"Tables 9-11: MDH vs TM-MDH, {args.monte_carlo} noise draws and pose samples"):
+        cmp = compare_models(setup, args.monte_carlo, args.monte_carlo)
     plot_pose_errors(cmp, "position", args.out / figures["fig7"])
     plot_pose_errors(cmp, "orientation", args.out / figures["fig8"])
     timings["Tables 9-11"] = time.perf_counter() - t

@@ -413,7 +413,7 @@ def test_joints_outside_limits_name_row_column_and_hint(good_csv, tmp_path, caps
     ("missing URDF", ["calibrate", "{tmp}/nope.urdf", "{csv}", "-o", "{tmp}/out.urdf"],
      ["{tmp}/nope.urdf: file not found"]),
     ("malformed URDF", ["calibrate", "{tmp}/broken.urdf", "{csv}", "-o", "{tmp}/out.urdf"],
-     ["{tmp}/broken.urdf: malformed XML at line 4, column 3: mismatched tag"]),
+     ["{tmp}/broken.urdf: malformed XML at line 4, column 9: Opening and ending tag mismatch: link line 3 and robot"]),
     ("unknown frame", ["calibrate", URDF, "{csv}", "-o", "{tmp}/out.urdf", "--tool-frame", "nope"],
      [f"{URDF}: no frame named 'nope'; available frames: meas, base_link"]),
     ("missing measurements", ["evaluate", URDF, "{tmp}/none.csv"], ["{tmp}/none.csv: file not found"]),

@@ -50,16 +50,18 @@ CASES = [
     ("ur5-default", lambda: _erd("ur5"), None, None, "world", "tool",
      {"world_joint", "shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
       "wrist_2_joint", "wrist_3_joint"}, {"tool": "wrist_3_link_to_tool"}),
-    ("panda", lambda: _erd("panda"), None, None, "meas", "panda_hand",
-     {f"panda_joint{i}" for i in range(1, 9)} | {"panda_hand_joint"},
-     {"meas": "meas_to_panda_link0"}),
+    ("panda", lambda: _erd("panda"), None, None, "panda_link0", "panda_hand",
+     {f"panda_joint{i}" for i in range(1, 8)} | {"panda_joint8", "panda_hand_joint"}, {}),
+    ("ur5-base_link", lambda: _erd("ur5"), "base_link", "tool0", "base_link", "tool0",
+     {"shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
+      "wrist_2_joint", "wrist_3_joint", "wrist_3_link-tool0_fixed_joint"}, {}),
     ("kinova", lambda: _erd("kinova"), None, None, "base", "tool",
      {"jaco_mounting_block_to_j2s6s200_link_base"} | {f"j2s6s200_joint_{i}" for i in range(1, 7)},
      {"tool": "j2s6s200_link_6_to_tool"}),
 ]
 
 #: A small robot that exercises the other branches: root link named "meas" that is the parent
-#: of the first joint (a root "meas_calibrated" is added), tool frame "tool" = child of the last
+#: of the first joint (joint "a" takes meas->base), tool frame "tool" = child of the last
 #: joint (a link "tool_calibrated" is added), a prismatic joint, axes along y and -x, a joint
 #: without <origin>, and tags a URDF writer could drop (mimic, calibration, safety_controller,
 #: transmission, gazebo, comments, a namespace).
@@ -127,8 +129,8 @@ def small_urdf(tmp_path) -> Path:
 
 
 ALL_CASES = CASES + [
-    ("small", None, None, "tool", "meas_calibrated", "tool_calibrated", {"a", "b", "c"},
-     {"meas_calibrated": "meas_calibrated_to_meas", "tool_calibrated": "tool_to_tool_calibrated"}),
+    ("small", None, None, "tool", "meas", "tool_calibrated", {"a", "b", "c"},
+     {"tool_calibrated": "tool_to_tool_calibrated"}),
 ]
 
 
@@ -264,9 +266,12 @@ def test_only_the_named_parameter_changes_the_file(tmp_path):
     write_calibrated_urdf(robot, out)
     text_in, text_out = BUNDLED.read_text().splitlines(), out.read_text().splitlines()
     changed = [l for l in text_out if l not in text_in]
-    assert len(changed) == 3, changed      # declaration, provenance comment, one origin
+    assert len(changed) == 4, changed      # declaration, provenance comment, frames, one origin
     assert "Recomputed joint origins: flange_to_tool." in changed[1]
-    assert changed[2].strip().startswith('<origin xyz="9.99999999999')
+    assert changed[2].strip() == ('<calib:frames xmlns:calib="urn:calib:frames:1" base_frame="meas" '
+                                  'tool_frame="tool" nominal_base_frame="meas" '
+                                  'nominal_tool_frame="tool" source="brtirus0707a.urdf"/>')
+    assert changed[3].strip() == '<origin xyz="0.0001 0 0" rpy="0 0 0"/>'   # 12 digits at most
 
 
 # ====================================================================== content kept
@@ -306,7 +311,8 @@ def test_everything_but_the_chain_origins_is_kept(case, small_urdf, tmp_path):
     after = _top_elements(out, drop_origins_of=changed)
     new = {k: v for k, v in after.items() if k not in before}
     assert {k: before[k] for k in before} == {k: after[k] for k in before}
-    assert set(new) == {("link", l) for l in added} | {("joint", j) for j in added.values()}
+    assert set(new) == {("link", l) for l in added} | {("joint", j) for j in added.values()} \
+        | {("{urn:calib:frames:1}frames", "#1")}
     # the origins that had to change did change
     y_in = yourdfpy.URDF.load(str(src), build_scene_graph=False, load_meshes=False)
     y_out = yourdfpy.URDF.load(str(out), build_scene_graph=False, load_meshes=False)
@@ -426,13 +432,19 @@ def test_model_without_urdf_is_refused(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_base_frame_on_the_first_joint_below_the_root_is_refused(tmp_path):
-    """ur5 with base frame base_link: base_link is the parent of the first joint and not the
-    root, so no fixed joint can carry meas->base."""
+def test_base_frame_on_the_first_joint_below_the_root_goes_into_joint_1(tmp_path):
+    """ur5 with base frame base_link (the parent of the first joint, not the root): the first
+    joint's origin takes meas->base, the base frame keeps its name, nothing is added."""
     robot = _perturbed(load_robot(_erd("ur5"), base_frame="base_link", tool_frame="tool0"), seed=1)
-    with pytest.raises(ChainError, match="no fixed joint to carry"):
-        write_calibrated_urdf(robot, tmp_path / "x.urdf")
-    assert list(tmp_path.iterdir()) == []
+    out = tmp_path / "x.urdf"
+    frames = write_calibrated_urdf(robot, out)
+    assert (frames.base_frame, frames.tool_frame) == ("base_link", "tool0")
+    fk = _PinFK(out, robot.joint_names, base="base_link")
+    worst = max(max(_pose_errors(fk(q)["tool0"], robot.T_meas_tool(q)))
+                for q in robot.random_configurations(20, rng=2))
+    assert worst < 1e-11                   # 12 significant digits: rounding of 1e-12 per number
+    # the world->base_link joint is untouched
+    assert "world_joint" not in out.read_text().split("Recomputed joint origins:")[1].split(".")[0]
 
 
 def test_base_frame_above_the_first_joint_via_a_parent_joint(tmp_path):

@@ -1,0 +1,77 @@
+"""Progress lines on a terminal, nothing elsewhere; ETAs never "nan"; -v logs the stages."""
+from __future__ import annotations
+
+import io
+import math
+
+from calib.cli import main
+from calib.progress import Progress, format_eta, working
+from conftest import BUNDLED_URDF, ROOT
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_line_and_eta():
+    out = _Terminal()
+    with Progress(4, "rows", stream=out, show_after=0.0) as p:
+        assert "estimating..." in p.line()             # nothing done yet: no estimate, no nan
+        p._last_draw = -math.inf
+        p.update(1)
+        assert "rows: 1/4 (25%)" in out.getvalue() and "left" in out.getvalue()
+    assert out.getvalue().endswith("\n") and "nan" not in out.getvalue()
+    assert format_eta(10.0, 5, 10) == "~10 s left"
+    assert format_eta(600.0, 1, 2) == "~10.0 min left"
+    assert format_eta(float("nan"), 1, 2) == format_eta(1.0, 0, 2) == "estimating..."
+
+
+def test_nothing_drawn_when_not_a_terminal():
+    out = io.StringIO()
+    with Progress(4, "rows", stream=out, show_after=0.0) as p:
+        p.update(4)
+    with working("fit", stream=out):
+        pass
+    assert out.getvalue() == ""
+
+
+def test_verbose_calibrate_logs_each_stage(capsys, tmp_path):
+    meas = ROOT / "examples" / "brtirus0707a" / "measurements.csv"
+    code = main(["-v", "calibrate", str(BUNDLED_URDF), str(meas), "-o", str(tmp_path / "c.urdf")])
+    err = capsys.readouterr().err
+    assert code == 0
+    for fragment in (f"calib: reading {meas}...", f"calib: reading {meas}: done in ",
+                     "calib: calibrating (search-lm)...", "calib: calibrating (search-lm): done in ",
+                     "calib: the calibrated URDF will hold tool frame 'tool' in base frame 'meas'",
+                     f"calib: wrote {tmp_path / 'c.urdf'}"):
+        assert fragment in err, fragment
+
+
+def test_every_imported_package_is_declared():
+    """Item 5 of issue 12: each third-party module calib imports comes from a distribution
+    listed in pyproject.toml's dependencies."""
+    import ast
+    import re
+    import sys
+    import tomllib
+    from importlib.metadata import packages_distributions
+
+    deps = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    declared = {re.split(r"[<>=!~ \[]", d)[0].lower().replace("_", "-") for d in deps}
+    dists = packages_distributions()
+    imported = set()
+    for path in (ROOT / "calib").glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                imported |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                imported.add(node.module.split(".")[0])
+    third_party = sorted(m for m in imported if m not in sys.stdlib_module_names and m != "calib")
+    assert third_party == ["example_robot_data", "lxml", "matplotlib", "numpy", "pinocchio", "scipy"]
+    # cmeel wheels (Pinocchio, example-robot-data) install their modules under cmeel.prefix,
+    # which packages_distributions() does not map
+    cmeel = {"pinocchio": ["pin"], "example_robot_data": ["example-robot-data"]}
+    for module in third_party:
+        names = {d.lower().replace("_", "-") for d in dists.get(module) or cmeel.get(module, [])}
+        assert names & declared, (module, names)
