@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 
 from .cli_args import HelpFormatter, add_frames, count, nonnegative, positive, positive_int
-from .compensation import (SINGULAR_THRESHOLD, compensate, compensate_poses,
-                           load_compensation_models, read_targets, write_compensation)
+from .compensation import SINGULAR_THRESHOLD, compensate, compensate_poses, load_compensation_models
 from .errors import CalibError
 from .fileio import check_not_input
-from .poses import CRITERIA, design_poses, write_poses
+from .formats import read_targets, write_compensation, write_poses
+from .poses import CRITERIA, design_poses
 from .robot import load_robot
 
 __all__ = ["add_select_poses_parser", "run_select_poses", "add_compensate_parser", "run_compensate"]
