@@ -65,6 +65,8 @@ LIMIT_TOLERANCE = 0.01
 UNIT_HINT_EXCESS = 0.1
 _DELIMITERS = (",", ";", "\t")
 _NEAR_MISS_CUTOFF = 0.75
+#: Unit suffixes calib does not take but that are units, not typos (no "did you mean").
+_OTHER_UNITS = {"cm", "dm", "um", "km", "in", "ft", "mrad", "urad", "grad", "gon", "rev", "turn"}
 
 
 # ====================================================================== options and specs
@@ -397,7 +399,14 @@ class _Header:
         if sep and base in self.suffixed:
             quantity, units, style = self.suffixed[base]
             if suffix not in units:
-                self.fail(f"wrong unit suffix _{suffix}: {base} takes {_unit_text(units)}", written)
+                hint = ""
+                if suffix not in _OTHER_UNITS:  # a typo (_mn, _dg), not another unit (_cm)
+                    typo = [u for u in units if len(u) == len(suffix)
+                            and sum(a != b for a, b in zip(u, suffix)) == 1]
+                    close = typo or difflib.get_close_matches(suffix, list(units), n=1, cutoff=0.5)
+                    hint = f"; did you mean '{name[:len(base)]}_{close[0]}'?" if close else ""
+                self.fail(f"wrong unit suffix _{suffix}: {base} takes {_unit_text(units)}{hint}",
+                          written)
             return _Column(index, written, quantity, units[suffix], suffix, style)
         if sep and base in self.plain:
             group = next((label for cols, u, _, label in ORIENTATIONS.values() if base in cols),
@@ -590,8 +599,8 @@ def _check_limits(path: Path, robot, header: _Header, q: np.ndarray, rows: np.nd
         near = np.flatnonzero((excess[:, i] > 0) & ~beyond[:, i])
         shown = ", ".join(str(r) for r in rows[near[:10]]) + (", ..." if len(near) > 10 else "")
         notes.append(f"{path}: {robot.joints[i].name} is past its joint limit by up to "
-                     f"{excess[near, i].max() / c.scale:.3g} {c.unit} (within the limit tolerance "
-                     f"{tolerance:.3g} of the range, {tol[i] / c.scale:.3g} {c.unit}) in row"
+                     f"{excess[near, i].max() / c.scale:.4g} {c.unit} (within the limit tolerance, "
+                     f"{100 * tolerance:.3g} % of the range = {tol[i] / c.scale:.3g} {c.unit}) in row"
                      f"{'s' if len(near) > 1 else ''} {shown}; kept as read")
     if not beyond.any():
         return notes
@@ -604,8 +613,8 @@ def _check_limits(path: Path, robot, header: _Header, q: np.ndarray, rows: np.nd
     side = "upper" if above[k, i] > 0 else "lower"
     reason = (f"{joint.name} = {value:.6g} {c.unit} is outside the joint limits "
               f"[{lo[i] / c.scale:.6g}, {hi[i] / c.scale:.6g}] {c.unit}{others}: "
-              f"{excess[k, i] / c.scale:.3g} {c.unit} past the {side} limit, "
-              f"{excess[k, i] / span[i]:.3g} of the joint range")
+              f"{excess[k, i] / c.scale:.4g} {c.unit} past the {side} limit, "
+              f"{100 * excess[k, i] / span[i]:.3g} % of the joint range")
     raw = value
     unit_hint = ""
     if excess[k, i] > UNIT_HINT_EXCESS * span[i]:
@@ -621,7 +630,7 @@ def _check_limits(path: Path, robot, header: _Header, q: np.ndarray, rows: np.nd
         if not unit_hint:
             unit_hint = "; check the joint order, the zero offsets and the URDF limits"
     else:
-        unit_hint = (f"; beyond the limit tolerance ({tolerance:.3g} of the range); if the "
+        unit_hint = (f"; beyond the limit tolerance ({100 * tolerance:.3g} % of the range); if the "
                      f"reading is right, raise it (--limit-tolerance) or the URDF limit")
     raise MeasurementFormatError(path, reason + unit_hint, row=int(rows[k]), column=c.name)
 
