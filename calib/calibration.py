@@ -440,6 +440,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     Returns a :class:`CalibrationResult`; a non-converged or diverged fit is reported in its
     ``status``, never raised. Raises :class:`calib.CalibError` for unusable input.
     """
+    if len(ids := getattr(measurements, "target_ids", ())) > 1:  # one flange->target transform only
+        raise DataError(f"{measurements.source or '<measurements>'}: {len(ids)} targets ({', '.join(ids)}); "
+                        f"calibrate takes one target per pose for now: keep one target's rows")
     t0 = time.perf_counter()
     method = method.lower()
     if method not in METHODS:

@@ -30,7 +30,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .cli_args import HelpFormatter, add_frames, count, nonnegative, positive, positive_int
+from .cli_args import (HelpFormatter, add_file_format, add_frames, count, nonnegative, positive,
+                       positive_int, print_notes, read_options)
 from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
@@ -130,9 +131,10 @@ def _load(args):
     return robot
 
 
-def _read(path, robot):
-    m = read_measurements(path, robot)
+def _read(path, robot, args, tracker=None):
+    m = read_measurements(path, robot, tracker=tracker, options=read_options(args, joined=tracker is not None))
     log.info("read %r", m)
+    print_notes(m.notes, PROG)
     return m
 
 
@@ -276,7 +278,7 @@ def cmd_simulate(args) -> int:
 
 # ====================================================================== calibrate
 def cmd_calibrate(args) -> int:
-    outputs = Outputs([args.robot, args.measurements, args.validate])
+    outputs = Outputs([args.robot, args.measurements, args.validate, args.tracker])
     out_urdf = outputs.add(args.output)
     out_report = outputs.add(args.report) if args.report else None
     plot_paths = {}
@@ -287,8 +289,8 @@ def cmd_calibrate(args) -> int:
             plot_paths[name] = outputs.add(Path(args.plots) / name, make_folder=True)
 
     robot = _load(args)
-    meas = _read(args.measurements, robot)
-    validation = _read(args.validate, robot) if args.validate else None
+    meas = _read(args.measurements, robot, args, args.tracker)
+    validation = _read(args.validate, robot, args) if args.validate else None
     try:
         result = calibrate(robot, meas, method=args.method, params=args.params,
                            sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,
@@ -331,7 +333,7 @@ def cmd_calibrate(args) -> int:
 # ====================================================================== evaluate
 def cmd_evaluate(args) -> int:
     robot = _load(args)
-    meas = _read(args.measurements, robot)
+    meas = _read(args.measurements, robot, args, args.tracker)
     rows = [("all rows", evaluate(robot, meas))]
     if meas.sets is not None:
         for label, part in (("calibration rows (cal)", meas.calibration()),
@@ -540,6 +542,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plots", metavar="DIR", default=None,
                    help="write PNG plots of the per-pose errors before and after and their "
                         "histograms into DIR (created if missing; its parent must exist)")
+    add_file_format(p, tracker=True)
     add_frames(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_calibrate)
@@ -551,6 +554,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object: n_poses, position_mm and rotation_rad statistics "
                         "(mean, rms, max, min) for all, cal and val rows")
+    add_file_format(p, tracker=True)
     add_frames(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_evaluate)

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_args import HelpFormatter, add_frames, count, nonnegative, positive, positive_int
+from .cli_args import (HelpFormatter, add_file_format, add_frames, count, nonnegative, positive,
+                       positive_int, print_notes, read_options)
 from .compensation import SINGULAR_THRESHOLD, compensate, compensate_poses, load_compensation_models
 from .errors import CalibError
 from .fileio import check_not_input
@@ -213,6 +214,7 @@ def add_compensate_parser(subparsers) -> argparse.ArgumentParser:
                    metavar="S",
                    help="smallest singular value of the joint Jacobian (position rows in m/rad, "
                         "rotation rows in rad/rad) below which a target is reported singular")
+    add_file_format(p)
     add_frames(p, base_help="link (or joint) of NOMINAL.urdf that plays the meas frame, in which "
                             "pose targets are given (default: the root link)",
                tool_help="link (or joint) of NOMINAL.urdf whose pose is targeted (default: the "
@@ -231,7 +233,8 @@ def run_compensate(args) -> int:
     log.info("nominal %s (frames %r -> %r), calibrated %s (frames %r -> %r)", args.nominal,
              nominal.base_frame, nominal.tool_frame, args.calibrated, calibrated.base_frame,
              calibrated.tool_frame)
-    targets = read_targets(args.targets, nominal)
+    targets = read_targets(args.targets, nominal, options=read_options(args))
+    print_notes(targets.notes)
     log.info("read %d %s targets from %s", targets.n_targets, targets.kind, args.targets)
     opts = dict(singular_threshold=args.singular_threshold)
     if targets.kind == "joints":

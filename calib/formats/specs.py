@@ -71,14 +71,12 @@ TRACKER_SIDE = Spec("tracker", joints="none", position="required", orientation=T
                     labels=("set", "target"), keyed=True)
 
 
-def _check_renames(options: ReadOptions, tables: list[Table]) -> None:
+def _rename_notes(options: ReadOptions, tables: list[Table]) -> tuple[str, ...]:
+    """A note for each rename whose source names no column of the files read."""
     used = {old for t in tables for old in t.renamed}
-    for old, new in options.rename:
-        if old.lower() not in used:
-            where = " or ".join(str(t.path) for t in tables)
-            t = tables[0]
-            raise MeasurementFormatError(t.path, f"--rename {old}={new}: no column {old!r} in "
-                                                 f"{where}", row=t.header_row)
+    where = " or ".join(str(t.path) for t in tables)
+    return tuple(f"--rename {old}={new}: no column {old!r} in {where}"
+                 for old, new in options.rename if old.lower() not in used)
 
 
 # ====================================================================== measurements
@@ -111,7 +109,6 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
             raise ParameterError("a key column joins two files: give the tracker file too "
                                  "(--tracker POSES.csv)")
         t = read_table(csv_path, MEASUREMENT, robot, options)
-        _check_renames(options, [t])
         q, pose, rows, labels, tables = t.q, t, t.rows, t.labels, [t]
         order = np.arange(len(rows))
     else:
@@ -121,7 +118,6 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
         j = read_table(csv_path, JOINT_SIDE, robot, options)
         pose = read_table(tracker, TRACKER_SIDE, robot, options)
         tables = [j, pose]
-        _check_renames(options, tables)
         order = _join(j, pose, options.key)
         q, rows = j.q, j.rows
         labels = _joined_labels(j, pose, order)
@@ -132,7 +128,7 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
                         joint_names=robot.joint_names, source=Path(csv_path),
                         prismatic=robot.prismatic,
                         ignored_columns=tuple(c for t in tables for c in t.ignored_columns),
-                        notes=tuple(n for t in tables for n in t.notes))
+                        notes=tuple(n for t in tables for n in t.notes) + _rename_notes(options, tables))
 
 
 def _join(j: Table, t: Table, key: str) -> np.ndarray:
@@ -257,9 +253,7 @@ def read_poses(path: str | Path, robot, *, options: ReadOptions | None = None) -
     row and column on any departure from the format, including values beyond the joint limits.
     """
     options = options or ReadOptions()
-    table = read_table(path, POSES, robot, options)
-    _check_renames(options, [table])
-    return table.q
+    return read_table(path, POSES, robot, options).q
 
 
 # ====================================================================== compensation targets
@@ -321,9 +315,9 @@ def read_targets(path: str | Path, nominal, *, options: ReadOptions | None = Non
     """
     options = options or ReadOptions()
     t = read_table(path, TARGETS, nominal, options)
-    _check_renames(options, [t])
     return CompensationTargets(q=t.q, position=t.position, rotation=t.rotation, rows=t.rows,
-                               source=t.path, ignored_columns=t.ignored_columns, notes=t.notes)
+                               source=t.path, ignored_columns=t.ignored_columns,
+                               notes=t.notes + _rename_notes(options, [t]))
 
 
 def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
