@@ -7,6 +7,7 @@ noise-free simulated measurements of the paper's "true" robot.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -362,3 +363,35 @@ def test_cli_limit_tolerance_percent(tmp_path, robot, capsys):
     assert code == 0
     assert err == (f"calib: note: {path}: joint2 is past its joint limit by up to 2.998 deg (within "
                    f"the limit tolerance, 1.5 % of the range = 3.75 deg) in row 2; kept as read\n")
+
+
+# ====================================================================== README examples
+def test_readme_examples_read_and_match_nominal_kinematics(tmp_path, robot):
+    """Every example of README's "Measurement file format" reads (with the options its text
+    gives) to the bundled robot's FK at its joints, to the 3 to 6 decimals printed."""
+    text = (BUNDLED_URDF.parents[2] / "README.md").read_text()
+    section = text[text.index("## Measurement file format"):text.index("## Commands")]
+    blocks = re.findall(r"```\n(.*?)```", section, flags=re.S)
+    assert len(blocks) == 7
+    options = {3: ReadOptions(rename="X=x_mm,Y=y_mm,Z=z_mm,A=e1_deg,B=e2_deg,C=e3_deg",
+                              euler="ZYZ")}
+    for k, block in enumerate(blocks[:5]):
+        path = tmp_path / f"e{k}.csv"
+        path.write_text(block)
+        m = calib.read_measurements(path, robot, options=options.get(k))
+        _check_fk(robot, m)
+        assert m.ignored_columns == (("Point", "Temp") if k == 2 else ())
+    (tmp_path / "joints.csv").write_text(blocks[5])
+    (tmp_path / "poses.csv").write_text(blocks[6])
+    m = calib.read_measurements(tmp_path / "joints.csv", robot, tracker=tmp_path / "poses.csv",
+                                options=ReadOptions(key="point"))
+    assert m.ignored_columns == ("time",)
+    _check_fk(robot, m)
+
+
+def _check_fk(robot, m):
+    assert m.n_poses == 2 and m.rotation is not None
+    for q, p, R in zip(m.q, m.position, m.rotation):
+        T = robot.T_meas_tool(q)
+        np.testing.assert_allclose(p, T[:3, 3], rtol=0, atol=1e-6)       # printed to 1e-3 mm
+        np.testing.assert_allclose(R, T[:3, :3], rtol=0, atol=2e-5)      # 5-6 decimals, 1e-4 deg
