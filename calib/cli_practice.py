@@ -82,9 +82,13 @@ TARGETS.csv (comments with #, one header row, units in the column names as in me
                          the nominal tool pose there
   x_mm, y_mm, z_mm       a target tool position in the nominal base frame (the meas frame),
     [+ qw, qx, qy, qz]   with an orientation (unit quaternion, scalar first; or rz_deg, ry_deg,
-                         rx_deg, R = Rz Ry Rx); joint columns, if also given, are the start of the
+                         rx_deg, R = Rz Ry Rx; or e1..e3 with --euler, rvx..rvz, r11..r33 as in
+                         measurement files); joint columns, if also given, are the start of the
                          solver and choose the solution branch (without them, the solution
                          closest to the middle of the joint ranges from several starts)
+
+Other columns are ignored (listed on stderr). Semicolon or tab separators with decimal commas,
+--rename and --limit-tolerance work as for measurement files (README, Measurement file format).
 
 Output CSV, one row per target in the same order: the corrected joint columns (degrees;
 millimetres for prismatic joints), then status, residual_mm, residual_rad (pose targets) and

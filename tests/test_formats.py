@@ -395,3 +395,22 @@ def _check_fk(robot, m):
         T = robot.T_meas_tool(q)
         np.testing.assert_allclose(p, T[:3, 3], rtol=0, atol=1e-6)       # printed to 1e-3 mm
         np.testing.assert_allclose(R, T[:3, :3], rtol=0, atol=2e-5)      # 5-6 decimals, 1e-4 deg
+
+
+def test_cli_compensate_reads_targets_with_the_same_options(tmp_path, robot, capsys):
+    targets = tmp_path / "targets.csv"
+    targets.write_text("name;A1;A2;A3;A4;A5;A6\nT1;10,5;-20;30;0;45;90\n")
+    out = tmp_path / "corrected.csv"
+    rename = ",".join(f"A{i}=A{i}_deg" for i in range(1, 7))
+    code, _, err = _run(capsys, "compensate", BUNDLED_URDF, BUNDLED_URDF, targets, "-o", out,
+                        "--rename", rename)
+    assert code == 0
+    assert err == f"calib: note: {targets}: ignored columns (not calib's): name\n"
+    # the nominal model is its own calibration: the joints come back unchanged, and the output
+    # reads back as a poses file (its status columns ignored)
+    np.testing.assert_allclose(read_poses(out, robot), [np.radians([10.5, -20, 30, 0, 45, 90])],
+                               rtol=0, atol=1e-12)
+    code, _, err = _run(capsys, "compensate", BUNDLED_URDF, BUNDLED_URDF, targets, "-o",
+                        tmp_path / "x.csv")
+    assert code == 2 and not (tmp_path / "x.csv").exists()
+    assert "column 'A1': missing unit suffix" in err
