@@ -131,8 +131,8 @@ def _load(args):
     return robot
 
 
-def _read(path, robot, args, tracker=None):
-    m = read_measurements(path, robot, tracker=tracker, options=read_options(args, joined=tracker is not None))
+def _read(path, robot, args, tracker=None, *, joined=True):
+    m = read_measurements(path, robot, tracker=tracker, options=read_options(args, joined=joined))
     log.info("read %r", m)
     print_notes(m.notes, PROG)
     return m
@@ -290,7 +290,7 @@ def cmd_calibrate(args) -> int:
 
     robot = _load(args)
     meas = _read(args.measurements, robot, args, args.tracker)
-    validation = _read(args.validate, robot, args) if args.validate else None
+    validation = _read(args.validate, robot, args, joined=False) if args.validate else None
     try:
         result = calibrate(robot, meas, method=args.method, params=args.params,
                            sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,

@@ -414,3 +414,15 @@ def test_cli_compensate_reads_targets_with_the_same_options(tmp_path, robot, cap
                         tmp_path / "x.csv")
     assert code == 2 and not (tmp_path / "x.csv").exists()
     assert "column 'A1': missing unit suffix" in err
+
+
+def test_cli_key_and_tracker_go_together(tmp_path, capsys):
+    j, t = _pair(tmp_path, ["a"], ["a"])
+    code, _, err = _run(capsys, "evaluate", BUNDLED_URDF, j, "--key", "point")
+    assert code == 2 and err == ("calib: error: a key column joins two files: give the tracker file "
+                                 "too (--tracker POSES.csv)\n")
+    code, _, err = _run(capsys, "evaluate", BUNDLED_URDF, j, "--tracker", t)
+    assert code == 2 and err == ("calib: error: a tracker file is joined to the joint file by a key "
+                                 "column: give it (--key COLUMN)\n")
+    code, out, err = _run(capsys, "evaluate", BUNDLED_URDF, j, "--tracker", t, "--key", "point")
+    assert code == 0 and err == "" and "Accuracy of" in out

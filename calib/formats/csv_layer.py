@@ -178,9 +178,6 @@ class Table:
     notes: tuple[str, ...] = ()
     renamed: tuple[str, ...] = ()
 
-    def column(self, quantity) -> str:
-        return self.names[quantity]
-
 
 # ====================================================================== text
 def read_lines(path: Path) -> list[str]:
