@@ -600,3 +600,24 @@ def test_writer_rejects_bad_options(tmp_path, bundled_robot, kwargs, match):
     with pytest.raises(CalibError, match=match):
         write_measurements(tmp_path / "o.csv", m, **kwargs)
     assert not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.parametrize("value,fragment", [
+    ("2.5", "0.3183 rad past the upper limit, 7.29 % of the joint range; beyond the limit tolerance"),
+    ("3", "0.8183 rad past the upper limit, 18.8 % of the joint range; check the joint order, the "
+          "zero offsets and the URDF limits"),
+    ("30", "degrees given as radians? use the _deg suffix"),
+])
+def test_limit_hint_fits_the_size_of_the_excess(tmp_path, bundled_robot, value, fragment):
+    """joint2: +-2.1817 rad (range 4.3634 rad). A few percent past: the tolerance; a fifth of the
+    range: not a unit mix-up (3 deg would fit, but 3 rad is no 180/pi factor off); 30: degrees."""
+    names = [f"joint{i}_rad" for i in range(1, 7)]
+    text = f"{','.join(names)},x_mm,y_mm,z_mm\n0,{value},0,0,0,0,441,0,-36.5\n"
+    msg = _error(_write(tmp_path, text), bundled_robot, fragment, row=2, column="joint2_rad")
+    assert ("degrees given as radians" in msg) == (value == "30")
+
+
+def test_slide_a_fifth_of_its_range_past_gets_no_millimetre_hint(tmp_path):
+    _error(_write(tmp_path, "slide_m,spin_deg,wrist_rad,x_m,y_m,z_m\n0.6,0,0,1,2,3\n"), _slide_robot(),
+           "0.1 m past the upper limit, 20 % of the joint range; check the joint order", row=2,
+           column="slide_m")

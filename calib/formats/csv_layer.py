@@ -61,8 +61,10 @@ QUATERNION_NORM_TOLERANCE = 1e-3
 MATRIX_TOLERANCE = 1e-3
 #: Default joint limit tolerance, as a fraction of the joint range.
 LIMIT_TOLERANCE = 0.01
-#: A value further beyond a limit than this fraction of the joint range may be a unit mix-up.
+#: Past a limit by more than this fraction of the joint range is more than a reading just past it.
 UNIT_HINT_EXCESS = 0.1
+#: A unit mix-up is suggested only for values at least this many times the largest limit.
+UNIT_HINT_RATIO = 3.0
 _DELIMITERS = (",", ";", "\t")
 _NEAR_MISS_CUTOFF = 0.75
 #: Unit suffixes calib does not take but that are units, not typos (no "did you mean").
@@ -612,24 +614,22 @@ def _check_limits(path: Path, robot, header: _Header, q: np.ndarray, rows: np.nd
               f"[{lo[i] / c.scale:.6g}, {hi[i] / c.scale:.6g}] {c.unit}{others}: "
               f"{excess[k, i] / c.scale:.4g} {c.unit} past the {side} limit, "
               f"{100 * excess[k, i] / span[i]:.3g} % of the joint range")
-    raw = value
-    unit_hint = ""
+    hint = (f"; beyond the limit tolerance ({100 * tolerance:.3g} % of the range); if the reading "
+            f"is right, raise it (--limit-tolerance) or the URDF limit")
     if excess[k, i] > UNIT_HINT_EXCESS * span[i]:
-        if c.unit == "rad" and not joint.is_prismatic:
-            as_rad = raw * ANGLE_UNITS["deg"]
-            fits = lo[i] - tol[i] <= as_rad <= hi[i] + tol[i]
+        hint = "; check the joint order, the zero offsets and the URDF limits"
+        # a unit mix-up multiplies the value by 180/pi or 1000: only suggest one when the value
+        # is several times the largest limit and fits the limits in the other unit
+        scale_off = abs(value) >= UNIT_HINT_RATIO * max(abs(lo[i]), abs(hi[i]))
+        if c.unit == "rad" and not joint.is_prismatic and scale_off:
+            fits = lo[i] - tol[i] <= value * ANGLE_UNITS["deg"] <= hi[i] + tol[i]
             small = max(abs(lo[i]), abs(hi[i])) <= 2 * math.pi + 1e-3
-            if fits or (abs(raw) > 2 * math.pi and small):
-                unit_hint = "; degrees given as radians? use the _deg suffix"
-        elif c.unit == "m" and joint.is_prismatic:
-            if lo[i] - tol[i] <= raw * LENGTH_UNITS["mm"] <= hi[i] + tol[i]:
-                unit_hint = "; millimetres given as metres? use the _mm suffix"
-        if not unit_hint:
-            unit_hint = "; check the joint order, the zero offsets and the URDF limits"
-    else:
-        unit_hint = (f"; beyond the limit tolerance ({100 * tolerance:.3g} % of the range); if the "
-                     f"reading is right, raise it (--limit-tolerance) or the URDF limit")
-    raise MeasurementFormatError(path, reason + unit_hint, row=int(rows[k]), column=c.name)
+            if fits or (abs(value) > 2 * math.pi and small):
+                hint = "; degrees given as radians? use the _deg suffix"
+        elif c.unit == "m" and joint.is_prismatic and scale_off:
+            if lo[i] - tol[i] <= value * LENGTH_UNITS["mm"] <= hi[i] + tol[i]:
+                hint = "; millimetres given as metres? use the _mm suffix"
+    raise MeasurementFormatError(path, reason + hint, row=int(rows[k]), column=c.name)
 
 
 # ====================================================================== writing
