@@ -130,8 +130,10 @@ class ReadOptions:
         if not (isinstance(tol, (int, float)) and math.isfinite(tol) and 0 <= tol <= 1):
             raise ParameterError(f"limit_tolerance must be a fraction of the joint range in "
                                  f"[0, 1], got {tol!r}")
-        if self.key is not None and not str(self.key).strip():
-            raise ParameterError("key must be a column name, got an empty string")
+        if self.key is not None:
+            if not str(self.key).strip():
+                raise ParameterError("key must be a column name, got an empty string")
+            object.__setattr__(self, "key", str(self.key).strip())
 
 
 @dataclass(frozen=True)
