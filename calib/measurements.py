@@ -14,7 +14,7 @@ import numpy as np
 
 from .errors import DataError
 
-__all__ = ["Measurements", "read_measurements", "write_measurements"]
+__all__ = ["Measurements"]  # read_measurements, write_measurements: see __getattr__ below
 
 SET_VALUES = ("cal", "val")
 #: Tolerance of the orthonormality check of rotation matrices given to :class:`Measurements`.
