@@ -17,13 +17,15 @@ from .errors import (CalibError, ChainError, DataError, FrameNotFound, Measureme
 from .robot import ChainJoint, Parameter, RobotModel, load_robot, robot_path
 from .jacobian import identification_jacobian
 from .identifiability import IdentifiabilityReport, analyze_identifiability
-from .measurements import Measurements, read_measurements, write_measurements
+from .measurements import Measurements
+from .formats import (CompensationTargets, ReadOptions, read_measurements, read_poses,
+                      read_targets, write_compensation, write_measurements, write_poses)
 from .calibration import AccuracyStats, CalibrationResult, ParameterEstimate, calibrate, evaluate
 from .simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
 from .urdf_writer import check_writable, write_calibrated_urdf
 from .urdf import RecordedFrames
 from .report import build_report, render_html
-from .poses import PoseDesign, design_poses, read_poses, select_poses, write_poses
+from .poses import PoseDesign, design_poses, select_poses
 from .compensation import CompensationResult, compensate, compensate_poses
 
 __all__ = [
@@ -32,7 +34,8 @@ __all__ = [
     "ChainJoint", "Parameter", "RobotModel", "load_robot", "robot_path",
     "identification_jacobian",
     "IdentifiabilityReport", "analyze_identifiability",
-    "Measurements", "read_measurements", "write_measurements",
+    "Measurements", "read_measurements", "write_measurements", "ReadOptions",
+    "CompensationTargets", "read_targets", "write_compensation",
     "AccuracyStats", "CalibrationResult", "ParameterEstimate", "calibrate", "evaluate",
     "PAPER_DEVIATIONS", "apply_deviations", "random_deviations", "simulate_measurements",
     "write_calibrated_urdf", "check_writable", "RecordedFrames", "build_report", "render_html",

@@ -1130,6 +1130,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     ``status``, never raised. Raises :class:`calib.CalibError` for unusable input.
     """
     t0 = time.perf_counter()
+    if len(ids := getattr(measurements, "target_ids", ())) > 1:  # one flange->target transform only
+        raise DataError(f"{measurements.source or '<measurements>'}: {len(ids)} targets ({', '.join(ids)}); "
+                        f"calibrate takes one target per pose for now: keep one target's rows")
     method = _check_options(method, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds, loss,
                             loss_scale, outlier_k, cv)
     if options is not None and not isinstance(options, LMOptions):

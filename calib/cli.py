@@ -31,7 +31,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .cli_args import HelpFormatter, add_frames, count, nonnegative, positive, positive_int
+from .cli_args import (HelpFormatter, add_file_format, add_frames, count, nonnegative, positive,
+                       positive_int, print_notes, read_options)
 from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
@@ -132,10 +133,11 @@ def _load(args):
     return robot
 
 
-def _read(path, robot):
+def _read(path, robot, args, tracker=None, *, joined=True):
     with working(f"reading {path}", logger=log):
-        m = read_measurements(path, robot)
+        m = read_measurements(path, robot, tracker=tracker, options=read_options(args, joined=joined))
     log.info("read %r", m)
+    print_notes(m.notes, PROG)
     return m
 
 
@@ -286,7 +288,7 @@ def cmd_calibrate(args) -> int:
     from .robot import robot_path
     from .urdf_writer import check_writable, write_calibrated_urdf
 
-    outputs = Outputs([robot_path(args.robot), args.measurements, args.validate])
+    outputs = Outputs([robot_path(args.robot), args.measurements, args.validate, args.tracker])
     out_urdf = outputs.add(args.output)
     out_report = outputs.add(args.report) if args.report else None
     out_html = outputs.add(args.html) if args.html else None
@@ -301,8 +303,8 @@ def cmd_calibrate(args) -> int:
     frames = check_writable(robot)     # what cannot be written is refused before the fit
     log.info("the calibrated URDF will hold tool frame %r in base frame %r", frames.tool_frame,
              frames.base_frame)
-    meas = _read(args.measurements, robot)
-    validation = _read(args.validate, robot) if args.validate else None
+    meas = _read(args.measurements, robot, args, args.tracker)
+    validation = _read(args.validate, robot, args, joined=False) if args.validate else None
     log.info("calibrating: method %s, parameter set %s, %d calibration rows", args.method,
              args.params, meas.calibration().n_poses)
     try:
@@ -365,7 +367,7 @@ def cmd_calibrate(args) -> int:
 # ====================================================================== evaluate
 def cmd_evaluate(args) -> int:
     robot = _load(args)
-    meas = _read(args.measurements, robot)
+    meas = _read(args.measurements, robot, args, args.tracker)
     rows = [("all rows", evaluate(robot, meas))]
     if meas.sets is not None:
         for label, part in (("calibration rows (cal)", meas.calibration()),
@@ -603,6 +605,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--html", metavar="REPORT.html", default=None,
                    help="write one self-contained HTML report (tables, the printed report and "
                         "the plots embedded; no external links) for a person or a customer")
+    add_file_format(p, tracker=True)
     add_frames(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_calibrate)
@@ -614,6 +617,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object: n_poses, position_mm and rotation_rad statistics "
                         "(mean, rms, max, min) for all, cal and val rows")
+    add_file_format(p, tracker=True)
     add_frames(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_evaluate)

@@ -22,12 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_args import HelpFormatter, add_frames, count, nonnegative, positive, positive_int
-from .compensation import (SINGULAR_THRESHOLD, compensate, compensate_poses,
-                           load_compensation_models, read_targets, write_compensation)
+from .cli_args import (HelpFormatter, add_file_format, add_frames, count, nonnegative, positive,
+                       positive_int, print_notes, read_options)
+from .compensation import SINGULAR_THRESHOLD, compensate, compensate_poses, load_compensation_models
 from .errors import CalibError
 from .fileio import check_not_input
-from .poses import CRITERIA, design_poses, write_poses
+from .formats import read_targets, write_compensation, write_poses
+from .poses import CRITERIA, design_poses
 from .progress import working
 from .robot import load_robot
 
@@ -82,9 +83,13 @@ TARGETS.csv (comments with #, one header row, units in the column names as in me
                          the nominal tool pose there
   x_mm, y_mm, z_mm       a target tool position in the nominal base frame (the meas frame),
     [+ qw, qx, qy, qz]   with an orientation (unit quaternion, scalar first; or rz_deg, ry_deg,
-                         rx_deg, R = Rz Ry Rx); joint columns, if also given, are the start of the
+                         rx_deg, R = Rz Ry Rx; or e1..e3 with --euler, rvx..rvz, r11..r33 as in
+                         measurement files); joint columns, if also given, are the start of the
                          solver and choose the solution branch (without them, the solution
                          closest to the middle of the joint ranges from several starts)
+
+Other columns are ignored (listed on stderr). Semicolon or tab separators with decimal commas,
+--rename and --limit-tolerance work as for measurement files (README, Measurement file format).
 
 Output CSV, one row per target in the same order: the corrected joint columns (degrees;
 millimetres for prismatic joints), then status, residual_mm, residual_rad (pose targets) and
@@ -215,6 +220,7 @@ def add_compensate_parser(subparsers) -> argparse.ArgumentParser:
                    metavar="S",
                    help="smallest singular value of the joint Jacobian (position rows in m/rad, "
                         "rotation rows in rad/rad) below which a target is reported singular")
+    add_file_format(p)
     add_frames(p, base_help="link (or joint) of NOMINAL.urdf that plays the meas frame, in which "
                             "pose targets are given (default: the root link)",
                tool_help="link (or joint) of NOMINAL.urdf whose pose is targeted (default: the "
@@ -233,7 +239,8 @@ def run_compensate(args) -> int:
     log.info("nominal %s (frames %r -> %r), calibrated %s (frames %r -> %r)", args.nominal,
              nominal.base_frame, nominal.tool_frame, args.calibrated, calibrated.base_frame,
              calibrated.tool_frame)
-    targets = read_targets(args.targets, nominal)
+    targets = read_targets(args.targets, nominal, options=read_options(args))
+    print_notes(targets.notes)
     log.info("read %d %s targets from %s", targets.n_targets, targets.kind, args.targets)
     opts = dict(singular_threshold=args.singular_threshold)
     if targets.kind == "joints":

@@ -51,29 +51,23 @@ Status of each target (never silently clipped: the joint values are returned as 
 """
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass, field
-from io import StringIO
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from scipy.spatial.transform import Rotation
 
-from .errors import CalibError, DataError, MeasurementFormatError, ParameterError
-from .fileio import atomic_write_text
+from .errors import CalibError, DataError, ParameterError
 from .jacobian import MEASURES
 from .kinematics import ChainKinematics
-from .measurements import QUATERNION_NORM_TOLERANCE, finite_array
-from .poses import _joint_columns, _write_comment, read_joint_table
+from .measurements import finite_array
 from .robot import RobotModel, load_robot, robot_path
 from .urdf import UrdfDocument
 from .spatial import log3_batch
 
-__all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "CompensationTargets",
-           "compensate", "compensate_poses", "load_compensation_models", "read_targets",
-           "write_compensation"]
+__all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "compensate",
+           "compensate_poses", "load_compensation_models"]
 
 #: Statuses of a target, from the most to the least severe (see the module docstring).
 STATUSES = ("singular", "not_converged", "limit", "ok")
@@ -523,143 +517,3 @@ def _take(res: CompensationResult, pick: np.ndarray) -> CompensationResult:
         target_position=sub(res.target_position), target_rotation=sub(res.target_rotation),
         joint_names=res.joint_names, prismatic=res.prismatic,
         singular_threshold=res.singular_threshold, tol_pos=res.tol_pos, tol_rot=res.tol_rot)
-
-
-# ====================================================================== files
-@dataclass(frozen=True, eq=False)
-class CompensationTargets:
-    """Targets read by :func:`read_targets` (SI units, meas frame).
-
-    q : (N, n) rad / m, the nominal joints (or the start for pose targets), or None.
-    position : (N, 3) metres, target tool positions, or None for joint targets.
-    rotation : (N, 3, 3) target tool orientations, or None (joint or position targets).
-    rows : (N,) line numbers in the file; source : the file.
-    """
-
-    q: np.ndarray | None
-    position: np.ndarray | None
-    rotation: np.ndarray | None
-    rows: np.ndarray
-    source: Path | None = None
-
-    @property
-    def kind(self) -> str:
-        """"joints", "pose" or "position"."""
-        if self.position is None:
-            return "joints"
-        return "pose" if self.rotation is not None else "position"
-
-    @property
-    def n_targets(self) -> int:
-        return len(self.rows)
-
-
-_TARGET_COLUMNS = {"x": "length", "y": "length", "z": "length", "qw": "", "qx": "", "qy": "",
-                   "qz": "", "rz": "angle", "ry": "angle", "rx": "angle"}
-
-
-def read_targets(path: str | Path, nominal: RobotModel) -> CompensationTargets:
-    """Read a compensation targets CSV for the nominal model.
-
-    Format: as the poses file of :mod:`calib.poses` (comments ``#``, one header row, units in
-    the column names), with these columns:
-
-    - joint columns ``<joint>_deg`` / ``_rad`` (``_mm`` / ``_m`` for prismatic joints) or
-      ``q1_deg`` ...: the joint values the controller would use with the nominal model. Alone,
-      they make *joint targets*: the target is the nominal tool pose at these joints.
-    - ``x, y, z`` with ``_mm`` or ``_m``: a target tool position in the meas frame (the nominal
-      model's base frame), optionally with an orientation: ``qw, qx, qy, qz`` (unit quaternion,
-      scalar first, no suffix) or ``rz, ry, rx`` with ``_deg`` / ``_rad`` (R = Rz Ry Rx), as in
-      measurement files. They make *pose targets* (*position targets* without orientation); joint
-      columns, if also given, are the solver's start (they choose the solution branch).
-
-    Example (joint targets of the bundled robot)::
-
-        joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg
-        10,-20,30,0,45,90
-
-    Example (pose targets with the nominal joints as start)::
-
-        x_mm,y_mm,z_mm,qw,qx,qy,qz,joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg
-        256.267,45.187,131.509,0.35372,0.67949,-0.57016,-0.29681,10,-20,30,0,45,90
-
-    Raises :class:`calib.MeasurementFormatError` naming the file, row and column.
-    """
-    table = read_joint_table(path, nominal, extra=_TARGET_COLUMNS, joints_required=False)
-    path = table.path
-    ext = table.extra
-
-    def fail(reason):
-        raise MeasurementFormatError(path, reason, row=table.header_row)
-
-    present = set(ext)
-    position = rotation = None
-    pose_cols = present & set(_TARGET_COLUMNS)
-    if pose_cols:
-        if not {"x", "y", "z"} <= present:
-            fail(f"incomplete target position: found {', '.join(sorted(pose_cols))}; a pose target "
-                 f"needs x, y, z (with _mm or _m), optionally qw, qx, qy, qz or rz, ry, rx")
-        position = np.column_stack([ext["x"], ext["y"], ext["z"]])
-        quat, zyx = present & {"qw", "qx", "qy", "qz"}, present & {"rz", "ry", "rx"}
-        if quat and zyx:
-            fail("both a quaternion (qw, qx, qy, qz) and ZYX angles (rz, ry, rx) are given; give "
-                 "one orientation or none")
-        if (quat and len(quat) < 4) or (zyx and len(zyx) < 3):
-            group = ("qw", "qx", "qy", "qz") if quat else ("rz", "ry", "rx")
-            have = quat or zyx
-            fail(f"incomplete orientation columns: found {', '.join(sorted(have))}; give all of "
-                 f"{', '.join(group)} or none")
-        if quat:
-            wxyz = np.column_stack([ext[k] for k in ("qw", "qx", "qy", "qz")])
-            norm = np.linalg.norm(wxyz, axis=1)
-            bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE)
-            if len(bad):
-                raise MeasurementFormatError(
-                    path, f"quaternion (qw, qx, qy, qz) has norm {norm[bad[0]]:.6g}, expected 1 "
-                          f"(within {QUATERNION_NORM_TOLERANCE:g})", row=int(table.rows[bad[0]]),
-                    column=table.extra_names["qw"])
-            wxyz = wxyz / norm[:, None]
-            rotation = Rotation.from_quat(wxyz[:, [1, 2, 3, 0]]).as_matrix()
-        elif zyx:
-            rotation = Rotation.from_euler("ZYX", np.column_stack([ext["rz"], ext["ry"],
-                                                                  ext["rx"]])).as_matrix()
-    elif table.q is None:
-        fail(f"no targets: give joint columns ({', '.join(j.name + '_deg' for j in nominal.joints)}) "
-             f"or a tool position x_mm, y_mm, z_mm (optionally with qw, qx, qy, qz)")
-    for arr in (position, rotation):
-        if arr is not None:
-            arr.setflags(write=False)
-    return CompensationTargets(q=table.q, position=position, rotation=rotation, rows=table.rows,
-                               source=path)
-
-
-def write_compensation(path: str | Path, result: CompensationResult, *, angle_unit: str = "deg",
-                       length_unit: str = "mm", comment: str | None = None) -> None:
-    """Write the corrected joint values with a status per target as CSV, atomically.
-
-    Columns: the joint columns ``<joint>_deg`` (``_mm`` for prismatic joints; units as chosen),
-    the corrected joint values to send to the controller, in the order of the targets; then
-    ``status`` (ok, limit, singular, not_converged), ``residual_mm`` (distance of the calibrated
-    tool position from the target), ``residual_rad`` (angle of the orientation residual; pose
-    targets only) and ``detail`` (why a target is not ok: the joint beyond its limit and by how
-    much, the singular value, the residual). Joint values are written as computed, never clipped:
-    a row whose status is not ``ok`` must not be sent to the robot as it is.
-
-    Without the status columns the joint columns read as a poses file (:func:`calib.poses.read_poses`).
-    """
-    header, values = _joint_columns(result.joint_names, result.prismatic, result.q, angle_unit,
-                                    length_unit)
-    header += ["status", "residual_mm"] + (["residual_rad"] if result.rotation_error is not None else [])
-    header.append("detail")
-    buf = StringIO()
-    _write_comment(buf, comment)
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(header)
-    for k in range(result.n_targets):
-        row = [repr(float(v)) for v in values[k]]
-        row += [str(result.status[k]), f"{result.position_error[k] * 1e3:.6g}"]
-        if result.rotation_error is not None:
-            row.append(f"{result.rotation_error[k]:.6g}")
-        row.append("" if result.status[k] == "ok" else result.describe(k))
-        writer.writerow(row)
-    atomic_write_text(path, buf.getvalue())

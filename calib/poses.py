@@ -1,9 +1,9 @@
-"""Which configurations to measure: optimal pose selection for identification, and pose files.
+"""Which configurations to measure: optimal pose selection for identification.
 
 A calibration is only as good as the configurations it is measured at. :func:`select_poses`
 picks ``n`` configurations from a random pool of candidates within the joint limits so that the
-identification Jacobian at them is as informative as possible; :func:`write_poses` writes them
-as a CSV of joint values ready to be measured, and :func:`read_poses` reads such a file back.
+identification Jacobian at them is as informative as possible; :func:`calib.write_poses` writes
+them as a CSV of joint values ready to be measured.
 
 Criterion
 ---------
@@ -56,51 +56,27 @@ only made when it improves the criterion, so the result is never worse than the 
 practice the greedy start does most of the work: for n = 50 on the bundled robot the exchange
 passes raise log det from 100.50 to 100.74, against 94.3 for a typical random set.
 
-Poses file format
------------------
-The "poses to measure" file is the joint part of a measurement file (:mod:`calib.measurements`):
-
-- Comma separated, UTF-8 (a byte-order mark is accepted); lines whose first non-blank
-  character is ``#`` are comments, blank lines are ignored; row numbers in error messages are
-  line numbers in the file.
-- Header: one column per joint of the robot, each exactly once, named after the URDF joint
-  (``joint1_deg``) or ``q1`` ... ``qn`` in chain order (one naming style per file), with the unit
-  suffix ``_deg`` or ``_rad`` (revolute and continuous joints), ``_mm`` or ``_m`` (prismatic).
-  No other column.
-- One row per configuration; values within the joint limits (to 1e-6 rad or m; continuous joints
-  are not checked).
-
-:func:`write_poses` writes ``<joint>_deg`` (``<joint>_mm`` for prismatic joints) columns with
-``repr`` numbers (exact round trip up to the unit conversion). Once the poses are measured, the
-columns ``x_mm, y_mm, z_mm`` (and ``qw, qx, qy, qz``) can be added to each row: the file is then a
-measurement file for :func:`calib.read_measurements`. Example::
-
-    # 30 poses selected by calib (criterion D) for measurement
-    joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg
-    -12.5,33.25,71.0,-150.5,88.125,10.0
+Poses file
+----------
+:func:`calib.write_poses` and :func:`calib.read_poses` (in :mod:`calib.formats`) write and read
+the poses as a CSV of joint values; this module takes and returns arrays only.
 """
 from __future__ import annotations
 
-import csv
 import math
 import time
 from dataclasses import dataclass, field
-from io import StringIO
-from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 
-from .errors import DataError, MeasurementFormatError, ParameterError
-from .fileio import atomic_write_text
+from .errors import DataError, ParameterError
 from .identifiability import (SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability,
                               observability_indices, weighted_jacobian)
 from .jacobian import MEASURES
-from .measurements import (ANGLE_UNITS, LENGTH_UNITS, LIMIT_TOLERANCE, parse_number, read_records,
-                           split_fields)
 from .robot import RobotModel
 
-__all__ = ["CRITERIA", "PoseDesign", "design_poses", "select_poses", "write_poses", "read_poses"]
+__all__ = ["CRITERIA", "PoseDesign", "design_poses", "select_poses"]
 
 #: Selection criteria of :func:`select_poses` (see the module docstring).
 CRITERIA = ("D", "O1", "O4")
@@ -388,187 +364,3 @@ def _exchange_pass(A: np.ndarray, sel: list[int], criterion: str) -> int:
             current = _value(M, criterion)
             swaps += 1
     return swaps
-
-
-# ====================================================================== pose files
-def write_poses(path: str | Path, robot: RobotModel, q: np.ndarray, *, angle_unit: str = "deg",
-                length_unit: str = "mm", comment: str | None = None) -> None:
-    """Write configurations as a "poses to measure" CSV (format: module docstring), atomically.
-
-    Parameters
-    ----------
-    path : output file.
-    robot : the robot whose joints the columns name (``<joint name>_<unit>``, chain order).
-    q : (N, n_joints) float, radians (metres for prismatic joints).
-    angle_unit : "deg" or "rad" (revolute and continuous joints).
-    length_unit : "mm" or "m" (prismatic joints).
-    comment : text written first as ``#`` comment lines.
-    """
-    header, values = _joint_columns(robot.joint_names, robot.prismatic, q, angle_unit, length_unit)
-    buf = StringIO()
-    _write_comment(buf, comment)
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(header)
-    for row in values:
-        writer.writerow([repr(float(v)) for v in row])
-    atomic_write_text(path, buf.getvalue())
-
-
-def read_poses(path: str | Path, robot: RobotModel) -> np.ndarray:
-    """Read a "poses to measure" CSV (format: module docstring) for ``robot``.
-
-    Returns (N, n_joints) float, radians (metres for prismatic joints), in chain order.
-    Raises :class:`calib.MeasurementFormatError` naming file, row and column on any departure
-    from the format, including values outside the joint limits.
-    """
-    table = read_joint_table(path, robot, extra={}, joints_required=True)
-    return table.q
-
-
-def _joint_columns(joint_names, prismatic, q: np.ndarray, angle_unit: str, length_unit: str):
-    """(header names, values in the column units) of the joint columns of q (N, n) rad / m."""
-    if angle_unit not in ANGLE_UNITS:
-        raise ParameterError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
-    if length_unit not in LENGTH_UNITS:
-        raise ParameterError(f"length_unit must be 'mm' or 'm', got {length_unit!r}")
-    q = np.atleast_2d(np.asarray(q, float))
-    n = len(joint_names)
-    if q.ndim != 2 or q.shape[1] != n:
-        raise DataError(f"q must be (N, {n}) joint values, got shape {q.shape}")
-    if not np.isfinite(q).all():
-        raise DataError("q holds NaN or infinite values")
-    prismatic = np.asarray(prismatic, bool)
-    scale = np.where(prismatic, LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit])
-    header = [f"{name}_{length_unit if p else angle_unit}" for name, p in zip(joint_names, prismatic)]
-    return header, q / scale
-
-
-def _write_comment(buf: StringIO, comment: str | None) -> None:
-    if comment is not None:
-        for line in str(comment).splitlines() or [""]:
-            buf.write(f"# {line}".rstrip() + "\n")
-
-
-# ---------------------------------------------------------------------- shared table reader
-@dataclass(frozen=True)
-class JointTable:
-    """A CSV table read by :func:`read_joint_table` (SI units).
-
-    q : (N, n_joints) rad / m, or None when the file has no joint columns.
-    extra : the other columns by base name (``x``, ``qw``, ...), each (N,) in SI units.
-    rows : (N,) line numbers of the data rows; path : the file; header_row : its line number.
-    extra_names : the header name of each extra column (for error messages).
-    """
-
-    q: np.ndarray | None
-    extra: dict
-    rows: np.ndarray
-    path: Path
-    header_row: int
-    extra_names: dict = field(default_factory=dict)
-
-
-def read_joint_table(path: str | Path, robot: RobotModel, *, extra: Mapping[str, str],
-                     joints_required: bool) -> JointTable:
-    """Read a CSV of joint columns (named as in measurement files) and the ``extra`` columns.
-
-    ``extra`` maps a base name to its unit kind: ``"length"`` (suffix _m or _mm), ``"angle"``
-    (_rad or _deg) or ``""`` (no suffix). Every other column is an error; extra columns are
-    optional (the caller checks which combinations it needs). Joint values are checked against
-    the joint limits. Errors are :class:`calib.MeasurementFormatError` with file, row, column.
-    """
-    path = Path(path)
-    header_row, names, records = read_records(path)
-    names = [s.strip() for s in names]
-
-    def fail(reason, column=None):
-        raise MeasurementFormatError(path, reason, row=header_row, column=column)
-
-    units_of = {"length": LENGTH_UNITS, "angle": ANGLE_UNITS, "": {}}
-    joint_units = [LENGTH_UNITS if j.is_prismatic else ANGLE_UNITS for j in robot.joints]
-    bases: dict[str, tuple] = {}
-    for key, kind in extra.items():
-        bases[key] = ("extra", key, units_of[kind])
-    for i, j in enumerate(robot.joints):
-        bases.setdefault(j.name, ("joint", i, joint_units[i], "urdf"))
-    for i in range(robot.n_joints):
-        bases.setdefault(f"q{i + 1}", ("joint", i, joint_units[i], "index"))
-    accepted = ", ".join([f"{j.name}_{'mm' if j.is_prismatic else 'deg'}" for j in robot.joints]
-                         + [k + ("" if not extra[k] else f"_{list(units_of[extra[k]])[-1]}")
-                            for k in extra])
-
-    joint_cols: dict[int, tuple[int, float, str]] = {}
-    extra_cols: dict[str, tuple[int, float, str]] = {}
-    styles = set()
-    for index, name in enumerate(names):
-        if not name:
-            fail(f"empty column name at position {index + 1}; accepted columns: {accepted}")
-        if name in bases and bases[name][0] == "extra" and not bases[name][2]:
-            entry, unit, scale = bases[name], "", 1.0
-        else:
-            base, sep, unit = name.rpartition("_")
-            if name in bases:
-                units = bases[name][2]
-                fail(f"missing unit suffix: expected {' or '.join('_' + u for u in units)}", name)
-            if not sep or base not in bases:
-                fail(f"unknown column; accepted columns: {accepted}", name)
-            entry = bases[base]
-            units = entry[2]
-            if not units:
-                fail(f"{base} takes no unit suffix", name)
-            if unit not in units:
-                fail(f"wrong unit suffix _{unit}: {base} takes "
-                     f"{' or '.join('_' + u for u in units)}", name)
-            scale = units[unit]
-        if entry[0] == "joint":
-            i = entry[1]
-            styles.add(entry[3])
-            if i in joint_cols:
-                fail(f"joint {robot.joints[i].name} given twice (also in column "
-                     f"{names[joint_cols[i][0]]!r})", name)
-            joint_cols[i] = (index, scale, unit)
-        else:
-            if entry[1] in extra_cols:
-                fail(f"column {entry[1]} given twice", name)
-            extra_cols[entry[1]] = (index, scale, unit)
-    if len(styles) > 1:
-        fail("joint columns mix URDF joint names and q1..qn; use one naming style")
-    if (joint_cols and len(joint_cols) < robot.n_joints) or (joints_required and not joint_cols):
-        missing = [robot.joints[i].name for i in range(robot.n_joints) if i not in joint_cols]
-        fail(f"missing joint column{'s' if len(missing) > 1 else ''} for "
-             f"{', '.join(missing)}: the robot has {robot.n_joints} joints "
-             f"({', '.join(robot.joint_names)}); accepted columns: {accepted}")
-
-    data = records
-    if not data:
-        raise MeasurementFormatError(path, "header but no data rows", row=header_row)
-    N = len(data)
-    q = np.empty((N, robot.n_joints)) if joint_cols else None
-    ext = {key: np.empty(N) for key in extra_cols}
-    rows = np.array([r for r, _ in data], dtype=int)
-    for k, (row, line) in enumerate(data):
-        fields = split_fields(path, row, line)
-        if len(fields) != len(names):
-            raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
-                                               f"{len(names)} (one per header column)", row=row)
-        for i, (index, scale, _) in joint_cols.items():
-            q[k, i] = parse_number(path, row, names[index], fields[index]) * scale
-        for key, (index, scale, _) in extra_cols.items():
-            ext[key][k] = parse_number(path, row, names[index], fields[index]) * scale
-
-    if q is not None:
-        lo, hi = robot.lower, robot.upper
-        checked = np.array([j.kind != "continuous" for j in robot.joints])
-        outside = ((q < lo - LIMIT_TOLERANCE) | (q > hi + LIMIT_TOLERANCE)) & checked
-        if outside.any():
-            k, i = (int(v) for v in np.argwhere(outside)[0])
-            index, scale, unit = joint_cols[i]
-            raise MeasurementFormatError(
-                path, f"{robot.joints[i].name} = {q[k, i] / scale:.6g} {unit} is outside the joint "
-                      f"limits [{lo[i] / scale:.6g}, {hi[i] / scale:.6g}] {unit}",
-                row=int(rows[k]), column=names[index])
-        q.setflags(write=False)
-    for arr in ext.values():
-        arr.setflags(write=False)
-    return JointTable(q=q, extra=ext, rows=rows, path=path, header_row=header_row,
-                      extra_names={key: names[c[0]] for key, c in extra_cols.items()})

@@ -12,10 +12,10 @@ from calib import (DataError, MeasurementFormatError, PAPER_DEVIATIONS, apply_de
                    load_robot, random_deviations)
 from calib.cli_practice import add_compensate_parser, add_select_poses_parser
 from calib.compensation import (compensate, compensate_poses, load_compensation_models,
-                                read_targets, tool_poses_and_joint_jacobians)
+                                tool_poses_and_joint_jacobians)
 from calib.errors import CalibError
 from calib.kinematics import ChainKinematics
-from calib.poses import read_poses, write_poses
+from calib.formats import read_poses, read_targets, write_poses
 from calib.spatial import log3_batch
 from calib.urdf_writer import write_calibrated_urdf
 
@@ -238,10 +238,10 @@ def test_targets_file_kinds_and_errors(tmp_path, bundled):
     # the measurement docstring's example: quaternion and ZYX angles give the same rotation
     assert np.abs(read["pose.csv"].rotation - read["zyx.csv"].rotation).max() < 1e-4
     bad = {
-        "x_mm,y_mm\n1,2\n": ("incomplete target position", 1),
-        "x_mm,y_mm,z_mm,qw,qx\n1,2,3,1,0\n": ("incomplete orientation", 1),
+        "x_mm,y_mm\n1,2\n": ("missing column z: expected z_m or z_mm", 1),
+        "x_mm,y_mm,z_mm,qw,qx\n1,2,3,1,0\n": ("incomplete quaternion columns", 1),
         "x_mm,y_mm,z_mm,qw,qx,qy,qz\n1,2,3,1,1,0,0\n": ("norm 1.41421", 2),
-        "# only a comment\nset\ncal\n": ("unknown column", 2),
+        "# only a comment\nset\ncal\n": ("no targets: give joint columns or a position", 2),
     }
     for k, (content, (fragment, row)) in enumerate(bad.items()):
         (tmp_path / f"bad{k}.csv").write_text(content)

@@ -9,10 +9,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calib import CalibError, DataError, MeasurementFormatError
+from calib.formats import ReadOptions
 from calib.measurements import Measurements, read_measurements, write_measurements
 from calib.robot import ChainJoint, RobotModel
 
-import calib.measurements as measurements_module
+import calib.formats.specs as measurements_module
 
 JOINTS_DEG = ",".join(f"joint{i}_deg" for i in range(1, 7))
 HEADER = f"{JOINTS_DEG},x_mm,y_mm,z_mm"
@@ -264,22 +265,43 @@ def test_too_many_joint_columns(tmp_path, bundled_robot):
            row=1, column="q7_deg")
 
 
-def test_unknown_column(tmp_path, bundled_robot):
-    msg = _error(_write(tmp_path, f"{HEADER},temperature_C\n{ROW},21\n"), bundled_robot,
-                 "unknown column", "accepted columns", "joint1, joint2", "q1..q6", "_rad or _deg",
-                 "x, y, z with _m or _mm", "qw, qx, qy, qz", "set", row=1, column="temperature_C")
-    assert "case-sensitive" not in msg
+def test_unknown_columns_are_ignored_and_listed(tmp_path, bundled_robot):
+    path = _write(tmp_path, f"point,{HEADER},temperature_C,time (s)\nP1,{ROW},21,0.5\n")
+    m = read_measurements(path, bundled_robot)
+    assert m.ignored_columns == ("point", "temperature_C", "time (s)")
+    assert m.notes == (f"{path}: ignored columns (not calib's): point, temperature_C, time (s)",)
+    np.testing.assert_allclose(m.position, [[0.441, 0.0, -0.0365]], rtol=0, atol=1e-15)
 
 
-def test_unknown_column_case_hint(tmp_path, bundled_robot):
-    _error(_write(tmp_path, f"{JOINTS_DEG},X_mm,y_mm,z_mm\n{ROW}\n"), bundled_robot,
-           "unknown column", "case-sensitive", "did you mean 'x_mm'", row=1, column="X_mm")
+def test_near_miss_column_is_an_error_with_did_you_mean(tmp_path, bundled_robot):
+    _error(_write(tmp_path, f"{JOINTS_DEG},x_mn,y_mm,z_mm\n{ROW}\n"), bundled_robot,
+           "wrong unit suffix _mn: x takes _m or _mm; did you mean 'x_mm'?", row=1, column="x_mn")
+    _error(_write(tmp_path, f"{JOINTS_DEG},xx_mm,y_mm,z_mm\n{ROW}\n"), bundled_robot,
+           "unknown column: did you mean 'x_mm'?", "--rename 'xx_mm='", row=1, column="xx_mm")
+    _error(_write(tmp_path, f"{HEADER},sett\n{ROW},cal\n"), bundled_robot,
+           "unknown column: did you mean 'set'?", row=1, column="sett")
 
 
-def test_semicolon_separated_file(tmp_path, bundled_robot):
-    header = HEADER.replace(",", ";")
-    _error(_write(tmp_path, f"{header}\n{ROW.replace(',', ';')}\n"), bundled_robot,
-           "unknown column", "separated by commas", row=1, column=header)
+def test_column_names_are_case_insensitive_and_units_may_be_bracketed(tmp_path, bundled_robot):
+    header = "JOINT1_DEG,Joint2_Deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg,X (mm),Y [mm],Z_MM,SET"
+    m = read_measurements(_write(tmp_path, f"{header}\n{ROW},Val\n"), bundled_robot)
+    np.testing.assert_allclose(m.position, [[0.441, 0.0, -0.0365]], rtol=0, atol=1e-15)
+    assert list(m.sets) == ["val"] and m.ignored_columns == ()
+
+
+@pytest.mark.parametrize("delimiter", [";", "\t"])
+def test_semicolon_and_tab_files_with_decimal_comma(tmp_path, bundled_robot, delimiter):
+    header = f"{HEADER},qw,qx,qy,qz".replace(",", delimiter)
+    row = delimiter.join(["0", "10,5", "0", "0", "0", "0", "441,25", "0", "-36,5", "0", "1", "0", "0"])
+    m = read_measurements(_write(tmp_path, f"{header}\n{row}\n"), bundled_robot)
+    np.testing.assert_allclose(m.q[0], np.radians([0, 10.5, 0, 0, 0, 0]), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(m.position[0], [0.44125, 0.0, -0.0365], rtol=0, atol=1e-15)
+
+
+def test_decimal_comma_in_comma_file_is_an_error(tmp_path, bundled_robot):
+    _error(_write(tmp_path, f'{HEADER}\n0,0,0,0,0,0,"441,5",0,-36.5\n'), bundled_robot,
+           "'441,5' is not a number (a decimal comma is read only in files separated by ; or tabs)",
+           row=2, column="x_mm")
 
 
 def test_empty_column_name(tmp_path, bundled_robot):
@@ -400,22 +422,36 @@ def test_empty_set_value(tmp_path, bundled_robot):
 
 
 def test_joint_outside_limits_in_degrees(tmp_path, bundled_robot):
-    """joint2 limits are +-2.1817 rad = +-125.002 deg; 130 deg is outside, and no degree hint."""
-    text = f"{HEADER}\n{ROW}\n0,130,0,0,0,0,441,0,-36.5\n0,-126,0,0,0,0,441,0,-36.5\n"
+    """joint2 limits are +-2.1817 rad = +-125.002 deg (range 250.004 deg, 1 % = 2.5 deg); 130 deg
+    and -128 deg are beyond the tolerance, and no degree hint for a few degrees past."""
+    text = f"{HEADER}\n{ROW}\n0,130,0,0,0,0,441,0,-36.5\n0,-128,0,0,0,0,441,0,-36.5\n"
     msg = _error(_write(tmp_path, text), bundled_robot,
                  "joint2 = 130 deg is outside the joint limits [-125.002, 125.002] deg",
-                 "(2 rows of this column are outside)", row=3, column="joint2_deg")
+                 "(2 rows of this column are outside)", "4.998 deg past the upper limit",
+                 "2 % of the joint range", "beyond the limit tolerance (1 % of the range)",
+                 row=3, column="joint2_deg")
     assert "degrees given as radians" not in msg
 
 
 def test_limit_tolerance(tmp_path, bundled_robot):
-    """Within 1e-6 rad of a limit is accepted, 2e-6 rad beyond is not."""
-    ok = f"{JOINTS_DEG.replace('deg', 'rad')},x_mm,y_mm,z_mm\n0,{2.1817 + 0.9e-6!r},0,0,0,0,441,0,-36.5\n"
-    m = read_measurements(_write(tmp_path, ok), bundled_robot)
-    assert m.q[0, 1] == pytest.approx(2.1817 + 0.9e-6, abs=1e-15)
-    bad = ok.replace(repr(2.1817 + 0.9e-6), repr(2.1817 + 2e-6))
-    _error(_write(tmp_path, bad), bundled_robot, "outside the joint limits [-2.1817, 2.1817] rad",
-           row=2, column="joint2_rad")
+    """Up to 1 % of the joint range (4.3634e-2 rad for joint2, +-2.1817) past a limit is kept with
+    a note naming the rows; further is an error; the tolerance is an option."""
+    head = f"{JOINTS_DEG.replace('deg', 'rad')},x_mm,y_mm,z_mm\n"
+    ok = head + "".join(f"0,{v!r},0,0,0,0,441,0,-36.5\n" for v in (2.1817 + 0.04, 0.0, -2.1817 - 1e-3))
+    path = _write(tmp_path, ok)
+    m = read_measurements(path, bundled_robot)
+    assert m.q[0, 1] == 2.1817 + 0.04 and m.q[2, 1] == -2.1817 - 1e-3     # kept as read
+    assert m.notes == (f"{path}: joint2 is past its joint limit by up to 0.04 rad (within the limit "
+                       f"tolerance, 1 % of the range = 0.0436 rad) in rows 2, 4; kept as read",)
+    bad = head + f"0,{2.1817 + 0.05!r},0,0,0,0,441,0,-36.5\n"
+    _error(_write(tmp_path, bad, "bad.csv"), bundled_robot,
+           "outside the joint limits [-2.1817, 2.1817] rad", "0.05 rad past the upper limit",
+           "beyond the limit tolerance", row=2, column="joint2_rad")
+    loose = read_measurements(tmp_path / "bad.csv", bundled_robot,
+                              options=ReadOptions(limit_tolerance=0.02))
+    assert loose.q[0, 1] == 2.1817 + 0.05
+    with pytest.raises(MeasurementFormatError, match="outside the joint limits"):
+        read_measurements(path, bundled_robot, options=ReadOptions(limit_tolerance=0.0))
 
 
 def test_first_bad_row_then_first_column_is_reported(tmp_path, bundled_robot):
@@ -476,8 +512,19 @@ def test_prismatic_wrong_suffix_and_millimetre_hint(tmp_path):
 
 
 def test_accepted_columns_mention_prismatic_units(tmp_path):
-    _error(_write(tmp_path, "a,spin_deg\n0,0\n"), _slide_robot(), "unknown column",
-           "(_m or _mm for the prismatic joint slide)", row=1, column="a")
+    _error(_write(tmp_path, ",spin_deg\n0,0\n"), _slide_robot(), "column 1 of the header has an empty name",
+           "(_m or _mm for the prismatic joint slide)", row=1)
+
+
+def test_slide_just_past_its_limit_gets_no_unit_hint(tmp_path):
+    """0.18 mm past a 0.5 m slide limit: within 1 % (5 mm) it is kept; with no tolerance the error
+    does not suggest millimetres given as metres."""
+    path = _write(tmp_path, "slide_m,spin_deg,wrist_rad,x_m,y_m,z_m\n0.50018,0,0,1,2,3\n")
+    assert read_measurements(path, _slide_robot()).q[0, 0] == 0.50018
+    with pytest.raises(MeasurementFormatError) as info:
+        read_measurements(path, _slide_robot(), options=ReadOptions(limit_tolerance=0.0))
+    msg = str(info.value)
+    assert "0.00018 m past the upper limit" in msg and "millimetres" not in msg, msg
 
 
 # ====================================================================== the data structure
@@ -553,3 +600,24 @@ def test_writer_rejects_bad_options(tmp_path, bundled_robot, kwargs, match):
     with pytest.raises(CalibError, match=match):
         write_measurements(tmp_path / "o.csv", m, **kwargs)
     assert not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.parametrize("value,fragment", [
+    ("2.5", "0.3183 rad past the upper limit, 7.29 % of the joint range; beyond the limit tolerance"),
+    ("3", "0.8183 rad past the upper limit, 18.8 % of the joint range; check the joint order, the "
+          "zero offsets and the URDF limits"),
+    ("30", "degrees given as radians? use the _deg suffix"),
+])
+def test_limit_hint_fits_the_size_of_the_excess(tmp_path, bundled_robot, value, fragment):
+    """joint2: +-2.1817 rad (range 4.3634 rad). A few percent past: the tolerance; a fifth of the
+    range: not a unit mix-up (3 deg would fit, but 3 rad is no 180/pi factor off); 30: degrees."""
+    names = [f"joint{i}_rad" for i in range(1, 7)]
+    text = f"{','.join(names)},x_mm,y_mm,z_mm\n0,{value},0,0,0,0,441,0,-36.5\n"
+    msg = _error(_write(tmp_path, text), bundled_robot, fragment, row=2, column="joint2_rad")
+    assert ("degrees given as radians" in msg) == (value == "30")
+
+
+def test_slide_a_fifth_of_its_range_past_gets_no_millimetre_hint(tmp_path):
+    _error(_write(tmp_path, "slide_m,spin_deg,wrist_rad,x_m,y_m,z_m\n0.6,0,0,1,2,3\n"), _slide_robot(),
+           "0.1 m past the upper limit, 20 % of the joint range; check the joint order", row=2,
+           column="slide_m")

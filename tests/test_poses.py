@@ -9,7 +9,8 @@ from calib import (CalibError, DataError, MeasurementFormatError, ParameterError
                    analyze_identifiability, apply_deviations, calibrate, load_robot,
                    random_deviations, read_measurements, simulate_measurements)
 from calib.identifiability import weighted_jacobian
-from calib.poses import _logdet_gains, design_poses, read_poses, select_poses, write_poses
+from calib.formats import read_poses, write_poses
+from calib.poses import _logdet_gains, design_poses, select_poses
 
 from conftest import BUNDLED_URDF, erd_urdf
 
@@ -154,9 +155,9 @@ def test_poses_file_round_trip_and_reads_as_measurements_once_measured(tmp_path)
 
 @pytest.mark.parametrize("content,row,column,fragment", [
     ("joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg\n0,0,0,0,0\n", 1, None,
-     "missing joint column for joint6"),
-    ("joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg,x_mm\n0,0,0,0,0,0,1\n", 1,
-     "x_mm", "unknown column"),
+     "missing joint column: the header has 5 joint columns but the robot has 6 joints"),
+    ("joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg,jiont6_deg\n0,0,0,0,0,0,1\n",
+     1, "jiont6_deg", "unknown column: did you mean 'joint6_deg'"),
     ("joint1,joint2_deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg\n0,0,0,0,0,0\n", 1, "joint1",
      "missing unit suffix"),
     ("# c\nq1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n0,0,0,0,0,0\n0,0,0,0,200,0\n", 4, "q5_deg",
