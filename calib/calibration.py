@@ -934,7 +934,8 @@ def _check_local_minimum(sol: SolverResult, problem: Problem, solve: _Solve) -> 
         return sol
     chain = solve.chain or RotationChain(solve.model)
     other = search_lm(problem, sol.x, solve.angular, chain, options=solve.options, max_escapes=0)
-    if other.cost < LOCAL_MINIMUM_RATIO * sol.cost:
+    # clearly lower: by a fraction of the cost and by more than chance (1 in chi^2 / 2 units)
+    if other.cost < LOCAL_MINIMUM_RATIO * sol.cost and sol.cost - other.cost > 1.0:
         msg = (f"{solve.method.upper()} stopped in a local minimum: an angle search from its solution, "
                f"then LM, reaches a cost {other.cost:.4g} below its {sol.cost:.4g} (method search-lm "
                f"escapes it)")
