@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import numpy as np
+
+import calib
 import pytest
 
 from calib import analyze_identifiability, load_robot
@@ -56,3 +58,18 @@ def test_other_arms(name, tool, rank):
 def test_too_few_poses_lowers_the_rank(bundled_robot):
     rep = analyze_identifiability(bundled_robot, n_poses=3, seed=0)
     assert rep.rank == 18  # 3 poses x 6 rows
+
+
+def test_fixed_set_does_not_depend_on_the_start(bundled_robot):
+    """Linearised at a perturbed model (the paper's deviations), the raw priority-ordered QR fixes
+    beta2, u_gamma, v_beta; calibrate's identifiable set picks the partners on the idealised model
+    and fixes the same seven as at the nominal one (issue 15, item 5)."""
+    from calib.calibration import identifiable_set
+    from calib.simulate import PAPER_DEVIATIONS, apply_deviations
+
+    perturbed = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
+    Q = bundled_robot.random_configurations(100, 0)
+    fixed = {m: set(m.names) - set(identifiable_set(m, Q, "pose")) for m in (bundled_robot, perturbed)}
+    assert fixed[bundled_robot] == fixed[perturbed] == {"d3", "u_z", "u_alpha", "v_x", "v_z", "v_alpha", "v_gamma"}
+    raw = set(perturbed.names) - set(calib.analyze_identifiability(perturbed, Q).identifiable)
+    assert {"beta2", "u_gamma", "v_beta"} <= raw     # what the start-dependent choice would fix

@@ -255,3 +255,25 @@ def test_cli_prints_noise_prediction_and_exit_3_for_a_stuck_lm(tmp_path, bundled
                  str(tmp_path / "c2.urdf"), "--method", "lm", "--params", "base", "--cv", "0"])
     err = capsys.readouterr().err
     assert code == 3 and "local minimum" in err
+
+
+def test_readme_real_measurements_example_runs_as_printed(tmp_path, monkeypatch, capsys):
+    """README "Real measurements": the two commands run (exit 0) and print the quoted lines."""
+    import os
+    import re
+    import shlex
+
+    from calib.cli import main
+
+    readme = open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "README.md")).read()
+    section = readme[readme.index("### Real measurements"):readme.index("### Exit codes")]
+    commands = re.findall(r"^calib .*$", section, re.M)
+    assert len(commands) == 2
+    monkeypatch.chdir(tmp_path)
+    for command in commands:
+        assert main(shlex.split(command)[1:]) == 0
+    out = capsys.readouterr().out
+    for quoted in ("noise estimated from the residuals (4 re-weighted fits): position 1.026 mm, "
+                   "orientation 0.00521 rad per axis", "offsets+frames                 12    32.041",
+                   "cross-validated (leave-one-out) held-out RMS error: position 2.078 mm"):
+        assert quoted in section and quoted in out
