@@ -334,8 +334,8 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
         decrease = cost - cost_new
         x, cost = x_new, cost_new
         trace.costs.append(cost)
-        if log.isEnabledFor(logging.DEBUG):
-            log.debug("LM iteration %d: cost %.6g, scaled step %.3g, damping %.3g, %.1f ms",
+        if log.isEnabledFor(logging.INFO):     # calib -v
+            log.info("LM iteration %d: cost %.6g, scaled step %.3g, damping %.3g, %.1f ms",
                       trace.iterations - it0, cost, scaled_step, mu, (time.perf_counter() - t0) * 1e3)
         if decrease <= options.ftol * cost or scaled_step <= options.xtol:
             return SolverResult(x, cost, "converged", f"converged after {it + 1} iterations",
