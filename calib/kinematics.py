@@ -313,7 +313,8 @@ class ChainKinematics:
         tool in the meas frame (radians per unit), ``R(x + dx) = exp([J[:, 3:] dx]) R(x)``.
         With ``transposed`` J comes as Jt (m, 6, N), ``Jt[c, i, n] = J[n, i, c]``, the layout it
         is computed in: it saves a transposing copy, and ``Jt.reshape(m, -1)`` is the transposed
-        stacked Jacobian, rows in the order of ``J.reshape(-1, m)``, ready for ``Jt @ Jt.T``.
+        stacked Jacobian with its rows ordered component first (dx of every pose, then dy, ...),
+        ready for ``Jt @ Jt.T``; pair it with residuals laid out (6, N).
 
         A right perturbation ``exp(xi)`` of the placement of frame F (R_F, p_F) moves the tool by
         ``Ad xi`` about the tool point: ``Ad = [[R_F, [p_F - p_tool]x R_F], [0, R_F]]``.

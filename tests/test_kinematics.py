@@ -65,7 +65,11 @@ def test_jacobian_columns_and_layout():
     np.testing.assert_allclose(Jc, J[:, :, cols], rtol=0, atol=1e-15 * np.abs(J).max())
     _, _, Jt = pose_jacobian(kin, Q, cols, transposed=True)
     assert Jt.shape == (6, 6, 7)
-    np.testing.assert_array_equal(Jt.reshape(6, -1), Jc.reshape(-1, 6).T)
+    np.testing.assert_array_equal(Jt, Jc.transpose(2, 1, 0))
+    # normal equations from either layout, residuals laid out like the rows
+    r = rng.normal(size=(7, 6))
+    np.testing.assert_allclose(Jt.reshape(6, -1) @ r.T.reshape(-1), Jc.reshape(-1, 6).T @ r.reshape(-1),
+                               rtol=1e-13)
 
 
 def test_set_values_moves_the_pinocchio_model_too():
