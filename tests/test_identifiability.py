@@ -56,3 +56,23 @@ def test_other_arms(name, tool, rank):
 def test_too_few_poses_lowers_the_rank(bundled_robot):
     rep = analyze_identifiability(bundled_robot, n_poses=3, seed=0)
     assert rep.rank == 18  # 3 poses x 6 rows
+
+
+def test_repeated_analysis_comes_from_the_cache(bundled_robot):
+    from calib import identifiability
+
+    Q = bundled_robot.random_configurations(60, 11)
+    first = analyze_identifiability(bundled_robot, Q)
+    assert analyze_identifiability(bundled_robot, Q.copy()) is first
+    assert not first.singular_values.flags.writeable
+    # anything the analysis depends on makes another entry
+    moved = bundled_robot.with_changes(alpha2=0.01)
+    assert analyze_identifiability(moved, Q) is not first
+    assert analyze_identifiability(bundled_robot, Q[:-1]) is not first
+    assert analyze_identifiability(bundled_robot, Q, sigma_rot=0.004) is not first
+    assert analyze_identifiability(bundled_robot, Q, measure="position").rank == 25
+    # and the cached report is the one a fresh analysis gives
+    identifiability._cache.clear()
+    fresh = analyze_identifiability(bundled_robot, Q)
+    assert fresh is not first and fresh.identifiable == first.identifiable
+    np.testing.assert_array_equal(fresh.singular_values, first.singular_values)
