@@ -60,7 +60,6 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from scipy.spatial.transform import Rotation
 
 from .errors import CalibError, DataError, MeasurementFormatError, ParameterError, URDFError
 from .fileio import atomic_write_text
@@ -69,7 +68,7 @@ from .kinematics import ChainKinematics
 from .measurements import QUATERNION_NORM_TOLERANCE, finite_array
 from .poses import _joint_columns, _write_comment, read_joint_table
 from .robot import RobotModel, load_robot
-from .spatial import log3_batch
+from .spatial import log3_batch, rotation_from_quaternion, rotation_from_zyx
 
 __all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "CompensationTargets",
            "compensate", "compensate_poses", "load_compensation_models", "read_targets",
@@ -663,10 +662,9 @@ def read_targets(path: str | Path, nominal: RobotModel) -> CompensationTargets:
                           f"(within {QUATERNION_NORM_TOLERANCE:g})", row=int(table.rows[bad[0]]),
                     column=table.extra_names["qw"])
             wxyz = wxyz / norm[:, None]
-            rotation = Rotation.from_quat(wxyz[:, [1, 2, 3, 0]]).as_matrix()
+            rotation = rotation_from_quaternion(wxyz)
         elif zyx:
-            rotation = Rotation.from_euler("ZYX", np.column_stack([ext["rz"], ext["ry"],
-                                                                  ext["rx"]])).as_matrix()
+            rotation = rotation_from_zyx(np.column_stack([ext["rz"], ext["ry"], ext["rx"]]))
     elif table.q is None:
         fail(f"no targets: give joint columns ({', '.join(j.name + '_deg' for j in nominal.joints)}) "
              f"or a tool position x_mm, y_mm, z_mm (optionally with qw, qx, qy, qz)")

@@ -54,18 +54,18 @@ from __future__ import annotations
 
 import csv
 import math
-import warnings
 from dataclasses import dataclass, replace
 from io import StringIO
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .errors import CalibError, DataError, MeasurementFormatError
 from .fileio import atomic_write_text, check_not_input
 from .robot import RobotModel
+from .spatial import (quaternion_from_rotation, rotation_from_quaternion, rotation_from_zyx,
+                      zyx_from_rotation)
 
 __all__ = ["Measurements", "read_measurements", "write_measurements"]
 
@@ -555,9 +555,9 @@ def read_measurements(csv_path: str | Path, robot: RobotModel) -> Measurements:
     _check_limits(path, robot, header, q, rows, data)
 
     if header.orientation == "quaternion":
-        rotation = Rotation.from_quat(orient[:, [1, 2, 3, 0]]).as_matrix()
+        rotation = rotation_from_quaternion(orient)
     elif header.orientation == "zyx":
-        rotation = Rotation.from_euler("ZYX", orient).as_matrix()
+        rotation = rotation_from_zyx(orient)
     else:
         rotation = None
     return Measurements(q=q, position=position, rotation=rotation, rows=rows,
@@ -637,15 +637,10 @@ def write_measurements(path: str | Path, measurements: Measurements, *, angle_un
     columns = [m.q / joint_scale, m.position / lscale]
     if orientation == "quaternion":
         header += list(QUATERNION_COLUMNS)
-        xyzw = Rotation.from_matrix(m.rotation).as_quat()
-        wxyz = xyzw[:, [3, 0, 1, 2]]
-        wxyz *= np.where(wxyz[:, :1] < 0, -1.0, 1.0)  # same rotation, qw >= 0 for readability
-        columns.append(wxyz)
+        columns.append(quaternion_from_rotation(m.rotation))  # qw >= 0 for readability
     elif orientation == "zyx":
         header += [f"{k}_{angle_unit}" for k in ZYX_COLUMNS]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # gimbal lock: any valid split is fine
-            columns.append(Rotation.from_matrix(m.rotation).as_euler("ZYX") / ascale)
+        columns.append(zyx_from_rotation(m.rotation) / ascale)
     values = np.hstack(columns) if m.n_poses else np.zeros((0, len(header)))
 
     buf = StringIO()
