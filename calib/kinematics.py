@@ -29,7 +29,7 @@ Pinocchio's kinematic regressor) by ``dp = R_F xi_v + (R_F xi_w) x (p_tool - p_F
 """
 from __future__ import annotations
 
-import math
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -153,35 +153,66 @@ def _product_and_twists(factors, values: np.ndarray, n_params: int):
     return M[0], tw
 
 
+@dataclass(frozen=True)
+class _Structure:
+    """What a ChainKinematics needs that depends only on the robot's structure and reference
+    frames, not on its parameter values (shared by every workspace of the same robot)."""
+
+    factors: tuple
+    table: _FactorTable
+    params_of: list          # per placement: indices of its parameters
+    prismatic: np.ndarray
+
+
+_STRUCTURES: OrderedDict = OrderedDict()
+
+
+def _structure(robot: RobotModel) -> _Structure:
+    key = (robot.names, tuple((j.name, j.kind) for j in robot.joints),
+           robot.T_meas_base_ref.tobytes(), robot.T_flange_tool_ref.tobytes())
+    st = _STRUCTURES.get(key)
+    if st is not None:
+        _STRUCTURES.move_to_end(key)
+        return st
+    factors = placement_factors(robot)
+    owner = np.full(robot.n_params, -1)
+    for k, fs in enumerate(factors):
+        for f in fs:
+            if f.param is not None:
+                owner[f.param] = k
+    if (owner < 0).any():
+        raise ValueError("a parameter belongs to no placement")
+    prismatic = robot.prismatic
+    prismatic.setflags(write=False)
+    st = _Structure(factors, _FactorTable(factors, robot.n_params),
+                    [np.flatnonzero(owner == k) for k in range(robot.n_joints + 1)], prismatic)
+    _STRUCTURES[key] = st
+    while len(_STRUCTURES) > 32:
+        _STRUCTURES.popitem(last=False)
+    return st
+
+
 class ChainKinematics:
     """Kinematics of a TM-MDH chain at given parameter values, batched over poses (scratch
     workspace).
 
     Use :meth:`set_values` to move to other parameter values; :attr:`values` are the values last
-    set. Build one per robot structure and reuse it: :meth:`set_values` costs tens of
-    microseconds, a build a few times that.
+    set. What depends only on the robot's structure and reference frames is built once and
+    shared between workspaces of the same robot; a build then costs one :meth:`set_values`.
     """
 
     def __init__(self, robot: RobotModel):
-        self.factors = placement_factors(robot)
+        st = _structure(robot)
+        self.factors = st.factors
         self.n_joints = robot.n_joints
         self.n_params = robot.n_params
-        self.prismatic = robot.prismatic
+        self.prismatic = st.prismatic
         self.joint_names = robot.joint_names
-        self._table = _FactorTable(self.factors, self.n_params)
-        n = self.n_joints
+        self._table = st.table
+        self._params_of = st.params_of
         # where the flange and base frames sit in the prefix products of their placements
-        self._flange_at = len(self.factors[n]) - 7
+        self._flange_at = len(self.factors[self.n_joints]) - 7
         self._base_at = 7
-        # parameters of each placement (each parameter belongs to exactly one)
-        owner = np.full(self.n_params, -1)
-        for k, factors in enumerate(self.factors):
-            for f in factors:
-                if f.param is not None:
-                    owner[f.param] = k
-        if (owner < 0).any():
-            raise ValueError("a parameter belongs to no placement")
-        self._params_of = [np.flatnonzero(owner == k) for k in range(n + 1)]
         self._pin = None
         self._pin_values = None
         self.set_values(robot.values)

@@ -104,25 +104,41 @@ def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
     R = np.asarray(R, float)
     m00, m11, m22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
     tr = m00 + m11 + m22
-    n = len(R)
-    quat = np.empty((n, 4))
     k = np.argmax(np.stack([tr, m00, m11, m22], axis=1), axis=1)
-    i = k == 0
-    s = np.sqrt(1.0 + tr[i]) * 2.0
-    quat[i] = np.stack([0.25 * s, (R[i, 2, 1] - R[i, 1, 2]) / s, (R[i, 0, 2] - R[i, 2, 0]) / s,
-                        (R[i, 1, 0] - R[i, 0, 1]) / s], axis=1)
-    i = k == 1
-    s = np.sqrt(1.0 + m00[i] - m11[i] - m22[i]) * 2.0
-    quat[i] = np.stack([(R[i, 2, 1] - R[i, 1, 2]) / s, 0.25 * s, (R[i, 0, 1] + R[i, 1, 0]) / s,
-                        (R[i, 0, 2] + R[i, 2, 0]) / s], axis=1)
-    i = k == 2
-    s = np.sqrt(1.0 + m11[i] - m00[i] - m22[i]) * 2.0
-    quat[i] = np.stack([(R[i, 0, 2] - R[i, 2, 0]) / s, (R[i, 0, 1] + R[i, 1, 0]) / s, 0.25 * s,
-                        (R[i, 1, 2] + R[i, 2, 1]) / s], axis=1)
-    i = k == 3
-    s = np.sqrt(1.0 + m22[i] - m00[i] - m11[i]) * 2.0
-    quat[i] = np.stack([(R[i, 1, 0] - R[i, 0, 1]) / s, (R[i, 0, 2] + R[i, 2, 0]) / s,
-                        (R[i, 1, 2] + R[i, 2, 1]) / s, 0.25 * s], axis=1)
+    quat = np.empty((len(R), 4))
+    for branch in range(4):
+        i = k == branch
+        if not i.any():
+            continue
+        # all rows in one branch (rotations away from pi: the usual case) without a gather
+        Ri, q = (R, quat) if i.all() else (R[i], np.empty((int(i.sum()), 4)))
+        d0, d1, d2 = Ri[:, 0, 0], Ri[:, 1, 1], Ri[:, 2, 2]
+        if branch == 0:
+            s = np.sqrt(1.0 + d0 + d1 + d2) * 2.0
+            q[:, 0] = 0.25 * s
+            q[:, 1] = (Ri[:, 2, 1] - Ri[:, 1, 2]) / s
+            q[:, 2] = (Ri[:, 0, 2] - Ri[:, 2, 0]) / s
+            q[:, 3] = (Ri[:, 1, 0] - Ri[:, 0, 1]) / s
+        elif branch == 1:
+            s = np.sqrt(1.0 + d0 - d1 - d2) * 2.0
+            q[:, 0] = (Ri[:, 2, 1] - Ri[:, 1, 2]) / s
+            q[:, 1] = 0.25 * s
+            q[:, 2] = (Ri[:, 0, 1] + Ri[:, 1, 0]) / s
+            q[:, 3] = (Ri[:, 0, 2] + Ri[:, 2, 0]) / s
+        elif branch == 2:
+            s = np.sqrt(1.0 + d1 - d0 - d2) * 2.0
+            q[:, 0] = (Ri[:, 0, 2] - Ri[:, 2, 0]) / s
+            q[:, 1] = (Ri[:, 0, 1] + Ri[:, 1, 0]) / s
+            q[:, 2] = 0.25 * s
+            q[:, 3] = (Ri[:, 1, 2] + Ri[:, 2, 1]) / s
+        else:
+            s = np.sqrt(1.0 + d2 - d0 - d1) * 2.0
+            q[:, 0] = (Ri[:, 1, 0] - Ri[:, 0, 1]) / s
+            q[:, 1] = (Ri[:, 0, 2] + Ri[:, 2, 0]) / s
+            q[:, 2] = (Ri[:, 1, 2] + Ri[:, 2, 1]) / s
+            q[:, 3] = 0.25 * s
+        if q is not quat:
+            quat[i] = q
     quat[quat[:, 0] < 0] *= -1.0
     return quat
 

@@ -8,7 +8,8 @@ Prints, for the bundled robot (BRTIRUS0707A, the paper's deviations of Tables 4-
 2. FIGAROH's fit time on the same data over calib's, when FIGAROH can be imported (``--figaroh``
    names a Python that has it); otherwise a note, and the column is skipped.
 3. The whole ``calib calibrate`` process (import, read, fit, report, URDF written) over
-   ``python -c "import pinocchio"``, medians of several runs.
+   ``python -c "import pinocchio"``, medians of several runs after one to warm the caches, with
+   the bytecode cached as after an install.
 4. The scaling table, 100 / 1k / 10k / 100k / 1M poses up to ``--max-poses`` (default 100,000:
    1M takes minutes and gigabytes with the current solver): wall time of ``calibrate()`` and its
    peak memory above the loaded data (tracemalloc, which numpy reports its arrays to, started
@@ -45,8 +46,15 @@ TARGET = {"calibrate_100_ms": 15.0, "figaroh_ratio": 30.0, "process_ratio": 2.0,
           "scaling_ratio": 11.0, "memory_100k_mb": 100.0, "study_s": 60.0}
 
 
+#: Bytecode cache of the subprocesses: compiled once, as after an install (the environment may
+#: set PYTHONDONTWRITEBYTECODE, which would make every run compile calib from source).
+PYCACHE = Path(tempfile.gettempdir()) / "calib-bench-pycache"
+
+
 def _env() -> dict:
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               PYTHONPYCACHEPREFIX=str(PYCACHE))
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env[var] = "1"
     return env
@@ -122,6 +130,7 @@ def process_ratio(repeats: int = 7) -> dict:
         imp = [sys.executable, "-c", "import calib"]
         out = {}
         for name, argv in (("calibrate", cmd), ("pinocchio", ref), ("import_calib", imp)):
+            subprocess.run(argv, env=_env(), capture_output=True, cwd=tmp)   # warm the caches
             times = []
             for _ in range(repeats):
                 t = time.perf_counter()
