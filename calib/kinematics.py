@@ -75,6 +75,8 @@ def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
 
 
 _AXIS = {"x": 0, "y": 1, "z": 2}
+#: Poses per chunk of the batch kinematics (bounds the scratch memory; a few MB per chunk).
+CHUNK = 2048
 #: (i, j) of the rotation block entries c, -s (at (i, j)), s (at (j, i)) about axis x, y, z.
 _ROT_IJ = np.array([(1, 2), (2, 0), (0, 1)])
 
@@ -316,22 +318,24 @@ class ChainKinematics:
         """The pose (R (3, 3, N), p (3, N)) followed by the constant 4x4 T."""
         return np.matmul(T[:3, :3].T, R), p + np.matmul(T[:3, 3], R)
 
-    @staticmethod
-    def _pose_major(R: np.ndarray, p: np.ndarray):
-        """(R (N, 3, 3), p (N, 3)) from the internal layout."""
-        return np.ascontiguousarray(R.transpose(2, 0, 1)), np.ascontiguousarray(p.T)
-
     def frame_poses(self, Q: np.ndarray, frame: str = "tool") -> tuple[np.ndarray, np.ndarray]:
         """Poses of a frame ("tool", "flange" or "base") in the meas frame for configurations Q.
 
         Q : (N, n) joint values, radians / metres. Returns (R (N, 3, 3), p (N, 3) metres).
+        Computed in chunks of ``CHUNK`` poses: the memory beyond the outputs is bounded.
         """
         Q = np.atleast_2d(np.asarray(Q, float))
+        N = len(Q)
         if frame == "base":
             T = self.base_placement
-            return np.repeat(T[None, :3, :3], len(Q), axis=0), np.repeat(T[None, :3, 3], len(Q), axis=0)
+            return np.repeat(T[None, :3, :3], N, axis=0), np.repeat(T[None, :3, 3], N, axis=0)
         T = {"tool": self.placements[self.n_joints], "flange": self.flange_placement}[frame]
-        return self._pose_major(*self._attach(*self._walk(Q), T))
+        R, p = np.empty((N, 3, 3)), np.empty((N, 3))
+        for a in range(0, N, CHUNK):
+            Rc, pc = self._attach(*self._walk(Q[a:a + CHUNK]), T)
+            R[a:a + CHUNK] = Rc.transpose(2, 0, 1)
+            p[a:a + CHUNK] = pc.T
+        return R, p
 
     def poses_and_jacobian(self, Q: np.ndarray, columns: np.ndarray | None = None, *,
                            transposed: bool = False):
@@ -343,9 +347,10 @@ class ChainKinematics:
         position in the meas frame (metres per unit), J[:, 3:] the differential rotation of the
         tool in the meas frame (radians per unit), ``R(x + dx) = exp([J[:, 3:] dx]) R(x)``.
         With ``transposed`` J comes as Jt (m, 6, N), ``Jt[c, i, n] = J[n, i, c]``, the layout it
-        is computed in: it saves a transposing copy, and ``Jt.reshape(m, -1)`` is the transposed
-        stacked Jacobian with its rows ordered component first (dx of every pose, then dy, ...),
-        ready for ``Jt @ Jt.T``; pair it with residuals laid out (6, N).
+        is computed in: ``Jt.reshape(m, -1)`` is the transposed stacked Jacobian with its rows
+        ordered component first (dx of every pose, then dy, ...), ready for ``Jt @ Jt.T``; pair
+        it with residuals laid out (6, N).
+        Computed in chunks of ``CHUNK`` poses: the memory beyond the outputs is bounded.
 
         A right perturbation ``exp(xi)`` of the placement of frame F (R_F, p_F) moves the tool by
         ``Ad xi`` about the tool point: ``Ad = [[R_F, [p_F - p_tool]x R_F], [0, R_F]]``.
@@ -355,10 +360,25 @@ class ChainKinematics:
         Q = np.atleast_2d(np.asarray(Q, float))
         params, cols = self._column_plan(columns)
         N = len(Q)
+        m = sum(len(c) for c in cols)
+        R, p = np.empty((N, 3, 3)), np.empty((N, 3))
+        J = np.empty((m, 6, N)) if transposed else np.empty((N, 6, m))
+        for a in range(0, N, CHUNK):
+            Rc, pc, Jc = self._jacobian_chunk(Q[a:a + CHUNK], params, cols, m)
+            R[a:a + CHUNK] = Rc.transpose(2, 0, 1)
+            p[a:a + CHUNK] = pc.T
+            if transposed:
+                J[:, :, a:a + CHUNK] = Jc
+            else:
+                J[a:a + CHUNK] = Jc.transpose(2, 1, 0)
+        return R, p, J
+
+    def _jacobian_chunk(self, Q, params, cols, m):
+        """Tool pose (R (3, 3, N), p (3, N)) and Jt (m, 6, N) of a chunk of poses."""
+        N = len(Q)
         frames: list = []
         R, p = self._attach(*self._walk(Q, frames), self.placements[self.n_joints])
         frames.append((R, p))
-        m = sum(len(c) for c in cols)
         Jt = np.empty((m, 6, N))     # J transposed: Jt[c, row, pose]
         AdT = np.zeros((6, 6, N))    # Ad transposed, AdT[j, i] = Ad[i, j]
         for k, (R_F, p_F) in enumerate(frames):
@@ -373,8 +393,7 @@ class ChainKinematics:
             AdT[3:, 2] = D[0] * R_F[1] - D[1] * R_F[0]
             tw = self.placement_twists[6 * k:6 * k + 6, params[k]]
             Jt[cols[k]] = (tw.T @ AdT.reshape(6, -1)).reshape(-1, 6, N)
-        R, p = self._pose_major(R, p)
-        return R, p, (Jt if transposed else np.ascontiguousarray(Jt.transpose(2, 1, 0)))
+        return R, p, Jt
 
     def _column_plan(self, columns):
         """Per placement: the wanted parameters it holds and their output columns."""

@@ -89,3 +89,23 @@ def test_set_values_moves_the_pinocchio_model_too():
     _, _, J = pose_jacobian(kin, q)
     _, _, J2 = pose_jacobian(ChainKinematics(robot.with_values(other)), q)
     np.testing.assert_allclose(J, J2, atol=1e-14)
+
+
+def test_chunked_evaluation_equals_one_pass(monkeypatch):
+    import calib.kinematics as km
+
+    robot, rng = _robot("bundled", None, 8)
+    kin = ChainKinematics(robot)
+    Q = robot.random_configurations(23, rng)
+    R1, p1 = kin.frame_poses(Q)
+    _, _, J1 = pose_jacobian(kin, Q)
+    _, _, Jt1 = pose_jacobian(kin, Q, [3, 1, 20], transposed=True)
+    monkeypatch.setattr(km, "CHUNK", 5)          # 5 chunks, the last one of 3 poses
+    R2, p2 = kin.frame_poses(Q)
+    _, _, J2 = pose_jacobian(kin, Q)
+    _, _, Jt2 = pose_jacobian(kin, Q, [3, 1, 20], transposed=True)
+    np.testing.assert_array_equal(R1, R2)
+    np.testing.assert_array_equal(p1, p2)
+    np.testing.assert_allclose(J2, J1, rtol=0, atol=1e-15 * np.abs(J1).max())
+    np.testing.assert_allclose(Jt2, Jt1, rtol=0, atol=1e-15 * np.abs(J1).max())
+    assert J2.shape == (23, 6, robot.n_params) and Jt2.shape == (3, 6, 23)
