@@ -75,6 +75,8 @@ def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
 
 
 _AXIS = {"x": 0, "y": 1, "z": 2}
+_I4 = np.eye(4)
+_I4.setflags(write=False)
 #: Poses per chunk of the batch kinematics (bounds the scratch memory; a few MB per chunk).
 CHUNK = 2048
 #: (i, j) of the rotation block entries c, -s (at (i, j)), s (at (j, i)) about axis x, y, z.
@@ -100,6 +102,11 @@ class _FactorTable:
         self.rot = np.array(rot, int).reshape(-1, 4)
         self.trans = np.array(trans, int).reshape(-1, 4)
         self.rot_i, self.rot_j = _ROT_IJ[self.rot[:, 2]].T
+        # e_k x p = skew(e_k) p for the axis e_k of each rotation factor
+        self.rot_skew = np.zeros((len(self.rot), 3, 3))
+        m = np.arange(len(self.rot))
+        self.rot_skew[m, self.rot_j, self.rot_i] = 1.0
+        self.rot_skew[m, self.rot_i, self.rot_j] = -1.0
         params = np.concatenate([self.rot[:, 3], self.trans[:, 3]])
         if len(np.unique(params)) != len(params):
             raise ValueError("a parameter appears in two factors")
@@ -124,7 +131,7 @@ class _FactorTable:
         E = self.elementary(np.asarray(values, float))
         P, F = self.n_placements, self.n_factors
         prefix = np.empty((P, F + 1, 4, 4))
-        prefix[:, 0] = np.eye(4)
+        prefix[:, 0] = _I4
         for j in range(F):
             prefix[:, j + 1] = prefix[:, j] @ E[:, j]
         if not twists:
@@ -133,7 +140,7 @@ class _FactorTable:
         # after it: (R[k], 0) for a translation along axis k and (R^T (e_k x p), R[k]) for a
         # rotation about it, with (R, p) the suffix
         suffix = np.empty((P, F + 1, 4, 4))
-        suffix[:, F] = np.eye(4)
+        suffix[:, F] = _I4
         for j in range(F - 1, -1, -1):
             suffix[:, j] = E[:, j] @ suffix[:, j + 1]
         tw = np.zeros((P, 6, self.n_params))
@@ -142,7 +149,7 @@ class _FactorTable:
         k, j, axis, idx = self.rot.T
         S = suffix[k, j + 1]
         R, p = S[:, :3, :3], S[:, :3, 3]
-        e_x_p = np.cross(np.eye(3)[axis], p)
+        e_x_p = np.einsum("mij,mj->mi", self.rot_skew, p)
         tw[k, :3, idx] = np.einsum("mji,mj->mi", R, e_x_p)
         tw[k, 3:, idx] = R[np.arange(len(axis)), axis]
         return suffix[:, 0], prefix, tw.reshape(6 * P, self.n_params)
@@ -289,6 +296,7 @@ class ChainKinematics:
         placement (before the joint's motion) in the same layout."""
         Qt = np.ascontiguousarray(np.asarray(Q, float).T)
         N = Qt.shape[1]
+        cos_q, sin_q = np.cos(Qt), np.sin(Qt)
         M = self.placements
         R = np.empty((3, 3, N))
         R[:] = M[0, :3, :3, None]
@@ -301,11 +309,10 @@ class ChainKinematics:
             if frames is not None:
                 frames.append((R, p))
                 R, p = R.copy(), p.copy()
-            q = Qt[k]
             if self.prismatic[k]:
-                p += q * R[:, 2]
+                p += Qt[k] * R[:, 2]
             else:
-                c, s = np.cos(q), np.sin(q)
+                c, s = cos_q[k], sin_q[k]
                 x = R[:, 0].copy()
                 R[:, 0] *= c
                 R[:, 0] += s * R[:, 1]
