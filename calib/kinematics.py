@@ -77,8 +77,10 @@ def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
 _AXIS = {"x": 0, "y": 1, "z": 2}
 _I4 = np.eye(4)
 _I4.setflags(write=False)
-#: Poses per chunk of the batch kinematics (bounds the scratch memory; a few MB per chunk).
+#: Poses per chunk of the batch kinematics (bounds the scratch memory; a few MB per chunk): the
+#: forward kinematics, and the Jacobian (smaller: its scratch is 36 values per pose and joint).
 CHUNK = 2048
+JACOBIAN_CHUNK = 256
 #: (i, j) of the rotation block entries c, -s (at (i, j)), s (at (j, i)) about axis x, y, z.
 _ROT_IJ = np.array([(1, 2), (2, 0), (0, 1)])
 
@@ -290,10 +292,11 @@ class ChainKinematics:
     # ------------------------------------------------------------------ batch kinematics
     # Inside, poses are held with the pose index last (R (3, 3, N), p (3, N)), so that every
     # operation runs over contiguous rows of N values.
-    def _walk(self, Q: np.ndarray, frames: list | None = None):
+    def _walk(self, Q: np.ndarray, frames: tuple | None = None):
         """Pose of the last joint's frame (after its motion) at configurations Q (N, n), as
-        (R (3, 3, N), p (3, N)); with ``frames`` (a list) also append the frame of each joint
-        placement (before the joint's motion) in the same layout."""
+        (R (3, 3, N), p (3, N)); with ``frames`` = (R_F (n + 1, 3, 3, N), p_F (n + 1, 3, N))
+        also store the frame of each joint placement (before the joint's motion) in its first
+        n entries."""
         Qt = np.ascontiguousarray(np.asarray(Q, float).T)
         N = Qt.shape[1]
         cos_q, sin_q = np.cos(Qt), np.sin(Qt)
@@ -307,8 +310,8 @@ class ChainKinematics:
                 p = p + np.matmul(M[k, :3, 3], R)
                 R = np.matmul(M[k, :3, :3].T, R)
             if frames is not None:
-                frames.append((R, p))
-                R, p = R.copy(), p.copy()
+                frames[0][k] = R
+                frames[1][k] = p
             if self.prismatic[k]:
                 p += Qt[k] * R[:, 2]
             else:
@@ -357,7 +360,7 @@ class ChainKinematics:
         is computed in: ``Jt.reshape(m, -1)`` is the transposed stacked Jacobian with its rows
         ordered component first (dx of every pose, then dy, ...), ready for ``Jt @ Jt.T``; pair
         it with residuals laid out (6, N).
-        Computed in chunks of ``CHUNK`` poses: the memory beyond the outputs is bounded.
+        Computed in chunks of ``JACOBIAN_CHUNK`` poses: the memory beyond the outputs is bounded.
 
         A right perturbation ``exp(xi)`` of the placement of frame F (R_F, p_F) moves the tool by
         ``Ad xi`` about the tool point: ``Ad = [[R_F, [p_F - p_tool]x R_F], [0, R_F]]``.
@@ -365,49 +368,57 @@ class ChainKinematics:
         if self.placement_twists is None:
             self.set_values(self.values)
         Q = np.atleast_2d(np.asarray(Q, float))
-        params, cols = self._column_plan(columns)
-        N = len(Q)
-        m = sum(len(c) for c in cols)
+        plan = self._column_plan(columns)
+        N, m = len(Q), plan[-1]
         R, p = np.empty((N, 3, 3)), np.empty((N, 3))
         J = np.empty((m, 6, N)) if transposed else np.empty((N, 6, m))
-        for a in range(0, N, CHUNK):
-            Rc, pc, Jc = self._jacobian_chunk(Q[a:a + CHUNK], params, cols, m)
-            R[a:a + CHUNK] = Rc.transpose(2, 0, 1)
-            p[a:a + CHUNK] = pc.T
+        for a in range(0, N, JACOBIAN_CHUNK):
+            b = a + JACOBIAN_CHUNK
+            Rc, pc, Jc = self._jacobian_chunk(Q[a:b], plan)
+            R[a:b] = Rc.transpose(2, 0, 1)
+            p[a:b] = pc.T
             if transposed:
-                J[:, :, a:a + CHUNK] = Jc
+                J[:, :, a:b] = Jc
             else:
-                J[a:a + CHUNK] = Jc.transpose(2, 1, 0)
+                J[a:b] = Jc.transpose(2, 1, 0)
         return R, p, J
 
-    def _jacobian_chunk(self, Q, params, cols, m):
-        """Tool pose (R (3, 3, N), p (3, N)) and Jt (m, 6, N) of a chunk of poses."""
+    def _jacobian_chunk(self, Q, plan):
+        """Tool pose (R (3, 3, N), p (3, N)) and Jt (m, 6, N) of a chunk of poses.
+
+        All placements at once: Ad^T of every placement frame, (P, 6, 6, N), times the
+        placements' twist columns, (P, 6, w) padded to the widest placement."""
         N = len(Q)
-        frames: list = []
-        R, p = self._attach(*self._walk(Q, frames), self.placements[self.n_joints])
-        frames.append((R, p))
-        Jt = np.empty((m, 6, N))     # J transposed: Jt[c, row, pose]
-        AdT = np.zeros((6, 6, N))    # Ad transposed, AdT[j, i] = Ad[i, j]
-        for k, (R_F, p_F) in enumerate(frames):
-            if not len(params[k]):
-                continue
-            D = p_F - p
-            R_T = R_F.transpose(1, 0, 2)
-            AdT[:3, :3] = R_T
-            AdT[3:, 3:] = R_T
-            AdT[3:, 0] = D[1] * R_F[2] - D[2] * R_F[1]
-            AdT[3:, 1] = D[2] * R_F[0] - D[0] * R_F[2]
-            AdT[3:, 2] = D[0] * R_F[1] - D[1] * R_F[0]
-            tw = self.placement_twists[6 * k:6 * k + 6, params[k]]
-            Jt[cols[k]] = (tw.T @ AdT.reshape(6, -1)).reshape(-1, 6, N)
+        P = self.n_joints + 1
+        RF, pF = np.empty((P, 3, 3, N)), np.empty((P, 3, N))
+        R, p = self._attach(*self._walk(Q, (RF, pF)), self.placements[self.n_joints])
+        RF[-1], pF[-1] = R, p
+        D = pF - p
+        AdT = np.zeros((P, 6, 6, N))    # Ad transposed, AdT[k, j, i] = Ad_k[i, j]
+        R_T = RF.transpose(0, 2, 1, 3)
+        AdT[:, :3, :3] = R_T
+        AdT[:, 3:, 3:] = R_T
+        AdT[:, 3:, 0] = D[:, 1, None] * RF[:, 2] - D[:, 2, None] * RF[:, 1]
+        AdT[:, 3:, 1] = D[:, 2, None] * RF[:, 0] - D[:, 0, None] * RF[:, 2]
+        AdT[:, 3:, 2] = D[:, 0, None] * RF[:, 1] - D[:, 1, None] * RF[:, 0]
+        slot, param, out_col, width, m = plan
+        TWT = np.zeros((P * width, 6))
+        TWT[slot] = self.placement_twists.reshape(P, 6, -1)[slot // width, :, param]
+        X = np.matmul(TWT.reshape(P, width, 6), AdT.reshape(P, 6, 6 * N))   # (P, width, 6 N)
+        Jt = np.empty((m, 6, N))
+        Jt[out_col] = X.reshape(P * width, 6, N)[slot]
         return R, p, Jt
 
     def _column_plan(self, columns):
-        """Per placement: the wanted parameters it holds and their output columns."""
+        """Where each wanted parameter sits: (slot = placement * width + place in it, parameter,
+        output column, width = most wanted parameters of one placement, number of columns)."""
         if columns is None:
-            return self._params_of, self._params_of
+            columns = np.arange(self.n_params)
         columns = np.asarray(columns, int)
         out_col = np.full(self.n_params, -1)
         out_col[columns] = np.arange(len(columns))
         params = [ps[out_col[ps] >= 0] for ps in self._params_of]
-        return params, [out_col[ps] for ps in params]
+        width = max(1, max(len(ps) for ps in params))
+        slot = np.concatenate([k * width + np.arange(len(ps)) for k, ps in enumerate(params)])
+        param = np.concatenate(params)
+        return slot, param, out_col[param], width, len(columns)

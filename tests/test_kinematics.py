@@ -101,6 +101,7 @@ def test_chunked_evaluation_equals_one_pass(monkeypatch):
     _, _, J1 = pose_jacobian(kin, Q)
     _, _, Jt1 = pose_jacobian(kin, Q, [3, 1, 20], transposed=True)
     monkeypatch.setattr(km, "CHUNK", 5)          # 5 chunks, the last one of 3 poses
+    monkeypatch.setattr(km, "JACOBIAN_CHUNK", 4)
     R2, p2 = kin.frame_poses(Q)
     _, _, J2 = pose_jacobian(kin, Q)
     _, _, Jt2 = pose_jacobian(kin, Q, [3, 1, 20], transposed=True)
