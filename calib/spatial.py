@@ -104,7 +104,10 @@ def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
     R = np.asarray(R, float)
     m00, m11, m22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
     tr = m00 + m11 + m22
-    k = np.argmax(np.stack([tr, m00, m11, m22], axis=1), axis=1)
+    if np.all(tr >= np.maximum(np.maximum(m00, m11), m22)):
+        k = np.zeros(len(R), int)     # w the largest everywhere (the usual small turns)
+    else:
+        k = np.argmax(np.stack([tr, m00, m11, m22], axis=1), axis=1)
     quat = np.empty((len(R), 4))
     for branch in range(4):
         i = k == branch
