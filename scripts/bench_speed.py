@@ -5,8 +5,12 @@ Prints, for the bundled robot (BRTIRUS0707A, the paper's deviations of Tables 4-
 
 1. ``calib.calibrate()`` with its defaults on 100 poses (statistics included): median wall and
    CPU time, and the search-lm solver alone on the prepared problem.
-2. FIGAROH's fit time on the same data over calib's, when FIGAROH can be imported (``--figaroh``
-   names a Python that has it); otherwise a note, and the column is skipped.
+2. FIGAROH's fit time on the same data over calib's, in one process, when FIGAROH can be
+   imported (``--figaroh`` names a Python that has it, e.g. a venv with
+   ``--system-site-packages`` and ``pip install figaroh``); otherwise a note, and the row is
+   skipped. FIGAROH fits its "full_params" model (six placement errors per joint, unknown base
+   and tool frames) with the same noise weights; both fits' RMS position errors on 200
+   validation poses are printed beside the times.
 3. The whole ``calib calibrate`` process (import, read, fit, report, URDF written) over
    ``python -c "import pinocchio"``, medians of several runs after one to warm the caches, with
    the bytecode cached as after an install.
@@ -27,6 +31,8 @@ from __future__ import annotations
 import _bench  # noqa: F401  (one BLAS thread before numpy loads)
 
 import argparse
+import contextlib
+import io
 import json
 import os
 import statistics
@@ -106,15 +112,112 @@ def calibrate_100(repeats: int = 21) -> dict:
 
 
 # ---------------------------------------------------------------------- 2. FIGAROH
-def figaroh_ratio(python: str | None, calib_ms: float) -> str:
-    """FIGAROH's fit time over calib's, or why it is not measured."""
+FIGAROH_CONFIG = """
+robot:
+  name: brtirus0707a
+  properties:
+    joints:
+      active_joints: [{joints}]
+tasks:
+  calibration:
+    enabled: true
+    type: kinematic_calibration
+    parameters:
+      calibration_level: full_params
+      include_non_geometric: false
+    kinematics:
+      base_frame: universe
+      tool_frame: {tool}
+    measurements:
+      markers:
+        - name: tool
+          reference_joint: {last_joint}
+          measurable_dof: [true, true, true, true, true, true]
+      poses:
+        base_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        tool_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    data:
+      source_file: {data}
+      number_of_samples: {n}
+"""
+
+
+def figaroh_worker(repeats: int = 3) -> dict:
+    """In an interpreter with FIGAROH: its geometric calibration ("full_params": 6 placement
+    errors per joint, base and tool frames unknown, SE3 log-map residuals weighted by the same
+    sigma) and calib.calibrate() on the same 100 simulated poses, timed in the same process."""
+    import numpy as np
+    import pandas as pd
+    import pinocchio as pin
+    from figaroh.calibration.base_calibration import BaseCalibration
+    from figaroh.calibration.calibration_tools import calc_updated_fkm
+    from figaroh.tools.robot import Robot
+
+    import calib
+
+    robot, meas = problem(100)
+    validation = problem(200, seed=3)[1]
+
+    class Fit(BaseCalibration):
+        def __init__(self, figaroh_robot, config):
+            super().__init__(figaroh_robot, config)
+            self.calib_config["known_baseframe"] = False
+            self.calib_config["known_tipframe"] = False
+
+        def cost_function(self, var):
+            est = calc_updated_fkm(self.model, self.data, var, self.q_measured, self.calib_config)
+            return self.apply_measurement_weighting(self._compute_logmap_residuals(self.PEE_measured, est),
+                                                    pos_weight=1 / 2e-5, orient_weight=1 / 2e-3)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        data = Path(tmp) / "data.csv"
+        rpy = np.array([pin.rpy.matrixToRpy(R) for R in meas.rotation])
+        columns = {name: meas.q[:, i] for i, name in enumerate(robot.joint_names)}
+        columns.update({f"{a}1": meas.position[:, i] for i, a in enumerate("xyz")})
+        columns.update({f"phi{a}1": rpy[:, i] for i, a in enumerate("xyz")})
+        pd.DataFrame(columns).to_csv(data, index=False)
+        config = Path(tmp) / "config.yaml"
+        config.write_text(FIGAROH_CONFIG.format(joints=", ".join(robot.joint_names), tool=robot.tool_frame,
+                                                last_joint=robot.joint_names[-1], data=data, n=meas.n_poses))
+        fig_robot = Robot(str(URDF), package_dirs=str(URDF.parent))
+
+        def run():
+            fit = Fit(fig_robot, str(config))
+            fit.initialize()
+            fit.solve(enable_logging=False)
+            return fit
+
+        with contextlib.redirect_stdout(io.StringIO()):
+            fit = run()
+            fig_times = []
+            for _ in range(repeats):
+                t = time.perf_counter()
+                run()
+                fig_times.append(time.perf_counter() - t)
+        # accuracy of FIGAROH's fit on the validation poses (its model at its solution)
+        cfg = dict(fit.calib_config, NbSample=validation.n_poses)
+        est = calc_updated_fkm(fit.model, fit.data, fit.LM_result.x, validation.q, cfg).reshape(6, -1)
+        fig_rms = float(np.sqrt(np.mean(np.sum((est[:3].T - validation.position) ** 2, axis=1))))
+    calib_time = _bench.median_time(lambda: calib.calibrate(robot, meas), 11)
+    res = calib.calibrate(robot, meas, validation=validation)
+    import figaroh
+    return {"figaroh_s": statistics.median(fig_times), "calib_s": calib_time,
+            "figaroh_val_rms_mm": fig_rms * 1e3, "calib_val_rms_mm": res.validation_after.position["rms"] * 1e3,
+            "figaroh_version": getattr(figaroh, "__version__", "?")}
+
+
+def figaroh_ratio(python: str | None) -> dict | str:
+    """FIGAROH's fit time and calib's on the same data in one process (``python`` must import
+    figaroh), or why it is not measured."""
     exe = python or sys.executable
-    probe = subprocess.run([exe, "-c", "import figaroh"], capture_output=True, text=True)
+    probe = subprocess.run([exe, "-c", "import figaroh"], capture_output=True, text=True, env=_env())
     if probe.returncode != 0:
         last = (probe.stderr.strip().splitlines() or ["not found"])[-1]
-        return f"skipped: FIGAROH cannot be imported by {exe} ({last})"
-    return ("skipped: FIGAROH imports, but no adapter of its geometric calibration to this "
-            "robot and data format is written yet")
+        return f"skipped: FIGAROH cannot be imported by {exe} ({last}); pass --figaroh PYTHON"
+    r = subprocess.run([exe, __file__, "--figaroh-worker"], capture_output=True, text=True, env=_env())
+    if r.returncode != 0:
+        return f"skipped: FIGAROH's fit failed ({(r.stderr.strip().splitlines() or ['?'])[-1]})"
+    return json.loads(r.stdout.strip().splitlines()[-1])
 
 
 # ---------------------------------------------------------------------- 3. process time
@@ -205,7 +308,11 @@ def main(argv=None) -> int:
     ap.add_argument("--study", action="store_true", help="also time the 63 x 63 convergence study")
     ap.add_argument("--figaroh", metavar="PYTHON", help="a Python interpreter that can import figaroh")
     ap.add_argument("--one-size", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--figaroh-worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.figaroh_worker:
+        print(json.dumps(figaroh_worker()))
+        return 0
     if args.one_size:
         print(json.dumps(one_size(args.one_size)))
         return 0
@@ -214,8 +321,13 @@ def main(argv=None) -> int:
     c = calibrate_100()
     print(f"calibrate(), 100 poses: median {c['calibrate_ms']:.2f} ms wall, {c['calibrate_cpu_ms']:.2f} ms CPU; "
           f"search-lm solver alone {c['solver_ms']:.2f} ms")
-    fig = figaroh_ratio(args.figaroh, c["calibrate_ms"])
-    print(f"FIGAROH: {fig}")
+    fig = figaroh_ratio(args.figaroh)
+    if isinstance(fig, dict):
+        print(f"FIGAROH {fig['figaroh_version']}: fit {fig['figaroh_s'] * 1e3:.0f} ms, calib {fig['calib_s'] * 1e3:.1f} ms "
+              f"in the same process; validation RMS position error FIGAROH {fig['figaroh_val_rms_mm']:.4f} mm, "
+              f"calib {fig['calib_val_rms_mm']:.4f} mm")
+    else:
+        print(f"FIGAROH: {fig}")
     p = process_ratio()
     ratio = p["calibrate"] / p["pinocchio"]
     print(f"process: calib calibrate {p['calibrate']:.3f} s, import calib {p['import_calib']:.3f} s, "
@@ -236,7 +348,8 @@ def main(argv=None) -> int:
                 f"{c['calibrate_ms']:.1f} ms (solver alone {c['solver_ms']:.1f} ms; CPU {c['calibrate_cpu_ms']:.1f} ms)",
                 f"{BEFORE['calibrate_100_ms']:g} ms (solver {BEFORE['solver_100_ms']:g} ms)",
                 f"<= {TARGET['calibrate_100_ms']:g} ms"))
-    print(_line("FIGAROH fit time / calib's", "not measured (see above)" if fig.startswith("skipped") else fig,
+    print(_line("FIGAROH fit time / calib's", f"{fig['figaroh_s'] / fig['calib_s']:.0f}x" if isinstance(fig, dict)
+                else "not measured (see above)",
                 f"{BEFORE['figaroh_ratio']:g}x", f">= {TARGET['figaroh_ratio']:g}x"))
     print(_line("`calib calibrate` process / `python -c \"import pinocchio\"`",
                 f"{ratio:.2f}x ({p['calibrate']:.2f} s; import calib {p['import_calib']:.2f} s)",
