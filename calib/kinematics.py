@@ -226,6 +226,7 @@ class ChainKinematics:
         self._base_at = 7
         self._pin = None
         self._pin_values = None
+        self._plans: dict = {}
         self.set_values(robot.values)
 
     # ------------------------------------------------------------------ parameters
@@ -411,10 +412,18 @@ class ChainKinematics:
 
     def _column_plan(self, columns):
         """Where each wanted parameter sits: (slot = placement * width + place in it, parameter,
-        output column, width = most wanted parameters of one placement, number of columns)."""
-        if columns is None:
-            columns = np.arange(self.n_params)
-        columns = np.asarray(columns, int)
+        output column, width = most wanted parameters of one placement, number of columns).
+        The plans of the last few column sets are kept (an LM run asks for the same ones)."""
+        columns = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
+        key = columns.tobytes()
+        plan = self._plans.get(key)
+        if plan is None:
+            plan = self._plans[key] = self._make_plan(columns)
+            if len(self._plans) > 8:
+                self._plans.pop(next(iter(self._plans)))
+        return plan
+
+    def _make_plan(self, columns):
         out_col = np.full(self.n_params, -1)
         out_col[columns] = np.arange(len(columns))
         params = [ps[out_col[ps] >= 0] for ps in self._params_of]

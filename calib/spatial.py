@@ -11,6 +11,8 @@ short calibration; the tests compare with it).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
 
@@ -59,6 +61,11 @@ def zyx_parameters(T: np.ndarray) -> np.ndarray:
 def rotation_from_zyx(angles: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) ``Rz(alpha) Ry(beta) Rx(gamma)`` of ZYX angles (..., 3), rad."""
     angles = np.asarray(angles, float)
+    if angles.ndim == 1:    # one rotation: scalar math is many times faster than array calls
+        (ca, cb, cg), (sa, sb, sg) = map(math.cos, angles), map(math.sin, angles)
+        return np.array([[ca * cb, ca * sb * sg - sa * cg, ca * sb * cg + sa * sg],
+                         [sa * cb, sa * sb * sg + ca * cg, sa * sb * cg - ca * sg],
+                         [-sb, cb * sg, cb * cg]])
     ca, cb, cg = np.moveaxis(np.cos(angles), -1, 0)
     sa, sb, sg = np.moveaxis(np.sin(angles), -1, 0)
     R = np.empty(angles.shape[:-1] + (3, 3))
@@ -75,6 +82,11 @@ def zyx_from_rotation(R: np.ndarray) -> np.ndarray:
     only alpha -+ gamma is defined) gamma is set to 0.
     """
     R = np.asarray(R, float)
+    if R.ndim == 2:         # one rotation, in scalar math
+        c = math.hypot(R[0, 0], R[1, 0])
+        if c < 1e-12:
+            return np.array([math.atan2(-R[0, 1], R[1, 1]), math.atan2(-R[2, 0], c), 0.0])
+        return np.array([math.atan2(R[1, 0], R[0, 0]), math.atan2(-R[2, 0], c), math.atan2(R[2, 1], R[2, 2])])
     c = np.hypot(R[..., 0, 0], R[..., 1, 0])   # |cos beta|
     beta = np.arctan2(-R[..., 2, 0], c)
     lock = c < 1e-12

@@ -43,6 +43,10 @@ def test_zyx_angles(rotations):
     np.testing.assert_allclose(rotation_from_zyx(ref), R, atol=1e-14)
     # gimbal lock: gamma set to 0
     assert np.all(ang[~regular, 2] == 0.0) and (~regular).sum() == 2
+    # one matrix at a time (the scalar path) gives the same angles and matrices
+    for k in (0, 1, 2, len(R) - 2, len(R) - 1):
+        np.testing.assert_allclose(zyx_from_rotation(R[k]), ang[k], atol=1e-15)
+        np.testing.assert_allclose(rotation_from_zyx(ang[k]), rotation_from_zyx(ang[k:k + 1])[0], atol=1e-15)
 
 
 def test_rotation_vectors(rotations):
