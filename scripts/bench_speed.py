@@ -76,16 +76,6 @@ def problem(n: int, seed: int = 1):
     return robot, simulate_measurements(true, robot.random_configurations(n, seed), rng=seed + 1)
 
 
-def cpu_median(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t = time.process_time()
-        fn()
-        times.append(time.process_time() - t)
-    return statistics.median(times)
-
-
 # ---------------------------------------------------------------------- 1. calibrate, 100 poses
 def calibrate_100(repeats: int = 21) -> dict:
     import numpy as np
@@ -97,7 +87,7 @@ def calibrate_100(repeats: int = 21) -> dict:
 
     robot, meas = problem(100)
     wall = _bench.median_time(lambda: calib.calibrate(robot, meas), repeats)
-    cpu = cpu_median(lambda: calib.calibrate(robot, meas), repeats)
+    cpu = _bench.median_time(lambda: calib.calibrate(robot, meas), repeats, clock=time.process_time)
     free = calib.analyze_identifiability(robot, meas.q).identifiable
     idx = robot.indices(free)
     angular = np.array([robot.parameters[k].is_angular for k in idx])
