@@ -35,13 +35,26 @@ def project_to_so3(M: np.ndarray) -> np.ndarray:
     return U @ D @ Vt
 
 
+#: Poses per chunk when accumulating the normal equations of the frame estimate.
+CHUNK = 4096
+
+
 def _solve_translations(R_X, R_f, p_f, p_meas):
+    """(t_X, t_Y) minimising sum_n |t_X + R_X R_f_n t_Y - (p_meas_n - R_X p_f_n)|^2, by its 6x6
+    normal equations accumulated over the poses (M_n = R_X R_f_n is a rotation: M_n^T M_n = I)."""
     N = len(p_f)
-    A = np.zeros((3 * N, 6))
-    A[:, :3] = np.tile(np.eye(3), (N, 1))
-    A[:, 3:] = (R_X @ R_f).reshape(3 * N, 3)
-    b = (p_meas - p_f @ R_X.T).reshape(-1)
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    A = np.zeros((6, 6))
+    g = np.zeros(6)
+    A[:3, :3] = A[3:, 3:] = N * np.eye(3)
+    for a in range(0, N, CHUNK):
+        M = R_X @ R_f[a:a + CHUNK]                       # (n, 3, 3)
+        b = p_meas[a:a + CHUNK] - p_f[a:a + CHUNK] @ R_X.T
+        S = M.sum(axis=0)
+        A[:3, 3:] += S
+        A[3:, :3] += S.T
+        g[:3] += b.sum(axis=0)
+        g[3:] += np.einsum("nji,nj->i", M, b)
+    sol = np.linalg.solve(A, g)
     return sol[:3], sol[3:]
 
 
@@ -69,11 +82,15 @@ def estimate_frames(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
             raise DataError(f"at least 3 poses are needed to estimate the frames, got {N}")
         I3 = np.eye(3)
         # vec is column-major: vec(R_X R_i) = (R_i^T kron I) vec(R_X); vec(R_m Z) = (I kron R_m) vec(Z)
-        left = -np.einsum("nba,cd->nacbd", R_f, I3).reshape(N, 9, 9)
-        right = np.einsum("ac,nbd->nabcd", I3, R_meas).reshape(N, 9, 9)
-        blocks = np.concatenate([left, right], axis=2).reshape(9 * N, 18)
-        # null vector of the blocks: eigenvector of the 18x18 normal matrix (cheap for many poses)
-        w, V = np.linalg.eigh(blocks.T @ blocks)
+        # null vector of the blocks: eigenvector of the 18x18 normal matrix, accumulated in chunks
+        normal = np.zeros((18, 18))
+        for a in range(0, N, CHUNK):
+            n = len(R_f[a:a + CHUNK])
+            left = -np.einsum("nba,cd->nacbd", R_f[a:a + CHUNK], I3).reshape(n, 9, 9)
+            right = np.einsum("ac,nbd->nabcd", I3, R_meas[a:a + CHUNK]).reshape(n, 9, 9)
+            blocks = np.concatenate([left, right], axis=2).reshape(9 * n, 18)
+            normal += blocks.T @ blocks
+        w, V = np.linalg.eigh(normal)
         if w[1] < 1e-10 * w[-1]:
             raise DataError("the poses do not determine the measurement frame orientation "
                             "(too few distinct orientations)")

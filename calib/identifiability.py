@@ -28,7 +28,9 @@ Nahvi and Hollerbach), and the condition number sigma_1 / sigma_r.
 """
 from __future__ import annotations
 
+import hashlib
 import json
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -43,6 +45,9 @@ SIGMA_POS_M = 0.02e-3
 SIGMA_ROT_RAD = 0.002
 #: Default relative tolerance on the unexplained part of a unit column.
 RANK_TOL = 1e-6
+#: How many analyses :func:`analyze_identifiability` keeps for repeated calls.
+CACHE_SIZE = 64
+_cache: OrderedDict = OrderedDict()
 
 
 @dataclass(frozen=True)
@@ -193,6 +198,10 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
     max_poses : analyse at most this many of the configurations (an evenly spaced subset): which
         parameters are tied does not depend on the number of poses once there are a few dozen,
         and the cost grows with it. None for all.
+
+    The reports of the last ``CACHE_SIZE`` analyses are kept: a repeated call with the same
+    model values, configurations and options (as a calibration repeated on the same data makes)
+    returns the same report without recomputing it.
     """
     if measure not in MEASURES:
         raise ParameterError(f"measure must be one of {', '.join(MEASURES)}, got {measure!r}")
@@ -201,6 +210,34 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
     Q = np.atleast_2d(np.asarray(Q, float))
     if max_poses is not None and len(Q) > max_poses:
         Q = Q[np.linspace(0, len(Q) - 1, max_poses).astype(int)]
+    key = _cache_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority)
+    report = _cache.get(key)
+    if report is None:
+        report = _analyze(robot, Q, measure, tol, sigma_pos, sigma_rot, priority)
+        _cache[key] = report
+        while len(_cache) > CACHE_SIZE:
+            _cache.popitem(last=False)
+    else:
+        _cache.move_to_end(key)
+    return report
+
+
+def _cache_key(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,
+               sigma_rot: float, priority) -> tuple:
+    """What the analysis depends on: the chain's structure and values, the configurations, the
+    options (a digest of the arrays, so that large data are not held by the cache)."""
+    h = hashlib.blake2b(digest_size=20)
+    for a in (robot.values, robot.T_meas_base_ref, robot.T_flange_tool_ref, Q):
+        a = np.ascontiguousarray(a, float)
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    structure = (robot.names, tuple((j.name, j.kind) for j in robot.joints))
+    return (h.hexdigest(), structure, measure, float(tol), float(sigma_pos), float(sigma_rot),
+            None if priority is None else tuple(priority))
+
+
+def _analyze(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,
+             sigma_rot: float, priority) -> IdentifiabilityReport:
     J = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot)
     order = list(robot.indices(priority)) if priority else []
     order += [k for k in range(robot.n_params) if k not in order]
@@ -230,6 +267,7 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
 
     Jk = J[:, kept] / np.linalg.norm(J[:, kept], axis=0)
     idx = observability_indices(Jk)
+    idx["singular_values"].setflags(write=False)   # the report is shared through the cache
     return IdentifiabilityReport(
         measure=measure, n_poses=len(Q), n_params=robot.n_params, rank=len(kept),
         identifiable=tuple(robot.names[k] for k in sorted(kept)),

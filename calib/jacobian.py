@@ -1,10 +1,10 @@
-"""The TM-MDH identification Jacobian (Eq. 19-25), built on Pinocchio's kinematic regressor.
+"""The TM-MDH identification Jacobian (Eq. 19-25).
 
-For each pose, Pinocchio's ``computeFrameKinematicRegressor`` gives the derivative of the tool
-placement (expressed LOCAL_WORLD_ALIGNED) with respect to a right perturbation ``M_i exp(xi_i)``
-of every joint placement; :class:`calib.kinematics.ChainKinematics` gives each parameter's twist
-``xi`` in its placement, a constant matrix over all poses. The Jacobian of all poses is one
-matrix product of the stacked regressors with that matrix. Its rows:
+For each pose, the derivative of the tool placement (expressed LOCAL_WORLD_ALIGNED) with respect
+to a right perturbation ``M_i exp(xi_i)`` of every joint placement is Pinocchio's kinematic
+regressor; :class:`calib.kinematics.ChainKinematics` gives each parameter's twist ``xi`` in its
+placement, a constant matrix over all poses, and maps it to the tool for all poses at once
+(vectorised; the tests compare with Pinocchio's ``computeFrameKinematicRegressor``). Its rows:
 
 * ``dp`` (3 rows): derivative of the tool position in the meas frame (metres per unit).
 * ``dw`` (3 rows): the differential rotation of the tool, in the meas frame (radians per unit):
@@ -24,19 +24,19 @@ from .robot import RobotModel
 MEASURES = ("pose", "position")
 
 
-def pose_jacobian(kin: ChainKinematics, Q: np.ndarray):
+def pose_jacobian(kin: ChainKinematics, Q: np.ndarray, columns: np.ndarray | None = None, *,
+                  transposed: bool = False):
     """Tool poses and the pose Jacobian at the kinematics' current parameter values.
 
-    Q : (N, n) joint values (rad / m).
-    Returns (R (N, 3, 3), p (N, 3) metres, J (N, 6, n_params)) with J[:, :3] = dp and
-    J[:, 3:] = dw, both in the meas frame.
+    Q : (N, n) joint values (rad / m). columns : parameter indices of the wanted columns, in
+    that order (default all): asking only for the free parameters avoids computing and copying
+    the others. The cost is linear in N and the memory that of the outputs, so a caller that
+    accumulates normal equations can pass chunks of Q.
+    Returns (R (N, 3, 3), p (N, 3) metres, J (N, 6, m)) with J[:, :3] = dp and J[:, 3:] = dw,
+    both in the meas frame. ``transposed``: J as (m, 6, N) instead, see
+    :meth:`calib.kinematics.ChainKinematics.poses_and_jacobian`.
     """
-    if kin.placement_twists is None:
-        kin.set_values(kin.values)
-    R, p, reg = kin.tool_poses_and_regressors(Q)
-    N, _, n6 = reg.shape
-    J = (reg.reshape(N * 6, n6) @ kin.placement_twists).reshape(N, 6, -1)
-    return R, p, J
+    return kin.poses_and_jacobian(Q, columns, transposed=transposed)
 
 
 def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "pose") -> np.ndarray:

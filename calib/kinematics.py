@@ -1,11 +1,14 @@
-"""Batch kinematics of a TM-MDH model on Pinocchio.
+"""Batch kinematics of a TM-MDH model: vectorised over poses, with a Pinocchio model beside it.
 
-:class:`ChainKinematics` is the scratch workspace (Pinocchio's Model/Data split): it builds a
-Pinocchio model whose joint placements are the MDH link transforms of a :class:`RobotModel`
-and is updated in place when the parameter values change during an identification. A robot
-model itself stays immutable.
+:class:`ChainKinematics` is the scratch workspace (Pinocchio's Model/Data split) of a
+:class:`RobotModel`: it holds the joint placements of the chain (the MDH link transforms) for the
+parameter values last set with :meth:`ChainKinematics.set_values`, and computes tool poses and the
+identification Jacobian for a whole array of configurations at once, in numpy (a few stacked
+3x3 products per joint, no per-pose Python loop). A Pinocchio model with the same placements is
+built on first use of :attr:`ChainKinematics.model` (for callers that run Pinocchio's own
+algorithms, and as the reference the tests compare with). A robot model itself stays immutable.
 
-Structure of the Pinocchio model of an n-joint chain (joints revolute or prismatic about z):
+Structure of the chain of an n-joint robot (joints revolute or prismatic about z):
 
     placement of joint 1     = T_meas_base_ref . T(u) . Rot(z, theta_1) Trans(z, d_1)
     placement of joint i > 1 = Trans(x, a_{i-1}) Rot(x, alpha_{i-1}) [Rot(y, beta_{i-1})]
@@ -19,12 +22,14 @@ Structure of the Pinocchio model of an n-joint chain (joints revolute or prismat
 Each placement is a product of elementary screws, one per parameter, so the derivative of a
 placement with respect to a parameter is a constant twist in the placement's own frame:
 ``X^-1 dX/dp = Ad(suffix)^-1 s`` with ``s`` the unit screw of the factor and ``suffix`` the
-product of the factors after it. :attr:`ChainKinematics.placement_twists` stacks these twists;
-Pinocchio's kinematic regressor maps them to the tool frame (:mod:`calib.jacobian`).
+product of the factors after it. :attr:`ChainKinematics.placement_twists` stacks these twists.
+A right perturbation ``X exp(xi)`` of the placement of frame F moves the tool (LOCAL_WORLD_ALIGNED,
+Pinocchio's kinematic regressor) by ``dp = R_F xi_v + (R_F xi_w) x (p_tool - p_F)``,
+``dw = R_F xi_w`` (:meth:`ChainKinematics.poses_and_jacobian`).
 """
 from __future__ import annotations
 
-import math
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,143 +75,359 @@ def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
 
 
 _AXIS = {"x": 0, "y": 1, "z": 2}
+_I4 = np.eye(4)
+_I4.setflags(write=False)
+#: Poses per chunk of the batch kinematics (bounds the scratch memory; a few MB per chunk): the
+#: forward kinematics, and the Jacobian (smaller: its scratch is 36 values per pose and joint).
+CHUNK = 2048
+JACOBIAN_CHUNK = 256
+#: (i, j) of the rotation block entries c, -s (at (i, j)), s (at (j, i)) about axis x, y, z.
+_ROT_IJ = np.array([(1, 2), (2, 0), (0, 1)])
 
 
-def _rotation(axis: int, angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    i, j = ((1, 2), (2, 0), (0, 1))[axis]
-    R = np.eye(3)
-    R[i, i] = R[j, j] = c
-    R[i, j], R[j, i] = -s, s
-    return R
+class _FactorTable:
+    """The factors of several placements as arrays, padded with identities to equal length,
+    so that their products and twists are computed for all placements at once."""
 
+    def __init__(self, placements, n_params: int):
+        self.n_placements = P = len(placements)
+        self.n_factors = F = max(len(f) for f in placements)
+        self.n_params = n_params
+        self.base = np.tile(np.eye(4), (P, F, 1, 1))
+        rot, trans = [], []   # (placement, factor, axis, param)
+        for k, factors in enumerate(placements):
+            for j, f in enumerate(factors):
+                if f.kind == "const":
+                    self.base[k, j] = f.const
+                else:
+                    (trans if f.kind[0] == "t" else rot).append((k, j, _AXIS[f.kind[1]], f.param))
+        self.rot = np.array(rot, int).reshape(-1, 4)
+        self.trans = np.array(trans, int).reshape(-1, 4)
+        self.rot_i, self.rot_j = _ROT_IJ[self.rot[:, 2]].T
+        # e_k x p = skew(e_k) p for the axis e_k of each rotation factor
+        self.rot_skew = np.zeros((len(self.rot), 3, 3))
+        m = np.arange(len(self.rot))
+        self.rot_skew[m, self.rot_j, self.rot_i] = 1.0
+        self.rot_skew[m, self.rot_i, self.rot_j] = -1.0
+        params = np.concatenate([self.rot[:, 3], self.trans[:, 3]])
+        if len(np.unique(params)) != len(params):
+            raise ValueError("a parameter appears in two factors")
 
-def _product(factors, values: np.ndarray) -> np.ndarray:
-    """Product of the factors, 4x4."""
-    M = np.eye(4)
-    for f in factors:
-        if f.kind == "const":
-            M = M @ f.const
-            continue
-        k = _AXIS[f.kind[1]]
-        if f.kind[0] == "t":
-            M[:3, 3] += values[f.param] * M[:3, k]
-        else:
-            M[:3, :3] = M[:3, :3] @ _rotation(k, values[f.param])
-    return M
+    def elementary(self, values: np.ndarray) -> np.ndarray:
+        """(P, F, 4, 4) factor matrices at parameter ``values``."""
+        E = self.base.copy()
+        k, j, _, idx = self.rot.T
+        c, s = np.cos(values[idx]), np.sin(values[idx])
+        E[k, j, self.rot_i, self.rot_i] = c
+        E[k, j, self.rot_j, self.rot_j] = c
+        E[k, j, self.rot_i, self.rot_j] = -s
+        E[k, j, self.rot_j, self.rot_i] = s
+        k, j, axis, idx = self.trans.T
+        E[k, j, axis, 3] = values[idx]
+        return E
+
+    def products(self, values: np.ndarray, twists: bool = True):
+        """Products of the placements' factors (P, 4, 4), prefix products (P, F + 1, 4, 4)
+        (``prefix[:, j]`` the product of the first j factors) and, with ``twists``, the local
+        twist of each parameter, (6 P, n_params) (rows 6k..6k+5 for placement k)."""
+        E = self.elementary(np.asarray(values, float))
+        P, F = self.n_placements, self.n_factors
+        prefix = np.empty((P, F + 1, 4, 4))
+        prefix[:, 0] = _I4
+        for j in range(F):
+            prefix[:, j + 1] = prefix[:, j] @ E[:, j]
+        if not twists:
+            return prefix[:, F], prefix, None
+        # the twist of a factor's parameter is Ad(suffix)^-1 s, suffix = product of the factors
+        # after it: (R[k], 0) for a translation along axis k and (R^T (e_k x p), R[k]) for a
+        # rotation about it, with (R, p) the suffix
+        suffix = np.empty((P, F + 1, 4, 4))
+        suffix[:, F] = _I4
+        for j in range(F - 1, -1, -1):
+            suffix[:, j] = E[:, j] @ suffix[:, j + 1]
+        tw = np.zeros((P, 6, self.n_params))
+        k, j, axis, idx = self.trans.T
+        tw[k, :3, idx] = suffix[k, j + 1, axis, :3]
+        k, j, axis, idx = self.rot.T
+        S = suffix[k, j + 1]
+        R, p = S[:, :3, :3], S[:, :3, 3]
+        e_x_p = np.einsum("mij,mj->mi", self.rot_skew, p)
+        tw[k, :3, idx] = np.einsum("mji,mj->mi", R, e_x_p)
+        tw[k, 3:, idx] = R[np.arange(len(axis)), axis]
+        return suffix[:, 0], prefix, tw.reshape(6 * P, self.n_params)
 
 
 def _product_and_twists(factors, values: np.ndarray, n_params: int):
-    """Product of the factors (4x4) and the local twist of each parameter (6, n_params).
+    """Product of one placement's factors (4x4) and the local twist of each parameter
+    (6, n_params); see :class:`_FactorTable`."""
+    M, _, tw = _FactorTable([factors], n_params).products(values)
+    return M[0], tw
 
-    Walks the factors from the last to the first, keeping the product of the factors after the
-    current one (the suffix, as R and p); the twist of a factor's parameter is
-    ``Ad(suffix)^-1 s``, which for a unit screw along or about axis k is
-    ``(R[k], 0)`` for a translation and ``(R^T (e_k x p), R[k])`` for a rotation.
-    """
-    twists = np.zeros((6, n_params))
-    R, p = np.eye(3), np.zeros(3)
-    for f in reversed(factors):
-        if f.kind == "const":
-            R, p = f.const[:3, :3] @ R, f.const[:3, :3] @ p + f.const[:3, 3]
-            continue
-        k = _AXIS[f.kind[1]]
-        value = values[f.param]
-        if f.kind[0] == "t":
-            twists[:3, f.param] += R[k]
-            p = p.copy()
-            p[k] += value
-        else:
-            ek_x_p = (np.array([0.0, -p[2], p[1]]), np.array([p[2], 0.0, -p[0]]),
-                      np.array([-p[1], p[0], 0.0]))[k]
-            twists[:3, f.param] += R.T @ ek_x_p
-            twists[3:, f.param] += R[k]
-            Rk = _rotation(k, value)
-            R, p = Rk @ R, Rk @ p
-    M = np.eye(4)
-    M[:3, :3], M[:3, 3] = R, p
-    return M, twists
+
+@dataclass(frozen=True)
+class _Structure:
+    """What a ChainKinematics needs that depends only on the robot's structure and reference
+    frames, not on its parameter values (shared by every workspace of the same robot)."""
+
+    factors: tuple
+    table: _FactorTable
+    params_of: list          # per placement: indices of its parameters
+    prismatic: np.ndarray
+
+
+_STRUCTURES: OrderedDict = OrderedDict()
+
+
+def _structure(robot: RobotModel) -> _Structure:
+    key = (robot.names, tuple((j.name, j.kind) for j in robot.joints),
+           robot.T_meas_base_ref.tobytes(), robot.T_flange_tool_ref.tobytes())
+    st = _STRUCTURES.get(key)
+    if st is not None:
+        _STRUCTURES.move_to_end(key)
+        return st
+    factors = placement_factors(robot)
+    owner = np.full(robot.n_params, -1)
+    for k, fs in enumerate(factors):
+        for f in fs:
+            if f.param is not None:
+                owner[f.param] = k
+    if (owner < 0).any():
+        raise ValueError("a parameter belongs to no placement")
+    prismatic = robot.prismatic
+    prismatic.setflags(write=False)
+    st = _Structure(factors, _FactorTable(factors, robot.n_params),
+                    [np.flatnonzero(owner == k) for k in range(robot.n_joints + 1)], prismatic)
+    _STRUCTURES[key] = st
+    while len(_STRUCTURES) > 32:
+        _STRUCTURES.popitem(last=False)
+    return st
 
 
 class ChainKinematics:
-    """Pinocchio model of a TM-MDH chain, with batch forward kinematics (scratch workspace).
+    """Kinematics of a TM-MDH chain at given parameter values, batched over poses (scratch
+    workspace).
 
-    Use :meth:`set_values` to move to other parameter values; :attr:`robot` stays the model it
-    was built from (with the values last set).
+    Use :meth:`set_values` to move to other parameter values; :attr:`values` are the values last
+    set. What depends only on the robot's structure and reference frames is built once and
+    shared between workspaces of the same robot; a build then costs one :meth:`set_values`.
     """
 
     def __init__(self, robot: RobotModel):
-        self.factors = placement_factors(robot)
+        st = _structure(robot)
+        self.factors = st.factors
         self.n_joints = robot.n_joints
         self.n_params = robot.n_params
-        model = pin.Model()
-        model.name = "tm_mdh"
-        parent = 0
-        for joint in robot.joints:
-            jm = pin.JointModelPZ() if joint.is_prismatic else pin.JointModelRZ()
-            parent = model.addJoint(parent, jm, pin.SE3.Identity(), joint.name)
-        # The tool placement rides on an extra joint that is always at 0: Pinocchio's regressor
-        # then covers the flange->tool parameters too, in one product (see tool_poses_and_regressors).
-        mount = model.addJoint(parent, pin.JointModelRZ(), pin.SE3.Identity(), "calib_tool_mount")
-        self.base_frame_id = model.addFrame(pin.Frame("base", 0, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
-        self.flange_frame_id = model.addFrame(pin.Frame("flange", parent, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
-        self.tool_frame_id = model.addFrame(pin.Frame("tool", mount, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
-        self.model = model
-        self.data = model.createData()
+        self.prismatic = st.prismatic
+        self.joint_names = robot.joint_names
+        self._table = st.table
+        self._params_of = st.params_of
+        # where the flange and base frames sit in the prefix products of their placements
+        self._flange_at = len(self.factors[self.n_joints]) - 7
+        self._base_at = 7
+        self._pin = None
+        self._pin_values = None
+        self._plans: dict = {}
         self.set_values(robot.values)
 
+    # ------------------------------------------------------------------ parameters
     def set_values(self, values: np.ndarray, twists: bool = True) -> None:
-        """Update the joint and frame placements to parameter ``values``; with ``twists`` also
-        the placement twists needed by the Jacobian (:attr:`placement_twists`)."""
-        values = np.asarray(values, float)
+        """Move to parameter ``values`` ((n_params,) SI); with ``twists`` also compute the
+        placement twists needed by the Jacobian (:attr:`placement_twists`)."""
+        values = np.array(values, float)
+        M, prefix, tw = self._table.products(values, twists)
         n = self.n_joints
-        if twists:
-            tw = np.zeros((6 * (n + 1), self.n_params))
-        for k, factors in enumerate(self.factors):
-            if twists:
-                M, tw[6 * k:6 * k + 6] = _product_and_twists(factors, values, self.n_params)
-            else:
-                M = _product(factors, values)
-            self.model.jointPlacements[k + 1] = to_se3(M)
-        # flange: the tool factors without T(v) and the reference (7 factors); base: the first
-        # placement's reference and T(u) (7 factors)
-        self.model.frames[self.flange_frame_id].placement = to_se3(_product(self.factors[n][:-7], values))
-        self.model.frames[self.base_frame_id].placement = to_se3(_product(self.factors[0][:7], values))
-        self.placement_twists = tw if twists else None
-        self.values = values.copy()
+        self.placements = M                                  # (n + 1, 4, 4), joint placements then tool mount
+        self.flange_placement = prefix[n, self._flange_at]   # relative to joint n
+        self.base_placement = prefix[0, self._base_at]       # T_meas_base
+        self.placement_twists = tw
+        self.values = values
 
-    def _padded(self, Q: np.ndarray) -> np.ndarray:
-        Q = np.atleast_2d(np.asarray(Q, float))
-        return np.hstack([Q, np.zeros((len(Q), 1))])
+    # ------------------------------------------------------------------ Pinocchio model
+    def _pinocchio(self):
+        if self._pin is None:
+            model = pin.Model()
+            model.name = "tm_mdh"
+            parent = 0
+            for name, prismatic in zip(self.joint_names, self.prismatic):
+                jm = pin.JointModelPZ() if prismatic else pin.JointModelRZ()
+                parent = model.addJoint(parent, jm, pin.SE3.Identity(), name)
+            # The tool placement rides on an extra joint that is always at 0: Pinocchio's
+            # regressor then covers the flange->tool parameters too.
+            mount = model.addJoint(parent, pin.JointModelRZ(), pin.SE3.Identity(), "calib_tool_mount")
+            ids = (model.addFrame(pin.Frame("base", 0, pin.SE3.Identity(), pin.FrameType.OP_FRAME)),
+                   model.addFrame(pin.Frame("flange", parent, pin.SE3.Identity(), pin.FrameType.OP_FRAME)),
+                   model.addFrame(pin.Frame("tool", mount, pin.SE3.Identity(), pin.FrameType.OP_FRAME)))
+            self._pin = (model, model.createData(), ids)
+        model = self._pin[0]
+        if self._pin_values is not self.values:
+            for k, M in enumerate(self.placements):
+                model.jointPlacements[k + 1] = to_se3(M)
+            model.frames[self._pin[2][1]].placement = to_se3(self.flange_placement)
+            model.frames[self._pin[2][0]].placement = to_se3(self.base_placement)
+            self._pin_values = self.values
+        return self._pin
+
+    @property
+    def model(self) -> pin.Model:
+        """A Pinocchio model of the chain at the current values: joints 1..n the robot's, joint
+        n + 1 the tool mount (keep it at 0), frames "base", "flange", "tool"."""
+        return self._pinocchio()[0]
+
+    @property
+    def data(self) -> pin.Data:
+        """Scratch data of :attr:`model`."""
+        return self._pinocchio()[1]
+
+    @property
+    def base_frame_id(self) -> int:
+        return self._pinocchio()[2][0]
+
+    @property
+    def flange_frame_id(self) -> int:
+        return self._pinocchio()[2][1]
+
+    @property
+    def tool_frame_id(self) -> int:
+        return self._pinocchio()[2][2]
+
+    # ------------------------------------------------------------------ batch kinematics
+    # Inside, poses are held with the pose index last (R (3, 3, N), p (3, N)), so that every
+    # operation runs over contiguous rows of N values.
+    def _walk(self, Q: np.ndarray, frames: tuple | None = None):
+        """Pose of the last joint's frame (after its motion) at configurations Q (N, n), as
+        (R (3, 3, N), p (3, N)); with ``frames`` = (R_F (n + 1, 3, 3, N), p_F (n + 1, 3, N))
+        also store the frame of each joint placement (before the joint's motion) in its first
+        n entries."""
+        Qt = np.ascontiguousarray(np.asarray(Q, float).T)
+        N = Qt.shape[1]
+        cos_q, sin_q = np.cos(Qt), np.sin(Qt)
+        M = self.placements
+        R = np.empty((3, 3, N))
+        R[:] = M[0, :3, :3, None]
+        p = np.empty((3, N))
+        p[:] = M[0, :3, 3, None]
+        for k in range(self.n_joints):
+            if k:
+                p = p + np.matmul(M[k, :3, 3], R)
+                R = np.matmul(M[k, :3, :3].T, R)
+            if frames is not None:
+                frames[0][k] = R
+                frames[1][k] = p
+            if self.prismatic[k]:
+                p += Qt[k] * R[:, 2]
+            else:
+                c, s = cos_q[k], sin_q[k]
+                x = R[:, 0].copy()
+                R[:, 0] *= c
+                R[:, 0] += s * R[:, 1]
+                R[:, 1] *= c
+                R[:, 1] -= s * x
+        return R, p
+
+    @staticmethod
+    def _attach(R: np.ndarray, p: np.ndarray, T: np.ndarray):
+        """The pose (R (3, 3, N), p (3, N)) followed by the constant 4x4 T."""
+        return np.matmul(T[:3, :3].T, R), p + np.matmul(T[:3, 3], R)
 
     def frame_poses(self, Q: np.ndarray, frame: str = "tool") -> tuple[np.ndarray, np.ndarray]:
         """Poses of a frame ("tool", "flange" or "base") in the meas frame for configurations Q.
 
         Q : (N, n) joint values, radians / metres. Returns (R (N, 3, 3), p (N, 3) metres).
+        Computed in chunks of ``CHUNK`` poses: the memory beyond the outputs is bounded.
         """
-        fid = {"tool": self.tool_frame_id, "flange": self.flange_frame_id, "base": self.base_frame_id}[frame]
-        model, data = self.model, self.data
-        H = np.empty((len(Q), 4, 4))
-        for k, q in enumerate(self._padded(Q)):
-            pin.forwardKinematics(model, data, q)
-            H[k] = pin.updateFramePlacement(model, data, fid).homogeneous
-        return H[:, :3, :3], H[:, :3, 3]
+        Q = np.atleast_2d(np.asarray(Q, float))
+        N = len(Q)
+        if frame == "base":
+            T = self.base_placement
+            return np.repeat(T[None, :3, :3], N, axis=0), np.repeat(T[None, :3, 3], N, axis=0)
+        T = {"tool": self.placements[self.n_joints], "flange": self.flange_placement}[frame]
+        R, p = np.empty((N, 3, 3)), np.empty((N, 3))
+        for a in range(0, N, CHUNK):
+            Rc, pc = self._attach(*self._walk(Q[a:a + CHUNK]), T)
+            R[a:a + CHUNK] = Rc.transpose(2, 0, 1)
+            p[a:a + CHUNK] = pc.T
+        return R, p
 
-    def tool_poses_and_regressors(self, Q: np.ndarray):
-        """Tool poses and Pinocchio's kinematic regressor of the tool frame, per pose.
+    def poses_and_jacobian(self, Q: np.ndarray, columns: np.ndarray | None = None, *,
+                           transposed: bool = False):
+        """Tool poses and the identification Jacobian at configurations Q (N, n), rad / m.
 
-        The regressor is expressed in LOCAL_WORLD_ALIGNED: its first three rows are the
-        derivative of the tool position in the meas frame, its last three the differential
-        rotation in the meas frame, per unit twist of each placement (n joints + tool mount).
-        Returns (R (N, 3, 3), p (N, 3), regressors (N, 6, 6 (n + 1))).
+        columns : parameter indices of the wanted Jacobian columns, in the wanted order (default
+        all, in the order of the parameters).
+        Returns (R (N, 3, 3), p (N, 3) metres, J (N, 6, m)): J[:, :3] the derivative of the tool
+        position in the meas frame (metres per unit), J[:, 3:] the differential rotation of the
+        tool in the meas frame (radians per unit), ``R(x + dx) = exp([J[:, 3:] dx]) R(x)``.
+        With ``transposed`` J comes as Jt (m, 6, N), ``Jt[c, i, n] = J[n, i, c]``, the layout it
+        is computed in: ``Jt.reshape(m, -1)`` is the transposed stacked Jacobian with its rows
+        ordered component first (dx of every pose, then dy, ...), ready for ``Jt @ Jt.T``; pair
+        it with residuals laid out (6, N).
+        Computed in chunks of ``JACOBIAN_CHUNK`` poses: the memory beyond the outputs is bounded.
+
+        A right perturbation ``exp(xi)`` of the placement of frame F (R_F, p_F) moves the tool by
+        ``Ad xi`` about the tool point: ``Ad = [[R_F, [p_F - p_tool]x R_F], [0, R_F]]``.
         """
-        model, data, fid = self.model, self.data, self.tool_frame_id
-        Qp = self._padded(Q)
-        N = len(Qp)
-        H = np.empty((N, 4, 4))
-        reg = np.empty((N, 6, 6 * (self.n_joints + 1)))
-        for k, q in enumerate(Qp):
-            pin.forwardKinematics(model, data, q)
-            H[k] = pin.updateFramePlacement(model, data, fid).homogeneous
-            reg[k] = pin.computeFrameKinematicRegressor(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
-        return H[:, :3, :3], H[:, :3, 3], reg
+        if self.placement_twists is None:
+            self.set_values(self.values)
+        Q = np.atleast_2d(np.asarray(Q, float))
+        plan = self._column_plan(columns)
+        N, m = len(Q), plan[-1]
+        R, p = np.empty((N, 3, 3)), np.empty((N, 3))
+        J = np.empty((m, 6, N)) if transposed else np.empty((N, 6, m))
+        for a in range(0, N, JACOBIAN_CHUNK):
+            b = a + JACOBIAN_CHUNK
+            Rc, pc, Jc = self._jacobian_chunk(Q[a:b], plan)
+            R[a:b] = Rc.transpose(2, 0, 1)
+            p[a:b] = pc.T
+            if transposed:
+                J[:, :, a:b] = Jc
+            else:
+                J[a:b] = Jc.transpose(2, 1, 0)
+        return R, p, J
+
+    def _jacobian_chunk(self, Q, plan):
+        """Tool pose (R (3, 3, N), p (3, N)) and Jt (m, 6, N) of a chunk of poses.
+
+        All placements at once: Ad^T of every placement frame, (P, 6, 6, N), times the
+        placements' twist columns, (P, 6, w) padded to the widest placement."""
+        N = len(Q)
+        P = self.n_joints + 1
+        RF, pF = np.empty((P, 3, 3, N)), np.empty((P, 3, N))
+        R, p = self._attach(*self._walk(Q, (RF, pF)), self.placements[self.n_joints])
+        RF[-1], pF[-1] = R, p
+        D = pF - p
+        AdT = np.zeros((P, 6, 6, N))    # Ad transposed, AdT[k, j, i] = Ad_k[i, j]
+        R_T = RF.transpose(0, 2, 1, 3)
+        AdT[:, :3, :3] = R_T
+        AdT[:, 3:, 3:] = R_T
+        AdT[:, 3:, 0] = D[:, 1, None] * RF[:, 2] - D[:, 2, None] * RF[:, 1]
+        AdT[:, 3:, 1] = D[:, 2, None] * RF[:, 0] - D[:, 0, None] * RF[:, 2]
+        AdT[:, 3:, 2] = D[:, 0, None] * RF[:, 1] - D[:, 1, None] * RF[:, 0]
+        slot, param, out_col, width, m = plan
+        TWT = np.zeros((P * width, 6))
+        TWT[slot] = self.placement_twists.reshape(P, 6, -1)[slot // width, :, param]
+        X = np.matmul(TWT.reshape(P, width, 6), AdT.reshape(P, 6, 6 * N))   # (P, width, 6 N)
+        Jt = np.empty((m, 6, N))
+        Jt[out_col] = X.reshape(P * width, 6, N)[slot]
+        return R, p, Jt
+
+    def _column_plan(self, columns):
+        """Where each wanted parameter sits: (slot = placement * width + place in it, parameter,
+        output column, width = most wanted parameters of one placement, number of columns).
+        The plans of the last few column sets are kept (an LM run asks for the same ones)."""
+        columns = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
+        key = columns.tobytes()
+        plan = self._plans.get(key)
+        if plan is None:
+            plan = self._plans[key] = self._make_plan(columns)
+            if len(self._plans) > 8:
+                self._plans.pop(next(iter(self._plans)))
+        return plan
+
+    def _make_plan(self, columns):
+        out_col = np.full(self.n_params, -1)
+        out_col[columns] = np.arange(len(columns))
+        params = [ps[out_col[ps] >= 0] for ps in self._params_of]
+        width = max(1, max(len(ps) for ps in params))
+        slot = np.concatenate([k * width + np.arange(len(ps)) for k, ps in enumerate(params)])
+        param = np.concatenate(params)
+        return slot, param, out_col[param], width, len(columns)

@@ -10,12 +10,12 @@ from __future__ import annotations
 from typing import Mapping
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .errors import ParameterError
 from .kinematics import ChainKinematics
 from .measurements import Measurements
 from .robot import RobotModel
+from .spatial import rotation_from_rotvec
 
 #: Tables 4 and 5 of the paper: preset deviations of the BRTIRUS0707A parameters (SI units).
 PAPER_DEVIATIONS: dict[str, float] = {
@@ -77,6 +77,6 @@ def simulate_measurements(true_robot: RobotModel, Q: np.ndarray, *, sigma_pos: f
     if not position_only:
         rot = R
         if sigma_rot > 0:
-            rot = Rotation.from_rotvec(rng.normal(0.0, sigma_rot, (len(Q), 3))).as_matrix() @ R
+            rot = rotation_from_rotvec(rng.normal(0.0, sigma_rot, (len(Q), 3))) @ R
     return Measurements(q=np.asarray(Q, float), position=p, rotation=rot, sets=sets,
                         joint_names=true_robot.joint_names, prismatic=true_robot.prismatic)

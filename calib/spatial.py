@@ -1,14 +1,20 @@
 """Rigid transforms used by the error model: elementary screws, the ZYX transform of Eq. (3),
-and vectorised SO(3) log maps.
+vectorised conversions between rotation matrices, quaternions, ZYX angles and rotation vectors,
+and SO(3) log maps.
 
 Conventions: 4x4 homogeneous matrices ``T_a_b`` (pose of frame b in frame a), SI units.
 Twists are 6-vectors ``(v, w)``, linear part first, as in Pinocchio's ``Motion``.
+Quaternions are (w, x, y, z). ZYX angles are (alpha, beta, gamma): yaw about z, pitch about y,
+roll about x, ``R = Rz(alpha) Ry(beta) Rx(gamma)`` (scipy's intrinsic "ZYX" Euler angles).
+The conversions are plain numpy (scipy.spatial takes longer to import than the whole of a
+short calibration; the tests compare with it).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
-from scipy.spatial.transform import Rotation
 
 #: Unit twists of the elementary motions, indexed by name (linear part first).
 SCREWS: dict[str, np.ndarray] = {
@@ -42,16 +48,127 @@ def zyx_transform(x: float, y: float, z: float, alpha: float, beta: float, gamma
     alpha is the yaw about z, beta the pitch about y, gamma the roll about x (radians).
     """
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("ZYX", [alpha, beta, gamma]).as_matrix()
+    T[:3, :3] = rotation_from_zyx(np.array([alpha, beta, gamma], float))
     T[:3, 3] = (x, y, z)
     return T
 
 
 def zyx_parameters(T: np.ndarray) -> np.ndarray:
     """Inverse of :func:`zyx_transform`: ``(x, y, z, alpha, beta, gamma)`` of a 4x4 transform."""
-    with np.errstate(all="ignore"):
-        ang = Rotation.from_matrix(T[:3, :3]).as_euler("ZYX")
-    return np.concatenate([T[:3, 3], ang])
+    return np.concatenate([T[:3, 3], zyx_from_rotation(T[:3, :3])])
+
+
+def rotation_from_zyx(angles: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) ``Rz(alpha) Ry(beta) Rx(gamma)`` of ZYX angles (..., 3), rad."""
+    angles = np.asarray(angles, float)
+    if angles.ndim == 1:    # one rotation: scalar math is many times faster than array calls
+        (ca, cb, cg), (sa, sb, sg) = map(math.cos, angles), map(math.sin, angles)
+        return np.array([[ca * cb, ca * sb * sg - sa * cg, ca * sb * cg + sa * sg],
+                         [sa * cb, sa * sb * sg + ca * cg, sa * sb * cg - ca * sg],
+                         [-sb, cb * sg, cb * cg]])
+    ca, cb, cg = np.moveaxis(np.cos(angles), -1, 0)
+    sa, sb, sg = np.moveaxis(np.sin(angles), -1, 0)
+    R = np.empty(angles.shape[:-1] + (3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = ca * cb, ca * sb * sg - sa * cg, ca * sb * cg + sa * sg
+    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = sa * cb, sa * sb * sg + ca * cg, sa * sb * cg - ca * sg
+    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = -sb, cb * sg, cb * cg
+    return R
+
+
+def zyx_from_rotation(R: np.ndarray) -> np.ndarray:
+    """ZYX angles (..., 3) (alpha, beta, gamma), radians, of rotation matrices (..., 3, 3).
+
+    alpha and gamma in (-pi, pi], beta in [-pi/2, pi/2]. At gimbal lock (beta = +-pi/2, where
+    only alpha -+ gamma is defined) gamma is set to 0.
+    """
+    R = np.asarray(R, float)
+    if R.ndim == 2:         # one rotation, in scalar math
+        c = math.hypot(R[0, 0], R[1, 0])
+        if c < 1e-12:
+            return np.array([math.atan2(-R[0, 1], R[1, 1]), math.atan2(-R[2, 0], c), 0.0])
+        return np.array([math.atan2(R[1, 0], R[0, 0]), math.atan2(-R[2, 0], c), math.atan2(R[2, 1], R[2, 2])])
+    c = np.hypot(R[..., 0, 0], R[..., 1, 0])   # |cos beta|
+    beta = np.arctan2(-R[..., 2, 0], c)
+    lock = c < 1e-12
+    alpha = np.where(lock, np.arctan2(-R[..., 0, 1], R[..., 1, 1]), np.arctan2(R[..., 1, 0], R[..., 0, 0]))
+    gamma = np.where(lock, 0.0, np.arctan2(R[..., 2, 1], R[..., 2, 2]))
+    return np.stack([alpha, beta, gamma], axis=-1)
+
+
+def rotation_from_quaternion(wxyz: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of quaternions (..., 4) (w, x, y, z), normalised first."""
+    q = np.asarray(wxyz, float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    R = np.empty(q.shape[:-1] + (3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
+    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
+    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
+    return R
+
+
+def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions (n, 4) (w, x, y, z), w >= 0, of rotation matrices (n, 3, 3).
+
+    Shepperd's method: the largest of w, x, y, z is computed from the diagonal, the others from
+    it, so it is accurate for every angle up to pi.
+    """
+    R = np.asarray(R, float)
+    m00, m11, m22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
+    tr = m00 + m11 + m22
+    if np.all(tr >= np.maximum(np.maximum(m00, m11), m22)):
+        k = np.zeros(len(R), int)     # w the largest everywhere (the usual small turns)
+    else:
+        k = np.argmax(np.stack([tr, m00, m11, m22], axis=1), axis=1)
+    quat = np.empty((len(R), 4))
+    for branch in range(4):
+        i = k == branch
+        if not i.any():
+            continue
+        # all rows in one branch (rotations away from pi: the usual case) without a gather
+        Ri, q = (R, quat) if i.all() else (R[i], np.empty((int(i.sum()), 4)))
+        d0, d1, d2 = Ri[:, 0, 0], Ri[:, 1, 1], Ri[:, 2, 2]
+        if branch == 0:
+            s = np.sqrt(1.0 + d0 + d1 + d2) * 2.0
+            q[:, 0] = 0.25 * s
+            q[:, 1] = (Ri[:, 2, 1] - Ri[:, 1, 2]) / s
+            q[:, 2] = (Ri[:, 0, 2] - Ri[:, 2, 0]) / s
+            q[:, 3] = (Ri[:, 1, 0] - Ri[:, 0, 1]) / s
+        elif branch == 1:
+            s = np.sqrt(1.0 + d0 - d1 - d2) * 2.0
+            q[:, 0] = (Ri[:, 2, 1] - Ri[:, 1, 2]) / s
+            q[:, 1] = 0.25 * s
+            q[:, 2] = (Ri[:, 0, 1] + Ri[:, 1, 0]) / s
+            q[:, 3] = (Ri[:, 0, 2] + Ri[:, 2, 0]) / s
+        elif branch == 2:
+            s = np.sqrt(1.0 + d1 - d0 - d2) * 2.0
+            q[:, 0] = (Ri[:, 0, 2] - Ri[:, 2, 0]) / s
+            q[:, 1] = (Ri[:, 0, 1] + Ri[:, 1, 0]) / s
+            q[:, 2] = 0.25 * s
+            q[:, 3] = (Ri[:, 1, 2] + Ri[:, 2, 1]) / s
+        else:
+            s = np.sqrt(1.0 + d2 - d0 - d1) * 2.0
+            q[:, 0] = (Ri[:, 1, 0] - Ri[:, 0, 1]) / s
+            q[:, 1] = (Ri[:, 0, 2] + Ri[:, 2, 0]) / s
+            q[:, 2] = (Ri[:, 1, 2] + Ri[:, 2, 1]) / s
+            q[:, 3] = 0.25 * s
+        if q is not quat:
+            quat[i] = q
+    quat[quat[:, 0] < 0] *= -1.0
+    return quat
+
+
+def rotation_from_rotvec(v: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) ``exp([v])`` of rotation vectors (..., 3), radians."""
+    v = np.asarray(v, float)
+    th = np.linalg.norm(v, axis=-1)
+    small = th < 1e-6
+    ths = np.where(small, 1.0, th)
+    # sin(th) / th and (1 - cos th) / th^2, with their series near 0
+    a = np.where(small, 1.0 - th ** 2 / 6.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th ** 2 / 24.0, (1.0 - np.cos(ths)) / ths ** 2)
+    S = skew(v)
+    return np.eye(3) + a[..., None, None] * S + b[..., None, None] * (S @ S)
 
 
 def inverse(T: np.ndarray) -> np.ndarray:
@@ -87,34 +204,10 @@ def skew(w: np.ndarray) -> np.ndarray:
 def log3_batch(R: np.ndarray) -> np.ndarray:
     """Rotation vectors (n, 3), radians, of rotation matrices (n, 3, 3).
 
-    Through the unit quaternion (Shepperd's method: the largest of w, x, y, z is computed from
-    the diagonal, the others from it), so it is accurate for every angle up to pi.
+    Through the unit quaternion (:func:`quaternion_from_rotation`), so it is accurate for every
+    angle up to pi.
     """
-    R = np.asarray(R, float)
-    m00, m11, m22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
-    tr = m00 + m11 + m22
-    n = len(R)
-    quat = np.empty((n, 4))
-    cand = np.stack([tr, m00, m11, m22], axis=1)
-    k = np.argmax(cand, axis=1)
-    # w largest
-    i = k == 0
-    s = np.sqrt(1.0 + tr[i]) * 2.0
-    quat[i] = np.stack([0.25 * s, (R[i, 2, 1] - R[i, 1, 2]) / s, (R[i, 0, 2] - R[i, 2, 0]) / s,
-                        (R[i, 1, 0] - R[i, 0, 1]) / s], axis=1)
-    i = k == 1
-    s = np.sqrt(1.0 + m00[i] - m11[i] - m22[i]) * 2.0
-    quat[i] = np.stack([(R[i, 2, 1] - R[i, 1, 2]) / s, 0.25 * s, (R[i, 0, 1] + R[i, 1, 0]) / s,
-                        (R[i, 0, 2] + R[i, 2, 0]) / s], axis=1)
-    i = k == 2
-    s = np.sqrt(1.0 + m11[i] - m00[i] - m22[i]) * 2.0
-    quat[i] = np.stack([(R[i, 0, 2] - R[i, 2, 0]) / s, (R[i, 0, 1] + R[i, 1, 0]) / s, 0.25 * s,
-                        (R[i, 1, 2] + R[i, 2, 1]) / s], axis=1)
-    i = k == 3
-    s = np.sqrt(1.0 + m22[i] - m00[i] - m11[i]) * 2.0
-    quat[i] = np.stack([(R[i, 1, 0] - R[i, 0, 1]) / s, (R[i, 0, 2] + R[i, 2, 0]) / s,
-                        (R[i, 1, 2] + R[i, 2, 1]) / s, 0.25 * s], axis=1)
-    quat[quat[:, 0] < 0] *= -1.0
+    quat = quaternion_from_rotation(R)
     v = quat[:, 1:]
     nv = np.linalg.norm(v, axis=1)
     angle = 2.0 * np.arctan2(nv, quat[:, 0])

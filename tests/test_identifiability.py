@@ -73,3 +73,23 @@ def test_fixed_set_does_not_depend_on_the_start(bundled_robot):
     assert fixed[bundled_robot] == fixed[perturbed] == {"d3", "u_z", "u_alpha", "v_x", "v_z", "v_alpha", "v_gamma"}
     raw = set(perturbed.names) - set(calib.analyze_identifiability(perturbed, Q).identifiable)
     assert {"beta2", "u_gamma", "v_beta"} <= raw     # what the start-dependent choice would fix
+
+
+def test_repeated_analysis_comes_from_the_cache(bundled_robot):
+    from calib import identifiability
+
+    Q = bundled_robot.random_configurations(60, 11)
+    first = analyze_identifiability(bundled_robot, Q)
+    assert analyze_identifiability(bundled_robot, Q.copy()) is first
+    assert not first.singular_values.flags.writeable
+    # anything the analysis depends on makes another entry
+    moved = bundled_robot.with_changes(alpha2=0.01)
+    assert analyze_identifiability(moved, Q) is not first
+    assert analyze_identifiability(bundled_robot, Q[:-1]) is not first
+    assert analyze_identifiability(bundled_robot, Q, sigma_rot=0.004) is not first
+    assert analyze_identifiability(bundled_robot, Q, measure="position").rank == 25
+    # and the cached report is the one a fresh analysis gives
+    identifiability._cache.clear()
+    fresh = analyze_identifiability(bundled_robot, Q)
+    assert fresh is not first and fresh.identifiable == first.identifiable
+    np.testing.assert_array_equal(fresh.singular_values, first.singular_values)

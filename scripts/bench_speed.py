@@ -1,0 +1,359 @@
+"""Speed and scale of calibration (issue 14): the issue's table of targets and the scaling table.
+
+Prints, for the bundled robot (BRTIRUS0707A, the paper's deviations of Tables 4-5, noise
+0.02 mm / 0.002 rad, random poses within the joint limits):
+
+1. ``calib.calibrate()`` with its defaults on 100 poses (statistics included): median wall and
+   CPU time, and the search-lm solver alone on the prepared problem.
+2. FIGAROH's fit time on the same data over calib's, in one process, when FIGAROH can be
+   imported (``--figaroh`` names a Python that has it, e.g. a venv with
+   ``--system-site-packages`` and ``pip install figaroh``); otherwise a note, and the row is
+   skipped. FIGAROH fits its "full_params" model (six placement errors per joint, unknown base
+   and tool frames) with the same noise weights; both fits' RMS position errors on 200
+   validation poses are printed beside the times.
+3. The whole ``calib calibrate`` process (import, read, fit, report, URDF written) over
+   ``python -c "import pinocchio"``, medians of several runs after one to warm the caches, with
+   the bytecode cached as after an install.
+4. The scaling table, 100 / 1k / 10k / 100k / 1M poses up to ``--max-poses`` (default 100,000:
+   1M takes minutes and gigabytes with the current solver): wall time of ``calibrate()`` and its
+   peak memory above the loaded data (tracemalloc, which numpy reports its arrays to, started
+   after the data are made), each size in a fresh subprocess; then t(100k) / t(10k).
+5. With ``--study``, the 63 x 63 convergence study of scripts/reproduce_paper.py on 2 workers
+   (about a minute or more; skipped by default).
+
+Timings are medians; the targets are per core (one BLAS thread). On a loaded machine wall times
+grow with the load: the load average is printed with the figures, and CPU times beside them.
+
+Run: python scripts/bench_speed.py [--max-poses 100000] [--study] [--figaroh PYTHON]
+"""
+from __future__ import annotations
+
+import _bench  # noqa: F401  (one BLAS thread before numpy loads)
+
+import argparse
+import contextlib
+import io
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+URDF = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
+SIZES = (100, 1_000, 10_000, 100_000, 1_000_000)
+#: The issue's figures before the speed work (same machine class, unloaded).
+BEFORE = {"calibrate_100_ms": 25.0, "solver_100_ms": 12.0, "figaroh_ratio": 23.0,
+          "process_ratio": 3.2, "scaling_ratio": 28.0, "memory_100k_mb": 911.0, "study_s": 175.0}
+TARGET = {"calibrate_100_ms": 15.0, "figaroh_ratio": 30.0, "process_ratio": 2.0,
+          "scaling_ratio": 11.0, "memory_100k_mb": 100.0, "study_s": 60.0}
+
+
+#: Bytecode cache of the subprocesses: compiled once, as after an install (the environment may
+#: set PYTHONDONTWRITEBYTECODE, which would make every run compile calib from source).
+PYCACHE = Path(tempfile.gettempdir()) / "calib-bench-pycache"
+
+
+def _env() -> dict:
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               PYTHONPYCACHEPREFIX=str(PYCACHE))
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[var] = "1"
+    return env
+
+
+def problem(n: int, seed: int = 1):
+    """(nominal robot, simulated measurements of n poses)."""
+    import calib
+    from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+
+    robot = calib.load_robot(URDF)
+    true = apply_deviations(robot, PAPER_DEVIATIONS)
+    return robot, simulate_measurements(true, robot.random_configurations(n, seed), rng=seed + 1)
+
+
+# ---------------------------------------------------------------------- 1. calibrate, 100 poses
+def calibrate_100(repeats: int = 21) -> dict:
+    import numpy as np
+
+    import calib
+    from calib.calibration import search_lm
+    from calib.kinematics import ChainKinematics
+    from calib.solvers import LMOptions, LMTrace, Problem
+
+    robot, meas = problem(100)
+    wall = _bench.median_time(lambda: calib.calibrate(robot, meas), repeats)
+    cpu = _bench.median_time(lambda: calib.calibrate(robot, meas), repeats, clock=time.process_time)
+    free = calib.analyze_identifiability(robot, meas.q).identifiable
+    idx = robot.indices(free)
+    angular = np.array([robot.parameters[k].is_angular for k in idx])
+
+    def solver():
+        prob = Problem(ChainKinematics(robot), meas.q, meas.position, meas.rotation, robot.values, idx,
+                       2e-5, 2e-3)
+        search_lm(robot, prob, robot.values[idx], idx[angular], meas, LMOptions(), LMTrace())
+
+    return {"calibrate_ms": wall * 1e3, "calibrate_cpu_ms": cpu * 1e3,
+            "solver_ms": _bench.median_time(solver, repeats) * 1e3}
+
+
+# ---------------------------------------------------------------------- 2. FIGAROH
+FIGAROH_CONFIG = """
+robot:
+  name: brtirus0707a
+  properties:
+    joints:
+      active_joints: [{joints}]
+tasks:
+  calibration:
+    enabled: true
+    type: kinematic_calibration
+    parameters:
+      calibration_level: full_params
+      include_non_geometric: false
+    kinematics:
+      base_frame: universe
+      tool_frame: {tool}
+    measurements:
+      markers:
+        - name: tool
+          reference_joint: {last_joint}
+          measurable_dof: [true, true, true, true, true, true]
+      poses:
+        base_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        tool_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    data:
+      source_file: {data}
+      number_of_samples: {n}
+"""
+
+
+def figaroh_worker(repeats: int = 3) -> dict:
+    """In an interpreter with FIGAROH: its geometric calibration ("full_params": 6 placement
+    errors per joint, base and tool frames unknown, SE3 log-map residuals weighted by the same
+    sigma) and calib.calibrate() on the same 100 simulated poses, timed in the same process."""
+    import numpy as np
+    import pandas as pd
+    import pinocchio as pin
+    from figaroh.calibration.base_calibration import BaseCalibration
+    from figaroh.calibration.calibration_tools import calc_updated_fkm
+    from figaroh.tools.robot import Robot
+
+    import calib
+
+    robot, meas = problem(100)
+    validation = problem(200, seed=3)[1]
+
+    class Fit(BaseCalibration):
+        def __init__(self, figaroh_robot, config):
+            super().__init__(figaroh_robot, config)
+            self.calib_config["known_baseframe"] = False
+            self.calib_config["known_tipframe"] = False
+
+        def cost_function(self, var):
+            est = calc_updated_fkm(self.model, self.data, var, self.q_measured, self.calib_config)
+            return self.apply_measurement_weighting(self._compute_logmap_residuals(self.PEE_measured, est),
+                                                    pos_weight=1 / 2e-5, orient_weight=1 / 2e-3)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        data = Path(tmp) / "data.csv"
+        rpy = np.array([pin.rpy.matrixToRpy(R) for R in meas.rotation])
+        columns = {name: meas.q[:, i] for i, name in enumerate(robot.joint_names)}
+        columns.update({f"{a}1": meas.position[:, i] for i, a in enumerate("xyz")})
+        columns.update({f"phi{a}1": rpy[:, i] for i, a in enumerate("xyz")})
+        pd.DataFrame(columns).to_csv(data, index=False)
+        config = Path(tmp) / "config.yaml"
+        config.write_text(FIGAROH_CONFIG.format(joints=", ".join(robot.joint_names), tool=robot.tool_frame,
+                                                last_joint=robot.joint_names[-1], data=data, n=meas.n_poses))
+        fig_robot = Robot(str(URDF), package_dirs=str(URDF.parent))
+
+        def run():
+            fit = Fit(fig_robot, str(config))
+            fit.initialize()
+            fit.solve(enable_logging=False)
+            return fit
+
+        with contextlib.redirect_stdout(io.StringIO()):
+            fit = run()
+            fig_times = []
+            for _ in range(repeats):
+                t = time.perf_counter()
+                run()
+                fig_times.append(time.perf_counter() - t)
+        # accuracy of FIGAROH's fit on the validation poses (its model at its solution)
+        cfg = dict(fit.calib_config, NbSample=validation.n_poses)
+        est = calc_updated_fkm(fit.model, fit.data, fit.LM_result.x, validation.q, cfg).reshape(6, -1)
+        fig_rms = float(np.sqrt(np.mean(np.sum((est[:3].T - validation.position) ** 2, axis=1))))
+    calib_time = _bench.median_time(lambda: calib.calibrate(robot, meas), 11)
+    res = calib.calibrate(robot, meas, validation=validation)
+    import figaroh
+    return {"figaroh_s": statistics.median(fig_times), "calib_s": calib_time,
+            "figaroh_val_rms_mm": fig_rms * 1e3, "calib_val_rms_mm": res.validation_after.position["rms"] * 1e3,
+            "figaroh_version": getattr(figaroh, "__version__", "?")}
+
+
+def figaroh_ratio(python: str | None) -> dict | str:
+    """FIGAROH's fit time and calib's on the same data in one process (``python`` must import
+    figaroh), or why it is not measured."""
+    exe = python or sys.executable
+    probe = subprocess.run([exe, "-c", "import figaroh"], capture_output=True, text=True, env=_env())
+    if probe.returncode != 0:
+        last = (probe.stderr.strip().splitlines() or ["not found"])[-1]
+        return f"skipped: FIGAROH cannot be imported by {exe} ({last}); pass --figaroh PYTHON"
+    r = subprocess.run([exe, __file__, "--figaroh-worker"], capture_output=True, text=True, env=_env())
+    if r.returncode != 0:
+        return f"skipped: FIGAROH's fit failed ({(r.stderr.strip().splitlines() or ['?'])[-1]})"
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+# ---------------------------------------------------------------------- 3. process time
+def process_ratio(repeats: int = 7) -> dict:
+    import calib
+
+    robot, meas = problem(100)
+    with tempfile.TemporaryDirectory() as tmp:
+        csv = Path(tmp) / "m.csv"
+        calib.write_measurements(csv, meas)
+        cmd = [sys.executable, "-m", "calib", "calibrate", str(URDF), str(csv), "-o", str(Path(tmp) / "c.urdf")]
+        ref = [sys.executable, "-c", "import pinocchio"]
+        imp = [sys.executable, "-c", "import calib"]
+        out = {}
+        for name, argv in (("calibrate", cmd), ("pinocchio", ref), ("import_calib", imp)):
+            subprocess.run(argv, env=_env(), capture_output=True, cwd=tmp)   # warm the caches
+            times = []
+            for _ in range(repeats):
+                t = time.perf_counter()
+                r = subprocess.run(argv, env=_env(), capture_output=True, cwd=tmp)
+                times.append(time.perf_counter() - t)
+                if r.returncode not in (0, 3):
+                    raise RuntimeError(f"{' '.join(argv)} failed: {r.stderr.decode()[-500:]}")
+            out[name] = statistics.median(times)
+    return out
+
+
+# ---------------------------------------------------------------------- 4. scaling
+def one_size(n: int) -> dict:
+    """Time and peak memory of calibrate() on n poses (run in a fresh process)."""
+    import tracemalloc
+
+    import calib
+
+    robot, meas = problem(n)
+    repeats = 5 if n <= 1_000 else (3 if n <= 10_000 else 1)
+    times, cpu = [], []
+    for _ in range(repeats):
+        t, c = time.perf_counter(), time.process_time()
+        res = calib.calibrate(robot, meas)
+        times.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    tracemalloc.start()
+    calib.calibrate(robot, meas)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return {"n": n, "time_s": statistics.median(times), "cpu_s": statistics.median(cpu), "peak_mb": peak / 1e6,
+            "data_mb": (meas.q.nbytes + meas.position.nbytes + meas.rotation.nbytes) / 1e6,
+            "status": res.status}
+
+
+def scaling(max_poses: int) -> list[dict]:
+    rows = []
+    for n in SIZES:
+        if n > max_poses:
+            break
+        r = subprocess.run([sys.executable, __file__, "--one-size", str(n)], env=_env(),
+                           capture_output=True, text=True)
+        if r.returncode != 0:
+            raise RuntimeError(f"size {n} failed: {r.stderr[-1000:]}")
+        rows.append(json.loads(r.stdout.strip().splitlines()[-1]))
+        row = rows[-1]
+        print(f"  {n:>9,} poses  {row['time_s'] * 1e3:>10.1f} ms (CPU {row['cpu_s'] * 1e3:.1f} ms)"
+              f"  {row['time_s'] / n * 1e6:>7.1f} us/pose"
+              f"  peak {row['peak_mb']:>8.1f} MB ({row['peak_mb'] * 1e6 / n / 1e3:.2f} KB/pose)"
+              f"  data {row['data_mb']:.1f} MB  {row['status']}", flush=True)
+    return rows
+
+
+# ---------------------------------------------------------------------- 5. convergence study
+def convergence_study(grid: int = 63, workers: int = 2) -> float:
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import reproduce_paper
+
+    t = time.perf_counter()
+    reproduce_paper.run_convergence_study(grid, workers=workers)
+    return time.perf_counter() - t
+
+
+def _line(label: str, now: str, before: str, target: str) -> str:
+    return f"| {label} | {now} | {before} | {target} |"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--max-poses", type=int, default=100_000,
+                    help="largest size of the scaling table (default 100000; 1000000 for the 1M row)")
+    ap.add_argument("--study", action="store_true", help="also time the 63 x 63 convergence study")
+    ap.add_argument("--figaroh", metavar="PYTHON", help="a Python interpreter that can import figaroh")
+    ap.add_argument("--one-size", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--figaroh-worker", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.figaroh_worker:
+        print(json.dumps(figaroh_worker()))
+        return 0
+    if args.one_size:
+        print(json.dumps(one_size(args.one_size)))
+        return 0
+
+    print(f"machine: {_bench.machine()}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    c = calibrate_100()
+    print(f"calibrate(), 100 poses: median {c['calibrate_ms']:.2f} ms wall, {c['calibrate_cpu_ms']:.2f} ms CPU; "
+          f"search-lm solver alone {c['solver_ms']:.2f} ms")
+    fig = figaroh_ratio(args.figaroh)
+    if isinstance(fig, dict):
+        print(f"FIGAROH {fig['figaroh_version']}: fit {fig['figaroh_s'] * 1e3:.0f} ms, calib {fig['calib_s'] * 1e3:.1f} ms "
+              f"in the same process; validation RMS position error FIGAROH {fig['figaroh_val_rms_mm']:.4f} mm, "
+              f"calib {fig['calib_val_rms_mm']:.4f} mm")
+    else:
+        print(f"FIGAROH: {fig}")
+    p = process_ratio()
+    ratio = p["calibrate"] / p["pinocchio"]
+    print(f"process: calib calibrate {p['calibrate']:.3f} s, import calib {p['import_calib']:.3f} s, "
+          f"import pinocchio {p['pinocchio']:.3f} s")
+    print("scaling (calibrate() with its defaults, fresh process per size):")
+    rows = scaling(args.max_poses)
+    by_n = {r["n"]: r for r in rows}
+    scale = cpu_scale = None
+    if {10_000, 100_000} <= set(by_n):
+        scale = by_n[100_000]["time_s"] / by_n[10_000]["time_s"]
+        cpu_scale = by_n[100_000]["cpu_s"] / by_n[10_000]["cpu_s"]
+    study = convergence_study() if args.study else None
+
+    print()
+    print("| figure | now | before (issue 14) | target |")
+    print("|---|---|---|---|")
+    print(_line("`calibrate()` with its defaults, 100 poses, median",
+                f"{c['calibrate_ms']:.1f} ms (solver alone {c['solver_ms']:.1f} ms; CPU {c['calibrate_cpu_ms']:.1f} ms)",
+                f"{BEFORE['calibrate_100_ms']:g} ms (solver {BEFORE['solver_100_ms']:g} ms)",
+                f"<= {TARGET['calibrate_100_ms']:g} ms"))
+    print(_line("FIGAROH fit time / calib's", f"{fig['figaroh_s'] / fig['calib_s']:.0f}x" if isinstance(fig, dict)
+                else "not measured (see above)",
+                f"{BEFORE['figaroh_ratio']:g}x", f">= {TARGET['figaroh_ratio']:g}x"))
+    print(_line("`calib calibrate` process / `python -c \"import pinocchio\"`",
+                f"{ratio:.2f}x ({p['calibrate']:.2f} s; import calib {p['import_calib']:.2f} s)",
+                f"{BEFORE['process_ratio']:g}x", f"<= {TARGET['process_ratio']:g}x"))
+    print(_line("t(100k poses) / t(10k poses)", "not run" if scale is None else f"{scale:.1f} (CPU {cpu_scale:.1f})",
+                f"{BEFORE['scaling_ratio']:g}", f"<= {TARGET['scaling_ratio']:g}"))
+    mem = by_n.get(100_000)
+    print(_line("peak memory above the loaded data, 100k poses",
+                "not run" if mem is None else f"{mem['peak_mb']:.0f} MB",
+                f"{BEFORE['memory_100k_mb']:g} MB", f"<= {TARGET['memory_100k_mb']:g} MB"))
+    print(_line("63x63 convergence study, 2 workers", "not run (--study)" if study is None else f"{study:.0f} s",
+                f"{BEFORE['study_s']:g} s", f"<= {TARGET['study_s']:g} s"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,28 @@
+"""Closed-form frame estimate: exact recovery, also when accumulated over chunks of poses."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from calib.frames import estimate_frames
+from calib.simulate import simulate_measurements
+from calib.spatial import zyx_transform
+
+
+@pytest.mark.parametrize("chunk", [4096, 7])
+def test_frames_recovered_from_exact_data(bundled_robot, monkeypatch, chunk):
+    import calib.frames as frames
+
+    monkeypatch.setattr(frames, "CHUNK", chunk)
+    robot = bundled_robot
+    X = zyx_transform(0.8, -0.3, 0.2, 0.9, -0.4, 2.5)        # measurement device far away
+    Y = zyx_transform(0.01, 0.02, 0.15, 0.1, 0.2, -0.3)
+    true = replace(robot, T_meas_base_ref=X @ robot.T_meas_base_ref,
+                   T_flange_tool_ref=robot.T_flange_tool_ref @ Y)
+    meas = simulate_measurements(true, robot.random_configurations(30, 5), sigma_pos=0, sigma_rot=0)
+    X_est, Y_est = estimate_frames(robot, meas.q, meas.position, meas.rotation)
+    # noise-free data: the frames come back to rounding (1e-9 m, 1e-9 rad)
+    np.testing.assert_allclose(X_est, true.T_meas_base(), atol=1e-9)
+    np.testing.assert_allclose(Y_est, true.T_flange_tool(), atol=1e-9)

@@ -1,0 +1,58 @@
+"""The numpy rotation conversions of calib.spatial against scipy's Rotation."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from calib.spatial import (log3_batch, quaternion_from_rotation, rotation_from_quaternion,
+                           rotation_from_rotvec, rotation_from_zyx, zyx_from_rotation)
+
+
+@pytest.fixture(scope="module")
+def rotations():
+    rng = np.random.default_rng(7)
+    R = Rotation.random(200, random_state=rng)
+    # plus turns near pi, near identity and at gimbal lock (beta = +-pi/2)
+    extra = Rotation.from_rotvec(np.vstack([np.pi * np.eye(3), 1e-9 * np.eye(3)]))
+    lock = Rotation.from_euler("ZYX", [[0.3, np.pi / 2, 0.0], [0.0, -np.pi / 2, 0.2]])
+    return Rotation.concatenate([R, extra, lock])
+
+
+def test_quaternions(rotations):
+    R = rotations.as_matrix()
+    wxyz = quaternion_from_rotation(R)
+    ref = rotations.as_quat()[:, [3, 0, 1, 2]]
+    ref *= np.where(ref[:, :1] < 0, -1.0, 1.0)
+    # same sign convention (w >= 0); the pi turns have w = 0 and either sign of (x, y, z)
+    same = np.abs(wxyz[:, 0]) > 1e-9
+    np.testing.assert_allclose(wxyz[same], ref[same], atol=1e-15)
+    np.testing.assert_allclose(rotation_from_quaternion(wxyz), R, atol=1e-15)
+    # not normalised on input: scaled first
+    np.testing.assert_allclose(rotation_from_quaternion(3.0 * ref), R, atol=1e-15)
+
+
+def test_zyx_angles(rotations):
+    R = rotations.as_matrix()
+    ang = zyx_from_rotation(R)
+    np.testing.assert_allclose(rotation_from_zyx(ang), R, atol=1e-14)
+    regular = np.abs(np.abs(ang[:, 1]) - np.pi / 2) > 1e-6
+    with pytest.warns(UserWarning, match="Gimbal lock"):
+        ref = rotations.as_euler("ZYX")
+    np.testing.assert_allclose(ang[regular], ref[regular], atol=1e-14)
+    np.testing.assert_allclose(rotation_from_zyx(ref), R, atol=1e-14)
+    # gimbal lock: gamma set to 0
+    assert np.all(ang[~regular, 2] == 0.0) and (~regular).sum() == 2
+    # one matrix at a time (the scalar path) gives the same angles and matrices
+    for k in (0, 1, 2, len(R) - 2, len(R) - 1):
+        np.testing.assert_allclose(zyx_from_rotation(R[k]), ang[k], atol=1e-15)
+        np.testing.assert_allclose(rotation_from_zyx(ang[k]), rotation_from_zyx(ang[k:k + 1])[0], atol=1e-15)
+
+
+def test_rotation_vectors(rotations):
+    v = rotations.as_rotvec()
+    np.testing.assert_allclose(rotation_from_rotvec(v), rotations.as_matrix(), atol=1e-15)
+    tiny = np.array([[1e-9, -2e-9, 3e-10], [0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(rotation_from_rotvec(tiny), Rotation.from_rotvec(tiny).as_matrix(), atol=1e-18)
+    keep = np.linalg.norm(v, axis=1) < np.pi - 1e-9   # at pi the sign of the axis is free
+    np.testing.assert_allclose(log3_batch(rotations.as_matrix())[keep], v[keep], atol=1e-14)
