@@ -953,8 +953,7 @@ def _propagate(model: RobotModel, Q: np.ndarray, free: Sequence[str], C: np.ndar
     idx = model.indices(free)
     tr_p = tr_r = 0.0
     for s in range(0, len(Q), CHUNK_POSES):
-        _, _, J = pose_jacobian(kin, Q[s:s + CHUNK_POSES])
-        Jf = J[:, :, idx]
+        _, _, Jf = pose_jacobian(kin, Q[s:s + CHUNK_POSES], idx)
         JC = Jf @ C
         tr_p += float(np.einsum("nij,nij->", JC[:, :3], Jf[:, :3]))
         tr_r += float(np.einsum("nij,nij->", JC[:, 3:], Jf[:, 3:]))

@@ -201,8 +201,8 @@ class Problem:
         """(r, J): the weighted residual vector and its Jacobian (stacked over all poses; use
         :meth:`normal_equations` for large data)."""
         self.kin.set_values(self.full(x))
-        R, p, J = pose_jacobian(self.kin, self.Q)
-        return self._assemble(R, p, J[:, :, self.free], parts, slice(None))
+        R, p, J = pose_jacobian(self.kin, self.Q, self.free)
+        return self._assemble(R, p, J, parts, slice(None))
 
     def normal_equations(self, x: np.ndarray, parts: str = "pose") -> NormalEquations:
         """J^T J and J^T r at x, accumulated over chunks of poses (memory independent of N)."""
@@ -214,8 +214,8 @@ class Problem:
         rss = [0.0, 0.0]
         use_pos = parts in ("pose", "position")
         for sl in self._chunks():
-            R, p, J = pose_jacobian(self.kin, self.Q[sl])
-            r, Jw = self._assemble(R, p, J[:, :, self.free], parts, sl, flat=False)
+            R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free)
+            r, Jw = self._assemble(R, p, J, parts, sl, flat=False)
             k = r.shape[1]
             # columns of the per-pose blocks: 0:3 position (when used), the rest rotation
             npos = 3 if use_pos else 0

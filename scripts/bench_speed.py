@@ -81,9 +81,9 @@ def calibrate_100(repeats: int = 21) -> dict:
     import numpy as np
 
     import calib
-    from calib.calibration import search_lm
+    from calib.angles import RotationChain
     from calib.kinematics import ChainKinematics
-    from calib.solvers import LMOptions, LMTrace, Problem
+    from calib.solvers import LMOptions, LMTrace, Problem, search_lm
 
     robot, meas = problem(100)
     wall = _bench.median_time(lambda: calib.calibrate(robot, meas), repeats)
@@ -95,7 +95,7 @@ def calibrate_100(repeats: int = 21) -> dict:
     def solver():
         prob = Problem(ChainKinematics(robot), meas.q, meas.position, meas.rotation, robot.values, idx,
                        2e-5, 2e-3)
-        search_lm(robot, prob, robot.values[idx], idx[angular], meas, LMOptions(), LMTrace())
+        search_lm(prob, robot.values[idx], angular, RotationChain(robot), options=LMOptions(), trace=LMTrace())
 
     return {"calibrate_ms": wall * 1e3, "calibrate_cpu_ms": cpu * 1e3,
             "solver_ms": _bench.median_time(solver, repeats) * 1e3}
