@@ -36,6 +36,8 @@ def pose_jacobian(kin: ChainKinematics, Q: np.ndarray):
     R, p, reg = kin.tool_poses_and_regressors(Q)
     N, _, n6 = reg.shape
     J = (reg.reshape(N * 6, n6) @ kin.placement_twists).reshape(N, 6, -1)
+    if kin.compliance is not None:      # compliance columns (calib.compliance)
+        kin.compliance.fill_columns(J, np.atleast_2d(np.asarray(Q, float)))
     return R, p, J
 
 

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from .compliance import compliance_term
 from .robot import RobotModel
 from .spatial import to_se3
 
@@ -153,6 +154,7 @@ class ChainKinematics:
         self.tool_frame_id = model.addFrame(pin.Frame("tool", mount, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
         self.model = model
         self.data = model.createData()
+        self.compliance = compliance_term(robot)   # None without compliance (calib.compliance)
         self.set_values(robot.values)
 
     def set_values(self, values: np.ndarray, twists: bool = True) -> None:
@@ -175,8 +177,14 @@ class ChainKinematics:
         self.placement_twists = tw if twists else None
         self.values = values.copy()
 
-    def _padded(self, Q: np.ndarray) -> np.ndarray:
+    def effective(self, Q: np.ndarray) -> np.ndarray:
+        """(N, n) joint values the chain takes at commanded Q (N, n): Q itself, or with
+        compliance q + C tau(q) at the current values (:mod:`calib.compliance`)."""
         Q = np.atleast_2d(np.asarray(Q, float))
+        return Q if self.compliance is None else self.compliance.effective(Q, self.values)
+
+    def _padded(self, Q: np.ndarray) -> np.ndarray:
+        Q = self.effective(Q)
         return np.hstack([Q, np.zeros((len(Q), 1))])
 
     def frame_poses(self, Q: np.ndarray, frame: str = "tool") -> tuple[np.ndarray, np.ndarray]:
