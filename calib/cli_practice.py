@@ -242,7 +242,7 @@ def run_compensate(args) -> int:
         from .compliance import apply_record, read_compliance
 
         calibrated = apply_record(calibrated, read_compliance(args.compliance), payload=payload,
-                                  gravity=gravity, source=args.compliance)
+                                  gravity=gravity, torques_from=nominal, source=args.compliance)
         log.info("compliance from %s: %s", args.compliance, calibrated.describe().splitlines()[-1])
     elif payload is not None or gravity is not None:
         raise ParameterError("--payload-kg and --gravity need --compliance (the report or the "

@@ -303,14 +303,22 @@ def read_compliance(path: str | Path) -> ComplianceRecord:
 
 
 def apply_record(robot: RobotModel, record: ComplianceRecord, *, payload: Payload | None = None,
-                 gravity: Sequence[float] | None = None, source: str | Path = "compliance") -> RobotModel:
+                 gravity: Sequence[float] | None = None, torques_from: RobotModel | None = None,
+                 source: str | Path = "compliance") -> RobotModel:
     """``robot`` (geometry) with the record's compliances, and the record's payload and gravity
-    unless others are given (the payload may differ between calibration and use)."""
+    unless others are given (the payload may differ between calibration and use).
+
+    torques_from : the model whose URDF gives the torques (default ``robot``). Calibration
+    computes them on the nominal URDF; pass the nominal model to reproduce the calibrated model
+    exactly (the calibrated URDF's slightly different geometry changes the torques by ~1e-3 of
+    themselves, sub-micrometre at the tool)."""
     if tuple(record.joints) != robot.joint_names:
         raise ParameterError(f"{source}: the compliances are for joints {list(record.joints)}, the "
                              f"robot has {list(robot.joint_names)}")
-    return with_gravity(robot, payload=record.payload if payload is None else payload,
-                        gravity=record.gravity if gravity is None else gravity, values=record.values)
+    src = robot if torques_from is None else torques_from
+    gm = GravityModel.for_robot(src, payload=record.payload if payload is None else payload,
+                                gravity=record.gravity if gravity is None else gravity)
+    return robot.with_compliance(gm, record.values)
 
 
 def parse_triple(text: str, option: str, scale: float = 1.0) -> np.ndarray:
