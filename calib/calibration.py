@@ -1313,9 +1313,10 @@ def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,
     if not compliance:
         return tuple(n for n in free if n not in comp)
     unseen = [n for n in robot.compliance_names if n not in free]
-    if unseen:
-        notes.append(f"compliance not identifiable from these poses (no gravity torque, or tied to "
-                     f"the geometry), held at its value: {', '.join(unseen)}")
+    note = (f"compliance not identifiable from these poses (no gravity torque, or tied to "
+            f"the geometry), held at its value: {', '.join(unseen)}")
+    if unseen and note not in notes:
+        notes.append(note)
     return tuple(free)
 
 
