@@ -37,7 +37,7 @@ from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
                read_measurements, simulate_measurements, write_measurements)
-from .calibration import METHODS, format_accuracy_table
+from .calibration import _EDGE_UNITS, METHODS, format_accuracy_table
 from .fileio import atomic_write_bytes, check_not_input
 from .progress import working
 from .solvers import LOSSES
@@ -150,6 +150,13 @@ def _outlier_k(text: str) -> float | None:
 # ====================================================================== identifiability
 def cmd_identifiability(args) -> int:
     robot = _load(args)
+    payload, gravity = compliance_options(args)
+    if args.compliance:
+        from .compliance import with_gravity
+
+        robot = with_gravity(robot, payload=payload, gravity=gravity)
+    elif payload is not None or gravity is not None:
+        raise ParameterError("--payload-kg and --gravity only matter with --compliance")
     report = analyze_identifiability(robot, measure=args.measure, n_poses=args.poses, seed=args.seed)
     if args.json:
         out = {"robot": str(args.robot), "urdf": str(robot.urdf_path),
@@ -164,7 +171,7 @@ def cmd_identifiability(args) -> int:
              f"joint limits (seed {args.seed})", "",
              f"{'parameter':<10}{'unit':>5}  {'of':<14}{'identifiable':<13}tied to"]
     for p in robot.parameters:
-        of = (robot.joints[p.joint - 1].name if p.group == "joint"
+        of = (robot.joints[p.joint - 1].name if p.group in ("joint", "compliance")
               else {"u": "meas->base", "v": "flange->tool"}[p.group])
         r = tied.get(p.name)
         if r is None:
@@ -173,7 +180,7 @@ def cmd_identifiability(args) -> int:
             status, partners = "no", " ".join(f"{c:+.4g}*{n}" for n, c in r.partners)
         else:
             status, partners = "no", f"({r.reason})"
-        lines.append(f"{p.name:<10}{'mm' if p.unit == 'm' else 'rad':>5}  {of:<14}{status:<13}"
+        lines.append(f"{p.name:<10}{_EDGE_UNITS[p.unit][0]:>5}  {of:<14}{status:<13}"
                      f"{partners}".rstrip())
     lines += ["", report.format(), ""]
     sys.stdout.write("\n".join(lines))
@@ -283,8 +290,6 @@ def cmd_simulate(args) -> int:
              f"  true model: deviations from {described}" +
              (f", written to {out_truth}" if out_truth else ""), "",
              f"{'parameter':<10}{'unit':>5}{'deviation':>14}"]
-    from .calibration import _EDGE_UNITS
-
     for p in robot.parameters:
         if p.name in deviations:
             unit, scale = _EDGE_UNITS[p.unit]
@@ -555,6 +560,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print one JSON object (n_params, rank, identifiable, unidentifiable with "
                         "tied partners, condition_number, observability, ...)")
     add_frames(p)
+    add_compliance(p, "calibrate")
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_identifiability)
 

@@ -147,9 +147,10 @@ def add_compliance(p: argparse.ArgumentParser, role: str) -> None:
     g = p.add_argument_group("joint compliance under gravity (q + c_i tau_i(q))")
     if role == "calibrate":
         g.add_argument("--compliance", action="store_true",
-                       help="also identify the joint compliances c<i> (urad/(N m); um/N prismatic) "
-                            "under the gravity torque of the links (URDF inertias) and the payload; "
-                            "they go to the report and to CALIBRATED.compliance.json beside the URDF")
+                       help="joint compliances c<i> (urad/(N m); um/N prismatic) under the gravity "
+                            "torque of the links (URDF inertias) and the payload: calibrate "
+                            "identifies them (into the report and CALIBRATED.compliance.json beside "
+                            "the URDF), identifiability says which the poses can see")
     elif role == "compensate":
         g.add_argument("--compliance", metavar="REPORT.json|SIDECAR.json", default=None,
                        help="correct for joint compliance too: the JSON report of calib calibrate "
