@@ -27,6 +27,7 @@ from .urdf import RecordedFrames
 from .report import build_report, render_html
 from .poses import PoseDesign, design_poses, select_poses
 from .compensation import CompensationResult, compensate, compensate_poses
+from .compliance import GravityModel, Payload
 
 __all__ = [
     "CalibError", "ChainError", "DataError", "FrameNotFound", "MeasurementFormatError",
@@ -41,4 +42,5 @@ __all__ = [
     "write_calibrated_urdf", "check_writable", "RecordedFrames", "build_report", "render_html",
     "PoseDesign", "design_poses", "read_poses", "select_poses", "write_poses",
     "CompensationResult", "compensate", "compensate_poses",
+    "GravityModel", "Payload",
 ]

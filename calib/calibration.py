@@ -42,6 +42,7 @@ from .identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability
 from .jacobian import pose_jacobian
 from .kinematics import ChainKinematics
 from .measurements import Measurements
+from .compliance import URDF_NOTE
 from .robot import RobotModel
 from .solvers import (CHI2_ESCAPE, CHUNK_POSES, LOSSES, LMOptions, LMTrace, NormalEquations, Problem,
                       SolverResult, cross_lm, levenberg_marquardt, search_lm)
@@ -404,10 +405,26 @@ class CalibrationResult:
         raise ParameterError(f"unknown parameter {name!r}")
 
     def write_urdf(self, path: str | Path) -> None:
-        """Write the calibrated model as a URDF (see :func:`calib.urdf_writer.write_calibrated_urdf`)."""
+        """Write the calibrated model as a URDF (see :func:`calib.urdf_writer.write_calibrated_urdf`).
+
+        The URDF holds the geometry; with compliance, the compliances go to the sidecar
+        :func:`calib.compliance.sidecar_path` beside it (:func:`calib.compliance.write_sidecar`)."""
         from .urdf_writer import write_calibrated_urdf
 
-        write_calibrated_urdf(self.robot, path, nominal=self.nominal)
+        write_calibrated_urdf(self.robot.geometry(), path, nominal=self.nominal.geometry())
+        if self.robot.has_compliance:
+            from .compliance import sidecar_path, write_sidecar
+
+            write_sidecar(sidecar_path(path), self.compliance_record())
+
+    def compliance_record(self) -> dict | None:
+        """The compliances with their std, payload and gravity (:func:`calib.compliance.compliance_record`),
+        None for a model without compliance."""
+        if not self.robot.has_compliance:
+            return None
+        from .compliance import compliance_record
+
+        return compliance_record(self.robot, {p.name: p.std for p in self.parameters if p.free})
 
     def to_dict(self) -> dict:
         """JSON-ready report: keys status, before, after, validation, parameters, noise, ..."""
@@ -448,7 +465,8 @@ class CalibrationResult:
                 "rotation_rad": ph["rotation_rms"] if has_rot else None},
             "cross_validation": None if self.cross_validation is None else self.cross_validation.to_dict(),
             "model_selection": None if self.selection is None else self.selection.to_dict(),
-            "parameters": [{"name": p.name, "unit": "mm" if p.unit == "m" else "rad",
+            "compliance": self.compliance_record(),
+            "parameters": [{"name": p.name, "unit": _unit(p.unit),
                             "nominal": _out(p.nominal, p.unit), "identified": _out(p.identified, p.unit),
                             "deviation": _out(p.deviation, p.unit),
                             "std": None if math.isnan(p.std) else _out(p.std, p.unit),
@@ -480,8 +498,10 @@ class CalibrationResult:
         if self.selection is not None:
             lines += ["", self.selection.format()]
         lines += ["", f"{'parameter':<10}{'unit':>5}{'nominal':>14}{'identified':>14}{'deviation':>13}{'std':>11}"]
+        if self.robot.has_compliance:
+            lines.insert(-1, f"  note: {URDF_NOTE}")
         for p in self.parameters:
-            unit = "mm" if p.unit == "m" else "rad"
+            unit = _unit(p.unit)
             std = "fixed" if not p.free else f"{_out(p.std, p.unit):.3g}"
             lines.append(f"{p.name:<10}{unit:>5}{_out(p.nominal, p.unit):>14.6f}"
                          f"{_out(p.identified, p.unit):>14.6f}{_out(p.deviation, p.unit):>13.6f}{std:>11}")
@@ -513,8 +533,17 @@ class CalibrationResult:
         return "\n".join(lines)
 
 
+#: Units at the edges (tables, JSON) for each SI unit of a parameter, and the factor from SI.
+_EDGE_UNITS = {"m": ("mm", 1e3), "rad": ("rad", 1.0), "rad/(N m)": ("urad/(N m)", 1e6),
+               "m/N": ("um/N", 1e6)}
+
+
 def _out(value: float, unit: str) -> float:
-    return value * 1e3 if unit == "m" else value
+    return value * _EDGE_UNITS[unit][1]
+
+
+def _unit(unit: str) -> str:
+    return _EDGE_UNITS[unit][0]
 
 
 def format_accuracy_table(rows: Sequence[tuple[str, AccuracyStats]]) -> str:
@@ -705,7 +734,7 @@ def candidate_sets(robot: RobotModel, identifiable: Sequence[str]) -> list[tuple
         prismatic = robot.joints[p.joint - 1].is_prismatic
         return p.kind == ("d" if prismatic else "theta")
 
-    steps = [("offsets+frames", lambda p: p.group in ("u", "v") or offset(p)),
+    steps = [("offsets+frames", lambda p: p.group in ("u", "v", "compliance") or offset(p)),
              ("+lengths", lambda p: p.kind in ("d", "a")),
              ("+twists", lambda p: p.kind in ("alpha", "beta"))]
     out, chosen = [], set()
@@ -1097,7 +1126,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
               sigma_rot: float | None = None, *, init_frames: bool | str = "auto",
               max_rounds: int = 20, fixed_rounds: int | None = None, options: LMOptions | None = None,
               validation: Measurements | None = None, loss: str = "linear", loss_scale: float = 3.0,
-              outlier_k: float | None = 5.0, cv: int | None = None) -> CalibrationResult:
+              outlier_k: float | None = 5.0, cv: int | None = None, compliance: bool = False,
+              payload=None, gravity: Sequence[float] | None = None) -> CalibrationResult:
     """Identify the TM-MDH parameters of ``robot`` from ``measurements``.
 
     Parameters
@@ -1137,6 +1167,12 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         None disables the check.
     cv : folds of the cross-validation run when there are no validation rows (default
         CV_FOLDS = 5; 0 turns it off).
+    compliance : also identify the joint compliances ``c<i>`` under gravity (rad/(N m), m/N
+        prismatic; :mod:`calib.compliance`): the identifiable ones join the free set. payload :
+        a :class:`calib.compliance.Payload` (kg, centre of mass in the tool frame) carried during
+        the measurements; gravity : (3,) m/s^2 in the URDF root frame (default -9.80665 along z).
+        A ``robot`` that already has compliances (:meth:`RobotModel.with_compliance`) keeps them
+        fixed unless ``compliance`` is True.
 
     Returns a :class:`CalibrationResult`; a fit that did not converge is reported in its
     ``status``, never raised. Raises :class:`calib.CalibError` for unusable input.
@@ -1157,7 +1193,22 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     if validation is not None and not isinstance(validation, Measurements):
         raise ParameterError(f"validation must be a Measurements, got {type(validation).__name__}")
     opts = options or LMOptions()
+    if not isinstance(compliance, bool):
+        raise ParameterError(f"compliance must be True or False, got {compliance!r}")
+    pre_notes: list[str] = []
+    if compliance or payload is not None or gravity is not None:
+        from .compliance import with_gravity
+
+        if not (compliance or robot.has_compliance):
+            raise ParameterError("a payload or gravity only matters for joint compliance: pass compliance=True")
+        robot = with_gravity(robot, payload=payload if payload is not None else
+                             (robot.gravity.payload if robot.has_compliance else None),
+                             gravity=gravity if gravity is not None else
+                             (robot.gravity.gravity if robot.has_compliance else None))
+        if robot.gravity.note:
+            pre_notes.append(robot.gravity.note)
     setup, notes = prepare(robot, measurements, validation, init_frames)
+    notes = pre_notes + notes
     start, cal, val = setup.start, setup.cal, setup.val
     if setup.measure == "position" and method != "lm":
         notes.append(f"position-only data: {method.upper()} needs orientations for its angle step; ran LM")
@@ -1171,7 +1222,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     want = params
     ident = None
     if params is None or (isinstance(params, str) and params.strip().lower() == "auto"):
-        ident = identifiable_set(start, cal.q, setup.measure, *weights)
+        ident = _compliance_filter(start, identifiable_set(start, cal.q, setup.measure, *weights),
+                                   compliance, notes)
         per_param = cal.n_poses * setup.components_per_pose / max(len(ident), 1)
         if params is None:
             want = "auto" if per_param < AUTO_BELOW_COMPONENTS_PER_PARAM else "base"
@@ -1206,6 +1258,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         log.info("model selection: %s", selection.chosen)
     else:
         label, free = select_parameters(start, want, cal.q, setup.measure, *weights)
+        if label in PARAM_SETS:     # a named set; a list of names is honoured as given
+            free = _compliance_filter(start, free, compliance, notes)
         solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds)
         fit, problem = fit_stage(setup, free, solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss=loss,
                                  loss_scale=loss_scale, outlier_k=outlier_k, kin=kin)
@@ -1258,6 +1312,23 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         outliers=fit.outliers, loss=loss, noise=nz, predicted_holdout=stats.predicted_holdout,
         cross_validation=cross, selection=selection, before_registered=breg,
         validation_before_registered=vbreg)
+
+
+def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,
+                       notes: list) -> tuple[str, ...]:
+    """``free`` without the compliance parameters unless ``compliance``; with it, a note naming
+    the compliances not in ``free`` (the identifiable set leaves out those the data cannot see)."""
+    comp = set(robot.compliance_names)
+    if not comp:
+        return tuple(free)
+    if not compliance:
+        return tuple(n for n in free if n not in comp)
+    unseen = [n for n in robot.compliance_names if n not in free]
+    note = (f"compliance not identifiable from these poses (no gravity torque, or tied to "
+            f"the geometry), held at its value: {', '.join(unseen)}")
+    if unseen and note not in notes:
+        notes.append(note)
+    return tuple(free)
 
 
 def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> tuple[ParameterEstimate, ...]:

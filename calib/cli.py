@@ -31,13 +31,13 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .cli_args import (HelpFormatter, add_file_format, add_frames, count, nonnegative, positive,
-                       positive_int, print_notes, read_options)
+from .cli_args import (HelpFormatter, add_compliance, add_file_format, add_frames, compliance_options,
+                       count, nonnegative, positive, positive_int, print_notes, read_options)
 from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
                read_measurements, simulate_measurements, write_measurements)
-from .calibration import METHODS, format_accuracy_table
+from .calibration import _EDGE_UNITS, METHODS, format_accuracy_table
 from .fileio import atomic_write_bytes, check_not_input
 from .progress import working
 from .solvers import LOSSES
@@ -150,6 +150,13 @@ def _outlier_k(text: str) -> float | None:
 # ====================================================================== identifiability
 def cmd_identifiability(args) -> int:
     robot = _load(args)
+    payload, gravity = compliance_options(args)
+    if args.compliance:
+        from .compliance import with_gravity
+
+        robot = with_gravity(robot, payload=payload, gravity=gravity)
+    elif payload is not None or gravity is not None:
+        raise ParameterError("--payload-kg and --gravity only matter with --compliance")
     report = analyze_identifiability(robot, measure=args.measure, n_poses=args.poses, seed=args.seed)
     if args.json:
         out = {"robot": str(args.robot), "urdf": str(robot.urdf_path),
@@ -164,7 +171,7 @@ def cmd_identifiability(args) -> int:
              f"joint limits (seed {args.seed})", "",
              f"{'parameter':<10}{'unit':>5}  {'of':<14}{'identifiable':<13}tied to"]
     for p in robot.parameters:
-        of = (robot.joints[p.joint - 1].name if p.group == "joint"
+        of = (robot.joints[p.joint - 1].name if p.group in ("joint", "compliance")
               else {"u": "meas->base", "v": "flange->tool"}[p.group])
         r = tied.get(p.name)
         if r is None:
@@ -173,7 +180,7 @@ def cmd_identifiability(args) -> int:
             status, partners = "no", " ".join(f"{c:+.4g}*{n}" for n, c in r.partners)
         else:
             status, partners = "no", f"({r.reason})"
-        lines.append(f"{p.name:<10}{'mm' if p.unit == 'm' else 'rad':>5}  {of:<14}{status:<13}"
+        lines.append(f"{p.name:<10}{_EDGE_UNITS[p.unit][0]:>5}  {of:<14}{status:<13}"
                      f"{partners}".rstrip())
     lines += ["", report.format(), ""]
     sys.stdout.write("\n".join(lines))
@@ -239,6 +246,12 @@ def cmd_simulate(args) -> int:
     out_truth = outputs.add(args.truth_urdf) if args.truth_urdf else None
 
     robot = _load(args)
+    payload, gravity = compliance_options(args)
+    if payload is not None or gravity is not None or dev_file is not None:
+        # compliance parameters c<i> (zero unless the deviations name them; calib.compliance)
+        from .compliance import with_gravity
+
+        robot = with_gravity(robot, payload=payload, gravity=gravity)
     rng = np.random.default_rng(args.seed)
     deviations, described = _deviations(args.deviations, robot, rng)
     true_robot = apply_deviations(robot, deviations)
@@ -255,6 +268,9 @@ def cmd_simulate(args) -> int:
                   else "noise " + ", ".join(noise) + " per axis")
     if args.unmodelled_rad > 0:
         noise_text += f"; unmodelled joint error up to {args.unmodelled_rad:g} rad"
+    if robot.has_compliance and payload is not None:
+        noise_text += (f"; payload {payload.mass:g} kg at ({', '.join(f'{x * 1e3:g}' for x in payload.com_tool)}) "
+                       f"mm in the tool frame")
     command = " ".join(shlex.quote(a) for a in ["calib", *args.argv])
     comment = (f"Simulated by: {command}\n"
                f"True model: {args.robot} with deviations from {described}; {noise_text}; "
@@ -263,7 +279,8 @@ def cmd_simulate(args) -> int:
     if out_truth is not None:
         from .urdf_writer import write_calibrated_urdf
 
-        outputs.stage_from_file(out_truth, lambda p: write_calibrated_urdf(true_robot, p, nominal=robot))
+        outputs.stage_from_file(out_truth, lambda p: write_calibrated_urdf(
+            true_robot.geometry(), p, nominal=robot.geometry()))
     outputs.commit()
 
     counts = (f"{n_cal} calibration (set=cal) + {n_val} validation (set=val) poses" if n_val
@@ -275,9 +292,8 @@ def cmd_simulate(args) -> int:
              f"{'parameter':<10}{'unit':>5}{'deviation':>14}"]
     for p in robot.parameters:
         if p.name in deviations:
-            scale = 1e3 if p.unit == "m" else 1.0
-            lines.append(f"{p.name:<10}{'mm' if p.unit == 'm' else 'rad':>5}"
-                         f"{deviations[p.name] * scale:>14.6g}")
+            unit, scale = _EDGE_UNITS[p.unit]
+            lines.append(f"{p.name:<10}{unit:>5}{deviations[p.name] * scale:>14.6g}")
     sys.stdout.write("\n".join(lines) + "\n")
     return EXIT_OK
 
@@ -300,6 +316,14 @@ def cmd_calibrate(args) -> int:
             plot_paths[name] = outputs.add(Path(args.plots) / name, make_folder=True)
 
     robot = _load(args)
+    payload, gravity = compliance_options(args)
+    if (payload is not None or gravity is not None) and not args.compliance:
+        raise ParameterError("--payload-kg and --gravity only matter with --compliance")
+    out_sidecar = None
+    if args.compliance:
+        from .compliance import sidecar_path
+
+        out_sidecar = outputs.add(sidecar_path(out_urdf))
     frames = check_writable(robot)     # what cannot be written is refused before the fit
     log.info("the calibrated URDF will hold tool frame %r in base frame %r", frames.tool_frame,
              frames.base_frame)
@@ -312,7 +336,8 @@ def cmd_calibrate(args) -> int:
             result = calibrate(robot, meas, method=args.method, params=args.params,
                                sigma_pos=None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3,
                                sigma_rot=args.sigma_rot_rad, validation=validation, loss=args.loss,
-                               outlier_k=args.outlier_k, cv=args.cv)
+                               outlier_k=args.outlier_k, cv=args.cv, compliance=args.compliance,
+                               payload=payload, gravity=gravity)
     except DataError as exc:  # about the data as a whole (too few poses): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
@@ -322,8 +347,10 @@ def cmd_calibrate(args) -> int:
 
     written_frames = []
     outputs.stage_from_file(out_urdf, lambda p: written_frames.append(
-        write_calibrated_urdf(result.robot, p, nominal=result.nominal)))
+        write_calibrated_urdf(result.robot.geometry(), p, nominal=result.nominal.geometry())))
     frames = written_frames[0]
+    if out_sidecar is not None:
+        outputs.stage(out_sidecar, _json_text(result.compliance_record()))
     text = result.format()
     images = {}
     if plot_paths or out_html is not None:
@@ -349,7 +376,7 @@ def cmd_calibrate(args) -> int:
             outputs.stage(path, images[name])
     outputs.commit()
 
-    written = [out_urdf] + [p for p in (out_report, out_html) if p is not None] + \
+    written = [out_urdf] + [p for p in (out_sidecar, out_report, out_html) if p is not None] + \
               [p for p in plot_paths.values() if p in outputs.data]
     sys.stdout.write(text + "\n\nwrote " + ", ".join(str(p) for p in written) + "\n"
                      + f"{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in "
@@ -533,6 +560,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print one JSON object (n_params, rank, identifiable, unidentifiable with "
                         "tied partners, condition_number, observability, ...)")
     add_frames(p)
+    add_compliance(p, "calibrate")
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_identifiability)
 
@@ -562,6 +590,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write the true model as a URDF (a copy of ROBOT.urdf with its joint "
                         "origins changed)")
     add_frames(p)
+    add_compliance(p, "simulate")
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_simulate)
 
@@ -607,6 +636,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the plots embedded; no external links) for a person or a customer")
     add_file_format(p, tracker=True)
     add_frames(p)
+    add_compliance(p, "calibrate")
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_calibrate)
 

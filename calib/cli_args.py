@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import math
 
+import numpy as np
+
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
     """Keeps the description's line breaks; appends "(default: ...)" where there is one."""
@@ -136,3 +138,49 @@ def print_notes(notes, prog: str = "calib") -> None:
 
     for note in notes:
         sys.stderr.write(f"{prog}: note: {' '.join(str(note).split())}\n")
+
+
+def add_compliance(p: argparse.ArgumentParser, role: str) -> None:
+    """The joint-compliance options (calib.compliance), in their own help group. ``role``:
+    "calibrate" (--compliance is a flag), "compensate" (--compliance FILE) or "simulate" (no
+    --compliance: the --deviations JSON names c<i>)."""
+    g = p.add_argument_group("joint compliance under gravity (q + c_i tau_i(q))")
+    if role == "calibrate":
+        g.add_argument("--compliance", action="store_true",
+                       help="joint compliances c<i> (urad/(N m); um/N prismatic) under the gravity "
+                            "torque of the links (URDF inertias) and the payload: calibrate "
+                            "identifies them (into the report and CALIBRATED.compliance.json beside "
+                            "the URDF), identifiability says which the poses can see")
+    elif role == "compensate":
+        g.add_argument("--compliance", metavar="REPORT.json|SIDECAR.json", default=None,
+                       help="correct for joint compliance too: the JSON report of calib calibrate "
+                            "--compliance, or the CALIBRATED.compliance.json written beside the URDF")
+    g.add_argument("--payload-kg", metavar="M", default=None,
+                   help="payload mass, kg (default: the one in the compliance file, else none)")
+    g.add_argument("--payload-com-mm", metavar="X,Y,Z", default=None,
+                   help="payload centre of mass in the tool frame, mm (default 0,0,0)")
+    g.add_argument("--gravity", metavar="X,Y,Z", default=None,
+                   help="gravity in the URDF root frame, m/s^2 (default 0,0,-9.80665)")
+
+
+def compliance_options(args):
+    """(payload or None, gravity (3,) or None) from the options of :func:`add_compliance`;
+    :class:`calib.ParameterError` naming the option for bad values."""
+    from .compliance import Payload, parse_triple
+    from .errors import ParameterError
+
+    payload = None
+    if args.payload_kg is not None:
+        try:
+            mass = float(args.payload_kg)
+        except ValueError:
+            raise ParameterError(f"--payload-kg {args.payload_kg!r}: expected a mass in kg") from None
+        if not (math.isfinite(mass) and mass >= 0):
+            raise ParameterError(f"--payload-kg {args.payload_kg}: expected a finite mass >= 0 kg")
+        com = (np.zeros(3) if args.payload_com_mm is None
+               else parse_triple(args.payload_com_mm, "--payload-com-mm", 1e-3))
+        payload = Payload(mass, com)
+    elif args.payload_com_mm is not None:
+        raise ParameterError("--payload-com-mm without --payload-kg: give the payload mass too")
+    gravity = None if args.gravity is None else parse_triple(args.gravity, "--gravity")
+    return payload, gravity

@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_args import (HelpFormatter, add_file_format, add_frames, count, nonnegative, positive,
-                       positive_int, print_notes, read_options)
+from .cli_args import (HelpFormatter, add_compliance, add_file_format, add_frames, compliance_options,
+                       count, nonnegative, positive, positive_int, print_notes, read_options)
 from .compensation import SINGULAR_THRESHOLD, compensate, compensate_poses, load_compensation_models
-from .errors import CalibError
+from .errors import CalibError, ParameterError
 from .fileio import check_not_input
 from .formats import read_targets, write_compensation, write_poses
 from .poses import CRITERIA, design_poses
@@ -225,6 +225,7 @@ def add_compensate_parser(subparsers) -> argparse.ArgumentParser:
                             "pose targets are given (default: the root link)",
                tool_help="link (or joint) of NOMINAL.urdf whose pose is targeted (default: the "
                          "last link before the tree branches)")
+    add_compliance(p, "compensate")
     _add_verbose(p)
     p.set_defaults(func=run_compensate)
     return p
@@ -236,6 +237,16 @@ def run_compensate(args) -> int:
     calibrated, nominal = load_compensation_models(args.calibrated, args.nominal,
                                                    base_frame=args.base_frame,
                                                    tool_frame=args.tool_frame)
+    payload, gravity = compliance_options(args)
+    if args.compliance is not None:
+        from .compliance import apply_record, read_compliance
+
+        calibrated = apply_record(calibrated, read_compliance(args.compliance), payload=payload,
+                                  gravity=gravity, torques_from=nominal, source=args.compliance)
+        log.info("compliance from %s: %s", args.compliance, calibrated.describe().splitlines()[-1])
+    elif payload is not None or gravity is not None:
+        raise ParameterError("--payload-kg and --gravity need --compliance (the report or the "
+                             "compliance sidecar of the calibration)")
     log.info("nominal %s (frames %r -> %r), calibrated %s (frames %r -> %r)", args.nominal,
              nominal.base_frame, nominal.tool_frame, args.calibrated, calibrated.base_frame,
              calibrated.tool_frame)

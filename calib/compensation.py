@@ -358,7 +358,7 @@ def tool_poses_and_joint_jacobians(kin: ChainKinematics, Q: np.ndarray):
     both in the meas frame (Pinocchio's LOCAL_WORLD_ALIGNED frame Jacobian).
     """
     model, data, fid = kin.model, kin.data, kin.tool_frame_id
-    Q = np.atleast_2d(np.asarray(Q, float))
+    Q = kin.effective(Q)    # with compliance: the deflected joints (J neglects d tau / d q)
     N, n = Q.shape
     H = np.empty((N, 4, 4))
     J = np.empty((N, 6, n))

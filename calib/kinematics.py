@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from .compliance import compliance_term
 from .robot import RobotModel
 from .spatial import to_se3
 
@@ -227,6 +228,7 @@ class ChainKinematics:
         self._pin = None
         self._pin_values = None
         self._plans: dict = {}
+        self.compliance = compliance_term(robot)   # None without compliance (calib.compliance)
         self.set_values(robot.values)
 
     # ------------------------------------------------------------------ parameters
@@ -329,13 +331,19 @@ class ChainKinematics:
         """The pose (R (3, 3, N), p (3, N)) followed by the constant 4x4 T."""
         return np.matmul(T[:3, :3].T, R), p + np.matmul(T[:3, 3], R)
 
+    def effective(self, Q: np.ndarray) -> np.ndarray:
+        """(N, n) joint values the chain takes at commanded Q (N, n): Q itself, or with
+        compliance q + C tau(q) at the current values (:mod:`calib.compliance`)."""
+        Q = np.atleast_2d(np.asarray(Q, float))
+        return Q if self.compliance is None else self.compliance.effective(Q, self.values)
+
     def frame_poses(self, Q: np.ndarray, frame: str = "tool") -> tuple[np.ndarray, np.ndarray]:
         """Poses of a frame ("tool", "flange" or "base") in the meas frame for configurations Q.
 
         Q : (N, n) joint values, radians / metres. Returns (R (N, 3, 3), p (N, 3) metres).
         Computed in chunks of ``CHUNK`` poses: the memory beyond the outputs is bounded.
         """
-        Q = np.atleast_2d(np.asarray(Q, float))
+        Q = self.effective(Q)
         N = len(Q)
         if frame == "base":
             T = self.base_placement
@@ -350,6 +358,26 @@ class ChainKinematics:
 
     def poses_and_jacobian(self, Q: np.ndarray, columns: np.ndarray | None = None, *,
                            transposed: bool = False):
+        """See :meth:`_poses_and_jacobian`; with compliance (:mod:`calib.compliance`) at the
+        effective joint values, the column of c_i being that of theta_i (d_i) times tau_i(q)."""
+        Q = np.atleast_2d(np.asarray(Q, float))
+        if self.compliance is None:
+            return self._poses_and_jacobian(Q, columns, transposed=transposed)
+        cols = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
+        c_pos = {int(c): j for j, c in enumerate(self.compliance.c_idx)}
+        wanted = [(k, c_pos[int(c)]) for k, c in enumerate(cols) if int(c) in c_pos]
+        if not wanted:
+            return self._poses_and_jacobian(self.effective(Q), cols, transposed=transposed)
+        m = len(cols)
+        R, p, J = self._poses_and_jacobian(self.effective(Q), np.concatenate([cols, self.compliance.q_cols]))
+        tau = self.compliance.torques(Q)
+        for k, j in wanted:
+            J[:, :, k] = J[:, :, m + j] * tau[:, j, None]
+        J = J[:, :, :m]
+        return R, p, (np.ascontiguousarray(J.transpose(2, 1, 0)) if transposed else np.ascontiguousarray(J))
+
+    def _poses_and_jacobian(self, Q: np.ndarray, columns: np.ndarray | None = None, *,
+                            transposed: bool = False):
         """Tool poses and the identification Jacobian at configurations Q (N, n), rad / m.
 
         columns : parameter indices of the wanted Jacobian columns, in the wanted order (default

@@ -241,9 +241,11 @@ def _residual_rows(result: CalibrationResult, parts: Sequence[tuple[str, str, Me
 
 def _covariance_dict(result: CalibrationResult) -> dict:
     names = list(result.free)
-    units = ["mm" if result.robot.parameters[result.robot.index(n)].unit == "m" else "rad"
-             for n in names]
-    scale = np.array([1e3 if u == "mm" else 1.0 for u in units])
+    from .calibration import _EDGE_UNITS
+
+    edge = [_EDGE_UNITS[result.robot.parameters[result.robot.index(n)].unit] for n in names]
+    units = [u for u, _ in edge]
+    scale = np.array([f for _, f in edge])
     cov = np.asarray(result.covariance, float) * np.outer(scale, scale)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -252,7 +254,7 @@ def _covariance_dict(result: CalibrationResult) -> dict:
             "std": std.tolist(),
             "covariance": cov.tolist(),
             "correlation": [[float(v) if math.isfinite(v) else None for v in row] for row in corr],
-            "note": "covariance in the parameters' units (mm, rad; products for mixed entries)"}
+            "note": "covariance in the parameters' units (mm, rad, urad/(N m); products for mixed entries)"}
 
 
 def build_report(result: CalibrationResult, measurements: Measurements,

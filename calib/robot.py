@@ -56,9 +56,11 @@ class ChainJoint:
 class Parameter:
     """One TM-MDH parameter.
 
-    ``group`` is ``"joint"`` (structural, of joint ``joint``, 1-based), ``"u"`` (meas->base) or
-    ``"v"`` (flange->tool); ``kind`` is theta, d, a, alpha, beta for joints and x, y, z, alpha,
-    beta, gamma for u and v; ``unit`` is ``"m"`` or ``"rad"``.
+    ``group`` is ``"joint"`` (structural, of joint ``joint``, 1-based), ``"u"`` (meas->base),
+    ``"v"`` (flange->tool) or ``"compliance"`` (``c<i>`` of joint ``joint``, only in a model made
+    by :meth:`RobotModel.with_compliance`); ``kind`` is theta, d, a, alpha, beta for joints, x, y,
+    z, alpha, beta, gamma for u and v, ``c`` for compliance; ``unit`` is ``"m"``, ``"rad"``, or
+    ``"rad/(N m)"`` / ``"m/N"`` for the compliance of a revolute / prismatic joint.
     """
 
     name: str
@@ -119,6 +121,8 @@ class RobotModel:
     tool_frame: str = "tool"
     urdf_path: Path | None = None
     parallel_threshold: float = PARALLEL_THRESHOLD_RAD
+    #: :class:`calib.compliance.GravityModel` of a model with compliance parameters, else None.
+    gravity: object | None = None
 
     def __post_init__(self):
         vals = np.array(self.values, dtype=float)
@@ -159,6 +163,47 @@ class RobotModel:
         for name, delta in deltas.items():
             vals[self.index(name)] += delta
         return self.with_values(vals)
+
+    def with_compliance(self, gravity, values: Sequence[float] | None = None) -> "RobotModel":
+        """A copy with one compliance parameter ``c<i>`` per joint (group "compliance", after the
+        geometric parameters; rad/(N m), or m/N for a prismatic joint) and the gravity model
+        (:class:`calib.compliance.GravityModel`) that gives the joint torques. ``values`` (n,)
+        defaults to the model's current compliances, else zeros. See :mod:`calib.compliance`."""
+        if gravity is None:
+            raise ParameterError("a model with compliance needs a gravity model (calib.compliance.GravityModel)")
+        geo = self.geometry()
+        n = self.n_joints
+        old = self.compliances() if self.has_compliance else np.zeros(n)
+        vals = old if values is None else np.asarray(values, float)
+        if vals.shape != (n,):
+            raise ParameterError(f"expected {n} compliance values, got shape {vals.shape}")
+        params = tuple(Parameter(f"c{i}", "compliance", "c", i, "m/N" if j.is_prismatic else "rad/(N m)")
+                       for i, j in enumerate(self.joints, start=1))
+        return replace(geo, parameters=geo.parameters + params,
+                       values=np.concatenate([geo.values, vals]), gravity=gravity)
+
+    def geometry(self) -> "RobotModel":
+        """This model without compliance parameters (itself if it has none)."""
+        if not self.has_compliance:
+            return self
+        keep = [k for k, p in enumerate(self.parameters) if p.group != "compliance"]
+        return replace(self, parameters=tuple(self.parameters[k] for k in keep),
+                       values=self.values[keep], gravity=None)
+
+    @property
+    def has_compliance(self) -> bool:
+        return self.gravity is not None
+
+    @property
+    def compliance_names(self) -> tuple[str, ...]:
+        """Names of the compliance parameters (empty without compliance)."""
+        return tuple(p.name for p in self.parameters if p.group == "compliance")
+
+    def compliances(self) -> np.ndarray:
+        """(n,) joint compliances, rad/(N m) (m/N prismatic); zeros without compliance."""
+        if not self.has_compliance:
+            return np.zeros(self.n_joints)
+        return self.values[self.indices(self.compliance_names)]
 
     # ------------------------------------------------------------------ lookup
     @property
@@ -278,6 +323,9 @@ class RobotModel:
             x = zyx_parameters(T)
             lines.append(f"{label:<14} x,y,z/mm = {x[0] * 1e3:.4f}, {x[1] * 1e3:.4f}, {x[2] * 1e3:.4f};"
                          f"  alpha,beta,gamma/rad = {x[3]:.6f}, {x[4]:.6f}, {x[5]:.6f}")
+        if self.has_compliance:
+            lines.append("compliance/(urad/(N m) or um/N): " + ", ".join(
+                f"{n} {v * 1e6:.4g}" for n, v in zip(self.compliance_names, self.compliances())))
         return "\n".join(lines)
 
 

@@ -1,0 +1,239 @@
+"""Joint compliance under gravity (calib.compliance): torques, Jacobian columns, identification,
+sidecar and compensation, bad input."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import calib
+from calib.cli import main
+from calib.compliance import (GravityModel, Payload, apply_record, effective_configurations,
+                              read_compliance, sidecar_path, with_gravity)
+from calib.jacobian import pose_jacobian
+from calib.kinematics import ChainKinematics
+from calib.spatial import log3_batch
+
+PAYLOAD = Payload(10.0, np.array([0.0, 0.03, 0.1]))
+TRUE_C = np.array([0.0, 3e-6, 4e-6, 5e-6, 0.0, 0.0])        # rad/(N m)
+SIGMA_POS, SIGMA_ROT = 0.02e-3, 0.0002
+
+
+@pytest.fixture(scope="module")
+def ur10():
+    return calib.load_robot("ur10")
+
+
+@pytest.fixture(scope="module")
+def ur10_c(ur10):
+    return with_gravity(ur10, payload=PAYLOAD, values=TRUE_C)
+
+
+def test_model_without_compliance_is_unchanged(ur10):
+    # the default model has no c<i>: same names, count and kinematics as before
+    assert ur10.n_params == 38 and not any(n.startswith("c") for n in ur10.names)
+    assert ChainKinematics(ur10).compliance is None
+    rc = with_gravity(ur10, payload=PAYLOAD)
+    assert rc.n_params == 44 and rc.names[-6:] == ("c1", "c2", "c3", "c4", "c5", "c6")
+    assert rc.geometry().names == ur10.names and rc.geometry().gravity is None
+    # zero compliance: the same poses to rounding
+    Q = ur10.random_configurations(5, 3)
+    _, p0 = ChainKinematics(ur10).frame_poses(Q)
+    _, p1 = ChainKinematics(rc).frame_poses(Q)
+    assert np.abs(p1 - p0).max() < 1e-15
+
+
+def test_torques_are_minus_the_potential_gradient(ur10):
+    # tau = -dV/dq (V the potential energy of links and payload), by central differences of
+    # Pinocchio's potential energy: checks the sign convention and the payload placement
+    gm = GravityModel.for_robot(ur10, payload=PAYLOAD)
+    Q = ur10.random_configurations(4, 7)
+    tau = gm.torques(Q)
+    data = gm.model.createData()
+    h = 1e-6
+    for k, q in enumerate(Q):
+        fd = []
+        for i in range(6):
+            e = np.zeros(6)
+            e[i] = h
+            vp = pin.computePotentialEnergy(gm.model, data, gm.chain.configuration(q + e))
+            vm = pin.computePotentialEnergy(gm.model, data, gm.chain.configuration(q - e))
+            fd.append(-(vp - vm) / (2 * h))
+        assert np.abs(tau[k] - fd).max() < 1e-5          # N m; torques ~100 N m
+    # joint 1 turns about the vertical: gravity exerts no torque on it
+    assert np.abs(tau[:, 0]).max() < 1e-9
+    # the payload adds 10 kg: joint 2's torque changes by about m g r (r up to ~1.3 m)
+    tau0 = GravityModel.for_robot(ur10).torques(Q)
+    assert 1.0 < np.abs(tau - tau0)[:, 1].max() < 10.0 * 9.81 * 1.4
+
+
+def test_compliance_jacobian_matches_finite_differences(ur10_c):
+    Q = ur10_c.random_configurations(6, 11)
+    kin = ChainKinematics(ur10_c)
+    _, _, J = pose_jacobian(kin, Q)
+    v = ur10_c.values
+    for name in ("c2", "c3", "c4", "c6", "theta2", "a2"):
+        k = ur10_c.index(name)
+        h = 1e-7
+        vp, vm = v.copy(), v.copy()
+        vp[k] += h
+        vm[k] -= h
+        kin.set_values(vp)
+        Rp, pp = kin.frame_poses(Q)
+        kin.set_values(vm)
+        Rm, pm = kin.frame_poses(Q)
+        dp = (pp - pm) / (2 * h)
+        dw = log3_batch(Rp @ np.transpose(Rm, (0, 2, 1))) / (2 * h)
+        scale = max(np.abs(J[:, :3, k]).max(), 1.0)
+        # central differences of the exact model; relative 1e-6 (rounding of h = 1e-7)
+        assert np.abs(dp - J[:, :3, k]).max() < 1e-6 * scale, name
+        assert np.abs(dw - J[:, 3:, k]).max() < 1e-6 * max(np.abs(J[:, 3:, k]).max(), 1.0), name
+    # the effective joints are q + c tau
+    kin.set_values(v)
+    tau = ur10_c.gravity.torques(Q)
+    assert np.allclose(effective_configurations(ur10_c, Q), Q + TRUE_C * tau, rtol=0, atol=1e-15)
+
+
+def test_identifiability_reports_unseen_compliance(ur10_c):
+    rep = calib.analyze_identifiability(ur10_c, n_poses=60, seed=0)
+    unseen = {r.parameter: r for r in rep.unidentifiable}
+    assert "c1" in unseen and unseen["c1"].partners == ()          # no torque about the vertical
+    assert {"c2", "c3", "c4"} <= set(rep.identifiable)
+
+
+@pytest.fixture(scope="module")
+def loop(ur10, ur10_c):
+    true = ur10_c.with_changes(d2=3e-4, a2=-4e-4, theta3=1e-3, alpha2=5e-4)
+    Q = ur10.random_configurations(120, 1)
+    m = calib.simulate_measurements(true, Q, sigma_pos=SIGMA_POS, sigma_rot=SIGMA_ROT, rng=2,
+                                    sets=np.array(["cal"] * 80 + ["val"] * 40))
+    geo = calib.calibrate(ur10, m, method="lm", params="base", cv=0, sigma_pos=SIGMA_POS,
+                          sigma_rot=SIGMA_ROT)
+    comp = calib.calibrate(ur10, m, method="lm", params="base", cv=0, sigma_pos=SIGMA_POS,
+                           sigma_rot=SIGMA_ROT, compliance=True, payload=PAYLOAD)
+    return true, m, geo, comp
+
+
+def test_identification_recovers_compliance(loop):
+    true, m, geo, comp = loop
+    floor = SIGMA_POS * np.sqrt(3)         # RMS length of 3-axis noise: 0.035 mm
+    assert geo.validation_after.position["rms"] > 4 * floor          # geometry alone: ~0.33 mm
+    assert comp.success and comp.validation_after.position["rms"] < 1.3 * floor
+    for name in ("c2", "c3", "c4", "c5", "c6"):
+        pe = comp.parameter(name)
+        assert pe.free and abs(pe.identified - true.value(name)) < 3 * pe.std, name
+    assert comp.parameter("c2").std < 1e-7                            # well seen: 0.02 urad/(N m)
+    assert not comp.parameter("c1").free
+    assert any("c1" in n and "not identifiable" in n for n in comp.notes)
+    d = comp.to_dict()
+    assert d["compliance"]["compliance"]["c2"] == pytest.approx(comp.parameter("c2").identified, rel=1e-12)
+    assert [p["unit"] for p in d["parameters"] if p["name"] == "c3"] == ["urad/(N m)"]
+    assert "geometry only" in d["compliance"]["note"] and "geometry only" in comp.format()
+
+
+def test_sidecar_round_trip_and_compensation(loop, tmp_path, ur10):
+    true, m, _, comp = loop
+    out = tmp_path / "cal.urdf"
+    comp.write_urdf(out)
+    side = sidecar_path(out)
+    rec = read_compliance(side)
+    assert side.name == "cal.compliance.json"
+    assert np.array_equal(rec.values, comp.robot.compliances())
+    assert rec.payload.mass == 10.0 and np.allclose(rec.payload.com_tool, PAYLOAD.com_tool, atol=1e-15)
+    # the URDF holds the geometry; with the sidecar the model is the identified one
+    geo = calib.load_robot(out, base_frame=ur10.base_frame)
+    assert geo.n_params == ur10.n_params
+    model = apply_record(geo, rec, torques_from=ur10)     # torques of the nominal URDF, as calibrated
+    Q = m.q[:20]
+    _, p_id = ChainKinematics(comp.robot).frame_poses(Q)
+    _, p_rt = ChainKinematics(model).frame_poses(Q)
+    assert np.abs(p_rt - p_id).max() < 1e-9          # metres: the URDF round trip (~1e-12)
+    # torques from the calibrated URDF instead: its geometry moves them by ~1e-3 (< 1 um here)
+    _, p_cal = ChainKinematics(apply_record(geo, rec)).frame_poses(Q)
+    assert 1e-9 < np.abs(p_cal - p_id).max() < 1e-6
+    # compensation with compliance: the true arm reaches the nominal poses to the calibration's
+    # accuracy (Cramer-Rao ~0.01 mm), without it it misses by the sag (~0.3 mm)
+    q_nom = ur10.random_configurations(10, 5)
+    R_t, p_t = ChainKinematics(ur10).frame_poses(q_nom)
+    with_c = calib.compensate(comp.robot, ur10, q_nom)
+    no_c = calib.compensate(comp.robot.geometry(), ur10, q_nom)
+    ok = with_c.ok & no_c.ok                # near-singular targets are reported, not reached
+    assert ok.sum() >= 8
+    _, p_a = ChainKinematics(true).frame_poses(with_c.q[ok])
+    _, p_b = ChainKinematics(true).frame_poses(no_c.q[ok])
+    # (the Newton steps neglect d tau / d q in the Jacobian and still reach 1e-9 m)
+    assert with_c.position_error[ok].max() < 1e-9
+    assert np.linalg.norm(p_a - p_t[ok], axis=1).max() < 0.05e-3
+    assert np.linalg.norm(p_b - p_t[ok], axis=1).max() > 0.1e-3
+
+
+def test_report_is_a_compliance_file(loop, tmp_path):
+    *_, comp = loop
+    path = tmp_path / "rep.json"
+    path.write_text(comp.to_json())
+    assert np.array_equal(read_compliance(path).values, comp.robot.compliances())
+    geo_only = tmp_path / "geo.json"
+    geo_only.write_text(json.dumps({"status": "converged", "compliance": None}))
+    with pytest.raises(calib.ParameterError, match="no compliance record"):
+        read_compliance(geo_only)
+
+
+def test_urdf_without_inertias_uses_the_payload_alone():
+    robot = calib.load_robot("robots/brtirus0707a/brtirus0707a.urdf")
+    gm = GravityModel.for_robot(robot, payload=Payload(5.0))
+    assert gm.link_mass == 0.0 and "payload alone" in gm.note
+    tau = gm.torques(robot.random_configurations(3, 0))
+    assert np.abs(tau[:, 1]).max() > 1.0                  # N m from 5 kg
+
+
+@pytest.mark.parametrize("value, match", [
+    ((-1.0, np.zeros(3)), "payload mass must be a finite number of kg >= 0, got -1.0"),
+    ((float("nan"), np.zeros(3)), "payload mass must be a finite number"),
+    ((1.0, [0.0, np.inf, 0.0]), "payload centre of mass must be 3 finite numbers"),
+])
+def test_bad_payload(value, match):
+    with pytest.raises(calib.ParameterError, match=match):
+        Payload(*value)
+
+
+def test_payload_without_compliance_is_refused(ur10, loop):
+    m = loop[1]
+    with pytest.raises(calib.ParameterError, match="pass compliance=True"):
+        calib.calibrate(ur10, m, payload=PAYLOAD)
+    built = calib.RobotModel.from_mdh(ur10.joints, *[ur10.mdh_table()[k] for k in ("theta", "d", "a", "alpha")])
+    with pytest.raises(calib.ParameterError, match="needs the robot's URDF"):
+        with_gravity(built, payload=PAYLOAD)
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--payload-kg", "-2"], "--payload-kg -2: expected a finite mass >= 0 kg"),
+    (["--payload-kg", "1", "--payload-com-mm", "1,2"], "--payload-com-mm '1,2': expected three"),
+    (["--payload-kg", "1", "--gravity", "0,0,nan"], "--gravity '0,0,nan': expected three finite numbers"),
+    (["--payload-com-mm", "0,0,1"], "--payload-com-mm without --payload-kg"),
+])
+def test_cli_bad_compliance_options(tmp_path, capsys, extra, message):
+    out = tmp_path / "m.csv"
+    code = main(["simulate", "ur10", "-o", str(out), "--poses", "5", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and err.count("\n") == 1
+    assert not out.exists()
+
+
+def test_cli_loop(tmp_path, capsys):
+    dev = tmp_path / "dev.json"
+    dev.write_text(json.dumps({"c2": 3e-6, "c3": 4e-6, "d2": 3e-4}))
+    meas, cal = tmp_path / "m.csv", tmp_path / "cal.urdf"
+    assert main(["simulate", "ur10", "-o", str(meas), "--poses", "60", "--deviations", str(dev),
+                 "--payload-kg", "10", "--payload-com-mm", "0,0,100", "--sigma-rot-rad", "0.0002"]) == 0
+    assert "c2        urad/(N m)             3" in capsys.readouterr().out
+    # a payload without --compliance: refused, nothing written
+    assert main(["calibrate", "ur10", str(meas), "-o", str(cal), "--payload-kg", "10"]) == 2
+    assert "only matter with --compliance" in capsys.readouterr().err and not cal.exists()
+    assert main(["calibrate", "ur10", str(meas), "-o", str(cal), "--compliance", "--payload-kg", "10",
+                 "--payload-com-mm", "0,0,100", "--params", "base", "--method", "lm", "--cv", "0"]) == 0
+    text = capsys.readouterr().out
+    assert "cal.compliance.json" in text
+    rec = read_compliance(sidecar_path(cal))
+    assert rec.values[1] == pytest.approx(3e-6, abs=0.2e-6) and rec.payload.mass == 10.0
