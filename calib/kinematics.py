@@ -192,7 +192,8 @@ def _structure(robot: RobotModel) -> _Structure:
         for f in fs:
             if f.param is not None:
                 owner[f.param] = k
-    if (owner < 0).any():
+    geometric = np.array([p.group != "compliance" for p in robot.parameters])
+    if (owner[geometric] < 0).any():      # compliance parameters act through the joints instead
         raise ValueError("a parameter belongs to no placement")
     prismatic = robot.prismatic
     prismatic.setflags(write=False)
@@ -369,10 +370,13 @@ class ChainKinematics:
         if not wanted:
             return self._poses_and_jacobian(self.effective(Q), cols, transposed=transposed)
         m = len(cols)
-        R, p, J = self._poses_and_jacobian(self.effective(Q), np.concatenate([cols, self.compliance.q_cols]))
+        ext = list(map(int, cols))            # each column once: add the missing theta_i / d_i
+        ext += [int(q) for q in self.compliance.q_cols if int(q) not in ext]
+        at = {c: k for k, c in enumerate(ext)}
+        R, p, J = self._poses_and_jacobian(self.effective(Q), np.array(ext, int))
         tau = self.compliance.torques(Q)
         for k, j in wanted:
-            J[:, :, k] = J[:, :, m + j] * tau[:, j, None]
+            J[:, :, k] = J[:, :, at[int(self.compliance.q_cols[j])]] * tau[:, j, None]
         J = J[:, :, :m]
         return R, p, (np.ascontiguousarray(J.transpose(2, 1, 0)) if transposed else np.ascontiguousarray(J))
 

@@ -266,7 +266,8 @@ def test_readme_real_measurements_example_runs_as_printed(tmp_path, monkeypatch,
     from calib.cli import main
 
     readme = open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "README.md")).read()
-    section = readme[readme.index("### Real measurements"):readme.index("### Exit codes")]
+    start = readme.index("### Real measurements")
+    section = readme[start:readme.index("\n### ", start + 1)]
     commands = re.findall(r"^calib .*$", section, re.M)
     assert len(commands) == 2
     monkeypatch.chdir(tmp_path)
