@@ -1048,15 +1048,15 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
     if refit == "newton":
         whole = np.zeros(cal.n_poses, bool)
         whole[rows] = True
-        ne = base.derived(keep=whole).normal_equations(x0)
+        A_fold, g_fold = base.derived(keep=whole).normal_equations_by_label(x0, fold_of, folds)
+        A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
     e_p, e_r, per_fold = np.zeros(n), np.zeros(n), []
     for f in range(folds):
         test = np.zeros(cal.n_poses, bool)
         test[rows[fold_of == f]] = True
         if refit == "newton":
-            ne_test = base.derived(keep=test).normal_equations(x0)
-            A_inv, _ = _inverse(ne.A - ne_test.A)
-            x_f = x0 - A_inv @ (ne.g - ne_test.g)
+            A_inv, _ = _inverse(A_all - A_fold[f])
+            x_f = x0 - A_inv @ (g_all - g_fold[f])
         else:
             train = np.zeros(cal.n_poses, bool)
             train[rows[fold_of != f]] = True

@@ -158,8 +158,14 @@ class Problem:
     def derived(self, *, free=None, values=None, sigma_pos=None, sigma_rot=None, loss=None,
                 keep: np.ndarray | None = None) -> "Problem":
         """The same data with some settings changed (and ``keep``: a row mask)."""
+        if (free is None and values is None and keep is None
+                and (sigma_pos is None or float(sigma_pos) == self.sigma_pos)
+                and (sigma_rot is None or float(sigma_rot) == self.sigma_rot)
+                and (loss is None or loss == self.loss)):
+            return self
         p = object.__new__(Problem)
         p.__dict__.update(self.__dict__)
+        p._last_ne = None
         if free is not None:
             p.free = np.asarray(free, int)
         if values is not None:
@@ -205,7 +211,17 @@ class Problem:
         return self._assemble(R, p, J, parts, slice(None))
 
     def normal_equations(self, x: np.ndarray, parts: str = "pose") -> NormalEquations:
-        """J^T J and J^T r at x, accumulated over chunks of poses (memory independent of N)."""
+        """J^T J and J^T r at x, accumulated over chunks of poses (memory independent of N).
+        The last result is kept: asking again at the same x costs nothing."""
+        key = (np.asarray(x, float).tobytes(), parts)
+        last = getattr(self, "_last_ne", None)
+        if last is not None and last[0] == key:
+            return last[1]
+        ne = self._normal_equations(x, parts)
+        self._last_ne = (key, ne)
+        return ne
+
+    def _normal_equations(self, x: np.ndarray, parts: str) -> NormalEquations:
         self.kin.set_values(self.full(x))
         m = len(self.free)
         A_pos = np.zeros((m, m))
@@ -233,6 +249,24 @@ class Problem:
         n_rot = 3 * N if A_rot is not None else 0
         A = A_pos + (A_rot if A_rot is not None else 0.0)
         return NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1], n_pos, n_rot)
+
+    def normal_equations_by_label(self, x: np.ndarray, labels: np.ndarray, n_labels: int):
+        """(A (L, m, m), g (L, m)): J^T J and J^T r of the rows of each label (labels: (N,) ints
+        in [0, n_labels)), in one chunked pass over the data; the sums over labels are
+        :meth:`normal_equations`' A and g."""
+        self.kin.set_values(self.full(x))
+        m = len(self.free)
+        A, g = np.zeros((n_labels, m, m)), np.zeros((n_labels, m))
+        for sl in self._chunks():
+            R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free)
+            r, Jw = self._assemble(R, p, J, "pose", sl, flat=False)
+            lab = labels[sl]
+            for f in np.unique(lab):
+                rows = lab == f
+                Jf = Jw[rows].reshape(-1, m)
+                A[f] += Jf.T @ Jf
+                g[f] += Jf.T @ r[rows].reshape(-1)
+        return A, g
 
     def _assemble(self, R, p, J, parts, sl, flat=True):
         res, jac = [], []
