@@ -24,22 +24,24 @@ from .robot import RobotModel
 MEASURES = ("pose", "position")
 
 
-def pose_jacobian(kin: ChainKinematics, Q: np.ndarray):
+def pose_jacobian(kin: ChainKinematics, Q: np.ndarray, targets: np.ndarray | None = None):
     """Tool poses and the pose Jacobian at the kinematics' current parameter values.
 
-    Q : (N, n) joint values (rad / m).
+    Q : (N, n) joint values (rad / m); targets : (N,) int, each row's target index (None: the
+    first; a target's v columns are zero on the other targets' rows).
     Returns (R (N, 3, 3), p (N, 3) metres, J (N, 6, n_params)) with J[:, :3] = dp and
     J[:, 3:] = dw, both in the meas frame.
     """
     if kin.placement_twists is None:
         kin.set_values(kin.values)
-    R, p, reg = kin.tool_poses_and_regressors(Q)
+    R, p, reg = kin.tool_poses_and_regressors(Q, targets)
     N, _, n6 = reg.shape
     J = (reg.reshape(N * 6, n6) @ kin.placement_twists).reshape(N, 6, -1)
     return R, p, J
 
 
-def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "pose") -> np.ndarray:
+def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "pose",
+                            targets: np.ndarray | None = None) -> np.ndarray:
     """The identification Jacobian of ``robot`` at configurations Q.
 
     Parameters
@@ -47,6 +49,8 @@ def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "po
     robot : the model, linearised at its current parameter values.
     Q : (N, n) joint values, radians (metres for prismatic joints).
     measure : "pose" for 6 rows per pose (dp, dw) or "position" for 3 rows (dp).
+    targets : (N,) int, the target index of each row for a multi-target ``robot`` (None: the
+        first target).
 
     Returns
     -------
@@ -56,7 +60,7 @@ def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "po
     """
     if measure not in MEASURES:
         raise ValueError(f"measure must be one of {MEASURES}, got {measure!r}")
-    _, _, J = pose_jacobian(ChainKinematics(robot), Q)
+    _, _, J = pose_jacobian(ChainKinematics(robot), Q, targets)
     if measure == "position":
         J = J[:, :3]
     return J.reshape(-1, J.shape[2])

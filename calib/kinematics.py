@@ -15,6 +15,10 @@ Structure of the Pinocchio model of an n-joint chain (joints revolute or prismat
                               = flange . T(v) . T_flange_tool_ref
     frame "base" on universe  = T_meas_base_ref . T(u)
 
+With several targets (``robot.targets``) there is one tool mount and one frame ``tool`` per
+target, each with its own T(v_k) . T_flange_tool_ref_k; ``targets`` (N,) indices choose each
+row's frame, so a target's v columns of the Jacobian are nonzero on its rows only.
+
 (Rot(z) and Trans(z) commute, so the joint motion about or along z may follow Trans(z, d_i).)
 Each placement is a product of elementary screws, one per parameter, so the derivative of a
 placement with respect to a parameter is a constant twist in the placement's own frame:
@@ -41,9 +45,9 @@ class _Factor:
     const: np.ndarray | None = None  # 4x4 for "const"
 
 
-def _frame_factors(robot: RobotModel, group: str) -> list[_Factor]:
-    kinds = {"x": "tx", "y": "ty", "z": "tz", "alpha": "rz", "beta": "ry", "gamma": "rx"}
-    return [_Factor(kinds[k], robot.index(f"{group}_{k}")) for k in ("x", "y", "z", "alpha", "beta", "gamma")]
+def _frame_factors(robot: RobotModel, names) -> list[_Factor]:
+    kinds = ("tx", "ty", "tz", "rz", "ry", "rx")     # x, y, z, alpha, beta, gamma
+    return [_Factor(k, robot.index(name)) for k, name in zip(kinds, names)]
 
 
 def _post_factors(robot: RobotModel, joint: int) -> list[_Factor]:
@@ -58,14 +62,17 @@ def _pre_factors(robot: RobotModel, joint: int) -> list[_Factor]:
 
 
 def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
-    """Factors of the n joint placements, then the tool-frame placement (relative to joint n)."""
+    """Factors of the n joint placements, then the tool-frame placement of each target
+    (relative to joint n)."""
     n = robot.n_joints
-    out = [[_Factor("const", const=robot.T_meas_base_ref), *_frame_factors(robot, "u"),
+    out = [[_Factor("const", const=robot.T_meas_base_ref),
+            *_frame_factors(robot, [f"u_{k}" for k in ("x", "y", "z", "alpha", "beta", "gamma")]),
             *_pre_factors(robot, 1)]]
     for i in range(2, n + 1):
         out.append([*_post_factors(robot, i - 1), *_pre_factors(robot, i)])
-    out.append([*_post_factors(robot, n), *_frame_factors(robot, "v"),
-                _Factor("const", const=robot.T_flange_tool_ref)])
+    for k in range(robot.n_targets):
+        out.append([*_post_factors(robot, n), *_frame_factors(robot, robot.v_names(k)),
+                    _Factor("const", const=robot.T_flange_tool_ref_of(k))])
     return tuple(tuple(f) for f in out)
 
 
@@ -139,6 +146,7 @@ class ChainKinematics:
         self.factors = placement_factors(robot)
         self.n_joints = robot.n_joints
         self.n_params = robot.n_params
+        self.n_targets = robot.n_targets
         model = pin.Model()
         model.name = "tm_mdh"
         parent = 0
@@ -147,10 +155,15 @@ class ChainKinematics:
             parent = model.addJoint(parent, jm, pin.SE3.Identity(), joint.name)
         # The tool placement rides on an extra joint that is always at 0: Pinocchio's regressor
         # then covers the flange->tool parameters too, in one product (see tool_poses_and_regressors).
-        mount = model.addJoint(parent, pin.JointModelRZ(), pin.SE3.Identity(), "calib_tool_mount")
+        # (one mount per target, each carrying its frame "tool" / "tool_<k>")
+        mounts = [model.addJoint(parent, pin.JointModelRZ(), pin.SE3.Identity(),
+                                 "calib_tool_mount" + (f"_{k}" if k else ""))
+                  for k in range(robot.n_targets)]
         self.base_frame_id = model.addFrame(pin.Frame("base", 0, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
         self.flange_frame_id = model.addFrame(pin.Frame("flange", parent, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
-        self.tool_frame_id = model.addFrame(pin.Frame("tool", mount, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
+        self.tool_frame_ids = [model.addFrame(pin.Frame("tool" + (f"_{k}" if k else ""), mount, pin.SE3.Identity(),
+                                                        pin.FrameType.OP_FRAME)) for k, mount in enumerate(mounts)]
+        self.tool_frame_id = self.tool_frame_ids[0]
         self.model = model
         self.data = model.createData()
         self.set_values(robot.values)
@@ -161,7 +174,7 @@ class ChainKinematics:
         values = np.asarray(values, float)
         n = self.n_joints
         if twists:
-            tw = np.zeros((6 * (n + 1), self.n_params))
+            tw = np.zeros((6 * (n + self.n_targets), self.n_params))
         for k, factors in enumerate(self.factors):
             if twists:
                 M, tw[6 * k:6 * k + 6] = _product_and_twists(factors, values, self.n_params)
@@ -177,35 +190,47 @@ class ChainKinematics:
 
     def _padded(self, Q: np.ndarray) -> np.ndarray:
         Q = np.atleast_2d(np.asarray(Q, float))
-        return np.hstack([Q, np.zeros((len(Q), 1))])
+        return np.hstack([Q, np.zeros((len(Q), self.n_targets))])
 
-    def frame_poses(self, Q: np.ndarray, frame: str = "tool") -> tuple[np.ndarray, np.ndarray]:
+    def _tool_frames(self, N: int, targets) -> np.ndarray:
+        """(N,) Pinocchio frame id of each row's tool frame (targets: (N,) indices or None)."""
+        ids = np.asarray(self.tool_frame_ids)
+        return np.full(N, ids[0]) if targets is None else ids[np.asarray(targets, int)]
+
+    def frame_poses(self, Q: np.ndarray, frame: str = "tool",
+                    targets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Poses of a frame ("tool", "flange" or "base") in the meas frame for configurations Q.
 
-        Q : (N, n) joint values, radians / metres. Returns (R (N, 3, 3), p (N, 3) metres).
+        Q : (N, n) joint values, radians / metres; targets : (N,) int, each row's target index
+        (None: the first target). Returns (R (N, 3, 3), p (N, 3) metres).
         """
-        fid = {"tool": self.tool_frame_id, "flange": self.flange_frame_id, "base": self.base_frame_id}[frame]
+        Qp = self._padded(Q)
+        fids = self._tool_frames(len(Qp), targets) if frame == "tool" else \
+            np.full(len(Qp), {"flange": self.flange_frame_id, "base": self.base_frame_id}[frame])
         model, data = self.model, self.data
         H = np.empty((len(Q), 4, 4))
-        for k, q in enumerate(self._padded(Q)):
+        for k, q in enumerate(Qp):
             pin.forwardKinematics(model, data, q)
-            H[k] = pin.updateFramePlacement(model, data, fid).homogeneous
+            H[k] = pin.updateFramePlacement(model, data, int(fids[k])).homogeneous
         return H[:, :3, :3], H[:, :3, 3]
 
-    def tool_poses_and_regressors(self, Q: np.ndarray):
-        """Tool poses and Pinocchio's kinematic regressor of the tool frame, per pose.
+    def tool_poses_and_regressors(self, Q: np.ndarray, targets: np.ndarray | None = None):
+        """Tool poses and Pinocchio's kinematic regressor of the tool frame, per pose (of each
+        row's target, ``targets`` (N,) indices; None: the first).
 
         The regressor is expressed in LOCAL_WORLD_ALIGNED: its first three rows are the
         derivative of the tool position in the meas frame, its last three the differential
-        rotation in the meas frame, per unit twist of each placement (n joints + tool mount).
-        Returns (R (N, 3, 3), p (N, 3), regressors (N, 6, 6 (n + 1))).
+        rotation in the meas frame, per unit twist of each placement (n joints + K tool mounts).
+        Returns (R (N, 3, 3), p (N, 3), regressors (N, 6, 6 (n + K))).
         """
-        model, data, fid = self.model, self.data, self.tool_frame_id
+        model, data = self.model, self.data
         Qp = self._padded(Q)
         N = len(Qp)
+        fids = self._tool_frames(N, targets)
         H = np.empty((N, 4, 4))
-        reg = np.empty((N, 6, 6 * (self.n_joints + 1)))
+        reg = np.empty((N, 6, 6 * (self.n_joints + self.n_targets)))
         for k, q in enumerate(Qp):
+            fid = int(fids[k])
             pin.forwardKinematics(model, data, q)
             H[k] = pin.updateFramePlacement(model, data, fid).homogeneous
             reg[k] = pin.computeFrameKinematicRegressor(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
