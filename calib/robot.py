@@ -222,7 +222,7 @@ class RobotModel:
 
     def for_target(self, target: str | int | None = None) -> "RobotModel":
         """The one-tool-frame model of one target (default the first): its v values (named
-        ``v_x`` ...) and reference, tool frame ``tool_<id>`` for a multi-target model."""
+        ``v_x`` ...) and reference (the tool frame name stays that of the chain)."""
         if not self.targets:
             return self
         k = self.target_index(target)
@@ -231,8 +231,7 @@ class RobotModel:
         beta_joints = [p.joint for p in self.parameters if p.kind == "beta" and p.group == "joint"]
         return replace(self, parameters=make_parameters(self.n_joints, beta_joints), values=vals,
                        targets=(), T_flange_target_refs=None,
-                       T_flange_tool_ref=np.array(self.T_flange_target_refs[k]),
-                       tool_frame=f"tool_{self.targets[k]}")
+                       T_flange_tool_ref=np.array(self.T_flange_target_refs[k]))
 
     def with_values(self, values: np.ndarray) -> "RobotModel":
         """A copy of this model with other parameter values (full vector, same order)."""
@@ -687,9 +686,20 @@ def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame:
     chain = read_urdf_chain(urdf_path, base_frame, tool_frame)
     pts, dirs, T_meas_tool = chain_axes(chain)
     geo = derive_mdh(pts, dirs, T_meas_tool, parallel_threshold)
-    return RobotModel.from_mdh(
+    robot = RobotModel.from_mdh(
         chain.joints, geo.theta, geo.d, geo.a, geo.alpha,
         beta=np.where(geo.has_beta, geo.beta, np.nan),
         T_meas_base_ref=geo.T_meas_base_ref, T_flange_tool_ref=geo.T_flange_tool_ref,
         base_frame=chain.base_frame, tool_frame=chain.tool_frame, urdf_path=chain.path,
         parallel_threshold=parallel_threshold)
+    rec = chain.document.frames if chain.document is not None else None
+    if rec is not None and len(rec.targets) > 1 and chain.tool_frame == rec.tool_frame:
+        # a calibration of several targets: one fixed link per target under the tool frame
+        data = chain.model.createData()
+        pin.framesForwardKinematics(chain.model, data, chain.configuration(np.zeros(len(chain.joints))))
+        oMt = data.oMf[chain.tool_frame_id]
+        body = {f.name: k for k, f in enumerate(chain.model.frames) if f.type == pin.FrameType.BODY}
+        refs = [geo.T_flange_tool_ref @ oMt.actInv(data.oMf[body[link]]).homogeneous
+                for _, link in rec.targets]
+        robot = robot.with_targets([t for t, _ in rec.targets], np.array(refs))
+    return robot
