@@ -147,13 +147,14 @@ def evaluate(robot: RobotModel, measurements: Measurements) -> AccuracyStats:
 
 
 def with_measured_targets(robot: RobotModel, *measurements: Measurements | None) -> RobotModel:
-    """``robot`` with the targets of the measurements (two or more ids: one flange->target
-    transform each, a new target starting at the model's first tool transform); unchanged for
-    data of one target."""
+    """A one-tool-frame ``robot`` with the targets of the measurements (two or more ids: one
+    flange->target transform each, starting at the model's tool transform); unchanged for data
+    of one target and for a model that has targets already (:func:`target_rows` then refuses
+    an id it does not know)."""
     ids = tuple(dict.fromkeys(t for m in measurements if m is not None for t in m.target_ids))
-    if len(ids) < 2 or set(ids) <= set(robot.targets):
+    if len(ids) < 2 or robot.targets:
         return robot
-    return robot.with_targets(tuple(robot.targets) + tuple(t for t in ids if t not in robot.targets))
+    return robot.with_targets(ids)
 
 
 def target_rows(robot: RobotModel, m: Measurements) -> np.ndarray | None:
@@ -726,9 +727,15 @@ def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: 
     :func:`calib.identifiability.analyze_identifiability`), chosen start-independently: the
     partners to hold fixed are picked on the idealised model (:func:`_idealised`) and kept when
     they are also a valid choice at ``robot``; the rank is ``robot``'s. targets: (N,) each
-    row's target index for a multi-target model."""
+    row's target index for a multi-target model.
+
+    With several targets, their v parameters come first in the priority: the last joint's
+    parameters they are tied to are held instead (a rigid motion of the flange that every
+    target's v absorbs exactly), never coordinates of single targets (a gauge that turns singular
+    as the fit moves)."""
+    first = [p.name for p in robot.parameters if p.group == "v"] if robot.targets else None
     ideal = analyze_identifiability(_idealised(robot), Q, measure=measure, sigma_pos=sigma_pos,
-                                    sigma_rot=sigma_rot, targets=targets).identifiable
+                                    sigma_rot=sigma_rot, targets=targets, priority=first).identifiable
     return analyze_identifiability(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
                                    priority=ideal, targets=targets).identifiable
 

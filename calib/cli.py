@@ -374,17 +374,22 @@ def cmd_evaluate(args) -> int:
                             ("validation rows (val)", meas.validation())):
             if part.n_poses:
                 rows.append((label, evaluate(robot, part)))
+    per_target = []     # several targets: each target's rows too
+    if len(meas.target_ids) > 1:
+        per_target = [(t, evaluate(robot, meas.subset(np.array(meas.target) == t))) for t in meas.target_ids]
     if args.json:
         keys = {"all rows": "all", "calibration rows (cal)": "cal", "validation rows (val)": "val"}
         out = {"robot": str(args.robot), "measurements": str(args.measurements),
                "base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
                "joints": list(robot.joint_names)}
         out.update({keys[label]: s.to_dict() for label, s in rows})
+        if per_target:
+            out["targets"] = {t: s.to_dict() for t, s in per_target}
         sys.stdout.write(_json_text(out))
         return EXIT_OK
     sys.stdout.write(f"Accuracy of {args.robot} (tool frame {robot.tool_frame!r} in base frame "
                      f"{robot.base_frame!r}) against {args.measurements}:\n\n"
-                     + format_accuracy_table(rows) + "\n")
+                     + format_accuracy_table(rows + [(f"target {t}", st) for t, st in per_target]) + "\n")
     return EXIT_OK
 
 

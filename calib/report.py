@@ -72,8 +72,12 @@ class PoseDeviations:
 
 
 def pose_deviations(robot: RobotModel, measurements: Measurements) -> PoseDeviations:
-    """Deviations of ``robot``'s tool poses from ``measurements`` (both in the meas frame)."""
-    R, p = ChainKinematics(robot).frame_poses(measurements.q)
+    """Deviations of ``robot``'s tool poses from ``measurements`` (both in the meas frame; rows
+    of several targets against the model's transform of their target)."""
+    from .calibration import target_rows, with_measured_targets
+
+    robot = with_measured_targets(robot, measurements)
+    R, p = ChainKinematics(robot).frame_poses(measurements.q, targets=target_rows(robot, measurements))
     rot = None
     if measurements.rotation is not None:
         rot = log3_batch(R @ np.transpose(measurements.rotation, (0, 2, 1)))
