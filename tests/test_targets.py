@@ -247,14 +247,17 @@ def test_cli_calibrate_and_evaluate_with_a_target_column(tmp_path, capsys):
     meas = tmp_path / "meas.csv"
     calib.write_measurements(meas, m)
     assert meas.read_text().splitlines()[0].endswith(",target")
-    out, report = tmp_path / "cal.urdf", tmp_path / "report.json"
+    out, report, page = tmp_path / "cal.urdf", tmp_path / "report.json", tmp_path / "report.html"
     code = main(["calibrate", str(BUNDLED_URDF), str(meas), "-o", str(out), "--params", "base",
-                 "--sigma-pos-mm", "0.01", "--cv", "0", "--report", str(report)])
+                 "--sigma-pos-mm", "0.01", "--cv", "0", "--report", str(report), "--html", str(page)])
     text = capsys.readouterr().out
     assert code == 0 and "target B, after" in text
+    assert "<td class=\"l\">target C, after</td>" in page.read_text()
     rep = json.loads(report.read_text())
-    assert rep["result"]["targets"]["A"]["after"]["position_mm"]["max"] < 1e-6 if "result" in rep \
-        else rep["targets"]["A"]["after"]["position_mm"]["max"] < 1e-6
+    assert [r["target"] for r in rep["residuals"][:4]] == ["A", "B", "C", "A"]
+    assert rep["frames"]["written_urdf"]["targets"] == {"A": "tool_A", "B": "tool_B", "C": "tool_C"}
+    assert rep["targets"]["A"]["after"]["n_poses"] == 30
+    assert rep["targets"]["A"]["after"]["position_mm"]["max"] < 1e-6
     code = main(["evaluate", str(out), str(meas), "--json"])
     ev = json.loads(capsys.readouterr().out)
     assert code == 0
