@@ -220,6 +220,21 @@ class RobotModel:
                        values=np.array(vals), targets=targets, T_flange_target_refs=np.array(refs),
                        T_flange_tool_ref=np.array(refs[0]))
 
+    def with_target_offsets(self, offsets) -> "RobotModel":
+        """This model with targets at known points of the tool: ``offsets`` maps each id to its
+        position (3,) in metres in the tool frame (of the first target, for a multi-target model);
+        each target's frame is the tool frame moved there. Two or more targets."""
+        ids = tuple(str(t) for t in offsets)
+        refs = []
+        for t in ids:
+            p = np.asarray(offsets[t], float)
+            if p.shape != (3,) or not np.isfinite(p).all():
+                raise ParameterError(f"target {t!r}: expected a finite position (x, y, z) in metres, got {p!r}")
+            T = np.eye(4)
+            T[:3, 3] = p
+            refs.append(self.T_flange_tool_ref_of(0) @ T)
+        return self.for_target(0).with_targets(ids, np.array(refs))
+
     def for_target(self, target: str | int | None = None) -> "RobotModel":
         """The one-tool-frame model of one target (default the first): its v values (named
         ``v_x`` ...) and reference (the tool frame name stays that of the chain)."""

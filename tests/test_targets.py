@@ -277,3 +277,26 @@ def _find(obj, key):
     elif isinstance(obj, list):
         for v in obj:
             yield from _find(v, key)
+
+
+# ====================================================================== select-poses
+def test_pose_selection_counts_every_targets_rows(bundled_robot, tmp_path, capsys):
+    offsets = {t: np.array(o) for t, o in zip(IDS, OFFSETS)}
+    robot = bundled_robot.with_target_offsets(offsets)
+    assert robot.targets == IDS
+    np.testing.assert_allclose(robot.T_flange_tool("C")[:3, 3], OFFSETS[2], atol=1e-15)
+    design = calib.design_poses(robot, 8, measure="position", candidates=200, seed=1)
+    # the 33 parameters three reflectors identify, from 9 equations per pose
+    assert len(design.parameters) == 33 and design.criteria["D"] > design.random_criteria["D"]
+    with pytest.raises(DataError, match=r"3 poses give 27 equations \(9 per pose\), fewer than the 33"):
+        calib.design_poses(robot, 3, measure="position", candidates=50, seed=1)
+    out = tmp_path / "poses.csv"
+    code = main(["select-poses", str(BUNDLED_URDF), "-n", "8", "-o", str(out), "--measure", "position",
+                 "--candidates", "200", "--seed", "1", "--target", "A=100,0,50", "--target", "B=-50,80,50",
+                 "--target", "C=0,-70,100"])
+    assert code == 0 and "33 identifiable parameters" in capsys.readouterr().out
+    np.testing.assert_allclose(calib.read_poses(out, bundled_robot), design.q, atol=1e-9)
+    code = main(["select-poses", str(BUNDLED_URDF), "-n", "8", "-o", str(tmp_path / "p2.csv"),
+                 "--target", "A=1,2,3"])
+    assert code == 2 and "give two or more targets with distinct ids, got A" in capsys.readouterr().err
+    assert not (tmp_path / "p2.csv").exists()
