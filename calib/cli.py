@@ -31,8 +31,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .cli_args import (HelpFormatter, add_file_format, add_frames, count, nonnegative, positive,
-                       positive_int, print_notes, read_options)
+from .cli_args import (HelpFormatter, add_file_format, add_frames, add_targets, count, nonnegative,
+                       positive, positive_int, print_notes, read_options, with_targets)
 from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
@@ -149,7 +149,7 @@ def _outlier_k(text: str) -> float | None:
 
 # ====================================================================== identifiability
 def cmd_identifiability(args) -> int:
-    robot = _load(args)
+    robot = with_targets(_load(args), args)
     report = analyze_identifiability(robot, measure=args.measure, n_poses=args.poses, seed=args.seed)
     if args.json:
         out = {"robot": str(args.robot), "urdf": str(robot.urdf_path),
@@ -159,13 +159,15 @@ def cmd_identifiability(args) -> int:
         sys.stdout.write(_json_text(out))
         return EXIT_OK
     tied = {r.parameter: r for r in report.unidentifiable}
+    w = max([10] + [len(n) + 1 for n in robot.names])
     lines = [f"Robot {args.robot}: {robot.n_joints} joints, base frame {robot.base_frame!r}, "
-             f"tool frame {robot.tool_frame!r}; {report.n_poses} random configurations within the "
-             f"joint limits (seed {args.seed})", "",
-             f"{'parameter':<10}{'unit':>5}  {'of':<14}{'identifiable':<13}tied to"]
+             f"tool frame {robot.tool_frame!r}; {report.n_poses // robot.n_targets} random configurations "
+             f"within the joint limits (seed {args.seed})"
+             + (f", each measuring targets {', '.join(robot.targets)}" if robot.targets else ""), "",
+             f"{'parameter':<{w}}{'unit':>5}  {'of':<14}{'identifiable':<13}tied to"]
     for p in robot.parameters:
-        of = (robot.joints[p.joint - 1].name if p.group == "joint"
-              else {"u": "meas->base", "v": "flange->tool"}[p.group])
+        of = (robot.joints[p.joint - 1].name if p.group == "joint" else "meas->base" if p.group == "u"
+              else f"flange->{p.target or 'tool'}")
         r = tied.get(p.name)
         if r is None:
             status, partners = "yes", ""
@@ -173,7 +175,7 @@ def cmd_identifiability(args) -> int:
             status, partners = "no", " ".join(f"{c:+.4g}*{n}" for n, c in r.partners)
         else:
             status, partners = "no", f"({r.reason})"
-        lines.append(f"{p.name:<10}{'mm' if p.unit == 'm' else 'rad':>5}  {of:<14}{status:<13}"
+        lines.append(f"{p.name:<{w}}{'mm' if p.unit == 'm' else 'rad':>5}  {of:<14}{status:<13}"
                      f"{partners}".rstrip())
     lines += ["", report.format(), ""]
     sys.stdout.write("\n".join(lines))
@@ -538,6 +540,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print one JSON object (n_params, rank, identifiable, unidentifiable with "
                         "tied partners, condition_number, observability, ...)")
     add_frames(p)
+    add_targets(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_identifiability)
 

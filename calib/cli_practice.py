@@ -16,17 +16,16 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import shlex
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from .cli_args import (HelpFormatter, add_file_format, add_frames, count, nonnegative, positive,
-                       positive_int, print_notes, read_options)
+from .cli_args import (HelpFormatter, add_file_format, add_frames, add_targets, count, nonnegative,
+                       positive, positive_int, print_notes, read_options, with_targets)
 from .compensation import SINGULAR_THRESHOLD, compensate, compensate_poses, load_compensation_models
-from .errors import CalibError, ParameterError
+from .errors import CalibError
 from .fileio import check_not_input
 from .formats import read_targets, write_compensation, write_poses
 from .poses import CRITERIA, design_poses
@@ -172,10 +171,7 @@ def add_select_poses_parser(subparsers) -> argparse.ArgumentParser:
                    help="position measurement noise per axis, mm (weights position rows)")
     p.add_argument("--sigma-rot-rad", type=positive, default=0.002, metavar="S",
                    help="orientation measurement noise per axis, rad (weights orientation rows)")
-    p.add_argument("--target", dest="targets", type=_target_offset, action="append", default=None,
-                   metavar="ID=X,Y,Z", help="a target (reflector) on the tool at X,Y,Z mm in the tool "
-                   "frame, measured at every pose; repeat for each (two or more): the design then "
-                   "counts every target's rows")
+    add_targets(p)
     add_frames(p)
     _add_verbose(p)
     p.set_defaults(func=run_select_poses)
@@ -188,11 +184,7 @@ def run_select_poses(args) -> int:
     robot = load_robot(args.robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
     log.info("robot %s: %d joints (%s), base frame %r, tool frame %r", args.robot, robot.n_joints,
              ", ".join(robot.joint_names), robot.base_frame, robot.tool_frame)
-    if args.targets:
-        ids = [t for t, _ in args.targets]
-        if len(ids) < 2 or len(set(ids)) != len(ids):
-            raise ParameterError(f"--target: give two or more targets with distinct ids, got {', '.join(ids)}")
-        robot = robot.with_target_offsets({t: np.asarray(p) * 1e-3 for t, p in args.targets})
+    robot = with_targets(robot, args)
     with working(f"selecting {args.n} of {args.candidates} candidate poses", logger=log):
         design = design_poses(robot, args.n, candidates=args.candidates, criterion=args.criterion,
                               measure=args.measure, seed=args.seed,
@@ -212,18 +204,6 @@ def run_select_poses(args) -> int:
     write_poses(out, robot, design.q, comment=comment)
     sys.stdout.write(design.format() + f"\n\nwrote {design.n_poses} poses to {out}\n")
     return EXIT_OK
-
-
-def _target_offset(text: str) -> tuple[str, tuple[float, float, float]]:
-    """``ID=X,Y,Z`` (mm) of ``--target``."""
-    tid, sep, rest = text.partition("=")
-    try:
-        xyz = tuple(float(v) for v in rest.split(","))
-    except ValueError:
-        xyz = ()
-    if not sep or not tid.strip() or len(xyz) != 3 or not all(math.isfinite(v) for v in xyz):
-        raise argparse.ArgumentTypeError(f"expected ID=X,Y,Z (millimetres in the tool frame), got {text!r}")
-    return tid.strip(), xyz
 
 
 # ====================================================================== compensate

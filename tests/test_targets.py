@@ -300,3 +300,12 @@ def test_pose_selection_counts_every_targets_rows(bundled_robot, tmp_path, capsy
                  "--target", "A=1,2,3"])
     assert code == 2 and "give two or more targets with distinct ids, got A" in capsys.readouterr().err
     assert not (tmp_path / "p2.csv").exists()
+
+
+def test_cli_identifiability_with_targets(capsys):
+    code = main(["identifiability", str(BUNDLED_URDF), "--measure", "position", "--poses", "40",
+                 "--target", "A=100,0,50", "--target", "B=-50,80,50", "--target", "C=0,-70,100"])
+    out = capsys.readouterr().out
+    assert code == 0 and "rank 33 of 49 parameters" in out
+    assert "40 random configurations within the joint limits (seed 0), each measuring targets A, B, C" in out
+    assert [ln.split()[:3] for ln in out.splitlines() if ln.startswith("v_z@C")][0] == ["v_z@C", "mm", "flange->C"]
