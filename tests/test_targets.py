@@ -234,6 +234,18 @@ def test_calibrated_urdf_has_a_link_per_target_and_reads_back(name, tmp_path):
     assert np.abs(T_again - T_want).max() < 1e-11
 
 
+def test_compensation_refuses_a_calibration_of_several_targets(tmp_path, capsys):
+    nominal = _nominal("bundled")
+    out = tmp_path / "cal.urdf"
+    write_calibrated_urdf(_truth(nominal), out, nominal=nominal.with_targets(IDS))
+    targets = tmp_path / "targets.csv"
+    targets.write_text("joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg\n0,0,0,0,0,0\n")
+    code = main(["compensate", str(out), str(BUNDLED_URDF), str(targets), "-o", str(tmp_path / "c.csv")])
+    err = capsys.readouterr().err
+    assert code == 2 and "holds 3 targets (A, B, C) and no tool frame of its own" in err
+    assert not (tmp_path / "c.csv").exists()
+
+
 def truth_p(model, Q, k):
     return ChainKinematics(model).frame_poses(Q, targets=np.full(len(Q), k))[1]
 
