@@ -189,10 +189,11 @@ class Outlier:
 class Setup:
     """The prepare stage: what the fit works on.
 
-    nominal : the model calibration started from; start : the same with its reference frames
-    moved to the closed-form estimates (or ``nominal``); cal / val : calibration and validation
-    rows (val None without any); measure : "pose" or "position"; rebased : which of
-    "measurement->base", "flange->tool" were moved.
+    nominal : the model calibration started from (with the measured targets); start : the same
+    with its reference frames moved to the closed-form estimates (or ``nominal``); cal / val :
+    calibration and validation rows (val None without any); measure : "pose" or "position";
+    rebased : which of "measurement->base", "flange->tool" (or "flange-><id>" per target) were
+    moved.
     """
 
     nominal: RobotModel
@@ -645,8 +646,10 @@ def _check_options(method, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_
 def prepare(robot: RobotModel, measurements: Measurements, validation: Measurements | None = None,
             init_frames: bool | str = "auto") -> tuple[Setup, list[str]]:
     """The prepare stage: rows, what is measured, closed-form frames (see the module docstring).
-    Returns the :class:`Setup` and notes for the user."""
+    Returns the :class:`Setup` and notes for the user. Data of several targets give the nominal
+    model one flange->target transform per target (:func:`with_measured_targets`)."""
     _check_compatible(robot, measurements)
+    robot = with_measured_targets(robot, measurements, validation)
     notes: list[str] = []
     cal = measurements.calibration()
     val = measurements.validation()
@@ -1235,9 +1238,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     if validation is not None and not isinstance(validation, Measurements):
         raise ParameterError(f"validation must be a Measurements, got {type(validation).__name__}")
     opts = options or LMOptions()
-    _check_compatible(robot, measurements)
-    robot = with_measured_targets(robot, measurements, validation)
     setup, notes = prepare(robot, measurements, validation, init_frames)
+    robot = setup.nominal       # with the measured targets
     start, cal, val = setup.start, setup.cal, setup.val
     if setup.measure == "position" and method != "lm":
         notes.append(f"position-only data: {method.upper()} needs orientations for its angle step; ran LM")

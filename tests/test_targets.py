@@ -321,3 +321,16 @@ def test_cli_identifiability_with_targets(capsys):
     assert code == 0 and "rank 33 of 49 parameters" in out
     assert "40 random configurations within the joint limits (seed 0), each measuring targets A, B, C" in out
     assert [ln.split()[:3] for ln in out.splitlines() if ln.startswith("v_z@C")][0] == ["v_z@C", "mm", "flange->C"]
+
+
+def test_stages_take_multi_target_data_directly(bundled_robot):
+    from calib.calibration import prepare
+
+    truth = _truth(bundled_robot)
+    Q, ids = _every_target(bundled_robot.random_configurations(20, 2))
+    m = simulate_measurements(truth, Q, sigma_pos=0, position_only=True, targets=ids)
+    setup, notes = prepare(bundled_robot, m)
+    assert setup.nominal.targets == IDS and setup.rebased == ("flange->A", "flange->B", "flange->C")
+    # the closed-form start: every target's position to the structure's error (sub-millimetre)
+    for k in range(3):
+        assert np.linalg.norm(setup.start.T_flange_tool(k)[:3, 3] - truth.T_flange_tool(k)[:3, 3]) < 1e-3
