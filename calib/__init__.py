@@ -20,7 +20,8 @@ from .identifiability import IdentifiabilityReport, analyze_identifiability
 from .measurements import Measurements
 from .formats import (CompensationTargets, ReadOptions, read_measurements, read_poses,
                       read_targets, write_compensation, write_measurements, write_poses)
-from .calibration import AccuracyStats, CalibrationResult, ParameterEstimate, calibrate, evaluate
+from .calibration import (AccuracyStats, CalibrationResult, ParameterEstimate, TargetAccuracy, calibrate,
+                          evaluate)
 from .simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
 from .urdf_writer import check_writable, write_calibrated_urdf
 from .urdf import RecordedFrames
@@ -37,7 +38,7 @@ __all__ = [
     "IdentifiabilityReport", "analyze_identifiability",
     "Measurements", "read_measurements", "write_measurements", "ReadOptions",
     "CompensationTargets", "read_targets", "write_compensation",
-    "AccuracyStats", "CalibrationResult", "ParameterEstimate", "calibrate", "evaluate",
+    "AccuracyStats", "CalibrationResult", "ParameterEstimate", "TargetAccuracy", "calibrate", "evaluate",
     "PAPER_DEVIATIONS", "apply_deviations", "random_deviations", "simulate_measurements",
     "write_calibrated_urdf", "check_writable", "RecordedFrames", "build_report", "render_html",
     "PoseDesign", "design_poses", "read_poses", "select_poses", "write_poses",

@@ -37,7 +37,7 @@ import numpy as np
 
 from .angles import RotationChain
 from .errors import DataError, ParameterError
-from .frames import estimate_frames
+from .frames import estimate_target_frames
 from .identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability
 from .jacobian import pose_jacobian
 from .kinematics import ChainKinematics
@@ -89,6 +89,11 @@ class AccuracyStats:
     def n_poses(self) -> int:
         return len(self.position_errors)
 
+    def subset(self, mask: np.ndarray) -> "AccuracyStats":
+        """The errors of the rows selected by ``mask`` ((N,) bool or indices)."""
+        return AccuracyStats(self.position_errors[mask],
+                             None if self.rotation_errors is None else self.rotation_errors[mask])
+
     @staticmethod
     def _stats(e: np.ndarray | None) -> dict[str, float] | None:
         if e is None or len(e) == 0:
@@ -115,12 +120,14 @@ class AccuracyStats:
 
 
 def pose_errors(robot: RobotModel, Q: np.ndarray, position: np.ndarray,
-                rotation: np.ndarray | None, kin: ChainKinematics | None = None) -> AccuracyStats:
-    """Errors of ``robot``'s tool poses at Q (N, n) against positions (N, 3) m and rotations."""
+                rotation: np.ndarray | None, kin: ChainKinematics | None = None,
+                targets: np.ndarray | None = None) -> AccuracyStats:
+    """Errors of ``robot``'s tool poses at Q (N, n) against positions (N, 3) m and rotations
+    (targets: (N,) each row's target index for a multi-target model)."""
     kin = kin or ChainKinematics(robot)
     if kin.values is not robot.values:
         kin.set_values(robot.values)
-    R, p = kin.frame_poses(Q)
+    R, p = kin.frame_poses(Q, targets=targets)
     pe = np.linalg.norm(p - position, axis=1)
     re = None
     if rotation is not None:
@@ -129,9 +136,42 @@ def pose_errors(robot: RobotModel, Q: np.ndarray, position: np.ndarray,
 
 
 def evaluate(robot: RobotModel, measurements: Measurements) -> AccuracyStats:
-    """Accuracy of ``robot`` against all rows of ``measurements`` (tool pose in the meas frame)."""
+    """Accuracy of ``robot`` against all rows of ``measurements`` (tool pose in the meas frame).
+
+    Rows of several targets are compared with the model's transform of their target; a model
+    with one tool frame serves every target with it (:meth:`RobotModel.with_targets`).
+    """
     _check_compatible(robot, measurements)
-    return pose_errors(robot, measurements.q, measurements.position, measurements.rotation)
+    robot = with_measured_targets(robot, measurements)
+    return pose_errors(robot, measurements.q, measurements.position, measurements.rotation,
+                       targets=target_rows(robot, measurements))
+
+
+def with_measured_targets(robot: RobotModel, *measurements: Measurements | None) -> RobotModel:
+    """A one-tool-frame ``robot`` with the targets of the measurements (two or more ids: one
+    flange->target transform each, starting at the model's tool transform); unchanged for data
+    of one target and for a model that has targets already (:func:`target_rows` then refuses
+    an id it does not know)."""
+    ids = tuple(dict.fromkeys(t for m in measurements if m is not None for t in m.target_ids))
+    if len(ids) < 2 or robot.targets:
+        return robot
+    return robot.with_targets(ids)
+
+
+def target_rows(robot: RobotModel, m: Measurements) -> np.ndarray | None:
+    """(N,) int: each row's target index in ``robot.targets`` (None for a one-tool-frame model);
+    an unknown id is a :class:`DataError` naming the file and row."""
+    if not robot.targets:
+        return None
+    where = f"{m.source}: " if m.source is not None else ""
+    if m.target is None:
+        raise DataError(f"{where}the model has {robot.n_targets} targets ({', '.join(robot.targets)}): "
+                        f"the measurements need a target column")
+    for row, t in zip(m.rows, m.target):
+        if t not in robot.targets:
+            raise DataError(f"{where}row {row}, column target: {t!r} is not a target of the model "
+                            f"({', '.join(robot.targets)})")
+    return robot.target_rows(m.target)
 
 
 # ====================================================================== stage objects
@@ -150,10 +190,11 @@ class Outlier:
 class Setup:
     """The prepare stage: what the fit works on.
 
-    nominal : the model calibration started from; start : the same with its reference frames
-    moved to the closed-form estimates (or ``nominal``); cal / val : calibration and validation
-    rows (val None without any); measure : "pose" or "position"; rebased : which of
-    "measurement->base", "flange->tool" were moved.
+    nominal : the model calibration started from (with the measured targets); start : the same
+    with its reference frames moved to the closed-form estimates (or ``nominal``); cal / val :
+    calibration and validation rows (val None without any); measure : "pose" or "position";
+    rebased : which of "measurement->base", "flange->tool" (or "flange-><id>" per target) were
+    moved.
     """
 
     nominal: RobotModel
@@ -309,6 +350,24 @@ class ModelSelection:
 
 # ====================================================================== result
 @dataclass(frozen=True)
+class TargetAccuracy:
+    """Accuracy on the rows of one target of a multi-target calibration (see
+    :class:`AccuracyStats`): before / after on the calibration rows, and on the validation rows
+    (None without validation data)."""
+
+    target: str
+    before: AccuracyStats = field(repr=False)
+    after: AccuracyStats = field(repr=False)
+    validation_before: AccuracyStats | None = field(default=None, repr=False)
+    validation_after: AccuracyStats | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict:
+        return {"before": self.before.to_dict(), "after": self.after.to_dict(),
+                "validation": None if self.validation_after is None else {
+                    "before": self.validation_before.to_dict(), "after": self.validation_after.to_dict()}}
+
+
+@dataclass(frozen=True)
 class ParameterEstimate:
     """One row of the parameter table. Values in SI units (``unit``: m or rad).
 
@@ -352,6 +411,8 @@ class CalibrationResult:
     new measured rows (:class:`Statistics`). cross_validation, selection : see
     :class:`CrossValidation`, :class:`ModelSelection` (None when not run).
     covariance : (n_free, n_free) covariance of the free parameters (SI units).
+    targets : per target of a multi-target calibration, its accuracy (:class:`TargetAccuracy`;
+    the overall figures are ``before``/``after``); () for one target.
     """
 
     robot: RobotModel
@@ -384,6 +445,7 @@ class CalibrationResult:
     selection: ModelSelection | None = field(default=None, repr=False)
     before_registered: AccuracyStats | None = field(default=None, repr=False)
     validation_before_registered: AccuracyStats | None = field(default=None, repr=False)
+    targets: tuple[TargetAccuracy, ...] = field(default=(), repr=False)
 
     @property
     def success(self) -> bool:
@@ -457,6 +519,7 @@ class CalibrationResult:
                 else self.validation_before_registered.to_dict()},
             "validation": None if self.validation_after is None else {
                 "before": self.validation_before.to_dict(), "after": self.validation_after.to_dict()},
+            "targets": {t.target: t.to_dict() for t in self.targets} or None,
             "predicted_rms": {"position_mm": self.predicted["position_rms"] * 1e3,
                               "rotation_rad": self.predicted.get("rotation_rms"),
                               "where": self.predicted.get("where")},
@@ -497,13 +560,14 @@ class CalibrationResult:
             lines.append(f"  outlier: row {o.row}: {o.position_error * 1e3:.3f} mm{rot} ({o.sigmas:.0f} sigma)")
         if self.selection is not None:
             lines += ["", self.selection.format()]
-        lines += ["", f"{'parameter':<10}{'unit':>5}{'nominal':>14}{'identified':>14}{'deviation':>13}{'std':>11}"]
+        w = max([10] + [len(p.name) + 1 for p in self.parameters])
+        lines += ["", f"{'parameter':<{w}}{'unit':>5}{'nominal':>14}{'identified':>14}{'deviation':>13}{'std':>11}"]
         if self.robot.has_compliance:
             lines.insert(-1, f"  note: {URDF_NOTE}")
         for p in self.parameters:
             unit = _unit(p.unit)
             std = "fixed" if not p.free else f"{_out(p.std, p.unit):.3g}"
-            lines.append(f"{p.name:<10}{unit:>5}{_out(p.nominal, p.unit):>14.6f}"
+            lines.append(f"{p.name:<{w}}{unit:>5}{_out(p.nominal, p.unit):>14.6f}"
                          f"{_out(p.identified, p.unit):>14.6f}{_out(p.deviation, p.unit):>13.6f}{std:>11}")
         rows = [("calibration rows, before", self.before)]
         if self.before_registered is not None:
@@ -514,6 +578,11 @@ class CalibrationResult:
             if self.validation_before_registered is not None:
                 rows.append(("  before, frame registered", self.validation_before_registered))
             rows.append(("validation rows, after", self.validation_after))
+        for t in self.targets:
+            rows += [(f"target {t.target}, before", t.before), (f"target {t.target}, after", t.after)]
+            if t.validation_after is not None:
+                rows += [(f"target {t.target}, val. before", t.validation_before),
+                         (f"target {t.target}, val. after", t.validation_after)]
         lines += ["", format_accuracy_table(rows)]
         if self.cross_validation is not None:
             cv = self.cross_validation
@@ -606,8 +675,10 @@ def _check_options(method, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_
 def prepare(robot: RobotModel, measurements: Measurements, validation: Measurements | None = None,
             init_frames: bool | str = "auto") -> tuple[Setup, list[str]]:
     """The prepare stage: rows, what is measured, closed-form frames (see the module docstring).
-    Returns the :class:`Setup` and notes for the user."""
+    Returns the :class:`Setup` and notes for the user. Data of several targets give the nominal
+    model one flange->target transform per target (:func:`with_measured_targets`)."""
     _check_compatible(robot, measurements)
+    robot = with_measured_targets(robot, measurements, validation)
     notes: list[str] = []
     cal = measurements.calibration()
     val = measurements.validation()
@@ -640,21 +711,26 @@ def _rebase_frames(robot: RobotModel, m: Measurements, notes: list,
     """Move the reference frames to closed-form estimates when the data put them far away
     (or ``always``)."""
     try:
-        X, Y = estimate_frames(robot, m.q, m.position, m.rotation)
+        X, Y = estimate_target_frames(robot, m.q, m.position, m.rotation, target_rows(robot, m))
     except DataError as exc:
         notes.append(f"frames not initialised in closed form ({exc}); started from the nominal frames")
         return robot, ()
     out, moved = robot, []
-    for label, T_nom, T_est in (("measurement->base", robot.T_meas_base(), X),
-                                ("flange->tool", robot.T_flange_tool(), Y)):
+    refs = robot.T_flange_tool_refs.copy()
+    tools = [(f"flange->{t}" if robot.targets else "flange->tool", k) for k, t in
+             enumerate(robot.targets or ("tool",))]
+    for label, k in [("measurement->base", None)] + tools:
+        T_nom, T_est = (robot.T_meas_base(), X) if k is None else (robot.T_flange_tool(k), Y[k])
         dT = inverse(T_nom) @ T_est
         dist = float(np.linalg.norm(dT[:3, 3]))
         ang = float(np.linalg.norm(log3_batch(dT[None, :3, :3])[0]))
         if always or dist > FRAME_REBASE_M or ang > FRAME_REBASE_RAD:
-            if label == "measurement->base":
+            if k is None:
                 out = replace(out, T_meas_base_ref=T_est @ inverse(zyx_transform(*robot.u())))
             else:
-                out = replace(out, T_flange_tool_ref=inverse(zyx_transform(*robot.v())) @ T_est)
+                refs[k] = inverse(zyx_transform(*robot.v(k))) @ T_est
+                out = replace(out, T_flange_tool_ref=refs[0],
+                              T_flange_target_refs=refs.copy() if robot.targets else None)
             moved.append(label)
             notes.append(f"{label} initialised in closed form: {dist * 1e3:.1f} mm and {ang:.3g} rad "
                          f"from the nominal transform")
@@ -678,27 +754,36 @@ def _idealised(robot: RobotModel) -> RobotModel:
 
 
 def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
-                     sigma_rot: float = SIGMA_ROT_RAD) -> tuple[str, ...]:
+                     sigma_rot: float = SIGMA_ROT_RAD, targets: np.ndarray | None = None) -> tuple[str, ...]:
     """The identifiable parameter names at configurations Q (N, n) (see
     :func:`calib.identifiability.analyze_identifiability`), chosen start-independently: the
     partners to hold fixed are picked on the idealised model (:func:`_idealised`) and kept when
-    they are also a valid choice at ``robot``; the rank is ``robot``'s."""
+    they are also a valid choice at ``robot``; the rank is ``robot``'s. targets: (N,) each
+    row's target index for a multi-target model.
+
+    With several targets, their v parameters come first in the priority: the last joint's
+    parameters they are tied to are held instead (a rigid motion of the flange that every
+    target's v absorbs exactly), never coordinates of single targets (a gauge that turns singular
+    as the fit moves)."""
+    first = [p.name for p in robot.parameters if p.group == "v"] if robot.targets else None
     ideal = analyze_identifiability(_idealised(robot), Q, measure=measure, sigma_pos=sigma_pos,
-                                    sigma_rot=sigma_rot).identifiable
+                                    sigma_rot=sigma_rot, targets=targets, priority=first).identifiable
     return analyze_identifiability(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
-                                   priority=ideal).identifiable
+                                   priority=ideal, targets=targets).identifiable
 
 
 def select_parameters(robot: RobotModel, params, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
-                      sigma_rot: float = SIGMA_ROT_RAD) -> tuple[str, tuple[str, ...]]:
+                      sigma_rot: float = SIGMA_ROT_RAD,
+                      targets: np.ndarray | None = None) -> tuple[str, tuple[str, ...]]:
     """(set label, free parameter names) for a ``params`` choice other than "auto"; see
     :func:`calibrate`."""
     if isinstance(params, str):
         key = params.strip().lower()
         if key == "base":
-            return "base", identifiable_set(robot, Q, measure, sigma_pos, sigma_rot)
+            return "base", identifiable_set(robot, Q, measure, sigma_pos, sigma_rot, targets)
         if key == "paper":
-            return "paper", tuple(n for n in robot.names if n not in PAPER_EXCLUDED)
+            return "paper", tuple(p.name for p in robot.parameters
+                                  if p.name.split("@")[0] not in PAPER_EXCLUDED)
         if key == "all":
             return "all", robot.names
         names = [s.strip() for s in params.split(",") if s.strip()]
@@ -843,6 +928,8 @@ def _solver_for(setup: Setup, free: Sequence[str], method: str, options: LMOptio
                 fixed_rounds: int | None) -> _Solve:
     idx = setup.start.indices(free)
     angular = np.array([setup.start.parameters[k].is_angular for k in idx], bool)
+    if method == "search-lm" and setup.start.targets:
+        method = "lm"       # the angle search takes one tool frame (a note says so)
     chain = RotationChain(setup.start) if (method == "search-lm" and setup.measure == "pose") else None
     return _Solve(method, setup.measure, options, max_rounds, fixed_rounds, angular, chain, setup.start)
 
@@ -867,7 +954,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     estimate = sigma_pos is None or sigma_rot is None
     sp = SIGMA_POS_M if sigma_pos is None else sigma_pos
     sr = SIGMA_ROT_RAD if sigma_rot is None else sigma_rot
-    everything = Problem(kin, cal.q, cal.position, cal.rotation, start.values, idx, sp, sr, loss, loss_scale)
+    everything = Problem(kin, cal.q, cal.position, cal.rotation, start.values, idx, sp, sr, loss, loss_scale,
+                         targets=target_rows(start, cal))
     keep = np.ones(cal.n_poses, bool) if keep is None else keep.copy()
     trace = LMTrace()
     x = start.values[idx]
@@ -961,6 +1049,8 @@ def _check_local_minimum(sol: SolverResult, problem: Problem, solve: _Solve) -> 
     clearly lower cost, the fit stopped in a local minimum and is not called converged."""
     if solve.measure != "pose" or solve.method == "search-lm" or sol.status != "converged":
         return sol
+    if solve.model.targets:     # the angle search takes one tool frame
+        return sol
     chain = solve.chain or RotationChain(solve.model)
     other = search_lm(problem, sol.x, solve.angular, chain, options=solve.options, max_escapes=0)
     # clearly lower: by a fraction of the cost and by more than chance (1 in chi^2 / 2 units)
@@ -974,15 +1064,17 @@ def _check_local_minimum(sol: SolverResult, problem: Problem, solve: _Solve) -> 
 
 # ---------------------------------------------------------------- statistics
 def _propagate(model: RobotModel, Q: np.ndarray, free: Sequence[str], C: np.ndarray,
-               kin: ChainKinematics | None = None) -> tuple[float, float]:
+               kin: ChainKinematics | None = None, targets: np.ndarray | None = None) -> tuple[float, float]:
     """(position, rotation) RMS over configurations Q of the pose error that a parameter error of
-    covariance C (free parameters, SI) causes: sqrt of the mean trace of J C J^T (m, rad)."""
+    covariance C (free parameters, SI) causes: sqrt of the mean trace of J C J^T (m, rad);
+    targets: (N,) each row's target index for a multi-target model."""
     kin = kin or ChainKinematics(model)
     kin.set_values(model.values)
     idx = model.indices(free)
     tr_p = tr_r = 0.0
     for s in range(0, len(Q), CHUNK_POSES):
-        _, _, Jf = pose_jacobian(kin, Q[s:s + CHUNK_POSES], idx)
+        _, _, Jf = pose_jacobian(kin, Q[s:s + CHUNK_POSES], idx,
+                                 targets=None if targets is None else targets[s:s + CHUNK_POSES])
         JC = Jf @ C
         tr_p += float(np.einsum("nij,nij->", JC[:, :3], Jf[:, :3]))
         tr_r += float(np.einsum("nij,nij->", JC[:, 3:], Jf[:, 3:]))
@@ -990,10 +1082,12 @@ def _propagate(model: RobotModel, Q: np.ndarray, free: Sequence[str], C: np.ndar
     return math.sqrt(max(tr_p, 0.0) / n), math.sqrt(max(tr_r, 0.0) / n)
 
 
-def predicted_accuracy(robot: RobotModel, Q: np.ndarray, free: Sequence[str], covariance: np.ndarray) -> dict:
+def predicted_accuracy(robot: RobotModel, Q: np.ndarray, free: Sequence[str], covariance: np.ndarray,
+                       targets: np.ndarray | None = None) -> dict:
     """Cramer-Rao prediction of the RMS tool pose error at configurations Q (N, n): position_rms
-    (m) and rotation_rms (rad), sqrt of the mean over poses of the trace of J C J^T."""
-    p, r = _propagate(robot, np.asarray(Q, float), free, covariance)
+    (m) and rotation_rms (rad), sqrt of the mean over poses of the trace of J C J^T (targets:
+    (N,) each row's target index for a multi-target model)."""
+    p, r = _propagate(robot, np.asarray(Q, float), free, covariance, targets=targets)
     return {"position_rms": p, "rotation_rms": r}
 
 
@@ -1005,8 +1099,9 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     rank = int(round(float(np.trace(C @ ne.A))))
     where = "validation configurations" if setup.val is not None else "calibration configurations"
     Q = setup.val.q if setup.val is not None else setup.cal.q[fit.keep]
+    rows = target_rows(fit.model, setup.val) if setup.val is not None else problem.targets
     kin = problem.kin
-    pos, rot = _propagate(fit.model, Q, fit.free, C, kin)
+    pos, rot = _propagate(fit.model, Q, fit.free, C, kin, rows)
     nz = fit.noise
     has_rot = setup.measure == "pose"
     # misfit: a group whose residuals exceed the given noise inflates both the parameter
@@ -1018,7 +1113,7 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     else:
         A_eff = ne.A_pos / infl_p + (ne.A_rot / infl_r if ne.A_rot is not None else 0.0)
         C_eff, _ = _inverse(A_eff)
-        pos_e, rot_e = _propagate(fit.model, Q, fit.free, C_eff, kin)
+        pos_e, rot_e = _propagate(fit.model, Q, fit.free, C_eff, kin, rows)
     holdout_p = math.sqrt(pos_e ** 2 + 3.0 * nz.position ** 2 * infl_p)
     holdout_r = math.sqrt(rot_e ** 2 + 3.0 * nz.rotation ** 2 * infl_r) if has_rot else None
     predicted = {"position_rms": pos, "rotation_rms": rot if has_rot else None, "where": where}
@@ -1043,7 +1138,7 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
     fold_of = np.empty(n, int)
     fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
     base = Problem(problem.kin, cal.q, cal.position, cal.rotation, problem.values, problem.free,
-                   problem.sigma_pos, problem.sigma_rot)
+                   problem.sigma_pos, problem.sigma_rot, targets=target_rows(setup.start, cal))
     x0 = fit.model.values[fit.model.indices(fit.free)]
     if refit == "newton":
         whole = np.zeros(cal.n_poses, bool)
@@ -1111,7 +1206,7 @@ def register_measurement_frame(robot: RobotModel, measurements: Measurements) ->
     tracker software for "before calibration" errors)."""
     from scipy.spatial.transform import Rotation
 
-    _, p_nom = ChainKinematics(robot).frame_poses(measurements.q)
+    _, p_nom = ChainKinematics(robot).frame_poses(measurements.q, targets=target_rows(robot, measurements))
     c_nom, c_meas = p_nom.mean(axis=0), measurements.position.mean(axis=0)
     R, _ = Rotation.align_vectors(measurements.position - c_meas, p_nom - c_nom)
     T = np.eye(4)
@@ -1178,9 +1273,6 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     ``status``, never raised. Raises :class:`calib.CalibError` for unusable input.
     """
     t0 = time.perf_counter()
-    if len(ids := getattr(measurements, "target_ids", ())) > 1:  # one flange->target transform only
-        raise DataError(f"{measurements.source or '<measurements>'}: {len(ids)} targets ({', '.join(ids)}); "
-                        f"calibrate takes one target per pose for now: keep one target's rows")
     method = _check_options(method, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds, loss,
                             loss_scale, outlier_k, cv)
     if options is not None and not isinstance(options, LMOptions):
@@ -1209,9 +1301,12 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
             pre_notes.append(robot.gravity.note)
     setup, notes = prepare(robot, measurements, validation, init_frames)
     notes = pre_notes + notes
+    robot = setup.nominal       # with the measured targets
     start, cal, val = setup.start, setup.cal, setup.val
     if setup.measure == "position" and method != "lm":
         notes.append(f"position-only data: {method.upper()} needs orientations for its angle step; ran LM")
+    elif method == "search-lm" and start.targets:
+        notes.append("several targets: the angle search of SEARCH-LM takes one tool frame; ran LM")
     log.info("prepare: %d calibration rows, %d validation rows, %s data%s", cal.n_poses,
              0 if val is None else val.n_poses, setup.measure,
              "".join(f"; {r} frame estimated" for r in setup.rebased))
@@ -1222,8 +1317,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     want = params
     ident = None
     if params is None or (isinstance(params, str) and params.strip().lower() == "auto"):
-        ident = _compliance_filter(start, identifiable_set(start, cal.q, setup.measure, *weights),
-                                   compliance, notes)
+        ident = _compliance_filter(start, identifiable_set(start, cal.q, setup.measure, *weights,
+                                                          target_rows(start, cal)), compliance, notes)
         per_param = cal.n_poses * setup.components_per_pose / max(len(ident), 1)
         if params is None:
             want = "auto" if per_param < AUTO_BELOW_COMPONENTS_PER_PARAM else "base"
@@ -1257,7 +1352,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
             fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes)
         log.info("model selection: %s", selection.chosen)
     else:
-        label, free = select_parameters(start, want, cal.q, setup.measure, *weights)
+        label, free = select_parameters(start, want, cal.q, setup.measure, *weights, target_rows(start, cal))
         if label in PARAM_SETS:     # a named set; a list of names is honoured as given
             free = _compliance_filter(start, free, compliance, notes)
         solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds)
@@ -1288,18 +1383,25 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
 
     calibrated = fit.model
     nominal_kin = ChainKinematics(robot)
-    before = pose_errors(robot, cal.q, cal.position, cal.rotation, nominal_kin)
-    after = pose_errors(calibrated, cal.q, cal.position, cal.rotation, kin)
+    cal_rows = target_rows(robot, cal)
+    before = pose_errors(robot, cal.q, cal.position, cal.rotation, nominal_kin, cal_rows)
+    after = pose_errors(calibrated, cal.q, cal.position, cal.rotation, kin, cal_rows)
     vb = va = None
     if val is not None:
-        vb = pose_errors(robot, val.q, val.position, val.rotation, nominal_kin)
-        va = pose_errors(calibrated, val.q, val.position, val.rotation, kin)
+        val_rows = target_rows(robot, val)
+        vb = pose_errors(robot, val.q, val.position, val.rotation, nominal_kin, val_rows)
+        va = pose_errors(calibrated, val.q, val.position, val.rotation, kin, val_rows)
     breg = vbreg = None
     if "measurement->base" in setup.rebased:
         registered = register_measurement_frame(robot, cal)
-        breg = pose_errors(registered, cal.q, cal.position, cal.rotation)
+        breg = pose_errors(registered, cal.q, cal.position, cal.rotation, targets=cal_rows)
         if val is not None:
-            vbreg = pose_errors(registered, val.q, val.position, val.rotation)
+            vbreg = pose_errors(registered, val.q, val.position, val.rotation, targets=val_rows)
+    per_target = tuple(
+        TargetAccuracy(t, before.subset(cal_rows == k), after.subset(cal_rows == k),
+                       None if val is None else vb.subset(val_rows == k),
+                       None if val is None else va.subset(val_rows == k))
+        for k, t in enumerate(robot.targets))
 
     table = _parameter_table(robot, calibrated, fit.free, stats.covariance)
     return CalibrationResult(
@@ -1311,7 +1413,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         sigma_rot=nz.rotation if nz.rotation is not None else weights[1], notes=tuple(notes),
         outliers=fit.outliers, loss=loss, noise=nz, predicted_holdout=stats.predicted_holdout,
         cross_validation=cross, selection=selection, before_registered=breg,
-        validation_before_registered=vbreg)
+        validation_before_registered=vbreg, targets=per_target)
 
 
 def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,
@@ -1333,14 +1435,15 @@ def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,
 
 def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> tuple[ParameterEstimate, ...]:
     std = dict(zip(free, np.sqrt(np.maximum(np.diag(cov), 0.0))))
-    frame_vals = {"u": (zyx_parameters(nominal.T_meas_base()), zyx_parameters(calibrated.T_meas_base())),
-                  "v": (zyx_parameters(nominal.T_flange_tool()), zyx_parameters(calibrated.T_flange_tool()))}
+    frame_vals = {("u", None): (zyx_parameters(nominal.T_meas_base()), zyx_parameters(calibrated.T_meas_base()))}
+    for t in nominal.targets or (None,):
+        frame_vals["v", t] = (zyx_parameters(nominal.T_flange_tool(t)), zyx_parameters(calibrated.T_flange_tool(t)))
     kinds = ("x", "y", "z", "alpha", "beta", "gamma")
     rows = []
     for k, p in enumerate(nominal.parameters):
-        if p.group in frame_vals:
+        if p.group in ("u", "v"):
             i = kinds.index(p.kind)
-            nom, ide = frame_vals[p.group][0][i], frame_vals[p.group][1][i]
+            nom, ide = frame_vals[p.group, p.target][0][i], frame_vals[p.group, p.target][1][i]
         else:
             nom, ide = nominal.values[k], calibrated.values[k]
         rows.append(ParameterEstimate(p.name, p.unit, float(nom), float(ide), p.name in std,

@@ -31,8 +31,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .cli_args import (HelpFormatter, add_compliance, add_file_format, add_frames, compliance_options,
-                       count, nonnegative, positive, positive_int, print_notes, read_options)
+from .cli_args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_targets,
+                       compliance_options, count, nonnegative, positive, positive_int, print_notes,
+                       read_options, with_targets)
 from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
@@ -149,7 +150,7 @@ def _outlier_k(text: str) -> float | None:
 
 # ====================================================================== identifiability
 def cmd_identifiability(args) -> int:
-    robot = _load(args)
+    robot = with_targets(_load(args), args)
     payload, gravity = compliance_options(args)
     if args.compliance:
         from .compliance import with_gravity
@@ -166,13 +167,15 @@ def cmd_identifiability(args) -> int:
         sys.stdout.write(_json_text(out))
         return EXIT_OK
     tied = {r.parameter: r for r in report.unidentifiable}
+    w = max([10] + [len(n) + 1 for n in robot.names])
     lines = [f"Robot {args.robot}: {robot.n_joints} joints, base frame {robot.base_frame!r}, "
-             f"tool frame {robot.tool_frame!r}; {report.n_poses} random configurations within the "
-             f"joint limits (seed {args.seed})", "",
-             f"{'parameter':<10}{'unit':>5}  {'of':<14}{'identifiable':<13}tied to"]
+             f"tool frame {robot.tool_frame!r}; {report.n_poses // robot.n_targets} random configurations "
+             f"within the joint limits (seed {args.seed})"
+             + (f", each measuring targets {', '.join(robot.targets)}" if robot.targets else ""), "",
+             f"{'parameter':<{w}}{'unit':>5}  {'of':<14}{'identifiable':<13}tied to"]
     for p in robot.parameters:
-        of = (robot.joints[p.joint - 1].name if p.group in ("joint", "compliance")
-              else {"u": "meas->base", "v": "flange->tool"}[p.group])
+        of = (robot.joints[p.joint - 1].name if p.group in ("joint", "compliance") else "meas->base"
+              if p.group == "u" else f"flange->{p.target or 'tool'}")
         r = tied.get(p.name)
         if r is None:
             status, partners = "yes", ""
@@ -180,7 +183,7 @@ def cmd_identifiability(args) -> int:
             status, partners = "no", " ".join(f"{c:+.4g}*{n}" for n, c in r.partners)
         else:
             status, partners = "no", f"({r.reason})"
-        lines.append(f"{p.name:<10}{_EDGE_UNITS[p.unit][0]:>5}  {of:<14}{status:<13}"
+        lines.append(f"{p.name:<{w}}{_EDGE_UNITS[p.unit][0]:>5}  {of:<14}{status:<13}"
                      f"{partners}".rstrip())
     lines += ["", report.format(), ""]
     sys.stdout.write("\n".join(lines))
@@ -401,17 +404,22 @@ def cmd_evaluate(args) -> int:
                             ("validation rows (val)", meas.validation())):
             if part.n_poses:
                 rows.append((label, evaluate(robot, part)))
+    per_target = []     # several targets: each target's rows too
+    if len(meas.target_ids) > 1:
+        per_target = [(t, evaluate(robot, meas.subset(np.array(meas.target) == t))) for t in meas.target_ids]
     if args.json:
         keys = {"all rows": "all", "calibration rows (cal)": "cal", "validation rows (val)": "val"}
         out = {"robot": str(args.robot), "measurements": str(args.measurements),
                "base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
                "joints": list(robot.joint_names)}
         out.update({keys[label]: s.to_dict() for label, s in rows})
+        if per_target:
+            out["targets"] = {t: s.to_dict() for t, s in per_target}
         sys.stdout.write(_json_text(out))
         return EXIT_OK
     sys.stdout.write(f"Accuracy of {args.robot} (tool frame {robot.tool_frame!r} in base frame "
                      f"{robot.base_frame!r}) against {args.measurements}:\n\n"
-                     + format_accuracy_table(rows) + "\n")
+                     + format_accuracy_table(rows + [(f"target {t}", st) for t, st in per_target]) + "\n")
     return EXIT_OK
 
 
@@ -561,6 +569,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "tied partners, condition_number, observability, ...)")
     add_frames(p)
     add_compliance(p, "calibrate")
+    add_targets(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_identifiability)
 

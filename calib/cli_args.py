@@ -184,3 +184,36 @@ def compliance_options(args):
         raise ParameterError("--payload-com-mm without --payload-kg: give the payload mass too")
     gravity = None if args.gravity is None else parse_triple(args.gravity, "--gravity")
     return payload, gravity
+
+
+def _target_offset(text: str) -> tuple[str, tuple[float, float, float]]:
+    """``ID=X,Y,Z`` (mm) of ``--target``."""
+    tid, sep, rest = text.partition("=")
+    try:
+        xyz = tuple(float(v) for v in rest.split(","))
+    except ValueError:
+        xyz = ()
+    if not sep or not tid.strip() or len(xyz) != 3 or not all(math.isfinite(v) for v in xyz):
+        raise argparse.ArgumentTypeError(f"expected ID=X,Y,Z (millimetres in the tool frame), got {text!r}")
+    return tid.strip(), xyz
+
+
+def add_targets(p: argparse.ArgumentParser) -> None:
+    """``--target ID=X,Y,Z`` (repeated): targets at known points of the tool, each measured at
+    every pose (see :func:`with_targets`)."""
+    p.add_argument("--target", dest="targets", type=_target_offset, action="append", default=None,
+                   metavar="ID=X,Y,Z", help="a target (reflector) on the tool at X,Y,Z mm in the tool "
+                   "frame, measured at every pose; repeat for each (two or more)")
+
+
+def with_targets(robot, args: argparse.Namespace):
+    """``robot`` with the ``--target`` offsets of ``args`` (unchanged without any);
+    :class:`calib.ParameterError` unless two or more distinct ids are given."""
+    if not getattr(args, "targets", None):
+        return robot
+    from .errors import ParameterError
+
+    ids = [t for t, _ in args.targets]
+    if len(ids) < 2 or len(set(ids)) != len(ids):
+        raise ParameterError(f"--target: give two or more targets with distinct ids, got {', '.join(ids)}")
+    return robot.with_target_offsets({t: [v * 1e-3 for v in xyz] for t, xyz in args.targets})

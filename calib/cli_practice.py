@@ -22,8 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_args import (HelpFormatter, add_compliance, add_file_format, add_frames, compliance_options,
-                       count, nonnegative, positive, positive_int, print_notes, read_options)
+from .cli_args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_targets,
+                       compliance_options, count, nonnegative, positive, positive_int, print_notes,
+                       read_options, with_targets)
 from .compensation import SINGULAR_THRESHOLD, compensate, compensate_poses, load_compensation_models
 from .errors import CalibError, ParameterError
 from .fileio import check_not_input
@@ -66,6 +67,8 @@ examples:
   calib select-poses robots/brtirus0707a/brtirus0707a.urdf -n 25 -o poses.csv --seed 1
   calib select-poses robot.urdf -n 40 -o poses.csv --measure position --criterion O4 \\
       --candidates 5000 --tool-frame tool0
+  calib select-poses robot.urdf -n 20 -o poses.csv --measure position \\
+      --target A=100,0,50 --target B=-50,80,50 --target C=0,-70,100
 
 Same --seed, same poses. Exit codes: 0 success, 2 bad input (one-line message, nothing written)."""
 
@@ -169,6 +172,7 @@ def add_select_poses_parser(subparsers) -> argparse.ArgumentParser:
                    help="position measurement noise per axis, mm (weights position rows)")
     p.add_argument("--sigma-rot-rad", type=positive, default=0.002, metavar="S",
                    help="orientation measurement noise per axis, rad (weights orientation rows)")
+    add_targets(p)
     add_frames(p)
     _add_verbose(p)
     p.set_defaults(func=run_select_poses)
@@ -181,6 +185,7 @@ def run_select_poses(args) -> int:
     robot = load_robot(args.robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
     log.info("robot %s: %d joints (%s), base frame %r, tool frame %r", args.robot, robot.n_joints,
              ", ".join(robot.joint_names), robot.base_frame, robot.tool_frame)
+    robot = with_targets(robot, args)
     with working(f"selecting {args.n} of {args.candidates} candidate poses", logger=log):
         design = design_poses(robot, args.n, candidates=args.candidates, criterion=args.criterion,
                               measure=args.measure, seed=args.seed,
@@ -190,11 +195,13 @@ def run_select_poses(args) -> int:
     c, b = design.criteria, design.random_criteria
     comment = (f"Poses to measure, selected by: {_command_line(args)}\n"
                f"Robot {args.robot}: base frame {robot.base_frame}, tool frame {robot.tool_frame}; "
-               f"{args.measure} measurements\n"
+               f"{args.measure} measurements"
+               + (f" of targets {', '.join(robot.targets)} at every pose" if robot.targets else "") + "\n"
                f"Criterion {design.criterion}: log det {c['D']:.6g} (random sets: {b['D']:.6g}), "
                f"O1 {c['O1']:.4g} ({b['O1']:.4g}), O4 {c['O4']:.4g} ({b['O4']:.4g}), condition "
                f"number {c['condition_number']:.4g} ({b['condition_number']:.4g})\n"
-               f"After measuring, add x_mm,y_mm,z_mm (and qw,qx,qy,qz) columns for calib calibrate")
+               f"After measuring, add x_mm,y_mm,z_mm (and qw,qx,qy,qz) columns for calib calibrate"
+               + ("; one row per target measured, with its id in a target column" if robot.targets else ""))
     write_poses(out, robot, design.q, comment=comment)
     sys.stdout.write(design.format() + f"\n\nwrote {design.n_poses} poses to {out}\n")
     return EXIT_OK

@@ -312,6 +312,11 @@ def load_compensation_models(calibrated_urdf: str | Path, nominal_urdf: str | Pa
 
 
 def _check_models(calibrated: RobotModel, nominal: RobotModel) -> None:
+    if calibrated.targets:
+        raise CalibError(f"the calibrated model holds {calibrated.n_targets} targets "
+                         f"({', '.join(calibrated.targets)}) and no tool frame of its own: compensation "
+                         f"needs the nominal tool, which a calibration of several targets does not "
+                         f"identify")
     if calibrated.joint_names != nominal.joint_names:
         raise CalibError(f"the calibrated model's joints {list(calibrated.joint_names)} differ from "
                          f"the nominal model's {list(nominal.joint_names)}: compensation needs the "

@@ -16,6 +16,8 @@ is solved without iteration:
   C_jk = R_X[:, j] t_Y[k] (27) and t_X (3); R_X is A projected onto SO(3), then (t_X, t_Y) are
   solved by linear least squares with R_X fixed. R_Y cannot be observed.
 
+Several targets on the tool share X and each have their own Y (:func:`estimate_target_frames`).
+
 The estimates carry the error of the nominal structure (millimetres), which the identification
 then removes.
 """
@@ -39,34 +41,61 @@ def project_to_so3(M: np.ndarray) -> np.ndarray:
 CHUNK = 4096
 
 
-def _solve_translations(R_X, R_f, p_f, p_meas):
-    """(t_X, t_Y) minimising sum_n |t_X + R_X R_f_n t_Y - (p_meas_n - R_X p_f_n)|^2, by its 6x6
-    normal equations accumulated over the poses (M_n = R_X R_f_n is a rotation: M_n^T M_n = I)."""
+def _solve_translations(R_X, R_f, p_f, p_meas, rows, K):
+    """(t_X (3,), t_Y (K, 3)) minimising sum_n |t_X + R_X R_f_n t_Y[k_n] - (p_meas_n - R_X p_f_n)|^2
+    with R_X fixed (rows: (N,) target index k_n), by the (3 + 3K) normal equations accumulated
+    over chunks of poses (M_n = R_X R_f_n is a rotation: M_n^T M_n = I)."""
     N = len(p_f)
-    A = np.zeros((6, 6))
-    g = np.zeros(6)
-    A[:3, :3] = A[3:, 3:] = N * np.eye(3)
+    A = np.zeros((3 + 3 * K, 3 + 3 * K))
+    g = np.zeros(3 + 3 * K)
+    A[:3, :3] = N * np.eye(3)
     for a in range(0, N, CHUNK):
         M = R_X @ R_f[a:a + CHUNK]                       # (n, 3, 3)
         b = p_meas[a:a + CHUNK] - p_f[a:a + CHUNK] @ R_X.T
-        S = M.sum(axis=0)
-        A[:3, 3:] += S
-        A[3:, :3] += S.T
+        r = rows[a:a + CHUNK]
         g[:3] += b.sum(axis=0)
-        g[3:] += np.einsum("nji,nj->i", M, b)
-    sol = np.linalg.solve(A, g)
-    return sol[:3], sol[3:]
+        for k in range(K):
+            on = r == k
+            S = M[on].sum(axis=0)
+            blk = slice(3 + 3 * k, 6 + 3 * k)
+            A[:3, blk] += S
+            A[blk, :3] += S.T
+            A[blk, blk] += on.sum() * np.eye(3)
+            g[blk] += np.einsum("nji,nj->i", M[on], b[on])
+    sol, *_ = np.linalg.lstsq(A, g, rcond=None)
+    return sol[:3], sol[3:].reshape(K, 3)
 
 
 def estimate_frames(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
                     R_meas: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Closed-form (T_meas_base, T_flange_tool), 4x4 each, from measurements.
+    """Closed-form (T_meas_base, T_flange_tool), 4x4 each, from measurements of one target.
 
     Q : (N, n) joints; p_meas : (N, 3) metres, meas frame; R_meas : (N, 3, 3) or None.
     The structural parameters of ``robot`` are taken as they are. For position-only data the
     returned T_flange_tool has ``robot``'s rotation (it is not observable).
     Raises :class:`DataError` when the poses do not determine the frames (too few or too alike).
+    See :func:`estimate_target_frames` for several targets.
     """
+    X, Y = estimate_target_frames(robot.for_target(), Q, p_meas, R_meas)
+    return X, Y[0]
+
+
+def estimate_target_frames(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
+                           R_meas: np.ndarray | None = None,
+                           targets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form T_meas_base (4, 4) and T_flange_tool of each target (K, 4, 4) from
+    measurements of several targets on the tool (one shared measurement frame).
+
+    Q : (N, n) joints; p_meas : (N, 3) metres, meas frame; R_meas : (N, 3, 3) or None;
+    targets : (N,) int, each row's target index into ``robot.targets`` (None: all rows measure
+    the first target; K = robot.n_targets). The unknowns of the module docstring get one
+    flange->target block per target (R_Y, t_Y; C_jk for position-only data). For position-only
+    data each returned T_flange_tool keeps ``robot``'s rotation of that target (a point has no
+    orientation). Raises :class:`DataError` when the poses do not determine the frames.
+    """
+    K = robot.n_targets
+    N = len(Q)
+    rows = np.zeros(N, int) if targets is None else np.asarray(targets, int)
     kin = ChainKinematics(robot)
     R_b, p_b = kin.frame_poses(Q, "base")
     R_fl, p_fl = kin.frame_poses(Q, "flange")
@@ -74,49 +103,56 @@ def estimate_frames(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
     Rb, pb = R_b[0], p_b[0]
     R_f = Rb.T @ R_fl
     p_f = (p_fl - pb) @ Rb
-    N = len(Q)
     X = np.eye(4)
-    Y = robot.T_flange_tool().copy()
+    Y = np.array([robot.T_flange_tool(k) for k in range(K)])
+    I3 = np.eye(3)
     if R_meas is not None:
         if N < 3:
             raise DataError(f"at least 3 poses are needed to estimate the frames, got {N}")
-        I3 = np.eye(3)
         # vec is column-major: vec(R_X R_i) = (R_i^T kron I) vec(R_X); vec(R_m Z) = (I kron R_m) vec(Z)
-        # null vector of the blocks: eigenvector of the 18x18 normal matrix, accumulated in chunks
-        normal = np.zeros((18, 18))
+        # null vector of the blocks: eigenvector of the normal matrix, accumulated in chunks
+        normal = np.zeros((9 + 9 * K, 9 + 9 * K))
         for a in range(0, N, CHUNK):
             n = len(R_f[a:a + CHUNK])
             left = -np.einsum("nba,cd->nacbd", R_f[a:a + CHUNK], I3).reshape(n, 9, 9)
             right = np.einsum("ac,nbd->nabcd", I3, R_meas[a:a + CHUNK]).reshape(n, 9, 9)
-            blocks = np.concatenate([left, right], axis=2).reshape(9 * n, 18)
-            normal += blocks.T @ blocks
+            r = rows[a:a + CHUNK]
+            normal[:9, :9] += np.einsum("nij,nik->jk", left, left)
+            for k in range(K):
+                on = r == k
+                blk = slice(9 + 9 * k, 18 + 9 * k)
+                LR = np.einsum("nij,nik->jk", left[on], right[on])
+                normal[:9, blk] += LR
+                normal[blk, :9] += LR.T
+                normal[blk, blk] += np.einsum("nij,nik->jk", right[on], right[on])
         w, V = np.linalg.eigh(normal)
         if w[1] < 1e-10 * w[-1]:
             raise DataError("the poses do not determine the measurement frame orientation "
                             "(too few distinct orientations)")
         v = V[:, 0]
         RX = v[:9].reshape(3, 3, order="F")
-        Z = v[9:].reshape(3, 3, order="F")
         scale = np.sign(np.linalg.det(RX)) * np.cbrt(abs(np.linalg.det(RX)))
         R_X = project_to_so3(RX / scale)
-        R_Y = project_to_so3(Z / scale).T
-        t_X, t_Y = _solve_translations(R_X, R_f, p_f, p_meas)
-        Y[:3, :3] = R_Y
+        for k in range(K):
+            Y[k, :3, :3] = project_to_so3(v[9 + 9 * k:18 + 9 * k].reshape(3, 3, order="F") / scale).T
     else:
-        if N < 13:
-            raise DataError(f"at least 13 position-only poses are needed to estimate the frames, got {N}")
-        I3 = np.eye(3)
-        A = np.concatenate([
-            np.einsum("nj,ab->najb", p_f, I3).reshape(N, 3, 9),                   # A p_i (A column-major)
-            np.einsum("nj,ab->najb", R_f.reshape(N, 9), I3).reshape(N, 3, 27),    # sum_jk R_i[j,k] C_jk
-            np.broadcast_to(I3, (N, 3, 3))], axis=2).reshape(3 * N, 39)
-        sol, _, rank, _ = np.linalg.lstsq(A, p_meas.reshape(-1), rcond=None)
-        if rank < 39:
+        n_unknown = 12 + 27 * K
+        if 3 * N < n_unknown:
+            raise DataError(f"at least {-(-n_unknown // 3)} position-only poses are needed to estimate "
+                            f"the frames, got {N}")
+        A = np.zeros((N, 3, n_unknown))
+        A[:, :, :9] = np.einsum("nj,ab->najb", p_f, I3).reshape(N, 3, 9)          # A p_i (A column-major)
+        C = np.einsum("nj,ab->najb", R_f.reshape(N, 9), I3).reshape(N, 3, 27)     # sum_jk R_i[j,k] C_jk
+        for k in range(K):
+            A[rows == k, :, 9 + 27 * k:36 + 27 * k] = C[rows == k]
+        A[:, :, -3:] = I3
+        sol, _, rank, _ = np.linalg.lstsq(A.reshape(3 * N, -1), p_meas.reshape(-1), rcond=None)
+        if rank < n_unknown:
             raise DataError("the position-only poses do not determine the measurement frame "
                             "(too few distinct configurations)")
         # A = sol[:9] (column-major) estimates R_X; with R_X fixed, (t_X, t_Y) are linear again
         R_X = project_to_so3(sol[:9].reshape(3, 3, order="F"))
-        t_X, t_Y = _solve_translations(R_X, R_f, p_f, p_meas)
+    t_X, t_Y = _solve_translations(R_X, R_f, p_f, p_meas, rows, K)
     X[:3, :3], X[:3, 3] = R_X, t_X
-    Y[:3, 3] = t_Y
+    Y[:, :3, 3] = t_Y
     return X, Y

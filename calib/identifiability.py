@@ -128,9 +128,10 @@ class IdentifiabilityReport:
 
 
 def weighted_jacobian(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float,
-                      sigma_rot: float) -> np.ndarray:
-    """The identification Jacobian with rows divided by their noise sigma (dimensionless rows)."""
-    J = identification_jacobian(robot, Q, measure)
+                      sigma_rot: float, targets: np.ndarray | None = None) -> np.ndarray:
+    """The identification Jacobian with rows divided by their noise sigma (dimensionless rows);
+    targets: (N,) each row's target index for a multi-target model."""
+    J = identification_jacobian(robot, Q, measure, targets)
     k = 6 if measure == "pose" else 3
     w = np.array([1 / sigma_pos] * 3 + [1 / sigma_rot] * 3)[:k]
     return J * np.tile(w, len(J) // k)[:, None]
@@ -182,7 +183,8 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
                             n_poses: int = 100, seed: int | None = 0, tol: float = RANK_TOL,
                             sigma_pos: float = SIGMA_POS_M, sigma_rot: float = SIGMA_ROT_RAD,
                             priority: Sequence[str] | None = None,
-                            max_poses: int | None = 500) -> IdentifiabilityReport:
+                            max_poses: int | None = 500,
+                            targets: np.ndarray | None = None) -> IdentifiabilityReport:
     """Identifiable parameter set, relations and observability of ``robot``'s parameters.
 
     Parameters
@@ -198,6 +200,9 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
     max_poses : analyse at most this many of the configurations (an evenly spaced subset): which
         parameters are tied does not depend on the number of poses once there are a few dozen,
         and the cost grows with it. None for all.
+    targets : (N,) int, the target index (into ``robot.targets``) measured at each configuration;
+        default for a multi-target model: every target at every configuration (``n_poses`` counts
+        the rows).
 
     The reports of the last ``CACHE_SIZE`` analyses are kept: a repeated call with the same
     model values, configurations and options (as a calibration repeated on the same data makes)
@@ -208,12 +213,17 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
     if Q is None:
         Q = robot.random_configurations(n_poses, seed)
     Q = np.atleast_2d(np.asarray(Q, float))
+    if targets is not None:
+        targets = np.asarray(targets, int)
     if max_poses is not None and len(Q) > max_poses:
-        Q = Q[np.linspace(0, len(Q) - 1, max_poses).astype(int)]
-    key = _cache_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority)
+        pick = np.linspace(0, len(Q) - 1, max_poses).astype(int)
+        Q, targets = Q[pick], None if targets is None else targets[pick]
+    if targets is None and robot.targets:
+        Q, targets = np.repeat(Q, robot.n_targets, axis=0), np.tile(np.arange(robot.n_targets), len(Q))
+    key = _cache_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
     report = _cache.get(key)
     if report is None:
-        report = _analyze(robot, Q, measure, tol, sigma_pos, sigma_rot, priority)
+        report = _analyze(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
         _cache[key] = report
         while len(_cache) > CACHE_SIZE:
             _cache.popitem(last=False)
@@ -223,22 +233,23 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
 
 
 def _cache_key(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,
-               sigma_rot: float, priority) -> tuple:
+               sigma_rot: float, priority, targets) -> tuple:
     """What the analysis depends on: the chain's structure and values, the configurations, the
     options (a digest of the arrays, so that large data are not held by the cache)."""
     h = hashlib.blake2b(digest_size=20)
-    for a in (robot.values, robot.T_meas_base_ref, robot.T_flange_tool_ref, Q):
+    refs = robot.T_flange_target_refs if robot.T_flange_target_refs is not None else robot.T_flange_tool_ref
+    for a in (robot.values, robot.T_meas_base_ref, refs, Q, np.zeros(0) if targets is None else targets):
         a = np.ascontiguousarray(a, float)
         h.update(str(a.shape).encode())
         h.update(a.tobytes())
-    structure = (robot.names, tuple((j.name, j.kind) for j in robot.joints))
+    structure = (robot.names, tuple((j.name, j.kind) for j in robot.joints), robot.targets)
     return (h.hexdigest(), structure, measure, float(tol), float(sigma_pos), float(sigma_rot),
             None if priority is None else tuple(priority))
 
 
 def _analyze(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,
-             sigma_rot: float, priority) -> IdentifiabilityReport:
-    J = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot)
+             sigma_rot: float, priority, targets) -> IdentifiabilityReport:
+    J = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot, targets)
     order = list(robot.indices(priority)) if priority else []
     order += [k for k in range(robot.n_params) if k not in order]
     kept, dropped = select_identifiable(J, order, tol)
@@ -252,7 +263,7 @@ def _analyze(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_p
             if measure == "position":
                 if pose_norms is None:
                     pose_norms = np.linalg.norm(
-                        weighted_jacobian(robot, Q, "pose", sigma_pos, sigma_rot), axis=0)
+                        weighted_jacobian(robot, Q, "pose", sigma_pos, sigma_rot, targets), axis=0)
                 if not no_effect(pose_norms, j):
                     reason = ("rotates the tool about the tool point only: observable with "
                               "orientation data, not with positions")

@@ -25,21 +25,24 @@ MEASURES = ("pose", "position")
 
 
 def pose_jacobian(kin: ChainKinematics, Q: np.ndarray, columns: np.ndarray | None = None, *,
-                  transposed: bool = False):
+                  transposed: bool = False, targets: np.ndarray | None = None):
     """Tool poses and the pose Jacobian at the kinematics' current parameter values.
 
     Q : (N, n) joint values (rad / m). columns : parameter indices of the wanted columns, in
     that order (default all): asking only for the free parameters avoids computing and copying
     the others. The cost is linear in N and the memory that of the outputs, so a caller that
-    accumulates normal equations can pass chunks of Q.
+    accumulates normal equations can pass chunks of Q. targets : (N,) int, each row's target
+    index of a multi-target model (None: the first; a target's v columns are zero on the other
+    targets' rows).
     Returns (R (N, 3, 3), p (N, 3) metres, J (N, 6, m)) with J[:, :3] = dp and J[:, 3:] = dw,
     both in the meas frame. ``transposed``: J as (m, 6, N) instead, see
     :meth:`calib.kinematics.ChainKinematics.poses_and_jacobian`.
     """
-    return kin.poses_and_jacobian(Q, columns, transposed=transposed)
+    return kin.poses_and_jacobian(Q, columns, transposed=transposed, targets=targets)
 
 
-def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "pose") -> np.ndarray:
+def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "pose",
+                            targets: np.ndarray | None = None) -> np.ndarray:
     """The identification Jacobian of ``robot`` at configurations Q.
 
     Parameters
@@ -47,6 +50,8 @@ def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "po
     robot : the model, linearised at its current parameter values.
     Q : (N, n) joint values, radians (metres for prismatic joints).
     measure : "pose" for 6 rows per pose (dp, dw) or "position" for 3 rows (dp).
+    targets : (N,) int, the target index of each row for a multi-target ``robot`` (None: the
+        first target).
 
     Returns
     -------
@@ -56,7 +61,7 @@ def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "po
     """
     if measure not in MEASURES:
         raise ValueError(f"measure must be one of {MEASURES}, got {measure!r}")
-    _, _, J = pose_jacobian(ChainKinematics(robot), Q)
+    _, _, J = pose_jacobian(ChainKinematics(robot), Q, targets=targets)
     if measure == "position":
         J = J[:, :3]
     return J.reshape(-1, J.shape[2])

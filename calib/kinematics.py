@@ -18,6 +18,10 @@ Structure of the chain of an n-joint robot (joints revolute or prismatic about z
                               = flange . T(v) . T_flange_tool_ref
     frame "base" on universe  = T_meas_base_ref . T(u)
 
+With several targets (``robot.targets``) there is one tool mount and one frame ``tool`` per
+target, each with its own T(v_k) . T_flange_tool_ref_k; ``targets`` (N,) indices choose each
+row's frame, so a target's v columns of the Jacobian are nonzero on its rows only.
+
 (Rot(z) and Trans(z) commute, so the joint motion about or along z may follow Trans(z, d_i).)
 Each placement is a product of elementary screws, one per parameter, so the derivative of a
 placement with respect to a parameter is a constant twist in the placement's own frame:
@@ -47,9 +51,9 @@ class _Factor:
     const: np.ndarray | None = None  # 4x4 for "const"
 
 
-def _frame_factors(robot: RobotModel, group: str) -> list[_Factor]:
-    kinds = {"x": "tx", "y": "ty", "z": "tz", "alpha": "rz", "beta": "ry", "gamma": "rx"}
-    return [_Factor(kinds[k], robot.index(f"{group}_{k}")) for k in ("x", "y", "z", "alpha", "beta", "gamma")]
+def _frame_factors(robot: RobotModel, names) -> list[_Factor]:
+    kinds = ("tx", "ty", "tz", "rz", "ry", "rx")     # x, y, z, alpha, beta, gamma
+    return [_Factor(k, robot.index(name)) for k, name in zip(kinds, names)]
 
 
 def _post_factors(robot: RobotModel, joint: int) -> list[_Factor]:
@@ -64,14 +68,17 @@ def _pre_factors(robot: RobotModel, joint: int) -> list[_Factor]:
 
 
 def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
-    """Factors of the n joint placements, then the tool-frame placement (relative to joint n)."""
+    """Factors of the n joint placements, then the tool-frame placement of each target
+    (relative to joint n)."""
     n = robot.n_joints
-    out = [[_Factor("const", const=robot.T_meas_base_ref), *_frame_factors(robot, "u"),
+    out = [[_Factor("const", const=robot.T_meas_base_ref),
+            *_frame_factors(robot, [f"u_{k}" for k in ("x", "y", "z", "alpha", "beta", "gamma")]),
             *_pre_factors(robot, 1)]]
     for i in range(2, n + 1):
         out.append([*_post_factors(robot, i - 1), *_pre_factors(robot, i)])
-    out.append([*_post_factors(robot, n), *_frame_factors(robot, "v"),
-                _Factor("const", const=robot.T_flange_tool_ref)])
+    for k in range(robot.n_targets):
+        out.append([*_post_factors(robot, n), *_frame_factors(robot, robot.v_names(k)),
+                    _Factor("const", const=robot.T_flange_tool_ref_of(k))])
     return tuple(tuple(f) for f in out)
 
 
@@ -110,9 +117,11 @@ class _FactorTable:
         m = np.arange(len(self.rot))
         self.rot_skew[m, self.rot_j, self.rot_i] = 1.0
         self.rot_skew[m, self.rot_i, self.rot_j] = -1.0
-        params = np.concatenate([self.rot[:, 3], self.trans[:, 3]])
-        if len(np.unique(params)) != len(params):
-            raise ValueError("a parameter appears in two factors")
+        # a parameter appears once per placement (the flange's a_n, alpha_n, beta_n appear in the
+        # tool placement of every target, each with its own twist rows)
+        pairs = np.concatenate([self.rot[:, [0, 3]], self.trans[:, [0, 3]]])
+        if len(np.unique(pairs, axis=0)) != len(pairs):
+            raise ValueError("a parameter appears in two factors of one placement")
 
     def elementary(self, values: np.ndarray) -> np.ndarray:
         """(P, F, 4, 4) factor matrices at parameter ``values``."""
@@ -180,25 +189,23 @@ _STRUCTURES: OrderedDict = OrderedDict()
 
 
 def _structure(robot: RobotModel) -> _Structure:
+    refs = robot.T_flange_target_refs if robot.T_flange_target_refs is not None else robot.T_flange_tool_ref
     key = (robot.names, tuple((j.name, j.kind) for j in robot.joints),
-           robot.T_meas_base_ref.tobytes(), robot.T_flange_tool_ref.tobytes())
+           robot.T_meas_base_ref.tobytes(), np.ascontiguousarray(refs).tobytes())
     st = _STRUCTURES.get(key)
     if st is not None:
         _STRUCTURES.move_to_end(key)
         return st
     factors = placement_factors(robot)
-    owner = np.full(robot.n_params, -1)
-    for k, fs in enumerate(factors):
-        for f in fs:
-            if f.param is not None:
-                owner[f.param] = k
-    geometric = np.array([p.group != "compliance" for p in robot.parameters])
-    if (owner[geometric] < 0).any():      # compliance parameters act through the joints instead
+    params_of = [np.array(sorted({f.param for f in fs if f.param is not None}), int) for fs in factors]
+    placed = set(np.concatenate(params_of).tolist())
+    geometric = [k for k, p in enumerate(robot.parameters) if p.group != "compliance"]
+    if not set(geometric) <= placed:      # compliance parameters act through the joints instead
         raise ValueError("a parameter belongs to no placement")
     prismatic = robot.prismatic
     prismatic.setflags(write=False)
     st = _Structure(factors, _FactorTable(factors, robot.n_params),
-                    [np.flatnonzero(owner == k) for k in range(robot.n_joints + 1)], prismatic)
+                    params_of, prismatic)
     _STRUCTURES[key] = st
     while len(_STRUCTURES) > 32:
         _STRUCTURES.popitem(last=False)
@@ -230,6 +237,7 @@ class ChainKinematics:
         self._pin_values = None
         self._plans: dict = {}
         self.compliance = compliance_term(robot)   # None without compliance (calib.compliance)
+        self.n_targets = robot.n_targets
         self.set_values(robot.values)
 
     # ------------------------------------------------------------------ parameters
@@ -239,7 +247,7 @@ class ChainKinematics:
         values = np.array(values, float)
         M, prefix, tw = self._table.products(values, twists)
         n = self.n_joints
-        self.placements = M                                  # (n + 1, 4, 4), joint placements then tool mount
+        self.placements = M          # (n + K, 4, 4): joint placements, then each target's tool mount
         self.flange_placement = prefix[n, self._flange_at]   # relative to joint n
         self.base_placement = prefix[0, self._base_at]       # T_meas_base
         self.placement_twists = tw
@@ -263,7 +271,7 @@ class ChainKinematics:
             self._pin = (model, model.createData(), ids)
         model = self._pin[0]
         if self._pin_values is not self.values:
-            for k, M in enumerate(self.placements):
+            for k, M in enumerate(self.placements[:self.n_joints + 1]):   # the first target's tool
                 model.jointPlacements[k + 1] = to_se3(M)
             model.frames[self._pin[2][1]].placement = to_se3(self.flange_placement)
             model.frames[self._pin[2][0]].placement = to_se3(self.base_placement)
@@ -338,42 +346,57 @@ class ChainKinematics:
         Q = np.atleast_2d(np.asarray(Q, float))
         return Q if self.compliance is None else self.compliance.effective(Q, self.values)
 
-    def frame_poses(self, Q: np.ndarray, frame: str = "tool") -> tuple[np.ndarray, np.ndarray]:
+    def frame_poses(self, Q: np.ndarray, frame: str = "tool",
+                    targets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Poses of a frame ("tool", "flange" or "base") in the meas frame for configurations Q.
 
-        Q : (N, n) joint values, radians / metres. Returns (R (N, 3, 3), p (N, 3) metres).
-        Computed in chunks of ``CHUNK`` poses: the memory beyond the outputs is bounded.
+        Q : (N, n) joint values, radians / metres; targets : (N,) int, each row's target index
+        for the "tool" frame of a multi-target model (None: the first target). Returns
+        (R (N, 3, 3), p (N, 3) metres). Computed in chunks of ``CHUNK`` poses: the memory beyond
+        the outputs is bounded.
         """
         Q = self.effective(Q)
         N = len(Q)
         if frame == "base":
             T = self.base_placement
             return np.repeat(T[None, :3, :3], N, axis=0), np.repeat(T[None, :3, 3], N, axis=0)
-        T = {"tool": self.placements[self.n_joints], "flange": self.flange_placement}[frame]
         R, p = np.empty((N, 3, 3)), np.empty((N, 3))
-        for a in range(0, N, CHUNK):
-            Rc, pc = self._attach(*self._walk(Q[a:a + CHUNK]), T)
-            R[a:a + CHUNK] = Rc.transpose(2, 0, 1)
-            p[a:a + CHUNK] = pc.T
+        for t, rows in self._target_groups(N, targets if frame == "tool" else None):
+            T = self.placements[self.n_joints + t] if frame == "tool" else self.flange_placement
+            Qt = Q[rows]
+            Rt, pt = np.empty((len(Qt), 3, 3)), np.empty((len(Qt), 3))
+            for a in range(0, len(Qt), CHUNK):
+                Rc, pc = self._attach(*self._walk(Qt[a:a + CHUNK]), T)
+                Rt[a:a + CHUNK] = Rc.transpose(2, 0, 1)
+                pt[a:a + CHUNK] = pc.T
+            R[rows], p[rows] = Rt, pt
         return R, p
 
+    def _target_groups(self, N: int, targets):
+        """(target index, rows) pairs covering N rows: all rows with target 0 when ``targets``
+        is None or the model has one tool frame."""
+        if targets is None or self.n_targets == 1:
+            return [(0, slice(None))]
+        targets = np.asarray(targets, int)
+        return [(int(t), np.flatnonzero(targets == t)) for t in np.unique(targets)]
+
     def poses_and_jacobian(self, Q: np.ndarray, columns: np.ndarray | None = None, *,
-                           transposed: bool = False):
+                           transposed: bool = False, targets: np.ndarray | None = None):
         """See :meth:`_poses_and_jacobian`; with compliance (:mod:`calib.compliance`) at the
         effective joint values, the column of c_i being that of theta_i (d_i) times tau_i(q)."""
         Q = np.atleast_2d(np.asarray(Q, float))
         if self.compliance is None:
-            return self._poses_and_jacobian(Q, columns, transposed=transposed)
+            return self._poses_and_jacobian(Q, columns, transposed=transposed, targets=targets)
         cols = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
         c_pos = {int(c): j for j, c in enumerate(self.compliance.c_idx)}
         wanted = [(k, c_pos[int(c)]) for k, c in enumerate(cols) if int(c) in c_pos]
         if not wanted:
-            return self._poses_and_jacobian(self.effective(Q), cols, transposed=transposed)
+            return self._poses_and_jacobian(self.effective(Q), cols, transposed=transposed, targets=targets)
         m = len(cols)
         ext = list(map(int, cols))            # each column once: add the missing theta_i / d_i
         ext += [int(q) for q in self.compliance.q_cols if int(q) not in ext]
         at = {c: k for k, c in enumerate(ext)}
-        R, p, J = self._poses_and_jacobian(self.effective(Q), np.array(ext, int))
+        R, p, J = self._poses_and_jacobian(self.effective(Q), np.array(ext, int), targets=targets)
         tau = self.compliance.torques(Q)
         for k, j in wanted:
             J[:, :, k] = J[:, :, at[int(self.compliance.q_cols[j])]] * tau[:, j, None]
@@ -381,7 +404,7 @@ class ChainKinematics:
         return R, p, (np.ascontiguousarray(J.transpose(2, 1, 0)) if transposed else np.ascontiguousarray(J))
 
     def _poses_and_jacobian(self, Q: np.ndarray, columns: np.ndarray | None = None, *,
-                            transposed: bool = False):
+                            transposed: bool = False, targets: np.ndarray | None = None):
         """Tool poses and the identification Jacobian at configurations Q (N, n), rad / m.
 
         columns : parameter indices of the wanted Jacobian columns, in the wanted order (default
@@ -401,22 +424,25 @@ class ChainKinematics:
         if self.placement_twists is None:
             self.set_values(self.values)
         Q = np.atleast_2d(np.asarray(Q, float))
-        plan = self._column_plan(columns)
-        N, m = len(Q), plan[-1]
+        N = len(Q)
+        m = len(columns) if columns is not None else self.n_params
         R, p = np.empty((N, 3, 3)), np.empty((N, 3))
         J = np.empty((m, 6, N)) if transposed else np.empty((N, 6, m))
-        for a in range(0, N, JACOBIAN_CHUNK):
-            b = a + JACOBIAN_CHUNK
-            Rc, pc, Jc = self._jacobian_chunk(Q[a:b], plan)
-            R[a:b] = Rc.transpose(2, 0, 1)
-            p[a:b] = pc.T
-            if transposed:
-                J[:, :, a:b] = Jc
-            else:
-                J[a:b] = Jc.transpose(2, 1, 0)
+        for t, rows in self._target_groups(N, targets):
+            plan = self._column_plan(columns, t)
+            idx = np.arange(N)[rows]
+            for a in range(0, len(idx), JACOBIAN_CHUNK):
+                at = idx[a:a + JACOBIAN_CHUNK]
+                Rc, pc, Jc = self._jacobian_chunk(Q[at], plan, t)
+                R[at] = Rc.transpose(2, 0, 1)
+                p[at] = pc.T
+                if transposed:
+                    J[:, :, at] = Jc
+                else:
+                    J[at] = Jc.transpose(2, 1, 0)
         return R, p, J
 
-    def _jacobian_chunk(self, Q, plan):
+    def _jacobian_chunk(self, Q, plan, target: int = 0):
         """Tool pose (R (3, 3, N), p (3, N)) and Jt (m, 6, N) of a chunk of poses.
 
         All placements at once: Ad^T of every placement frame, (P, 6, 6, N), times the
@@ -424,7 +450,7 @@ class ChainKinematics:
         N = len(Q)
         P = self.n_joints + 1
         RF, pF = np.empty((P, 3, 3, N)), np.empty((P, 3, N))
-        R, p = self._attach(*self._walk(Q, (RF, pF)), self.placements[self.n_joints])
+        R, p = self._attach(*self._walk(Q, (RF, pF)), self.placements[self.n_joints + target])
         RF[-1], pF[-1] = R, p
         D = pF - p
         AdT = np.zeros((P, 6, 6, N))    # Ad transposed, AdT[k, j, i] = Ad_k[i, j]
@@ -436,29 +462,31 @@ class ChainKinematics:
         AdT[:, 3:, 2] = D[:, 0, None] * RF[:, 1] - D[:, 1, None] * RF[:, 0]
         slot, param, out_col, width, m = plan
         TWT = np.zeros((P * width, 6))
-        TWT[slot] = self.placement_twists.reshape(P, 6, -1)[slot // width, :, param]
+        used = list(range(self.n_joints)) + [self.n_joints + target]   # joints, this target's tool
+        TWT[slot] = self.placement_twists.reshape(-1, 6, self.n_params)[used][slot // width, :, param]
         X = np.matmul(TWT.reshape(P, width, 6), AdT.reshape(P, 6, 6 * N))   # (P, width, 6 N)
-        Jt = np.empty((m, 6, N))
+        Jt = np.empty((m, 6, N)) if len(slot) == m else np.zeros((m, 6, N))   # other targets: 0
         Jt[out_col] = X.reshape(P * width, 6, N)[slot]
         return R, p, Jt
 
-    def _column_plan(self, columns):
+    def _column_plan(self, columns, target: int = 0):
         """Where each wanted parameter sits: (slot = placement * width + place in it, parameter,
         output column, width = most wanted parameters of one placement, number of columns).
         The plans of the last few column sets are kept (an LM run asks for the same ones)."""
         columns = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
-        key = columns.tobytes()
+        key = (columns.tobytes(), target)
         plan = self._plans.get(key)
         if plan is None:
-            plan = self._plans[key] = self._make_plan(columns)
+            plan = self._plans[key] = self._make_plan(columns, target)
             if len(self._plans) > 8:
                 self._plans.pop(next(iter(self._plans)))
         return plan
 
-    def _make_plan(self, columns):
+    def _make_plan(self, columns, target: int = 0):
         out_col = np.full(self.n_params, -1)
         out_col[columns] = np.arange(len(columns))
-        params = [ps[out_col[ps] >= 0] for ps in self._params_of]
+        placements = self._params_of[:self.n_joints] + [self._params_of[self.n_joints + target]]
+        params = [ps[out_col[ps] >= 0] for ps in placements]
         width = max(1, max(len(ps) for ps in params))
         slot = np.concatenate([k * width + np.arange(len(ps)) for k, ps in enumerate(params)])
         param = np.concatenate(params)

@@ -72,8 +72,12 @@ class PoseDeviations:
 
 
 def pose_deviations(robot: RobotModel, measurements: Measurements) -> PoseDeviations:
-    """Deviations of ``robot``'s tool poses from ``measurements`` (both in the meas frame)."""
-    R, p = ChainKinematics(robot).frame_poses(measurements.q)
+    """Deviations of ``robot``'s tool poses from ``measurements`` (both in the meas frame; rows
+    of several targets against the model's transform of their target)."""
+    from .calibration import target_rows, with_measured_targets
+
+    robot = with_measured_targets(robot, measurements)
+    R, p = ChainKinematics(robot).frame_poses(measurements.q, targets=target_rows(robot, measurements))
     rot = None
     if measurements.rotation is not None:
         rot = log3_batch(R @ np.transpose(measurements.rotation, (0, 2, 1)))
@@ -233,6 +237,8 @@ def _residual_rows(result: CalibrationResult, parts: Sequence[tuple[str, str, Me
                 rec.update({"rotation_rad": [float(v) for v in after.rotation[k]],
                             "rotation_error_rad": float(np.linalg.norm(after.rotation[k])),
                             "rotation_error_before_rad": float(np.linalg.norm(before.rotation[k]))})
+            if m.target is not None:
+                rec["target"] = m.target[k]
             if file_role == "measurements":
                 rec["outlier"] = int(m.rows[k]) in outlier_rows
             out.append(rec)
@@ -270,7 +276,7 @@ def build_report(result: CalibrationResult, measurements: Measurements,
     * ``frames``: base and tool frame and chain joints of the model, plus ``frames`` given by the
       caller (e.g. the frames recorded in the written URDF, under ``"written_urdf"``);
     * ``residuals``: one entry per row of ``measurements`` and ``validation`` (file role, 1-based
-      file row, set, residual p_model - p_measured in mm in the meas frame, its length before and
+      file row, set, target (when the data has a target column), residual p_model - p_measured in mm in the meas frame, its length before and
       after, rotation vector of R_model R_measured^T in rad and its angle, outlier flag);
     * ``covariance``: names, units, standard deviations, covariance and correlation of the free
       parameters (mm and rad).
@@ -336,9 +342,11 @@ def render_html(report: Mapping, text: str, images: Mapping[str, bytes] | None =
          ["joints", ", ".join(frames.get("joints", []))]]
         + [[f"written URDF: {k}", v] for k, v in (frames.get("written_urdf") or {}).items()], left=2))
     acc_rows = []
-    for label, key in (("calibration rows, before", ("before",)), ("calibration rows, after", ("after",)),
+    per_target = [(f"target {t}, {when}", ("targets", t, when)) for t in (report.get("targets") or {})
+                  for when in ("before", "after")]
+    for label, key in [("calibration rows, before", ("before",)), ("calibration rows, after", ("after",)),
                        ("validation rows, before", ("validation", "before")),
-                       ("validation rows, after", ("validation", "after"))):
+                       ("validation rows, after", ("validation", "after"))] + per_target:
         d = report
         for k in key:
             d = d.get(k) if isinstance(d, Mapping) else None

@@ -16,6 +16,11 @@ Parameters are named ``theta1``, ``d1``, ``a1``, ``alpha1``, ``beta2`` (only for
 axis is parallel to the next one), ``u_x``, ``u_y``, ``u_z``, ``u_alpha``, ``u_beta``,
 ``u_gamma`` and ``v_x`` ... ``v_gamma`` (alpha = yaw about z, beta = pitch about y, gamma = roll
 about x, as in Eq. (3)). Lengths in metres, angles in radians.
+
+Several targets (reflectors) on the tool: a model with ``targets`` (two or more ids) has one
+flange->target transform per target, ``T(v_k) . T_flange_tool_ref_k``, with parameters named
+``v_x@<id>`` ... ``v_gamma@<id>``; the chain and the measurement frame are shared. A model with
+one tool frame (``targets == ()``) keeps the names ``v_x`` ... ``v_gamma``.
 """
 from __future__ import annotations
 
@@ -60,7 +65,8 @@ class Parameter:
     ``"v"`` (flange->tool) or ``"compliance"`` (``c<i>`` of joint ``joint``, only in a model made
     by :meth:`RobotModel.with_compliance`); ``kind`` is theta, d, a, alpha, beta for joints, x, y,
     z, alpha, beta, gamma for u and v, ``c`` for compliance; ``unit`` is ``"m"``, ``"rad"``, or
-    ``"rad/(N m)"`` / ``"m/N"`` for the compliance of a revolute / prismatic joint.
+    ``"rad/(N m)"`` / ``"m/N"`` for the compliance of a revolute / prismatic joint; ``target`` the
+    target id of a v parameter of a multi-target model (None otherwise).
     """
 
     name: str
@@ -68,6 +74,7 @@ class Parameter:
     kind: str
     joint: int | None
     unit: str
+    target: str | None = None
 
     @property
     def is_angular(self) -> bool:
@@ -78,23 +85,33 @@ class Parameter:
         """The paper's symbol: theta1, d2, x, alpha, x', gamma' ..."""
         if self.group == "joint":
             return self.name
-        return self.kind + ("'" if self.group == "v" else "")
+        return self.kind + ("'" if self.group == "v" else "") + \
+            ("" if self.target is None else f"@{self.target}")
 
 
-def make_parameters(n_joints: int, beta_joints: Iterable[int]) -> tuple[Parameter, ...]:
+def v_names(target: str | None = None) -> tuple[str, ...]:
+    """Names of the six flange->tool parameters: ``v_x`` ... or ``v_x@<target>`` ..."""
+    suffix = "" if target is None else f"@{target}"
+    return tuple(f"v_{k}{suffix}" for k in _FRAME_KINDS)
+
+
+def make_parameters(n_joints: int, beta_joints: Iterable[int],
+                    targets: Sequence[str] = ()) -> tuple[Parameter, ...]:
     """The parameter list in the order of Eq. (23): theta, d, a, alpha, beta, u, v.
 
-    ``beta_joints`` are the 1-based joints that carry a beta parameter.
+    ``beta_joints`` are the 1-based joints that carry a beta parameter. ``targets``: two or more
+    target ids give one v block per target (``v_x@<id>`` ...), in that order; () one block ``v_x``.
     """
     params: list[Parameter] = []
     for kind in ("theta", "d", "a", "alpha"):
         unit = "m" if kind in ("d", "a") else "rad"
         params += [Parameter(f"{kind}{i}", "joint", kind, i, unit) for i in range(1, n_joints + 1)]
     params += [Parameter(f"beta{i}", "joint", "beta", i, "rad") for i in sorted(beta_joints)]
-    for group in ("u", "v"):
-        for kind in _FRAME_KINDS:
-            unit = "m" if kind in ("x", "y", "z") else "rad"
-            params.append(Parameter(f"{group}_{kind}", group, kind, None, unit))
+    for kind in _FRAME_KINDS:
+        params.append(Parameter(f"u_{kind}", "u", kind, None, "m" if kind in "xyz" else "rad"))
+    for target in (tuple(targets) or (None,)):
+        for kind, name in zip(_FRAME_KINDS, v_names(target)):
+            params.append(Parameter(name, "v", kind, None, "m" if kind in "xyz" else "rad", target))
     return tuple(params)
 
 
@@ -107,9 +124,13 @@ class RobotModel:
     joints : the moving joints from base to tool, in chain order.
     parameters : the TM-MDH parameters, in the order of Eq. (23).
     values : (n_params,) float, metres / radians: one value per parameter (read-only array).
-    T_meas_base_ref, T_flange_tool_ref : (4, 4) constant reference transforms.
+    T_meas_base_ref, T_flange_tool_ref : (4, 4) constant reference transforms (of the first
+        target for a multi-target model).
     base_frame, tool_frame : names of the URDF frames the chain runs between.
     urdf_path : the URDF the model was read from (None for a model built in code).
+    targets : ids of the targets on the tool (two or more), or () for one tool frame.
+    T_flange_target_refs : (K, 4, 4) the reference flange->target transform of each target
+        (K = len(targets)), or None for one tool frame; default: ``T_flange_tool_ref`` for each.
     """
 
     joints: tuple[ChainJoint, ...]
@@ -123,8 +144,31 @@ class RobotModel:
     parallel_threshold: float = PARALLEL_THRESHOLD_RAD
     #: :class:`calib.compliance.GravityModel` of a model with compliance parameters, else None.
     gravity: object | None = None
+    targets: tuple[str, ...] = ()
+    T_flange_target_refs: np.ndarray | None = None
 
     def __post_init__(self):
+        targets = tuple(self.targets)
+        if len(targets) == 1 or len(set(targets)) != len(targets) or \
+                not all(isinstance(t, str) and t for t in targets):
+            raise ParameterError(f"targets must be two or more distinct non-empty ids, or () for one "
+                                 f"tool frame; got {targets!r}")
+        object.__setattr__(self, "targets", targets)
+        refs = None
+        if targets:
+            refs = np.array(np.broadcast_to(self.T_flange_tool_ref, (len(targets), 4, 4))
+                            if self.T_flange_target_refs is None else self.T_flange_target_refs, float)
+            if refs.shape != (len(targets), 4, 4):
+                raise ParameterError(f"T_flange_target_refs must be ({len(targets)}, 4, 4), got {refs.shape}")
+            if not np.array_equal(np.asarray(self.T_flange_tool_ref, float), refs[0]) and \
+                    not np.array_equal(np.asarray(self.T_flange_tool_ref, float), np.eye(4)):
+                raise ParameterError("T_flange_tool_ref of a multi-target model is that of its first "
+                                     "target: change T_flange_target_refs instead")
+            object.__setattr__(self, "T_flange_tool_ref", refs[0].copy())
+            refs.setflags(write=False)
+        elif self.T_flange_target_refs is not None:
+            raise ParameterError("T_flange_target_refs needs targets")
+        object.__setattr__(self, "T_flange_target_refs", refs)
         vals = np.array(self.values, dtype=float)
         if vals.shape != (len(self.parameters),):
             raise ParameterError(f"expected {len(self.parameters)} parameter values, got {vals.shape}")
@@ -152,6 +196,61 @@ class RobotModel:
                    T_meas_base_ref=np.eye(4) if T_meas_base_ref is None else T_meas_base_ref,
                    T_flange_tool_ref=np.eye(4) if T_flange_tool_ref is None else T_flange_tool_ref,
                    **kwargs)
+
+    def with_targets(self, targets: Sequence[str],
+                     T_flange_target_refs: np.ndarray | None = None) -> "RobotModel":
+        """This model with the given targets on the tool (a new model).
+
+        targets : two or more ids (one id or () gives a one-tool-frame model with the first
+        target's transform). Each target starts with the v values and reference of the target of
+        this model of the same id, else of the first target; ``T_flange_target_refs`` (K, 4, 4)
+        replaces the references.
+        """
+        targets = tuple(str(t) for t in targets)
+        if targets == self.targets and T_flange_target_refs is None:
+            return self
+        if len(targets) < 2:
+            return self.for_target(targets[0] if targets and targets[0] in self.targets else None)
+        vals = [x for x, p in zip(self.values, self.parameters) if p.group != "v"]
+        refs = []
+        for t in targets:
+            src = t if t in self.targets else None
+            vals += list(self.v(src))
+            refs.append(self.T_flange_tool_ref_of(src))
+        if T_flange_target_refs is not None:
+            refs = T_flange_target_refs
+        beta_joints = [p.joint for p in self.parameters if p.kind == "beta" and p.group == "joint"]
+        return replace(self, parameters=make_parameters(self.n_joints, beta_joints, targets),
+                       values=np.array(vals), targets=targets, T_flange_target_refs=np.array(refs),
+                       T_flange_tool_ref=np.array(refs[0]))
+
+    def with_target_offsets(self, offsets) -> "RobotModel":
+        """This model with targets at known points of the tool: ``offsets`` maps each id to its
+        position (3,) in metres in the tool frame (of the first target, for a multi-target model);
+        each target's frame is the tool frame moved there. Two or more targets."""
+        ids = tuple(str(t) for t in offsets)
+        refs = []
+        for t in ids:
+            p = np.asarray(offsets[t], float)
+            if p.shape != (3,) or not np.isfinite(p).all():
+                raise ParameterError(f"target {t!r}: expected a finite position (x, y, z) in metres, got {p!r}")
+            T = np.eye(4)
+            T[:3, 3] = p
+            refs.append(self.T_flange_tool_ref_of(0) @ T)
+        return self.for_target(0).with_targets(ids, np.array(refs))
+
+    def for_target(self, target: str | int | None = None) -> "RobotModel":
+        """The one-tool-frame model of one target (default the first): its v values (named
+        ``v_x`` ...) and reference (the tool frame name stays that of the chain)."""
+        if not self.targets:
+            return self
+        k = self.target_index(target)
+        vals = np.concatenate([[x for x, p in zip(self.values, self.parameters) if p.group != "v"],
+                               self.v(k)])
+        beta_joints = [p.joint for p in self.parameters if p.kind == "beta" and p.group == "joint"]
+        return replace(self, parameters=make_parameters(self.n_joints, beta_joints), values=vals,
+                       targets=(), T_flange_target_refs=None,
+                       T_flange_tool_ref=np.array(self.T_flange_target_refs[k]))
 
     def with_values(self, values: np.ndarray) -> "RobotModel":
         """A copy of this model with other parameter values (full vector, same order)."""
@@ -262,22 +361,74 @@ class RobotModel:
                                   for i in range(1, n + 1)])
         return table
 
+    @property
+    def n_targets(self) -> int:
+        """Number of flange->tool transforms (1 for a one-tool-frame model)."""
+        return max(1, len(self.targets))
+
+    def target_index(self, target: str | int | None = None) -> int:
+        """Position of a target (id, or index) in :attr:`targets`; None is the first."""
+        if target is None:
+            return 0
+        if isinstance(target, (int, np.integer)) and not isinstance(target, bool):
+            if not 0 <= target < self.n_targets:
+                raise ParameterError(f"target index {target} out of range for {self.n_targets} target(s)")
+            return int(target)
+        try:
+            return self.targets.index(target)
+        except ValueError:
+            known = ", ".join(self.targets) if self.targets else "none: the model has one tool frame"
+            raise ParameterError(f"unknown target {target!r}; targets of the model: {known}") from None
+
+    def target_rows(self, target_ids: Sequence[str] | None) -> np.ndarray | None:
+        """(N,) int: the target index of each row's target id (from ``Measurements.target``), or
+        None for a one-tool-frame model. Raises :class:`calib.DataError` for an unknown id."""
+        if not self.targets:
+            return None
+        from .errors import DataError
+
+        if target_ids is None:
+            raise DataError(f"the model has {self.n_targets} targets ({', '.join(self.targets)}): the "
+                            f"measurements need a target column")
+        lookup = {t: k for k, t in enumerate(self.targets)}
+        out = np.empty(len(target_ids), int)
+        for i, t in enumerate(target_ids):
+            if t not in lookup:
+                raise DataError(f"row {i + 1}: target {t!r} is not a target of the model "
+                                f"({', '.join(self.targets)})")
+            out[i] = lookup[t]
+        return out
+
+    @property
+    def T_flange_tool_refs(self) -> np.ndarray:
+        """(K, 4, 4) the reference flange->tool transform of each target (K = n_targets)."""
+        return self.T_flange_target_refs if self.targets else self.T_flange_tool_ref[None]
+
+    def T_flange_tool_ref_of(self, target: str | int | None = None) -> np.ndarray:
+        """(4, 4) the reference flange->tool transform of one target (default the first)."""
+        return self.T_flange_tool_refs[self.target_index(target)]
+
+    def v_names(self, target: str | int | None = None) -> tuple[str, ...]:
+        """Names of the six v parameters of one target (default the first)."""
+        return v_names(self.targets[self.target_index(target)] if self.targets else None)
+
     def u(self) -> np.ndarray:
         """(6,) u = (x, y, z, alpha, beta, gamma), metres / radians."""
         return self.values[self.indices([f"u_{k}" for k in _FRAME_KINDS])]
 
-    def v(self) -> np.ndarray:
-        """(6,) v = (x', y', z', alpha', beta', gamma'), metres / radians."""
-        return self.values[self.indices([f"v_{k}" for k in _FRAME_KINDS])]
+    def v(self, target: str | int | None = None) -> np.ndarray:
+        """(6,) v = (x', y', z', alpha', beta', gamma') of one target (default the first),
+        metres / radians."""
+        return self.values[self.indices(self.v_names(target))]
 
     # ------------------------------------------------------------------ kinematics (reference)
     def T_meas_base(self) -> np.ndarray:
         """(4, 4) pose of MDH frame 0 (base) in the meas frame."""
         return self.T_meas_base_ref @ zyx_transform(*self.u())
 
-    def T_flange_tool(self) -> np.ndarray:
-        """(4, 4) pose of the tool frame in MDH frame n (flange)."""
-        return zyx_transform(*self.v()) @ self.T_flange_tool_ref
+    def T_flange_tool(self, target: str | int | None = None) -> np.ndarray:
+        """(4, 4) pose of the tool frame (of one target, default the first) in MDH frame n (flange)."""
+        return zyx_transform(*self.v(target)) @ self.T_flange_tool_ref_of(target)
 
     def T_base_flange(self, q: np.ndarray) -> np.ndarray:
         """(4, 4) pose of the flange in the base frame at one configuration q (n,), rad / m.
@@ -295,9 +446,10 @@ class RobotModel:
                 T = T @ link_transform(t["theta"][i] + q[i], t["d"][i], t["a"][i], t["alpha"][i], beta)
         return T
 
-    def T_meas_tool(self, q: np.ndarray) -> np.ndarray:
-        """(4, 4) pose of the tool in the meas frame at one configuration q (n,)."""
-        return self.T_meas_base() @ self.T_base_flange(q) @ self.T_flange_tool()
+    def T_meas_tool(self, q: np.ndarray, target: str | int | None = None) -> np.ndarray:
+        """(4, 4) pose of the tool (of one target, default the first) in the meas frame at one
+        configuration q (n,)."""
+        return self.T_meas_base() @ self.T_base_flange(q) @ self.T_flange_tool(target)
 
     def random_configurations(self, n: int, rng: np.random.Generator | int | None = None,
                               unlimited_range: float = math.pi) -> np.ndarray:
@@ -319,7 +471,10 @@ class RobotModel:
             beta = "/" if np.isnan(t["beta"][i]) else f"{t['beta'][i]:.6f}"
             lines.append(f"{j.name:<16}{j.kind:<11}{t['theta'][i]:>11.6f}{t['d'][i] * 1e3:>11.4f}"
                          f"{t['a'][i] * 1e3:>11.4f}{t['alpha'][i]:>11.6f}{beta:>11}")
-        for label, T in (("meas->base", self.T_meas_base()), ("flange->tool", self.T_flange_tool())):
+        frames = [("meas->base", self.T_meas_base())]
+        frames += [(f"flange->{'tool' if not self.targets else t}", self.T_flange_tool(k))
+                   for k, t in enumerate(self.targets or ("tool",))]
+        for label, T in frames:
             x = zyx_parameters(T)
             lines.append(f"{label:<14} x,y,z/mm = {x[0] * 1e3:.4f}, {x[1] * 1e3:.4f}, {x[2] * 1e3:.4f};"
                          f"  alpha,beta,gamma/rad = {x[3]:.6f}, {x[4]:.6f}, {x[5]:.6f}")
@@ -594,9 +749,20 @@ def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame:
     chain = read_urdf_chain(urdf_path, base_frame, tool_frame)
     pts, dirs, T_meas_tool = chain_axes(chain)
     geo = derive_mdh(pts, dirs, T_meas_tool, parallel_threshold)
-    return RobotModel.from_mdh(
+    robot = RobotModel.from_mdh(
         chain.joints, geo.theta, geo.d, geo.a, geo.alpha,
         beta=np.where(geo.has_beta, geo.beta, np.nan),
         T_meas_base_ref=geo.T_meas_base_ref, T_flange_tool_ref=geo.T_flange_tool_ref,
         base_frame=chain.base_frame, tool_frame=chain.tool_frame, urdf_path=chain.path,
         parallel_threshold=parallel_threshold)
+    rec = chain.document.frames if chain.document is not None else None
+    if rec is not None and len(rec.targets) > 1 and chain.tool_frame == rec.tool_frame:
+        # a calibration of several targets: one fixed link per target under the tool frame
+        data = chain.model.createData()
+        pin.framesForwardKinematics(chain.model, data, chain.configuration(np.zeros(len(chain.joints))))
+        oMt = data.oMf[chain.tool_frame_id]
+        body = {f.name: k for k, f in enumerate(chain.model.frames) if f.type == pin.FrameType.BODY}
+        refs = [geo.T_flange_tool_ref @ oMt.actInv(data.oMf[body[link]]).homogeneous
+                for _, link in rec.targets]
+        robot = robot.with_targets([t for t, _ in rec.targets], np.array(refs))
+    return robot

@@ -62,17 +62,18 @@ def unmodelled_joint_error(robot: RobotModel, Q: np.ndarray, amplitude: float, r
 
 def simulate_measurements(true_robot: RobotModel, Q: np.ndarray, *, sigma_pos: float = 0.02e-3,
                           sigma_rot: float = 0.002, position_only: bool = False, rng=None,
-                          sets=None, unmodelled: float = 0.0) -> Measurements:
+                          sets=None, unmodelled: float = 0.0, targets=None) -> Measurements:
     """Measurements of ``true_robot``'s tool at configurations Q (N, n), with Gaussian noise.
 
     sigma_pos : metres per axis; sigma_rot : radians per axis (0 for noise-free data).
     unmodelled : amplitude (rad) of a joint-angle-dependent error that the model cannot describe
     (:func:`unmodelled_joint_error`, phases drawn from ``rng``; 0 for none). The measurements
-    record the commanded joint values Q.
+    record the commanded joint values Q. targets : (N,) target ids, one per row, for a
+    multi-target ``true_robot`` (each row measures that target; recorded in ``target``).
     """
     rng = np.random.default_rng(rng)
     Q_moved = unmodelled_joint_error(true_robot, Q, unmodelled, rng) if unmodelled > 0 else Q
-    R, p = ChainKinematics(true_robot).frame_poses(Q_moved)
+    R, p = ChainKinematics(true_robot).frame_poses(Q_moved, targets=true_robot.target_rows(targets))
     p = p + rng.normal(0.0, sigma_pos, p.shape) if sigma_pos > 0 else p
     rot = None
     if not position_only:
@@ -80,4 +81,5 @@ def simulate_measurements(true_robot: RobotModel, Q: np.ndarray, *, sigma_pos: f
         if sigma_rot > 0:
             rot = rotation_from_rotvec(rng.normal(0.0, sigma_rot, (len(Q), 3))) @ R
     return Measurements(q=np.asarray(Q, float), position=p, rotation=rot, sets=sets,
-                        joint_names=true_robot.joint_names, prismatic=true_robot.prismatic)
+                        joint_names=true_robot.joint_names, prismatic=true_robot.prismatic,
+                        target=None if targets is None else tuple(targets))

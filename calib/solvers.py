@@ -125,10 +125,11 @@ class Problem:
     (position only). values : full parameter vector (start); free : indices of the free
     parameters. sigma_pos (m), sigma_rot (rad): noise per axis, the weights. loss: "linear",
     "huber" or "soft_l1" on each pose's whitened residual (see :func:`robust_scaling`).
+    targets : (N,) int, each row's target index for a multi-target model (None: one tool frame).
     """
 
     def __init__(self, kin: ChainKinematics, Q, p_meas, R_meas, values, free, sigma_pos, sigma_rot,
-                 loss: str = "linear", loss_scale: float = 3.0):
+                 loss: str = "linear", loss_scale: float = 3.0, targets: np.ndarray | None = None):
         if loss not in LOSSES:
             raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
         self.loss = loss
@@ -141,6 +142,10 @@ class Problem:
         self.free = np.asarray(free, int)
         self.sigma_pos = float(sigma_pos)
         self.sigma_rot = float(sigma_rot)
+        self.targets = None if targets is None else np.asarray(targets, int)
+
+    def _targets(self, sl=slice(None)):
+        return None if self.targets is None else self.targets[sl]
 
     @property
     def has_orientation(self) -> bool:
@@ -179,6 +184,7 @@ class Problem:
         if keep is not None:
             p.Q, p.p_meas = self.Q[keep], self.p_meas[keep]
             p.R_meas_T = None if self.R_meas_T is None else self.R_meas_T[keep]
+            p.targets = self._targets(keep)
         return p
 
     def _chunks(self):
@@ -190,7 +196,7 @@ class Problem:
         """Unweighted residuals at x: position (N, 3) metres and rotation (N, 3) radians (None
         without orientation data), model - measured, in the meas frame."""
         self.kin.set_values(self.full(x), twists=False)
-        R, p = self.kin.frame_poses(self.Q)
+        R, p = self.kin.frame_poses(self.Q, targets=self._targets())
         dr = None if self.R_meas_T is None else log3_batch(R @ self.R_meas_T)
         return p - self.p_meas, dr
 
@@ -199,7 +205,7 @@ class Problem:
         self.kin.set_values(self.full(x), twists=False)
         out = []
         for sl in self._chunks():
-            R, p = self.kin.frame_poses(self.Q[sl])
+            R, p = self.kin.frame_poses(self.Q[sl], targets=self._targets(sl))
             out.append(self._assemble(R, p, None, parts, sl)[0])
         return np.concatenate(out) if out else np.zeros(0)
 
@@ -207,7 +213,7 @@ class Problem:
         """(r, J): the weighted residual vector and its Jacobian (stacked over all poses; use
         :meth:`normal_equations` for large data)."""
         self.kin.set_values(self.full(x))
-        R, p, J = pose_jacobian(self.kin, self.Q, self.free)
+        R, p, J = pose_jacobian(self.kin, self.Q, self.free, targets=self._targets())
         return self._assemble(R, p, J, parts, slice(None))
 
     def normal_equations(self, x: np.ndarray, parts: str = "pose") -> NormalEquations:
@@ -230,7 +236,7 @@ class Problem:
         rss = [0.0, 0.0]
         use_pos = parts in ("pose", "position")
         for sl in self._chunks():
-            R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free)
+            R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free, targets=self._targets(sl))
             r, Jw = self._assemble(R, p, J, parts, sl, flat=False)
             k = r.shape[1]
             # columns of the per-pose blocks: 0:3 position (when used), the rest rotation
@@ -258,7 +264,7 @@ class Problem:
         m = len(self.free)
         A, g = np.zeros((n_labels, m, m)), np.zeros((n_labels, m))
         for sl in self._chunks():
-            R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free)
+            R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free, targets=self._targets(sl))
             r, Jw = self._assemble(R, p, J, "pose", sl, flat=False)
             lab = labels[sl]
             for f in np.unique(lab):

@@ -17,7 +17,15 @@ A calibrated URDF written by calib carries one extra top-level element in its ow
 ``base_frame``/``tool_frame`` are the links of this file between which the calibrated
 kinematics hold (the writer may have added a link ``tool``); ``nominal_base_frame`` and
 ``nominal_tool_frame`` the frames of the nominal URDF they stand for (the frames the measurements
-and compensation targets are expressed in). URDF consumers (urdfdom and so ROS, Pinocchio,
+and compensation targets are expressed in). A calibration of several targets (reflectors) adds one fixed link per target under the tool
+frame and records each with its id::
+
+    <calib:frames ... tool_frame="tool" ...>
+      <calib:target id="A" link="tool_A"/>
+      <calib:target id="B" link="tool_B"/>
+    </calib:frames>
+
+URDF consumers (urdfdom and so ROS, Pinocchio,
 yourdfpy) read only ``link``, ``joint``, ``material``, ``transmission`` and ``gazebo``
 elements and ignore a namespaced element, as they ignore ``xacro:`` leftovers.
 """
@@ -35,6 +43,7 @@ __all__ = ["FRAMES_NAMESPACE", "RecordedFrames", "UrdfDocument", "UrdfJoint"]
 #: Namespace of the element that records a calibrated URDF's frames.
 FRAMES_NAMESPACE = "urn:calib:frames:1"
 FRAMES_TAG = f"{{{FRAMES_NAMESPACE}}}frames"
+TARGET_TAG = f"{{{FRAMES_NAMESPACE}}}target"
 
 
 @dataclass(frozen=True)
@@ -52,24 +61,36 @@ class UrdfJoint:
 
 @dataclass(frozen=True)
 class RecordedFrames:
-    """The frames a calibrated URDF records (see the module docstring); link names."""
+    """The frames a calibrated URDF records (see the module docstring); link names.
+
+    targets : (id, link) of each target of a multi-target calibration, () otherwise.
+    """
 
     base_frame: str
     tool_frame: str
     nominal_base_frame: str
     nominal_tool_frame: str
     source: str = ""
+    targets: tuple[tuple[str, str], ...] = ()
 
-    def to_dict(self) -> dict:
+    def _attributes(self) -> dict:
         return {"base_frame": self.base_frame, "tool_frame": self.tool_frame,
                 "nominal_base_frame": self.nominal_base_frame,
                 "nominal_tool_frame": self.nominal_tool_frame, "source": self.source}
 
+    def to_dict(self) -> dict:
+        out = self._attributes()
+        if self.targets:
+            out["targets"] = {t: link for t, link in self.targets}
+        return out
+
     def element(self) -> etree._Element:
         """The ``<calib:frames>`` element (namespace declared on it)."""
         el = etree.Element(FRAMES_TAG, nsmap={"calib": FRAMES_NAMESPACE})
-        for key, value in self.to_dict().items():
+        for key, value in self._attributes().items():
             el.set(key, value)
+        for target, link in self.targets:
+            etree.SubElement(el, TARGET_TAG, {"id": target, "link": link})
         return el
 
 
@@ -139,7 +160,12 @@ class UrdfDocument:
             if el.get(k) not in self.links:
                 raise URDFError(self.path, f"<calib:frames> {k}={el.get(k)!r} is not a link of "
                                            f"this file")
-        return RecordedFrames(*(el.get(k) for k in keys), source=el.get("source", ""))
+        targets = tuple((t.get("id"), t.get("link")) for t in el.findall(TARGET_TAG))
+        for target, link in targets:
+            if not target or link not in self.links:
+                raise URDFError(self.path, f"<calib:target id={target!r} link={link!r}>: expected an id "
+                                           f"and a link of this file")
+        return RecordedFrames(*(el.get(k) for k in keys), source=el.get("source", ""), targets=targets)
 
     # ------------------------------------------------------------------ tree queries
     def link_of(self, frame: str) -> str:

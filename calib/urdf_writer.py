@@ -52,7 +52,8 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -119,12 +120,15 @@ def check_writable(robot: RobotModel) -> RecordedFrames:
 
 
 def _prepare(robot: RobotModel, nominal: RobotModel | None):
+    if robot.targets:      # the chain and first target as one model, then a link per target
+        doc, plan = _prepare(robot.for_target(0), None if nominal is None else nominal.for_target(0))
+        return doc, _plan_targets(robot, doc, plan)
     if robot.urdf_path is None:
         raise CalibError("the robot model was not read from a URDF (urdf_path is None): there is no "
                          "URDF to write calibrated kinematics into")
     src = Path(robot.urdf_path)
     if nominal is None:
-        nominal = load_robot(src, robot.base_frame, robot.tool_frame, robot.parallel_threshold)
+        nominal = load_robot(src, robot.base_frame, robot.tool_frame, robot.parallel_threshold).for_target(0)
     _check_compatible(robot, nominal)
     chain = read_urdf_chain(src, robot.base_frame, robot.tool_frame)
     doc = _UrdfDocument(chain.document.path, chain.document.tree)
@@ -190,8 +194,7 @@ class _UrdfDocument(UrdfDocument):
         by_name = {el.get("name"): el for el in root.findall("joint")}
         for name, T in plan.origins.items():
             _set_origin(by_name[name], T, indent + unit)
-        if plan.new_tool is not None:
-            link, joint, parent, T = plan.new_tool
+        for link, joint, parent, T in plan.new_links:
             closing = root[-1].tail
             root[-1].tail = indent
             els = _new_fixed_link(link, joint, parent=parent, child=link, T=T, indent=indent, unit=unit)
@@ -369,12 +372,20 @@ class _Plan:
     origins: dict
     frames: RecordedFrames
     new_tool: tuple | None = None      # (link, joint, parent link, T_parent_link)
+    new_targets: tuple = ()            # the same for each new target link
+
+    @property
+    def new_links(self) -> tuple:
+        return ((self.new_tool,) if self.new_tool is not None else ()) + tuple(self.new_targets)
 
     def summary(self) -> str:
         parts = [f"Kinematics calibrated by calib from {self.source}.",
                  "Recomputed joint origins: " + (", ".join(self.origins) or "none") + "."]
         if self.new_tool is not None:
             parts.append(f"Added tool link {self.new_tool[0]!r} with fixed joint {self.new_tool[1]!r}.")
+        if self.frames.targets:
+            parts.append("Target links: " + ", ".join(f"{link!r} (target {t!r})" for t, link in self.frames.targets)
+                         + ".")
         parts.append(f"Calibrated kinematics: tool frame {self.frames.tool_frame!r} in base frame "
                      f"{self.frames.base_frame!r} (recorded in calib:frames).")
         return " ".join(parts)
@@ -457,3 +468,37 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
                             nominal_base_frame=nominal_base, nominal_tool_frame=nominal_tool,
                             source=(rec.source if rec is not None and rec.source else doc.path.name))
     return _Plan(source=doc.path.name, origins=origins, frames=frames, new_tool=new_tool)
+
+
+def _target_link_name(target: str) -> str:
+    """``tool_<id>`` with characters other than letters, digits, ``_``, ``-`` and ``.`` as ``_``."""
+    return "tool_" + re.sub(r"[^A-Za-z0-9_.-]", "_", target)
+
+
+def _plan_targets(robot: RobotModel, doc: _UrdfDocument, plan: _Plan) -> _Plan:
+    """The plan of the first target's model with one fixed link ``tool_<id>`` per target under
+    the tool frame, at ``T_tool_target = T_flange_tool(first)^-1 T_flange_tool(target)``. A
+    calibrated input that has the link already (a fixed child of the tool frame) gets its origin
+    changed instead."""
+    tool = plan.frames.tool_frame
+    origins = dict(plan.origins)
+    taken_links = set(doc.links) | {link for link, *_ in plan.new_links}
+    taken_joints = set(doc.joints) | {joint for _, joint, *_ in plan.new_links}
+    new, recorded = [], []
+    T_first = robot.T_flange_tool(0)
+    for k, target in enumerate(robot.targets):
+        T = inverse(T_first) @ robot.T_flange_tool(k)
+        wanted = _target_link_name(target)
+        existing = doc.parent_joint.get(wanted)
+        if existing is not None and existing.kind == "fixed" and existing.parent == tool:
+            origins[existing.name] = T
+            link = wanted
+        else:
+            link = _unique_name(wanted, taken_links)
+            joint = _unique_name(f"{tool}_to_{link}", taken_joints)
+            taken_links.add(link)
+            taken_joints.add(joint)
+            new.append((link, joint, tool, T))
+        recorded.append((target, link))
+    frames = replace(plan.frames, targets=tuple(recorded))
+    return replace(plan, origins=origins, frames=frames, new_targets=tuple(new))

@@ -277,7 +277,8 @@ def test_target_column_is_read_kept_by_subsets_and_written_back(tmp_path, robot)
     assert calib.read_measurements(out, robot).target == m.target
     with pytest.raises(DataError) as info:
         calib.calibrate(robot, m, method="lm")
-    assert str(info.value).startswith(f"{path}: 2 targets (SMR 1, smr2); calibrate takes one target")
+    # two targets are two flange->target transforms (49 parameters): 2 cal rows are far too few
+    assert str(info.value).startswith(f"{path}: 2 calibration poses give 6 equations, fewer than the")
     with pytest.raises(DataError, match=r"target must be \(2,\) ids or None"):
         calib.Measurements.from_arrays(np.zeros((2, 6)), np.zeros((2, 3)), target=["a"])
 
@@ -372,7 +373,7 @@ def test_readme_examples_read_and_match_nominal_kinematics(tmp_path, robot):
     text = (BUNDLED_URDF.parents[2] / "README.md").read_text()
     section = text[text.index("## Measurement file format"):text.index("## Commands")]
     blocks = re.findall(r"```\n(.*?)```", section, flags=re.S)
-    assert len(blocks) == 7
+    assert len(blocks) == 8
     options = {3: ReadOptions(rename="X=x_mm,Y=y_mm,Z=z_mm,A=e1_deg,B=e2_deg,C=e3_deg",
                               euler="ZYZ")}
     for k, block in enumerate(blocks[:5]):
@@ -387,6 +388,14 @@ def test_readme_examples_read_and_match_nominal_kinematics(tmp_path, robot):
                                 options=ReadOptions(key="point"))
     assert m.ignored_columns == ("time",)
     _check_fk(robot, m)
+    # several targets: each row at its reflector's nominal position (printed to 1e-3 mm)
+    (tmp_path / "targets.csv").write_text(blocks[7])
+    m = calib.read_measurements(tmp_path / "targets.csv", robot)
+    smr = robot.with_target_offsets({"SMR1": [0.1, 0, 0.05], "SMR2": [-0.05, 0.08, 0.05],
+                                     "SMR3": [0, -0.07, 0.1]})
+    assert m.target_ids == smr.targets and m.n_poses == 6
+    for q, p, t in zip(m.q, m.position, m.target):
+        np.testing.assert_allclose(p, smr.T_meas_tool(q, t)[:3, 3], rtol=0, atol=1e-6)
 
 
 def _check_fk(robot, m):

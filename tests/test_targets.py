@@ -1,0 +1,336 @@
+"""Several targets (reflectors) per pose: per-target flange->target transforms, their Jacobian,
+identifiability, closed-form frames, calibration, the calibrated URDF and the CLI."""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import calib
+from calib import identification_jacobian, load_robot
+from calib.calibration import calibrate, evaluate
+from calib.cli import main
+from calib.errors import DataError, ParameterError
+from calib.frames import estimate_target_frames
+from calib.identifiability import analyze_identifiability
+from calib.kinematics import ChainKinematics
+from calib.simulate import apply_deviations, random_deviations, simulate_measurements
+from calib.spatial import log3_batch, zyx_transform
+from calib.urdf_writer import write_calibrated_urdf
+
+from conftest import BUNDLED_URDF, erd_urdf
+
+IDS = ("A", "B", "C")
+#: Three reflectors 60-120 mm from the tool frame, not collinear (flange->target offsets, metres).
+OFFSETS = [(0.10, 0.0, 0.05), (-0.05, 0.08, 0.05), (0.0, -0.07, 0.10)]
+
+
+def _nominal(name):
+    return load_robot(BUNDLED_URDF if name == "bundled" else erd_urdf(name))
+
+
+def _with_targets(nominal, rpy=(0.0, 0.0, 0.0)):
+    refs = np.array([nominal.T_flange_tool_ref @ zyx_transform(*o, *rpy) for o in OFFSETS])
+    return nominal.with_targets(IDS, refs)
+
+
+def _truth(nominal, seed=1):
+    model = _with_targets(nominal)
+    return apply_deviations(model, random_deviations(model, 2e-4, seed))
+
+
+def _every_target(Q):
+    """Each configuration measured at every target: (3 N, n) joints and (3 N,) ids."""
+    return np.repeat(Q, len(IDS), axis=0), np.tile(IDS, len(Q))
+
+
+# ====================================================================== model
+def test_one_target_keeps_todays_names_and_several_get_one_block_each(bundled_robot):
+    assert bundled_robot.names[-6:] == ("v_x", "v_y", "v_z", "v_alpha", "v_beta", "v_gamma")
+    assert bundled_robot.targets == () and bundled_robot.n_targets == 1
+    m = _with_targets(bundled_robot)
+    assert m.n_params == bundled_robot.n_params + 12
+    assert m.names[-18:-12] == ("v_x@A", "v_y@A", "v_z@A", "v_alpha@A", "v_beta@A", "v_gamma@A")
+    assert m.names[-6:] == tuple(f"v_{k}@C" for k in ("x", "y", "z", "alpha", "beta", "gamma"))
+    assert m.parameters[-1].target == "C" and m.parameters[-1].symbol == "gamma'@C"
+    # each target's transform: its reference with its own v; the first target's alone back
+    m = m.with_changes(**{"v_y@B": 1e-3})
+    np.testing.assert_allclose(m.T_flange_tool("B")[:3, 3], np.array(OFFSETS[1]) + [0, 1e-3, 0], atol=1e-15)
+    one = m.for_target("B")
+    assert one.names == bundled_robot.names and one.targets == ()
+    q = np.full(6, 0.3)
+    np.testing.assert_allclose(one.T_meas_tool(q), m.T_meas_tool(q, "B"), atol=1e-15)
+    assert m.with_targets(["A"]).names == bundled_robot.names     # one id: one tool frame
+    with pytest.raises(ParameterError, match=r"unknown target 'D'; targets of the model: A, B, C"):
+        m.v("D")
+    with pytest.raises(ParameterError, match="two or more distinct non-empty ids"):
+        bundled_robot.with_targets(["A", "A"])
+
+
+@pytest.mark.parametrize("name", ["bundled", "ur5"])
+def test_jacobian_of_several_targets_matches_finite_differences(name):
+    rng = np.random.default_rng(4)
+    m = _with_targets(_nominal(name), rpy=(0.2, -0.1, 0.3))
+    m = m.with_values(m.values + rng.normal(0.0, 0.02, m.n_params))
+    Q = m.random_configurations(6, rng)
+    rows = np.array([0, 1, 2, 2, 1, 0])
+    J = identification_jacobian(m, Q, targets=rows)
+    h = 1e-6
+    fd = np.empty_like(J)
+    for k in range(m.n_params):
+        e = np.zeros(m.n_params)
+        e[k] = h
+        Tp = np.array([m.with_values(m.values + e).T_meas_tool(q, int(t)) for q, t in zip(Q, rows)])
+        Tm = np.array([m.with_values(m.values - e).T_meas_tool(q, int(t)) for q, t in zip(Q, rows)])
+        dw = log3_batch(Tp[:, :3, :3] @ np.transpose(Tm[:, :3, :3], (0, 2, 1)))
+        fd[:, k] = np.concatenate([Tp[:, :3, 3] - Tm[:, :3, 3], dw], axis=1).reshape(-1) / (2 * h)
+    # central differences of the exact model: truncation ~h^2, rounding ~1e-16 / h
+    assert np.abs(J - fd).max() < 1e-7
+    # a target's v columns act on its own rows only
+    for k, t in enumerate(IDS):
+        cols = m.indices(m.v_names(t))
+        other = np.repeat(rows != k, 6)
+        assert np.abs(J[other][:, cols]).max() == 0.0
+        assert np.abs(J[~other][:, cols]).max() > 0.1
+
+
+# ====================================================================== identifiability
+@pytest.mark.parametrize("name", ["bundled", "ur5"])
+def test_positions_of_three_targets_identify_what_full_poses_identify(name):
+    nominal = _nominal(name)
+    Q = nominal.random_configurations(60, 0)
+    full = analyze_identifiability(nominal, Q, measure="pose")
+    one_point = analyze_identifiability(nominal, Q, measure="position")
+    three = analyze_identifiability(_with_targets(nominal), Q, measure="position")
+
+    def core(report):   # the robot and the measurement frame: everything but the targets
+        return [n for n in report.identifiable if not n.startswith("v_")]
+
+    assert core(three) == core(full) and len(core(full)) == 28
+    assert len(core(one_point)) < len(core(full))
+    # the tool as a rigid body adds the 3 distances between the points: rank 30 + 3
+    assert (full.rank, three.rank) == (30, 33)
+    assert [n for n in three.identifiable if n.startswith("v_")] == \
+        ["v_x@A", "v_y@A", "v_z@A", "v_x@B", "v_z@B"]
+
+
+# ====================================================================== closed-form frames
+@pytest.mark.parametrize("position_only", [True, False])
+def test_closed_form_frames_of_several_targets(bundled_robot, position_only):
+    truth = _with_targets(bundled_robot, rpy=(0.3, 0.2, -0.4))
+    T_meas_base = zyx_transform(1.5, -0.7, 0.3, 2.0, 0.3, -0.2)
+    truth = replace(truth, T_meas_base_ref=T_meas_base)
+    Q, ids = _every_target(bundled_robot.random_configurations(20, 5))
+    m = simulate_measurements(truth, Q, sigma_pos=0, sigma_rot=0, position_only=position_only, targets=ids)
+    start = _with_targets(bundled_robot)
+    X, Y = estimate_target_frames(start, m.q, m.position, m.rotation, start.target_rows(m.target))
+    # noise-free data and the true structure: exact to rounding
+    np.testing.assert_allclose(X, T_meas_base, atol=1e-9)
+    for k in range(3):
+        np.testing.assert_allclose(Y[k][:3, 3], truth.T_flange_tool(k)[:3, 3], atol=1e-9)
+        if not position_only:
+            np.testing.assert_allclose(Y[k][:3, :3], truth.T_flange_tool(k)[:3, :3], atol=1e-9)
+
+
+# ====================================================================== calibration
+@pytest.mark.parametrize("name", ["bundled", "ur5"])
+def test_calibration_from_positions_of_three_targets_recovers_truth(name):
+    nominal = _nominal(name)
+    truth = _truth(nominal)
+    Q, ids = _every_target(nominal.random_configurations(30, 2))
+    m = simulate_measurements(truth, Q, sigma_pos=0, position_only=True, targets=ids)
+    res = calibrate(nominal, m, params="base", sigma_pos=1e-5, cv=0)
+    assert res.status == "converged" and res.robot.targets == IDS
+    assert len(res.targets) == 3 and [t.target for t in res.targets] == list(IDS)
+    Qv = nominal.random_configurations(20, 9)
+    rows = np.arange(20) % 3
+    _, p_true = ChainKinematics(truth).frame_poses(Qv, targets=rows)
+    _, p_cal = ChainKinematics(res.robot).frame_poses(Qv, targets=rows)
+    # noise-free data: every target's position at new configurations to 1e-9 m
+    assert np.abs(p_cal - p_true).max() < 1e-9
+    for t in res.targets:
+        assert t.after.n_poses == 30 and t.after.position["max"] < 1e-9
+        assert t.before.position["rms"] > 0.05      # targets 60-120 mm from the nominal tool
+    d = res.to_dict()
+    assert set(d["targets"]) == set(IDS) and d["targets"]["B"]["after"]["n_poses"] == 30
+    text = res.format()
+    assert "target C, after" in text and "v_gamma@C" in text
+
+
+def test_noisy_calibration_of_three_targets_is_within_its_statistics(bundled_robot):
+    truth = _truth(bundled_robot, seed=3)
+    Q, ids = _every_target(bundled_robot.random_configurations(60, 4))
+    sigma = 0.02e-3
+    m = simulate_measurements(truth, Q, sigma_pos=sigma, position_only=True, targets=ids, rng=5)
+    res = calibrate(bundled_robot, m, params="base", cv=0)
+    assert res.status == "converged"
+    # the noise estimate (variance components) is the simulated one, within its sampling error
+    assert abs(res.noise.position / sigma - 1.0) < 0.15
+    # the error against the truth at the calibration configurations is of the Cramer-Rao size
+    rows = res.robot.target_rows(m.target)
+    _, p_true = ChainKinematics(truth).frame_poses(m.q, targets=rows)
+    _, p_cal = ChainKinematics(res.robot).frame_poses(m.q, targets=rows)
+    rms = float(np.sqrt(np.mean(np.sum((p_cal - p_true) ** 2, axis=1))))
+    assert 0.3 < rms / res.predicted["position_rms"] < 2.0
+    # the fit's residual RMS per target is the noise: sqrt(3) sigma per point, less the fitted share
+    for t in res.targets:
+        assert 0.7 * np.sqrt(3) * sigma < t.after.position["rms"] < 1.2 * np.sqrt(3) * sigma
+
+
+def test_pose_data_of_several_targets_runs_lm_and_recovers_truth(bundled_robot):
+    truth = _truth(bundled_robot, seed=6)
+    Q, ids = _every_target(bundled_robot.random_configurations(15, 7))
+    m = simulate_measurements(truth, Q, sigma_pos=0, sigma_rot=0, targets=ids)
+    res = calibrate(bundled_robot, m, params="base", sigma_pos=1e-5, sigma_rot=1e-5, cv=0)
+    assert res.status == "converged"
+    assert any("angle search of SEARCH-LM takes one tool frame" in n for n in res.notes)
+    assert res.after.position["max"] < 1e-9 and res.after.rotation["max"] < 1e-9
+
+
+def test_unknown_target_is_named_with_its_row(bundled_robot, tmp_path):
+    truth = _truth(bundled_robot)
+    Q, ids = _every_target(bundled_robot.random_configurations(2, 2))
+    m = simulate_measurements(truth, Q, sigma_pos=0, position_only=True, targets=ids)
+    path = tmp_path / "m.csv"
+    calib.write_measurements(path, m.subset([0, 1, 2, 3]))
+    text = path.read_text().splitlines()
+    text[3] = text[3].rsplit(",", 1)[0] + ",D"
+    path.write_text("\n".join(text) + "\n")
+    bad = calib.read_measurements(path, bundled_robot)
+    with pytest.raises(DataError) as info:
+        evaluate(truth, bad)
+    assert str(info.value) == f"{path}: row 4, column target: 'D' is not a target of the model (A, B, C)"
+
+
+# ====================================================================== URDF
+@pytest.mark.parametrize("name", ["bundled", "ur5"])
+def test_calibrated_urdf_has_a_link_per_target_and_reads_back(name, tmp_path):
+    nominal = _nominal(name)
+    truth = _truth(nominal)
+    truth = truth.with_changes(**{"v_alpha@B": 0.2, "v_gamma@C": -0.3})
+    out = tmp_path / "cal.urdf"
+    frames = write_calibrated_urdf(truth, out, nominal=nominal.with_targets(IDS))
+    assert frames.targets == (("A", "tool_A"), ("B", "tool_B"), ("C", "tool_C"))
+    back = load_robot(out)
+    assert back.targets == IDS
+    Q = nominal.random_configurations(12, 3)
+    rows = np.arange(12) % 3
+    R1, p1 = ChainKinematics(truth).frame_poses(Q, targets=rows)
+    R2, p2 = ChainKinematics(back).frame_poses(Q, targets=rows)
+    # the URDF holds the kinematics to rounding of its printed origins
+    assert np.abs(p1 - p2).max() < 1e-11 and np.abs(R1 - R2).max() < 1e-11
+    # one target's link as the tool frame: a one-tool-frame model of that target
+    one = load_robot(out, tool_frame="tool_C")
+    assert one.targets == ()
+    assert np.abs(ChainKinematics(one).frame_poses(Q)[1] - truth_p(truth, Q, 2)).max() < 1e-11
+    # written again from the calibrated file: the target links are updated, not duplicated
+    again = tmp_path / "again.urdf"
+    write_calibrated_urdf(back.with_changes(**{"v_x@B": 1e-3}), again)
+    assert again.read_text().count("<link name=\"tool_B\"") == 1
+    T_again = load_robot(again).T_meas_tool(np.zeros(nominal.n_joints), "B")
+    T_want = back.with_changes(**{"v_x@B": 1e-3}).T_meas_tool(np.zeros(nominal.n_joints), "B")
+    assert np.abs(T_again - T_want).max() < 1e-11
+
+
+def test_compensation_refuses_a_calibration_of_several_targets(tmp_path, capsys):
+    nominal = _nominal("bundled")
+    out = tmp_path / "cal.urdf"
+    write_calibrated_urdf(_truth(nominal), out, nominal=nominal.with_targets(IDS))
+    targets = tmp_path / "targets.csv"
+    targets.write_text("joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg\n0,0,0,0,0,0\n")
+    code = main(["compensate", str(out), str(BUNDLED_URDF), str(targets), "-o", str(tmp_path / "c.csv")])
+    err = capsys.readouterr().err
+    assert code == 2 and "holds 3 targets (A, B, C) and no tool frame of its own" in err
+    assert not (tmp_path / "c.csv").exists()
+
+
+def truth_p(model, Q, k):
+    return ChainKinematics(model).frame_poses(Q, targets=np.full(len(Q), k))[1]
+
+
+# ====================================================================== CLI
+def test_cli_calibrate_and_evaluate_with_a_target_column(tmp_path, capsys):
+    nominal = _nominal("bundled")
+    truth = _truth(nominal)
+    Q, ids = _every_target(nominal.random_configurations(30, 2))
+    m = simulate_measurements(truth, Q, sigma_pos=0, position_only=True, targets=ids)
+    meas = tmp_path / "meas.csv"
+    calib.write_measurements(meas, m)
+    assert meas.read_text().splitlines()[0].endswith(",target")
+    out, report, page = tmp_path / "cal.urdf", tmp_path / "report.json", tmp_path / "report.html"
+    code = main(["calibrate", str(BUNDLED_URDF), str(meas), "-o", str(out), "--params", "base",
+                 "--sigma-pos-mm", "0.01", "--cv", "0", "--report", str(report), "--html", str(page)])
+    text = capsys.readouterr().out
+    assert code == 0 and "target B, after" in text
+    assert "<td class=\"l\">target C, after</td>" in page.read_text()
+    rep = json.loads(report.read_text())
+    assert [r["target"] for r in rep["residuals"][:4]] == ["A", "B", "C", "A"]
+    assert rep["frames"]["written_urdf"]["targets"] == {"A": "tool_A", "B": "tool_B", "C": "tool_C"}
+    assert rep["targets"]["A"]["after"]["n_poses"] == 30
+    assert rep["targets"]["A"]["after"]["position_mm"]["max"] < 1e-6
+    code = main(["evaluate", str(out), str(meas), "--json"])
+    ev = json.loads(capsys.readouterr().out)
+    assert code == 0
+    flat = json.dumps(ev)
+    assert '"n_poses": 90' in flat
+    # noise-free data: the written URDF reproduces every target's measured position (mm)
+    assert max(float(v) for v in _find(ev, "max")) < 1e-6
+
+
+def _find(obj, key):
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            if k == key and isinstance(v, (int, float)):
+                yield v
+            else:
+                yield from _find(v, key)
+    elif isinstance(obj, list):
+        for v in obj:
+            yield from _find(v, key)
+
+
+# ====================================================================== select-poses
+def test_pose_selection_counts_every_targets_rows(bundled_robot, tmp_path, capsys):
+    offsets = {t: np.array(o) for t, o in zip(IDS, OFFSETS)}
+    robot = bundled_robot.with_target_offsets(offsets)
+    assert robot.targets == IDS
+    np.testing.assert_allclose(robot.T_flange_tool("C")[:3, 3], OFFSETS[2], atol=1e-15)
+    design = calib.design_poses(robot, 8, measure="position", candidates=200, seed=1)
+    # the 33 parameters three reflectors identify, from 9 equations per pose
+    assert len(design.parameters) == 33 and design.criteria["D"] > design.random_criteria["D"]
+    with pytest.raises(DataError, match=r"3 poses give 27 equations \(9 per pose\), fewer than the 33"):
+        calib.design_poses(robot, 3, measure="position", candidates=50, seed=1)
+    out = tmp_path / "poses.csv"
+    code = main(["select-poses", str(BUNDLED_URDF), "-n", "8", "-o", str(out), "--measure", "position",
+                 "--candidates", "200", "--seed", "1", "--target", "A=100,0,50", "--target", "B=-50,80,50",
+                 "--target", "C=0,-70,100"])
+    assert code == 0 and "33 identifiable parameters" in capsys.readouterr().out
+    np.testing.assert_allclose(calib.read_poses(out, bundled_robot), design.q, atol=1e-9)
+    code = main(["select-poses", str(BUNDLED_URDF), "-n", "8", "-o", str(tmp_path / "p2.csv"),
+                 "--target", "A=1,2,3"])
+    assert code == 2 and "give two or more targets with distinct ids, got A" in capsys.readouterr().err
+    assert not (tmp_path / "p2.csv").exists()
+
+
+def test_cli_identifiability_with_targets(capsys):
+    code = main(["identifiability", str(BUNDLED_URDF), "--measure", "position", "--poses", "40",
+                 "--target", "A=100,0,50", "--target", "B=-50,80,50", "--target", "C=0,-70,100"])
+    out = capsys.readouterr().out
+    assert code == 0 and "rank 33 of 49 parameters" in out
+    assert "40 random configurations within the joint limits (seed 0), each measuring targets A, B, C" in out
+    assert [ln.split()[:3] for ln in out.splitlines() if ln.startswith("v_z@C")][0] == ["v_z@C", "mm", "flange->C"]
+
+
+def test_stages_take_multi_target_data_directly(bundled_robot):
+    from calib.calibration import prepare
+
+    truth = _truth(bundled_robot)
+    Q, ids = _every_target(bundled_robot.random_configurations(20, 2))
+    m = simulate_measurements(truth, Q, sigma_pos=0, position_only=True, targets=ids)
+    setup, notes = prepare(bundled_robot, m)
+    assert setup.nominal.targets == IDS and setup.rebased == ("flange->A", "flange->B", "flange->C")
+    # the closed-form start: every target's position to the structure's error (sub-millimetre)
+    for k in range(3):
+        assert np.linalg.norm(setup.start.T_flange_tool(k)[:3, 3] - truth.T_flange_tool(k)[:3, 3]) < 1e-3
