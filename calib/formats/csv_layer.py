@@ -550,8 +550,10 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
 
 def _rotation(path: Path, header: _Header, values: np.ndarray, rows: np.ndarray,
               euler: str | None) -> np.ndarray:
-    """(N, 3, 3) rotation matrices from the orientation columns (SI values), by scipy."""
-    from scipy.spatial.transform import Rotation
+    """(N, 3, 3) rotation matrices from the orientation columns (SI values): the common
+    conventions by calib.spatial (numpy), other Euler sequences by scipy (imported only then:
+    it takes longer to import than a whole calibration)."""
+    from ..spatial import rotation_from_quaternion, rotation_from_rotvec, rotation_from_zyx
 
     kind, cols = header.orientation, header.columns
     first = cols[ORIENTATIONS[kind][0][0]].name
@@ -562,13 +564,15 @@ def _rotation(path: Path, header: _Header, values: np.ndarray, rows: np.ndarray,
             raise MeasurementFormatError(
                 path, f"quaternion (qw, qx, qy, qz) has norm {norm[bad[0]]:.6g}, expected 1 "
                       f"(within {QUATERNION_NORM_TOLERANCE:g})", row=int(rows[bad[0]]), column=first)
-        return Rotation.from_quat(values / norm[:, None], scalar_first=True).as_matrix()
+        return rotation_from_quaternion(values / norm[:, None])
     if kind == "zyx":
-        return Rotation.from_euler("ZYX", values).as_matrix()
+        return rotation_from_zyx(values)
     if kind == "euler":
+        from scipy.spatial.transform import Rotation
+
         return Rotation.from_euler(euler, values).as_matrix()
     if kind == "rotvec":
-        return Rotation.from_rotvec(values).as_matrix()
+        return rotation_from_rotvec(values)
     R = values.reshape(-1, 3, 3)
     err = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
     det = np.linalg.det(R)
@@ -579,7 +583,8 @@ def _rotation(path: Path, header: _Header, values: np.ndarray, rows: np.ndarray,
             path, f"r11 ... r33 is not a rotation matrix: |R R^T - I| = {err[k]:.3g}, det R = "
                   f"{det[k]:.6g}, expected orthonormal with det +1 (within {MATRIX_TOLERANCE:g}; "
                   f"rows of the matrix are r1j, r2j, r3j)", row=int(rows[k]), column=first)
-    return Rotation.from_matrix(R).as_matrix()
+    U, _, Vt = np.linalg.svd(R)          # the nearest rotation (within the tolerance above)
+    return U @ Vt
 
 
 def _check_limits(path: Path, robot, header: _Header, q: np.ndarray, rows: np.ndarray,
