@@ -518,8 +518,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="calibrated URDF to write (must differ from ROBOT.urdf)")
     p.add_argument("--method", choices=METHODS, default="search-lm",
                    help="search-lm: closed-form search of the angles on the rotation data, then LM "
-                        "(converges from the largest errors); c-lm: the paper's cross "
-                        "identification; lm: plain Levenberg-Marquardt")
+                        "(converges from the largest errors); c-lm: the paper's cross-identification "
+                        "scheme run with calib's LM (not the paper's Eq. 27-28); lm: plain Levenberg-Marquardt")
     p.add_argument("--params", default="base", metavar="base|paper|all|LIST",
                    help="which parameters to identify (see above)")
     p.add_argument("--sigma-pos-mm", type=positive, default=0.02, metavar="S",
