@@ -23,6 +23,7 @@ from .simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, sim
 from .urdf_writer import write_calibrated_urdf
 from .poses import PoseDesign, design_poses, read_poses, select_poses, write_poses
 from .compensation import CompensationResult, compensate, compensate_poses
+from .paper_lm import PaperLMOptions, PaperLMResult, paper_cross_lm, paper_lm
 
 __all__ = [
     "CalibError", "ChainError", "DataError", "FrameNotFound", "MeasurementFormatError",
@@ -36,4 +37,5 @@ __all__ = [
     "write_calibrated_urdf",
     "PoseDesign", "design_poses", "read_poses", "select_poses", "write_poses",
     "CompensationResult", "compensate", "compensate_poses",
+    "PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm",
 ]
