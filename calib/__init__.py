@@ -29,6 +29,7 @@ from .report import build_report, render_html
 from .poses import PoseDesign, design_poses, select_poses
 from .compensation import CompensationResult, compensate, compensate_poses
 from .compliance import GravityModel, Payload
+from .paper_lm import PaperLMOptions, PaperLMResult, paper_cross_lm, paper_lm
 
 __all__ = [
     "CalibError", "ChainError", "DataError", "FrameNotFound", "MeasurementFormatError",
@@ -44,4 +45,5 @@ __all__ = [
     "PoseDesign", "design_poses", "read_poses", "select_poses", "write_poses",
     "CompensationResult", "compensate", "compensate_poses",
     "GravityModel", "Payload",
+    "PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm",
 ]

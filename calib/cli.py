@@ -340,7 +340,7 @@ def cmd_calibrate(args) -> int:
                                sigma_pos=None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3,
                                sigma_rot=args.sigma_rot_rad, validation=validation, loss=args.loss,
                                outlier_k=args.outlier_k, cv=args.cv, compliance=args.compliance,
-                               payload=payload, gravity=gravity)
+                               payload=payload, gravity=gravity, lm_variant=args.lm_variant)
     except DataError as exc:  # about the data as a whole (too few poses): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
@@ -611,9 +611,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="calibrated URDF to write (must differ from ROBOT.urdf)")
     p.add_argument("--method", choices=METHODS, default="search-lm",
                    help="search-lm: closed-form search of the angles on the rotation data, then LM "
-                        "(converges from the largest errors); c-lm: the paper's cross "
-                        "identification scheme run with calib's LM; lm: calib's Levenberg-Marquardt "
-                        "alone (lm and c-lm exit 3 when they stop in a local minimum)")
+                        "(converges from the largest errors); c-lm: the paper's cross-identification "
+                        "scheme run with calib's LM (not the paper's Eq. 27-28; --lm-variant paper for "
+                        "that); lm: calib's Levenberg-Marquardt alone (lm and c-lm exit 3 when they "
+                        "stop in a local minimum)")
+    p.add_argument("--lm-variant", choices=("calib", "paper"), default="calib",
+                   help="calib: calib's LM (default); paper: the LM of the paper's Eq. (27)-(28) as "
+                        "printed (mu I, mu reset to 0.001 lambda^+-1, unweighted mm/rad residuals), "
+                        "for --method lm or c-lm")
     p.add_argument("--params", default=None, metavar="auto|base|paper|all|LIST",
                    help="which parameters to identify (see above); default: auto when the rows "
                         "hold few residuals per identifiable parameter, else base")

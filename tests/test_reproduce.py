@@ -93,7 +93,8 @@ def test_rotation_search_escapes_far_starts(rp, setup):
 
 def test_convergence_study_tiny_grid(rp, setup):
     study = rp.run_convergence_study(3, workers=1, setup=setup)          # offsets -3.1, 0, 3.1
-    for m in ("lm", "c-lm", "best"):
+    assert tuple(study.pos) == ("lm", "c-lm", "lm-paper", "c-lm-paper", "best")
+    for m in study.pos:
         assert study.converged(m)[1, 1], m                               # zero offset: all converge
         assert study.pos[m][1, 1] < 1e-9 and study.rot[m][1, 1] < 1e-9
     assert study.ratio("best") == 1.0
@@ -121,10 +122,12 @@ def test_tables_10_11_models(rp, setup):
 
 def test_main_writes_report_and_figures(rp, tmp_path):
     argv = ["--grid", "2", "--workers", "1", "--sweep", "2", "--monte-carlo", "2", "--default-grid", "0",
-            "--sample-grid", "0", "--out", str(tmp_path)]
+            "--sample-grid", "0", "--paper-variants-grid", "0", "--out", str(tmp_path)]
     assert rp.main(argv) == 0
     text = (tmp_path / "reproduction.md").read_text()
-    for needle in ("Tables 6-7", "Table 9", "Tables 10-11", "Table 8", "1.9536", "53.16 %", "22.45 %"):
+    for needle in ("Tables 6-7", "Table 9", "Tables 10-11", "Table 8", "1.9536", "53.16 %", "22.45 %",
+                   "| LM (paper) |", "| C-LM (paper) |", "## Errata", "a6 + x' is the exception",
+                   "**The 'before' orientation: 0.0123 rad"):
         assert needle in text, needle
     for name in ("fig5_linear_relations", "fig6_convergence", "fig7_position_errors", "fig8_orientation_errors"):
         png = tmp_path / "figures" / f"{name}.png"
