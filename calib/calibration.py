@@ -36,6 +36,7 @@ from typing import Sequence
 import numpy as np
 
 from .angles import RotationChain
+from .checks import check_measurements, check_robot
 from .errors import DataError, ParameterError
 from .frames import estimate_frames
 from .identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability
@@ -129,6 +130,8 @@ def pose_errors(robot: RobotModel, Q: np.ndarray, position: np.ndarray,
 
 def evaluate(robot: RobotModel, measurements: Measurements) -> AccuracyStats:
     """Accuracy of ``robot`` against all rows of ``measurements`` (tool pose in the meas frame)."""
+    check_robot(robot)
+    check_measurements(measurements)
     _check_compatible(robot, measurements)
     return pose_errors(robot, measurements.q, measurements.position, measurements.rotation)
 

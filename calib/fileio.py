@@ -4,7 +4,9 @@ A reader never sees a half-written file, and a failure leaves any existing file 
 """
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 import tempfile
 from pathlib import Path
 from typing import Iterable
@@ -49,3 +51,36 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 def atomic_write_text(path: str | Path, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+@contextlib.contextmanager
+def captured_c_output():
+    """Capture what C/C++ code writes to the process's stdout and stderr (file descriptors 1
+    and 2; e.g. Pinocchio's URDF parser) instead of letting it reach the terminal.
+
+    Yields a list that holds, on exit, the captured text (one string). Python's own
+    ``sys.stdout``/``sys.stderr`` are flushed first so that nothing of theirs is captured.
+    """
+    captured: list[str] = []
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (AttributeError, ValueError, OSError):
+            pass
+    try:
+        saved = [os.dup(1), os.dup(2)]
+    except OSError:          # no such descriptors (embedded interpreter): nothing to capture
+        yield captured
+        return
+    with tempfile.TemporaryFile() as tmp:
+        try:
+            os.dup2(tmp.fileno(), 1)
+            os.dup2(tmp.fileno(), 2)
+            yield captured
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            tmp.seek(0)
+            captured.append(tmp.read().decode("utf-8", "replace"))

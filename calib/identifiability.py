@@ -34,7 +34,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import ParameterError
+from .checks import check_configurations, check_int, check_number, check_rng, check_robot
+from .errors import DataError, ParameterError
 from .jacobian import MEASURES, identification_jacobian
 from .robot import RobotModel
 
@@ -194,11 +195,22 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
         parameters are tied does not depend on the number of poses once there are a few dozen,
         and the cost grows with it. None for all.
     """
+    check_robot(robot)
     if measure not in MEASURES:
         raise ParameterError(f"measure must be one of {', '.join(MEASURES)}, got {measure!r}")
+    check_number(tol, "tol", minimum=0.0, maximum=1.0, strict=True)
+    check_number(sigma_pos, "sigma_pos", minimum=1e-12, maximum=1.0)
+    check_number(sigma_rot, "sigma_rot", minimum=1e-12, maximum=1.0)
+    check_int(max_poses, "max_poses", minimum=1, allow_none=True)
+    if priority is not None and (not isinstance(priority, (list, tuple))
+                                 or not all(isinstance(n, str) for n in priority)):
+        raise ParameterError(f"priority must be a list of parameter names, got {priority!r}")
     if Q is None:
-        Q = robot.random_configurations(n_poses, seed)
-    Q = np.atleast_2d(np.asarray(Q, float))
+        check_int(n_poses, "n_poses", minimum=1)
+        Q = robot.random_configurations(n_poses, check_rng(seed, "seed"))
+    Q = check_configurations(Q, robot.n_joints)
+    if len(Q) == 0:
+        raise DataError("Q has no configurations")
     if max_poses is not None and len(Q) > max_poses:
         Q = Q[np.linspace(0, len(Q) - 1, max_poses).astype(int)]
     J = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot)

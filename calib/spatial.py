@@ -6,6 +6,8 @@ Twists are 6-vectors ``(v, w)``, linear part first, as in Pinocchio's ``Motion``
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pinocchio as pin
 from scipy.spatial.transform import Rotation
@@ -48,8 +50,11 @@ def zyx_transform(x: float, y: float, z: float, alpha: float, beta: float, gamma
 
 
 def zyx_parameters(T: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`zyx_transform`: ``(x, y, z, alpha, beta, gamma)`` of a 4x4 transform."""
-    with np.errstate(all="ignore"):
+    """Inverse of :func:`zyx_transform`: ``(x, y, z, alpha, beta, gamma)`` of a 4x4 transform.
+
+    At gimbal lock (beta = +-pi/2) scipy's choice (gamma = 0) is kept, without its warning."""
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
         ang = Rotation.from_matrix(T[:3, :3]).as_euler("ZYX")
     return np.concatenate([T[:3, 3], ang])
 

@@ -488,8 +488,12 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     frame in the meas frame). Raises :class:`calib.MeasurementFormatError` naming the file, row
     and column on any departure from the format.
     """
-    options = options or ReadOptions()
-    path = Path(path)
+    from ..checks import check_instance, check_path, check_robot
+
+    path = check_path(path, "path")
+    check_robot(robot)
+    options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
+        or ReadOptions()
     header_row, names, delimiter, data = _records(path)
     header = _Header(path, header_row, names, spec, robot, options)
     if not data:
