@@ -558,7 +558,7 @@ def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame:
     The model reproduces Pinocchio's forward kinematics of ``tool_frame`` in ``base_frame``
     exactly (to rounding). Raises :class:`calib.CalibError` subclasses on bad input.
     """
-    check_number(parallel_threshold, "parallel_threshold", minimum=0.0, maximum=math.pi / 2, strict=True)
+    check_number(parallel_threshold, "parallel_threshold", minimum=0.0, maximum=math.pi / 2)
     chain = read_urdf_chain(urdf_path, base_frame, tool_frame)
     pts, dirs, T_meas_tool = chain_axes(chain)
     geo = derive_mdh(pts, dirs, T_meas_tool, parallel_threshold)

@@ -201,12 +201,14 @@ def write_measurements(path: str | Path, measurements: Measurements, *, angle_un
 
     from scipy.spatial.transform import Rotation
 
-    from ..checks import check_choice, check_measurements, check_path
+    from ..checks import check_measurements, check_path
 
     check_path(path, "path")
     check_measurements(measurements)
-    check_choice(angle_unit, "angle_unit", ANGLE_UNITS)
-    check_choice(length_unit, "length_unit", LENGTH_UNITS)
+    if not isinstance(angle_unit, str) or angle_unit not in ANGLE_UNITS:
+        raise ParameterError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
+    if not isinstance(length_unit, str) or length_unit not in LENGTH_UNITS:
+        raise ParameterError(f"length_unit must be 'mm' or 'm', got {length_unit!r}")
     if orientation not in ("quaternion", "zyx", "none"):
         raise CalibError(f"orientation must be 'quaternion', 'zyx' or 'none', got {orientation!r}")
     check_not_input(path, [measurements.source])
@@ -249,13 +251,15 @@ def write_poses(path: str | Path, robot, q: np.ndarray, *, angle_unit: str = "de
     length_unit : "mm" or "m" (prismatic joints).
     comment : text written first as ``#`` comment lines.
     """
-    from ..checks import check_choice, check_configurations, check_path, check_robot
+    from ..checks import check_configurations, check_path, check_robot
 
     check_path(path, "path")
     check_robot(robot)
     q = check_configurations(q, robot.n_joints, "q")
-    check_choice(angle_unit, "angle_unit", ANGLE_UNITS)
-    check_choice(length_unit, "length_unit", LENGTH_UNITS)
+    if not isinstance(angle_unit, str) or angle_unit not in ANGLE_UNITS:
+        raise ParameterError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
+    if not isinstance(length_unit, str) or length_unit not in LENGTH_UNITS:
+        raise ParameterError(f"length_unit must be 'mm' or 'm', got {length_unit!r}")
     header, values = joint_columns(robot.joint_names, robot.prismatic, q, angle_unit, length_unit)
     atomic_write_text(path, csv_text(header, [[repr(float(v)) for v in row] for row in values],
                                      comment))
