@@ -435,11 +435,14 @@ def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
         if frame is not None and not (isinstance(frame, str) and frame):
             raise ParameterError(f"{name} must be a frame name (a non-empty str) or None, got {frame!r}")
     doc = UrdfDocument.read(path)
+    parser_output: list[str] = []
     try:
         with captured_c_output() as parser_output:   # Pinocchio's parser prints to C stderr
             model = pin.buildModelFromUrdf(str(path))
     except (RuntimeError, ValueError) as exc:
-        msg = " ".join(str(exc).split())
+        said = [l.strip()[len("Error:"):].strip() for l in "".join(parser_output).splitlines()
+                if l.strip().startswith("Error:")]
+        msg = " ".join((said[0] if said else str(exc)).split())
         raise URDFError(path, f"Pinocchio cannot build a model: {msg}") from None
     if parser_output and parser_output[0].strip():
         log.debug("Pinocchio's URDF parser said: %s", " ".join(parser_output[0].split()))

@@ -124,7 +124,7 @@ class UrdfDocument:
                 values = []
             if len(values) != count or not all(math.isfinite(v) for v in values):
                 what = f"{count} finite numbers" if count > 1 else "a finite number"
-                raise URDFError(self.path, f"joint {name!r}: <{child} {attr}={text!r}> is not {what}")
+                raise URDFError(self.path, f'joint {name!r}: <{child} {attr}="{text}"> is not {what}')
             return values
         numbers("origin", "xyz", 3)
         numbers("origin", "rpy", 3)
