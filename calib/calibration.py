@@ -162,7 +162,9 @@ class Setup:
     nominal : the model calibration started from; start : the same with its reference frames
     moved to the closed-form estimates (or ``nominal``); cal / val : calibration and validation
     rows (val None without any); measure : "pose" or "position"; rebased : which of
-    "measurement->base", "flange->tool" were moved.
+    "measurement->base", "flange->tool" were moved; suspect : (N,) bool over the calibration
+    rows, those the closed-form frame estimate left out as gross (the fit starts without them
+    and takes back those its model explains), or None.
     """
 
     nominal: RobotModel
@@ -171,6 +173,7 @@ class Setup:
     val: Measurements | None = field(repr=False)
     measure: str
     rebased: tuple[str, ...]
+    suspect: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def components_per_pose(self) -> int:
@@ -617,10 +620,10 @@ def prepare(robot: RobotModel, measurements: Measurements, validation: Measureme
                         f"{'' if distinct == cal.n_poses else 'independent '}equations, "
                         f"fewer than the {needed} identifiable parameters need; measure at least "
                         f"{-(-needed // rows_per_pose)} distinct poses (several times more for accuracy)")
-    start, rebased = robot, ()
+    start, rebased, suspect = robot, (), None
     if init_frames:
-        start, rebased = _rebase_frames(robot, cal, notes, always=init_frames is True)
-    return Setup(robot, start, cal, val, measure, rebased), notes
+        start, rebased, suspect = _rebase_frames(robot, cal, notes, always=init_frames is True)
+    return Setup(robot, start, cal, val, measure, rebased, suspect), notes
 
 
 def distinct_configurations(Q: np.ndarray, tol: float = DISTINCT_Q_TOL) -> int:
@@ -678,14 +681,15 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
 
 
 def _rebase_frames(robot: RobotModel, m: Measurements, notes: list,
-                   always: bool = False) -> tuple[RobotModel, tuple[str, ...]]:
+                   always: bool = False) -> tuple[RobotModel, tuple[str, ...], np.ndarray | None]:
     """Move the reference frames to closed-form estimates when the data put them far away
-    (or ``always``)."""
+    (or ``always``). Returns the model, the frames moved and the rows the robust estimate left
+    out (bool mask, or None when none)."""
     try:
         est = estimate_frames_robust(robot, m.q, m.position, m.rotation)
     except DataError as exc:
         notes.append(f"frames not initialised in closed form ({exc}); started from the nominal frames")
-        return robot, ()
+        return robot, (), None
     X, Y = est.T_meas_base, est.T_flange_tool
     if not est.inliers.all():
         out_rows = m.rows[~est.inliers]
@@ -708,7 +712,7 @@ def _rebase_frames(robot: RobotModel, m: Measurements, notes: list,
             moved.append(label)
             notes.append(f"{label} initialised in closed form: {dist * 1e3:.1f} mm and {ang:.3g} rad "
                          f"from the nominal transform")
-    return out, tuple(moved)
+    return out, tuple(moved), (None if est.inliers.all() else ~est.inliers)
 
 
 # ---------------------------------------------------------------- parameter sets
@@ -918,7 +922,16 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     sp = SIGMA_POS_M if sigma_pos is None else sigma_pos
     sr = SIGMA_ROT_RAD if sigma_rot is None else sigma_rot
     everything = Problem(kin, cal.q, cal.position, cal.rotation, start.values, idx, sp, sr, loss, loss_scale)
-    keep = np.ones(cal.n_poses, bool) if keep is None else keep.copy()
+    suspect = None
+    if keep is None:
+        keep = np.ones(cal.n_poses, bool)
+        if setup.suspect is not None and outlier_k is not None:
+            # rows the frame estimate found gross would drag the first fit far from the others'
+            # solution: start without them, take back below those the fitted model explains
+            suspect = setup.suspect.copy()
+            keep &= ~suspect
+    else:
+        keep = keep.copy()
     trace = LMTrace()
     x = start.values[idx]
     outliers: list[Outlier] = []
@@ -977,10 +990,23 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
                          f"the noise is larger than the noise levels (or the model cannot describe the "
                          f"data), so no row was removed as an outlier")
             new = []
+        if suspect is not None and not new:
+            # the suspect rows against the fit of the others: those within outlier_k are taken
+            # back (and the fit repeated), the others are outliers
+            still, _ = _flag_outliers(everything, x, cal.rows, suspect, outlier_k, fsp, fsr)
+            gross = {o.row for o in still}
+            back = suspect & ~np.isin(cal.rows, list(gross))
+            outliers += still
+            suspect = None
+            if back.any():
+                keep |= back
+                continue
         if not new:
             break
         outliers += new
         keep[[int(np.flatnonzero(cal.rows == o.row)[0]) for o in new]] = False
+    if suspect is not None:   # never judged (the fit diverged or ran out of passes): outliers
+        outliers += _flag_outliers(everything, x, cal.rows, suspect, -1.0, sp, sr)[0]
     problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
     if sol.x is not x:   # the last change of x was not solved at these weights (robust start)
         sol = _solve_logged(solve, problem, x, trace, False)
