@@ -7,6 +7,7 @@ with Gaussian components of ``sigma_rot`` per axis, applied in the meas frame:
 """
 from __future__ import annotations
 
+import math
 from typing import Mapping
 
 import numpy as np
@@ -72,7 +73,7 @@ def simulate_measurements(true_robot: RobotModel, Q: np.ndarray, *, sigma_pos: f
     Q = check_configurations(Q, true_robot.n_joints)
     check_number(sigma_pos, "sigma_pos", minimum=0.0)
     check_number(sigma_rot, "sigma_rot", minimum=0.0)
-    check_number(unmodelled, "unmodelled", minimum=0.0)
+    check_number(unmodelled, "unmodelled", minimum=0.0, maximum=math.pi)   # radians: at most half a turn
     rng = check_rng(rng)
     Q_moved = unmodelled_joint_error(true_robot, Q, unmodelled, rng) if unmodelled > 0 else Q
     R, p = ChainKinematics(true_robot).frame_poses(Q_moved)
