@@ -10,11 +10,13 @@
 Exit codes: 0 success; 2 bad input or usage (one line ``calib: error: ...`` on stderr, no
 output file created or changed); 3 ``calibrate`` ran but the fit did not converge, or
 ``compensate`` could not reach every target (outputs are written so that they can be
-inspected, the status is printed on stderr); 1 is left to Python for unexpected internal
-errors (a bug: the traceback says where).
+inspected, the status is printed on stderr); 130 / 143 interrupted by SIGINT / SIGTERM (one
+line, no output changed); 1 is left to Python for unexpected internal errors (a bug: the
+traceback says where).
 
-Outputs are produced in memory first and written only when everything succeeded, each
-atomically (temporary file, then rename); an output path that names an input is refused.
+Outputs are produced in memory first and written only when everything succeeded, as a set
+(:class:`calib.fileio.OutputSet`: temporary files in the target folders, renamed together);
+an output path that names an input is refused.
 """
 from __future__ import annotations
 

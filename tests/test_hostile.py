@@ -325,19 +325,49 @@ def big_csv(tmp_path_factory):
 
 @pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_signal_ends_with_one_line_and_no_partial_files(signum, code, big_csv, out):
+    """A real signal to a real process, sent once it logs that the fit started (-v): the last
+    stderr line says so, no traceback, no output created or changed."""
     before = snapshot(out)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen([sys.executable, "-m", "calib", "calibrate", URDF, str(big_csv), "-o",
                              str(out / "calibrated.urdf"), "--report", str(out / "report.json"),
-                             "--plots", str(out / "plots")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=ROOT)
-    time.sleep(3.0)        # imported, reading or fitting (the whole run takes far longer)
+                             "--plots", str(out / "plots"), "-v"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=ROOT, text=True)
+    log = []
+    for line in proc.stderr:
+        log.append(line)
+        if "calibrating (" in line:
+            break
+    time.sleep(0.5)
     assert proc.poll() is None, "calibrate ended before the signal"
     proc.send_signal(signum)
-    stdout, stderr = proc.communicate(timeout=60)
-    assert proc.returncode == code, stderr
-    assert stderr.decode() == f"calib: interrupted by {signal.Signals(signum).name}\n"
-    assert stdout == b""
+    stdout, rest = proc.communicate(timeout=60)
+    lines = (log + rest.splitlines(keepends=True))
+    assert proc.returncode == code, "".join(lines)
+    assert lines[-1] == f"calib: interrupted by {signal.Signals(signum).name}\n"
+    assert all(l.startswith("calib: ") for l in lines), "".join(lines)   # no traceback
+    assert "wrote" not in stdout
+    assert snapshot(out) == before
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_signal_in_process_prints_exactly_one_line(signum, code, sim, out, capfd, monkeypatch):
+    """The signal arrives in the middle of the fit (sent by the patched calibrate to its own
+    process): exit 128 + signal, stderr exactly one line, nothing written."""
+    import calib.cli as cli
+
+    d, _, _ = sim
+    real = cli.calibrate
+
+    def interrupted(*args, **kwargs):
+        os.kill(os.getpid(), signum)
+        time.sleep(5)     # the handler raises at once; never reached
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(cli, "calibrate", interrupted)
+    before = snapshot(out)
+    code_, stdout, err = run_cli(capfd, ["calibrate", URDF, d / "cal.csv", "-o", out / "calibrated.urdf"])
+    assert (code_, stdout, err) == (code, "", f"calib: interrupted by {signal.Signals(signum).name}\n")
     assert snapshot(out) == before
 
 
@@ -413,24 +443,28 @@ def test_zyx_parameters_at_gimbal_lock_warns_nothing():
     np.testing.assert_allclose(zyx_transform(*x), T, atol=1e-12)   # an equivalent triple
 
 
-def test_library_warnings_do_not_reach_stderr(sim, out, capfd, monkeypatch):
-    """A warning raised inside a command (here: numpy's overflow) is logged at debug level only."""
+def test_library_warnings_do_not_reach_stderr(sim, capfd, monkeypatch):
+    """Warnings raised inside a command (numpy's overflow, scipy's gimbal lock) are logged at
+    debug level only: stderr stays empty."""
     import calib.cli as cli
 
-    def noisy(args):
-        np.float64(1e308) * 10   # RuntimeWarning: overflow encountered
-        warnings.warn("Gimbal lock detected", UserWarning)
-        return 0
+    d, _, _ = sim
+    real = cli.evaluate
 
-    parser = cli.build_parser()
-    monkeypatch.setattr(cli, "cmd_evaluate", noisy)
-    monkeypatch.setattr(cli, "build_parser", lambda: (parser, parser.parse_args(
-        ["evaluate", URDF, "x.csv"]).__dict__)[0])
-    for action in parser._actions:
-        if hasattr(action, "choices") and isinstance(action.choices, dict) and "evaluate" in action.choices:
-            action.choices["evaluate"].set_defaults(func=noisy)
-    code, stdout, err = run_cli(capfd, ["evaluate", URDF, "x.csv"])
+    def noisy(robot, meas):
+        np.float64(1e308) * np.float64(10.0)          # RuntimeWarning: overflow encountered
+        warnings.warn("Gimbal lock detected. Setting third angle to zero", UserWarning)
+        return real(robot, meas)
+
+    monkeypatch.setattr(cli, "evaluate", noisy)
+    with warnings.catch_warnings():
+        # as outside pytest: warnings shown on stderr, each time
+        warnings.simplefilter("always")
+        monkeypatch.setattr(warnings, "showwarning", lambda message, category, filename, lineno, file=None,
+                            line=None: sys.stderr.write(warnings.formatwarning(message, category, filename, lineno)))
+        code, stdout, err = run_cli(capfd, ["evaluate", URDF, d / "cal.csv"])
     assert (code, err) == (0, "")
+    assert "Accuracy of" in stdout
 
 
 # ====================================================================== API
