@@ -25,6 +25,7 @@ import pytest
 import calib
 from calib.cli import main
 from calib.simulate import PAPER_DEVIATIONS, apply_deviations
+from calib.solvers import LMOptions
 
 from conftest import BUNDLED_URDF, ROOT
 
@@ -501,6 +502,8 @@ def _api_cases(robot, meas):
         "write_calibrated_urdf path": (lambda: calib.write_calibrated_urdf(robot, None), calib.ParameterError, r"path must be a file path"),
         "write_measurements data": (lambda: calib.write_measurements(ROOT / "never.csv", "data"), calib.ParameterError, r"measurements must be a Measurements"),
         "write_poses q": (lambda: calib.write_poses(ROOT / "never.csv", robot, [[1, 2]]), calib.DataError, r"q must have shape \(N, 6\)"),
+        "LMOptions ftol": (lambda: calib.calibrate(robot, meas, options=LMOptions(ftol=float("nan"))), calib.ParameterError, r"LMOptions.ftol must be a finite number"),
+        "LMOptions lam": (lambda: LMOptions(lam=0.5), calib.ParameterError, r"LMOptions.lam must be > 1"),
         "robot_path int": (lambda: calib.robot_path(7), calib.ParameterError, r"robot must be a file path"),
     }
 
