@@ -66,6 +66,8 @@ class FrameEstimate:
     threshold_rotation: float | None
 
 
+#: Poses per chunk when accumulating the rotation equations' normal matrix.
+CHUNK_POSES = 4096
 #: Trimming of :func:`estimate_frames_robust`: a row is left out when its residual exceeds the
 #: median by more than TRIM_K robust standard deviations (1.4826 MAD), and at least the floors
 #: (the estimate carries the nominal structure's error, millimetres, which must not be trimmed).
@@ -147,11 +149,17 @@ def _estimate(robot: RobotModel, R_f, p_f, p_meas, R_meas):
             raise DataError(f"at least 3 poses are needed to estimate the frames, got {N}")
         I3 = np.eye(3)
         # vec is column-major: vec(R_X R_i) = (R_i^T kron I) vec(R_X); vec(R_m Z) = (I kron R_m) vec(Z)
-        left = -np.einsum("nba,cd->nacbd", R_f, I3).reshape(N, 9, 9)
-        right = np.einsum("ac,nbd->nabcd", I3, R_meas).reshape(N, 9, 9)
-        blocks = np.concatenate([left, right], axis=2).reshape(9 * N, 18)
-        # null vector of the blocks: eigenvector of the 18x18 normal matrix (cheap for many poses)
-        w, V = np.linalg.eigh(blocks.T @ blocks)
+        # null vector of the blocks: eigenvector of the 18x18 normal matrix, accumulated over
+        # chunks of poses (memory independent of N)
+        normal = np.zeros((18, 18))
+        for start in range(0, N, CHUNK_POSES):
+            sl = slice(start, start + CHUNK_POSES)
+            n = len(R_f[sl])
+            left = -np.einsum("nba,cd->nacbd", R_f[sl], I3).reshape(n, 9, 9)
+            right = np.einsum("ac,nbd->nabcd", I3, R_meas[sl]).reshape(n, 9, 9)
+            blocks = np.concatenate([left, right], axis=2).reshape(9 * n, 18)
+            normal += blocks.T @ blocks
+        w, V = np.linalg.eigh(normal)
         if w[1] < 1e-10 * w[-1]:
             raise DataError("the poses do not determine the measurement frame orientation "
                             "(too few distinct orientations)")
