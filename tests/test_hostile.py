@@ -520,10 +520,12 @@ def test_api_refuses_bad_arguments_with_a_calib_error(case, sim):
     assert not (ROOT / "never.csv").exists()
 
 
-def test_api_fuzz_never_raises_a_bare_exception(sim, tmp_path):
+def test_api_fuzz_never_raises_a_bare_exception(sim, tmp_path, monkeypatch):
     """Every argument of the light entry points replaced by each of a few hostile values: a
     CalibError or success, never TypeError / ValueError / AttributeError / IndexError."""
     import inspect
+
+    monkeypatch.chdir(tmp_path)       # a path "x" is a valid file name: written here
 
     _, robot, meas = sim
     good = {
