@@ -28,6 +28,7 @@ import numpy as np
 from .errors import DataError
 from .kinematics import ChainKinematics
 from .robot import RobotModel
+from .solvers import CHUNK_POSES
 
 
 def project_to_so3(M: np.ndarray) -> np.ndarray:
@@ -66,8 +67,6 @@ class FrameEstimate:
     threshold_rotation: float | None
 
 
-#: Poses per chunk when accumulating the rotation equations' normal matrix.
-CHUNK_POSES = 4096
 #: Trimming of :func:`estimate_frames_robust`: a row is left out when its residual exceeds the
 #: median by more than TRIM_K robust standard deviations (1.4826 MAD), and at least the floors
 #: (the estimate carries the nominal structure's error, millimetres, which must not be trimmed).
