@@ -13,7 +13,7 @@ Python API (SI units everywhere: metres, radians)::
 See README.md for the command line.
 """
 from .errors import (CalibError, ChainError, DataError, FrameNotFound, MeasurementFormatError,
-                     ParameterError, URDFError)
+                     OutputError, ParameterError, URDFError)
 from .robot import ChainJoint, Parameter, RobotModel, load_robot, robot_path
 from .jacobian import identification_jacobian
 from .identifiability import IdentifiabilityReport, analyze_identifiability
@@ -33,7 +33,7 @@ from .paper_lm import PaperLMOptions, PaperLMResult, paper_cross_lm, paper_lm
 
 __all__ = [
     "CalibError", "ChainError", "DataError", "FrameNotFound", "MeasurementFormatError",
-    "ParameterError", "URDFError",
+    "ParameterError", "URDFError", "OutputError",
     "ChainJoint", "Parameter", "RobotModel", "load_robot", "robot_path",
     "identification_jacobian",
     "IdentifiabilityReport", "analyze_identifiability",

@@ -36,9 +36,11 @@ from typing import Sequence
 import numpy as np
 
 from .angles import RotationChain
+from .checks import check_measurements, check_robot
 from .errors import DataError, ParameterError
-from .frames import estimate_target_frames
-from .identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability
+from .frames import estimate_frames_robust
+from .identifiability import (SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability, select_identifiable,
+                              weighted_jacobian)
 from .jacobian import pose_jacobian
 from .kinematics import ChainKinematics
 from .measurements import Measurements
@@ -69,6 +71,12 @@ VCE_RTOL = 1e-3
 #: An explicit lm / c-lm fit is called a local minimum when an angle search from it, then LM,
 #: reaches a cost below this fraction of its own.
 LOCAL_MINIMUM_RATIO = 0.9
+#: Measured positions farther than the robot's reach plus this from the measurement frame's
+#: origin are refused (wrong units or gross errors): the longest-range laser trackers measure
+#: to 160 m (Leica AT403, 320 m diameter), so 200 m bounds any tracker or camera set-up.
+TRACKER_RANGE_M = 200.0
+#: Joint readings that agree to this (rad / m) are one configuration when counting distinct poses.
+DISTINCT_Q_TOL = 1e-9
 #: Default number of cross-validation folds.
 CV_FOLDS = 5
 #: Model selection cross-validates leave-one-out below this many calibration rows.
@@ -143,6 +151,8 @@ def evaluate(robot: RobotModel, measurements: Measurements) -> AccuracyStats:
     Rows of several targets are compared with the model's transform of their target; a model
     with one tool frame serves every target with it (:meth:`RobotModel.with_targets`).
     """
+    check_robot(robot)
+    check_measurements(measurements)
     _check_compatible(robot, measurements)
     robot = with_measured_targets(robot, measurements)
     return pose_errors(robot, measurements.q, measurements.position, measurements.rotation,
@@ -196,7 +206,9 @@ class Setup:
     with its reference frames moved to the closed-form estimates (or ``nominal``); cal / val :
     calibration and validation rows (val None without any); measure : "pose" or "position";
     rebased : which of "measurement->base", "flange->tool" (or "flange-><id>" per target) were
-    moved.
+    moved; suspect : (N,) bool over the calibration rows, those the closed-form frame estimate
+    left out as gross (the fit starts without them and takes back those its model explains), or
+    None.
     """
 
     nominal: RobotModel
@@ -205,6 +217,7 @@ class Setup:
     val: Measurements | None = field(repr=False)
     measure: str
     rebased: tuple[str, ...]
+    suspect: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def components_per_pose(self) -> int:
@@ -694,29 +707,99 @@ def prepare(robot: RobotModel, measurements: Measurements, validation: Measureme
         val = None
     measure = "pose" if cal.has_orientation else "position"
     rows_per_pose = 6 if measure == "pose" else 3
+    _check_plausible_positions(robot, measurements)
+    if validation is not None:
+        _check_plausible_positions(robot, validation)
+    distinct = distinct_configurations(cal.q)
     needed = 0
-    if cal.n_poses * rows_per_pose < robot.n_params:
+    if distinct * rows_per_pose < robot.n_params:
         needed = analyze_identifiability(robot, robot.random_configurations(50, 0), measure=measure).rank
-    if cal.n_poses * rows_per_pose < needed:
+    if distinct * rows_per_pose < needed:
         where = f"{measurements.source}: " if measurements.source is not None else ""
-        raise DataError(f"{where}{cal.n_poses} calibration poses give {cal.n_poses * rows_per_pose} equations, "
+        what = (f"{cal.n_poses} calibration poses" if distinct == cal.n_poses else
+                f"{cal.n_poses} calibration rows at {distinct} distinct configuration(s)")
+        raise DataError(f"{where}{what} give {distinct * rows_per_pose} "
+                        f"{'' if distinct == cal.n_poses else 'independent '}equations, "
                         f"fewer than the {needed} identifiable parameters need; measure at least "
-                        f"{-(-needed // rows_per_pose)} poses (several times more for accuracy)")
-    start, rebased = robot, ()
+                        f"{-(-needed // rows_per_pose)} distinct poses (several times more for accuracy)")
+    start, rebased, suspect = robot, (), None
     if init_frames:
-        start, rebased = _rebase_frames(robot, cal, notes, always=init_frames is True)
-    return Setup(robot, start, cal, val, measure, rebased), notes
+        start, rebased, suspect = _rebase_frames(robot, cal, notes, always=init_frames is True)
+    return Setup(robot, start, cal, val, measure, rebased, suspect), notes
+
+
+def distinct_configurations(Q: np.ndarray, tol: float = DISTINCT_Q_TOL) -> int:
+    """The number of distinct rows of Q (N, n) (rad / m), rows equal to ``tol`` counted once."""
+    if len(Q) == 0:
+        return 0
+    return len(np.unique(np.round(np.asarray(Q) / tol), axis=0))
+
+
+def _check_plausible_positions(robot: RobotModel, m: Measurements) -> None:
+    """Refuse positions no tracker could have measured of this robot: farther from the meas
+    frame's origin than the robot's reach (the farthest tool position over random
+    configurations, from the nominal meas frame) plus :data:`TRACKER_RANGE_M`."""
+    _, p = ChainKinematics(robot).frame_poses(robot.random_configurations(256, 0))
+    reach = float(np.linalg.norm(p, axis=1).max())
+    bound = reach + TRACKER_RANGE_M
+    dist = np.linalg.norm(m.position, axis=1)
+    bad = np.flatnonzero(~(dist <= bound))
+    if bad.size:
+        rows = ", ".join(str(r) for r in m.rows[bad[:10]]) + (" ..." if bad.size > 10 else "")
+        where = m.source or "<measurements>"
+        raise DataError(f"{where}: row(s) {rows}: position {dist[bad[0]] * 1e3:.6g} mm from the "
+                        f"measurement frame's origin, farther than any tracker measures this robot "
+                        f"(reach {reach * 1e3:.0f} mm + {TRACKER_RANGE_M:g} m): wrong length unit "
+                        f"in the column name, or gross errors")
+
+
+def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequence[str], *,
+                    derived: bool, sigma_pos: float = SIGMA_POS_M, sigma_rot: float = SIGMA_ROT_RAD) -> None:
+    """Refuse data whose own Jacobian identifies fewer parameter combinations than the model
+    needs: the rank of the noise-weighted identification Jacobian at the rows' configurations
+    (at most 500, evenly spaced) against its rank at 50 random configurations within the joint
+    limits. ``free`` are the parameters to identify; ``derived`` (the set was chosen from these
+    data: base, auto) compares all parameters, since a set chosen from degenerate data is
+    degenerate too. A non-finite Jacobian is refused naming its parameters."""
+    cols = list(range(robot.n_params)) if derived else list(robot.indices(free))
+    Q = m.q if len(m.q) <= 500 else m.q[np.linspace(0, len(m.q) - 1, 500).astype(int)]
+    Jd = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot)[:, cols]
+    finite = np.isfinite(Jd).all(axis=0)
+    if not finite.all():
+        names = [robot.names[cols[k]] for k in np.flatnonzero(~finite)]
+        raise DataError(f"{m.source or '<measurements>'}: the identification Jacobian is not finite "
+                        f"for {', '.join(names)}")
+    Jr = weighted_jacobian(robot, robot.random_configurations(50, 0), measure, sigma_pos, sigma_rot)[:, cols]
+    kept_d, _ = select_identifiable(Jd, range(len(cols)))
+    kept_r, _ = select_identifiable(Jr, range(len(cols)))
+    if len(kept_d) < len(kept_r):
+        lost = [robot.names[cols[k]] for k in kept_r if k not in set(kept_d)]
+        n_q = distinct_configurations(m.q)
+        raise DataError(f"{m.source or '<measurements>'}: the {m.n_poses} calibration rows ({n_q} distinct "
+                        f"configurations) identify {len(kept_d)} parameter combinations, random poses "
+                        f"{len(kept_r)}: the rows cannot identify {', '.join(lost)} (measure poses that "
+                        f"move every joint over its range"
+                        + (", or name the parameters to identify with params / --params)" if derived else ")"))
 
 
 def _rebase_frames(robot: RobotModel, m: Measurements, notes: list,
-                   always: bool = False) -> tuple[RobotModel, tuple[str, ...]]:
+                   always: bool = False) -> tuple[RobotModel, tuple[str, ...], np.ndarray | None]:
     """Move the reference frames to closed-form estimates when the data put them far away
-    (or ``always``)."""
+    (or ``always``). Returns the model, the frames moved and the rows the robust estimate left
+    out (bool mask, or None when none)."""
     try:
-        X, Y = estimate_target_frames(robot, m.q, m.position, m.rotation, target_rows(robot, m))
+        est = estimate_frames_robust(robot, m.q, m.position, m.rotation, target_rows(robot, m))
     except DataError as exc:
         notes.append(f"frames not initialised in closed form ({exc}); started from the nominal frames")
-        return robot, ()
+        return robot, (), None
+    X, Y = est.T_meas_base, est.T_flange_targets
+    if not est.inliers.all():
+        out_rows = m.rows[~est.inliers]
+        shown = ", ".join(str(r) for r in out_rows[:20]) + (" ..." if len(out_rows) > 20 else "")
+        notes.append(f"{len(out_rows)} row(s) left out of the closed-form frame estimate, their "
+                     f"residuals beyond {est.threshold_position * 1e3:.3g} mm"
+                     + (f" or {est.threshold_rotation:.3g} rad" if est.threshold_rotation is not None else "")
+                     + f" (gross errors?): rows {shown}")
     out, moved = robot, []
     refs = robot.T_flange_tool_refs.copy()
     tools = [(f"flange->{t}" if robot.targets else "flange->tool", k) for k, t in
@@ -736,7 +819,7 @@ def _rebase_frames(robot: RobotModel, m: Measurements, notes: list,
             moved.append(label)
             notes.append(f"{label} initialised in closed form: {dist * 1e3:.1f} mm and {ang:.3g} rad "
                          f"from the nominal transform")
-    return out, tuple(moved)
+    return out, tuple(moved), (None if est.inliers.all() else ~est.inliers)
 
 
 # ---------------------------------------------------------------- parameter sets
@@ -979,7 +1062,16 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     sr = SIGMA_ROT_RAD if sigma_rot is None else sigma_rot
     everything = Problem(kin, cal.q, cal.position, cal.rotation, start.values, idx, sp, sr, loss, loss_scale,
                          targets=target_rows(start, cal))
-    keep = np.ones(cal.n_poses, bool) if keep is None else keep.copy()
+    suspect = None
+    if keep is None:
+        keep = np.ones(cal.n_poses, bool)
+        if setup.suspect is not None and outlier_k is not None:
+            # rows the frame estimate found gross would drag the first fit far from the others'
+            # solution: start without them, take back below those the fitted model explains
+            suspect = setup.suspect.copy()
+            keep &= ~suspect
+    else:
+        keep = keep.copy()
     trace = LMTrace()
     x = start.values[idx]
     outliers: list[Outlier] = []
@@ -1038,10 +1130,23 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
                          f"the noise is larger than the noise levels (or the model cannot describe the "
                          f"data), so no row was removed as an outlier")
             new = []
+        if suspect is not None and not new:
+            # the suspect rows against the fit of the others: those within outlier_k are taken
+            # back (and the fit repeated), the others are outliers
+            still, _ = _flag_outliers(everything, x, cal.rows, suspect, outlier_k, fsp, fsr)
+            gross = {o.row for o in still}
+            back = suspect & ~np.isin(cal.rows, list(gross))
+            outliers += still
+            suspect = None
+            if back.any():
+                keep |= back
+                continue
         if not new:
             break
         outliers += new
         keep[[int(np.flatnonzero(cal.rows == o.row)[0]) for o in new]] = False
+    if suspect is not None:   # never judged (the fit diverged or ran out of passes): outliers
+        outliers += _flag_outliers(everything, x, cal.rows, suspect, -1.0, sp, sr)[0]
     problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
     if sol.x is not x:   # the last change of x was not solved at these weights (robust start)
         sol = _solve_logged(solve, problem, x, trace, False)
@@ -1366,6 +1471,11 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                          f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g})")
         else:
             want = "auto"
+    if want != "auto":
+        label, free = select_parameters(start, want, cal.q, setup.measure, *weights)
+    derived = want == "auto" or (isinstance(want, str) and want.strip().lower() == "base")
+    check_data_rank(start, cal, setup.measure, ident if want == "auto" else free, derived=derived,
+                    sigma_pos=weights[0], sigma_rot=weights[1])
     folds = CV_FOLDS if cv is None else cv
     kin = ChainKinematics(start)
     selection = None

@@ -10,11 +10,13 @@
 Exit codes: 0 success; 2 bad input or usage (one line ``calib: error: ...`` on stderr, no
 output file created or changed); 3 ``calibrate`` ran but the fit did not converge, or
 ``compensate`` could not reach every target (outputs are written so that they can be
-inspected, the status is printed on stderr); 1 is left to Python for unexpected internal
-errors (a bug: the traceback says where).
+inspected, the status is printed on stderr); 130 / 143 interrupted by SIGINT / SIGTERM (one
+line, no output changed); 1 is left to Python for unexpected internal errors (a bug: the
+traceback says where).
 
-Outputs are produced in memory first and written only when everything succeeded, each
-atomically (temporary file, then rename); an output path that names an input is refused.
+Outputs are produced in memory first and written only when everything succeeded, as a set
+(:class:`calib.fileio.OutputSet`: temporary files in the target folders, renamed together);
+an output path that names an input is refused.
 """
 from __future__ import annotations
 
@@ -23,23 +25,26 @@ import json
 import logging
 import math
 import shlex
+import signal
 import sys
 import tempfile
+import threading
 import time
+import warnings
 from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
 
-from .cli_args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_targets,
-                       compliance_options, count, nonnegative, positive, positive_int, print_notes,
-                       read_options, with_targets)
+from .cli_args import (ArgumentParser, HelpFormatter, add_compliance, add_file_format, add_frames,
+                       add_targets, compliance_options, count, nonnegative, positive, positive_int,
+                       print_notes, read_options, with_targets)
 from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
                read_measurements, simulate_measurements, write_measurements)
 from .calibration import _EDGE_UNITS, METHODS, format_accuracy_table
-from .fileio import atomic_write_bytes, check_not_input
+from .fileio import OutputSet, check_not_input
 from .progress import working
 from .solvers import LOSSES
 
@@ -101,12 +106,15 @@ class Outputs:
             self.stage(path, target.read_bytes())
 
     def commit(self) -> None:
+        """Write every staged file as a set (:class:`calib.fileio.OutputSet`): all or none."""
+        out = OutputSet()
         for folder in self.folders:
-            folder.mkdir(exist_ok=True)
+            out.make_folder(folder)
         for path in self.paths:
             if path in self.data:
-                atomic_write_bytes(path, self.data[path])
-                log.info("wrote %s (%d bytes)", path, len(self.data[path]))
+                out.stage(path, self.data[path])
+        for path in out.commit():
+            log.info("wrote %s (%d bytes)", path, len(self.data[path]))
 
 
 def _json_text(obj) -> str:
@@ -544,7 +552,7 @@ def build_parser() -> argparse.ArgumentParser:
         ver = version("calib")
     except PackageNotFoundError:
         ver = "unknown"
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog=PROG, formatter_class=HelpFormatter,
         description="Kinematic calibration of serial robots: TM-MDH error model, C-LM "
                     "identification (Lao et al. 2023), on Pinocchio.",
@@ -684,12 +692,48 @@ class _ElapsedFormatter(logging.Formatter):
         return super().format(record)
 
 
+class Interrupted(BaseException):
+    """A termination signal (SIGTERM) received while a command runs (SIGINT arrives as
+    KeyboardInterrupt); a BaseException so that no ``except Exception`` swallows it."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_interrupted(signum, frame):
+    raise Interrupted(signum)
+
+
+def _one_line(text) -> str:
+    return " ".join(str(text).split())
+
+
+def _run(args) -> int:
+    """``args.func(args)`` with library warnings (numpy, scipy) kept off the terminal: logged at
+    debug level (``-vv``) instead."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            return args.func(args)
+        finally:
+            for w in caught:
+                log.debug("warning from %s:%d: %s", Path(w.filename).name, w.lineno, _one_line(w.message))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the ``calib`` command with ``argv`` (default ``sys.argv[1:]``); return the exit code."""
+    """Run the ``calib`` command with ``argv`` (default ``sys.argv[1:]``); return the exit code.
+
+    Bad input: one line ``calib: error: ...`` on stderr and 2. SIGINT / SIGTERM: one line
+    ``calib: interrupted by SIGINT`` and 130 / 143 (128 + the signal number); outputs are
+    committed as a set with the signals held back, so none is half-written."""
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # reported by the subcommand's parser, so that its usage line is shown
+            sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+            sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # --help, --version (0) and usage errors (2)
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else EXIT_INPUT)
     args.argv = argv
@@ -701,13 +745,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         handler.setFormatter(_ElapsedFormatter(f"{PROG}: %(message)s  [%(elapsed).2f s]"))
         root_log.addHandler(handler)
         root_log.setLevel(logging.DEBUG if args.verbose > 1 else logging.INFO)
+    previous_term = None
+    if threading.current_thread() is threading.main_thread():
+        previous_term = signal.signal(signal.SIGTERM, _raise_interrupted)
     try:
-        return args.func(args)
+        return _run(args)
     except CalibError as exc:
-        message = " ".join(str(exc).split())  # one line, whatever the message holds
-        sys.stderr.write(f"{PROG}: error: {message}\n")
+        sys.stderr.write(f"{PROG}: error: {_one_line(exc)}\n")
         return EXIT_INPUT
+    except OSError as exc:     # an input or output the system refuses (permissions, full disk)
+        where = f"{exc.filename}: " if exc.filename else ""
+        sys.stderr.write(f"{PROG}: error: {where}{_one_line(exc.strerror or exc)}\n")
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{PROG}: interrupted by SIGINT\n")
+        return 128 + signal.SIGINT
+    except Interrupted as exc:
+        name = signal.Signals(exc.signum).name
+        sys.stderr.write(f"{PROG}: interrupted by {name}\n")
+        return 128 + exc.signum
     finally:
+        if previous_term is not None:
+            signal.signal(signal.SIGTERM, previous_term)
         if handler is not None:
             root_log.removeHandler(handler)
             root_log.setLevel(logging.NOTSET)

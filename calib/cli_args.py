@@ -18,6 +18,33 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
         return text
 
 
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with short usage errors: one usage line (the positional arguments and required
+    options, ``[options]`` for the rest) and one ``calib: error: ...`` line, exit code 2.
+    Subcommand parsers made with ``add_subparsers`` inherit the class."""
+
+    def error(self, message: str):
+        message = " ".join(str(message).split())
+        self.exit(2, f"usage: {self.short_usage()}\n{self.prog.split()[0]}: error: {message}\n")
+
+    def short_usage(self) -> str:
+        parts, optional = [self.prog], False
+        for action in self._actions:
+            if isinstance(action, (argparse._HelpAction, argparse._VersionAction)):
+                continue
+            if isinstance(action, argparse._SubParsersAction):
+                parts.append("COMMAND ...")
+            elif not action.option_strings:
+                parts.append(str(action.metavar or action.dest))
+            elif action.required:
+                parts.append(f"{action.option_strings[0]} {action.metavar or action.dest.upper()}")
+            else:
+                optional = True
+        if optional:
+            parts.insert(1, "[options]")
+        return " ".join(parts) + f"  (help: {self.prog} --help)"
+
+
 def positive_int(text: str) -> int:
     try:
         value = int(text)

@@ -58,6 +58,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from .checks import check_rng, check_robot
 from .errors import CalibError, DataError, ParameterError
 from .jacobian import MEASURES
 from .kinematics import ChainKinematics
@@ -240,6 +241,8 @@ def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None =
         least severe status.
     Other parameters as :func:`compensate`.
     """
+    check_robot(calibrated, "calibrated")
+    check_rng(seed, "seed")
     _check_options("pose", singular_threshold, tol_pos, tol_rot, max_iterations)
     if (T_meas_tool is None) == (p_meas_tool is None):
         raise ParameterError("give exactly one of T_meas_tool (N, 4, 4) and p_meas_tool (N, 3)")
@@ -312,6 +315,8 @@ def load_compensation_models(calibrated_urdf: str | Path, nominal_urdf: str | Pa
 
 
 def _check_models(calibrated: RobotModel, nominal: RobotModel) -> None:
+    check_robot(calibrated, "calibrated")
+    check_robot(nominal, "nominal")
     if calibrated.targets:
         raise CalibError(f"the calibrated model holds {calibrated.n_targets} targets "
                          f"({', '.join(calibrated.targets)}) and no tool frame of its own: compensation "

@@ -74,3 +74,14 @@ class ParameterError(CalibError):
 
 class DataError(CalibError):
     """Measurements that cannot support the requested computation (too few poses, etc.)."""
+
+
+class OutputError(CalibError):
+    """An output that cannot be written (read-only folder, full disk, ...): names the path.
+
+    When it is raised by :class:`calib.fileio.OutputSet`, no output was changed."""
+
+    def __init__(self, path: str | Path, reason: str):
+        self.path = Path(path)
+        self.reason = reason
+        super().__init__(f"{self.path}: {reason}")

@@ -23,6 +23,8 @@ then removes.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .errors import DataError
@@ -93,16 +95,24 @@ def estimate_target_frames(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
     data each returned T_flange_tool keeps ``robot``'s rotation of that target (a point has no
     orientation). Raises :class:`DataError` when the poses do not determine the frames.
     """
-    K = robot.n_targets
-    N = len(Q)
-    rows = np.zeros(N, int) if targets is None else np.asarray(targets, int)
+    rows = np.zeros(len(Q), int) if targets is None else np.asarray(targets, int)
+    R_f, p_f = _flange_in_base(robot, Q)
+    return _estimate(robot, R_f, p_f, p_meas, R_meas, rows)
+
+
+def _flange_in_base(robot: RobotModel, Q: np.ndarray):
+    """(R_f (N, 3, 3), p_f (N, 3)): the flange in MDH frame 0 at Q."""
     kin = ChainKinematics(robot)
     R_b, p_b = kin.frame_poses(Q, "base")
     R_fl, p_fl = kin.frame_poses(Q, "flange")
     # flange in the base frame (the base frame pose does not depend on q)
     Rb, pb = R_b[0], p_b[0]
-    R_f = Rb.T @ R_fl
-    p_f = (p_fl - pb) @ Rb
+    return Rb.T @ R_fl, (p_fl - pb) @ Rb
+
+
+def _estimate(robot: RobotModel, R_f, p_f, p_meas, R_meas, rows):
+    K = robot.n_targets
+    N = len(R_f)
     X = np.eye(4)
     Y = np.array([robot.T_flange_tool(k) for k in range(K)])
     I3 = np.eye(3)
@@ -156,3 +166,79 @@ def estimate_target_frames(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
     X[:3, :3], X[:3, 3] = R_X, t_X
     Y[:, :3, 3] = t_Y
     return X, Y
+
+
+@dataclass(frozen=True)
+class FrameEstimate:
+    """A robust closed-form frame estimate (:func:`estimate_frames_robust`).
+
+    T_meas_base (4, 4); T_flange_targets (K, 4, 4), one per target (T_flange_tool: the first),
+    metres. ``inliers`` : (N,) bool, the rows the final estimate was computed from;
+    ``position_residual`` (N,) metres and ``rotation_residual`` (N,) radians (or None) of every
+    row against it; ``threshold_position`` (m) and ``threshold_rotation`` (rad) the trimming
+    thresholds of the last round.
+    """
+
+    T_meas_base: np.ndarray
+    T_flange_targets: np.ndarray
+    inliers: np.ndarray
+    position_residual: np.ndarray
+    rotation_residual: np.ndarray | None
+    threshold_position: float
+    threshold_rotation: float | None
+
+    @property
+    def T_flange_tool(self) -> np.ndarray:
+        return self.T_flange_targets[0]
+
+
+#: Trimming of :func:`estimate_frames_robust`: a row is left out when its residual exceeds the
+#: median by more than TRIM_K robust standard deviations (1.4826 MAD), and at least the floors
+#: (the estimate carries the nominal structure's error, millimetres, which must not be trimmed).
+TRIM_K = 6.0
+TRIM_FLOOR_M = 5e-3
+TRIM_FLOOR_RAD = 0.02
+TRIM_ROUNDS = 10
+
+
+def _threshold(r: np.ndarray, floor: float) -> float:
+    med = float(np.median(r))
+    return max(med + TRIM_K * 1.4826 * float(np.median(np.abs(r - med))), floor)
+
+
+def estimate_frames_robust(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
+                           R_meas: np.ndarray | None = None,
+                           targets: np.ndarray | None = None) -> FrameEstimate:
+    """:func:`estimate_target_frames` made robust to gross rows by residual-based trimming.
+
+    The closed-form estimate is computed from all rows, every row's residual against it is
+    taken (position: metres; orientation: radians), rows beyond the median by more than
+    ``TRIM_K`` robust standard deviations (and beyond ``TRIM_FLOOR_M`` / ``TRIM_FLOOR_RAD``)
+    are left out and the estimate is repeated, until the kept rows do not change. A single row
+    a million kilometres off moves the least-squares translation of N rows by 1/N of that, all
+    good rows then share about the same residual and the gross row stands out; it is left out
+    in the first round. Arguments and errors as :func:`estimate_target_frames`.
+    """
+    R_f, p_f = _flange_in_base(robot, Q)
+    N = len(Q)
+    rows = np.zeros(N, int) if targets is None else np.asarray(targets, int)
+    keep = np.ones(N, bool)
+    minimum = 3 if R_meas is not None else 12 + 27 * robot.n_targets
+    for _ in range(TRIM_ROUNDS):
+        X, Y = _estimate(robot, R_f[keep], p_f[keep], p_meas[keep],
+                         None if R_meas is None else R_meas[keep], rows[keep])
+        Yr = Y[rows]
+        p_est = X[:3, 3] + (p_f + np.einsum("nij,nj->ni", R_f, Yr[:, :3, 3])) @ X[:3, :3].T
+        e_pos = np.linalg.norm(p_est - p_meas, axis=1)
+        thr_p, thr_r, e_rot = _threshold(e_pos[keep], TRIM_FLOOR_M), None, None
+        new = e_pos <= thr_p
+        if R_meas is not None:
+            R_est = X[:3, :3] @ R_f @ Yr[:, :3, :3]
+            cos = (np.einsum("nij,nij->n", R_est, R_meas) - 1.0) / 2.0
+            e_rot = np.arccos(np.clip(cos, -1.0, 1.0))
+            thr_r = _threshold(e_rot[keep], TRIM_FLOOR_RAD)
+            new &= e_rot <= thr_r
+        if np.array_equal(new, keep) or 3 * new.sum() < minimum:
+            break
+        keep = new
+    return FrameEstimate(X, Y, keep, e_pos, e_rot, thr_p, thr_r)

@@ -36,7 +36,9 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import ParameterError
+from .checks import (check_configurations, check_int, check_number, check_rng, check_robot,
+                     check_target_indices)
+from .errors import DataError, ParameterError
 from .jacobian import MEASURES, identification_jacobian
 from .robot import RobotModel
 
@@ -208,13 +210,23 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
     model values, configurations and options (as a calibration repeated on the same data makes)
     returns the same report without recomputing it.
     """
+    check_robot(robot)
     if measure not in MEASURES:
         raise ParameterError(f"measure must be one of {', '.join(MEASURES)}, got {measure!r}")
+    check_number(tol, "tol", minimum=0.0, maximum=1.0, strict=True)
+    check_number(sigma_pos, "sigma_pos", minimum=1e-12, maximum=1.0)
+    check_number(sigma_rot, "sigma_rot", minimum=1e-12, maximum=1.0)
+    check_int(max_poses, "max_poses", minimum=1, allow_none=True)
+    if priority is not None and (not isinstance(priority, (list, tuple))
+                                 or not all(isinstance(n, str) for n in priority)):
+        raise ParameterError(f"priority must be a list of parameter names, got {priority!r}")
     if Q is None:
-        Q = robot.random_configurations(n_poses, seed)
-    Q = np.atleast_2d(np.asarray(Q, float))
-    if targets is not None:
-        targets = np.asarray(targets, int)
+        check_int(n_poses, "n_poses", minimum=1)
+        Q = robot.random_configurations(n_poses, check_rng(seed, "seed"))
+    Q = check_configurations(Q, robot.n_joints)
+    if len(Q) == 0:
+        raise DataError("Q has no configurations")
+    targets = check_target_indices(targets, len(Q), robot.n_targets)
     if max_poses is not None and len(Q) > max_poses:
         pick = np.linspace(0, len(Q) - 1, max_poses).astype(int)
         Q, targets = Q[pick], None if targets is None else targets[pick]

@@ -59,8 +59,11 @@ def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "po
     unit of the parameter) then dwx, dwy, dwz (radians per unit), in the meas frame; columns in
     the order of ``robot.parameters``.
     """
-    if measure not in MEASURES:
-        raise ValueError(f"measure must be one of {MEASURES}, got {measure!r}")
+    from .checks import check_choice, check_configurations, check_robot
+
+    check_robot(robot)
+    check_choice(measure, "measure", MEASURES)
+    Q = check_configurations(Q, robot.n_joints)
     _, _, J = pose_jacobian(ChainKinematics(robot), Q, targets=targets)
     if measure == "position":
         J = J[:, :3]

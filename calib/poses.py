@@ -77,6 +77,7 @@ from typing import Mapping
 
 import numpy as np
 
+from .checks import check_number, check_rng, check_robot
 from .errors import DataError, ParameterError
 from .identifiability import (SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability,
                               observability_indices, weighted_jacobian)
@@ -205,8 +206,9 @@ def design_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion
     only). Other parameters as :func:`select_poses`.
     """
     t0 = time.perf_counter()
+    check_robot(robot)
     crit = _check_options(n, candidates, criterion, measure, sigma_pos, sigma_rot, exchange_passes)
-    rng = np.random.default_rng(seed)
+    rng = check_rng(seed, "seed")
     pool = robot.random_configurations(candidates, rng)
     report = analyze_identifiability(robot, pool, measure=measure, sigma_pos=sigma_pos,
                                      sigma_rot=sigma_rot)
@@ -259,8 +261,8 @@ def _check_options(n, candidates, criterion, measure, sigma_pos, sigma_rot, pass
                              f"number of poses to select ({n})")
     if passes < 0:
         raise ParameterError(f"exchange_passes must not be negative, got {passes}")
-    if not (sigma_pos > 0 and sigma_rot > 0):
-        raise ParameterError("sigma_pos and sigma_rot must be positive")
+    check_number(sigma_pos, "sigma_pos", minimum=1e-12, maximum=1.0)
+    check_number(sigma_rot, "sigma_rot", minimum=1e-12, maximum=1.0)
     return crit
 
 

@@ -24,6 +24,7 @@ one tool frame (``targets == ()``) keeps the names ``v_x`` ... ``v_gamma``.
 """
 from __future__ import annotations
 
+import logging
 import math
 import os
 from dataclasses import dataclass, field, replace
@@ -33,10 +34,14 @@ from typing import Iterable, Sequence
 import numpy as np
 import pinocchio as pin
 
+from .checks import check_number, check_path
 from .errors import ChainError, FrameNotFound, ParameterError, URDFError
+from .fileio import captured_c_output
 from .mdh import PARALLEL_THRESHOLD_RAD, derive_mdh, link_transform
 from .spatial import zyx_parameters, zyx_transform
 from .urdf import UrdfDocument, UrdfJoint
+
+log = logging.getLogger(__name__)
 
 JOINT_KINDS = ("revolute", "continuous", "prismatic")
 _STRUCTURAL_KINDS = ("theta", "d", "a", "alpha", "beta")
@@ -593,7 +598,7 @@ def robot_path(robot: str | Path) -> Path:
     A name is tried only when no file of that name exists and it has no folder or suffix; an
     unknown name raises :class:`URDFError` listing the known names.
     """
-    path = Path(robot)
+    path = check_path(robot, "robot")
     if path.exists() or path.suffix or len(path.parts) != 1:
         return path
     try:
@@ -628,13 +633,22 @@ def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
     may be link or joint names. Raises :class:`URDFError`, :class:`FrameNotFound` or
     :class:`ChainError`.
     """
-    path = robot_path(urdf_path)
+    path = robot_path(check_path(urdf_path, "urdf_path"))
+    for name, frame in (("base_frame", base_frame), ("tool_frame", tool_frame)):
+        if frame is not None and not (isinstance(frame, str) and frame):
+            raise ParameterError(f"{name} must be a frame name (a non-empty str) or None, got {frame!r}")
     doc = UrdfDocument.read(path)
+    parser_output: list[str] = []
     try:
-        model = pin.buildModelFromUrdf(str(path))
+        with captured_c_output() as parser_output:   # Pinocchio's parser prints to C stderr
+            model = pin.buildModelFromUrdf(str(path))
     except (RuntimeError, ValueError) as exc:
-        msg = " ".join(str(exc).split())
+        said = [l.strip()[len("Error:"):].strip() for l in "".join(parser_output).splitlines()
+                if l.strip().startswith("Error:")]
+        msg = " ".join((said[0] if said else str(exc)).split())
         raise URDFError(path, f"Pinocchio cannot build a model: {msg}") from None
+    if parser_output and parser_output[0].strip():
+        log.debug("Pinocchio's URDF parser said: %s", " ".join(parser_output[0].split()))
 
     base_frame, tool_frame = doc.resolve_frames(base_frame, tool_frame)
     base_frame = base_frame or doc.root_link
@@ -699,6 +713,10 @@ def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
             lo, hi = float(model.lowerPositionLimit[jm.idx_q]), float(model.upperPositionLimit[jm.idx_q])
             if rec is None or not rec.has_limits:
                 lo, hi = -math.inf, math.inf
+        if lo == hi:
+            raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} has "
+                                   f"limits lower = upper = {lo:g}: it cannot move; make it a "
+                                   f"fixed joint or give it a range")
         cj.append(ChainJoint(name, jtype, lo, hi))
     return UrdfChain(path=path, model=model, joints=tuple(cj), joint_ids=tuple(chain),
                      base_frame=base_frame, tool_frame=tool_frame,
@@ -746,6 +764,7 @@ def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame:
     The model reproduces Pinocchio's forward kinematics of ``tool_frame`` in ``base_frame``
     exactly (to rounding). Raises :class:`calib.CalibError` subclasses on bad input.
     """
+    check_number(parallel_threshold, "parallel_threshold", minimum=0.0, maximum=math.pi / 2)
     chain = read_urdf_chain(urdf_path, base_frame, tool_frame)
     pts, dirs, T_meas_tool = chain_axes(chain)
     geo = derive_mdh(pts, dirs, T_meas_tool, parallel_threshold)

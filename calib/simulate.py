@@ -7,11 +7,13 @@ with Gaussian components of ``sigma_rot`` per axis, applied in the meas frame:
 """
 from __future__ import annotations
 
+import math
 from typing import Mapping
 
 import numpy as np
 
-from .errors import ParameterError
+from .checks import (check_configurations, check_deviations, check_number, check_rng, check_robot,
+                     check_target_ids)
 from .kinematics import ChainKinematics
 from .measurements import Measurements
 from .robot import RobotModel
@@ -30,19 +32,18 @@ PAPER_DEVIATIONS: dict[str, float] = {
 
 
 def apply_deviations(robot: RobotModel, deviations: Mapping[str, float]) -> RobotModel:
-    """The model with each named parameter changed by its deviation (SI units)."""
-    missing = [n for n in deviations if n not in robot.names]
-    if missing:
-        raise ParameterError(f"the deviations name parameters this robot does not have: "
-                             f"{', '.join(missing)} (the robot has {', '.join(robot.names)})")
-    return robot.with_changes(**deviations)
+    """The model with each named parameter changed by its deviation (SI units, finite)."""
+    check_robot(robot)
+    return robot.with_changes(**check_deviations(deviations, robot.names))
 
 
 def random_deviations(robot: RobotModel, scale: float, rng=None) -> dict[str, float]:
     """Gaussian deviations of every parameter (SI units): lengths with standard deviation
     ``scale`` metres, angles ``scale / 0.5`` radians (an angle error then moves a point 0.5 m
     away by about ``scale``). Compliance parameters are left out (give them by name)."""
-    rng = np.random.default_rng(rng)
+    check_robot(robot)
+    check_number(scale, "scale", minimum=0.0)
+    rng = check_rng(rng)
     return {p.name: float(rng.normal(0.0, scale if p.unit == "m" else scale / 0.5)) for p in robot.parameters
             if p.group != "compliance"}
 
@@ -71,7 +72,13 @@ def simulate_measurements(true_robot: RobotModel, Q: np.ndarray, *, sigma_pos: f
     record the commanded joint values Q. targets : (N,) target ids, one per row, for a
     multi-target ``true_robot`` (each row measures that target; recorded in ``target``).
     """
-    rng = np.random.default_rng(rng)
+    check_robot(true_robot, "true_robot")
+    Q = check_configurations(Q, true_robot.n_joints)
+    check_number(sigma_pos, "sigma_pos", minimum=0.0)
+    check_number(sigma_rot, "sigma_rot", minimum=0.0, maximum=math.pi)   # radians: a rotation noise past pi is none
+    targets = check_target_ids(targets, len(Q))
+    check_number(unmodelled, "unmodelled", minimum=0.0, maximum=math.pi)   # radians: at most half a turn
+    rng = check_rng(rng)
     Q_moved = unmodelled_joint_error(true_robot, Q, unmodelled, rng) if unmodelled > 0 else Q
     R, p = ChainKinematics(true_robot).frame_poses(Q_moved, targets=true_robot.target_rows(targets))
     p = p + rng.normal(0.0, sigma_pos, p.shape) if sigma_pos > 0 else p

@@ -57,6 +57,14 @@ class LMOptions:
     gtol: float = 1e-14            # ... or the scaled gradient is below gtol
     max_mu: float = 1e16
 
+    def __post_init__(self):
+        from .checks import check_int, check_number
+
+        check_int(self.max_iterations, "LMOptions.max_iterations", minimum=1)
+        for name in ("mu0", "ftol", "xtol", "gtol", "max_mu"):
+            check_number(getattr(self, name), f"LMOptions.{name}", minimum=0.0, strict=True)
+        check_number(self.lam, "LMOptions.lam", minimum=1.0, strict=True)
+
 
 @dataclass(frozen=True)
 class SolverResult:

@@ -31,6 +31,7 @@ elements and ignore a namespaced element, as they ignore ``xacro:`` leftovers.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -118,6 +119,7 @@ class UrdfDocument:
             if name is None or kind is None or parent is None or child is None:
                 raise URDFError(path, f"joint {name!r} lacks a name, type, <parent> or <child>")
             lim = el.find("limit")
+            self._check_numbers(el, name, kind)
             self.joints[name] = UrdfJoint(
                 name, kind, parent.get("link"), child.get("link"), el.find("mimic") is not None,
                 lim is not None and (lim.get("lower") is not None or lim.get("upper") is not None))
@@ -127,6 +129,36 @@ class UrdfDocument:
             raise URDFError(path, f"expected one root link, found {len(roots)}: {roots}")
         self.root_link = roots[0]
         self.frames = self._read_frames(root)
+
+    def _check_numbers(self, el, name: str, kind: str) -> None:
+        """The joint's origin, axis and limits are finite numbers; a moving joint's axis is not
+        zero; lower <= upper. (Pinocchio would build a model of NaN or fail with a message that
+        does not name the joint.)"""
+        def numbers(child: str, attr: str, count: int):
+            sub = el.find(child)
+            text = None if sub is None else sub.get(attr)
+            if text is None:
+                return None
+            try:
+                values = [float(v) for v in text.split()]
+            except ValueError:
+                values = []
+            if len(values) != count or not all(math.isfinite(v) for v in values):
+                what = f"{count} finite numbers" if count > 1 else "a finite number"
+                raise URDFError(self.path, f'joint {name!r}: <{child} {attr}="{text}"> is not {what}')
+            return values
+        numbers("origin", "xyz", 3)
+        numbers("origin", "rpy", 3)
+        axis = numbers("axis", "xyz", 3)
+        if kind in ("revolute", "continuous", "prismatic") and axis is not None \
+                and math.hypot(*axis) < 1e-9:
+            raise URDFError(self.path, f"joint {name!r}: <axis xyz=\"{el.find('axis').get('xyz')}\"> is a "
+                                       f"zero vector, expected the direction of the joint axis")
+        lower, upper = numbers("limit", "lower", 1), numbers("limit", "upper", 1)
+        if kind in ("revolute", "prismatic") and lower is not None and upper is not None \
+                and lower[0] > upper[0]:
+            raise URDFError(self.path, f"joint {name!r}: <limit lower=\"{lower[0]:g}\" upper=\"{upper[0]:g}\">"
+                                       f" has lower > upper")
 
     @classmethod
     def read(cls, path: str | Path) -> "UrdfDocument":

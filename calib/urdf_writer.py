@@ -104,7 +104,10 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
     Raises :class:`~calib.errors.CalibError` (or a subclass): no URDF to start from, output =
     input, ``nominal`` incompatible with ``robot`` or not describing the URDF.
     """
-    check_not_input(path, [robot.urdf_path] if robot.urdf_path is not None else [])
+    from .checks import check_path, check_robot
+
+    check_robot(robot)
+    check_not_input(check_path(path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
     doc, plan = _prepare(robot, nominal)
     atomic_write_text(path, doc.render(plan))
     return plan.frames
@@ -120,6 +123,10 @@ def check_writable(robot: RobotModel) -> RecordedFrames:
 
 
 def _prepare(robot: RobotModel, nominal: RobotModel | None):
+    from .checks import check_instance, check_robot
+
+    check_robot(robot)
+    check_instance(nominal, "nominal", RobotModel, "from calib.load_robot", allow_none=True)
     if robot.targets:      # the chain and first target as one model, then a link per target
         doc, plan = _prepare(robot.for_target(0), None if nominal is None else nominal.for_target(0))
         return doc, _plan_targets(robot, doc, plan)

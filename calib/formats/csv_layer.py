@@ -27,6 +27,7 @@ from __future__ import annotations
 import csv
 import difflib
 import math
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -184,7 +185,46 @@ class Table:
 
 
 # ====================================================================== text
+#: Peak memory of reading a CSV file and calibrating from it, in bytes per byte of the file
+#: (scripts/bench_memory.py prints the measured figure); a file whose size times this exceeds
+#: the memory available is refused before it is read, rather than the process being killed.
+MEMORY_BYTES_PER_FILE_BYTE = 40.0
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to this process: MemAvailable of /proc/meminfo (Linux), else
+    the free physical pages; None when unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_size(path: Path) -> None:
+    """Refuse a file too large for this machine's memory (see MEMORY_BYTES_PER_FILE_BYTE)."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        return                 # reported by the read itself
+    available = available_memory()
+    need = size * MEMORY_BYTES_PER_FILE_BYTE
+    if available is not None and need > available:
+        raise MeasurementFormatError(path, f"{size / 1e6:.0f} MB: reading and calibrating from it "
+                                           f"needs about {need / 1e9:.1f} GB of memory, "
+                                           f"{available / 1e9:.1f} GB are available; split the file "
+                                           f"or use a larger machine")
+
+
 def read_lines(path: Path) -> list[str]:
+    if path.is_file():
+        check_size(path)
     try:
         data = path.read_bytes()
     except FileNotFoundError:
@@ -488,8 +528,12 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     frame in the meas frame). Raises :class:`calib.MeasurementFormatError` naming the file, row
     and column on any departure from the format.
     """
-    options = options or ReadOptions()
-    path = Path(path)
+    from ..checks import check_instance, check_path, check_robot
+
+    path = check_path(path, "path")
+    check_robot(robot)
+    options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
+        or ReadOptions()
     header_row, names, delimiter, data = _records(path)
     header = _Header(path, header_row, names, spec, robot, options)
     if not data:

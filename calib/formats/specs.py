@@ -103,7 +103,14 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
     ------
     MeasurementFormatError : on any departure from the format, naming file, row and column.
     """
-    options = options or ReadOptions()
+    from ..checks import check_instance, check_path, check_robot
+
+    check_path(csv_path, "csv_path")
+    check_robot(robot)
+    if tracker is not None:
+        check_path(tracker, "tracker")
+    options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
+        or ReadOptions()
     if tracker is None:
         if options.key is not None:
             raise ParameterError("a key column joins two files: give the tracker file too "
@@ -194,10 +201,14 @@ def write_measurements(path: str | Path, measurements: Measurements, *, angle_un
 
     from scipy.spatial.transform import Rotation
 
-    if angle_unit not in ANGLE_UNITS:
-        raise CalibError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
-    if length_unit not in LENGTH_UNITS:
-        raise CalibError(f"length_unit must be 'mm' or 'm', got {length_unit!r}")
+    from ..checks import check_measurements, check_path
+
+    check_path(path, "path")
+    check_measurements(measurements)
+    if not isinstance(angle_unit, str) or angle_unit not in ANGLE_UNITS:
+        raise ParameterError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
+    if not isinstance(length_unit, str) or length_unit not in LENGTH_UNITS:
+        raise ParameterError(f"length_unit must be 'mm' or 'm', got {length_unit!r}")
     if orientation not in ("quaternion", "zyx", "none"):
         raise CalibError(f"orientation must be 'quaternion', 'zyx' or 'none', got {orientation!r}")
     check_not_input(path, [measurements.source])
@@ -240,6 +251,15 @@ def write_poses(path: str | Path, robot, q: np.ndarray, *, angle_unit: str = "de
     length_unit : "mm" or "m" (prismatic joints).
     comment : text written first as ``#`` comment lines.
     """
+    from ..checks import check_configurations, check_path, check_robot
+
+    check_path(path, "path")
+    check_robot(robot)
+    q = check_configurations(q, robot.n_joints, "q")
+    if not isinstance(angle_unit, str) or angle_unit not in ANGLE_UNITS:
+        raise ParameterError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
+    if not isinstance(length_unit, str) or length_unit not in LENGTH_UNITS:
+        raise ParameterError(f"length_unit must be 'mm' or 'm', got {length_unit!r}")
     header, values = joint_columns(robot.joint_names, robot.prismatic, q, angle_unit, length_unit)
     atomic_write_text(path, csv_text(header, [[repr(float(v)) for v in row] for row in values],
                                      comment))
