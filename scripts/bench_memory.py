@@ -1,9 +1,9 @@
 """Benchmark of memory (issue 13, item 7): peak memory per row of reading and calibrating.
 
 For each size N (default 20,000 and 100,000 rows of the bundled robot, noisy, paper deviations)
-a fresh Python process imports calib, reads the file and runs ``calibrate`` (``params="base"``,
-no cross-validation, one fit: what the memory depends on); the script prints the file size, the
-peak resident memory (ru_maxrss) after import, after reading, after calibrating, and the growth
+a fresh Python process imports calib, reads the file and runs ``calibrate`` with its defaults
+(noise estimation, cross-validation, statistics); the script prints the file size, the peak
+resident memory (VmHWM) after import, after reading, after calibrating, and the growth
 per row above the loaded data, and the estimate calib's reader uses to refuse a file too large
 for the machine (:data:`calib.formats.csv_layer.MEMORY_BYTES_PER_FILE_BYTE`).
 
@@ -28,7 +28,16 @@ URDF = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
 
 CHILD = r"""
 import json, resource, sys, time
-def rss(): return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+def rss():
+    # peak resident memory of this process image: VmHWM is reset by exec, while ru_maxrss keeps
+    # the parent's peak across fork + exec (the parent holds the simulated data)
+    try:
+        for line in open("/proc/self/status"):
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 import calib
 r0 = rss()
 robot = calib.load_robot(sys.argv[1])
@@ -37,7 +46,7 @@ m = calib.read_measurements(sys.argv[2], robot)
 t_read = time.perf_counter() - t
 r1 = rss()
 t = time.perf_counter()
-res = calib.calibrate(robot, m, params="base", cv=0, outlier_k=None)
+res = calib.calibrate(robot, m)
 t_cal = time.perf_counter() - t
 r2 = rss()
 print(json.dumps({"import": r0, "read": r1, "calibrate": r2, "status": res.status,
