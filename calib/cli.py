@@ -44,7 +44,7 @@ from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
                read_measurements, simulate_measurements, write_measurements)
 from .calibration import _EDGE_UNITS, METHODS, format_accuracy_table
-from .fileio import OutputSet, check_not_input
+from .fileio import OutputSet, check_not_input, output_target
 from .progress import working
 from .solvers import LOSSES
 
@@ -79,6 +79,7 @@ class Outputs:
         path = Path(path)
         check_not_input(path, self.inputs)
         check_not_input(path, self.paths)
+        output_target(path)          # a device, FIFO or socket is refused before any work
         if path.is_dir():
             raise CalibError(f"{path}: is a folder, expected a file name for the output")
         folder = path.parent
@@ -114,7 +115,7 @@ class Outputs:
             if path in self.data:
                 out.stage(path, self.data[path])
         for path in out.commit():
-            log.info("wrote %s (%d bytes)", path, len(self.data[path]))
+            log.info("wrote %s", path)
 
 
 def _json_text(obj) -> str:

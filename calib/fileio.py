@@ -24,6 +24,27 @@ def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> 
             raise CalibError(f"{output}: refusing to overwrite an input file; choose another output path")
 
 
+def output_target(path: str | Path) -> Path:
+    """The file an output at ``path`` replaces: ``path`` itself, or the file a symbolic link there
+    points to (the link is kept; the file it names is replaced). Raises :class:`OutputError` when
+    that is something other than a regular file (a device such as /dev/null, a FIFO, a socket):
+    writing by rename would destroy it."""
+    import stat
+
+    path = Path(path)
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    try:
+        mode = os.stat(target).st_mode
+    except FileNotFoundError:
+        return target
+    except OSError as exc:
+        raise OutputError(path, f"cannot be inspected: {_reason(exc)}") from None
+    if not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
+        raise OutputError(path, "is not a regular file (a device, FIFO or socket): outputs are "
+                                "written by replacing the file, which would destroy it; choose a file name")
+    return target
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -52,8 +73,9 @@ class OutputSet:
         self.folders: list[Path] = []
 
     def stage(self, path: str | Path, data: bytes | str) -> None:
-        """Keep ``data`` (str: UTF-8) to be written to ``path`` by :meth:`commit`."""
-        self.data[Path(path)] = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+        """Keep ``data`` (str: UTF-8) to be written to ``path`` by :meth:`commit` (through a
+        symbolic link: into the file it names; see :func:`output_target`)."""
+        self.data[output_target(path)] = data.encode("utf-8") if isinstance(data, str) else bytes(data)
 
     def make_folder(self, folder: str | Path) -> None:
         """Create ``folder`` (its parent must exist) at commit time, if it does not exist then."""

@@ -554,3 +554,25 @@ def test_api_fuzz_never_raises_a_bare_exception(sim, tmp_path, monkeypatch):
                 except Exception as exc:  # noqa: BLE001 - what the test looks for
                     bare.append(f"{fn.__name__}({name}={value!r}): {type(exc).__name__}: {exc}")
     assert bare == []
+
+
+def test_special_files_are_never_replaced_and_symlinks_are_written_through(sim, tmp_path, capfd):
+    """A FIFO (like a device such as /dev/null) as an output is refused before any work; an
+    output path that is a symbolic link writes the file it names and keeps the link."""
+    import os
+    import stat
+
+    d, _, _ = sim
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    code, _, err = run_cli(capfd, ["calibrate", URDF, d / "cal.csv", "-o", tmp_path / "c.urdf",
+                                   "--report", fifo, "--params", "base"])
+    assert_refused(code, err, "is not a regular file")
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode) and not (tmp_path / "c.urdf").exists()
+    target = tmp_path / "real.json"
+    target.write_text("old")
+    link = tmp_path / "link.json"
+    link.symlink_to(target)
+    code, _, _ = run_cli(capfd, ["calibrate", URDF, d / "cal.csv", "-o", tmp_path / "c.urdf",
+                                 "--report", link, "--params", "base"])
+    assert code == 0 and link.is_symlink() and target.read_text().startswith("{")
