@@ -77,6 +77,8 @@ LOCAL_MINIMUM_RATIO = 0.9
 TRACKER_RANGE_M = 200.0
 #: Joint readings that agree to this (rad / m) are one configuration when counting distinct poses.
 DISTINCT_Q_TOL = 1e-9
+#: Residual components beyond the number of free parameters needed to estimate the noise.
+MIN_REDUNDANCY = 6
 #: Default number of cross-validation folds.
 CV_FOLDS = 5
 #: Model selection cross-validates leave-one-out below this many calibration rows.
@@ -1278,7 +1280,13 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
         test = np.zeros(cal.n_poses, bool)
         test[rows[fold_of == f]] = True
         if refit == "newton":
-            A_inv, _ = _inverse(A_all - A_fold[f])
+            A_inv, full = _inverse(A_all - A_fold[f])
+            if not full and _inverse(A_all)[1]:
+                # without this fold the rows cannot identify the parameters: its prediction would
+                # be the whole fit's, which has seen it (a leak), not a held-out error
+                raise DataError(f"cross-validation: without fold {f + 1} of {folds} the remaining "
+                                f"{n - int((fold_of == f).sum())} rows cannot identify the "
+                                f"{len(x0)} parameters")
             x_f = x0 - A_inv @ (g_all - g_fold[f])
         else:
             train = np.zeros(cal.n_poses, bool)
@@ -1319,7 +1327,14 @@ def select_model(setup: Setup, candidates: Sequence[tuple[str, tuple[str, ...]]]
             fit, problem = fit_stage(setup, free, s, sigma_pos=sp, sigma_rot=sr, outlier_k=None,
                                      keep=full.keep, kin=kin)
         fits[label] = (fit, problem)
-        cands.append(Candidate(label, tuple(free), cross_validate(setup, fit, problem, folds, options=options)))
+        try:
+            cands.append(Candidate(label, tuple(free), cross_validate(setup, fit, problem, folds, options=options)))
+        except DataError:
+            continue            # too few rows to hold any out for this set: not a candidate
+    if not cands:
+        raise DataError(f"{setup.cal.n_poses} calibration rows are too few to compare parameter sets by "
+                        f"cross-validation (no candidate can be identified with a row held out): "
+                        f"measure more rows, or name the parameter set (params / --params)")
     best = min(cands, key=lambda c: c.cv.score)
     # one standard error of the paired difference: the candidates are scored on the same rows and
     # folds, so their row scores are strongly correlated and the difference is what is uncertain
@@ -1476,6 +1491,15 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     derived = want == "auto" or (isinstance(want, str) and want.strip().lower() == "base")
     check_data_rank(start, cal, setup.measure, ident if want == "auto" else free, derived=derived,
                     sigma_pos=weights[0], sigma_rot=weights[1])
+    n_free = len(ident if want == "auto" else free)
+    spare = cal.n_poses * setup.components_per_pose - n_free
+    if (sigma_pos is None or sigma_rot is None) and spare < MIN_REDUNDANCY:
+        where = f"{measurements.source}: " if measurements.source is not None else ""
+        raise DataError(f"{where}{cal.n_poses} calibration rows give {cal.n_poses * setup.components_per_pose} "
+                        f"residual components for {n_free} parameters: at least {MIN_REDUNDANCY} more are "
+                        f"needed to estimate the noise (a fit with none to spare passes through every "
+                        f"row and says nothing of its accuracy); measure more rows, or give the noise "
+                        f"levels (sigma_pos / sigma_rot, --sigma-pos-mm / --sigma-rot-rad)")
     folds = CV_FOLDS if cv is None else cv
     kin = ChainKinematics(start)
     selection = None
@@ -1526,7 +1550,10 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         if selection is not None:
             cross = next(c.cv for c in selection.candidates if c.label == selection.chosen)
         elif fit.keep.sum() >= folds:
-            cross = cross_validate(setup, fit, problem, folds, options=opts)
+            try:
+                cross = cross_validate(setup, fit, problem, folds, options=opts)
+            except DataError as exc:
+                notes.append(f"no cross-validation: {exc}")
         else:
             notes.append(f"no cross-validation: fewer rows than the {folds} folds")
 

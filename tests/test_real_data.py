@@ -278,3 +278,15 @@ def test_readme_real_measurements_example_runs_as_printed(tmp_path, monkeypatch,
                    "orientation 0.00521 rad per axis", "offsets+frames                 12    32.04",
                    "cross-validated (leave-one-out) held-out RMS error: position 2.078 mm"):
         assert quoted in section and quoted in out
+
+
+def test_no_spare_residuals_is_refused_and_cv_never_leaks(bundled_robot, paper_data):
+    """5 full-pose rows = 30 components for 30 parameters: nothing to estimate the noise from
+    (refused); with the noise given the fit runs, and a cross-validation whose folds cannot
+    identify the parameters is reported as impossible, not as a near-zero held-out error."""
+    five = paper_data.subset(np.arange(5)).calibration()
+    with pytest.raises(calib.CalibError, match="at least 6 more are needed to estimate the noise"):
+        calib.calibrate(bundled_robot, five)
+    res = calib.calibrate(bundled_robot, five, params="base", sigma_pos=0.05e-3, sigma_rot=0.001)
+    assert res.cross_validation is None
+    assert any("no cross-validation" in n and "cannot identify" in n for n in res.notes)
