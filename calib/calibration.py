@@ -235,8 +235,8 @@ class NoiseEstimate:
     degrees of freedom of each group (its residual components minus its share of the rank of the
     Jacobian); chi2_pos / chi2_rot : the group's weighted residual sum of squares divided by its
     redundancy (1 when the noise level matches); chi2, dof, p_value : the chi-square test of the
-    whole fit (p_value the probability of a larger chi-square if the noise levels were right;
-    None when they were estimated). iterations : re-weighted fits of the estimation.
+    whole fit (p_value the two-sided probability of a chi-square at least this far from its
+    expectation if the noise levels were right; None when they were estimated). iterations : re-weighted fits of the estimation.
     """
 
     position: float
@@ -890,7 +890,8 @@ def select_parameters(robot: RobotModel, params, Q: np.ndarray, measure: str, si
         raise ParameterError(f"params must be parameter names (strings), got {params!r}")
     robot.indices(names)  # raises ParameterError for unknown names
     if len(set(names)) != len(names):
-        raise ParameterError("a parameter is listed twice")
+        twice = sorted({n for n in names if names.count(n) > 1})
+        raise ParameterError(f"parameter listed twice: {', '.join(twice)}")
     return "list", tuple(n for n in robot.names if n in names)
 
 
@@ -948,9 +949,12 @@ def _noise_estimate(problem: Problem, x: np.ndarray, estimated: bool, iterations
     chi2 = ne.rss_pos + ne.rss_rot
     p_value = None
     if not estimated:
-        from scipy.special import gammaincc   # chi-square survival function, without scipy.stats' import cost
+        # chi-square distribution functions (scipy.special: scipy.stats costs seconds to import);
+        # two-sided: residuals far below the given noise disagree with it as much as far above
+        from scipy.special import gammainc, gammaincc
 
-        p_value = float(gammaincc(max(dof, 1e-9) / 2.0, chi2 / 2.0))
+        k = max(dof, 1e-9) / 2.0
+        p_value = float(min(1.0, 2.0 * min(gammaincc(k, chi2 / 2.0), gammainc(k, chi2 / 2.0))))
     has_rot = problem.has_orientation
     return NoiseEstimate(problem.sigma_pos, problem.sigma_rot if has_rot else None, estimated,
                          red_p, red_r, ne.rss_pos / max(red_p, 1e-300),
@@ -1384,7 +1388,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         retried), not the paper's LM of Eq. (27)-(28); ``lm_variant="paper"`` runs it on that LM
         as printed (:mod:`calib.paper_lm`). On the paper's Table 8 study (docs/reproduction.md,
         21x21 grid) search-lm converges in 100% of the cases, calib's C-LM in 99.1% and LM in
-        90.9%, the paper's C-LM and LM as printed in 92.3% and 15.7% (the paper reports 53.16%
+        90.9%, the paper's C-LM and LM as printed in 92.3% and 15.65% (the paper reports 53.16%
         and 22.45%). "lm": calib's Levenberg-Marquardt alone. With position-only data all run as
         LM (a note says so). An explicit lm / c-lm fit that an angle search from its solution
         beats is reported with status "local_minimum".

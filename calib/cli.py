@@ -342,7 +342,7 @@ def cmd_calibrate(args) -> int:
     meas = _read(args.measurements, robot, args, args.tracker)
     validation = _read(args.validate, robot, args, joined=False) if args.validate else None
     log.info("calibrating: method %s, parameter set %s, %d calibration rows", args.method,
-             args.params, meas.calibration().n_poses)
+             args.params or "default (auto or base)", meas.calibration().n_poses)
     try:
         with working(f"calibrating ({args.method})", logger=log):
             result = calibrate(robot, meas, method=args.method, params=args.params,

@@ -234,6 +234,10 @@ class RobotModel:
         position (3,) in metres in the tool frame (of the first target, for a multi-target model);
         each target's frame is the tool frame moved there. Two or more targets."""
         ids = tuple(str(t) for t in offsets)
+        if len(ids) < 2:
+            raise ParameterError(f"with_target_offsets: give two or more targets (got {len(ids)}); one "
+                                 f"target is the tool frame itself (move it with the tool frame's URDF "
+                                 f"link or with_changes(v_x=...))")
         refs = []
         for t in ids:
             p = np.asarray(offsets[t], float)

@@ -16,7 +16,8 @@ same rules, errors and hints:
   are ignored and listed (:attr:`Table.ignored_columns`), except near-misses of a known name
   (``x_mn``), which are errors with a "did you mean" hint.
 - Orientations: a quaternion, ZYX angles, Euler angles of any sequence, a rotation vector or a
-  rotation matrix, converted by :class:`scipy.spatial.transform.Rotation`.
+  rotation matrix, converted by Pinocchio (quaternions, ZYX angles, rotation vectors) and
+  :class:`scipy.spatial.transform.Rotation` (the other Euler sequences).
 - Joint values beyond a limit by at most :attr:`ReadOptions.limit_tolerance` of the joint range
   are kept with a note; further beyond is an error whose hint fits the size of the excess.
 
@@ -594,10 +595,11 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
 
 def _rotation(path: Path, header: _Header, values: np.ndarray, rows: np.ndarray,
               euler: str | None) -> np.ndarray:
-    """(N, 3, 3) rotation matrices from the orientation columns (SI values): the common
-    conventions by calib.spatial (numpy), other Euler sequences by scipy (imported only then:
-    it takes longer to import than a whole calibration)."""
-    from ..spatial import rotation_from_quaternion, rotation_from_rotvec, rotation_from_zyx
+    """(N, 3, 3) rotation matrices from the orientation columns (SI values), by libraries:
+    quaternions, ZYX angles and rotation vectors by Pinocchio (already loaded), other Euler
+    sequences by scipy's Rotation (imported only then: it takes longer to import than a whole
+    calibration)."""
+    import pinocchio as pin
 
     kind, cols = header.orientation, header.columns
     first = cols[ORIENTATIONS[kind][0][0]].name
@@ -608,15 +610,16 @@ def _rotation(path: Path, header: _Header, values: np.ndarray, rows: np.ndarray,
             raise MeasurementFormatError(
                 path, f"quaternion (qw, qx, qy, qz) has norm {norm[bad[0]]:.6g}, expected 1 "
                       f"(within {QUATERNION_NORM_TOLERANCE:g})", row=int(rows[bad[0]]), column=first)
-        return rotation_from_quaternion(values / norm[:, None])
-    if kind == "zyx":
-        return rotation_from_zyx(values)
+        return np.array([pin.Quaternion(w, x, y, z).toRotationMatrix()
+                         for w, x, y, z in values / norm[:, None]]).reshape(-1, 3, 3)
+    if kind == "zyx":   # R = Rz(rz) Ry(ry) Rx(rx) = Pinocchio's rpy (roll rx, pitch ry, yaw rz)
+        return np.array([pin.rpy.rpyToMatrix(rx, ry, rz) for rz, ry, rx in values]).reshape(-1, 3, 3)
     if kind == "euler":
         from scipy.spatial.transform import Rotation
 
         return Rotation.from_euler(euler, values).as_matrix()
     if kind == "rotvec":
-        return rotation_from_rotvec(values)
+        return np.array([pin.exp3(v) for v in values]).reshape(-1, 3, 3)
     R = values.reshape(-1, 3, 3)
     err = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
     det = np.linalg.det(R)
