@@ -561,7 +561,7 @@ class CalibrationResult:
         nz = self.noise
         lines = [f"Calibration: {self.method.upper()}, parameter set {self.param_set!r} "
                  f"({len(self.free)} identified of {len(self.parameters)}), {self.status}: {self.message}",
-                 f"  {self.iterations} iterations, {self.rounds} rounds, {self.wall_time * 1e3:.1f} ms"]
+                 f"  {self.iterations} LM iterations in all (every fit of the calibration), {self.rounds} rounds, {self.wall_time * 1e3:.1f} ms"]
         if nz is not None:
             rot = "" if nz.rotation is None else f", orientation {nz.rotation:.3g} rad"
             if nz.estimated:

@@ -774,5 +774,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def main_entry() -> None:
-    """Console-script entry point: ``sys.exit(main())``."""
-    sys.exit(main())
+    """Console-script entry point: ``sys.exit(main())`` with one BLAS thread. calib's matrices
+    are small (tens of columns): BLAS threads only add start-up and, on a busy machine,
+    contention (a 70 ms calibration was seen taking 2 s with them)."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        code = main()
+    sys.exit(code)
