@@ -61,14 +61,14 @@ def test_every_imported_package_is_declared():
     declared = {re.split(r"[<>=!~ \[]", d)[0].lower().replace("_", "-") for d in deps}
     dists = packages_distributions()
     imported = set()
-    for path in (ROOT / "calib").glob("*.py"):
+    for path in (ROOT / "calib").rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.Import):
                 imported |= {a.name.split(".")[0] for a in node.names}
             elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
                 imported.add(node.module.split(".")[0])
     third_party = sorted(m for m in imported if m not in sys.stdlib_module_names and m != "calib")
-    assert third_party == ["example_robot_data", "lxml", "matplotlib", "numpy", "pinocchio", "scipy"]
+    assert third_party == ["example_robot_data", "lxml", "matplotlib", "numpy", "pinocchio", "scipy", "threadpoolctl"]
     # cmeel wheels (Pinocchio, example-robot-data) install their modules under cmeel.prefix,
     # which packages_distributions() does not map
     cmeel = {"pinocchio": ["pin"], "example_robot_data": ["example-robot-data"]}
