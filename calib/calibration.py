@@ -1248,11 +1248,39 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
         A_eff = ne.A_pos / infl_p + (ne.A_rot / infl_r if ne.A_rot is not None else 0.0)
         C_eff, _ = _inverse(A_eff)
         pos_e, rot_e = _propagate(fit.model, Q, fit.free, C_eff, kin, rows)
-    holdout_p = math.sqrt(pos_e ** 2 + 3.0 * nz.position ** 2 * infl_p)
-    holdout_r = math.sqrt(rot_e ** 2 + 3.0 * nz.rotation ** 2 * infl_r) if has_rot else None
+    if setup.val is not None:
+        # new rows at the validation configurations: the parameter error propagated there, plus
+        # the measurement noise of the new row
+        holdout_p = math.sqrt(pos_e ** 2 + 3.0 * nz.position ** 2 * infl_p)
+        holdout_r = math.sqrt(rot_e ** 2 + 3.0 * nz.rotation ** 2 * infl_r) if has_rot else None
+    else:
+        # new rows like the calibration rows: a row's error when it is held out of the fit is
+        # (I - H_ii)^-1 times its residual, H_ii its block of the hat matrix, so its expected
+        # square is sigma^2 tr (I - H_ii)^-1 - on few rows far above sigma^2 (1 + tr H_ii)
+        t_p, t_r = _held_out_traces(problem.derived(loss="linear"), x, C)
+        holdout_p = math.sqrt(nz.position ** 2 * infl_p * t_p)
+        holdout_r = math.sqrt(nz.rotation ** 2 * infl_r * t_r) if has_rot else None
     predicted = {"position_rms": pos, "rotation_rms": rot if has_rot else None, "where": where}
     holdout = {"position_rms": holdout_p, "rotation_rms": holdout_r, "where": where}
     return Statistics(C, full_rank, rank, predicted, holdout, where)
+
+
+def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, float]:
+    """Means over the rows of tr (I - H_ii)^-1 over the position and the rotation components
+    (whitened units), H_ii = Jw_i C Jw_i^T the row's block of the hat matrix. A row whose
+    leverage reaches 1 (it alone determines a parameter) counts as leverage 0.99."""
+    t_p = t_r = 0.0
+    n = 0
+    for _, Jw in problem.whitened_blocks(x):
+        H = Jw @ C @ np.transpose(Jw, (0, 2, 1))                     # (n, k, k)
+        w, V = np.linalg.eigh(H)
+        w = np.minimum(w, 0.99)
+        M = (V / (1.0 - w)[:, None, :]) @ np.transpose(V, (0, 2, 1))  # (I - H)^-1
+        t_p += float(np.trace(M[:, :3, :3], axis1=1, axis2=2).sum())
+        if M.shape[1] > 3:
+            t_r += float(np.trace(M[:, 3:, 3:], axis1=1, axis2=2).sum())
+        n += len(Jw)
+    return t_p / max(n, 1), t_r / max(n, 1)
 
 
 # ---------------------------------------------------------------- cross-validation

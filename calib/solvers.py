@@ -282,6 +282,14 @@ class Problem:
                 g[f] += Jf.T @ r[rows].reshape(-1)
         return A, g
 
+    def whitened_blocks(self, x: np.ndarray):
+        """Per chunk of poses: (r (n, k), Jw (n, k, m)), the weighted residual and Jacobian blocks
+        of each pose at x (k = 6 with orientation data, else 3)."""
+        self.kin.set_values(self.full(x))
+        for sl in self._chunks():
+            R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free, targets=self._targets(sl))
+            yield self._assemble(R, p, J, "pose", sl, flat=False)
+
     def _assemble(self, R, p, J, parts, sl, flat=True):
         res, jac = [], []
         if parts in ("pose", "position"):
