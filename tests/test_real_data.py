@@ -291,3 +291,14 @@ def test_no_spare_residuals_is_refused_and_cv_never_leaks(bundled_robot, paper_d
     res = calib.calibrate(bundled_robot, five, params="base", sigma_pos=0.05e-3, sigma_rot=0.001)
     assert res.cross_validation is None
     assert any("no cross-validation" in n and "cannot identify" in n for n in res.notes)
+
+
+def test_predicted_holdout_without_validation_rows_matches_cross_validation(ur5_small):
+    """Without validation rows the prediction is for a held-out calibration-like row: on the
+    23-row camera set it agrees with the leave-one-out error (and with the 1000 held-out rows)."""
+    robot, meas = ur5_small
+    res = calib.calibrate(robot, meas.calibration())
+    held = calib.calibrate(robot, meas).validation_after.position["rms"]
+    pred = res.predicted_holdout["position_rms"]
+    assert 1 / 1.3 < pred / res.cross_validation.position_rms < 1.3
+    assert 1 / 1.3 < pred / held < 1.3
