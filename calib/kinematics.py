@@ -120,7 +120,7 @@ class _FactorTable:
         # a parameter appears once per placement (the flange's a_n, alpha_n, beta_n appear in the
         # tool placement of every target, each with its own twist rows)
         pairs = np.concatenate([self.rot[:, [0, 3]], self.trans[:, [0, 3]]])
-        if len(np.unique(pairs, axis=0)) != len(pairs):
+        if len(set(map(tuple, pairs.tolist()))) != len(pairs):   # (np.unique(axis=0) imports numpy.ma)
             raise ValueError("a parameter appears in two factors of one placement")
 
     def elementary(self, values: np.ndarray) -> np.ndarray:

@@ -213,3 +213,12 @@ def test_evaluate(setup):
     e = s.position_errors
     assert s.position == pytest.approx({"mean": e.mean(), "rms": np.sqrt((e ** 2).mean()),
                                         "max": e.max(), "min": e.min()})
+
+
+def test_distinct_configurations_counts_as_numpy_unique():
+    from calib.calibration import distinct_configurations
+
+    rng = np.random.default_rng(3)
+    Q = np.round(rng.normal(size=(30, 6)), 1)
+    Q = np.vstack([Q, Q[:7], Q[:2] + 1e-12, -0.0 * np.ones((1, 6)), np.zeros((1, 6))])
+    assert distinct_configurations(Q) == len(np.unique(np.round(Q / 1e-9), axis=0)) == 31
