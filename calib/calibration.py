@@ -29,6 +29,7 @@ import json
 import logging
 import math
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
@@ -739,12 +740,40 @@ def distinct_configurations(Q: np.ndarray, tol: float = DISTINCT_Q_TOL) -> int:
     return 1 + int(np.count_nonzero(np.any(S[1:] != S[:-1], axis=1)))
 
 
+#: Results that depend only on the robot model (structure, values, frames, limits, gravity) and
+#: options, kept for the next calibrations of the same model: see :func:`_robot_memo`.
+_ROBOT_MEMO: OrderedDict = OrderedDict()
+
+
+def _robot_memo(kind: str, robot: RobotModel, options: tuple, compute):
+    """``compute()``, or its value from an earlier call with the same ``kind``, model and
+    ``options`` (the last 64 kept)."""
+    from .identifiability import _cache_key
+
+    limits = np.stack([robot.lower, robot.upper])
+    key = (kind, _cache_key(robot, limits, "pose", 1.0, 1.0, 1.0, None, None),
+           repr(getattr(robot, "gravity", None)), options)
+    if key in _ROBOT_MEMO:
+        _ROBOT_MEMO.move_to_end(key)
+        return _ROBOT_MEMO[key]
+    value = _ROBOT_MEMO[key] = compute()
+    while len(_ROBOT_MEMO) > 64:
+        _ROBOT_MEMO.popitem(last=False)
+    return value
+
+
+def _reach(robot: RobotModel) -> float:
+    """The farthest tool position from the meas frame's origin over 256 random configurations
+    (seed 0), metres."""
+    _, p = ChainKinematics(robot).frame_poses(robot.random_configurations(256, 0))
+    return float(np.linalg.norm(p, axis=1).max())
+
+
 def _check_plausible_positions(robot: RobotModel, m: Measurements) -> None:
     """Refuse positions no tracker could have measured of this robot: farther from the meas
     frame's origin than the robot's reach (the farthest tool position over random
     configurations, from the nominal meas frame) plus :data:`TRACKER_RANGE_M`."""
-    _, p = ChainKinematics(robot).frame_poses(robot.random_configurations(256, 0))
-    reach = float(np.linalg.norm(p, axis=1).max())
+    reach = _robot_memo("reach", robot, (), lambda: _reach(robot))
     bound = reach + TRACKER_RANGE_M
     dist = np.linalg.norm(m.position, axis=1)
     bad = np.flatnonzero(~(dist <= bound))
@@ -773,9 +802,13 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
         names = [robot.names[cols[k]] for k in np.flatnonzero(~finite)]
         raise DataError(f"{m.source or '<measurements>'}: the identification Jacobian is not finite "
                         f"for {', '.join(names)}")
-    Jr = weighted_jacobian(robot, robot.random_configurations(50, 0), measure, sigma_pos, sigma_rot)[:, cols]
     kept_d, _ = select_identifiable(Jd, range(len(cols)))
-    kept_r, _ = select_identifiable(Jr, range(len(cols)))
+
+    def random_rank():
+        Jr = weighted_jacobian(robot, robot.random_configurations(50, 0), measure, sigma_pos, sigma_rot)[:, cols]
+        return tuple(select_identifiable(Jr, range(len(cols)))[0])
+
+    kept_r = _robot_memo("rank", robot, (measure, float(sigma_pos), float(sigma_rot), tuple(cols)), random_rank)
     if len(kept_d) < len(kept_r):
         lost = [robot.names[cols[k]] for k in kept_r if k not in set(kept_d)]
         n_q = distinct_configurations(m.q)
