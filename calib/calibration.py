@@ -1195,7 +1195,10 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     if outliers:
         notes.append(f"{len(outliers)} outlier rows removed and the fit repeated without them: rows "
                      + ", ".join(str(o.row) for o in outliers))
-    fit = Fit(model, free, replace(sol, cost=0.5 * float(np.sum(problem.residuals(x) ** 2))),
+    # (least squares: the cost from the normal equations _noise_estimate computed at x)
+    cost = (problem.normal_equations(x).cost if problem.loss == "linear"
+            else 0.5 * float(np.sum(problem.residuals(x) ** 2)))
+    fit = Fit(model, free, replace(sol, cost=cost),
               keep, tuple(outliers), noise, trace.iterations, tuple(notes))
     return fit, problem
 

@@ -245,6 +245,10 @@ class ChainKinematics:
         """Move to parameter ``values`` ((n_params,) SI); with ``twists`` also compute the
         placement twists needed by the Jacobian (:attr:`placement_twists`)."""
         values = np.array(values, float)
+        last = getattr(self, "values", None)
+        if (last is not None and (not twists or self.placement_twists is not None)
+                and np.array_equal(values, last)):
+            return      # already there (an LM step's Jacobian after its trial residuals needs twists)
         M, prefix, tw = self._table.products(values, twists)
         n = self.n_joints
         self.placements = M          # (n + K, 4, 4): joint placements, then each target's tool mount

@@ -182,7 +182,7 @@ class Problem:
             return self
         p = object.__new__(Problem)
         p.__dict__.update(self.__dict__)
-        p._last_ne = None
+        p._last_ne = p._last_pr = None
         if free is not None:
             p.free = np.asarray(free, int)
         if values is not None:
@@ -211,11 +211,21 @@ class Problem:
 
     def pose_residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Unweighted residuals at x: position (N, 3) metres and rotation (N, 3) radians (None
-        without orientation data), model - measured, in the meas frame."""
-        self.kin.set_values(self.full(x), twists=False)
+        without orientation data), model - measured, in the meas frame; read-only arrays (the
+        last result is kept: asking again at the same x costs nothing)."""
+        v = self.full(x)
+        last = getattr(self, "_last_pr", None)
+        if last is not None and np.array_equal(last[0], v):
+            return last[1], last[2]     # (read-only arrays)
+        self.kin.set_values(v, twists=False)
         R, p = self.kin.frame_poses(self.Q, targets=self._targets())
         dr = None if self.R_meas_T is None else log3_batch(R @ self.R_meas_T)
-        return p - self.p_meas, dr
+        dp = p - self.p_meas
+        for a in (dp, dr):
+            if a is not None:
+                a.setflags(write=False)
+        self._last_pr = (v, dp, dr)
+        return dp, dr
 
     def residuals(self, x: np.ndarray, parts: str = "pose") -> np.ndarray:
         """Weighted residual vector; parts: "pose" (position and rotation), "position", "rotation"."""
