@@ -961,8 +961,8 @@ def _inverse(A: np.ndarray) -> tuple[np.ndarray, bool]:
     d = np.sqrt(np.abs(np.diag(A)))
     d[d == 0] = 1.0
     As = A / np.outer(d, d)
-    s = np.linalg.svd(As, compute_uv=False)
-    full_rank = bool(s.size) and s[-1] > 1e-12 * s[0]
+    s = np.abs(np.linalg.eigvalsh(As))    # its singular values (symmetric), in half an SVD's time
+    full_rank = bool(s.size) and s.min() > 1e-12 * s.max()
     inv = np.linalg.inv(As) if full_rank else np.linalg.pinv(As, rcond=1e-12, hermitian=True)
     return inv / np.outer(d, d), full_rank
 
@@ -1511,8 +1511,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                          f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g})")
         else:
             want = "auto"
+    selected = None
     if want != "auto":
-        label, free = select_parameters(start, want, cal.q, setup.measure, *weights)
+        label, free = selected = select_parameters(start, want, cal.q, setup.measure, *weights)
     derived = want == "auto" or (isinstance(want, str) and want.strip().lower() == "base")
     check_data_rank(start, cal, setup.measure, ident if want == "auto" else free, derived=derived,
                     sigma_pos=weights[0], sigma_rot=weights[1])
@@ -1541,7 +1542,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
             fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes)
         log.info("model selection: %s", selection.chosen)
     else:
-        label, free = select_parameters(start, want, cal.q, setup.measure, *weights, target_rows(start, cal))
+        rows = target_rows(start, cal)     # (one tool frame: the choice made above)
+        label, free = selected if rows is None else select_parameters(start, want, cal.q, setup.measure,
+                                                                      *weights, rows)
         if label in PARAM_SETS:     # a named set; a list of names is honoured as given
             free = _compliance_filter(start, free, compliance, notes)
         solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds, lm_variant)
