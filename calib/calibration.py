@@ -25,6 +25,7 @@
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import math
@@ -796,19 +797,27 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
     degenerate too. A non-finite Jacobian is refused naming its parameters."""
     cols = list(range(robot.n_params)) if derived else list(robot.indices(free))
     Q = m.q if len(m.q) <= 500 else m.q[np.linspace(0, len(m.q) - 1, 500).astype(int)]
-    Jd = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot)[:, cols]
-    finite = np.isfinite(Jd).all(axis=0)
-    if not finite.all():
-        names = [robot.names[cols[k]] for k in np.flatnonzero(~finite)]
-        raise DataError(f"{m.source or '<measurements>'}: the identification Jacobian is not finite "
-                        f"for {', '.join(names)}")
-    kept_d, _ = select_identifiable(Jd, range(len(cols)))
+    options = (measure, float(sigma_pos), float(sigma_rot), tuple(cols))
+
+    def data_rank():
+        Jd = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot)[:, cols]
+        finite = np.isfinite(Jd).all(axis=0)
+        if not finite.all():
+            names = [robot.names[cols[k]] for k in np.flatnonzero(~finite)]
+            raise DataError(f"{m.source or '<measurements>'}: the identification Jacobian is not finite "
+                            f"for {', '.join(names)}")
+        return tuple(select_identifiable(Jd, range(len(cols)))[0])
+
+    # both ranks are kept per model (and data): a calibration repeated on the same data, e.g.
+    # with another method, does not redo them
+    digest = hashlib.blake2b(np.ascontiguousarray(Q, float).tobytes(), digest_size=20).hexdigest()
+    kept_d = _robot_memo("data rank", robot, options + (Q.shape, digest), data_rank)
 
     def random_rank():
         Jr = weighted_jacobian(robot, robot.random_configurations(50, 0), measure, sigma_pos, sigma_rot)[:, cols]
         return tuple(select_identifiable(Jr, range(len(cols)))[0])
 
-    kept_r = _robot_memo("rank", robot, (measure, float(sigma_pos), float(sigma_rot), tuple(cols)), random_rank)
+    kept_r = _robot_memo("random rank", robot, options, random_rank)
     if len(kept_d) < len(kept_r):
         lost = [robot.names[cols[k]] for k in kept_r if k not in set(kept_d)]
         n_q = distinct_configurations(m.q)
