@@ -12,6 +12,9 @@ Python API (SI units everywhere: metres, radians)::
 
 See README.md for the command line.
 """
+#: The package version (the one place it is written: pyproject.toml reads it from here).
+__version__ = "0.1.0"
+
 from .errors import (CalibError, ChainError, DataError, FrameNotFound, MeasurementFormatError,
                      OutputError, ParameterError, URDFError)
 from .robot import ChainJoint, Parameter, RobotModel, load_robot, robot_path

@@ -223,9 +223,9 @@ class RotationChain:
                 prefix, suffix = segs[i]
                 for idx in params:
                     _, j, axis = self.where[idx]
-                    M = suffix[j] @ W[i] @ prefix[j]
-                    a = M[(axis + 1) % 3, (axis + 2) % 3] - M[(axis + 2) % 3, (axis + 1) % 3]
-                    b = np.trace(M) - M[axis, axis]
+                    M = (suffix[j] @ W[i] @ prefix[j]).tolist()     # (Python floats: faster scalars)
+                    a = M[(axis + 1) % 3][(axis + 2) % 3] - M[(axis + 2) % 3][(axis + 1) % 3]
+                    b = (M[0][0] + M[1][1] + M[2][2]) - M[axis][axis]
                     v = math.atan2(a, b)
                     current = a * math.sin(values[idx]) + b * math.cos(values[idx])
                     gain = 2.0 * (math.hypot(a, b) - current)

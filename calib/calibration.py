@@ -25,10 +25,12 @@
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import math
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
@@ -38,7 +40,7 @@ import numpy as np
 from .angles import RotationChain
 from .checks import check_measurements, check_robot
 from .errors import DataError, ParameterError
-from .frames import estimate_frames_robust
+from .frames import estimate_frames_robust, median
 from .identifiability import (SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability, select_identifiable,
                               weighted_jacobian)
 from .jacobian import pose_jacobian
@@ -734,15 +736,47 @@ def distinct_configurations(Q: np.ndarray, tol: float = DISTINCT_Q_TOL) -> int:
     """The number of distinct rows of Q (N, n) (rad / m), rows equal to ``tol`` counted once."""
     if len(Q) == 0:
         return 0
-    return len(np.unique(np.round(np.asarray(Q) / tol), axis=0))
+    # rows sorted lexicographically, then the changes counted: np.unique(axis=0) without its
+    # import of numpy.ma (20 ms of the CLI's start); + 0.0 makes -0.0 equal to 0.0
+    K = np.round(np.asarray(Q, float).reshape(len(Q), -1) / tol) + 0.0
+    S = K[np.lexsort(K.T[::-1])]
+    return 1 + int(np.count_nonzero(np.any(S[1:] != S[:-1], axis=1)))
+
+
+#: Results that depend only on the robot model (structure, values, frames, limits, gravity) and
+#: options, kept for the next calibrations of the same model: see :func:`_robot_memo`.
+_ROBOT_MEMO: OrderedDict = OrderedDict()
+
+
+def _robot_memo(kind: str, robot: RobotModel, options: tuple, compute):
+    """``compute()``, or its value from an earlier call with the same ``kind``, model and
+    ``options`` (the last 64 kept)."""
+    from .identifiability import _cache_key
+
+    limits = np.stack([robot.lower, robot.upper])
+    key = (kind, _cache_key(robot, limits, "pose", 1.0, 1.0, 1.0, None, None),
+           repr(getattr(robot, "gravity", None)), options)
+    if key in _ROBOT_MEMO:
+        _ROBOT_MEMO.move_to_end(key)
+        return _ROBOT_MEMO[key]
+    value = _ROBOT_MEMO[key] = compute()
+    while len(_ROBOT_MEMO) > 64:
+        _ROBOT_MEMO.popitem(last=False)
+    return value
+
+
+def _reach(robot: RobotModel) -> float:
+    """The farthest tool position from the meas frame's origin over 256 random configurations
+    (seed 0), metres."""
+    _, p = ChainKinematics(robot).frame_poses(robot.random_configurations(256, 0))
+    return float(np.linalg.norm(p, axis=1).max())
 
 
 def _check_plausible_positions(robot: RobotModel, m: Measurements) -> None:
     """Refuse positions no tracker could have measured of this robot: farther from the meas
     frame's origin than the robot's reach (the farthest tool position over random
     configurations, from the nominal meas frame) plus :data:`TRACKER_RANGE_M`."""
-    _, p = ChainKinematics(robot).frame_poses(robot.random_configurations(256, 0))
-    reach = float(np.linalg.norm(p, axis=1).max())
+    reach = _robot_memo("reach", robot, (), lambda: _reach(robot))
     bound = reach + TRACKER_RANGE_M
     dist = np.linalg.norm(m.position, axis=1)
     bad = np.flatnonzero(~(dist <= bound))
@@ -765,15 +799,27 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
     degenerate too. A non-finite Jacobian is refused naming its parameters."""
     cols = list(range(robot.n_params)) if derived else list(robot.indices(free))
     Q = m.q if len(m.q) <= 500 else m.q[np.linspace(0, len(m.q) - 1, 500).astype(int)]
-    Jd = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot)[:, cols]
-    finite = np.isfinite(Jd).all(axis=0)
-    if not finite.all():
-        names = [robot.names[cols[k]] for k in np.flatnonzero(~finite)]
-        raise DataError(f"{m.source or '<measurements>'}: the identification Jacobian is not finite "
-                        f"for {', '.join(names)}")
-    Jr = weighted_jacobian(robot, robot.random_configurations(50, 0), measure, sigma_pos, sigma_rot)[:, cols]
-    kept_d, _ = select_identifiable(Jd, range(len(cols)))
-    kept_r, _ = select_identifiable(Jr, range(len(cols)))
+    options = (measure, float(sigma_pos), float(sigma_rot), tuple(cols))
+
+    def data_rank():
+        Jd = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot)[:, cols]
+        finite = np.isfinite(Jd).all(axis=0)
+        if not finite.all():
+            names = [robot.names[cols[k]] for k in np.flatnonzero(~finite)]
+            raise DataError(f"{m.source or '<measurements>'}: the identification Jacobian is not finite "
+                            f"for {', '.join(names)}")
+        return tuple(select_identifiable(Jd, range(len(cols)))[0])
+
+    # both ranks are kept per model (and data): a calibration repeated on the same data, e.g.
+    # with another method, does not redo them
+    digest = hashlib.blake2b(np.ascontiguousarray(Q, float).tobytes(), digest_size=20).hexdigest()
+    kept_d = _robot_memo("data rank", robot, options + (Q.shape, digest), data_rank)
+
+    def random_rank():
+        Jr = weighted_jacobian(robot, robot.random_configurations(50, 0), measure, sigma_pos, sigma_rot)[:, cols]
+        return tuple(select_identifiable(Jr, range(len(cols)))[0])
+
+    kept_r = _robot_memo("random rank", robot, options, random_rank)
     if len(kept_d) < len(kept_r):
         lost = [robot.names[cols[k]] for k in kept_r if k not in set(kept_d)]
         n_q = distinct_configurations(m.q)
@@ -927,8 +973,8 @@ def _inverse(A: np.ndarray) -> tuple[np.ndarray, bool]:
     d = np.sqrt(np.abs(np.diag(A)))
     d[d == 0] = 1.0
     As = A / np.outer(d, d)
-    s = np.linalg.svd(As, compute_uv=False)
-    full_rank = bool(s.size) and s[-1] > 1e-12 * s[0]
+    s = np.abs(np.linalg.eigvalsh(As))    # its singular values (symmetric), in half an SVD's time
+    full_rank = bool(s.size) and s.min() > 1e-12 * s.max()
     inv = np.linalg.inv(As) if full_rank else np.linalg.pinv(As, rcond=1e-12, hermitian=True)
     return inv / np.outer(d, d), full_rank
 
@@ -985,11 +1031,11 @@ def _robust_sigmas(problem: Problem, x: np.ndarray, keep: np.ndarray, red_p: flo
     dp, dr = problem.pose_residuals(x)
     n = keep.sum()
     f_p = max(red_p / (3 * n), 1e-3)
-    sp = 1.4826 * float(np.median(np.abs(dp[keep]))) / math.sqrt(f_p)
+    sp = 1.4826 * median(np.abs(dp[keep])) / math.sqrt(f_p)
     sr = problem.sigma_rot
     if dr is not None:
         f_r = max(red_r / (3 * n), 1e-3)
-        sr = 1.4826 * float(np.median(np.abs(dr[keep]))) / math.sqrt(f_r)
+        sr = 1.4826 * median(np.abs(dr[keep])) / math.sqrt(f_r)
     return max(sp, 1e-12), max(sr, 1e-12)
 
 
@@ -1164,7 +1210,10 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     if outliers:
         notes.append(f"{len(outliers)} outlier rows removed and the fit repeated without them: rows "
                      + ", ".join(str(o.row) for o in outliers))
-    fit = Fit(model, free, replace(sol, cost=0.5 * float(np.sum(problem.residuals(x) ** 2))),
+    # (least squares: the cost from the normal equations _noise_estimate computed at x)
+    cost = (problem.normal_equations(x).cost if problem.loss == "linear"
+            else 0.5 * float(np.sum(problem.residuals(x) ** 2)))
+    fit = Fit(model, free, replace(sol, cost=cost),
               keep, tuple(outliers), noise, trace.iterations, tuple(notes))
     return fit, problem
 
@@ -1518,8 +1567,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                          f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g})")
         else:
             want = "auto"
+    selected = None
     if want != "auto":
-        label, free = select_parameters(start, want, cal.q, setup.measure, *weights)
+        label, free = selected = select_parameters(start, want, cal.q, setup.measure, *weights)
     derived = want == "auto" or (isinstance(want, str) and want.strip().lower() == "base")
     check_data_rank(start, cal, setup.measure, ident if want == "auto" else free, derived=derived,
                     sigma_pos=weights[0], sigma_rot=weights[1])
@@ -1557,7 +1607,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
             fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes)
         log.info("model selection: %s", selection.chosen)
     else:
-        label, free = select_parameters(start, want, cal.q, setup.measure, *weights, target_rows(start, cal))
+        rows = target_rows(start, cal)     # (one tool frame: the choice made above)
+        label, free = selected if rows is None else select_parameters(start, want, cal.q, setup.measure,
+                                                                      *weights, rows)
         if label in PARAM_SETS:     # a named set; a list of names is honoured as given
             free = _compliance_filter(start, free, compliance, notes)
         solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds, lm_variant)

@@ -547,12 +547,7 @@ def _add_verbose(p: argparse.ArgumentParser, top: bool) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``calib`` command."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        ver = version("calib")
-    except PackageNotFoundError:
-        ver = "unknown"
+    from . import __version__ as ver    # not importlib.metadata: 50 ms of the start
     parser = ArgumentParser(
         prog=PROG, formatter_class=HelpFormatter,
         description="Kinematic calibration of serial robots: TM-MDH error model, C-LM "

@@ -164,18 +164,20 @@ def select_identifiable(J: np.ndarray, order: Sequence[int], tol: float = RANK_T
     norms = np.linalg.norm(J, axis=0)
     kept: list[int] = []
     dropped: list[int] = []
-    basis = np.zeros((J.shape[0], 0))
+    order = list(order)
+    basis = np.empty((len(order), J.shape[0]))   # the orthonormal basis, one vector per row
     for j in order:
         if no_effect(norms, j):
             dropped.append(j)
             continue
         c = J[:, j] / norms[j]
-        r = c - basis @ (basis.T @ c)
-        r = r - basis @ (basis.T @ r)  # re-orthogonalise (classical Gram-Schmidt twice)
+        B = basis[:len(kept)]
+        r = c - (B @ c) @ B
+        r = r - (B @ r) @ B  # re-orthogonalise (classical Gram-Schmidt twice)
         nr = np.linalg.norm(r)
         if nr > tol:
+            basis[len(kept)] = r / nr
             kept.append(j)
-            basis = np.column_stack([basis, r / nr])
         else:
             dropped.append(j)
     return kept, dropped

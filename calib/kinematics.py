@@ -120,7 +120,7 @@ class _FactorTable:
         # a parameter appears once per placement (the flange's a_n, alpha_n, beta_n appear in the
         # tool placement of every target, each with its own twist rows)
         pairs = np.concatenate([self.rot[:, [0, 3]], self.trans[:, [0, 3]]])
-        if len(np.unique(pairs, axis=0)) != len(pairs):
+        if len(set(map(tuple, pairs.tolist()))) != len(pairs):   # (np.unique(axis=0) imports numpy.ma)
             raise ValueError("a parameter appears in two factors of one placement")
 
     def elementary(self, values: np.ndarray) -> np.ndarray:
@@ -245,6 +245,10 @@ class ChainKinematics:
         """Move to parameter ``values`` ((n_params,) SI); with ``twists`` also compute the
         placement twists needed by the Jacobian (:attr:`placement_twists`)."""
         values = np.array(values, float)
+        last = getattr(self, "values", None)
+        if (last is not None and (not twists or self.placement_twists is not None)
+                and np.array_equal(values, last)):
+            return      # already there (an LM step's Jacobian after its trial residuals needs twists)
         M, prefix, tw = self._table.products(values, twists)
         n = self.n_joints
         self.placements = M          # (n + K, 4, 4): joint placements, then each target's tool mount

@@ -26,7 +26,6 @@ from __future__ import annotations
 import base64
 import datetime
 import hashlib
-import html
 import io
 import math
 from dataclasses import dataclass
@@ -212,12 +211,9 @@ def file_provenance(path: str | Path) -> dict:
 
 
 def _calib_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
+    from . import __version__
 
-    try:
-        return version("calib")
-    except PackageNotFoundError:
-        return "unknown"
+    return __version__
 
 
 def _residual_rows(result: CalibrationResult, parts: Sequence[tuple[str, str, Measurements]],
@@ -310,10 +306,17 @@ text-align:right}th{background:#eee}td.l,th.l{text-align:left}pre{background:#f6
 overflow-x:auto}img{max-width:100%}.bad{color:#b00}"""
 
 
+def _escape(s: str) -> str:
+    """html.escape (imported on first use: the html package costs 10 ms of the CLI's start)."""
+    import html
+
+    return html.escape(s)
+
+
 def _table(header: Sequence[str], rows: Sequence[Sequence], left: int = 1) -> str:
     def cell(tag, k, v):
         cls = ' class="l"' if k < left else ""
-        return f"<{tag}{cls}>{html.escape(str(v))}</{tag}>"
+        return f"<{tag}{cls}>{_escape(str(v))}</{tag}>"
     head = "".join(cell("th", k, h) for k, h in enumerate(header))
     body = "".join("<tr>" + "".join(cell("td", k, v) for k, v in enumerate(r)) + "</tr>" for r in rows)
     return f"<table><tr>{head}</tr>{body}</table>"
@@ -328,7 +331,7 @@ def render_html(report: Mapping, text: str, images: Mapping[str, bytes] | None =
     """One self-contained HTML page (no external links; plots embedded as PNG data) of a report
     from :func:`build_report`, with ``text`` (what the terminal printed) and ``images`` (file
     name -> PNG bytes, e.g. from :func:`render_plots`)."""
-    e = html.escape
+    e = _escape
     prov, frames = report.get("provenance", {}), report.get("frames", {})
     parts = [f"<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{e(title)}</title>"
              f"<style>{_CSS}</style></head><body><h1>{e(title)}</h1>"]

@@ -151,6 +151,10 @@ class Problem:
         self.sigma_pos = float(sigma_pos)
         self.sigma_rot = float(sigma_rot)
         self.targets = None if targets is None else np.asarray(targets, int)
+        # least-squares normal equations of the same rows at the same parameter values, shared
+        # by the problems derived with other weights (see _normal_equations)
+        self._shared: dict = {}
+        self._rows_key = None
 
     def _targets(self, sl=slice(None)):
         return None if self.targets is None else self.targets[sl]
@@ -178,7 +182,7 @@ class Problem:
             return self
         p = object.__new__(Problem)
         p.__dict__.update(self.__dict__)
-        p._last_ne = None
+        p._last_ne = p._last_pr = None
         if free is not None:
             p.free = np.asarray(free, int)
         if values is not None:
@@ -190,6 +194,11 @@ class Problem:
         if loss is not None:
             p.loss = loss
         if keep is not None:
+            k = np.asarray(keep)
+            if getattr(self, "_rows_key", None) is None and hasattr(self, "_shared"):
+                p._rows_key = (k.dtype.str, k.shape, k.tobytes())   # rows of this problem's data
+            else:
+                p._shared, p._rows_key = {}, None    # a subset of a subset: its own cache
             p.Q, p.p_meas = self.Q[keep], self.p_meas[keep]
             p.R_meas_T = None if self.R_meas_T is None else self.R_meas_T[keep]
             p.targets = self._targets(keep)
@@ -202,11 +211,21 @@ class Problem:
 
     def pose_residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Unweighted residuals at x: position (N, 3) metres and rotation (N, 3) radians (None
-        without orientation data), model - measured, in the meas frame."""
-        self.kin.set_values(self.full(x), twists=False)
+        without orientation data), model - measured, in the meas frame; read-only arrays (the
+        last result is kept: asking again at the same x costs nothing)."""
+        v = self.full(x)
+        last = getattr(self, "_last_pr", None)
+        if last is not None and np.array_equal(last[0], v):
+            return last[1], last[2]     # (read-only arrays)
+        self.kin.set_values(v, twists=False)
         R, p = self.kin.frame_poses(self.Q, targets=self._targets())
         dr = None if self.R_meas_T is None else log3_batch(R @ self.R_meas_T)
-        return p - self.p_meas, dr
+        dp = p - self.p_meas
+        for a in (dp, dr):
+            if a is not None:
+                a.setflags(write=False)
+        self._last_pr = (v, dp, dr)
+        return dp, dr
 
     def residuals(self, x: np.ndarray, parts: str = "pose") -> np.ndarray:
         """Weighted residual vector; parts: "pose" (position and rotation), "position", "rotation"."""
@@ -236,11 +255,33 @@ class Problem:
         return ne
 
     def _normal_equations(self, x: np.ndarray, parts: str) -> NormalEquations:
+        """The normal equations at x. Least squares (loss "linear"): those of the same rows at
+        the same parameter values under other weights (a problem derived with other noise
+        levels: the re-weighted fits and the statistics) are re-scaled instead of recomputed."""
+        shared = getattr(self, "_shared", None)
+        if self.loss != "linear" or shared is None:
+            return self._compute_normal_equations(x, parts)[0]
+        key = (self.full(x).tobytes(), self.free.tobytes(), parts, getattr(self, "_rows_key", None))
+        hit = shared.get(key)
+        if hit is not None:
+            ne, g_pos, sp, sr = hit
+            if sp == self.sigma_pos and sr == self.sigma_rot:
+                return ne
+            return _reweighted(ne, g_pos, (sp / self.sigma_pos) ** 2, (sr / self.sigma_rot) ** 2)
+        ne, g_pos = self._compute_normal_equations(x, parts)
+        shared[key] = (ne, g_pos, self.sigma_pos, self.sigma_rot)
+        while len(shared) > 4:
+            shared.pop(next(iter(shared)))
+        return ne
+
+    def _compute_normal_equations(self, x: np.ndarray, parts: str) -> tuple[NormalEquations, np.ndarray]:
+        """(normal equations, the position rows' share of g)."""
         self.kin.set_values(self.full(x))
         m = len(self.free)
         A_pos = np.zeros((m, m))
         A_rot = np.zeros((m, m)) if (self.has_orientation and parts != "position") else None
         g = np.zeros(m)
+        g_pos = np.zeros(m)
         rss = [0.0, 0.0]
         use_pos = parts in ("pose", "position")
         for sl in self._chunks():
@@ -252,6 +293,7 @@ class Problem:
             if npos:
                 Jp = Jw[:, :npos].reshape(-1, m)
                 A_pos += Jp.T @ Jp
+                g_pos += Jp.T @ r[:, :npos].reshape(-1)
                 rss[0] += float(np.sum(r[:, :npos] ** 2))
             if k > npos:
                 Jr = Jw[:, npos:].reshape(-1, m)
@@ -262,7 +304,7 @@ class Problem:
         n_pos = 3 * N if use_pos else 0
         n_rot = 3 * N if A_rot is not None else 0
         A = A_pos + (A_rot if A_rot is not None else 0.0)
-        return NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1], n_pos, n_rot)
+        return NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1], n_pos, n_rot), g_pos
 
     def normal_equations_by_label(self, x: np.ndarray, labels: np.ndarray, n_labels: int):
         """(A (L, m, m), g (L, m)): J^T J and J^T r of the rows of each label (labels: (N,) ints
@@ -275,8 +317,10 @@ class Problem:
             R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free, targets=self._targets(sl))
             r, Jw = self._assemble(R, p, J, "pose", sl, flat=False)
             lab = labels[sl]
-            for f in np.unique(lab):
+            for f in range(n_labels):     # (not np.unique: it imports numpy.ma, 20 ms of a start)
                 rows = lab == f
+                if not rows.any():
+                    continue
                 Jf = Jw[rows].reshape(-1, m)
                 A[f] += Jf.T @ Jf
                 g[f] += Jf.T @ r[rows].reshape(-1)
@@ -311,6 +355,18 @@ class Problem:
         if J_all is None:
             return r, None
         return r, J_all.reshape(len(r), -1)
+
+
+def _reweighted(ne: NormalEquations, g_pos: np.ndarray, f_pos: float, f_rot: float) -> NormalEquations:
+    """Least-squares normal equations ``ne`` (``g_pos``: the position rows' share of its g) with
+    the position rows' weights multiplied by f_pos (sigma_pos_old^2 / sigma_pos_new^2) and the
+    rotation rows' by f_rot."""
+    A_pos = None if ne.A_pos is None else ne.A_pos * f_pos
+    A_rot = None if ne.A_rot is None else ne.A_rot * f_rot
+    A = (A_pos if A_pos is not None else 0.0) + (A_rot if A_rot is not None else 0.0)
+    g = (ne.g * f_rot if A_pos is None else ne.g * f_pos if A_rot is None
+         else g_pos * f_pos + (ne.g - g_pos) * f_rot)
+    return NormalEquations(A, g, A_pos, A_rot, ne.rss_pos * f_pos, ne.rss_rot * f_rot, ne.n_pos, ne.n_rot)
 
 
 def robust_scaling(r: np.ndarray, J: np.ndarray | None, loss: str, c: float):

@@ -207,6 +207,24 @@ def log3_batch(R: np.ndarray) -> np.ndarray:
     Through the unit quaternion (:func:`quaternion_from_rotation`), so it is accurate for every
     angle up to pi.
     """
+    R = np.asarray(R, float)
+    m00, m11, m22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
+    tr = m00 + m11 + m22
+    if np.all(tr >= np.maximum(np.maximum(m00, m11), m22)):
+        # every angle below ~120 deg (w the largest quaternion component, Shepperd's first
+        # branch of quaternion_from_rotation): the same arithmetic with fewer array operations
+        s = np.sqrt(1.0 + m00 + m11 + m22) * 2.0
+        v = np.empty((len(R), 3))
+        v[:, 0] = R[:, 2, 1] - R[:, 1, 2]
+        v[:, 1] = R[:, 0, 2] - R[:, 2, 0]
+        v[:, 2] = R[:, 1, 0] - R[:, 0, 1]
+        v /= s[:, None]
+        w = 0.25 * s
+        nv = np.sqrt(np.einsum("ij,ij->i", v, v))
+        small = ~(nv > 1e-12)
+        f = 2.0 * np.arctan2(nv, w) / np.where(small, 1.0, nv)
+        f[small] = 2.0 / w[small]
+        return v * f[:, None]
     quat = quaternion_from_rotation(R)
     v = quat[:, 1:]
     nv = np.linalg.norm(v, axis=1)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -213,3 +214,40 @@ def test_evaluate(setup):
     e = s.position_errors
     assert s.position == pytest.approx({"mean": e.mean(), "rms": np.sqrt((e ** 2).mean()),
                                         "max": e.max(), "min": e.min()})
+
+
+def test_distinct_configurations_counts_as_numpy_unique():
+    from calib.calibration import distinct_configurations
+
+    rng = np.random.default_rng(3)
+    Q = np.round(rng.normal(size=(30, 6)), 1)
+    Q = np.vstack([Q, Q[:7], Q[:2] + 1e-12, -0.0 * np.ones((1, 6)), np.zeros((1, 6))])
+    assert distinct_configurations(Q) == len(np.unique(np.round(Q / 1e-9), axis=0)) == 31
+
+
+def test_normal_equations_reweighted_from_the_shared_linearisation():
+    """A problem derived with other noise levels re-scales the normal equations of its parent
+    at the same x: equal to computing them afresh."""
+    from calib.kinematics import ChainKinematics
+    from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+    from calib.solvers import Problem
+
+    robot = calib.load_robot(Path(__file__).resolve().parents[1] / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
+    meas = simulate_measurements(apply_deviations(robot, PAPER_DEVIATIONS), robot.random_configurations(20, 1), rng=2)
+    idx = robot.indices(["theta2", "d3", "alpha4", "u_x", "v_y"])
+    keep = np.arange(20) % 4 != 0
+    x = robot.values[idx] + 1e-3
+    root = Problem(ChainKinematics(robot), meas.q, meas.position, meas.rotation, robot.values, idx, 2e-5, 2e-3)
+    first = root.derived(keep=keep)
+    first.normal_equations(x)
+    shared = root.derived(keep=keep, sigma_pos=3e-5, sigma_rot=1e-3).normal_equations(x)
+    fresh = Problem(ChainKinematics(robot), meas.q[keep], meas.position[keep], meas.rotation[keep], robot.values,
+                    idx, 3e-5, 1e-3).normal_equations(x)
+    for name in ("A", "g", "A_pos", "A_rot", "rss_pos", "rss_rot"):   # to rounding of their largest entries
+        want = getattr(fresh, name)
+        np.testing.assert_allclose(getattr(shared, name), want, rtol=1e-12, atol=1e-12 * np.max(np.abs(want)),
+                                   err_msg=name)
+    assert (shared.n_pos, shared.n_rot) == (45, 45)
+    # other rows are not served from the cache
+    other = root.derived(keep=~keep, sigma_pos=3e-5, sigma_rot=1e-3).normal_equations(x)
+    assert other.n_pos == 15 and not np.allclose(other.A, shared.A)

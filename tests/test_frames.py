@@ -26,3 +26,14 @@ def test_frames_recovered_from_exact_data(bundled_robot, monkeypatch, chunk):
     # noise-free data: the frames come back to rounding (1e-9 m, 1e-9 rad)
     np.testing.assert_allclose(X_est, true.T_meas_base(), atol=1e-9)
     np.testing.assert_allclose(Y_est, true.T_flange_tool(), atol=1e-9)
+
+
+def test_median_equals_numpy_median():
+    from calib.frames import median
+
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 7, 10):
+        x = rng.normal(size=(n, 3)) * 1e-4
+        assert median(x) == float(np.median(x))
+    assert median(np.array([3.0, 1.0])) == 2.0
+    assert np.isnan(median(np.array([1.0, np.nan, 2.0])))
