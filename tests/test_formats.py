@@ -435,3 +435,14 @@ def test_cli_key_and_tracker_go_together(tmp_path, capsys):
                                  "column: give it (--key COLUMN)\n")
     code, out, err = _run(capsys, "evaluate", BUNDLED_URDF, j, "--tracker", t, "--key", "point")
     assert code == 0 and err == "" and "Accuracy of" in out
+
+
+def test_joint_column_outside_the_chain_is_named_as_such(tmp_path):
+    """A short chain (--base-frame link3): the file's joint1 column is a URDF joint outside the
+    chain, said so (not "did you mean joint6")."""
+    robot = calib.load_robot(BUNDLED_URDF, base_frame="link3")
+    src = BUNDLED_URDF.parents[2] / "examples" / "brtirus0707a" / "measurements.csv"
+    with pytest.raises(calib.CalibError) as err:
+        calib.read_measurements(src, robot)
+    assert "joint 'joint1' of the URDF is not in the chain calibrated here (joint4, joint5, joint6" in str(err.value)
+    assert "did you mean" not in str(err.value)

@@ -459,11 +459,34 @@ class _Header:
                 and suffix in ANGLE_UNITS.keys() | LENGTH_UNITS.keys():
             self.fail(f"too many joint columns: the robot has {n} joints "
                       f"({', '.join(self.robot.joint_names)}), so joint columns run q1..q{n}", written)
+        if self.spec.joints != "none" and sep and suffix in ANGLE_UNITS.keys() | LENGTH_UNITS.keys() \
+                and base in self._joints_outside_chain():
+            self.fail(f"joint {name[:len(base)]!r} of the URDF is not in the chain calibrated here "
+                      f"({', '.join(self.robot.joint_names)}, from base frame {self.robot.base_frame!r} to "
+                      f"tool frame {self.robot.tool_frame!r}): choose --base-frame / --tool-frame to take "
+                      f"it in, or drop the column with --rename '{written}='", written)
         close = difflib.get_close_matches(low, self.valid, n=1, cutoff=_NEAR_MISS_CUTOFF)
         if close:
             self.fail(f"unknown column: did you mean {self._spelling(close[0])!r}? (rename it with "
                       f"--rename '{written}=NEW', or drop it with --rename '{written}=')", written)
         return None
+
+    def _joints_outside_chain(self) -> set[str]:
+        """Lower-case names of the URDF's moving joints that are not in the robot's chain (read
+        only on this error path; empty when the model has no URDF)."""
+        if getattr(self, "_outside", None) is None:
+            self._outside = set()
+            if getattr(self.robot, "urdf_path", None) is not None:
+                from ..errors import CalibError
+                from ..urdf import UrdfDocument
+
+                try:
+                    joints = UrdfDocument.read(self.robot.urdf_path).joints
+                except (CalibError, OSError):
+                    joints = {}
+                inside = {n.lower() for n in self.robot.joint_names}
+                self._outside = {n.lower() for n, j in joints.items() if j.kind != "fixed"} - inside
+        return self._outside
 
     def _spelling(self, valid_lower: str) -> str:
         base, sep, suffix = valid_lower.rpartition("_")
