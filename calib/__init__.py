@@ -17,22 +17,45 @@ __version__ = "0.1.0"
 
 from .errors import (CalibError, ChainError, DataError, FrameNotFound, MeasurementFormatError,
                      OutputError, ParameterError, URDFError)
-from .robot import ChainJoint, Parameter, RobotModel, load_robot, robot_path
-from .jacobian import identification_jacobian
-from .identifiability import IdentifiabilityReport, analyze_identifiability
-from .measurements import Measurements
-from .formats import (CompensationTargets, ReadOptions, read_measurements, read_poses,
-                      read_targets, write_compensation, write_measurements, write_poses)
-from .calibration import (AccuracyStats, CalibrationResult, ParameterEstimate, TargetAccuracy, calibrate,
-                          evaluate)
-from .simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
-from .urdf_writer import check_writable, write_calibrated_urdf
-from .urdf import RecordedFrames
-from .report import build_report, render_html
-from .poses import PoseDesign, design_poses, select_poses
-from .compensation import CompensationResult, compensate, compensate_poses
-from .compliance import GravityModel, Payload
-from .paper_lm import PaperLMOptions, PaperLMResult, paper_cross_lm, paper_lm
+
+#: Where each public name lives. They are imported on first use (PEP 562), so that ``import
+#: calib`` - and the ``calib`` command, which must handle Ctrl-C from its first instant - does
+#: not load numpy, scipy and Pinocchio before they are needed.
+_HOME = {
+    "robot": ("ChainJoint", "Parameter", "RobotModel", "load_robot", "robot_path"),
+    "jacobian": ("identification_jacobian",),
+    "identifiability": ("IdentifiabilityReport", "analyze_identifiability"),
+    "measurements": ("Measurements",),
+    "formats": ("CompensationTargets", "ReadOptions", "read_measurements", "read_poses", "read_targets",
+                "write_compensation", "write_measurements", "write_poses"),
+    "calibration": ("AccuracyStats", "CalibrationResult", "ParameterEstimate", "TargetAccuracy",
+                    "calibrate", "evaluate"),
+    "simulate": ("PAPER_DEVIATIONS", "apply_deviations", "random_deviations", "simulate_measurements"),
+    "urdf_writer": ("check_writable", "write_calibrated_urdf"),
+    "urdf": ("RecordedFrames",),
+    "report": ("build_report", "render_html"),
+    "poses": ("PoseDesign", "design_poses", "select_poses"),
+    "compensation": ("CompensationResult", "compensate", "compensate_poses"),
+    "compliance": ("GravityModel", "Payload"),
+    "paper_lm": ("PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm"),
+}
+_MODULE_OF = {name: module for module, names in _HOME.items() for name in names}
+
+
+def __getattr__(name: str):
+    module = _MODULE_OF.get(name)
+    if module is None:
+        raise AttributeError(f"module 'calib' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value        # later look-ups skip this function
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "CalibError", "ChainError", "DataError", "FrameNotFound", "MeasurementFormatError",

@@ -1,5 +1,5 @@
 """``python -m calib``: the ``calib`` command (see :mod:`calib.cli`)."""
-from .cli import main_entry
+from ._entry import main
 
 if __name__ == "__main__":
-    main_entry()
+    main()

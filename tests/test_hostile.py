@@ -576,3 +576,29 @@ def test_special_files_are_never_replaced_and_symlinks_are_written_through(sim, 
     code, _, _ = run_cli(capfd, ["calibrate", URDF, d / "cal.csv", "-o", tmp_path / "c.urdf",
                                  "--report", link, "--params", "base"])
     assert code == 0 and link.is_symlink() and target.read_text().startswith("{")
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_signal_while_importing_ends_with_one_line(signum, code, sim, out):
+    """A signal during the command's start-up (numpy and Pinocchio still importing): the entry
+    point's handlers give the same one line and 128 + signal, nothing written."""
+    d, _, _ = sim
+    before = snapshot(out)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    # the entry point with calib.cli's import slowed down, so that the signal surely lands in it
+    code_text = ("import sys, time, calib._entry as e\n"
+                 "class Slow:\n"
+                 "    def find_spec(self, name, path=None, target=None):\n"
+                 "        if name == 'calib.cli':\n"
+                 "            print('importing', file=sys.stderr, flush=True); time.sleep(3)\n"
+                 "sys.meta_path.insert(0, Slow())\n"
+                 "e.main()\n")
+    proc = subprocess.Popen([sys.executable, "-c", code_text, "calibrate", URDF, str(d / "cal.csv"), "-o",
+                             str(out / "calibrated.urdf")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=ROOT, text=True)
+    assert proc.stderr.readline() == "importing\n"
+    proc.send_signal(signum)
+    stdout, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    assert err == f"calib: interrupted by {signal.Signals(signum).name}\n"
+    assert snapshot(out) == before

@@ -1,0 +1,28 @@
+"""The ``calib`` console command's entry point: Ctrl-C and SIGTERM handled from the first instant.
+
+``import calib.cli`` loads numpy, scipy and Pinocchio (a second or more on a cold start). A
+signal in that time would otherwise end the process with a traceback (SIGINT) or silently
+(SIGTERM); here it ends it with the command's one line and exit code 128 + the signal, as
+:func:`calib.cli.main` does later. Nothing has been written yet at that point.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import sys
+
+
+def _stop(signum, frame) -> None:      # noqa: ARG001 - signal handler signature
+    sys.stderr.write(f"calib: interrupted by {signal.Signals(signum).name}\n")
+    sys.stderr.flush()
+    os._exit(128 + signum)
+
+
+def main() -> None:
+    """Install the start-up handlers, import the command, hand over to :func:`calib.cli.main_entry`."""
+    previous = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    from .cli import main_entry          # the heavy imports
+
+    for s, handler in previous.items():
+        signal.signal(s, handler)
+    main_entry()
