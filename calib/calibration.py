@@ -38,7 +38,7 @@ from typing import Sequence
 import numpy as np
 
 from .angles import RotationChain
-from .checks import check_measurements, check_robot
+from .checks import check_int, check_measurements, check_number, check_robot
 from .errors import DataError, ParameterError
 from .frames import estimate_frames_robust, median
 from .identifiability import (SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability, select_identifiable,
@@ -656,36 +656,24 @@ def _check_compatible(robot: RobotModel, m: Measurements) -> None:
                         f"{robot.n_joints} joints ({', '.join(robot.joint_names)})")
 
 
-def _positive_finite(value, name: str, *, allow_none: bool = False) -> None:
-    if value is None and allow_none:
-        return
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise ParameterError(f"{name} must be a positive number, got {value!r}")
-    if not (math.isfinite(value) and value > 0):
-        raise ParameterError(f"{name} must be a positive finite number, got {value!r}")
-
-
 def _check_options(method, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds, loss,
                    loss_scale, outlier_k, cv) -> str:
     """Every option of :func:`calibrate` checked before any work (as scipy's least_squares does)."""
     if not isinstance(method, str) or method.lower() not in METHODS:
         raise ParameterError(f"unknown method {method!r}: expected one of {', '.join(METHODS)}")
-    _positive_finite(sigma_pos, "sigma_pos", allow_none=True)
-    _positive_finite(sigma_rot, "sigma_rot", allow_none=True)
+    check_number(sigma_pos, "sigma_pos", minimum=0.0, strict=True, allow_none=True)
+    check_number(sigma_rot, "sigma_rot", minimum=0.0, strict=True, allow_none=True)
     for value, name in ((sigma_pos, "sigma_pos"), (sigma_rot, "sigma_rot")):
         if value is not None and not 1e-12 <= value <= 1.0:
             raise ParameterError(f"{name} must be between 1e-12 and 1 (metres / radians), got {value!r}")
     if init_frames not in (True, False, "auto"):
         raise ParameterError(f"init_frames must be True, False or 'auto', got {init_frames!r}")
-    for value, name in ((max_rounds, "max_rounds"), (fixed_rounds, "fixed_rounds")):
-        if value is None and name == "fixed_rounds":
-            continue
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise ParameterError(f"{name} must be a positive integer, got {value!r}")
+    check_int(max_rounds, "max_rounds", minimum=1)
+    check_int(fixed_rounds, "fixed_rounds", minimum=1, allow_none=True)
     if loss not in LOSSES:
         raise ParameterError(f"unknown loss {loss!r}: expected one of {', '.join(LOSSES)}")
-    _positive_finite(loss_scale, "loss_scale")
-    _positive_finite(outlier_k, "outlier_k", allow_none=True)
+    check_number(loss_scale, "loss_scale", minimum=0.0, strict=True)
+    check_number(outlier_k, "outlier_k", minimum=0.0, strict=True, allow_none=True)
     if cv is not None and (isinstance(cv, bool) or not isinstance(cv, (int, np.integer)) or cv < 0 or cv == 1):
         raise ParameterError(f"cv must be 0 (off) or a number of folds >= 2, got {cv!r}")
     return method.lower()
