@@ -1555,9 +1555,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                          f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g})")
         else:
             want = "auto"
-    selected = None
     if want != "auto":
-        label, free = selected = select_parameters(start, want, cal.q, setup.measure, *weights)
+        label, free = select_parameters(start, want, cal.q, setup.measure, *weights, target_rows(start, cal))
     derived = want == "auto" or (isinstance(want, str) and want.strip().lower() == "base")
     check_data_rank(start, cal, setup.measure, ident if want == "auto" else free, derived=derived,
                     sigma_pos=weights[0], sigma_rot=weights[1])
@@ -1595,9 +1594,6 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
             fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes)
         log.info("model selection: %s", selection.chosen)
     else:
-        rows = target_rows(start, cal)     # (one tool frame: the choice made above)
-        label, free = selected if rows is None else select_parameters(start, want, cal.q, setup.measure,
-                                                                      *weights, rows)
         if label in PARAM_SETS:     # a named set; a list of names is honoured as given
             free = _compliance_filter(start, free, compliance, notes)
         solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds, lm_variant)
