@@ -1,13 +1,14 @@
 """Rigid transforms used by the error model: elementary screws, the ZYX transform of Eq. (3),
-vectorised conversions between rotation matrices, quaternions, ZYX angles and rotation vectors,
-and SO(3) log maps.
+the model's own vectorised rotation maps (ZYX angles of Eq. 3, rotation vectors for the
+simulated noise, the quaternion inside the SO(3) log) and SO(3) log maps. Rotations read from
+files are converted by Pinocchio / scipy in :mod:`calib.formats`.
 
 Conventions: 4x4 homogeneous matrices ``T_a_b`` (pose of frame b in frame a), SI units.
 Twists are 6-vectors ``(v, w)``, linear part first, as in Pinocchio's ``Motion``.
 Quaternions are (w, x, y, z). ZYX angles are (alpha, beta, gamma): yaw about z, pitch about y,
 roll about x, ``R = Rz(alpha) Ry(beta) Rx(gamma)`` (scipy's intrinsic "ZYX" Euler angles).
-The conversions are plain numpy (scipy.spatial takes longer to import than the whole of a
-short calibration; the tests compare with it).
+These maps are plain numpy, batched over poses (scipy.spatial takes longer to import than a
+whole short calibration; the tests compare them with it).
 """
 from __future__ import annotations
 
@@ -93,18 +94,6 @@ def zyx_from_rotation(R: np.ndarray) -> np.ndarray:
     alpha = np.where(lock, np.arctan2(-R[..., 0, 1], R[..., 1, 1]), np.arctan2(R[..., 1, 0], R[..., 0, 0]))
     gamma = np.where(lock, 0.0, np.arctan2(R[..., 2, 1], R[..., 2, 2]))
     return np.stack([alpha, beta, gamma], axis=-1)
-
-
-def rotation_from_quaternion(wxyz: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) of quaternions (..., 4) (w, x, y, z), normalised first."""
-    q = np.asarray(wxyz, float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    R = np.empty(q.shape[:-1] + (3, 3))
-    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
-    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
-    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
-    return R
 
 
 def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
