@@ -1344,13 +1344,14 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
         whole[rows] = True
         A_fold, g_fold = base.derived(keep=whole).normal_equations_by_label(x0, fold_of, folds)
         A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
+        all_identified = _inverse(A_all)[1]
     e_p, e_r, per_fold = np.zeros(n), np.zeros(n), []
     for f in range(folds):
         test = np.zeros(cal.n_poses, bool)
         test[rows[fold_of == f]] = True
         if refit == "newton":
             A_inv, full = _inverse(A_all - A_fold[f])
-            if not full and _inverse(A_all)[1]:
+            if not full and all_identified:
                 # without this fold the rows cannot identify the parameters: its prediction would
                 # be the whole fit's, which has seen it (a leak), not a held-out error
                 raise DataError(f"cross-validation: without fold {f + 1} of {folds} the remaining "

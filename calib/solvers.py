@@ -236,13 +236,6 @@ class Problem:
             out.append(self._assemble(R, p, None, parts, sl)[0])
         return np.concatenate(out) if out else np.zeros(0)
 
-    def residuals_and_jacobian(self, x: np.ndarray, parts: str = "pose"):
-        """(r, J): the weighted residual vector and its Jacobian (stacked over all poses; use
-        :meth:`normal_equations` for large data)."""
-        self.kin.set_values(self.full(x))
-        R, p, J = pose_jacobian(self.kin, self.Q, self.free, targets=self._targets())
-        return self._assemble(R, p, J, parts, slice(None))
-
     def normal_equations(self, x: np.ndarray, parts: str = "pose") -> NormalEquations:
         """J^T J and J^T r at x, accumulated over chunks of poses (memory independent of N).
         The last result is kept: asking again at the same x costs nothing."""
@@ -310,13 +303,12 @@ class Problem:
         """(A (L, m, m), g (L, m)): J^T J and J^T r of the rows of each label (labels: (N,) ints
         in [0, n_labels)), in one chunked pass over the data; the sums over labels are
         :meth:`normal_equations`' A and g."""
-        self.kin.set_values(self.full(x))
         m = len(self.free)
         A, g = np.zeros((n_labels, m, m)), np.zeros((n_labels, m))
-        for sl in self._chunks():
-            R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free, targets=self._targets(sl))
-            r, Jw = self._assemble(R, p, J, "pose", sl, flat=False)
-            lab = labels[sl]
+        start = 0
+        for r, Jw in self.whitened_blocks(x):
+            lab = labels[start:start + len(r)]
+            start += len(r)
             for f in range(n_labels):     # (not np.unique: it imports numpy.ma, 20 ms of a start)
                 rows = lab == f
                 if not rows.any():
