@@ -1184,7 +1184,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
         if not new:
             break
         outliers += new
-        keep[[int(np.flatnonzero(cal.rows == o.row)[0]) for o in new]] = False
+        keep &= ~np.isin(cal.rows, [o.row for o in new])
     if suspect is not None:   # never judged (the fit diverged or ran out of passes): outliers
         outliers += _flag_outliers(everything, x, cal.rows, suspect, -1.0, sp, sr)[0]
     problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
