@@ -70,6 +70,14 @@ AUTO_BELOW_COMPONENTS_PER_PARAM = 10.0
 #: levels change by less than VCE_RTOL.
 VCE_MAX_ITERATIONS = 12
 VCE_RTOL = 1e-3
+#: The first fit of a noise estimate only places the residuals the estimate is made from: it
+#: stops when an iteration lowers the cost by less than this fraction (the noise levels it
+#: yields are then exact to ~1e-6, far inside VCE_RTOL); the re-weighted fits converge fully.
+VCE_FIRST_FTOL = 1e-5
+#: Damping at the start of a re-fit from a solution of the same rows (re-weighted, rows
+#: removed): the solution is near, and the default start (LMOptions.mu0) would only slow the
+#: first steps down; a rejected step raises it as usual.
+WARM_MU0 = 1e-6
 #: An explicit lm / c-lm fit is called a local minimum when an angle search from it, then LM,
 #: reaches a cost below this fraction of its own.
 LOCAL_MINIMUM_RATIO = 0.9
@@ -1041,15 +1049,23 @@ class _Solve:
     model: RobotModel
     lm_variant: str = "calib"
 
-    def __call__(self, problem: Problem, x: np.ndarray, trace: LMTrace, first: bool) -> SolverResult:
+    def __call__(self, problem: Problem, x: np.ndarray, trace: LMTrace, first: bool, *,
+                 loose: bool = False) -> SolverResult:
+        """The first fit (``first``: the method's own scheme) or a re-fit from a near solution
+        (LM started with damping WARM_MU0); ``loose``: stop at VCE_FIRST_FTOL (calib's LM only)."""
         if self.lm_variant == "paper":
             return self._paper(problem, x, trace)
-        if not first or self.measure == "position" or self.method == "lm":
-            return levenberg_marquardt(problem, x, "pose", self.options, trace)
+        opts = self.options
+        if loose:
+            opts = replace(opts, ftol=max(opts.ftol, VCE_FIRST_FTOL))
+        if not first:
+            return levenberg_marquardt(problem, x, "pose", replace(opts, mu0=min(opts.mu0, WARM_MU0)), trace)
+        if self.measure == "position" or self.method == "lm":
+            return levenberg_marquardt(problem, x, "pose", opts, trace)
         if self.method == "c-lm":
             return cross_lm(problem, x, self.angular, max_rounds=self.max_rounds,
-                            fixed_rounds=self.fixed_rounds, options=self.options, trace=trace)
-        return search_lm(problem, x, self.angular, self.chain, options=self.options, trace=trace)
+                            fixed_rounds=self.fixed_rounds, options=opts, trace=trace)
+        return search_lm(problem, x, self.angular, self.chain, options=opts, trace=trace)
 
     def _paper(self, problem: Problem, x: np.ndarray, trace: LMTrace) -> SolverResult:
         """The LM of Eq. (27)-(28) as printed (:mod:`calib.paper_lm`): unweighted residuals in mm
@@ -1123,7 +1139,9 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     for outlier_pass in range(4):
         for _ in range(VCE_MAX_ITERATIONS):
             problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
-            sol = _solve_logged(solve, problem, x, trace, first)
+            # (pose data: the weights change the fit, so a re-weighted fit follows the first)
+            loose = first and estimate and two_groups
+            sol = _solve_logged(solve, problem, x, trace, first, loose=loose)
             if first:   # judged at the starting weights, before they adapt to a stuck fit's residuals
                 sol = _check_local_minimum(sol, problem, solve)
                 stuck = sol if sol.status == "local_minimum" else None
@@ -1144,7 +1162,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
             new_sp, new_sr = max(new_sp, 1e-12), max(new_sr, 1e-12)
             change = max(abs(new_sp / sp - 1.0), abs(new_sr / sr - 1.0))
             sp, sr = new_sp, new_sr
-            if change < VCE_RTOL or (not two_groups and loss == "linear"):
+            if (change < VCE_RTOL and not loose) or (not two_groups and loss == "linear"):
                 break   # (one group: the weights do not change the fit)
         if outlier_k is None or outlier_pass == 3 or sol.status == "diverged":
             break
@@ -1206,9 +1224,9 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     return fit, problem
 
 
-def _solve_logged(solve: _Solve, problem: Problem, x, trace, first) -> SolverResult:
+def _solve_logged(solve: _Solve, problem: Problem, x, trace, first, loose: bool = False) -> SolverResult:
     t = time.perf_counter()
-    sol = solve(problem, x, trace, first)
+    sol = solve(problem, x, trace, first, loose=loose)
     log.info("fit (%s%s): %s, cost %.6g, %d iterations, %.1f ms", solve.method if first else "lm",
              "" if first else " re-weighted", sol.status, sol.cost, sol.iterations,
              (time.perf_counter() - t) * 1e3)

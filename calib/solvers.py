@@ -15,7 +15,9 @@ calib's LM (the default variant) solves ``(J^T J + mu D) dx = -J^T r`` with D = 
 (Marquardt's scaling, so that the damping does not depend on the units of the parameters), on
 noise-weighted residuals defined as model - measured. mu starts at 1e-3; a step that lowers the
 cost is accepted and mu divided by lambda = 10, otherwise mu is multiplied by lambda and the step
-retried. This differs from the paper's Eq. (27)-(28) as printed (mu I, mu reset to 0.001
+retried. It stops when a step lowers the cost by less than ftol times the cost, or when the
+Gauss-Newton model predicts that of the next step (that step is then taken unjudged: near the
+minimum the actual decrease is rounding noise, and judging it would only reject steps). This differs from the paper's Eq. (27)-(28) as printed (mu I, mu reset to 0.001
 lambda^+-1, unweighted residuals): that variant is :mod:`calib.paper_lm`.
 
 Memory and time are linear in the number of poses: the solvers work on the normal equations
@@ -52,7 +54,7 @@ class LMOptions:
     max_iterations: int = 100
     mu0: float = 1e-3
     lam: float = 10.0
-    ftol: float = 1e-12            # stop when the cost drops by less than ftol * cost
+    ftol: float = 1e-12            # stop when the cost drops (or is predicted to) by less than ftol * cost
     xtol: float = 1e-12            # ... or the scaled step is below xtol
     gtol: float = 1e-14            # ... or the scaled gradient is below gtol
     max_mu: float = 1e16
@@ -413,11 +415,23 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
         if np.max(np.abs(g) / np.sqrt(d), initial=0.0) <= options.gtol * max(np.sqrt(2 * cost), 1e-300):
             return SolverResult(x, cost, "converged", f"gradient below tolerance after {it} iterations",
                                 trace.iterations - it0)
+        first_try = True
         while True:
             try:
                 step = -np.linalg.solve(A + mu * np.diag(d), g)
             except np.linalg.LinAlgError:
                 step = None
+            if step is not None and first_try and np.all(np.isfinite(step)):
+                # converged when even the Gauss-Newton model of the cost promises a decrease below
+                # the tolerance: the step is taken without judging it (near the minimum its actual
+                # decrease is rounding noise, and judging it would reject steps until the damping
+                # saturates, a residual evaluation each)
+                first_try = False
+                predicted = -float(g @ step) - 0.5 * float(step @ (A @ step))
+                if predicted <= options.ftol * cost:
+                    return SolverResult(x + step, cost - max(predicted, 0.0), "converged",
+                                        f"converged after {it + 1} iterations (the last step's predicted "
+                                        f"decrease is below tolerance)", trace.iterations - it0)
             if step is not None and np.all(np.isfinite(step)):
                 x_new = x + step
                 r_new = problem.residuals(x_new, parts)     # residuals only for a trial step
