@@ -44,6 +44,9 @@ CHUNK_POSES = 2048
 #: search-lm: a fit whose reduced chi-square stays above this is not at the noise level, and the
 #: angle search is tried again from it (a local minimum is the likely cause).
 CHI2_ESCAPE = 10.0
+#: LM trial steps compute the normal equations with the cost below this many poses (see
+#: levenberg_marquardt).
+FUSE_BELOW_POSES = 2048
 STATUSES = ("converged", "max_iterations", "diverged", "local_minimum")
 
 
@@ -407,8 +410,16 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
         return SolverResult(x, cost, "diverged", "the cost is not finite at the start", 0)
     mu = options.mu0
     trace.costs.append(cost)
+    # Few poses: a trial step computes the normal equations with its cost, in one pass over the
+    # data instead of two when it is accepted (a Jacobian costs little more than the residuals
+    # there). Only after an iteration whose first trial was accepted: a rejected trial wastes
+    # its Jacobian.
+    few_poses = problem.n_poses <= FUSE_BELOW_POSES
+    fuse_next = few_poses
     for it in range(options.max_iterations):
         trace.iterations += 1
+        fuse = fuse_next
+        fuse_next = few_poses
         A, g = ne.A, ne.g
         d = np.diag(A).copy()
         d[d <= 0] = 1.0
@@ -434,15 +445,19 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
                                         f"decrease is below tolerance)", trace.iterations - it0)
             if step is not None and np.all(np.isfinite(step)):
                 x_new = x + step
-                r_new = problem.residuals(x_new, parts)     # residuals only for a trial step
                 trace.evaluations += 1
-                cost_new = 0.5 * float(r_new @ r_new)
+                if fuse:    # the trial's normal equations with its cost (kept for the next step)
+                    cost_new = problem.normal_equations(x_new, parts).cost
+                else:       # residuals only
+                    r_new = problem.residuals(x_new, parts)
+                    cost_new = 0.5 * float(r_new @ r_new)
             else:
                 cost_new = np.inf
             if cost_new < cost:
                 mu = mu / options.lam
                 break
             mu = mu * options.lam
+            fuse = fuse_next = False
             if mu > options.max_mu:
                 small = np.sqrt(np.sum(d * (step if step is not None else 0) ** 2))
                 return SolverResult(x, cost, "converged",
