@@ -252,6 +252,8 @@ class ChainKinematics:
         M, prefix, tw = self._table.products(values, twists)
         n = self.n_joints
         self.placements = M          # (n + K, 4, 4): joint placements, then each target's tool mount
+        self._rot_T = np.ascontiguousarray(M[:, :3, :3].transpose(0, 2, 1))   # (for _walk)
+        self._trans = np.ascontiguousarray(M[:, :3, 3])
         self.flange_placement = prefix[n, self._flange_at]   # relative to joint n
         self.base_placement = prefix[0, self._base_at]       # T_meas_base
         self.placement_twists = tw
@@ -306,43 +308,49 @@ class ChainKinematics:
         return self._pinocchio()[2][2]
 
     # ------------------------------------------------------------------ batch kinematics
-    # Inside, poses are held with the pose index last (R (3, 3, N), p (3, N)), so that every
-    # operation runs over contiguous rows of N values.
+    # Inside, poses are held with the pose index last and the rotation's columns first:
+    # Rt (3, 3, N), Rt[j, i, n] the (i, j) element of pose n's rotation, and p (3, N). A constant
+    # placement then acts on all poses in one matrix product (R M: Rt <- M^T Rt over (3, 3 N)),
+    # and a joint's motion mixes two contiguous column blocks.
     def _walk(self, Q: np.ndarray, frames: tuple | None = None):
         """Pose of the last joint's frame (after its motion) at configurations Q (N, n), as
-        (R (3, 3, N), p (3, N)); with ``frames`` = (R_F (n + 1, 3, 3, N), p_F (n + 1, 3, N))
+        (Rt (3, 3, N), p (3, N)); with ``frames`` = (Rt_F (n + 1, 3, 3, N), p_F (n + 1, 3, N))
         also store the frame of each joint placement (before the joint's motion) in its first
         n entries."""
         Qt = np.ascontiguousarray(np.asarray(Q, float).T)
         N = Qt.shape[1]
         cos_q, sin_q = np.cos(Qt), np.sin(Qt)
-        M = self.placements
-        R = np.empty((3, 3, N))
-        R[:] = M[0, :3, :3, None]
+        # R Rz(q): column 0 <- c col0 + s col1, column 1 <- c col1 - s col0
+        c2 = np.stack((cos_q, cos_q), axis=1)[:, :, None]      # (n, 2, 1, N)
+        s2 = np.stack((sin_q, -sin_q), axis=1)[:, :, None]
+        rot_T, trans = self._rot_T, self._trans
+        Rt = np.empty((3, 3, N))
+        Rt[:] = rot_T[0, :, :, None]
         p = np.empty((3, N))
-        p[:] = M[0, :3, 3, None]
+        p[:] = trans[0, :, None]
         for k in range(self.n_joints):
             if k:
-                p = p + np.matmul(M[k, :3, 3], R)
-                R = np.matmul(M[k, :3, :3].T, R)
+                flat = Rt.reshape(3, 3 * N)
+                p = p + np.dot(trans[k], flat).reshape(3, N)
+                Rt = np.dot(rot_T[k], flat).reshape(3, 3, N)
             if frames is not None:
-                frames[0][k] = R
+                frames[0][k] = Rt
                 frames[1][k] = p
             if self.prismatic[k]:
-                p += Qt[k] * R[:, 2]
+                p = p + Qt[k] * Rt[2]
             else:
-                c, s = cos_q[k], sin_q[k]
-                x = R[:, 0].copy()
-                R[:, 0] *= c
-                R[:, 0] += s * R[:, 1]
-                R[:, 1] *= c
-                R[:, 1] -= s * x
-        return R, p
+                mixed = Rt[1::-1] * s2[k]
+                Rt[:2] *= c2[k]
+                Rt[:2] += mixed
+        return Rt, p
 
     @staticmethod
-    def _attach(R: np.ndarray, p: np.ndarray, T: np.ndarray):
-        """The pose (R (3, 3, N), p (3, N)) followed by the constant 4x4 T."""
-        return np.matmul(T[:3, :3].T, R), p + np.matmul(T[:3, 3], R)
+    def _attach(Rt: np.ndarray, p: np.ndarray, T: np.ndarray):
+        """The pose (Rt (3, 3, N), p (3, N), see :meth:`_walk`) followed by the constant 4x4 T."""
+        N = p.shape[1]
+        flat = Rt.reshape(3, 3 * N)
+        return (np.dot(np.ascontiguousarray(T[:3, :3].T), flat).reshape(3, 3, N),
+                p + np.dot(T[:3, 3], flat).reshape(3, N))
 
     def effective(self, Q: np.ndarray) -> np.ndarray:
         """(N, n) joint values the chain takes at commanded Q (N, n): Q itself, or with
@@ -367,13 +375,13 @@ class ChainKinematics:
         R, p = np.empty((N, 3, 3)), np.empty((N, 3))
         for t, rows in self._target_groups(N, targets if frame == "tool" else None):
             T = self.placements[self.n_joints + t] if frame == "tool" else self.flange_placement
-            Qt = Q[rows]
-            Rt, pt = np.empty((len(Qt), 3, 3)), np.empty((len(Qt), 3))
-            for a in range(0, len(Qt), CHUNK):
-                Rc, pc = self._attach(*self._walk(Qt[a:a + CHUNK]), T)
-                Rt[a:a + CHUNK] = Rc.transpose(2, 0, 1)
-                pt[a:a + CHUNK] = pc.T
-            R[rows], p[rows] = Rt, pt
+            Q_rows = Q[rows]
+            R_rows, p_rows = np.empty((len(Q_rows), 3, 3)), np.empty((len(Q_rows), 3))
+            for a in range(0, len(Q_rows), CHUNK):
+                Rc, pc = self._attach(*self._walk(Q_rows[a:a + CHUNK]), T)
+                R_rows[a:a + CHUNK] = Rc.transpose(2, 1, 0)
+                p_rows[a:a + CHUNK] = pc.T
+            R[rows], p[rows] = R_rows, p_rows
         return R, p
 
     def _target_groups(self, N: int, targets):
@@ -438,7 +446,7 @@ class ChainKinematics:
             for a in range(0, len(idx), JACOBIAN_CHUNK):
                 at = idx[a:a + JACOBIAN_CHUNK]
                 Rc, pc, Jc = self._jacobian_chunk(Q[at], plan, t)
-                R[at] = Rc.transpose(2, 0, 1)
+                R[at] = Rc.transpose(2, 1, 0)
                 p[at] = pc.T
                 if transposed:
                     J[:, :, at] = Jc
@@ -447,23 +455,24 @@ class ChainKinematics:
         return R, p, J
 
     def _jacobian_chunk(self, Q, plan, target: int = 0):
-        """Tool pose (R (3, 3, N), p (3, N)) and Jt (m, 6, N) of a chunk of poses.
+        """Tool pose (Rt (3, 3, N), p (3, N), see :meth:`_walk`) and Jt (m, 6, N) of a chunk of
+        poses.
 
         All placements at once: Ad^T of every placement frame, (P, 6, 6, N), times the
         placements' twist columns, (P, 6, w) padded to the widest placement."""
         N = len(Q)
         P = self.n_joints + 1
-        RF, pF = np.empty((P, 3, 3, N)), np.empty((P, 3, N))
-        R, p = self._attach(*self._walk(Q, (RF, pF)), self.placements[self.n_joints + target])
-        RF[-1], pF[-1] = R, p
+        RtF, pF = np.empty((P, 3, 3, N)), np.empty((P, 3, N))
+        Rt, p = self._attach(*self._walk(Q, (RtF, pF)), self.placements[self.n_joints + target])
+        RtF[-1], pF[-1] = Rt, p
         D = pF - p
         AdT = np.zeros((P, 6, 6, N))    # Ad transposed, AdT[k, j, i] = Ad_k[i, j]
-        R_T = RF.transpose(0, 2, 1, 3)
-        AdT[:, :3, :3] = R_T
-        AdT[:, 3:, 3:] = R_T
-        AdT[:, 3:, 0] = D[:, 1, None] * RF[:, 2] - D[:, 2, None] * RF[:, 1]
-        AdT[:, 3:, 1] = D[:, 2, None] * RF[:, 0] - D[:, 0, None] * RF[:, 2]
-        AdT[:, 3:, 2] = D[:, 0, None] * RF[:, 1] - D[:, 1, None] * RF[:, 0]
+        AdT[:, :3, :3] = RtF
+        AdT[:, 3:, 3:] = RtF
+        # rows of [D]x R: row 0 = D_y R[2, :] - D_z R[1, :], ... (R[i, :] = RtF[:, :, i])
+        AdT[:, 3:, 0] = D[:, 1, None] * RtF[:, :, 2] - D[:, 2, None] * RtF[:, :, 1]
+        AdT[:, 3:, 1] = D[:, 2, None] * RtF[:, :, 0] - D[:, 0, None] * RtF[:, :, 2]
+        AdT[:, 3:, 2] = D[:, 0, None] * RtF[:, :, 1] - D[:, 1, None] * RtF[:, :, 0]
         slot, param, out_col, width, m = plan
         TWT = np.zeros((P * width, 6))
         used = list(range(self.n_joints)) + [self.n_joints + target]   # joints, this target's tool
@@ -471,7 +480,7 @@ class ChainKinematics:
         X = np.matmul(TWT.reshape(P, width, 6), AdT.reshape(P, 6, 6 * N))   # (P, width, 6 N)
         Jt = np.empty((m, 6, N)) if len(slot) == m else np.zeros((m, 6, N))   # other targets: 0
         Jt[out_col] = X.reshape(P * width, 6, N)[slot]
-        return R, p, Jt
+        return Rt, p, Jt
 
     def _column_plan(self, columns, target: int = 0):
         """Where each wanted parameter sits: (slot = placement * width + place in it, parameter,
