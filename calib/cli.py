@@ -204,6 +204,10 @@ def _deviations(spec: str, robot, rng) -> tuple[dict[str, float], str]:
     """(deviations in SI units, description) from --deviations."""
     if spec == "paper":
         missing = [n for n in PAPER_DEVIATIONS if n not in robot.names]
+        if missing and robot.targets:
+            raise ParameterError("--deviations paper: the paper's deviations are for one tool frame "
+                                 "(v_x ...), with --target each target has its own (v_x@<id> ...); "
+                                 "use --deviations random:SCALE_MM or FILE.json")
         if missing:
             raise ParameterError(f"--deviations paper: the paper's deviations (Tables 4-5, for the "
                                  f"BRTIRUS0707A) name parameters this robot does not have: "
@@ -257,7 +261,7 @@ def cmd_simulate(args) -> int:
     out_csv = outputs.add(args.output)
     out_truth = outputs.add(args.truth_urdf) if args.truth_urdf else None
 
-    robot = _load(args)
+    robot = with_targets(_load(args), args)     # --target: flange->target offsets (before c<i>)
     payload, gravity = compliance_options(args)
     if payload is not None or gravity is not None or dev_file is not None:
         # compliance parameters c<i> (zero unless the deviations name them; calib.compliance)
@@ -270,9 +274,14 @@ def cmd_simulate(args) -> int:
     n_cal, n_val = args.poses, args.val_poses
     Q = robot.random_configurations(n_cal + n_val, rng)
     sets = np.array(["cal"] * n_cal + ["val"] * n_val) if n_val else None
+    ids = None
+    if robot.targets:       # each configuration measured at every target, in --target order
+        k = robot.n_targets
+        Q, ids = np.repeat(Q, k, axis=0), list(robot.targets) * (n_cal + n_val)
+        sets = None if sets is None else np.repeat(sets, k)
     meas = simulate_measurements(true_robot, Q, sigma_pos=args.sigma_pos_mm * 1e-3,
                                  sigma_rot=args.sigma_rot_rad, position_only=args.position_only,
-                                 rng=rng, sets=sets, unmodelled=args.unmodelled_rad)
+                                 rng=rng, sets=sets, unmodelled=args.unmodelled_rad, targets=ids)
     kind = "positions only" if args.position_only else "positions and orientations"
     noise = [f"sigma_pos {args.sigma_pos_mm:g} mm"] + \
         ([] if args.position_only else [f"sigma_rot {args.sigma_rot_rad:g} rad"])
@@ -283,29 +292,35 @@ def cmd_simulate(args) -> int:
     if robot.has_compliance and payload is not None:
         noise_text += (f"; payload {payload.mass:g} kg at ({', '.join(f'{x * 1e3:g}' for x in payload.com_tool)}) "
                        f"mm in the tool frame")
+    per_pose = ""
+    if robot.targets:
+        per_pose = (f", each measured at targets {', '.join(robot.targets)} (one row per target, "
+                    f"{meas.n_poses} rows)")
     command = " ".join(shlex.quote(a) for a in ["calib", *args.argv])
     comment = (f"Simulated by: {command}\n"
                f"True model: {args.robot} with deviations from {described}; {noise_text}; "
-               f"{n_cal} calibration + {n_val} validation poses")
+               f"{n_cal} calibration + {n_val} validation poses{per_pose}")
     outputs.stage_from_file(out_csv, lambda p: write_measurements(p, meas, comment=comment))
     if out_truth is not None:
         from .urdf_writer import write_calibrated_urdf
 
+        # several targets: the nominal is the URDF's own tool (the targets' offsets are not in it)
         outputs.stage_from_file(out_truth, lambda p: write_calibrated_urdf(
-            true_robot.geometry(), p, nominal=robot.geometry()))
+            true_robot.geometry(), p, nominal=None if robot.targets else robot.geometry()))
     outputs.commit()
 
+    w = max([10] + [len(n) + 1 for n in deviations])
     counts = (f"{n_cal} calibration (set=cal) + {n_val} validation (set=val) poses" if n_val
               else f"{n_cal} poses")
-    lines = [f"Simulated {counts} of {args.robot} ({kind}) -> {out_csv}",
+    lines = [f"Simulated {counts} of {args.robot} ({kind}){per_pose} -> {out_csv}",
              f"  configurations uniform within the joint limits, seed {args.seed}; {noise_text}",
              f"  true model: deviations from {described}" +
              (f", written to {out_truth}" if out_truth else ""), "",
-             f"{'parameter':<10}{'unit':>5}{'deviation':>14}"]
+             f"{'parameter':<{w}}{'unit':>5}{'deviation':>14}"]
     for p in robot.parameters:
         if p.name in deviations:
             unit, scale = _EDGE_UNITS[p.unit]
-            lines.append(f"{p.name:<10}{unit:>5}{deviations[p.name] * scale:>14.6g}")
+            lines.append(f"{p.name:<{w}}{unit:>5}{deviations[p.name] * scale:>14.6g}")
     sys.stdout.write("\n".join(lines) + "\n")
     return EXIT_OK
 
@@ -463,6 +478,13 @@ of the URDF, the meas frame) with Gaussian noise: sigma-pos-mm per axis on posit
 sigma-rot-rad per axis (a rotation vector in the meas frame) on orientations. The last
 --val-poses rows are marked set=val (held out for validation; they are noisy like the others).
 
+Several targets (--target ID=X,Y,Z, once per target, two or more; mm in the tool frame): as a
+tracker user measures reflectors on the tool, each configuration is measured at every target,
+one row per target in --target order, with its id in a target column (3 targets and --poses 100:
+300 rows). Each target has its own flange->target parameters v_x@<id> ... (--deviations random
+perturbs them; a JSON file names them); --position-only, the noise, --unmodelled-rad and the
+compliance deviations apply to every row. `calib calibrate` reads the file as it is.
+
 --deviations:
   paper            the deviations of the paper's Tables 4-5 (for the bundled BRTIRUS0707A)
   random:SCALE_MM  Gaussian deviations of every parameter: lengths with standard deviation
@@ -475,6 +497,8 @@ examples:
   calib simulate robots/brtirus0707a/brtirus0707a.urdf -o meas.csv --poses 100 --val-poses 200 \\
       --deviations paper --seed 1 --truth-urdf true.urdf
   calib simulate robot.urdf -o meas.csv --deviations random:0.5 --position-only
+  calib simulate robots/brtirus0707a/brtirus0707a.urdf -o meas.csv --deviations random:0.3 \
+      --position-only --target A=100,0,50 --target B=-50,80,50 --target C=0,-70,100
 """ + _COMMON_EPILOG
 
 _CAL_DESC = """\
@@ -604,6 +628,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "origins changed)")
     add_frames(p)
     add_compliance(p, "simulate")
+    add_targets(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_simulate)
 
