@@ -38,7 +38,7 @@ import numpy as np
 
 from .cli_args import (ArgumentParser, HelpFormatter, add_compliance, add_file_format, add_frames,
                        add_targets, compliance_options, count, nonnegative, positive, positive_int,
-                       print_notes, read_options, with_targets)
+                       print_notes, read_options, with_compliance_file, with_targets)
 from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
@@ -419,8 +419,37 @@ def cmd_calibrate(args) -> int:
 
 
 # ====================================================================== evaluate
+def _evaluate_compliance(robot, args):
+    """``robot`` with the compliances of --compliance (torques from --nominal's URDF if given,
+    else from ROBOT.urdf's), and the stderr note that says so; without --compliance, a note when
+    a compliance sidecar lies beside ROBOT.urdf (its accuracy is then geometry-only)."""
+    from .compliance import sidecar_path
+
+    nominal = None
+    if args.nominal is not None:
+        if args.compliance is None:
+            raise ParameterError("--nominal only matters with --compliance (it gives the gravity torques)")
+        nominal = load_robot(args.nominal, base_frame=args.base_frame, tool_frame=args.tool_frame)
+    robot = with_compliance_file(robot, args, torques_from=nominal,
+                                 hint=" (the report or the compliance sidecar of the calibration)")
+    if args.compliance is not None:
+        gm = robot.gravity
+        load = (f"payload {gm.payload.mass:g} kg" if gm.payload is not None and gm.payload.mass > 0
+                else "no payload")
+        source = args.nominal if nominal is not None else args.robot
+        sys.stderr.write(f"{PROG}: note: joint compliance of {args.compliance} applied "
+                         f"({', '.join(f'{n} {v * 1e6:.4g}' for n, v in zip(robot.compliance_names, robot.compliances()))} "
+                         f"urad/(N m); {load}, gravity ({', '.join(f'{g:g}' for g in gm.gravity)}) m/s^2; "
+                         f"torques from the inertias of {source})\n")
+    elif robot.urdf_path is not None and sidecar_path(robot.urdf_path).is_file():
+        sys.stderr.write(f"{PROG}: note: {sidecar_path(robot.urdf_path)} holds joint compliances; "
+                         f"this accuracy is of the geometry alone (--compliance "
+                         f"{sidecar_path(robot.urdf_path)} applies them)\n")
+    return robot
+
+
 def cmd_evaluate(args) -> int:
-    robot = _load(args)
+    robot = _evaluate_compliance(_load(args), args)
     meas = _read(args.measurements, robot, args, args.tracker)
     rows = [("all rows", evaluate(robot, meas))]
     if meas.sets is not None:
@@ -692,6 +721,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "(mean, rms, max, min) for all, cal and val rows")
     add_file_format(p, tracker=True)
     add_frames(p)
+    g = add_compliance(p, "evaluate")
+    g.add_argument("--nominal", metavar="NOMINAL.urdf", default=None,
+                   help="with --compliance: the nominal URDF of the calibration, whose inertias give "
+                        "the gravity torques as in calibrate (reproduces its numbers exactly); "
+                        "default: ROBOT.urdf's (its calibrated geometry moves the torques by ~1e-3 "
+                        "of themselves, sub-micrometre at the tool)")
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_evaluate)
 
