@@ -433,14 +433,21 @@ def _evaluate_compliance(robot, args):
     robot = with_compliance_file(robot, args, torques_from=nominal,
                                  hint=" (the report or the compliance sidecar of the calibration)")
     if args.compliance is not None:
+        from .compliance import DISPLAY_UNITS
+
         gm = robot.gravity
+        units = [DISPLAY_UNITS[robot.parameters[robot.index(n)].unit] for n in robot.compliance_names]
+        one_unit = len({u for u, _ in units}) == 1       # else (prismatic joints) a unit each
+        values = [f"{n} {robot.value(n) * f:.4g}" + ("" if one_unit else f" {u}")
+                  for n, (u, f) in zip(robot.compliance_names, units)]
+        unit = f" {units[0][0]}" if one_unit else ""
         load = (f"payload {gm.payload.mass:g} kg" if gm.payload is not None and gm.payload.mass > 0
                 else "no payload")
         source = args.nominal if nominal is not None else args.robot
         sys.stderr.write(f"{PROG}: note: joint compliance of {args.compliance} applied "
-                         f"({', '.join(f'{n} {v * 1e6:.4g}' for n, v in zip(robot.compliance_names, robot.compliances()))} "
-                         f"urad/(N m); {load}, gravity ({', '.join(f'{g:g}' for g in gm.gravity)}) m/s^2; "
-                         f"torques from the inertias of {source})\n")
+                         f"({', '.join(values)}{unit}; {load}, gravity "
+                         f"({', '.join(f'{g:g}' for g in gm.gravity)}) m/s^2; torques from the "
+                         f"inertias of {source})\n")
     elif robot.urdf_path is not None and sidecar_path(robot.urdf_path).is_file():
         sys.stderr.write(f"{PROG}: note: {sidecar_path(robot.urdf_path)} holds joint compliances; "
                          f"this accuracy is of the geometry alone (--compliance "
@@ -464,7 +471,8 @@ def cmd_evaluate(args) -> int:
         keys = {"all rows": "all", "calibration rows (cal)": "cal", "validation rows (val)": "val"}
         out = {"robot": str(args.robot), "measurements": str(args.measurements),
                "base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
-               "joints": list(robot.joint_names)}
+               "joints": list(robot.joint_names),
+               "compliance": None if args.compliance is None else str(args.compliance)}
         out.update({keys[label]: s.to_dict() for label, s in rows})
         if per_target:
             out["targets"] = {t: s.to_dict() for t, s in per_target}
@@ -577,12 +585,22 @@ error (mm) and orientation error (rad, the angle of R_model R_measured^T), over 
 when the file has a set column, over the cal and val rows apart. Give it the nominal URDF to see
 the error before calibration, the calibrated one to see it after: a calibrated URDF records its
 base and tool frames (and the nominal frames they stand for), so the same options as for
-`calibrate` (or none) measure the same frames and reproduce calibrate's numbers."""
+`calibrate` (or none) measure the same frames and reproduce calibrate's numbers.
+
+Joint compliance: a calibration made with --compliance keeps its compliances in
+CALIBRATED.compliance.json beside the URDF (the URDF holds the geometry only). --compliance FILE
+(that sidecar, or calibrate's --report JSON) applies them, with the payload and gravity of the
+calibration unless --payload-kg / --gravity say otherwise, as `compensate --compliance` does; a
+note on stderr says so. The gravity torques come from the inertias of ROBOT.urdf, or of
+--nominal NOMINAL.urdf, the URDF calibrate started from: with it the numbers are calibrate's to
+rounding. Without --compliance the accuracy is of the geometry alone (a note says so when a
+sidecar lies beside ROBOT.urdf)."""
 
 _EVAL_EPILOG = """\
 examples:
   calib evaluate robots/brtirus0707a/brtirus0707a.urdf examples/brtirus0707a/measurements.csv
   calib evaluate calibrated.urdf examples/brtirus0707a/measurements.csv --json
+  calib evaluate cal.urdf meas.csv --compliance cal.compliance.json --nominal ur10
 """ + _COMMON_EPILOG
 
 
