@@ -430,6 +430,11 @@ def _evaluate_compliance(robot, args):
         if args.compliance is None:
             raise ParameterError("--nominal only matters with --compliance (it gives the gravity torques)")
         nominal = load_robot(args.nominal, base_frame=args.base_frame, tool_frame=args.tool_frame)
+    elif args.compliance is not None and robot.targets:
+        raise ParameterError(f"--compliance: {args.robot} holds {robot.n_targets} targets and its tool "
+                             f"frame is target {robot.targets[0]}'s, not the tool the payload was given "
+                             f"in: give --nominal NOMINAL.urdf (the URDF calibrate started from) for "
+                             f"the gravity torques")
     robot = with_compliance_file(robot, args, torques_from=nominal,
                                  hint=" (the report or the compliance sidecar of the calibration)")
     if args.compliance is not None:
@@ -744,7 +749,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --compliance: the nominal URDF of the calibration, whose inertias give "
                         "the gravity torques as in calibrate (reproduces its numbers exactly); "
                         "default: ROBOT.urdf's (its calibrated geometry moves the torques by ~1e-3 "
-                        "of themselves, sub-micrometre at the tool)")
+                        "of themselves, sub-micrometre at the tool); required for a calibration of "
+                        "several targets")
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_evaluate)
 

@@ -259,6 +259,20 @@ def test_cli_simulate_targets_with_compliance(tmp_path, capsys):
         assert abs(par[name]["identified"] - true) < 4 * par[name]["std"], name
     assert par["d2"]["deviation"] == pytest.approx(0.3, abs=4 * par["d2"]["std"])   # mm
     assert rep["targets"]["C"]["after"]["n_poses"] == 40
+    # evaluate with the sidecar and the nominal URDF's torques: calibrate's numbers, per target too
+    side = sidecar_path(cal)
+    assert main(["evaluate", str(cal), str(meas), "--json", "--compliance", str(side), "--nominal", "ur10"]) == 0
+    ev = json.loads(capsys.readouterr().out)
+    for got, want in ((ev["all"], rep["after"]), (ev["targets"]["B"], rep["targets"]["B"]["after"])):
+        assert got["n_poses"] == want["n_poses"]
+        for k in ("mean", "rms", "max", "min"):
+            assert abs(got["position_mm"][k] - want["position_mm"][k]) < 1e-6, k
+    # without --nominal the calibrated URDF's tool is target A's: refused, one line
+    assert main(["evaluate", str(cal), str(meas), "--compliance", str(side)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"calib: error: --compliance: {cal} holds 3 targets and its tool frame is target A's, "
+                   f"not the tool the payload was given in: give --nominal NOMINAL.urdf (the URDF "
+                   f"calibrate started from) for the gravity torques\n")
 
 
 def test_targets_keep_the_compliance_parameters(ur10_c):
