@@ -429,7 +429,10 @@ def _evaluate_compliance(robot, args):
     if args.nominal is not None:
         if args.compliance is None:
             raise ParameterError("--nominal only matters with --compliance (it gives the gravity torques)")
-        nominal = load_robot(args.nominal, base_frame=args.base_frame, tool_frame=args.tool_frame)
+        from .compensation import nominal_frames
+
+        base, tool = nominal_frames(robot.urdf_path, base_frame=args.base_frame, tool_frame=args.tool_frame)
+        nominal = load_robot(args.nominal, base_frame=base, tool_frame=tool)
     elif args.compliance is not None and robot.targets:
         raise ParameterError(f"--compliance: {args.robot} holds {robot.n_targets} targets and its tool "
                              f"frame is target {robot.targets[0]}'s, not the tool the payload was given "

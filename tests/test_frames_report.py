@@ -51,7 +51,8 @@ def test_evaluate_of_the_calibrated_urdf_reproduces_calibrate(frames, capsys, tm
     ev = json.loads(ev)
     val = json.loads(rep.read_text())["validation"]["after"]
     assert ev["tool_frame"] == expected_tool and ev["val"]["n_poses"] == val["n_poses"] == 20
-    assert _worst_difference(ev["val"], val) < (1e-6, 1e-9)
+    pos, rot = _worst_difference(ev["val"], val)
+    assert pos < 1e-6 and rot < 1e-9
     # and without any option: the recorded frames are the defaults
     code, ev2, _ = run(capsys, "evaluate", out, meas, "--json")
     assert json.loads(ev2)["val"] == ev["val"]
@@ -64,18 +65,20 @@ def _worst_difference(a: dict, b: dict) -> tuple[float, float]:
             max(abs(a["rotation_rad"][k] - b["rotation_rad"][k]) for k in STATS))
 
 
-def test_evaluate_with_compliance_reproduces_calibrate(capsys, tmp_path):
+@pytest.mark.parametrize("frames", [[], ["--tool-frame", "tool0"]], ids=["default-tool", "tool0"])
+def test_evaluate_with_compliance_reproduces_calibrate(frames, capsys, tmp_path):
     """ur5 with joint compliance under a 5 kg payload: `calib evaluate OUT.urdf MEAS.csv
     --compliance OUT.compliance.json` applies the sidecar (a note on stderr says so) and gives
-    calibrate's validation numbers; without it, the sag is left (and a note says why)."""
+    calibrate's validation numbers; without it, the sag is left (and a note says why). evaluate
+    takes no frame option: the nominal URDF's frames (where the payload is) are the recorded ones."""
     meas, out, rep, dev = (tmp_path / n for n in ("m.csv", "cal.urdf", "r.json", "dev.json"))
     dev.write_text(json.dumps({"c2": 3e-6, "c3": 4e-6, "c4": 5e-6, "d2": 3e-4, "a2": -2e-4}))
     load = ["--payload-kg", 5, "--payload-com-mm", "0,30,100"]
     code, _, err = run(capsys, "simulate", "ur5", "-o", meas, "--deviations", dev, "--poses", 60,
-                       "--val-poses", 20, "--seed", 3, "--sigma-rot-rad", 0.0002, *load)
+                       "--val-poses", 20, "--seed", 3, "--sigma-rot-rad", 0.0002, *load, *frames)
     assert code == 0, err
     code, _, err = run(capsys, "calibrate", "ur5", meas, "-o", out, "--report", rep, "--cv", 0,
-                       "--compliance", *load)
+                       "--compliance", *load, *frames)
     assert code == 0, err
     val = json.loads(rep.read_text())["validation"]["after"]
     side = tmp_path / "cal.compliance.json"
@@ -84,7 +87,8 @@ def test_evaluate_with_compliance_reproduces_calibrate(capsys, tmp_path):
     assert code == 0 and err.startswith(f"calib: note: joint compliance of {side} applied (c1 0, c2 ")
     assert "payload 5 kg, gravity (0, 0, -9.80665) m/s^2; torques from the inertias of ur5)" in err
     assert json.loads(ev)["val"]["n_poses"] == 20
-    assert _worst_difference(json.loads(ev)["val"], val) < (1e-6, 1e-9)
+    pos, rot = _worst_difference(json.loads(ev)["val"], val)
+    assert pos < 1e-6 and rot < 1e-9
     # torques from the calibrated URDF (its geometry moves them by ~1e-3): sub-micrometre apart
     code, ev_cal, err = run(capsys, "evaluate", out, meas, "--json", "--compliance", side)
     assert code == 0 and f"torques from the inertias of {out})" in err
