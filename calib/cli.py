@@ -38,7 +38,7 @@ import numpy as np
 
 from .cli_args import (ArgumentParser, HelpFormatter, add_compliance, add_file_format, add_frames,
                        add_targets, compliance_options, count, nonnegative, positive, positive_int,
-                       print_notes, read_options, with_targets)
+                       print_notes, read_options, with_compliance_file, with_targets)
 from .cli_practice import add_compensate_parser, add_select_poses_parser
 from . import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                apply_deviations, calibrate, evaluate, load_robot, random_deviations,
@@ -204,6 +204,10 @@ def _deviations(spec: str, robot, rng) -> tuple[dict[str, float], str]:
     """(deviations in SI units, description) from --deviations."""
     if spec == "paper":
         missing = [n for n in PAPER_DEVIATIONS if n not in robot.names]
+        if missing and robot.targets:
+            raise ParameterError("--deviations paper: the paper's deviations are for one tool frame "
+                                 "(v_x ...), with --target each target has its own (v_x@<id> ...); "
+                                 "use --deviations random:SCALE_MM or FILE.json")
         if missing:
             raise ParameterError(f"--deviations paper: the paper's deviations (Tables 4-5, for the "
                                  f"BRTIRUS0707A) name parameters this robot does not have: "
@@ -257,7 +261,7 @@ def cmd_simulate(args) -> int:
     out_csv = outputs.add(args.output)
     out_truth = outputs.add(args.truth_urdf) if args.truth_urdf else None
 
-    robot = _load(args)
+    robot = with_targets(_load(args), args)     # --target: flange->target offsets (before c<i>)
     payload, gravity = compliance_options(args)
     if payload is not None or gravity is not None or dev_file is not None:
         # compliance parameters c<i> (zero unless the deviations name them; calib.compliance)
@@ -270,9 +274,14 @@ def cmd_simulate(args) -> int:
     n_cal, n_val = args.poses, args.val_poses
     Q = robot.random_configurations(n_cal + n_val, rng)
     sets = np.array(["cal"] * n_cal + ["val"] * n_val) if n_val else None
+    ids = None
+    if robot.targets:       # each configuration measured at every target, in --target order
+        k = robot.n_targets
+        Q, ids = np.repeat(Q, k, axis=0), list(robot.targets) * (n_cal + n_val)
+        sets = None if sets is None else np.repeat(sets, k)
     meas = simulate_measurements(true_robot, Q, sigma_pos=args.sigma_pos_mm * 1e-3,
                                  sigma_rot=args.sigma_rot_rad, position_only=args.position_only,
-                                 rng=rng, sets=sets, unmodelled=args.unmodelled_rad)
+                                 rng=rng, sets=sets, unmodelled=args.unmodelled_rad, targets=ids)
     kind = "positions only" if args.position_only else "positions and orientations"
     noise = [f"sigma_pos {args.sigma_pos_mm:g} mm"] + \
         ([] if args.position_only else [f"sigma_rot {args.sigma_rot_rad:g} rad"])
@@ -283,29 +292,35 @@ def cmd_simulate(args) -> int:
     if robot.has_compliance and payload is not None:
         noise_text += (f"; payload {payload.mass:g} kg at ({', '.join(f'{x * 1e3:g}' for x in payload.com_tool)}) "
                        f"mm in the tool frame")
+    per_pose = ""
+    if robot.targets:
+        per_pose = (f", each measured at targets {', '.join(robot.targets)} (one row per target, "
+                    f"{meas.n_poses} rows)")
     command = " ".join(shlex.quote(a) for a in ["calib", *args.argv])
     comment = (f"Simulated by: {command}\n"
                f"True model: {args.robot} with deviations from {described}; {noise_text}; "
-               f"{n_cal} calibration + {n_val} validation poses")
+               f"{n_cal} calibration + {n_val} validation poses{per_pose}")
     outputs.stage_from_file(out_csv, lambda p: write_measurements(p, meas, comment=comment))
     if out_truth is not None:
         from .urdf_writer import write_calibrated_urdf
 
+        # several targets: the nominal is the URDF's own tool (the targets' offsets are not in it)
         outputs.stage_from_file(out_truth, lambda p: write_calibrated_urdf(
-            true_robot.geometry(), p, nominal=robot.geometry()))
+            true_robot.geometry(), p, nominal=None if robot.targets else robot.geometry()))
     outputs.commit()
 
+    w = max([10] + [len(n) + 1 for n in deviations])
     counts = (f"{n_cal} calibration (set=cal) + {n_val} validation (set=val) poses" if n_val
               else f"{n_cal} poses")
-    lines = [f"Simulated {counts} of {args.robot} ({kind}) -> {out_csv}",
+    lines = [f"Simulated {counts} of {args.robot} ({kind}){per_pose} -> {out_csv}",
              f"  configurations uniform within the joint limits, seed {args.seed}; {noise_text}",
              f"  true model: deviations from {described}" +
              (f", written to {out_truth}" if out_truth else ""), "",
-             f"{'parameter':<10}{'unit':>5}{'deviation':>14}"]
+             f"{'parameter':<{w}}{'unit':>5}{'deviation':>14}"]
     for p in robot.parameters:
         if p.name in deviations:
             unit, scale = _EDGE_UNITS[p.unit]
-            lines.append(f"{p.name:<10}{unit:>5}{deviations[p.name] * scale:>14.6g}")
+            lines.append(f"{p.name:<{w}}{unit:>5}{deviations[p.name] * scale:>14.6g}")
     sys.stdout.write("\n".join(lines) + "\n")
     return EXIT_OK
 
@@ -404,8 +419,52 @@ def cmd_calibrate(args) -> int:
 
 
 # ====================================================================== evaluate
+def _evaluate_compliance(robot, args):
+    """``robot`` with the compliances of --compliance (torques from --nominal's URDF if given,
+    else from ROBOT.urdf's), and the stderr note that says so; without --compliance, a note when
+    a compliance sidecar lies beside ROBOT.urdf (its accuracy is then geometry-only)."""
+    from .compliance import sidecar_path
+
+    nominal = None
+    if args.nominal is not None:
+        if args.compliance is None:
+            raise ParameterError("--nominal only matters with --compliance (it gives the gravity torques)")
+        from .compensation import nominal_frames
+
+        base, tool = nominal_frames(robot.urdf_path, base_frame=args.base_frame, tool_frame=args.tool_frame)
+        nominal = load_robot(args.nominal, base_frame=base, tool_frame=tool)
+    elif args.compliance is not None and robot.targets:
+        raise ParameterError(f"--compliance: {args.robot} holds {robot.n_targets} targets and its tool "
+                             f"frame is target {robot.targets[0]}'s, not the tool the payload was given "
+                             f"in: give --nominal NOMINAL.urdf (the URDF calibrate started from) for "
+                             f"the gravity torques")
+    robot = with_compliance_file(robot, args, torques_from=nominal,
+                                 hint=" (the report or the compliance sidecar of the calibration)")
+    if args.compliance is not None:
+        from .compliance import DISPLAY_UNITS
+
+        gm = robot.gravity
+        units = [DISPLAY_UNITS[robot.parameters[robot.index(n)].unit] for n in robot.compliance_names]
+        one_unit = len({u for u, _ in units}) == 1       # else (prismatic joints) a unit each
+        values = [f"{n} {robot.value(n) * f:.4g}" + ("" if one_unit else f" {u}")
+                  for n, (u, f) in zip(robot.compliance_names, units)]
+        unit = f" {units[0][0]}" if one_unit else ""
+        load = (f"payload {gm.payload.mass:g} kg" if gm.payload is not None and gm.payload.mass > 0
+                else "no payload")
+        source = args.nominal if nominal is not None else args.robot
+        sys.stderr.write(f"{PROG}: note: joint compliance of {args.compliance} applied "
+                         f"({', '.join(values)}{unit}; {load}, gravity "
+                         f"({', '.join(f'{g:g}' for g in gm.gravity)}) m/s^2; torques from the "
+                         f"inertias of {source})\n")
+    elif robot.urdf_path is not None and sidecar_path(robot.urdf_path).is_file():
+        sys.stderr.write(f"{PROG}: note: {sidecar_path(robot.urdf_path)} holds joint compliances; "
+                         f"this accuracy is of the geometry alone (--compliance "
+                         f"{sidecar_path(robot.urdf_path)} applies them)\n")
+    return robot
+
+
 def cmd_evaluate(args) -> int:
-    robot = _load(args)
+    robot = _evaluate_compliance(_load(args), args)
     meas = _read(args.measurements, robot, args, args.tracker)
     rows = [("all rows", evaluate(robot, meas))]
     if meas.sets is not None:
@@ -420,7 +479,8 @@ def cmd_evaluate(args) -> int:
         keys = {"all rows": "all", "calibration rows (cal)": "cal", "validation rows (val)": "val"}
         out = {"robot": str(args.robot), "measurements": str(args.measurements),
                "base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
-               "joints": list(robot.joint_names)}
+               "joints": list(robot.joint_names),
+               "compliance": None if args.compliance is None else str(args.compliance)}
         out.update({keys[label]: s.to_dict() for label, s in rows})
         if per_target:
             out["targets"] = {t: s.to_dict() for t, s in per_target}
@@ -463,6 +523,13 @@ of the URDF, the meas frame) with Gaussian noise: sigma-pos-mm per axis on posit
 sigma-rot-rad per axis (a rotation vector in the meas frame) on orientations. The last
 --val-poses rows are marked set=val (held out for validation; they are noisy like the others).
 
+Several targets (--target ID=X,Y,Z, once per target, two or more; mm in the tool frame): as a
+tracker user measures reflectors on the tool, each configuration is measured at every target,
+one row per target in --target order, with its id in a target column (3 targets and --poses 100:
+300 rows). Each target has its own flange->target parameters v_x@<id> ... (--deviations random
+perturbs them; a JSON file names them); --position-only, the noise, --unmodelled-rad and the
+compliance deviations apply to every row. `calib calibrate` reads the file as it is.
+
 --deviations:
   paper            the deviations of the paper's Tables 4-5 (for the bundled BRTIRUS0707A)
   random:SCALE_MM  Gaussian deviations of every parameter: lengths with standard deviation
@@ -475,6 +542,8 @@ examples:
   calib simulate robots/brtirus0707a/brtirus0707a.urdf -o meas.csv --poses 100 --val-poses 200 \\
       --deviations paper --seed 1 --truth-urdf true.urdf
   calib simulate robot.urdf -o meas.csv --deviations random:0.5 --position-only
+  calib simulate robots/brtirus0707a/brtirus0707a.urdf -o meas.csv --deviations random:0.3 \
+      --position-only --target A=100,0,50 --target B=-50,80,50 --target C=0,-70,100
 """ + _COMMON_EPILOG
 
 _CAL_DESC = """\
@@ -524,12 +593,22 @@ error (mm) and orientation error (rad, the angle of R_model R_measured^T), over 
 when the file has a set column, over the cal and val rows apart. Give it the nominal URDF to see
 the error before calibration, the calibrated one to see it after: a calibrated URDF records its
 base and tool frames (and the nominal frames they stand for), so the same options as for
-`calibrate` (or none) measure the same frames and reproduce calibrate's numbers."""
+`calibrate` (or none) measure the same frames and reproduce calibrate's numbers.
+
+Joint compliance: a calibration made with --compliance keeps its compliances in
+CALIBRATED.compliance.json beside the URDF (the URDF holds the geometry only). --compliance FILE
+(that sidecar, or calibrate's --report JSON) applies them, with the payload and gravity of the
+calibration unless --payload-kg / --gravity say otherwise, as `compensate --compliance` does; a
+note on stderr says so. The gravity torques come from the inertias of ROBOT.urdf, or of
+--nominal NOMINAL.urdf, the URDF calibrate started from: with it the numbers are calibrate's to
+rounding. Without --compliance the accuracy is of the geometry alone (a note says so when a
+sidecar lies beside ROBOT.urdf)."""
 
 _EVAL_EPILOG = """\
 examples:
   calib evaluate robots/brtirus0707a/brtirus0707a.urdf examples/brtirus0707a/measurements.csv
   calib evaluate calibrated.urdf examples/brtirus0707a/measurements.csv --json
+  calib evaluate cal.urdf meas.csv --compliance cal.compliance.json --nominal ur10
 """ + _COMMON_EPILOG
 
 
@@ -604,6 +683,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "origins changed)")
     add_frames(p)
     add_compliance(p, "simulate")
+    add_targets(p)
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_simulate)
 
@@ -667,6 +747,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "(mean, rms, max, min) for all, cal and val rows")
     add_file_format(p, tracker=True)
     add_frames(p)
+    g = add_compliance(p, "evaluate")
+    g.add_argument("--nominal", metavar="NOMINAL.urdf", default=None,
+                   help="with --compliance: the nominal URDF of the calibration, whose inertias give "
+                        "the gravity torques as in calibrate (reproduces its numbers exactly); "
+                        "default: ROBOT.urdf's (its calibrated geometry moves the torques by ~1e-3 "
+                        "of themselves, sub-micrometre at the tool); required for a calibration of "
+                        "several targets")
     _add_verbose(p, top=False)
     p.set_defaults(func=cmd_evaluate)
 

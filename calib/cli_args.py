@@ -167,10 +167,10 @@ def print_notes(notes, prog: str = "calib") -> None:
         sys.stderr.write(f"{prog}: note: {' '.join(str(note).split())}\n")
 
 
-def add_compliance(p: argparse.ArgumentParser, role: str) -> None:
+def add_compliance(p: argparse.ArgumentParser, role: str):
     """The joint-compliance options (calib.compliance), in their own help group. ``role``:
-    "calibrate" (--compliance is a flag), "compensate" (--compliance FILE) or "simulate" (no
-    --compliance: the --deviations JSON names c<i>)."""
+    "calibrate" (--compliance is a flag), "compensate" or "evaluate" (--compliance FILE) or
+    "simulate" (no --compliance: the --deviations JSON names c<i>). Returns the help group."""
     g = p.add_argument_group("joint compliance under gravity (q + c_i tau_i(q))")
     if role == "calibrate":
         g.add_argument("--compliance", action="store_true",
@@ -178,16 +178,19 @@ def add_compliance(p: argparse.ArgumentParser, role: str) -> None:
                             "torque of the links (URDF inertias) and the payload: calibrate "
                             "identifies them (into the report and CALIBRATED.compliance.json beside "
                             "the URDF), identifiability says which the poses can see")
-    elif role == "compensate":
+    elif role in ("compensate", "evaluate"):
         g.add_argument("--compliance", metavar="REPORT.json|SIDECAR.json", default=None,
-                       help="correct for joint compliance too: the JSON report of calib calibrate "
-                            "--compliance, or the CALIBRATED.compliance.json written beside the URDF")
+                       help=("correct for joint compliance too" if role == "compensate" else
+                             "apply joint compliance to the model (a note on stderr says so)")
+                       + ": the JSON report of calib calibrate --compliance, or the "
+                         "CALIBRATED.compliance.json written beside the URDF")
     g.add_argument("--payload-kg", metavar="M", default=None,
                    help="payload mass, kg (default: the one in the compliance file, else none)")
     g.add_argument("--payload-com-mm", metavar="X,Y,Z", default=None,
                    help="payload centre of mass in the tool frame, mm (default 0,0,0)")
     g.add_argument("--gravity", metavar="X,Y,Z", default=None,
                    help="gravity in the URDF root frame, m/s^2 (default 0,0,-9.80665)")
+    return g
 
 
 def compliance_options(args):
@@ -211,6 +214,26 @@ def compliance_options(args):
         raise ParameterError("--payload-com-mm without --payload-kg: give the payload mass too")
     gravity = None if args.gravity is None else parse_triple(args.gravity, "--gravity")
     return payload, gravity
+
+
+def with_compliance_file(robot, args, *, torques_from=None, hint: str = ""):
+    """``robot`` with the compliances of ``--compliance FILE`` (a sidecar or a calibration
+    report, :func:`calib.compliance.read_compliance`) and the payload and gravity of the options,
+    else of the file; unchanged without ``--compliance``. torques_from : the model whose URDF
+    gives the gravity torques (default ``robot``; see :func:`calib.compliance.apply_record`).
+    :class:`calib.ParameterError` for --payload-kg or --gravity without --compliance (``hint``
+    ends that message)."""
+    from .errors import ParameterError
+
+    payload, gravity = compliance_options(args)
+    if args.compliance is None:
+        if payload is not None or gravity is not None:
+            raise ParameterError(f"--payload-kg and --gravity need --compliance{hint}")
+        return robot
+    from .compliance import apply_record, read_compliance
+
+    return apply_record(robot, read_compliance(args.compliance), payload=payload, gravity=gravity,
+                        torques_from=torques_from, source=args.compliance)
 
 
 def _target_offset(text: str) -> tuple[str, tuple[float, float, float]]:

@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from .cli_args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_targets,
-                       compliance_options, count, nonnegative, positive, positive_int, print_notes,
-                       read_options, with_targets)
+                       count, nonnegative, positive, positive_int, print_notes, read_options,
+                       with_compliance_file, with_targets)
 from .compensation import SINGULAR_THRESHOLD, compensate, compensate_poses, load_compensation_models
-from .errors import CalibError, ParameterError
+from .errors import CalibError
 from .fileio import check_not_input
 from .formats import read_targets, write_compensation, write_poses
 from .poses import CRITERIA, design_poses
@@ -244,16 +244,10 @@ def run_compensate(args) -> int:
     calibrated, nominal = load_compensation_models(args.calibrated, args.nominal,
                                                    base_frame=args.base_frame,
                                                    tool_frame=args.tool_frame)
-    payload, gravity = compliance_options(args)
+    calibrated = with_compliance_file(calibrated, args, torques_from=nominal,
+                                      hint=" (the report or the compliance sidecar of the calibration)")
     if args.compliance is not None:
-        from .compliance import apply_record, read_compliance
-
-        calibrated = apply_record(calibrated, read_compliance(args.compliance), payload=payload,
-                                  gravity=gravity, torques_from=nominal, source=args.compliance)
         log.info("compliance from %s: %s", args.compliance, calibrated.describe().splitlines()[-1])
-    elif payload is not None or gravity is not None:
-        raise ParameterError("--payload-kg and --gravity need --compliance (the report or the "
-                             "compliance sidecar of the calibration)")
     log.info("nominal %s (frames %r -> %r), calibrated %s (frames %r -> %r)", args.nominal,
              nominal.base_frame, nominal.tool_frame, args.calibrated, calibrated.base_frame,
              calibrated.tool_frame)

@@ -303,15 +303,24 @@ def load_compensation_models(calibrated_urdf: str | Path, nominal_urdf: str | Pa
 
     Raises :class:`calib.CalibError` when the two chains have different joints.
     """
-    recorded = UrdfDocument.read(robot_path(calibrated_urdf)).frames
-    if recorded is not None:      # default: the nominal frames the calibration was made for
-        base_frame = base_frame or recorded.nominal_base_frame
-        tool_frame = tool_frame or recorded.nominal_tool_frame
+    base_frame, tool_frame = nominal_frames(calibrated_urdf, base_frame=base_frame, tool_frame=tool_frame)
     nominal = load_robot(nominal_urdf, base_frame=base_frame, tool_frame=tool_frame)
     calibrated = load_robot(calibrated_urdf, base_frame=nominal.base_frame,
                             tool_frame=nominal.tool_frame)
     _check_models(calibrated, nominal)
     return calibrated, nominal
+
+
+def nominal_frames(calibrated_urdf: str | Path, *, base_frame: str | None = None,
+                   tool_frame: str | None = None) -> tuple[str | None, str | None]:
+    """(base_frame, tool_frame) of the nominal URDF for a calibrated one: the given names, else
+    the nominal frames the calibrated URDF records (``<calib:frames>``), else None (the
+    defaults of :func:`calib.load_robot`)."""
+    recorded = UrdfDocument.read(robot_path(calibrated_urdf)).frames
+    if recorded is not None:      # default: the nominal frames the calibration was made for
+        base_frame = base_frame or recorded.nominal_base_frame
+        tool_frame = tool_frame or recorded.nominal_tool_frame
+    return base_frame, tool_frame
 
 
 def _check_models(calibrated: RobotModel, nominal: RobotModel) -> None:

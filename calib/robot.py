@@ -214,6 +214,9 @@ class RobotModel:
         targets = tuple(str(t) for t in targets)
         if targets == self.targets and T_flange_target_refs is None:
             return self
+        if self.has_compliance:     # the c<i> stay last: targets on the geometry, then them
+            return self.geometry().with_targets(targets, T_flange_target_refs).with_compliance(
+                self.gravity, self.compliances())
         if len(targets) < 2:
             return self.for_target(targets[0] if targets and targets[0] in self.targets else None)
         vals = [x for x, p in zip(self.values, self.parameters) if p.group != "v"]
@@ -253,6 +256,8 @@ class RobotModel:
         ``v_x`` ...) and reference (the tool frame name stays that of the chain)."""
         if not self.targets:
             return self
+        if self.has_compliance:
+            return self.geometry().for_target(target).with_compliance(self.gravity, self.compliances())
         k = self.target_index(target)
         vals = np.concatenate([[x for x, p in zip(self.values, self.parameters) if p.group != "v"],
                                self.v(k)])

@@ -237,3 +237,47 @@ def test_cli_loop(tmp_path, capsys):
     assert "cal.compliance.json" in text
     rec = read_compliance(sidecar_path(cal))
     assert rec.values[1] == pytest.approx(3e-6, abs=0.2e-6) and rec.payload.mass == 10.0
+
+
+def test_cli_simulate_targets_with_compliance(tmp_path, capsys):
+    """simulate --target with compliance deviations and a payload, then calibrate --compliance:
+    three reflectors measured in position only see the sag of joints 2 and 3."""
+    dev = tmp_path / "dev.json"
+    dev.write_text(json.dumps({"c2": 3e-6, "c3": 4e-6, "d2": 3e-4, "v_x@B": 2e-4}))
+    meas, cal = tmp_path / "m.csv", tmp_path / "cal.urdf"
+    assert main(["simulate", "ur10", "-o", str(meas), "--poses", "40", "--deviations", str(dev),
+                 "--payload-kg", "10", "--position-only", "--target", "A=100,0,50",
+                 "--target", "B=-50,80,50", "--target", "C=0,-70,100"]) == 0
+    out = capsys.readouterr().out
+    assert "(one row per target, 120 rows)" in out and "v_x@B" in out
+    assert main(["calibrate", "ur10", str(meas), "-o", str(cal), "--compliance", "--payload-kg", "10",
+                 "--params", "base", "--cv", "0", "--report", str(tmp_path / "r.json")]) == 0
+    capsys.readouterr()
+    rep = json.loads((tmp_path / "r.json").read_text())
+    par = {p["name"]: p for p in rep["parameters"]}
+    for name, true in (("c2", 3.0), ("c3", 4.0)):            # urad/(N m)
+        assert abs(par[name]["identified"] - true) < 4 * par[name]["std"], name
+    assert par["d2"]["deviation"] == pytest.approx(0.3, abs=4 * par["d2"]["std"])   # mm
+    assert rep["targets"]["C"]["after"]["n_poses"] == 40
+    # evaluate with the sidecar and the nominal URDF's torques: calibrate's numbers, per target too
+    side = sidecar_path(cal)
+    assert main(["evaluate", str(cal), str(meas), "--json", "--compliance", str(side), "--nominal", "ur10"]) == 0
+    ev = json.loads(capsys.readouterr().out)
+    for got, want in ((ev["all"], rep["after"]), (ev["targets"]["B"], rep["targets"]["B"]["after"])):
+        assert got["n_poses"] == want["n_poses"]
+        for k in ("mean", "rms", "max", "min"):
+            assert abs(got["position_mm"][k] - want["position_mm"][k]) < 1e-6, k
+    # without --nominal the calibrated URDF's tool is target A's: refused, one line
+    assert main(["evaluate", str(cal), str(meas), "--compliance", str(side)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"calib: error: --compliance: {cal} holds 3 targets and its tool frame is target A's, "
+                   f"not the tool the payload was given in: give --nominal NOMINAL.urdf (the URDF "
+                   f"calibrate started from) for the gravity torques\n")
+
+
+def test_targets_keep_the_compliance_parameters(ur10_c):
+    multi = ur10_c.with_targets(("A", "B"))
+    assert multi.names[-6:] == ("c1", "c2", "c3", "c4", "c5", "c6") and "v_x@B" in multi.names
+    assert np.array_equal(multi.compliances(), TRUE_C) and multi.gravity is ur10_c.gravity
+    one = multi.for_target("B")
+    assert one.names == ur10_c.names and np.array_equal(one.values, ur10_c.values)

@@ -334,3 +334,79 @@ def test_stages_take_multi_target_data_directly(bundled_robot):
     # the closed-form start: every target's position to the structure's error (sub-millimetre)
     for k in range(3):
         assert np.linalg.norm(setup.start.T_flange_tool(k)[:3, 3] - truth.T_flange_tool(k)[:3, 3]) < 1e-3
+
+
+# ====================================================================== simulate --target
+TARGET_ARGS = ["--target", "A=100,0,50", "--target", "B=-50,80,50", "--target", "C=0,-70,100"]
+
+
+def _printed_deviations(text: str) -> dict[str, float]:
+    """The deviation table simulate prints: name -> deviation (mm or rad)."""
+    lines = text.splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.split()[:1] == ["parameter"])
+    return {ln.split()[0]: float(ln.split()[2]) for ln in lines[start + 1:] if ln.strip()}
+
+
+def test_cli_simulate_three_targets_position_only_then_calibrate(bundled_robot, tmp_path, capsys):
+    meas, truth, out, rep = (tmp_path / n for n in ("m.csv", "true.urdf", "cal.urdf", "r.json"))
+    code = main(["simulate", str(BUNDLED_URDF), "-o", str(meas), "--position-only", "--deviations",
+                 "random:0.3", "--poses", "60", "--val-poses", "10", "--seed", "4",
+                 "--truth-urdf", str(truth), *TARGET_ARGS])
+    text, err = capsys.readouterr()
+    assert (code, err) == (0, "")
+    assert "each measured at targets A, B, C (one row per target, 210 rows)" in text
+    dev = _printed_deviations(text)
+    assert {"v_x@A", "v_gamma@C"} <= set(dev) and "v_x" not in dev
+    # read back: each configuration at every target, in --target order, sets per configuration
+    m = calib.read_measurements(meas, bundled_robot)
+    assert m.n_poses == 210 and not m.has_orientation
+    assert m.target == IDS * 70 and m.target_ids == IDS
+    assert np.array_equal(m.q[0::3], m.q[1::3]) and np.array_equal(m.q[0::3], m.q[2::3])
+    assert list(m.sets[:3]) == ["cal"] * 3 and list(m.sets[-30:]) == ["val"] * 30
+    assert len(np.unique(m.q[:, 0])) == 70
+    # the true model (written with its targets) against the file: the noise, 0.02 mm per axis
+    # (RMS length 0.02 sqrt(3) mm; 210 rows give it to ~5 %)
+    true_model = load_robot(truth)
+    assert true_model.targets == IDS
+    noise = evaluate(true_model, m)
+    assert noise.position["rms"] * 1e3 == pytest.approx(0.02 * np.sqrt(3), rel=0.15)
+    # the true targets are where --target put them, to their deviations (~0.5 mm): B seen from A
+    T_A_B = np.linalg.inv(true_model.T_flange_tool("A")) @ true_model.T_flange_tool("B")
+    np.testing.assert_allclose(T_A_B[:3, 3], np.array([-150, 80, 0]) * 1e-3, atol=2e-3)
+    # calibrate reads the target column and recovers every parameter the data identify apart
+    # from others (not tied to a fixed one: see calib identifiability), to 4 standard deviations
+    code = main(["calibrate", str(BUNDLED_URDF), str(meas), "-o", str(out), "--cv", "0",
+                 "--report", str(rep)])
+    assert code == 0 and "target C, val. after" in capsys.readouterr().out
+    report = json.loads(rep.read_text())
+    assert report["status"] == "converged" and report["targets"]["B"]["after"]["n_poses"] == 60
+    model = bundled_robot.with_target_offsets({t: [0.0, 0.0, 0.0] for t in IDS})
+    ident = analyze_identifiability(model, measure="position", n_poses=60, seed=0)
+    tied = {n for r in ident.unidentifiable for n, _ in r.partners}
+    checked = 0
+    for p in report["parameters"]:
+        if p["free"] and p["name"] not in tied and "@" not in p["name"]:
+            assert abs(p["deviation"] - dev[p["name"]]) < 4 * p["std"], p["name"]
+            checked += 1
+    assert checked >= 18, checked
+    # held-out configurations: the calibrated model is at the noise floor
+    assert report["validation"]["after"]["position_mm"]["rms"] < 1.3 * 0.02 * np.sqrt(3)
+
+
+@pytest.mark.parametrize("extra, message", [
+    ([], "--deviations paper: the paper's deviations are for one tool frame (v_x ...), with --target "
+         "each target has its own (v_x@<id> ...); use --deviations random:SCALE_MM or FILE.json"),
+    (["--deviations", "random:0.1", "--target", "A=1,2,3"],
+     "--target: give two or more targets with distinct ids, got A"),
+    (["--deviations", "random:0.1", "--target", "A=1,2,3", "--target", "A=4,5,6"],
+     "--target: give two or more targets with distinct ids, got A, A"),
+    (["--deviations", "random:0.1", "--target", "A=1,2"],
+     "argument --target: expected ID=X,Y,Z (millimetres in the tool frame), got 'A=1,2'"),
+])
+def test_cli_simulate_bad_targets_is_one_line(tmp_path, capsys, extra, message):
+    out = tmp_path / "m.csv"
+    targets = [] if extra and "--target" in extra else TARGET_ARGS
+    code = main(["simulate", str(BUNDLED_URDF), "-o", str(out), "--poses", "5", *targets, *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and err.splitlines()[-1] == f"calib: error: {message}"
+    assert not out.exists()
