@@ -137,17 +137,16 @@ class _FactorTable:
         return E
 
     def products(self, values: np.ndarray, twists: bool = True):
-        """Products of the placements' factors (P, 4, 4), prefix products (P, F + 1, 4, 4)
-        (``prefix[:, j]`` the product of the first j factors) and, with ``twists``, the local
-        twist of each parameter, (6 P, n_params) (rows 6k..6k+5 for placement k)."""
+        """Products of the placements' factors (P, 4, 4), the factor matrices (P, F, 4, 4) and,
+        with ``twists``, the local twist of each parameter, (6 P, n_params) (rows 6k..6k+5 for
+        placement k)."""
         E = self.elementary(np.asarray(values, float))
         P, F = self.n_placements, self.n_factors
-        prefix = np.empty((P, F + 1, 4, 4))
-        prefix[:, 0] = _I4
-        for j in range(F):
-            prefix[:, j + 1] = prefix[:, j] @ E[:, j]
         if not twists:
-            return prefix[:, F], prefix, None
+            M = E[:, 0]
+            for j in range(1, F):
+                M = M @ E[:, j]
+            return M, E, None
         # the twist of a factor's parameter is Ad(suffix)^-1 s, suffix = product of the factors
         # after it: (R[k], 0) for a translation along axis k and (R^T (e_k x p), R[k]) for a
         # rotation about it, with (R, p) the suffix
@@ -164,7 +163,15 @@ class _FactorTable:
         e_x_p = np.einsum("mij,mj->mi", self.rot_skew, p)
         tw[k, :3, idx] = np.einsum("mji,mj->mi", R, e_x_p)
         tw[k, 3:, idx] = R[np.arange(len(axis)), axis]
-        return suffix[:, 0], prefix, tw.reshape(6 * P, self.n_params)
+        return suffix[:, 0], E, tw.reshape(6 * P, self.n_params)
+
+
+def _chain(matrices: np.ndarray) -> np.ndarray:
+    """Product of a sequence of 4x4 matrices (k, 4, 4), left to right."""
+    out = matrices[0]
+    for m in matrices[1:]:
+        out = out @ m
+    return out
 
 
 def _product_and_twists(factors, values: np.ndarray, n_params: int):
@@ -230,7 +237,7 @@ class ChainKinematics:
         self.joint_names = robot.joint_names
         self._table = st.table
         self._params_of = st.params_of
-        # where the flange and base frames sit in the prefix products of their placements
+        # how many of their placements' first factors make the flange and base frames
         self._flange_at = len(self.factors[self.n_joints]) - 7
         self._base_at = 7
         self._pin = None
@@ -249,13 +256,13 @@ class ChainKinematics:
         if (last is not None and (not twists or self.placement_twists is not None)
                 and np.array_equal(values, last)):
             return      # already there (an LM step's Jacobian after its trial residuals needs twists)
-        M, prefix, tw = self._table.products(values, twists)
+        M, E, tw = self._table.products(values, twists)
         n = self.n_joints
         self.placements = M          # (n + K, 4, 4): joint placements, then each target's tool mount
         self._rot_T = np.ascontiguousarray(M[:, :3, :3].transpose(0, 2, 1))   # (for _walk)
         self._trans = np.ascontiguousarray(M[:, :3, 3])
-        self.flange_placement = prefix[n, self._flange_at]   # relative to joint n
-        self.base_placement = prefix[0, self._base_at]       # T_meas_base
+        self.flange_placement = _chain(E[n, :self._flange_at])   # relative to joint n
+        self.base_placement = _chain(E[0, :self._base_at])       # T_meas_base
         self.placement_twists = tw
         self.values = values
 
