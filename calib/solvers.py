@@ -274,6 +274,53 @@ class Problem:
 
     def _compute_normal_equations(self, x: np.ndarray, parts: str) -> tuple[NormalEquations, np.ndarray]:
         """(normal equations, the position rows' share of g)."""
+        if self.loss != "linear":
+            return self._compute_robust_normal_equations(x, parts)
+        self.kin.set_values(self.full(x))
+        m = len(self.free)
+        use_pos = parts in ("pose", "position")
+        use_rot = self.has_orientation and parts != "position"
+        A_pos, A_rot = np.zeros((m, m)), (np.zeros((m, m)) if use_rot else None)
+        g_pos, g_rot = np.zeros(m), np.zeros(m)
+        rss = [0.0, 0.0]
+        for sl in self._chunks():
+            # the Jacobian as Jt (m, 6, N): its position block is the transposed stacked Jacobian
+            # of the position rows (m, 3 N) as it is, no copy; residuals laid out (3, N) to match
+            R, p, Jt = pose_jacobian(self.kin, self.Q[sl], self.free, transposed=True,
+                                     targets=self._targets(sl))
+            n = len(p)
+            if use_pos:
+                Jp = Jt[:, :3].reshape(m, 3 * n)
+                rp = (p - self.p_meas[sl]).T.reshape(-1)
+                A_pos += Jp @ Jp.T
+                g_pos += Jp @ rp
+                rss[0] += float(rp @ rp)
+            if use_rot:
+                rr = log3_batch(R @ self.R_meas_T[sl])
+                # d log(R R_meas^T) = Jl^-1(r) dw, pose by pose
+                L = left_jacobian_inverse_batch(rr).transpose(1, 2, 0)          # (3, 3, N)
+                Jr = np.einsum("ijn,cjn->cin", L, Jt[:, 3:]).reshape(m, 3 * n)
+                rr = rr.T.reshape(-1)
+                A_rot += Jr @ Jr.T
+                g_rot += Jr @ rr
+                rss[1] += float(rr @ rr)
+        wp, wr = 1.0 / self.sigma_pos ** 2, 1.0 / self.sigma_rot ** 2
+        A_pos, g_pos, rss[0] = A_pos * wp, g_pos * wp, rss[0] * wp
+        A = A_pos
+        g = g_pos
+        if use_rot:
+            A_rot, g_rot, rss[1] = A_rot * wr, g_rot * wr, rss[1] * wr
+            A, g = A_pos + A_rot, g_pos + g_rot
+            if not use_pos:
+                A, g = A_rot, g_rot
+        N = self.n_poses
+        ne = NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1],
+                             3 * N if use_pos else 0, 3 * N if use_rot else 0)
+        return ne, g_pos
+
+    def _compute_robust_normal_equations(self, x: np.ndarray, parts: str) -> tuple[NormalEquations, np.ndarray]:
+        """:meth:`_compute_normal_equations` of a robust loss (residuals and Jacobian rescaled
+        pose by pose, :func:`robust_scaling`)."""
         self.kin.set_values(self.full(x))
         m = len(self.free)
         A_pos = np.zeros((m, m))
