@@ -1056,8 +1056,8 @@ class _Solve:
         if self.lm_variant == "paper":
             return self._paper(problem, x, trace)
         opts = self.options
-        if loose:
-            opts = replace(opts, ftol=max(opts.ftol, VCE_FIRST_FTOL))
+        if loose:   # (stopping at its last evaluated point, whose normal equations the estimate uses)
+            opts = replace(opts, ftol=max(opts.ftol, VCE_FIRST_FTOL), last_step=False)
         if not first:
             return levenberg_marquardt(problem, x, "pose", replace(opts, mu0=min(opts.mu0, WARM_MU0)), trace)
         if self.measure == "position" or self.method == "lm":
