@@ -465,26 +465,25 @@ class ChainKinematics:
         """Tool pose (Rt (3, 3, N), p (3, N), see :meth:`_walk`) and Jt (m, 6, N) of a chunk of
         poses.
 
-        All placements at once: Ad^T of every placement frame, (P, 6, 6, N), times the
-        placements' twist columns, (P, 6, w) padded to the widest placement."""
+        A parameter with twist (v, w) in a placement frame (R, p_F) moves the tool by
+        (R v + D x R w, R w), D = p_F - p_tool. All placements at once: the twists, (P, 2 w, 3)
+        padded to the widest placement w, times each frame's rotation, then the D x R w terms."""
         N = len(Q)
         P = self.n_joints + 1
         RtF, pF = np.empty((P, 3, 3, N)), np.empty((P, 3, N))
         Rt, p = self._attach(*self._walk(Q, (RtF, pF)), self.placements[self.n_joints + target])
         RtF[-1], pF[-1] = Rt, p
-        D = pF - p
-        AdT = np.zeros((P, 6, 6, N))    # Ad transposed, AdT[k, j, i] = Ad_k[i, j]
-        AdT[:, :3, :3] = RtF
-        AdT[:, 3:, 3:] = RtF
-        # rows of [D]x R: row 0 = D_y R[2, :] - D_z R[1, :], ... (R[i, :] = RtF[:, :, i])
-        AdT[:, 3:, 0] = D[:, 1, None] * RtF[:, :, 2] - D[:, 2, None] * RtF[:, :, 1]
-        AdT[:, 3:, 1] = D[:, 2, None] * RtF[:, :, 0] - D[:, 0, None] * RtF[:, :, 2]
-        AdT[:, 3:, 2] = D[:, 0, None] * RtF[:, :, 1] - D[:, 1, None] * RtF[:, :, 0]
+        D = (pF - p)[:, None]                                                # (P, 1, 3, N)
         slot, param, out_col, width, m = plan
-        TWT = np.zeros((P * width, 6))
+        TW = np.zeros((P * width, 6))
         used = list(range(self.n_joints)) + [self.n_joints + target]   # joints, this target's tool
-        TWT[slot] = self.placement_twists.reshape(-1, 6, self.n_params)[used][slot // width, :, param]
-        X = np.matmul(TWT.reshape(P, width, 6), AdT.reshape(P, 6, 6 * N))   # (P, width, 6 N)
+        TW[slot] = self.placement_twists.reshape(-1, 6, self.n_params)[used][slot // width, :, param]
+        # (R v, R w) of every slot: (R x)[i] = sum_j x[j] Rt[j, i]
+        X = np.matmul(TW.reshape(P, 2 * width, 3), RtF.reshape(P, 3, 3 * N)).reshape(P, width, 6, N)
+        Rw = X[:, :, 3:]
+        X[:, :, 0] += D[:, :, 1] * Rw[:, :, 2] - D[:, :, 2] * Rw[:, :, 1]
+        X[:, :, 1] += D[:, :, 2] * Rw[:, :, 0] - D[:, :, 0] * Rw[:, :, 2]
+        X[:, :, 2] += D[:, :, 0] * Rw[:, :, 1] - D[:, :, 1] * Rw[:, :, 0]
         Jt = np.empty((m, 6, N)) if len(slot) == m else np.zeros((m, 6, N))   # other targets: 0
         Jt[out_col] = X.reshape(P * width, 6, N)[slot]
         return Rt, p, Jt
