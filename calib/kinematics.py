@@ -451,7 +451,8 @@ class ChainKinematics:
             plan = self._column_plan(columns, t)
             idx = np.arange(N)[rows]
             for a in range(0, len(idx), JACOBIAN_CHUNK):
-                at = idx[a:a + JACOBIAN_CHUNK]
+                # (a slice when the rows are consecutive: cheaper to gather and scatter)
+                at = slice(a, a + JACOBIAN_CHUNK) if isinstance(rows, slice) else idx[a:a + JACOBIAN_CHUNK]
                 Rc, pc, Jc = self._jacobian_chunk(Q[at], plan, t)
                 R[at] = Rc.transpose(2, 1, 0)
                 p[at] = pc.T
