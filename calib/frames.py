@@ -119,22 +119,20 @@ def _estimate(robot: RobotModel, R_f, p_f, p_meas, R_meas, rows):
     if R_meas is not None:
         if N < 3:
             raise DataError(f"at least 3 poses are needed to estimate the frames, got {N}")
-        # vec is column-major: vec(R_X R_i) = (R_i^T kron I) vec(R_X); vec(R_m Z) = (I kron R_m) vec(Z)
-        # null vector of the blocks: eigenvector of the normal matrix, accumulated in chunks
+        # vec is column-major: vec(R_X R_i) = (R_i^T kron I) vec(R_X); vec(R_m Z) = (I kron R_m) vec(Z).
+        # The null vector of the blocks [-(R_i^T kron I), I kron R_m_i] is the eigenvector of their
+        # normal matrix, whose blocks are sums of 3x3 products: (sum R_i R_i^T) kron I,
+        # -sum R_i kron R_m_i and I kron (sum R_m_i^T R_m_i), per target
         normal = np.zeros((9 + 9 * K, 9 + 9 * K))
-        for a in range(0, N, CHUNK):
-            n = len(R_f[a:a + CHUNK])
-            left = -np.einsum("nba,cd->nacbd", R_f[a:a + CHUNK], I3).reshape(n, 9, 9)
-            right = np.einsum("ac,nbd->nabcd", I3, R_meas[a:a + CHUNK]).reshape(n, 9, 9)
-            r = rows[a:a + CHUNK]
-            normal[:9, :9] += np.einsum("nij,nik->jk", left, left)
-            for k in range(K):
-                on = r == k
-                blk = slice(9 + 9 * k, 18 + 9 * k)
-                LR = np.einsum("nij,nik->jk", left[on], right[on])
-                normal[:9, blk] += LR
-                normal[blk, :9] += LR.T
-                normal[blk, blk] += np.einsum("nij,nik->jk", right[on], right[on])
+        normal[:9, :9] = np.einsum("ac,bd->abcd", np.einsum("nab,ncb->ac", R_f, R_f), I3).reshape(9, 9)
+        for k in range(K):
+            on = rows == k
+            blk = slice(9 + 9 * k, 18 + 9 * k)
+            LR = -np.einsum("nac,nbd->abcd", R_f[on], R_meas[on]).reshape(9, 9)
+            normal[:9, blk] = LR
+            normal[blk, :9] = LR.T
+            RR = np.einsum("nab,nac->bc", R_meas[on], R_meas[on])
+            normal[blk, blk] = np.einsum("ac,bd->abcd", I3, RR).reshape(9, 9)
         w, V = np.linalg.eigh(normal)
         if w[1] < 1e-10 * w[-1]:
             raise DataError("the poses do not determine the measurement frame orientation "
