@@ -273,7 +273,10 @@ class Fit:
     model : the calibrated model; free : names of the identified parameters; solver : the
     solver's result for the last fit (x, cost in the final noise weights, status, message, ...);
     keep : (N_cal,) bool, rows used (False for outliers); outliers; noise : the weights used and
-    the residuals' agreement with them; iterations : LM iterations of every fit in the stage.
+    the residuals' agreement with them; iterations : LM iterations of every fit in the stage;
+    covariance : (n_free, n_free) covariance of the free parameters (SI units) in the final noise
+    weights, from the least-squares normal equations at the solution; full_rank : False when it
+    is a pseudo-inverse.
     """
 
     model: RobotModel
@@ -283,6 +286,8 @@ class Fit:
     outliers: tuple[Outlier, ...]
     noise: NoiseEstimate
     iterations: int
+    covariance: np.ndarray = field(repr=False)
+    full_rank: bool
     notes: tuple[str, ...] = ()
 
 
@@ -955,30 +960,54 @@ def candidate_sets(robot: RobotModel, identifiable: Sequence[str]) -> list[tuple
 
 
 # ---------------------------------------------------------------- fit
-def _inverse(A: np.ndarray) -> tuple[np.ndarray, bool]:
+def _inverse(A: np.ndarray) -> tuple[np.ndarray, bool | np.ndarray]:
     """A^-1 of a normal matrix (scaled to unit diagonal first), or its pseudo-inverse when rank
-    deficient."""
-    d = np.sqrt(np.abs(np.diag(A)))
+    deficient, and whether it has full rank. A (..., m, m): a stack is inverted at once, with a
+    full-rank flag (bool array) per matrix."""
+    m = A.shape[-1]
+    As = A.reshape(-1, m, m)
+    d = np.sqrt(np.abs(np.diagonal(As, axis1=1, axis2=2)))
     d[d == 0] = 1.0
-    As = A / np.outer(d, d)
+    outer = d[:, :, None] * d[:, None, :]
+    As = As / outer
     s = np.abs(np.linalg.eigvalsh(As))    # its singular values (symmetric), in half an SVD's time
-    full_rank = bool(s.size) and s.min() > 1e-12 * s.max()
-    inv = np.linalg.inv(As) if full_rank else np.linalg.pinv(As, rcond=1e-12, hermitian=True)
-    return inv / np.outer(d, d), full_rank
+    full = s.min(axis=1) > 1e-12 * s.max(axis=1) if m else np.zeros(len(As), bool)
+    inv = np.empty_like(As)
+    if full.any():
+        inv[full] = np.linalg.inv(As[full])
+    if not full.all():
+        inv[~full] = np.linalg.pinv(As[~full], rcond=1e-12, hermitian=True)
+    inv = (inv / outer).reshape(A.shape)
+    return (inv, bool(full[0])) if A.ndim == 2 else (inv, full.reshape(A.shape[:-2]))
 
 
-def _redundancies(ne: NormalEquations) -> tuple[np.ndarray, float, float, int]:
-    """(A^-1, redundancy of the position group, of the rotation group, rank): a group's
-    redundancy is its number of residual components minus its share tr(A^-1 A_g) of the rank."""
-    Ainv, _ = _inverse(ne.A)
+@dataclass(frozen=True)
+class _Linearised:
+    """The least-squares normal equations ``ne`` of a problem's rows at a solution, their
+    (pseudo-)inverse ``inverse`` (the covariance of the free parameters, SI units; ``full_rank``
+    False for a pseudo-inverse) and each group's redundancy: its number of residual components
+    minus its share tr(A^-1 A_g) of the rank."""
+
+    ne: NormalEquations
+    inverse: np.ndarray
+    full_rank: bool
+    red_pos: float
+    red_rot: float
+
+
+def _linearised(problem: Problem, x: np.ndarray) -> _Linearised:
+    """The :class:`_Linearised` of ``problem``'s rows at x (least squares whatever its loss)."""
+    ne = problem.derived(loss="linear").normal_equations(x)
+    Ainv, full_rank = _inverse(ne.A)
     share_p = float(np.trace(Ainv @ ne.A_pos)) if ne.A_pos is not None else 0.0
     share_r = float(np.trace(Ainv @ ne.A_rot)) if ne.A_rot is not None else 0.0
-    return Ainv, ne.n_pos - share_p, ne.n_rot - share_r, int(round(share_p + share_r))
+    return _Linearised(ne, Ainv, full_rank, ne.n_pos - share_p, ne.n_rot - share_r)
 
 
-def _noise_estimate(problem: Problem, x: np.ndarray, estimated: bool, iterations: int) -> NoiseEstimate:
-    ne = problem.derived(loss="linear").normal_equations(x)
-    _, red_p, red_r, _ = _redundancies(ne)
+def _noise_estimate(problem: Problem, lin: _Linearised, estimated: bool, iterations: int) -> NoiseEstimate:
+    """The noise levels of ``problem`` and the residuals' agreement with them, from its
+    linearisation ``lin`` at the solution."""
+    ne, red_p, red_r = lin.ne, lin.red_pos, lin.red_rot
     dof = red_p + red_r
     chi2 = ne.rss_pos + ne.rss_rot
     p_value = None
@@ -1120,6 +1149,17 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     stuck = None
     vce_total = 0
     two_groups = setup.measure == "pose"
+    last_lin = None
+
+    def linearised(problem: Problem, x: np.ndarray) -> _Linearised:
+        """:func:`_linearised` of the kept rows at the current weights, the last one kept: the
+        outlier check and the noise estimate ask at the same solution."""
+        nonlocal last_lin
+        key = (x.tobytes(), problem.sigma_pos, problem.sigma_rot, keep.tobytes())
+        if last_lin is None or last_lin[0] != key:
+            last_lin = key, _linearised(problem, x)
+        return last_lin[1]
+
     for outlier_pass in range(4):
         for _ in range(VCE_MAX_ITERATIONS):
             problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
@@ -1131,8 +1171,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
             x = sol.x
             if not estimate or sol.status == "diverged":
                 break
-            ne = problem.derived(loss="linear").normal_equations(x)
-            _, red_p, red_r, _ = _redundancies(ne)
+            lin = linearised(problem, x)
+            ne, red_p, red_r = lin.ne, lin.red_pos, lin.red_rot
             vce_total += 1
             if loss == "linear":
                 est_p = sp * math.sqrt(ne.rss_pos / red_p) if red_p > 0.5 else sp
@@ -1151,9 +1191,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
         problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
         fsp, fsr = sp, sr
         if estimate:
-            ne = problem.derived(loss="linear").normal_equations(x)
-            _, red_p, red_r, _ = _redundancies(ne)
-            rsp, rsr = _robust_sigmas(everything, x, keep, red_p, red_r)
+            lin = linearised(problem, x)
+            rsp, rsr = _robust_sigmas(everything, x, keep, lin.red_pos, lin.red_rot)
             fsp = rsp if sigma_pos is None else sp
             fsr = rsr if sigma_rot is None else sr
         new, too_many = _flag_outliers(everything, x, cal.rows, keep, outlier_k, fsp, fsr)
@@ -1193,16 +1232,16 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
         x = sol.x
     if stuck is not None:
         sol = replace(sol, status=stuck.status, message=stuck.message)
-    noise = _noise_estimate(problem, x, estimate, vce_total)
+    lin = linearised(problem, x)
+    noise = _noise_estimate(problem, lin, estimate, vce_total)
     model = start.with_values(problem.full(x))
     if outliers:
         notes.append(f"{len(outliers)} outlier rows removed and the fit repeated without them: rows "
                      + ", ".join(str(o.row) for o in outliers))
-    # (least squares: the cost from the normal equations _noise_estimate computed at x)
-    cost = (problem.normal_equations(x).cost if problem.loss == "linear"
-            else 0.5 * float(np.sum(problem.residuals(x) ** 2)))
-    fit = Fit(model, free, replace(sol, cost=cost),
-              keep, tuple(outliers), noise, trace.iterations, tuple(notes))
+    # (least squares: the cost from the normal equations of the noise estimate)
+    cost = lin.ne.cost if problem.loss == "linear" else 0.5 * float(np.sum(problem.residuals(x) ** 2))
+    fit = Fit(model, free, replace(sol, cost=cost), keep, tuple(outliers), noise, trace.iterations,
+              covariance=lin.inverse, full_rank=lin.full_rank, notes=tuple(notes))
     return fit, problem
 
 
@@ -1266,7 +1305,7 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     """Covariance and predictions (see :class:`Statistics`)."""
     x = fit.model.values[fit.model.indices(fit.free)]
     ne = problem.derived(loss="linear").normal_equations(x)
-    C, full_rank = _inverse(ne.A)
+    C, full_rank = fit.covariance, fit.full_rank
     rank = int(round(float(np.trace(C @ ne.A))))
     where = "validation configurations" if setup.val is not None else "calibration configurations"
     Q = setup.val.q if setup.val is not None else setup.cal.q[fit.keep]
@@ -1345,19 +1384,20 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
         A_fold, g_fold = base.derived(keep=whole).normal_equations_by_label(x0, fold_of, folds)
         A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
         all_identified = _inverse(A_all)[1]
+        # the folds' refits: A without each fold's rows, inverted at once
+        A_inv, full = _inverse(A_all[None] - A_fold)
     e_p, e_r, per_fold = np.zeros(n), np.zeros(n), []
     for f in range(folds):
         test = np.zeros(cal.n_poses, bool)
         test[rows[fold_of == f]] = True
         if refit == "newton":
-            A_inv, full = _inverse(A_all - A_fold[f])
-            if not full and all_identified:
+            if not full[f] and all_identified:
                 # without this fold the rows cannot identify the parameters: its prediction would
                 # be the whole fit's, which has seen it (a leak), not a held-out error
                 raise DataError(f"cross-validation: without fold {f + 1} of {folds} the remaining "
                                 f"{n - int((fold_of == f).sum())} rows cannot identify the "
                                 f"{len(x0)} parameters")
-            x_f = x0 - A_inv @ (g_all - g_fold[f])
+            x_f = x0 - A_inv[f] @ (g_all - g_fold[f])
         else:
             train = np.zeros(cal.n_poses, bool)
             train[rows[fold_of != f]] = True
