@@ -1368,42 +1368,33 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
     fit's solution with the fold's rows taken out of its normal equations (``refit="newton"``,
     default: the linearised refit, exact for a model linear in its parameters, and one pass over
     the data in all), or LM run to convergence (``refit="lm"``)."""
-    cal = setup.cal
-    rows = np.flatnonzero(fit.keep)
-    n = len(rows)
+    n = int(fit.keep.sum())
     if folds > n:
         raise ParameterError(f"cv: {folds} folds need at least {folds} calibration rows, there are {n}")
     fold_of = np.empty(n, int)
     fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
-    base = Problem(problem.kin, cal.q, cal.position, cal.rotation, problem.values, problem.free,
-                   problem.sigma_pos, problem.sigma_rot, targets=target_rows(setup.start, cal))
+    kept = problem.derived(loss="linear")   # the kept rows, least squares
     x0 = fit.model.values[fit.model.indices(fit.free)]
     if refit == "newton":
-        whole = np.zeros(cal.n_poses, bool)
-        whole[rows] = True
-        A_fold, g_fold = base.derived(keep=whole).normal_equations_by_label(x0, fold_of, folds)
+        A_fold, g_fold = kept.normal_equations_by_label(x0, fold_of, folds)
         A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
         all_identified = _inverse(A_all)[1]
         # the folds' refits: A without each fold's rows, inverted at once
         A_inv, full = _inverse(A_all[None] - A_fold)
     e_p, e_r, per_fold = np.zeros(n), np.zeros(n), []
     for f in range(folds):
-        test = np.zeros(cal.n_poses, bool)
-        test[rows[fold_of == f]] = True
+        where = fold_of == f
         if refit == "newton":
             if not full[f] and all_identified:
                 # without this fold the rows cannot identify the parameters: its prediction would
                 # be the whole fit's, which has seen it (a leak), not a held-out error
                 raise DataError(f"cross-validation: without fold {f + 1} of {folds} the remaining "
-                                f"{n - int((fold_of == f).sum())} rows cannot identify the "
+                                f"{n - int(where.sum())} rows cannot identify the "
                                 f"{len(x0)} parameters")
             x_f = x0 - A_inv[f] @ (g_all - g_fold[f])
         else:
-            train = np.zeros(cal.n_poses, bool)
-            train[rows[fold_of != f]] = True
-            x_f = levenberg_marquardt(base.derived(keep=train), x0, "pose", options).x
-        dp, dr = base.derived(keep=test).pose_residuals(x_f)
-        where = fold_of == f
+            x_f = levenberg_marquardt(kept.derived(keep=~where), x0, "pose", options).x
+        dp, dr = kept.derived(keep=where).pose_residuals(x_f)
         e_p[where] = np.sum(dp ** 2, axis=1)
         if dr is not None:
             e_r[where] = np.sum(dr ** 2, axis=1)
