@@ -1349,12 +1349,17 @@ def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[fl
     n = 0
     for _, Jw in problem.whitened_blocks(x):
         H = Jw @ C @ np.transpose(Jw, (0, 2, 1))                     # (n, k, k)
-        w, V = np.linalg.eigh(H)
-        w = np.minimum(w, 0.99)
-        M = (V / (1.0 - w)[:, None, :]) @ np.transpose(V, (0, 2, 1))  # (I - H)^-1
-        t_p += float(np.trace(M[:, :3, :3], axis1=1, axis2=2).sum())
-        if M.shape[1] > 3:
-            t_r += float(np.trace(M[:, 3:, 3:], axis1=1, axis2=2).sum())
+        M = np.empty_like(H)                                         # (I - H)^-1
+        # H is positive semi-definite: a leverage can reach 0.99 only where its trace does
+        high = np.trace(H, axis1=1, axis2=2) >= 0.99
+        M[~high] = np.linalg.inv(np.eye(H.shape[1]) - H[~high])
+        if high.any():
+            w, V = np.linalg.eigh(H[high])
+            w = np.minimum(w, 0.99)
+            M[high] = (V / (1.0 - w)[:, None, :]) @ np.transpose(V, (0, 2, 1))
+        d = np.diagonal(M, axis1=1, axis2=2)
+        t_p += float(d[:, :3].sum())
+        t_r += float(d[:, 3:].sum())
         n += len(Jw)
     return t_p / max(n, 1), t_r / max(n, 1)
 
