@@ -99,6 +99,12 @@ class AccuracyStats:
     position_errors: np.ndarray = field(repr=False)
     rotation_errors: np.ndarray | None = field(repr=False)
 
+    @staticmethod
+    def from_residuals(dp: np.ndarray, dr: np.ndarray | None) -> "AccuracyStats":
+        """The errors of position residuals dp (N, 3) metres and rotation residuals dr (N, 3)
+        radians, the rotation vectors of R_model R_measured^T (None for position-only data)."""
+        return AccuracyStats(np.linalg.norm(dp, axis=1), None if dr is None else np.linalg.norm(dr, axis=1))
+
     @property
     def n_poses(self) -> int:
         return len(self.position_errors)
@@ -142,11 +148,8 @@ def pose_errors(robot: RobotModel, Q: np.ndarray, position: np.ndarray,
     if kin.values is not robot.values:
         kin.set_values(robot.values)
     R, p = kin.frame_poses(Q, targets=targets)
-    pe = np.linalg.norm(p - position, axis=1)
-    re = None
-    if rotation is not None:
-        re = np.linalg.norm(log3_batch(R @ np.transpose(rotation, (0, 2, 1))), axis=1)
-    return AccuracyStats(pe, re)
+    dr = None if rotation is None else log3_batch(R @ np.transpose(rotation, (0, 2, 1)))
+    return AccuracyStats.from_residuals(p - position, dr)
 
 
 def evaluate(robot: RobotModel, measurements: Measurements) -> AccuracyStats:
@@ -276,7 +279,7 @@ class Fit:
     the residuals' agreement with them; iterations : LM iterations of every fit in the stage;
     covariance : (n_free, n_free) covariance of the free parameters (SI units) in the final noise
     weights, from the least-squares normal equations at the solution; full_rank : False when it
-    is a pseudo-inverse.
+    is a pseudo-inverse; all_rows : the problem of every calibration row, kept or not.
     """
 
     model: RobotModel
@@ -288,7 +291,14 @@ class Fit:
     iterations: int
     covariance: np.ndarray = field(repr=False)
     full_rank: bool
+    all_rows: Problem = field(repr=False, compare=False)
     notes: tuple[str, ...] = ()
+
+    @property
+    def errors(self) -> AccuracyStats:
+        """The calibrated model's errors on every calibration row (outliers included); the fit's
+        outlier check has computed them at the solution."""
+        return AccuracyStats.from_residuals(*self.all_rows.pose_residuals(self.solver.x))
 
 
 @dataclass(frozen=True)
@@ -1241,7 +1251,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     # (least squares: the cost from the normal equations of the noise estimate)
     cost = lin.ne.cost if problem.loss == "linear" else 0.5 * float(np.sum(problem.residuals(x) ** 2))
     fit = Fit(model, free, replace(sol, cost=cost), keep, tuple(outliers), noise, trace.iterations,
-              covariance=lin.inverse, full_rank=lin.full_rank, notes=tuple(notes))
+              covariance=lin.inverse, full_rank=lin.full_rank, all_rows=everything, notes=tuple(notes))
     return fit, problem
 
 
@@ -1592,7 +1602,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                          f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g})")
         else:
             want = "auto"
-    if want != "auto":
+    if want == "base" and ident is not None:
+        label, free = "base", ident     # (the identifiable set just found)
+    elif want != "auto":
         label, free = select_parameters(start, want, cal.q, setup.measure, *weights, target_rows(start, cal))
     derived = want == "auto" or (isinstance(want, str) and want.strip().lower() == "base")
     check_data_rank(start, cal, setup.measure, ident if want == "auto" else free, derived=derived,
@@ -1666,7 +1678,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     nominal_kin = ChainKinematics(robot)
     cal_rows = target_rows(robot, cal)
     before = pose_errors(robot, cal.q, cal.position, cal.rotation, nominal_kin, cal_rows)
-    after = pose_errors(calibrated, cal.q, cal.position, cal.rotation, kin, cal_rows)
+    after = fit.errors
     vb = va = None
     if val is not None:
         val_rows = target_rows(robot, val)
