@@ -30,6 +30,7 @@ import json
 import logging
 import math
 import time
+import weakref
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -1351,13 +1352,32 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     return Statistics(C, full_rank, rank, predicted, holdout, where)
 
 
+#: The blocks of the last :func:`_whitened_rows` call on a problem of one chunk:
+#: (weak reference to the problem, x as bytes, [(r, Jw)]).
+_LAST_ROWS: list = [None]
+
+
+def _whitened_rows(problem: Problem, x: np.ndarray):
+    """``problem.whitened_blocks(x)``: per chunk of poses (r (n, k), Jw (n, k, m)), the weighted
+    residual and Jacobian blocks of each pose. A problem of one chunk keeps them for the next call
+    at the same x: the statistics (held-out traces) and the cross-validation (the folds' normal
+    equations) both pass over the fit's rows at its solution."""
+    if problem.n_poses > CHUNK_POSES:     # (streamed: memory independent of N)
+        return problem.whitened_blocks(x)
+    key = np.asarray(x, float).tobytes()
+    last = _LAST_ROWS[0]
+    if last is None or last[0]() is not problem or last[1] != key:
+        last = _LAST_ROWS[0] = (weakref.ref(problem), key, list(problem.whitened_blocks(x)))
+    return last[2]
+
+
 def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, float]:
     """Means over the rows of tr (I - H_ii)^-1 over the position and the rotation components
     (whitened units), H_ii = Jw_i C Jw_i^T the row's block of the hat matrix. A row whose
     leverage reaches 1 (it alone determines a parameter) counts as leverage 0.99."""
     t_p = t_r = 0.0
     n = 0
-    for _, Jw in problem.whitened_blocks(x):
+    for _, Jw in _whitened_rows(problem, x):
         H = Jw @ C @ np.transpose(Jw, (0, 2, 1))                     # (n, k, k)
         M = np.empty_like(H)                                         # (I - H)^-1
         # H is positive semi-definite: a leverage can reach 0.99 only where its trace does
@@ -1391,7 +1411,17 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
     kept = problem.derived(loss="linear")   # the kept rows, least squares
     x0 = fit.model.values[fit.model.indices(fit.free)]
     if refit == "newton":
-        A_fold, g_fold = kept.normal_equations_by_label(x0, fold_of, folds)
+        # J^T J and J^T r of each fold's rows (their sums are the fit's normal equations)
+        m = len(x0)
+        A_fold, g_fold = np.zeros((folds, m, m)), np.zeros((folds, m))
+        start = 0
+        for r, Jw in _whitened_rows(kept, x0):
+            lab = fold_of[start:start + len(r)]
+            start += len(r)
+            for f in range(folds):
+                Jf, rf = Jw[lab == f].reshape(-1, m), r[lab == f].reshape(-1)
+                A_fold[f] += Jf.T @ Jf
+                g_fold[f] += Jf.T @ rf
         A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
         all_identified = _inverse(A_all)[1]
         # the folds' refits: A without each fold's rows, inverted at once
