@@ -1423,14 +1423,13 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
                 A_fold[f] += Jf.T @ Jf
                 g_fold[f] += Jf.T @ rf
         A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
-        all_identified = _inverse(A_all)[1]
         # the folds' refits: A without each fold's rows, inverted at once
         A_inv, full = _inverse(A_all[None] - A_fold)
     e_p, e_r, per_fold = np.zeros(n), np.zeros(n), []
     for f in range(folds):
         where = fold_of == f
         if refit == "newton":
-            if not full[f] and all_identified:
+            if not full[f] and fit.full_rank:
                 # without this fold the rows cannot identify the parameters: its prediction would
                 # be the whole fit's, which has seen it (a leak), not a held-out error
                 raise DataError(f"cross-validation: without fold {f + 1} of {folds} the remaining "
