@@ -981,11 +981,24 @@ def _inverse(A: np.ndarray) -> tuple[np.ndarray, bool | np.ndarray]:
     d[d == 0] = 1.0
     outer = d[:, :, None] * d[:, None, :]
     As = As / outer
-    s = np.abs(np.linalg.eigvalsh(As))    # its singular values (symmetric), in half an SVD's time
-    full = s.min(axis=1) > 1e-12 * s.max(axis=1) if m else np.zeros(len(As), bool)
-    inv = np.empty_like(As)
-    if full.any():
-        inv[full] = np.linalg.inv(As[full])
+    full = np.zeros(len(As), bool)
+    inv, inverted = np.empty_like(As), False
+    if m:
+        try:
+            inv, inverted = np.linalg.inv(As), True
+            # full rank is s_min > 1e-12 s_max over the eigenvalues; with unit diagonal s_max <= m
+            # and 1 / s_min <= |A^-1|_F, so a small inverse proves it without the eigenvalues
+            # (a rounding-negative eigenvalue of a singular A makes the inverse huge; NaN fails)
+            full = m * np.sqrt(np.einsum("nij,nij->n", inv, inv)) < 1e12
+        except np.linalg.LinAlgError:   # an exactly singular matrix in the stack
+            pass
+    rest = np.flatnonzero(~full)
+    if m and rest.size:
+        s = np.abs(np.linalg.eigvalsh(As[rest]))    # singular values (symmetric), in half an SVD's time
+        ok = s.min(axis=1) > 1e-12 * s.max(axis=1)
+        full[rest[ok]] = True
+        if ok.any() and not inverted:
+            inv[rest[ok]] = np.linalg.inv(As[rest[ok]])
     if not full.all():
         inv[~full] = np.linalg.pinv(As[~full], rcond=1e-12, hermitian=True)
     inv = (inv / outer).reshape(A.shape)
