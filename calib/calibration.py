@@ -1662,6 +1662,15 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                         f"levels (sigma_pos / sigma_rot, --sigma-pos-mm / --sigma-rot-rad)")
     folds = CV_FOLDS if cv is None else cv
     kin = ChainKinematics(start)
+    # the errors before calibration first: the fit's kinematics start at the nominal values when
+    # the frames were not moved
+    nominal_kin = kin if start is robot else ChainKinematics(robot)
+    cal_rows = target_rows(robot, cal)
+    before = pose_errors(robot, cal.q, cal.position, cal.rotation, nominal_kin, cal_rows)
+    vb = val_rows = None
+    if val is not None:
+        val_rows = target_rows(robot, val)
+        vb = pose_errors(robot, val.q, val.position, val.rotation, nominal_kin, val_rows)
     selection = None
     if want == "auto":
         if folds < 2:
@@ -1717,14 +1726,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
             notes.append(f"no cross-validation: fewer rows than the {folds} folds")
 
     calibrated = fit.model
-    nominal_kin = ChainKinematics(robot)
-    cal_rows = target_rows(robot, cal)
-    before = pose_errors(robot, cal.q, cal.position, cal.rotation, nominal_kin, cal_rows)
     after = fit.errors
-    vb = va = None
+    va = None
     if val is not None:
-        val_rows = target_rows(robot, val)
-        vb = pose_errors(robot, val.q, val.position, val.rotation, nominal_kin, val_rows)
         va = pose_errors(calibrated, val.q, val.position, val.rotation, kin, val_rows)
     breg = vbreg = None
     if "measurement->base" in setup.rebased:
