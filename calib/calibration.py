@@ -216,7 +216,8 @@ class Setup:
     rebased : which of "measurement->base", "flange->tool" (or "flange-><id>" per target) were
     moved; suspect : (N,) bool over the calibration rows, those the closed-form frame estimate
     left out as gross (the fit starts without them and takes back those its model explains), or
-    None.
+    None; kin : ``start``'s kinematics (a scratch workspace the stages share; None: built when
+    needed).
     """
 
     nominal: RobotModel
@@ -226,6 +227,7 @@ class Setup:
     measure: str
     rebased: tuple[str, ...]
     suspect: np.ndarray | None = field(default=None, repr=False)
+    kin: ChainKinematics | None = field(default=None, repr=False, compare=False)
 
     @property
     def components_per_pose(self) -> int:
@@ -731,9 +733,11 @@ def prepare(robot: RobotModel, measurements: Measurements, validation: Measureme
                         f"fewer than the {needed} identifiable parameters need; measure at least "
                         f"{-(-needed // rows_per_pose)} distinct poses (several times more for accuracy)")
     start, rebased, suspect = robot, (), None
+    kin = ChainKinematics(robot)
     if init_frames:
-        start, rebased, suspect = _rebase_frames(robot, cal, notes, always=init_frames is True)
-    return Setup(robot, start, cal, val, measure, rebased, suspect), notes
+        start, rebased, suspect = _rebase_frames(robot, cal, notes, always=init_frames is True, kin=kin)
+    return Setup(robot, start, cal, val, measure, rebased, suspect,
+                 kin if start is robot else ChainKinematics(start)), notes
 
 
 def distinct_configurations(Q: np.ndarray, tol: float = DISTINCT_Q_TOL) -> int:
@@ -834,13 +838,13 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
                         + (", or name the parameters to identify with params / --params)" if derived else ")"))
 
 
-def _rebase_frames(robot: RobotModel, m: Measurements, notes: list,
-                   always: bool = False) -> tuple[RobotModel, tuple[str, ...], np.ndarray | None]:
+def _rebase_frames(robot: RobotModel, m: Measurements, notes: list, always: bool = False,
+                   kin: ChainKinematics | None = None) -> tuple[RobotModel, tuple[str, ...], np.ndarray | None]:
     """Move the reference frames to closed-form estimates when the data put them far away
-    (or ``always``). Returns the model, the frames moved and the rows the robust estimate left
-    out (bool mask, or None when none)."""
+    (or ``always``; kin: ``robot``'s kinematics at its values, to reuse). Returns the model, the
+    frames moved and the rows the robust estimate left out (bool mask, or None when none)."""
     try:
-        est = estimate_frames_robust(robot, m.q, m.position, m.rotation, target_rows(robot, m))
+        est = estimate_frames_robust(robot, m.q, m.position, m.rotation, target_rows(robot, m), kin=kin)
     except DataError as exc:
         notes.append(f"frames not initialised in closed form ({exc}); started from the nominal frames")
         return robot, (), None
@@ -1661,7 +1665,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                         f"row and says nothing of its accuracy); measure more rows, or give the noise "
                         f"levels (sigma_pos / sigma_rot, --sigma-pos-mm / --sigma-rot-rad)")
     folds = CV_FOLDS if cv is None else cv
-    kin = ChainKinematics(start)
+    kin = setup.kin or ChainKinematics(start)
     # the errors before calibration first: the fit's kinematics start at the nominal values when
     # the frames were not moved
     nominal_kin = kin if start is robot else ChainKinematics(robot)

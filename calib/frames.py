@@ -100,13 +100,13 @@ def estimate_target_frames(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
     return _estimate(robot, R_f, p_f, p_meas, R_meas, rows)
 
 
-def _flange_in_base(robot: RobotModel, Q: np.ndarray):
-    """(R_f (N, 3, 3), p_f (N, 3)): the flange in MDH frame 0 at Q."""
-    kin = ChainKinematics(robot)
-    R_b, p_b = kin.frame_poses(Q, "base")
+def _flange_in_base(robot: RobotModel, Q: np.ndarray, kin: ChainKinematics | None = None):
+    """(R_f (N, 3, 3), p_f (N, 3)): the flange in MDH frame 0 at Q (kin: ``robot``'s kinematics
+    at its values, or None to build them)."""
+    kin = kin or ChainKinematics(robot)
     R_fl, p_fl = kin.frame_poses(Q, "flange")
     # flange in the base frame (the base frame pose does not depend on q)
-    Rb, pb = R_b[0], p_b[0]
+    Rb, pb = kin.base_placement[:3, :3], kin.base_placement[:3, 3]
     return Rb.T @ R_fl, (p_fl - pb) @ Rb
 
 
@@ -216,8 +216,8 @@ def _threshold(r: np.ndarray, floor: float) -> float:
 
 
 def estimate_frames_robust(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
-                           R_meas: np.ndarray | None = None,
-                           targets: np.ndarray | None = None) -> FrameEstimate:
+                           R_meas: np.ndarray | None = None, targets: np.ndarray | None = None, *,
+                           kin: ChainKinematics | None = None) -> FrameEstimate:
     """:func:`estimate_target_frames` made robust to gross rows by residual-based trimming.
 
     The closed-form estimate is computed from all rows, every row's residual against it is
@@ -226,9 +226,10 @@ def estimate_frames_robust(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
     are left out and the estimate is repeated, until the kept rows do not change. A single row
     a million kilometres off moves the least-squares translation of N rows by 1/N of that, all
     good rows then share about the same residual and the gross row stands out; it is left out
-    in the first round. Arguments and errors as :func:`estimate_target_frames`.
+    in the first round. Arguments and errors as :func:`estimate_target_frames`; ``kin``:
+    ``robot``'s kinematics at its values to reuse (default: built).
     """
-    R_f, p_f = _flange_in_base(robot, Q)
+    R_f, p_f = _flange_in_base(robot, Q, kin)
     N = len(Q)
     rows = np.zeros(N, int) if targets is None else np.asarray(targets, int)
     keep = np.ones(N, bool)
