@@ -883,15 +883,11 @@ def _idealised(robot: RobotModel) -> RobotModel:
     """The model with its small deviations removed: angles within 0.05 rad of a multiple of pi/2
     and lengths within 1 mm of zero snapped there. Which parameters tie to which is decided on
     this model, so that it does not depend on where a perturbed model happens to be linearised."""
-    v = robot.values.copy()
-    for k, p in enumerate(robot.parameters):
-        if p.unit == "rad":
-            snapped = round(v[k] / (math.pi / 2)) * (math.pi / 2)
-            if abs(v[k] - snapped) < 0.05:
-                v[k] = snapped
-        elif abs(v[k]) < 1e-3:
-            v[k] = 0.0
-    return robot.with_values(v)
+    v = robot.values
+    angle = np.array([p.unit == "rad" for p in robot.parameters], bool)
+    snapped = np.where(angle, np.round(v / (math.pi / 2)) * (math.pi / 2), 0.0)
+    near = np.abs(v - snapped) < np.where(angle, 0.05, 1e-3)
+    return robot.with_values(np.where(near, snapped, v))
 
 
 def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
