@@ -1365,9 +1365,9 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     return Statistics(C, full_rank, rank, predicted, holdout, where)
 
 
-#: The blocks of the last :func:`_whitened_rows` call on a problem of one chunk:
-#: (weak reference to the problem, x as bytes, [(r, Jw)]).
-_LAST_ROWS: list = [None]
+#: The blocks :func:`_whitened_rows` computed, per problem of one chunk (freed with the problem):
+#: x as bytes, [(r, Jw)].
+_ROWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _whitened_rows(problem: Problem, x: np.ndarray):
@@ -1378,10 +1378,10 @@ def _whitened_rows(problem: Problem, x: np.ndarray):
     if problem.n_poses > CHUNK_POSES:     # (streamed: memory independent of N)
         return problem.whitened_blocks(x)
     key = np.asarray(x, float).tobytes()
-    last = _LAST_ROWS[0]
-    if last is None or last[0]() is not problem or last[1] != key:
-        last = _LAST_ROWS[0] = (weakref.ref(problem), key, list(problem.whitened_blocks(x)))
-    return last[2]
+    kept = _ROWS.get(problem)
+    if kept is None or kept[0] != key:
+        kept = _ROWS[problem] = key, list(problem.whitened_blocks(x))
+    return kept[1]
 
 
 def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, float]:
