@@ -121,18 +121,23 @@ def _estimate(robot: RobotModel, R_f, p_f, p_meas, R_meas, rows):
             raise DataError(f"at least 3 poses are needed to estimate the frames, got {N}")
         # vec is column-major: vec(R_X R_i) = (R_i^T kron I) vec(R_X); vec(R_m Z) = (I kron R_m) vec(Z).
         # The null vector of the blocks [-(R_i^T kron I), I kron R_m_i] is the eigenvector of their
-        # normal matrix, whose blocks are sums of 3x3 products: (sum R_i R_i^T) kron I,
-        # -sum R_i kron R_m_i and I kron (sum R_m_i^T R_m_i), per target
+        # normal matrix, whose blocks are sums of 3x3 products, accumulated in chunks of poses:
+        # (sum R_i R_i^T) kron I, -sum R_i kron R_m_i and I kron (sum R_m_i^T R_m_i), per target
+        S_f, S_fm, S_m = np.zeros((3, 3)), np.zeros((K, 3, 3, 3, 3)), np.zeros((K, 3, 3))
+        for a in range(0, N, CHUNK):
+            Rf, Rm, r = R_f[a:a + CHUNK], R_meas[a:a + CHUNK], rows[a:a + CHUNK]
+            S_f += np.einsum("nab,ncb->ac", Rf, Rf)
+            for k in range(K):
+                on = r == k
+                S_fm[k] += np.einsum("nac,nbd->abcd", Rf[on], Rm[on])
+                S_m[k] += np.einsum("nab,nac->bc", Rm[on], Rm[on])
         normal = np.zeros((9 + 9 * K, 9 + 9 * K))
-        normal[:9, :9] = np.einsum("ac,bd->abcd", np.einsum("nab,ncb->ac", R_f, R_f), I3).reshape(9, 9)
+        normal[:9, :9] = np.einsum("ac,bd->abcd", S_f, I3).reshape(9, 9)
         for k in range(K):
-            on = rows == k
             blk = slice(9 + 9 * k, 18 + 9 * k)
-            LR = -np.einsum("nac,nbd->abcd", R_f[on], R_meas[on]).reshape(9, 9)
-            normal[:9, blk] = LR
-            normal[blk, :9] = LR.T
-            RR = np.einsum("nab,nac->bc", R_meas[on], R_meas[on])
-            normal[blk, blk] = np.einsum("ac,bd->abcd", I3, RR).reshape(9, 9)
+            normal[:9, blk] = -S_fm[k].reshape(9, 9)
+            normal[blk, :9] = -S_fm[k].reshape(9, 9).T
+            normal[blk, blk] = np.einsum("ac,bd->abcd", I3, S_m[k]).reshape(9, 9)
         w, V = np.linalg.eigh(normal)
         if w[1] < 1e-10 * w[-1]:
             raise DataError("the poses do not determine the measurement frame orientation "
