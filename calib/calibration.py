@@ -30,6 +30,7 @@ import json
 import logging
 import math
 import time
+import weakref
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -107,6 +108,12 @@ class AccuracyStats:
     position_errors: np.ndarray = field(repr=False)
     rotation_errors: np.ndarray | None = field(repr=False)
 
+    @staticmethod
+    def from_residuals(dp: np.ndarray, dr: np.ndarray | None) -> "AccuracyStats":
+        """The errors of position residuals dp (N, 3) metres and rotation residuals dr (N, 3)
+        radians, the rotation vectors of R_model R_measured^T (None for position-only data)."""
+        return AccuracyStats(np.linalg.norm(dp, axis=1), None if dr is None else np.linalg.norm(dr, axis=1))
+
     @property
     def n_poses(self) -> int:
         return len(self.position_errors)
@@ -150,11 +157,8 @@ def pose_errors(robot: RobotModel, Q: np.ndarray, position: np.ndarray,
     if kin.values is not robot.values:
         kin.set_values(robot.values)
     R, p = kin.frame_poses(Q, targets=targets)
-    pe = np.linalg.norm(p - position, axis=1)
-    re = None
-    if rotation is not None:
-        re = np.linalg.norm(log3_batch(R @ np.transpose(rotation, (0, 2, 1))), axis=1)
-    return AccuracyStats(pe, re)
+    dr = None if rotation is None else log3_batch(R @ np.transpose(rotation, (0, 2, 1)))
+    return AccuracyStats.from_residuals(p - position, dr)
 
 
 def evaluate(robot: RobotModel, measurements: Measurements) -> AccuracyStats:
@@ -220,7 +224,8 @@ class Setup:
     rebased : which of "measurement->base", "flange->tool" (or "flange-><id>" per target) were
     moved; suspect : (N,) bool over the calibration rows, those the closed-form frame estimate
     left out as gross (the fit starts without them and takes back those its model explains), or
-    None.
+    None; kin : ``start``'s kinematics (a scratch workspace the stages share; None: built when
+    needed).
     """
 
     nominal: RobotModel
@@ -230,6 +235,7 @@ class Setup:
     measure: str
     rebased: tuple[str, ...]
     suspect: np.ndarray | None = field(default=None, repr=False)
+    kin: ChainKinematics | None = field(default=None, repr=False, compare=False)
 
     @property
     def components_per_pose(self) -> int:
@@ -281,7 +287,10 @@ class Fit:
     model : the calibrated model; free : names of the identified parameters; solver : the
     solver's result for the last fit (x, cost in the final noise weights, status, message, ...);
     keep : (N_cal,) bool, rows used (False for outliers); outliers; noise : the weights used and
-    the residuals' agreement with them; iterations : LM iterations of every fit in the stage.
+    the residuals' agreement with them; iterations : LM iterations of every fit in the stage;
+    covariance : (n_free, n_free) covariance of the free parameters (SI units) in the final noise
+    weights, from the least-squares normal equations at the solution; full_rank : False when it
+    is a pseudo-inverse; all_rows : the problem of every calibration row, kept or not.
     """
 
     model: RobotModel
@@ -291,7 +300,16 @@ class Fit:
     outliers: tuple[Outlier, ...]
     noise: NoiseEstimate
     iterations: int
+    covariance: np.ndarray = field(repr=False)
+    full_rank: bool
+    all_rows: Problem = field(repr=False, compare=False)
     notes: tuple[str, ...] = ()
+
+    @property
+    def errors(self) -> AccuracyStats:
+        """The calibrated model's errors on every calibration row (outliers included); the fit's
+        outlier check has computed them at the solution."""
+        return AccuracyStats.from_residuals(*self.all_rows.pose_residuals(self.solver.x))
 
 
 @dataclass(frozen=True)
@@ -723,9 +741,11 @@ def prepare(robot: RobotModel, measurements: Measurements, validation: Measureme
                         f"fewer than the {needed} identifiable parameters need; measure at least "
                         f"{-(-needed // rows_per_pose)} distinct poses (several times more for accuracy)")
     start, rebased, suspect = robot, (), None
+    kin = ChainKinematics(robot)
     if init_frames:
-        start, rebased, suspect = _rebase_frames(robot, cal, notes, always=init_frames is True)
-    return Setup(robot, start, cal, val, measure, rebased, suspect), notes
+        start, rebased, suspect = _rebase_frames(robot, cal, notes, always=init_frames is True, kin=kin)
+    return Setup(robot, start, cal, val, measure, rebased, suspect,
+                 kin if start is robot else ChainKinematics(start)), notes
 
 
 def distinct_configurations(Q: np.ndarray, tol: float = DISTINCT_Q_TOL) -> int:
@@ -826,13 +846,13 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
                         + (", or name the parameters to identify with params / --params)" if derived else ")"))
 
 
-def _rebase_frames(robot: RobotModel, m: Measurements, notes: list,
-                   always: bool = False) -> tuple[RobotModel, tuple[str, ...], np.ndarray | None]:
+def _rebase_frames(robot: RobotModel, m: Measurements, notes: list, always: bool = False,
+                   kin: ChainKinematics | None = None) -> tuple[RobotModel, tuple[str, ...], np.ndarray | None]:
     """Move the reference frames to closed-form estimates when the data put them far away
-    (or ``always``). Returns the model, the frames moved and the rows the robust estimate left
-    out (bool mask, or None when none)."""
+    (or ``always``; kin: ``robot``'s kinematics at its values, to reuse). Returns the model, the
+    frames moved and the rows the robust estimate left out (bool mask, or None when none)."""
     try:
-        est = estimate_frames_robust(robot, m.q, m.position, m.rotation, target_rows(robot, m))
+        est = estimate_frames_robust(robot, m.q, m.position, m.rotation, target_rows(robot, m), kin=kin)
     except DataError as exc:
         notes.append(f"frames not initialised in closed form ({exc}); started from the nominal frames")
         return robot, (), None
@@ -871,15 +891,11 @@ def _idealised(robot: RobotModel) -> RobotModel:
     """The model with its small deviations removed: angles within 0.05 rad of a multiple of pi/2
     and lengths within 1 mm of zero snapped there. Which parameters tie to which is decided on
     this model, so that it does not depend on where a perturbed model happens to be linearised."""
-    v = robot.values.copy()
-    for k, p in enumerate(robot.parameters):
-        if p.unit == "rad":
-            snapped = round(v[k] / (math.pi / 2)) * (math.pi / 2)
-            if abs(v[k] - snapped) < 0.05:
-                v[k] = snapped
-        elif abs(v[k]) < 1e-3:
-            v[k] = 0.0
-    return robot.with_values(v)
+    v = robot.values
+    angle = np.array([p.unit == "rad" for p in robot.parameters], bool)
+    snapped = np.where(angle, np.round(v / (math.pi / 2)) * (math.pi / 2), 0.0)
+    near = np.abs(v - snapped) < np.where(angle, 0.05, 1e-3)
+    return robot.with_values(np.where(near, snapped, v))
 
 
 def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
@@ -963,30 +979,67 @@ def candidate_sets(robot: RobotModel, identifiable: Sequence[str]) -> list[tuple
 
 
 # ---------------------------------------------------------------- fit
-def _inverse(A: np.ndarray) -> tuple[np.ndarray, bool]:
+def _inverse(A: np.ndarray) -> tuple[np.ndarray, bool | np.ndarray]:
     """A^-1 of a normal matrix (scaled to unit diagonal first), or its pseudo-inverse when rank
-    deficient."""
-    d = np.sqrt(np.abs(np.diag(A)))
+    deficient, and whether it has full rank. A (..., m, m): a stack is inverted at once, with a
+    full-rank flag (bool array) per matrix."""
+    m = A.shape[-1]
+    As = A.reshape(-1, m, m)
+    d = np.sqrt(np.abs(np.diagonal(As, axis1=1, axis2=2)))
     d[d == 0] = 1.0
-    As = A / np.outer(d, d)
-    s = np.abs(np.linalg.eigvalsh(As))    # its singular values (symmetric), in half an SVD's time
-    full_rank = bool(s.size) and s.min() > 1e-12 * s.max()
-    inv = np.linalg.inv(As) if full_rank else np.linalg.pinv(As, rcond=1e-12, hermitian=True)
-    return inv / np.outer(d, d), full_rank
+    outer = d[:, :, None] * d[:, None, :]
+    As = As / outer
+    full = np.zeros(len(As), bool)
+    inv, inverted = np.empty_like(As), False
+    if m:
+        try:
+            inv, inverted = np.linalg.inv(As), True
+            # full rank is s_min > 1e-12 s_max over the eigenvalues; with unit diagonal s_max <= m
+            # and 1 / s_min <= |A^-1|_F, so a small inverse proves it without the eigenvalues
+            # (a rounding-negative eigenvalue of a singular A makes the inverse huge; NaN fails)
+            full = m * np.sqrt(np.einsum("nij,nij->n", inv, inv)) < 1e12
+        except np.linalg.LinAlgError:   # an exactly singular matrix in the stack
+            pass
+    rest = np.flatnonzero(~full)
+    if m and rest.size:
+        s = np.abs(np.linalg.eigvalsh(As[rest]))    # singular values (symmetric), in half an SVD's time
+        ok = s.min(axis=1) > 1e-12 * s.max(axis=1)
+        full[rest[ok]] = True
+        if ok.any() and not inverted:
+            inv[rest[ok]] = np.linalg.inv(As[rest[ok]])
+    if not full.all():
+        inv[~full] = np.linalg.pinv(As[~full], rcond=1e-12, hermitian=True)
+    inv = (inv / outer).reshape(A.shape)
+    return (inv, bool(full[0])) if A.ndim == 2 else (inv, full.reshape(A.shape[:-2]))
 
 
-def _redundancies(ne: NormalEquations) -> tuple[np.ndarray, float, float, int]:
-    """(A^-1, redundancy of the position group, of the rotation group, rank): a group's
-    redundancy is its number of residual components minus its share tr(A^-1 A_g) of the rank."""
-    Ainv, _ = _inverse(ne.A)
+@dataclass(frozen=True)
+class _Linearised:
+    """The least-squares normal equations ``ne`` of a problem's rows at a solution, their
+    (pseudo-)inverse ``inverse`` (the covariance of the free parameters, SI units; ``full_rank``
+    False for a pseudo-inverse) and each group's redundancy: its number of residual components
+    minus its share tr(A^-1 A_g) of the rank."""
+
+    ne: NormalEquations
+    inverse: np.ndarray
+    full_rank: bool
+    red_pos: float
+    red_rot: float
+
+
+def _linearised(problem: Problem, x: np.ndarray) -> _Linearised:
+    """The :class:`_Linearised` of ``problem``'s rows at x (least squares whatever its loss)."""
+    ne = problem.derived(loss="linear").normal_equations(x)
+    Ainv, full_rank = _inverse(ne.A)
     share_p = float(np.trace(Ainv @ ne.A_pos)) if ne.A_pos is not None else 0.0
     share_r = float(np.trace(Ainv @ ne.A_rot)) if ne.A_rot is not None else 0.0
-    return Ainv, ne.n_pos - share_p, ne.n_rot - share_r, int(round(share_p + share_r))
+    return _Linearised(ne, Ainv, full_rank, ne.n_pos - share_p, ne.n_rot - share_r)
 
 
-def _noise_estimate(problem: Problem, x: np.ndarray, estimated: bool, iterations: int) -> NoiseEstimate:
-    ne = problem.derived(loss="linear").normal_equations(x)
-    _, red_p, red_r, _ = _redundancies(ne)
+def _noise_estimate(problem: Problem, lin: _Linearised, estimated: bool, iterations: int) -> NoiseEstimate:
+    """The noise levels of ``problem`` and the residuals' agreement with them, from its
+    linearisation ``lin`` at the solution."""
+    ne, red_p, red_r = lin.ne, lin.red_pos, lin.red_rot
     dof = red_p + red_r
     chi2 = ne.rss_pos + ne.rss_rot
     p_value = None
@@ -1136,6 +1189,17 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     stuck = None
     vce_total = 0
     two_groups = setup.measure == "pose"
+    last_lin = None
+
+    def linearised(problem: Problem, x: np.ndarray) -> _Linearised:
+        """:func:`_linearised` of the kept rows at the current weights, the last one kept: the
+        outlier check and the noise estimate ask at the same solution."""
+        nonlocal last_lin
+        key = (x.tobytes(), problem.sigma_pos, problem.sigma_rot, keep.tobytes())
+        if last_lin is None or last_lin[0] != key:
+            last_lin = key, _linearised(problem, x)
+        return last_lin[1]
+
     for outlier_pass in range(4):
         for _ in range(VCE_MAX_ITERATIONS):
             problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
@@ -1149,8 +1213,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
             x = sol.x
             if not estimate or sol.status == "diverged":
                 break
-            ne = problem.derived(loss="linear").normal_equations(x)
-            _, red_p, red_r, _ = _redundancies(ne)
+            lin = linearised(problem, x)
+            ne, red_p, red_r = lin.ne, lin.red_pos, lin.red_rot
             vce_total += 1
             if loss == "linear":
                 est_p = sp * math.sqrt(ne.rss_pos / red_p) if red_p > 0.5 else sp
@@ -1169,9 +1233,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
         problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
         fsp, fsr = sp, sr
         if estimate:
-            ne = problem.derived(loss="linear").normal_equations(x)
-            _, red_p, red_r, _ = _redundancies(ne)
-            rsp, rsr = _robust_sigmas(everything, x, keep, red_p, red_r)
+            lin = linearised(problem, x)
+            rsp, rsr = _robust_sigmas(everything, x, keep, lin.red_pos, lin.red_rot)
             fsp = rsp if sigma_pos is None else sp
             fsr = rsr if sigma_rot is None else sr
         new, too_many = _flag_outliers(everything, x, cal.rows, keep, outlier_k, fsp, fsr)
@@ -1211,16 +1274,16 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
         x = sol.x
     if stuck is not None:
         sol = replace(sol, status=stuck.status, message=stuck.message)
-    noise = _noise_estimate(problem, x, estimate, vce_total)
+    lin = linearised(problem, x)
+    noise = _noise_estimate(problem, lin, estimate, vce_total)
     model = start.with_values(problem.full(x))
     if outliers:
         notes.append(f"{len(outliers)} outlier rows removed and the fit repeated without them: rows "
                      + ", ".join(str(o.row) for o in outliers))
-    # (least squares: the cost from the normal equations _noise_estimate computed at x)
-    cost = (problem.normal_equations(x).cost if problem.loss == "linear"
-            else 0.5 * float(np.sum(problem.residuals(x) ** 2)))
-    fit = Fit(model, free, replace(sol, cost=cost),
-              keep, tuple(outliers), noise, trace.iterations, tuple(notes))
+    # (least squares: the cost from the normal equations of the noise estimate)
+    cost = lin.ne.cost if problem.loss == "linear" else 0.5 * float(np.sum(problem.residuals(x) ** 2))
+    fit = Fit(model, free, replace(sol, cost=cost), keep, tuple(outliers), noise, trace.iterations,
+              covariance=lin.inverse, full_rank=lin.full_rank, all_rows=everything, notes=tuple(notes))
     return fit, problem
 
 
@@ -1284,7 +1347,7 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     """Covariance and predictions (see :class:`Statistics`)."""
     x = fit.model.values[fit.model.indices(fit.free)]
     ne = problem.derived(loss="linear").normal_equations(x)
-    C, full_rank = _inverse(ne.A)
+    C, full_rank = fit.covariance, fit.full_rank
     rank = int(round(float(np.trace(C @ ne.A))))
     where = "validation configurations" if setup.val is not None else "calibration configurations"
     Q = setup.val.q if setup.val is not None else setup.cal.q[fit.keep]
@@ -1320,20 +1383,44 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     return Statistics(C, full_rank, rank, predicted, holdout, where)
 
 
+#: The blocks :func:`_whitened_rows` computed, per problem of one chunk (freed with the problem):
+#: x as bytes, [(r, Jw)].
+_ROWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _whitened_rows(problem: Problem, x: np.ndarray):
+    """``problem.whitened_blocks(x)``: per chunk of poses (r (n, k), Jw (n, k, m)), the weighted
+    residual and Jacobian blocks of each pose. A problem of one chunk keeps them for the next call
+    at the same x: the statistics (held-out traces) and the cross-validation (the folds' normal
+    equations) both pass over the fit's rows at its solution."""
+    if problem.n_poses > CHUNK_POSES:     # (streamed: memory independent of N)
+        return problem.whitened_blocks(x)
+    key = np.asarray(x, float).tobytes()
+    kept = _ROWS.get(problem)
+    if kept is None or kept[0] != key:
+        kept = _ROWS[problem] = key, list(problem.whitened_blocks(x))
+    return kept[1]
+
+
 def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, float]:
     """Means over the rows of tr (I - H_ii)^-1 over the position and the rotation components
     (whitened units), H_ii = Jw_i C Jw_i^T the row's block of the hat matrix. A row whose
     leverage reaches 1 (it alone determines a parameter) counts as leverage 0.99."""
     t_p = t_r = 0.0
     n = 0
-    for _, Jw in problem.whitened_blocks(x):
+    for _, Jw in _whitened_rows(problem, x):
         H = Jw @ C @ np.transpose(Jw, (0, 2, 1))                     # (n, k, k)
-        w, V = np.linalg.eigh(H)
-        w = np.minimum(w, 0.99)
-        M = (V / (1.0 - w)[:, None, :]) @ np.transpose(V, (0, 2, 1))  # (I - H)^-1
-        t_p += float(np.trace(M[:, :3, :3], axis1=1, axis2=2).sum())
-        if M.shape[1] > 3:
-            t_r += float(np.trace(M[:, 3:, 3:], axis1=1, axis2=2).sum())
+        M = np.empty_like(H)                                         # (I - H)^-1
+        # H is positive semi-definite: a leverage can reach 0.99 only where its trace does
+        high = np.trace(H, axis1=1, axis2=2) >= 0.99
+        M[~high] = np.linalg.inv(np.eye(H.shape[1]) - H[~high])
+        if high.any():
+            w, V = np.linalg.eigh(H[high])
+            w = np.minimum(w, 0.99)
+            M[high] = (V / (1.0 - w)[:, None, :]) @ np.transpose(V, (0, 2, 1))
+        d = np.diagonal(M, axis1=1, axis2=2)
+        t_p += float(d[:, :3].sum())
+        t_r += float(d[:, 3:].sum())
         n += len(Jw)
     return t_p / max(n, 1), t_r / max(n, 1)
 
@@ -1347,41 +1434,42 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
     fit's solution with the fold's rows taken out of its normal equations (``refit="newton"``,
     default: the linearised refit, exact for a model linear in its parameters, and one pass over
     the data in all), or LM run to convergence (``refit="lm"``)."""
-    cal = setup.cal
-    rows = np.flatnonzero(fit.keep)
-    n = len(rows)
+    n = int(fit.keep.sum())
     if folds > n:
         raise ParameterError(f"cv: {folds} folds need at least {folds} calibration rows, there are {n}")
     fold_of = np.empty(n, int)
     fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
-    base = Problem(problem.kin, cal.q, cal.position, cal.rotation, problem.values, problem.free,
-                   problem.sigma_pos, problem.sigma_rot, targets=target_rows(setup.start, cal))
+    kept = problem.derived(loss="linear")   # the kept rows, least squares
     x0 = fit.model.values[fit.model.indices(fit.free)]
     if refit == "newton":
-        whole = np.zeros(cal.n_poses, bool)
-        whole[rows] = True
-        A_fold, g_fold = base.derived(keep=whole).normal_equations_by_label(x0, fold_of, folds)
+        # J^T J and J^T r of each fold's rows (their sums are the fit's normal equations)
+        m = len(x0)
+        A_fold, g_fold = np.zeros((folds, m, m)), np.zeros((folds, m))
+        start = 0
+        for r, Jw in _whitened_rows(kept, x0):
+            lab = fold_of[start:start + len(r)]
+            start += len(r)
+            for f in range(folds):
+                Jf, rf = Jw[lab == f].reshape(-1, m), r[lab == f].reshape(-1)
+                A_fold[f] += Jf.T @ Jf
+                g_fold[f] += Jf.T @ rf
         A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
-        all_identified = _inverse(A_all)[1]
+        # the folds' refits: A without each fold's rows, inverted at once
+        A_inv, full = _inverse(A_all[None] - A_fold)
     e_p, e_r, per_fold = np.zeros(n), np.zeros(n), []
     for f in range(folds):
-        test = np.zeros(cal.n_poses, bool)
-        test[rows[fold_of == f]] = True
+        where = fold_of == f
         if refit == "newton":
-            A_inv, full = _inverse(A_all - A_fold[f])
-            if not full and all_identified:
+            if not full[f] and fit.full_rank:
                 # without this fold the rows cannot identify the parameters: its prediction would
                 # be the whole fit's, which has seen it (a leak), not a held-out error
                 raise DataError(f"cross-validation: without fold {f + 1} of {folds} the remaining "
-                                f"{n - int((fold_of == f).sum())} rows cannot identify the "
+                                f"{n - int(where.sum())} rows cannot identify the "
                                 f"{len(x0)} parameters")
-            x_f = x0 - A_inv @ (g_all - g_fold[f])
+            x_f = x0 - A_inv[f] @ (g_all - g_fold[f])
         else:
-            train = np.zeros(cal.n_poses, bool)
-            train[rows[fold_of != f]] = True
-            x_f = levenberg_marquardt(base.derived(keep=train), x0, "pose", options).x
-        dp, dr = base.derived(keep=test).pose_residuals(x_f)
-        where = fold_of == f
+            x_f = levenberg_marquardt(kept.derived(keep=~where), x0, "pose", options).x
+        dp, dr = kept.derived(keep=where).pose_residuals(x_f)
         e_p[where] = np.sum(dp ** 2, axis=1)
         if dr is not None:
             e_r[where] = np.sum(dr ** 2, axis=1)
@@ -1574,7 +1662,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                          f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g})")
         else:
             want = "auto"
-    if want != "auto":
+    if want == "base" and ident is not None:
+        label, free = "base", ident     # (the identifiable set just found)
+    elif want != "auto":
         label, free = select_parameters(start, want, cal.q, setup.measure, *weights, target_rows(start, cal))
     derived = want == "auto" or (isinstance(want, str) and want.strip().lower() == "base")
     check_data_rank(start, cal, setup.measure, ident if want == "auto" else free, derived=derived,
@@ -1589,7 +1679,16 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                         f"row and says nothing of its accuracy); measure more rows, or give the noise "
                         f"levels (sigma_pos / sigma_rot, --sigma-pos-mm / --sigma-rot-rad)")
     folds = CV_FOLDS if cv is None else cv
-    kin = ChainKinematics(start)
+    kin = setup.kin or ChainKinematics(start)
+    # the errors before calibration first: the fit's kinematics start at the nominal values when
+    # the frames were not moved
+    nominal_kin = kin if start is robot else ChainKinematics(robot)
+    cal_rows = target_rows(robot, cal)
+    before = pose_errors(robot, cal.q, cal.position, cal.rotation, nominal_kin, cal_rows)
+    vb = val_rows = None
+    if val is not None:
+        val_rows = target_rows(robot, val)
+        vb = pose_errors(robot, val.q, val.position, val.rotation, nominal_kin, val_rows)
     selection = None
     if want == "auto":
         if folds < 2:
@@ -1645,14 +1744,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
             notes.append(f"no cross-validation: fewer rows than the {folds} folds")
 
     calibrated = fit.model
-    nominal_kin = ChainKinematics(robot)
-    cal_rows = target_rows(robot, cal)
-    before = pose_errors(robot, cal.q, cal.position, cal.rotation, nominal_kin, cal_rows)
-    after = pose_errors(calibrated, cal.q, cal.position, cal.rotation, kin, cal_rows)
-    vb = va = None
+    after = fit.errors
+    va = None
     if val is not None:
-        val_rows = target_rows(robot, val)
-        vb = pose_errors(robot, val.q, val.position, val.rotation, nominal_kin, val_rows)
         va = pose_errors(calibrated, val.q, val.position, val.rotation, kin, val_rows)
     breg = vbreg = None
     if "measurement->base" in setup.rebased:

@@ -100,13 +100,13 @@ def estimate_target_frames(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
     return _estimate(robot, R_f, p_f, p_meas, R_meas, rows)
 
 
-def _flange_in_base(robot: RobotModel, Q: np.ndarray):
-    """(R_f (N, 3, 3), p_f (N, 3)): the flange in MDH frame 0 at Q."""
-    kin = ChainKinematics(robot)
-    R_b, p_b = kin.frame_poses(Q, "base")
+def _flange_in_base(robot: RobotModel, Q: np.ndarray, kin: ChainKinematics | None = None):
+    """(R_f (N, 3, 3), p_f (N, 3)): the flange in MDH frame 0 at Q (kin: ``robot``'s kinematics
+    at its values, or None to build them)."""
+    kin = kin or ChainKinematics(robot)
     R_fl, p_fl = kin.frame_poses(Q, "flange")
     # flange in the base frame (the base frame pose does not depend on q)
-    Rb, pb = R_b[0], p_b[0]
+    Rb, pb = kin.base_placement[:3, :3], kin.base_placement[:3, 3]
     return Rb.T @ R_fl, (p_fl - pb) @ Rb
 
 
@@ -119,22 +119,25 @@ def _estimate(robot: RobotModel, R_f, p_f, p_meas, R_meas, rows):
     if R_meas is not None:
         if N < 3:
             raise DataError(f"at least 3 poses are needed to estimate the frames, got {N}")
-        # vec is column-major: vec(R_X R_i) = (R_i^T kron I) vec(R_X); vec(R_m Z) = (I kron R_m) vec(Z)
-        # null vector of the blocks: eigenvector of the normal matrix, accumulated in chunks
-        normal = np.zeros((9 + 9 * K, 9 + 9 * K))
+        # vec is column-major: vec(R_X R_i) = (R_i^T kron I) vec(R_X); vec(R_m Z) = (I kron R_m) vec(Z).
+        # The null vector of the blocks [-(R_i^T kron I), I kron R_m_i] is the eigenvector of their
+        # normal matrix, whose blocks are sums of 3x3 products, accumulated in chunks of poses:
+        # (sum R_i R_i^T) kron I, -sum R_i kron R_m_i and I kron (sum R_m_i^T R_m_i), per target
+        S_f, S_fm, S_m = np.zeros((3, 3)), np.zeros((K, 3, 3, 3, 3)), np.zeros((K, 3, 3))
         for a in range(0, N, CHUNK):
-            n = len(R_f[a:a + CHUNK])
-            left = -np.einsum("nba,cd->nacbd", R_f[a:a + CHUNK], I3).reshape(n, 9, 9)
-            right = np.einsum("ac,nbd->nabcd", I3, R_meas[a:a + CHUNK]).reshape(n, 9, 9)
-            r = rows[a:a + CHUNK]
-            normal[:9, :9] += np.einsum("nij,nik->jk", left, left)
+            Rf, Rm, r = R_f[a:a + CHUNK], R_meas[a:a + CHUNK], rows[a:a + CHUNK]
+            S_f += np.einsum("nab,ncb->ac", Rf, Rf)
             for k in range(K):
                 on = r == k
-                blk = slice(9 + 9 * k, 18 + 9 * k)
-                LR = np.einsum("nij,nik->jk", left[on], right[on])
-                normal[:9, blk] += LR
-                normal[blk, :9] += LR.T
-                normal[blk, blk] += np.einsum("nij,nik->jk", right[on], right[on])
+                S_fm[k] += np.einsum("nac,nbd->abcd", Rf[on], Rm[on])
+                S_m[k] += np.einsum("nab,nac->bc", Rm[on], Rm[on])
+        normal = np.zeros((9 + 9 * K, 9 + 9 * K))
+        normal[:9, :9] = np.einsum("ac,bd->abcd", S_f, I3).reshape(9, 9)
+        for k in range(K):
+            blk = slice(9 + 9 * k, 18 + 9 * k)
+            normal[:9, blk] = -S_fm[k].reshape(9, 9)
+            normal[blk, :9] = -S_fm[k].reshape(9, 9).T
+            normal[blk, blk] = np.einsum("ac,bd->abcd", I3, S_m[k]).reshape(9, 9)
         w, V = np.linalg.eigh(normal)
         if w[1] < 1e-10 * w[-1]:
             raise DataError("the poses do not determine the measurement frame orientation "
@@ -218,8 +221,8 @@ def _threshold(r: np.ndarray, floor: float) -> float:
 
 
 def estimate_frames_robust(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
-                           R_meas: np.ndarray | None = None,
-                           targets: np.ndarray | None = None) -> FrameEstimate:
+                           R_meas: np.ndarray | None = None, targets: np.ndarray | None = None, *,
+                           kin: ChainKinematics | None = None) -> FrameEstimate:
     """:func:`estimate_target_frames` made robust to gross rows by residual-based trimming.
 
     The closed-form estimate is computed from all rows, every row's residual against it is
@@ -228,9 +231,10 @@ def estimate_frames_robust(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
     are left out and the estimate is repeated, until the kept rows do not change. A single row
     a million kilometres off moves the least-squares translation of N rows by 1/N of that, all
     good rows then share about the same residual and the gross row stands out; it is left out
-    in the first round. Arguments and errors as :func:`estimate_target_frames`.
+    in the first round. Arguments and errors as :func:`estimate_target_frames`; ``kin``:
+    ``robot``'s kinematics at its values to reuse (default: built).
     """
-    R_f, p_f = _flange_in_base(robot, Q)
+    R_f, p_f = _flange_in_base(robot, Q, kin)
     N = len(Q)
     rows = np.zeros(N, int) if targets is None else np.asarray(targets, int)
     keep = np.ones(N, bool)

@@ -1,0 +1,133 @@
+"""The shortcuts calibrate() takes outside the solver give what the direct computations give.
+
+Each quantity the stages now reuse or compute another way (issue 14, speed) is checked against
+the computation it replaces: the rank test of the normal-matrix inverse, the held-out traces,
+the cross-validation's Gauss-Newton refits, and the errors before / after calibration.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import calib
+import calib.calibration as cc
+from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+
+
+def _reference_inverse(A):
+    """The inverse as first written: the eigenvalues decide the rank, then inv or pinv."""
+    d = np.sqrt(np.abs(np.diag(A)))
+    d[d == 0] = 1.0
+    As = A / np.outer(d, d)
+    s = np.abs(np.linalg.eigvalsh(As))
+    full = bool(s.size) and s.min() > 1e-12 * s.max()
+    inv = np.linalg.inv(As) if full else np.linalg.pinv(As, rcond=1e-12, hermitian=True)
+    return inv / np.outer(d, d), full
+
+
+def _normal_matrices(seed=0, n=400):
+    """J^T J of random Jacobians with columns scaled over 12 decades; some with a column tied to
+    another (exactly or to 1e-9 .. 1e-4: both sides of the rank threshold) or zero."""
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        m = int(rng.integers(1, 40))
+        J = rng.normal(size=(int(rng.integers(1, 2 * m + 2)), m)) * 10.0 ** rng.uniform(-6, 6, size=m)
+        u = rng.random()
+        if u < 0.25:
+            J[:, rng.integers(m)] = J[:, rng.integers(m)] * rng.normal()
+        elif u < 0.5:
+            c = rng.integers(m)
+            J[:, c] = J[:, (c + 1) % m] * (1 + 10.0 ** rng.uniform(-9, -4))
+        elif u < 0.6:
+            J[:, rng.integers(m)] = 0.0
+        yield J.T @ J
+
+
+def test_inverse_decides_the_rank_as_the_eigenvalues_do():
+    kinds = set()
+    for A in _normal_matrices():
+        inv, full = cc._inverse(A)
+        ref_inv, ref_full = _reference_inverse(A)
+        assert full == ref_full
+        kinds.add(full)
+        # the same LAPACK calls on the same scaled matrix: identical, not merely close
+        np.testing.assert_array_equal(inv, ref_inv)
+    assert kinds == {True, False}     # both branches exercised
+
+
+def test_inverse_of_a_stack_is_the_inverse_of_each():
+    mats = [A for A in _normal_matrices(seed=1, n=60) if A.shape == (7, 7)][:6]
+    mats.append(np.zeros((7, 7)))     # exactly singular: the stack's inv raises, the others stand
+    inv, full = cc._inverse(np.stack(mats))
+    assert full.shape == (len(mats),) and not full[-1]
+    for k, A in enumerate(mats):
+        ref_inv, ref_full = _reference_inverse(A)
+        assert full[k] == ref_full
+        np.testing.assert_array_equal(inv[k], ref_inv)
+
+
+@pytest.fixture(scope="module")
+def fitted(bundled_robot):
+    """(setup, fit, problem) of a default calibration of 40 simulated poses, where some rows
+    have leverages above 0.99 in trace (so both branches of the held-out traces run)."""
+    true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
+    meas = simulate_measurements(true, bundled_robot.random_configurations(40, 11), rng=12)
+    seen = {}
+    original = cc.statistics_stage
+
+    def spy(setup, fit, problem):
+        seen.update(setup=setup, fit=fit, problem=problem)
+        return original(setup, fit, problem)
+
+    cc.statistics_stage = spy
+    try:
+        result = calib.calibrate(bundled_robot, meas, cv=5)
+    finally:
+        cc.statistics_stage = original
+    return seen["setup"], seen["fit"], seen["problem"], result
+
+
+@pytest.mark.parametrize("scale", [1.0, 3.0])
+def test_held_out_traces_match_the_eigen_decomposition(fitted, scale):
+    """scale 1: rows on both sides of the trace test; scale 3: the covariance tripled, so that
+    leverages are clipped at 0.99."""
+    _, fit, problem, _ = fitted
+    x = fit.model.values[fit.model.indices(fit.free)]
+    C = fit.covariance * scale
+    (_, Jw), = list(problem.whitened_blocks(x))
+    H = Jw @ C @ np.transpose(Jw, (0, 2, 1))
+    lev = np.trace(H, axis1=1, axis2=2)
+    assert (lev >= 0.99).any() and ((lev < 0.99).any() or scale > 1)
+    w, V = np.linalg.eigh(H)
+    assert (w.max() > 0.99) == (scale > 1)
+    M = (V / (1.0 - np.minimum(w, 0.99))[:, None, :]) @ np.transpose(V, (0, 2, 1))
+    ref = (np.trace(M[:, :3, :3], axis1=1, axis2=2).mean(), np.trace(M[:, 3:, 3:], axis1=1, axis2=2).mean())
+    # rounding only: the inverse instead of the eigenvectors on the low-leverage rows
+    np.testing.assert_allclose(cc._held_out_traces(problem, x, C), ref, rtol=1e-12)
+
+
+def test_cross_validation_refits_are_gauss_newton_steps_without_each_fold(fitted):
+    setup, fit, problem, _ = fitted
+    cv = cc.cross_validate(setup, fit, problem, 4, seed=3)
+    x0 = fit.model.values[fit.model.indices(fit.free)]
+    n = problem.n_poses
+    fold_of = np.empty(n, int)
+    fold_of[np.random.default_rng(3).permutation(n)] = np.arange(n) % 4
+    scores = np.empty(n)
+    for f in range(4):
+        ne = problem.derived(keep=fold_of != f).normal_equations(x0)
+        x_f = x0 - np.linalg.solve(ne.A, ne.g)
+        dp, dr = problem.derived(keep=fold_of == f).pose_residuals(x_f)
+        scores[fold_of == f] = (np.sum(dp ** 2, axis=1) / problem.sigma_pos ** 2
+                                + np.sum(dr ** 2, axis=1) / problem.sigma_rot ** 2)
+    # the same step, solved another way: rounding times the conditioning of the normal matrices
+    np.testing.assert_allclose(cv.row_scores, scores, rtol=1e-9)
+
+
+def test_errors_before_and_after_are_those_of_the_models(fitted):
+    setup, _, _, result = fitted
+    cal = setup.cal
+    for stats, model in ((result.before, result.nominal), (result.after, result.robot)):
+        direct = calib.evaluate(model, cal)
+        np.testing.assert_allclose(stats.position_errors, direct.position_errors, rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(stats.rotation_errors, direct.rotation_errors, rtol=1e-12, atol=1e-18)
