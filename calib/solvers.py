@@ -356,25 +356,6 @@ class Problem:
         A = A_pos + (A_rot if A_rot is not None else 0.0)
         return NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1], n_pos, n_rot), g_pos
 
-    def normal_equations_by_label(self, x: np.ndarray, labels: np.ndarray, n_labels: int):
-        """(A (L, m, m), g (L, m)): J^T J and J^T r of the rows of each label (labels: (N,) ints
-        in [0, n_labels)), in one chunked pass over the data; the sums over labels are
-        :meth:`normal_equations`' A and g."""
-        m = len(self.free)
-        A, g = np.zeros((n_labels, m, m)), np.zeros((n_labels, m))
-        start = 0
-        for r, Jw in self.whitened_blocks(x):
-            lab = labels[start:start + len(r)]
-            start += len(r)
-            for f in range(n_labels):     # (not np.unique: it imports numpy.ma, 20 ms of a start)
-                rows = lab == f
-                if not rows.any():
-                    continue
-                Jf = Jw[rows].reshape(-1, m)
-                A[f] += Jf.T @ Jf
-                g[f] += Jf.T @ r[rows].reshape(-1)
-        return A, g
-
     def whitened_blocks(self, x: np.ndarray):
         """Per chunk of poses: (r (n, k), Jw (n, k, m)), the weighted residual and Jacobian blocks
         of each pose at x (k = 6 with orientation data, else 3)."""
