@@ -1431,9 +1431,11 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
     """K-fold cross-validated held-out error of ``fit`` (its parameter set, noise weights and
     kept rows): the kept calibration rows split at random (``seed``) into ``folds`` folds, each
     predicted by the model refitted on the others. The refit is one Gauss-Newton step from the
-    fit's solution with the fold's rows taken out of its normal equations (``refit="newton"``,
-    default: the linearised refit, exact for a model linear in its parameters, and one pass over
-    the data in all), or LM run to convergence (``refit="lm"``)."""
+    fit's solution with the fold's rows taken out of its normal equations, and the fold's
+    residuals predicted to first order from the same linearisation (``refit="newton"``, default:
+    exact for a model linear in its parameters, and one pass over the data in all; the
+    second-order terms are of the order of the parameter errors squared), or LM run to
+    convergence and the fold's residuals evaluated (``refit="lm"``)."""
     n = int(fit.keep.sum())
     if folds > n:
         raise ParameterError(f"cv: {folds} folds need at least {folds} calibration rows, there are {n}")
@@ -1441,6 +1443,8 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
     fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
     kept = problem.derived(loss="linear")   # the kept rows, least squares
     x0 = fit.model.values[fit.model.indices(fit.free)]
+    e_p, e_r = np.zeros(n), np.zeros(n)
+    has_rot = setup.measure == "pose"
     if refit == "newton":
         # J^T J and J^T r of each fold's rows (their sums are the fit's normal equations)
         m = len(x0)
@@ -1456,26 +1460,34 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
         A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
         # the folds' refits: A without each fold's rows, inverted at once
         A_inv, full = _inverse(A_all[None] - A_fold)
-    e_p, e_r, per_fold = np.zeros(n), np.zeros(n), []
-    for f in range(folds):
-        where = fold_of == f
-        if refit == "newton":
-            if not full[f] and fit.full_rank:
-                # without this fold the rows cannot identify the parameters: its prediction would
-                # be the whole fit's, which has seen it (a leak), not a held-out error
-                raise DataError(f"cross-validation: without fold {f + 1} of {folds} the remaining "
-                                f"{n - int(where.sum())} rows cannot identify the "
-                                f"{len(x0)} parameters")
-            x_f = x0 - A_inv[f] @ (g_all - g_fold[f])
-        else:
+        bad = np.flatnonzero(~full)
+        if len(bad) and fit.full_rank:
+            # without this fold the rows cannot identify the parameters: its prediction would be
+            # the whole fit's, which has seen it (a leak), not a held-out error
+            f = int(bad[0])
+            raise DataError(f"cross-validation: without fold {f + 1} of {folds} the remaining "
+                            f"{n - int(np.sum(fold_of == f))} rows cannot identify the "
+                            f"{len(x0)} parameters")
+        dx = -np.einsum("fij,fj->fi", A_inv, g_all[None] - g_fold)       # (folds, m)
+        # each row's whitened residual at its fold's refit, r + Jw dx, back in m and rad
+        start = 0
+        for r, Jw in _whitened_rows(kept, x0):
+            lab = fold_of[start:start + len(r)]
+            pred = r + np.einsum("nkm,nm->nk", Jw, dx[lab])
+            e_p[start:start + len(r)] = np.sum(pred[:, :3] ** 2, axis=1) * kept.sigma_pos ** 2
+            if has_rot:
+                e_r[start:start + len(r)] = np.sum(pred[:, 3:] ** 2, axis=1) * kept.sigma_rot ** 2
+            start += len(r)
+    else:
+        for f in range(folds):
+            where = fold_of == f
             x_f = levenberg_marquardt(kept.derived(keep=~where), x0, "pose", options).x
-        dp, dr = kept.derived(keep=where).pose_residuals(x_f)
-        e_p[where] = np.sum(dp ** 2, axis=1)
-        if dr is not None:
-            e_r[where] = np.sum(dr ** 2, axis=1)
-        per_fold.append((int(where.sum()), math.sqrt(float(np.mean(e_p[where]))),
-                         None if dr is None else math.sqrt(float(np.mean(e_r[where])))))
-    has_rot = setup.measure == "pose"
+            dp, dr = kept.derived(keep=where).pose_residuals(x_f)
+            e_p[where] = np.sum(dp ** 2, axis=1)
+            if dr is not None:
+                e_r[where] = np.sum(dr ** 2, axis=1)
+    per_fold = [(int(np.sum(fold_of == f)), math.sqrt(float(np.mean(e_p[fold_of == f]))),
+                 math.sqrt(float(np.mean(e_r[fold_of == f]))) if has_rot else None) for f in range(folds)]
     score = e_p / problem.sigma_pos ** 2 + (e_r / problem.sigma_rot ** 2 if has_rot else 0.0)
     return CrossValidation(folds, math.sqrt(float(np.mean(e_p))),
                            math.sqrt(float(np.mean(e_r))) if has_rot else None, tuple(per_fold),
