@@ -1323,14 +1323,21 @@ def _propagate(model: RobotModel, Q: np.ndarray, free: Sequence[str], C: np.ndar
     kin = kin or ChainKinematics(model)
     kin.set_values(model.values)
     idx = model.indices(free)
+    jacobians = (pose_jacobian(kin, Q[s:s + CHUNK_POSES], idx,
+                               targets=None if targets is None else targets[s:s + CHUNK_POSES])[2]
+                 for s in range(0, len(Q), CHUNK_POSES))
+    return _propagated(jacobians, len(Q), C)
+
+
+def _propagated(jacobians, n: int, C: np.ndarray) -> tuple[float, float]:
+    """(position, rotation) RMS over n poses of J C J^T, from their pose Jacobians (chunks of
+    (k, 6, m))."""
     tr_p = tr_r = 0.0
-    for s in range(0, len(Q), CHUNK_POSES):
-        _, _, Jf = pose_jacobian(kin, Q[s:s + CHUNK_POSES], idx,
-                                 targets=None if targets is None else targets[s:s + CHUNK_POSES])
+    for Jf in jacobians:
         JC = Jf @ C
         tr_p += float(np.einsum("nij,nij->", JC[:, :3], Jf[:, :3]))
         tr_r += float(np.einsum("nij,nij->", JC[:, 3:], Jf[:, 3:]))
-    n = max(len(Q), 1)
+    n = max(n, 1)
     return math.sqrt(max(tr_p, 0.0) / n), math.sqrt(max(tr_r, 0.0) / n)
 
 
@@ -1353,7 +1360,14 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     Q = setup.val.q if setup.val is not None else setup.cal.q[fit.keep]
     rows = target_rows(fit.model, setup.val) if setup.val is not None else problem.targets
     kin = problem.kin
-    pos, rot = _propagate(fit.model, Q, fit.free, C, kin, rows)
+
+    def propagate(cov):
+        if setup.val is not None:
+            return _propagate(fit.model, Q, fit.free, cov, kin, rows)
+        # at the calibration rows: the Jacobian of the fit's rows at its solution, computed once
+        return _propagated((J for _, _, J in _whitened_rows(problem.derived(loss="linear"), x)), len(Q), cov)
+
+    pos, rot = propagate(C)
     nz = fit.noise
     has_rot = setup.measure == "pose"
     # misfit: a group whose residuals exceed the given noise inflates both the parameter
@@ -1365,7 +1379,7 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     else:
         A_eff = ne.A_pos / infl_p + (ne.A_rot / infl_r if ne.A_rot is not None else 0.0)
         C_eff, _ = _inverse(A_eff)
-        pos_e, rot_e = _propagate(fit.model, Q, fit.free, C_eff, kin, rows)
+        pos_e, rot_e = propagate(C_eff)
     if setup.val is not None:
         # new rows at the validation configurations: the parameter error propagated there, plus
         # the measurement noise of the new row
@@ -1389,16 +1403,17 @@ _ROWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _whitened_rows(problem: Problem, x: np.ndarray):
-    """``problem.whitened_blocks(x)``: per chunk of poses (r (n, k), Jw (n, k, m)), the weighted
-    residual and Jacobian blocks of each pose. A problem of one chunk keeps them for the next call
-    at the same x: the statistics (held-out traces) and the cross-validation (the folds' normal
-    equations) both pass over the fit's rows at its solution."""
+    """``problem.whitened_blocks(x, raw=True)``: per chunk of poses (r (n, k), Jw (n, k, m),
+    J (n, 6, m)), the weighted residual and Jacobian blocks of each pose and its pose Jacobian. A
+    problem of one chunk keeps them for the next call at the same x: the statistics (predictions,
+    held-out traces) and the cross-validation (the folds' normal equations) all pass over the
+    fit's rows at its solution."""
     if problem.n_poses > CHUNK_POSES:     # (streamed: memory independent of N)
-        return problem.whitened_blocks(x)
+        return problem.whitened_blocks(x, raw=True)
     key = np.asarray(x, float).tobytes()
     kept = _ROWS.get(problem)
     if kept is None or kept[0] != key:
-        kept = _ROWS[problem] = key, list(problem.whitened_blocks(x))
+        kept = _ROWS[problem] = key, list(problem.whitened_blocks(x, raw=True))
     return kept[1]
 
 
@@ -1408,7 +1423,7 @@ def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[fl
     leverage reaches 1 (it alone determines a parameter) counts as leverage 0.99."""
     t_p = t_r = 0.0
     n = 0
-    for _, Jw in _whitened_rows(problem, x):
+    for _, Jw, _ in _whitened_rows(problem, x):
         H = Jw @ C @ np.transpose(Jw, (0, 2, 1))                     # (n, k, k)
         M = np.empty_like(H)                                         # (I - H)^-1
         # H is positive semi-definite: a leverage can reach 0.99 only where its trace does
@@ -1450,7 +1465,7 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
         m = len(x0)
         A_fold, g_fold = np.zeros((folds, m, m)), np.zeros((folds, m))
         start = 0
-        for r, Jw in _whitened_rows(kept, x0):
+        for r, Jw, _ in _whitened_rows(kept, x0):
             lab = fold_of[start:start + len(r)]
             start += len(r)
             for f in range(folds):
@@ -1471,7 +1486,7 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
         dx = -np.einsum("fij,fj->fi", A_inv, g_all[None] - g_fold)       # (folds, m)
         # each row's whitened residual at its fold's refit, r + Jw dx, back in m and rad
         start = 0
-        for r, Jw in _whitened_rows(kept, x0):
+        for r, Jw, _ in _whitened_rows(kept, x0):
             lab = fold_of[start:start + len(r)]
             pred = r + np.einsum("nkm,nm->nk", Jw, dx[lab])
             e_p[start:start + len(r)] = np.sum(pred[:, :3] ** 2, axis=1) * kept.sigma_pos ** 2

@@ -356,13 +356,15 @@ class Problem:
         A = A_pos + (A_rot if A_rot is not None else 0.0)
         return NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1], n_pos, n_rot), g_pos
 
-    def whitened_blocks(self, x: np.ndarray):
+    def whitened_blocks(self, x: np.ndarray, raw: bool = False):
         """Per chunk of poses: (r (n, k), Jw (n, k, m)), the weighted residual and Jacobian blocks
-        of each pose at x (k = 6 with orientation data, else 3)."""
+        of each pose at x (k = 6 with orientation data, else 3); with ``raw`` also the pose
+        Jacobian (n, 6, m) they come from (:func:`calib.jacobian.pose_jacobian`)."""
         self.kin.set_values(self.full(x))
         for sl in self._chunks():
             R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free, targets=self._targets(sl))
-            yield self._assemble(R, p, J, "pose", sl, flat=False)
+            r, Jw = self._assemble(R, p, J, "pose", sl, flat=False)
+            yield (r, Jw, J) if raw else (r, Jw)
 
     def _assemble(self, R, p, J, parts, sl, flat=True):
         res, jac = [], []
