@@ -266,20 +266,38 @@ class Problem:
         key = (self.full(x).tobytes(), self.free.tobytes(), parts, getattr(self, "_rows_key", None))
         hit = shared.get(key)
         if hit is not None:
-            ne, g_pos, sp, sr = hit
+            ne, g_pos, sp, sr, _ = hit
             if sp == self.sigma_pos and sr == self.sigma_rot:
                 return ne
             return _reweighted(ne, g_pos, (sp / self.sigma_pos) ** 2, (sr / self.sigma_rot) ** 2)
-        ne, g_pos = self._compute_normal_equations(x, parts)
-        shared[key] = (ne, g_pos, self.sigma_pos, self.sigma_rot)
+        ne, g_pos, blocks = self._compute_normal_equations(x, parts, keep_blocks=True)
+        for k, hit in shared.items():      # (the blocks of the latest point only: bounded memory)
+            shared[k] = hit[:4] + (None,)
+        shared[key] = (ne, g_pos, self.sigma_pos, self.sigma_rot, blocks)
         while len(shared) > 4:
             shared.pop(next(iter(shared)))
         return ne
 
-    def _compute_normal_equations(self, x: np.ndarray, parts: str) -> tuple[NormalEquations, np.ndarray]:
-        """(normal equations, the position rows' share of g)."""
+    def _kept_blocks(self, x: np.ndarray):
+        """The unweighted blocks of the least-squares normal equations last computed at x for
+        these rows (one chunk only; see _compute_normal_equations), or None."""
+        shared = getattr(self, "_shared", None)
+        if self.loss != "linear" or shared is None or self.n_poses > CHUNK_POSES:
+            return None
+        hit = shared.get((self.full(x).tobytes(), self.free.tobytes(), "pose", getattr(self, "_rows_key", None)))
+        return None if hit is None else hit[4]
+
+    def _compute_normal_equations(self, x: np.ndarray, parts: str, keep_blocks: bool = False):
+        """(normal equations, the position rows' share of g); with ``keep_blocks`` also the
+        unweighted blocks they were summed from when the rows are one chunk and ``parts`` is
+        "pose" (Jt (m, 6, N), the rotation rows Jl^-1 Jt (m, 3 N) or None, residuals (3 N,) and
+        (3 N,) or None, laid out component first), else None: :meth:`whitened_blocks` at the
+        same x is then assembled from them without another pass over the data."""
         if self.loss != "linear":
-            return self._compute_robust_normal_equations(x, parts)
+            ne, g_pos = self._compute_robust_normal_equations(x, parts)
+            return (ne, g_pos, None) if keep_blocks else (ne, g_pos)
+        wanted, keep_blocks = keep_blocks, keep_blocks and parts == "pose" and self.n_poses <= CHUNK_POSES
+        blocks = None
         self.kin.set_values(self.full(x))
         m = len(self.free)
         use_pos = parts in ("pose", "position")
@@ -309,6 +327,8 @@ class Problem:
                 A_rot += Jr @ Jr.T
                 g_rot += Jr @ rr
                 rss[1] += float(rr @ rr)
+            if keep_blocks:
+                blocks = (Jt, Jr if use_rot else None, rp, rr if use_rot else None)
         wp, wr = 1.0 / self.sigma_pos ** 2, 1.0 / self.sigma_rot ** 2
         A_pos, g_pos, rss[0] = A_pos * wp, g_pos * wp, rss[0] * wp
         A = A_pos
@@ -321,7 +341,7 @@ class Problem:
         N = self.n_poses
         ne = NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1],
                              3 * N if use_pos else 0, 3 * N if use_rot else 0)
-        return ne, g_pos
+        return (ne, g_pos, blocks) if wanted else (ne, g_pos)
 
     def _compute_robust_normal_equations(self, x: np.ndarray, parts: str) -> tuple[NormalEquations, np.ndarray]:
         """:meth:`_compute_normal_equations` of a robust loss (residuals and Jacobian rescaled
@@ -360,6 +380,20 @@ class Problem:
         """Per chunk of poses: (r (n, k), Jw (n, k, m)), the weighted residual and Jacobian blocks
         of each pose at x (k = 6 with orientation data, else 3); with ``raw`` also the pose
         Jacobian (n, 6, m) they come from (:func:`calib.jacobian.pose_jacobian`)."""
+        blocks = self._kept_blocks(x)
+        if blocks is not None:      # from the normal equations' pass at x
+            Jt, Jr, rp, rr = blocks
+            m, _, n = Jt.shape
+            J = np.ascontiguousarray(Jt.transpose(2, 1, 0))
+            k = 3 if rr is None else 6
+            r, Jw = np.empty((n, k)), np.empty((n, k, m))
+            r[:, :3] = rp.reshape(3, n).T / self.sigma_pos
+            Jw[:, :3] = J[:, :3] / self.sigma_pos
+            if rr is not None:
+                r[:, 3:] = rr.reshape(3, n).T / self.sigma_rot
+                Jw[:, 3:] = Jr.reshape(m, 3, n).transpose(2, 1, 0) / self.sigma_rot
+            yield (r, Jw, J) if raw else (r, Jw)
+            return
         self.kin.set_values(self.full(x))
         for sl in self._chunks():
             R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free, targets=self._targets(sl))

@@ -140,3 +140,29 @@ def test_errors_before_and_after_are_those_of_the_models(fitted):
         direct = calib.evaluate(model, cal)
         np.testing.assert_allclose(stats.position_errors, direct.position_errors, rtol=1e-12, atol=1e-18)
         np.testing.assert_allclose(stats.rotation_errors, direct.rotation_errors, rtol=1e-12, atol=1e-18)
+
+
+@pytest.mark.parametrize("position_only", [False, True])
+def test_whitened_blocks_from_the_normal_equations_pass(bundled_robot, position_only):
+    """whitened_blocks at the point of the last normal equations reuses their pass: the same
+    blocks as computed afresh (and afresh when the point differs)."""
+    from calib.kinematics import ChainKinematics
+    from calib.solvers import Problem
+
+    robot = bundled_robot
+    meas = simulate_measurements(apply_deviations(robot, PAPER_DEVIATIONS), robot.random_configurations(30, 1),
+                                 rng=2, position_only=position_only)
+    free = robot.indices(calib.analyze_identifiability(robot, meas.q, measure="position" if position_only
+                                                       else "pose").identifiable)
+    make = lambda: Problem(ChainKinematics(robot), meas.q, meas.position, meas.rotation, robot.values, free,
+                           2e-5, 2e-3)
+    x = robot.values[free] + 1e-4
+    reused = make().derived(sigma_pos=3e-5, sigma_rot=1e-3)
+    reused.normal_equations(x)
+    assert reused._kept_blocks(x) is not None and reused._kept_blocks(x + 1e-9) is None
+    (r1, Jw1, J1), = reused.whitened_blocks(x, raw=True)
+    (r2, Jw2, J2), = make().derived(sigma_pos=3e-5, sigma_rot=1e-3).whitened_blocks(x, raw=True)
+    assert r1.shape == r2.shape == (30, 3 if position_only else 6)
+    np.testing.assert_allclose(r1, r2, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(Jw1, Jw2, rtol=1e-10, atol=1e-6 * np.abs(Jw2).max())
+    np.testing.assert_allclose(J1, J2, rtol=0, atol=0)
