@@ -142,8 +142,7 @@ class _PaperResiduals:
         x = x_full.copy()
         x[self.sub] = x_sub_paper / self.col_scale
         pb.kin.set_values(pb.full(x))
-        R, p, J = pose_jacobian(pb.kin, pb.Q)
-        J = J[:, :, pb.free[self.sub]]
+        R, p, J = pose_jacobian(pb.kin, pb.Q, pb.free[self.sub])     # (the subset's columns only)
         dp, w = J[:, :3], J[:, 3:]
         res, jac = [], []
         if self.parts in ("pose", "position"):
