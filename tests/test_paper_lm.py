@@ -136,11 +136,13 @@ def test_converges_on_noise_free_data_from_the_nominal_model(paper_case, solver)
 
 
 def test_far_start_plain_lm_fails_where_c_lm_converges(paper_case):
-    """theta1 and alpha2 offset by 2.0 and -1.5 rad (a Table 8 case): the undamped-in-effect
+    """theta1 and alpha2 offset by 1.0 and -1.5 rad (a Table 8 case): the undamped-in-effect
     step (mu I with mu <= 0.01 against J^T J of order 1e6 in mm and rad) throws plain LM out;
-    C-LM's rotation step first brings the angles back."""
+    C-LM's rotation step first brings the angles back (in 12 iterations here; where it takes
+    hundreds of steps, every one taken, the outcome is chaotic: it changes with the rounding of
+    the Jacobian, e.g. at 2.0 and -1.5 rad)."""
     robot, true, meas, free, Qv, truth = paper_case
-    start = robot.with_changes(theta1=2.0, alpha2=-1.5)
+    start = robot.with_changes(theta1=1.0, alpha2=-1.5)
     pb, x0, angular = _problem(start, meas, free)
     lm = paper_lm(pb, x0, angular)
     assert lm.status == "max_iterations" and lm.iterations == 100
