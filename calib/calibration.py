@@ -1683,10 +1683,14 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                                                           target_rows(start, cal)), compliance, notes)
         per_param = cal.n_poses * setup.components_per_pose / max(len(ident), 1)
         if params is None:
-            want = "auto" if per_param < AUTO_BELOW_COMPONENTS_PER_PARAM else "base"
+            few = per_param < AUTO_BELOW_COMPONENTS_PER_PARAM
+            no_cv = cv is not None and cv < 2
+            want = "auto" if (few and not no_cv) else "base"
             notes.append(f"parameter set {want!r} chosen by default: {cal.n_poses * setup.components_per_pose} "
                          f"residual components for {len(ident)} identifiable parameters "
-                         f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g})")
+                         f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g}"
+                         + (", but it compares the sets by cross-validation, which cv=0 turns off)"
+                            if few and no_cv else ")"))
         else:
             want = "auto"
     if want == "base" and ident is not None:

@@ -149,6 +149,18 @@ def test_cross_validation_without_validation_rows(bundled_robot, paper_data):
         calib.calibrate(bundled_robot, cal, cv=1)
 
 
+def test_cv_off_on_few_rows_takes_the_identifiable_set(bundled_robot, paper_data):
+    """Few rows would choose 'auto', which compares the sets by cross-validation: with cv=0 the
+    default is the identifiable set, and says why; 'auto' asked for by name still needs CV."""
+    few = paper_data.calibration().subset(np.arange(20))
+    res = calib.calibrate(bundled_robot, few, cv=0)
+    assert res.param_set == "base" and res.cross_validation is None and res.selection is None
+    assert any("cv=0 turns off" in n for n in res.notes)
+    assert calib.calibrate(bundled_robot, few).param_set.startswith("auto")
+    with pytest.raises(calib.ParameterError, match="cv must be >= 2"):
+        calib.calibrate(bundled_robot, few, params="auto", cv=0)
+
+
 # ---------------------------------------------------------------- model selection
 def test_candidate_sets_are_nested_and_identifiable(bundled_robot):
     ident = identifiable_set(bundled_robot, bundled_robot.random_configurations(60, 1), "pose")
