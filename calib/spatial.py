@@ -100,49 +100,29 @@ def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
     """Unit quaternions (n, 4) (w, x, y, z), w >= 0, of rotation matrices (n, 3, 3).
 
     Shepperd's method: the largest of w, x, y, z is computed from the diagonal, the others from
-    it, so it is accurate for every angle up to pi.
+    it, so it is accurate for every angle up to pi. Branch-free over the rows: K = 4 q q^T has
+    entries that are sums and differences of entries of R, and q = K[k] / (2 sqrt(K[k, k])) for
+    k its largest diagonal entry.
     """
     R = np.asarray(R, float)
-    m00, m11, m22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
-    tr = m00 + m11 + m22
-    if np.all(tr >= np.maximum(np.maximum(m00, m11), m22)):
-        k = np.zeros(len(R), int)     # w the largest everywhere (the usual small turns)
-    else:
-        k = np.argmax(np.stack([tr, m00, m11, m22], axis=1), axis=1)
-    quat = np.empty((len(R), 4))
-    for branch in range(4):
-        i = k == branch
-        if not i.any():
-            continue
-        # all rows in one branch (rotations away from pi: the usual case) without a gather
-        Ri, q = (R, quat) if i.all() else (R[i], np.empty((int(i.sum()), 4)))
-        d0, d1, d2 = Ri[:, 0, 0], Ri[:, 1, 1], Ri[:, 2, 2]
-        if branch == 0:
-            s = np.sqrt(1.0 + d0 + d1 + d2) * 2.0
-            q[:, 0] = 0.25 * s
-            q[:, 1] = (Ri[:, 2, 1] - Ri[:, 1, 2]) / s
-            q[:, 2] = (Ri[:, 0, 2] - Ri[:, 2, 0]) / s
-            q[:, 3] = (Ri[:, 1, 0] - Ri[:, 0, 1]) / s
-        elif branch == 1:
-            s = np.sqrt(1.0 + d0 - d1 - d2) * 2.0
-            q[:, 0] = (Ri[:, 2, 1] - Ri[:, 1, 2]) / s
-            q[:, 1] = 0.25 * s
-            q[:, 2] = (Ri[:, 0, 1] + Ri[:, 1, 0]) / s
-            q[:, 3] = (Ri[:, 0, 2] + Ri[:, 2, 0]) / s
-        elif branch == 2:
-            s = np.sqrt(1.0 + d1 - d0 - d2) * 2.0
-            q[:, 0] = (Ri[:, 0, 2] - Ri[:, 2, 0]) / s
-            q[:, 1] = (Ri[:, 0, 1] + Ri[:, 1, 0]) / s
-            q[:, 2] = 0.25 * s
-            q[:, 3] = (Ri[:, 1, 2] + Ri[:, 2, 1]) / s
-        else:
-            s = np.sqrt(1.0 + d2 - d0 - d1) * 2.0
-            q[:, 0] = (Ri[:, 1, 0] - Ri[:, 0, 1]) / s
-            q[:, 1] = (Ri[:, 0, 2] + Ri[:, 2, 0]) / s
-            q[:, 2] = (Ri[:, 1, 2] + Ri[:, 2, 1]) / s
-            q[:, 3] = 0.25 * s
-        if q is not quat:
-            quat[i] = q
+    n = len(R)
+    F = R.reshape(n, 9)
+    m00, m11, m22 = F[:, 0], F[:, 4], F[:, 8]
+    K = np.empty((n, 4, 4))
+    K[:, 0, 0] = 1.0 + m00 + m11 + m22
+    K[:, 1, 1] = 1.0 + m00 - m11 - m22
+    K[:, 2, 2] = 1.0 + m11 - m00 - m22
+    K[:, 3, 3] = 1.0 + m22 - m00 - m11
+    K[:, 0, 1] = K[:, 1, 0] = F[:, 7] - F[:, 5]      # 4 w x
+    K[:, 0, 2] = K[:, 2, 0] = F[:, 2] - F[:, 6]      # 4 w y
+    K[:, 0, 3] = K[:, 3, 0] = F[:, 3] - F[:, 1]      # 4 w z
+    K[:, 1, 2] = K[:, 2, 1] = F[:, 1] + F[:, 3]      # 4 x y
+    K[:, 1, 3] = K[:, 3, 1] = F[:, 2] + F[:, 6]      # 4 x z
+    K[:, 2, 3] = K[:, 3, 2] = F[:, 5] + F[:, 7]      # 4 y z
+    rows = np.arange(n)
+    k = np.argmax(K[:, [0, 1, 2, 3], [0, 1, 2, 3]], axis=1)
+    quat = K[rows, k]                                  # 4 q_k q
+    quat /= (2.0 * np.sqrt(quat[rows, k]))[:, None]    # q (up to sign)
     quat[quat[:, 0] < 0] *= -1.0
     return quat
 
