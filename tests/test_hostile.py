@@ -330,10 +330,13 @@ def test_signal_ends_with_one_line_and_no_partial_files(signum, code, big_csv, o
     stderr line says so, no traceback, no output created or changed."""
     before = snapshot(out)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    # (SIGINT at its default disposition: a shell's background job inherits it ignored, and a
+    # program rightly keeps it so)
     proc = subprocess.Popen([sys.executable, "-m", "calib", "calibrate", URDF, str(big_csv), "-o",
                              str(out / "calibrated.urdf"), "--report", str(out / "report.json"),
                              "--plots", str(out / "plots"), "-v"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=ROOT, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=ROOT, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     log = []
     for line in proc.stderr:
         log.append(line)
@@ -359,6 +362,9 @@ def test_signal_in_process_prints_exactly_one_line(signum, code, sim, out, capfd
 
     d, _, _ = sim
     real = cli.calibrate
+    # Python's KeyboardInterrupt handler, as in a foreground process (a background job of a
+    # shell inherits SIGINT ignored; the test is about what calib does with it)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
 
     def interrupted(*args, **kwargs):
         os.kill(os.getpid(), signum)
@@ -367,7 +373,10 @@ def test_signal_in_process_prints_exactly_one_line(signum, code, sim, out, capfd
 
     monkeypatch.setattr(cli, "calibrate", interrupted)
     before = snapshot(out)
-    code_, stdout, err = run_cli(capfd, ["calibrate", URDF, d / "cal.csv", "-o", out / "calibrated.urdf"])
+    try:
+        code_, stdout, err = run_cli(capfd, ["calibrate", URDF, d / "cal.csv", "-o", out / "calibrated.urdf"])
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert (code_, stdout, err) == (code, "", f"calib: interrupted by {signal.Signals(signum).name}\n")
     assert snapshot(out) == before
 
