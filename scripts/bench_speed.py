@@ -15,7 +15,7 @@ Prints, for the bundled robot (BRTIRUS0707A, the paper's deviations of Tables 4-
    ``python -c "import pinocchio"``, medians of several runs after one to warm the caches, with
    the bytecode cached as after an install.
 4. The scaling table, 100 / 1k / 10k / 100k / 1M poses up to ``--max-poses`` (default 100,000:
-   1M takes minutes and gigabytes with the current solver): wall time of ``calibrate()`` and its
+   1M adds about two minutes: two calibrations of ~55 s, ~0.4 GB above the data): wall time of ``calibrate()`` and its
    peak memory above the loaded data (tracemalloc, which numpy reports its arrays to, started
    after the data are made), each size in a fresh subprocess; then t(100k) / t(10k).
 5. With ``--study``, the 63 x 63 convergence study of scripts/reproduce_paper.py on 2 workers
