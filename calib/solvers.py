@@ -80,9 +80,11 @@ class SolverResult:
     """What every solver returns (compare scipy's ``OptimizeResult``).
 
     x : (n_free,) the free parameter values (SI units); cost : 1/2 |r|^2 of the weighted
-    residuals at x; status : "converged", "max_iterations", "diverged" or "local_minimum";
-    message : why it stopped; iterations : LM iterations in all; rounds : C-LM rounds or
-    search-lm searches (1 for LM).
+    residuals at x (after a last step taken unjudged, :attr:`LMOptions.last_step`: the Gauss-Newton
+    model's prediction of it, not evaluated; off by more than ftol only where the step runs along
+    parameters the data do not determine); status : "converged", "max_iterations", "diverged" or
+    "local_minimum"; message : why it stopped; iterations : LM iterations in all; rounds : C-LM
+    rounds or search-lm searches (1 for LM).
     """
 
     x: np.ndarray = field(repr=False)

@@ -1,0 +1,122 @@
+"""The least-squares normal equations (computed on the transposed Jacobian layout, with the blocks
+kept for whitened_blocks) against the per-pose path the robust losses take, and the LM's stop on
+the Gauss-Newton model's predicted decrease against the cost evaluated at the point it returns.
+
+A Huber loss whose threshold no residual reaches rescales every pose by exactly 1: its normal
+equations are the least-squares ones, computed the other way (pose by pose, _assemble).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import calib
+import calib.solvers as solvers
+from calib.calibration import target_rows
+from calib.kinematics import ChainKinematics
+from calib.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
+from calib.solvers import LMOptions, Problem, levenberg_marquardt
+from calib.spatial import zyx_transform
+
+from conftest import BUNDLED_URDF
+
+#: flange->target offsets of a three-target model (metres)
+OFFSETS = [(0.10, 0.0, 0.05), (-0.05, 0.08, 0.05), (0.0, -0.07, 0.10)]
+
+
+def _data(kind: str, position_only: bool):
+    """(model, measurements, targets column or None) of 25 simulated rows."""
+    robot = calib.load_robot(BUNDLED_URDF)
+    if kind == "compliance":
+        from calib.compliance import Payload, with_gravity
+
+        robot = with_gravity(calib.load_robot("ur10"), payload=Payload(10.0, np.array([0.0, 0.03, 0.1])),
+                             values=np.array([0.0, 3e-6, 4e-6, 5e-6, 0.0, 0.0]))
+    ids = None
+    if kind == "targets":
+        refs = np.array([robot.T_flange_tool_ref @ zyx_transform(*o, 0.0, 0.0, 0.0) for o in OFFSETS])
+        robot = robot.with_targets(("A", "B", "C"), refs)
+        # rows of each target scattered over the data (not contiguous)
+        ids = np.array(["A", "B", "C"])[np.random.default_rng(0).integers(0, 3, 25)]
+    true = apply_deviations(robot, random_deviations(robot, 2e-4, 3))
+    meas = simulate_measurements(true, robot.random_configurations(25, 5), rng=4, position_only=position_only,
+                                 targets=ids)
+    return robot, meas, target_rows(robot, meas)
+
+
+def _problem(robot, meas, targets, loss="linear"):
+    # Huber at 1e12 sigma: every pose rescaled by exactly 1 (the per-pose path, same values)
+    return Problem(ChainKinematics(robot), meas.q, meas.position, meas.rotation, robot.values,
+                   np.arange(robot.n_params), 2e-5, 2e-3, loss=loss, loss_scale=1e12, targets=targets)
+
+
+def _close(a, b, name):
+    if a is None or b is None:
+        assert a is None and b is None, name
+        return
+    np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10 * np.max(np.abs(b)), err_msg=name)
+
+
+@pytest.mark.parametrize("chunk", [2048, 7])
+@pytest.mark.parametrize("position_only", [False, True])
+@pytest.mark.parametrize("kind", ["bundled", "targets", "compliance"])
+def test_least_squares_normal_equations_equal_the_per_pose_path(monkeypatch, kind, position_only, chunk):
+    monkeypatch.setattr(solvers, "CHUNK_POSES", chunk)     # 7: four chunks, no kept blocks
+    robot, meas, targets = _data(kind, position_only)
+    x = robot.values + np.random.default_rng(1).normal(size=robot.n_params) * 1e-4
+    keep = np.arange(25) % 3 != 0
+    for parts in ("pose", "position") + (() if position_only else ("rotation",)):
+        linear = _problem(robot, meas, targets)
+        per_pose = _problem(robot, meas, targets, loss="huber")
+        a, b = linear.normal_equations(x, parts), per_pose.normal_equations(x, parts)
+        for name in ("A", "g", "A_pos", "A_rot"):
+            _close(getattr(a, name), getattr(b, name), f"{parts} {name}")
+        assert (a.n_pos, a.n_rot) == (b.n_pos, b.n_rot)
+        r = linear.residuals(x, parts)
+        assert a.cost == pytest.approx(0.5 * float(r @ r), rel=1e-12)
+        assert a.cost == pytest.approx(b.cost, rel=1e-12)
+        # a subset of the rows at other weights, after its parent's normal equations were cached
+        sub = linear.derived(keep=keep)
+        sub.normal_equations(x, parts)
+        c = sub.derived(sigma_pos=7e-5, sigma_rot=1e-3).normal_equations(x, parts)
+        d = per_pose.derived(keep=keep, sigma_pos=7e-5, sigma_rot=1e-3).normal_equations(x, parts)
+        for name in ("A", "g", "A_pos", "A_rot"):
+            _close(getattr(c, name), getattr(d, name), f"{parts} subset {name}")
+    # whitened blocks (from the kept blocks when one chunk) against the per-pose path
+    for lin, ref in ((_problem(robot, meas, targets), _problem(robot, meas, targets, loss="huber")),):
+        lin = lin.derived(keep=keep, sigma_pos=3e-5)
+        lin.normal_equations(x)
+        assert (lin._kept_blocks(x) is not None) == (chunk > 25)
+        got = list(lin.whitened_blocks(x, raw=True))
+        want = list(ref.derived(keep=keep, sigma_pos=3e-5).whitened_blocks(x, raw=True))
+        assert len(got) == len(want) == -(-int(keep.sum()) // chunk)
+        for (r1, Jw1, J1), (r2, Jw2, J2) in zip(got, want):
+            for u, v, name in ((r1, r2, "r"), (Jw1, Jw2, "Jw"), (J1, J2, "J")):
+                _close(u, v, name)
+
+
+def test_lm_stop_on_the_predicted_decrease():
+    """last_step=True: the step taken unjudged; its reported cost (the model's prediction) is the
+    cost at the returned x to within ftol of it (identifiable parameters: in a rank-deficient
+    problem the step can run along the null space, where the model says nothing). last_step=False: the last evaluated point, with
+    its evaluated cost, one step before."""
+    robot = calib.load_robot(BUNDLED_URDF)
+    meas = simulate_measurements(apply_deviations(robot, PAPER_DEVIATIONS), robot.random_configurations(40, 2),
+                                 rng=3)
+    free = robot.indices(calib.analyze_identifiability(robot, meas.q).identifiable)
+    x0 = robot.values[free] + np.random.default_rng(0).normal(size=len(free)) * 1e-3
+    for ftol in (1e-12, 1e-5):
+        prob = Problem(ChainKinematics(robot), meas.q, meas.position, meas.rotation, robot.values, free, 2e-5, 2e-3)
+        taken = levenberg_marquardt(prob, x0, "pose", LMOptions(ftol=ftol))
+        stopped = levenberg_marquardt(prob, x0, "pose", LMOptions(ftol=ftol, last_step=False))
+        assert "predicted decrease is below tolerance" in taken.message
+        assert taken.iterations == stopped.iterations
+        # (a cost is reproducible to ~1e-12 of it: the normal equations' sums and the residual
+        # vector's add the same squares in other orders). Here the model's prediction is far
+        # better than ftol: the step is ~1e-7 and the model exact to second order
+        r = prob.residuals(taken.x)
+        assert abs(0.5 * float(r @ r) - taken.cost) <= 1e-10 * taken.cost
+        r = prob.residuals(stopped.x)
+        assert stopped.cost == pytest.approx(0.5 * float(r @ r), rel=1e-11)
+        assert 0.0 <= stopped.cost - taken.cost <= ftol * stopped.cost
+        assert np.max(np.abs(taken.x - stopped.x)) > 0.0
