@@ -16,8 +16,10 @@ calib's LM (the default variant) solves ``(J^T J + mu D) dx = -J^T r`` with D = 
 noise-weighted residuals defined as model - measured. mu starts at 1e-3; a step that lowers the
 cost is accepted and mu divided by lambda = 10, otherwise mu is multiplied by lambda and the step
 retried. It stops when a step lowers the cost by less than ftol times the cost, or when the
-Gauss-Newton model predicts that of the next step (that step is then taken unjudged: near the
-minimum the actual decrease is rounding noise, and judging it would only reject steps). This differs from the paper's Eq. (27)-(28) as printed (mu I, mu reset to 0.001
+Gauss-Newton model predicts that of the next step; that step is then evaluated once and kept
+unless it raises the cost beyond its rounding (COST_RTOL; near the minimum the actual decrease is
+rounding noise: judging it by "lower or retry" would only reject steps until the damping
+saturates). This differs from the paper's Eq. (27)-(28) as printed (mu I, mu reset to 0.001
 lambda^+-1, unweighted residuals): that variant is :mod:`calib.paper_lm`.
 
 Memory and time are linear in the number of poses: the solvers work on the normal equations
@@ -47,6 +49,10 @@ CHI2_ESCAPE = 10.0
 #: LM trial steps compute the normal equations with the cost below this many poses (see
 #: levenberg_marquardt).
 FUSE_BELOW_POSES = 2048
+#: A cost is reproducible only to about 1e-12 .. 1e-10 of it (the rounding of the modelled
+#: positions, ~1e-16 m, against a noise level of microns): LM's last step is kept unless it
+#: raises the cost by more than this fraction (or ftol, if larger).
+COST_RTOL = 1e-9
 STATUSES = ("converged", "max_iterations", "diverged", "local_minimum")
 
 
@@ -61,8 +67,9 @@ class LMOptions:
     xtol: float = 1e-12            # ... or the scaled step is below xtol
     gtol: float = 1e-14            # ... or the scaled gradient is below gtol
     max_mu: float = 1e16
-    #: take the last step (the one whose predicted decrease is below ftol) without evaluating it;
-    #: False: stop at the last evaluated point (whose normal equations are then at hand)
+    #: take the last step (the one whose predicted decrease is below ftol), evaluated once and
+    #: kept unless it raises the cost by more than max(ftol, COST_RTOL) of it; False: stop before it, at the last
+    #: point of the iterations (whose normal equations are then at hand)
     last_step: bool = True
 
     def __post_init__(self):
@@ -80,9 +87,7 @@ class SolverResult:
     """What every solver returns (compare scipy's ``OptimizeResult``).
 
     x : (n_free,) the free parameter values (SI units); cost : 1/2 |r|^2 of the weighted
-    residuals at x (after a last step taken unjudged, :attr:`LMOptions.last_step`: the Gauss-Newton
-    model's prediction of it, not evaluated; off by more than ftol only where the step runs along
-    parameters the data do not determine); status : "converged", "max_iterations", "diverged" or
+    residuals at x; status : "converged", "max_iterations", "diverged" or
     "local_minimum"; message : why it stopped; iterations : LM iterations in all; rounds : C-LM
     rounds or search-lm searches (1 for LM).
     """
@@ -464,6 +469,15 @@ def robust_scaling(r: np.ndarray, J: np.ndarray | None, loss: str, c: float):
     return r_out, J * (drho / f)[:, None, None]
 
 
+def _trial_cost(problem: Problem, x: np.ndarray, parts: str, fuse: bool) -> float:
+    """The cost at a trial point: with ``fuse`` from its normal equations (kept for the next
+    step), else from the residuals alone."""
+    if fuse:
+        return problem.normal_equations(x, parts).cost
+    r = problem.residuals(x, parts)
+    return 0.5 * float(r @ r)
+
+
 def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
                         options: LMOptions = LMOptions(), trace: LMTrace | None = None) -> SolverResult:
     """Minimise 1/2 |r(x)|^2 from x0 (calib's LM, see the module docstring).
@@ -505,27 +519,30 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
                 step = None
             if step is not None and first_try and np.all(np.isfinite(step)):
                 # converged when even the Gauss-Newton model of the cost promises a decrease below
-                # the tolerance: the step is taken without judging it (near the minimum its actual
-                # decrease is rounding noise, and judging it would reject steps until the damping
-                # saturates, a residual evaluation each)
+                # the tolerance. Near the minimum a step's actual decrease is rounding noise, and
+                # judging it by "lower or rejected" would reject steps until the damping
+                # saturates, a residual evaluation each: the step is evaluated once and kept
+                # unless it raises the cost beyond its rounding (it can, along parameters the data
+                # do not determine)
                 first_try = False
                 predicted = -float(g @ step) - 0.5 * float(step @ (A @ step))
                 if predicted <= options.ftol * cost:
-                    if not options.last_step:
-                        return SolverResult(x, cost, "converged", f"converged after {it} iterations (the "
-                                            f"next step's predicted decrease is below tolerance)",
-                                            trace.iterations - it0)
-                    return SolverResult(x + step, cost - max(predicted, 0.0), "converged",
-                                        f"converged after {it + 1} iterations (the last step's predicted "
-                                        f"decrease is below tolerance)", trace.iterations - it0)
+                    if options.last_step:
+                        x_new = x + step
+                        trace.evaluations += 1
+                        cost_new = _trial_cost(problem, x_new, parts, fuse)
+                        if cost_new <= cost * (1.0 + max(options.ftol, COST_RTOL)):
+                            return SolverResult(x_new, cost_new, "converged",
+                                                f"converged after {it + 1} iterations (the last step's "
+                                                f"predicted decrease is below tolerance)",
+                                                trace.iterations - it0)
+                    return SolverResult(x, cost, "converged", f"converged after {it} iterations (the "
+                                        f"next step's predicted decrease is below tolerance)",
+                                        trace.iterations - it0)
             if step is not None and np.all(np.isfinite(step)):
                 x_new = x + step
                 trace.evaluations += 1
-                if fuse:    # the trial's normal equations with its cost (kept for the next step)
-                    cost_new = problem.normal_equations(x_new, parts).cost
-                else:       # residuals only
-                    r_new = problem.residuals(x_new, parts)
-                    cost_new = 0.5 * float(r_new @ r_new)
+                cost_new = _trial_cost(problem, x_new, parts, fuse)
             else:
                 cost_new = np.inf
             if cost_new < cost:
