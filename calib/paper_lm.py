@@ -143,26 +143,41 @@ class _PaperResiduals:
         x[self.sub] = x_sub_paper / self.col_scale
         pb.kin.set_values(pb.full(x))
         R, p, J = pose_jacobian(pb.kin, pb.Q, pb.free[self.sub])     # (the subset's columns only)
+        N, m = len(p), len(self.sub)
         dp, w = J[:, :3], J[:, 3:]
-        res, jac = [], []
-        if self.parts in ("pose", "position"):
-            if self.translation == "differential":
-                # translation of I - T_meas T_model^-1 = E p - p_meas with E = R_meas R^T
-                E = self.R_meas @ np.transpose(R, (0, 2, 1))
-                res.append(np.einsum("nij,nj->ni", E, p) - pb.p_meas)
-                jac.append(dp - np.cross(w, p[:, :, None], axisa=1, axisb=1, axisc=1))
-            else:
-                res.append(p - pb.p_meas)
-                jac.append(dp)
-            res[-1] = res[-1] * MM_PER_M
-            jac[-1] = jac[-1] * MM_PER_M
-        if self.parts in ("pose", "rotation"):
+        pos = self.parts in ("pose", "position")
+        rot = self.parts in ("pose", "rotation")
+        k = 3 * pos + 3 * rot
+        res, jac = np.empty((N, k)), np.empty((N, k, m))
+        E = None
+        if rot or self.translation == "differential":
             E = self.R_meas @ np.transpose(R, (0, 2, 1))
+        if pos:
+            if self.translation == "differential":
+                # translation of I - T_meas T_model^-1 = E p - p_meas with E = R_meas R^T; its
+                # derivative dp - w x p
+                res[:, :3] = np.einsum("nij,nj->ni", E, p) - pb.p_meas
+                px, py, pz = (p[:, i, None] for i in range(3))
+                jac[:, 0] = dp[:, 0] - (w[:, 1] * pz - w[:, 2] * py)
+                jac[:, 1] = dp[:, 1] - (w[:, 2] * px - w[:, 0] * pz)
+                jac[:, 2] = dp[:, 2] - (w[:, 0] * py - w[:, 1] * px)
+            else:
+                res[:, :3] = p - pb.p_meas
+                jac[:, :3] = dp
+            res[:, :3] *= MM_PER_M
+            jac[:, :3] *= MM_PER_M
+        if rot:
+            o = 3 * pos
             # entries (1,2), (1,3), (2,3) of I - E, and of [w] for the Jacobian
-            res.append(-np.stack([E[:, 0, 1], E[:, 0, 2], E[:, 1, 2]], axis=1))
-            jac.append(np.stack([-w[:, 2], w[:, 1], -w[:, 0]], axis=1))
-        r = np.concatenate(res, axis=1).reshape(-1)
-        Jp = np.concatenate(jac, axis=1).reshape(len(r), -1) / self.col_scale
+            res[:, o] = -E[:, 0, 1]
+            res[:, o + 1] = -E[:, 0, 2]
+            res[:, o + 2] = -E[:, 1, 2]
+            jac[:, o] = -w[:, 2]
+            jac[:, o + 1] = w[:, 1]
+            jac[:, o + 2] = -w[:, 0]
+        r = res.reshape(-1)
+        Jp = jac.reshape(len(r), m)
+        Jp /= self.col_scale
         return r, Jp
 
 
