@@ -531,11 +531,21 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
                         x_new = x + step
                         trace.evaluations += 1
                         cost_new = _trial_cost(problem, x_new, parts, fuse)
-                        if cost_new <= cost * (1.0 + max(options.ftol, COST_RTOL)):
+                        kept = cost_new <= cost * (1.0 + max(options.ftol, COST_RTOL))
+                        if log.isEnabledFor(logging.INFO):     # calib -v
+                            log.info("LM iteration %d: the last step (predicted decrease %.3g) %s, cost "
+                                     "%.6g, %.1f ms", trace.iterations - it0, predicted,
+                                     "kept" if kept else "refused", cost_new if kept else cost,
+                                     (time.perf_counter() - t0) * 1e3)
+                        if kept:
                             return SolverResult(x_new, cost_new, "converged",
                                                 f"converged after {it + 1} iterations (the last step's "
                                                 f"predicted decrease is below tolerance)",
                                                 trace.iterations - it0)
+                    elif log.isEnabledFor(logging.INFO):
+                        log.info("LM iteration %d: stops before the last step (predicted decrease %.3g), "
+                                 "cost %.6g, %.1f ms", trace.iterations - it0, predicted, cost,
+                                 (time.perf_counter() - t0) * 1e3)
                     return SolverResult(x, cost, "converged", f"converged after {it} iterations (the "
                                         f"next step's predicted decrease is below tolerance)",
                                         trace.iterations - it0)
