@@ -277,7 +277,7 @@ class Problem:
             if sp == self.sigma_pos and sr == self.sigma_rot:
                 return ne
             return _reweighted(ne, g_pos, (sp / self.sigma_pos) ** 2, (sr / self.sigma_rot) ** 2)
-        ne, g_pos, blocks = self._compute_normal_equations(x, parts, keep_blocks=True)
+        ne, g_pos, blocks = self._compute_normal_equations(x, parts)
         for k, hit in shared.items():      # (the blocks of the latest point only: bounded memory)
             shared[k] = hit[:4] + (None,)
         shared[key] = (ne, g_pos, self.sigma_pos, self.sigma_rot, blocks)
@@ -294,16 +294,15 @@ class Problem:
         hit = shared.get((self.full(x).tobytes(), self.free.tobytes(), "pose", getattr(self, "_rows_key", None)))
         return None if hit is None else hit[4]
 
-    def _compute_normal_equations(self, x: np.ndarray, parts: str, keep_blocks: bool = False):
-        """(normal equations, the position rows' share of g); with ``keep_blocks`` also the
-        unweighted blocks they were summed from when the rows are one chunk and ``parts`` is
-        "pose" (Jt (m, 6, N), the rotation rows Jl^-1 Jt (m, 3 N) or None, residuals (3 N,) and
-        (3 N,) or None, laid out component first), else None: :meth:`whitened_blocks` at the
-        same x is then assembled from them without another pass over the data."""
+    def _compute_normal_equations(self, x: np.ndarray, parts: str):
+        """(normal equations, the position rows' share of g, blocks): the blocks are the
+        unweighted ones the least-squares sums were made of when the rows are one chunk and
+        ``parts`` is "pose" (Jt (m, 6, N), the rotation rows Jl^-1 Jt (m, 3 N) or None, residuals
+        (3 N,) and (3 N,) or None, laid out component first), else None: :meth:`whitened_blocks`
+        at the same x is then assembled from them without another pass over the data."""
         if self.loss != "linear":
-            ne, g_pos = self._compute_robust_normal_equations(x, parts)
-            return (ne, g_pos, None) if keep_blocks else (ne, g_pos)
-        wanted, keep_blocks = keep_blocks, keep_blocks and parts == "pose" and self.n_poses <= CHUNK_POSES
+            return self._compute_robust_normal_equations(x, parts) + (None,)
+        keep_blocks = parts == "pose" and self.n_poses <= CHUNK_POSES
         blocks = None
         self.kin.set_values(self.full(x))
         m = len(self.free)
@@ -348,7 +347,7 @@ class Problem:
         N = self.n_poses
         ne = NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1],
                              3 * N if use_pos else 0, 3 * N if use_rot else 0)
-        return (ne, g_pos, blocks) if wanted else (ne, g_pos)
+        return ne, g_pos, blocks
 
     def _compute_robust_normal_equations(self, x: np.ndarray, parts: str) -> tuple[NormalEquations, np.ndarray]:
         """:meth:`_compute_normal_equations` of a robust loss (residuals and Jacobian rescaled
@@ -478,6 +477,44 @@ def _trial_cost(problem: Problem, x: np.ndarray, parts: str, fuse: bool) -> floa
     return 0.5 * float(r @ r)
 
 
+def _damped_step(A: np.ndarray, d: np.ndarray, g: np.ndarray, mu: float) -> np.ndarray | None:
+    """The LM step -(A + mu diag(d))^-1 g, or None when the matrix is singular."""
+    try:
+        return -np.linalg.solve(A + mu * np.diag(d), g)
+    except np.linalg.LinAlgError:
+        return None
+
+
+def _usable(step: np.ndarray | None) -> bool:
+    return step is not None and bool(np.all(np.isfinite(step)))
+
+
+def _last_step(problem: Problem, x, step, cost: float, predicted: float, parts: str, fuse: bool,
+               options: LMOptions, trace: LMTrace, it: int, it0: int, t0: float) -> SolverResult:
+    """LM's end when the Gauss-Newton model predicts a decrease below ftol for ``step``. Near the
+    minimum a step's actual decrease is rounding noise, and judging it by "lower or retry" would
+    reject steps until the damping saturates, a residual evaluation each: with
+    ``options.last_step`` the step is evaluated once and kept unless it raises the cost beyond
+    its rounding (it can, along parameters the data do not determine); else LM stops before it."""
+    if options.last_step:
+        x_new = x + step
+        trace.evaluations += 1
+        cost_new = _trial_cost(problem, x_new, parts, fuse)
+        kept = cost_new <= cost * (1.0 + max(options.ftol, COST_RTOL))
+        if log.isEnabledFor(logging.INFO):     # calib -v
+            log.info("LM iteration %d: the last step (predicted decrease %.3g) %s, cost %.6g, %.1f ms",
+                     trace.iterations - it0, predicted, "kept" if kept else "refused",
+                     cost_new if kept else cost, (time.perf_counter() - t0) * 1e3)
+        if kept:
+            return SolverResult(x_new, cost_new, "converged", f"converged after {it + 1} iterations (the "
+                                f"last step's predicted decrease is below tolerance)", trace.iterations - it0)
+    elif log.isEnabledFor(logging.INFO):
+        log.info("LM iteration %d: stops before the last step (predicted decrease %.3g), cost %.6g, %.1f ms",
+                 trace.iterations - it0, predicted, cost, (time.perf_counter() - t0) * 1e3)
+    return SolverResult(x, cost, "converged", f"converged after {it} iterations (the next step's "
+                        f"predicted decrease is below tolerance)", trace.iterations - it0)
+
+
 def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
                         options: LMOptions = LMOptions(), trace: LMTrace | None = None) -> SolverResult:
     """Minimise 1/2 |r(x)|^2 from x0 (calib's LM, see the module docstring).
@@ -511,45 +548,15 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
         if np.max(np.abs(g) / np.sqrt(d), initial=0.0) <= options.gtol * max(np.sqrt(2 * cost), 1e-300):
             return SolverResult(x, cost, "converged", f"gradient below tolerance after {it} iterations",
                                 trace.iterations - it0)
-        first_try = True
+        step = _damped_step(A, d, g, mu)
+        if _usable(step):
+            # converged when even the Gauss-Newton model of the cost promises a decrease below the
+            # tolerance (see _last_step)
+            predicted = -float(g @ step) - 0.5 * float(step @ (A @ step))
+            if predicted <= options.ftol * cost:
+                return _last_step(problem, x, step, cost, predicted, parts, fuse, options, trace, it, it0, t0)
         while True:
-            try:
-                step = -np.linalg.solve(A + mu * np.diag(d), g)
-            except np.linalg.LinAlgError:
-                step = None
-            if step is not None and first_try and np.all(np.isfinite(step)):
-                # converged when even the Gauss-Newton model of the cost promises a decrease below
-                # the tolerance. Near the minimum a step's actual decrease is rounding noise, and
-                # judging it by "lower or rejected" would reject steps until the damping
-                # saturates, a residual evaluation each: the step is evaluated once and kept
-                # unless it raises the cost beyond its rounding (it can, along parameters the data
-                # do not determine)
-                first_try = False
-                predicted = -float(g @ step) - 0.5 * float(step @ (A @ step))
-                if predicted <= options.ftol * cost:
-                    if options.last_step:
-                        x_new = x + step
-                        trace.evaluations += 1
-                        cost_new = _trial_cost(problem, x_new, parts, fuse)
-                        kept = cost_new <= cost * (1.0 + max(options.ftol, COST_RTOL))
-                        if log.isEnabledFor(logging.INFO):     # calib -v
-                            log.info("LM iteration %d: the last step (predicted decrease %.3g) %s, cost "
-                                     "%.6g, %.1f ms", trace.iterations - it0, predicted,
-                                     "kept" if kept else "refused", cost_new if kept else cost,
-                                     (time.perf_counter() - t0) * 1e3)
-                        if kept:
-                            return SolverResult(x_new, cost_new, "converged",
-                                                f"converged after {it + 1} iterations (the last step's "
-                                                f"predicted decrease is below tolerance)",
-                                                trace.iterations - it0)
-                    elif log.isEnabledFor(logging.INFO):
-                        log.info("LM iteration %d: stops before the last step (predicted decrease %.3g), "
-                                 "cost %.6g, %.1f ms", trace.iterations - it0, predicted, cost,
-                                 (time.perf_counter() - t0) * 1e3)
-                    return SolverResult(x, cost, "converged", f"converged after {it} iterations (the "
-                                        f"next step's predicted decrease is below tolerance)",
-                                        trace.iterations - it0)
-            if step is not None and np.all(np.isfinite(step)):
+            if _usable(step):
                 x_new = x + step
                 trace.evaluations += 1
                 cost_new = _trial_cost(problem, x_new, parts, fuse)
@@ -565,6 +572,7 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
                 return SolverResult(x, cost, "converged",
                                     f"no step lowers the cost (damping saturated) after {it} "
                                     f"iterations; last scaled step {small:.3g}", trace.iterations - it0)
+            step = _damped_step(A, d, g, mu)
         scaled_step = np.sqrt(np.sum(d * step ** 2)) / max(np.sqrt(np.sum(d * x ** 2)), 1.0)
         decrease = cost - cost_new
         x, cost = x_new, cost_new
