@@ -34,16 +34,22 @@ OLD = b"output of an earlier run\n"
 
 
 # ====================================================================== helpers
+def _simulated_csv(tmp_path_factory, folder: str, name: str, n: int, seed: int):
+    """(folder, robot, measurements): n noisy poses of the bundled robot with the paper's
+    deviations, written to folder / name."""
+    d = tmp_path_factory.mktemp(folder)
+    robot = calib.load_robot(URDF)
+    rng = np.random.default_rng(seed)
+    true = apply_deviations(robot, PAPER_DEVIATIONS)
+    meas = calib.simulate_measurements(true, robot.random_configurations(n, rng), rng=rng)
+    calib.write_measurements(d / name, meas)
+    return d, robot, meas
+
+
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory):
     """40 noisy poses of the bundled robot with the paper's deviations (seed 3), as a CSV."""
-    d = tmp_path_factory.mktemp("hostile_data")
-    robot = calib.load_robot(URDF)
-    rng = np.random.default_rng(3)
-    true = apply_deviations(robot, PAPER_DEVIATIONS)
-    meas = calib.simulate_measurements(true, robot.random_configurations(40, rng), rng=rng)
-    calib.write_measurements(d / "cal.csv", meas)
-    return d, robot, meas
+    return _simulated_csv(tmp_path_factory, "hostile_data", "cal.csv", 40, 3)
 
 
 @pytest.fixture
@@ -315,13 +321,7 @@ def test_output_set_creates_its_folder_only_when_it_succeeds(tmp_path, monkeypat
 @pytest.fixture(scope="module")
 def big_csv(tmp_path_factory):
     """20,000 poses: calibrate takes several seconds, long enough to be interrupted."""
-    d = tmp_path_factory.mktemp("hostile_big")
-    robot = calib.load_robot(URDF)
-    rng = np.random.default_rng(5)
-    true = apply_deviations(robot, PAPER_DEVIATIONS)
-    calib.write_measurements(d / "big.csv", calib.simulate_measurements(
-        true, robot.random_configurations(20_000, rng), rng=rng))
-    return d / "big.csv"
+    return _simulated_csv(tmp_path_factory, "hostile_big", "big.csv", 20_000, 5)[0] / "big.csv"
 
 
 @pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
