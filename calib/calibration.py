@@ -30,7 +30,6 @@ import json
 import logging
 import math
 import time
-import weakref
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -1365,7 +1364,7 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
         if setup.val is not None:
             return _propagate(fit.model, Q, fit.free, cov, kin, rows)
         # at the calibration rows: the Jacobian of the fit's rows at its solution, computed once
-        return _propagated((J for _, _, J in _whitened_rows(problem.derived(loss="linear"), x)), len(Q), cov)
+        return _propagated((J for _, _, J in problem.derived(loss="linear").whitened_blocks(x, raw=True)), len(Q), cov)
 
     pos, rot = propagate(C)
     nz = fit.noise
@@ -1397,33 +1396,13 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     return Statistics(C, full_rank, rank, predicted, holdout, where)
 
 
-#: The blocks :func:`_whitened_rows` computed, per problem of one chunk (freed with the problem):
-#: x as bytes, [(r, Jw)].
-_ROWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def _whitened_rows(problem: Problem, x: np.ndarray):
-    """``problem.whitened_blocks(x, raw=True)``: per chunk of poses (r (n, k), Jw (n, k, m),
-    J (n, 6, m)), the weighted residual and Jacobian blocks of each pose and its pose Jacobian. A
-    problem of one chunk keeps them for the next call at the same x: the statistics (predictions,
-    held-out traces) and the cross-validation (the folds' normal equations) all pass over the
-    fit's rows at its solution."""
-    if problem.n_poses > CHUNK_POSES:     # (streamed: memory independent of N)
-        return problem.whitened_blocks(x, raw=True)
-    key = np.asarray(x, float).tobytes()
-    kept = _ROWS.get(problem)
-    if kept is None or kept[0] != key:
-        kept = _ROWS[problem] = key, list(problem.whitened_blocks(x, raw=True))
-    return kept[1]
-
-
 def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, float]:
     """Means over the rows of tr (I - H_ii)^-1 over the position and the rotation components
     (whitened units), H_ii = Jw_i C Jw_i^T the row's block of the hat matrix. A row whose
     leverage reaches 1 (it alone determines a parameter) counts as leverage 0.99."""
     t_p = t_r = 0.0
     n = 0
-    for _, Jw, _ in _whitened_rows(problem, x):
+    for _, Jw, _ in problem.whitened_blocks(x, raw=True):
         H = Jw @ C @ np.transpose(Jw, (0, 2, 1))                     # (n, k, k)
         M = np.empty_like(H)                                         # (I - H)^-1
         # H is positive semi-definite: a leverage can reach 0.99 only where its trace does
@@ -1465,7 +1444,7 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
         m = len(x0)
         A_fold, g_fold = np.zeros((folds, m, m)), np.zeros((folds, m))
         start = 0
-        for r, Jw, _ in _whitened_rows(kept, x0):
+        for r, Jw, _ in kept.whitened_blocks(x0, raw=True):
             lab = fold_of[start:start + len(r)]
             start += len(r)
             for f in range(folds):
@@ -1486,7 +1465,7 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
         dx = -np.einsum("fij,fj->fi", A_inv, g_all[None] - g_fold)       # (folds, m)
         # each row's whitened residual at its fold's refit, r + Jw dx, back in m and rad
         start = 0
-        for r, Jw, _ in _whitened_rows(kept, x0):
+        for r, Jw, _ in kept.whitened_blocks(x0, raw=True):
             lab = fold_of[start:start + len(r)]
             pred = r + np.einsum("nkm,nm->nk", Jw, dx[lab])
             e_p[start:start + len(r)] = np.sum(pred[:, :3] ** 2, axis=1) * kept.sigma_pos ** 2

@@ -198,7 +198,7 @@ class Problem:
             return self
         p = object.__new__(Problem)
         p.__dict__.update(self.__dict__)
-        p._last_ne = p._last_pr = None
+        p._last_ne = p._last_pr = p._last_wb = None
         if free is not None:
             p.free = np.asarray(free, int)
         if values is not None:
@@ -387,7 +387,11 @@ class Problem:
         of each pose at x (k = 6 with orientation data, else 3); with ``raw`` also the pose
         Jacobian (n, 6, m) they come from (:func:`calib.jacobian.pose_jacobian`)."""
         blocks = self._kept_blocks(x)
-        if blocks is not None:      # from the normal equations' pass at x
+        if blocks is not None:      # from the normal equations' pass at x (the last result kept)
+            last = getattr(self, "_last_wb", None)
+            if last is not None and last[0] is blocks:
+                yield last[1] if raw else last[1][:2]
+                return
             Jt, Jr, rp, rr = blocks
             m, _, n = Jt.shape
             J = np.ascontiguousarray(Jt.transpose(2, 1, 0))
@@ -398,6 +402,9 @@ class Problem:
             if rr is not None:
                 r[:, 3:] = rr.reshape(3, n).T / self.sigma_rot
                 Jw[:, 3:] = Jr.reshape(m, 3, n).transpose(2, 1, 0) / self.sigma_rot
+            for a in (r, Jw, J):
+                a.setflags(write=False)
+            self._last_wb = (blocks, (r, Jw, J))
             yield (r, Jw, J) if raw else (r, Jw)
             return
         self.kin.set_values(self.full(x))
