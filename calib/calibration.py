@@ -49,7 +49,7 @@ from .measurements import Measurements
 from .compliance import URDF_NOTE
 from .robot import RobotModel
 from .solvers import (CHI2_ESCAPE, CHUNK_POSES, LOSSES, LMOptions, LMTrace, NormalEquations, Problem,
-                      SolverResult, cross_lm, levenberg_marquardt, search_lm)
+                      SolverResult, normal_inverse, cross_lm, levenberg_marquardt, search_lm)
 from .spatial import inverse, log3_batch, zyx_parameters, zyx_transform
 
 log = logging.getLogger("calib.calibration")
@@ -978,40 +978,6 @@ def candidate_sets(robot: RobotModel, identifiable: Sequence[str]) -> list[tuple
 
 
 # ---------------------------------------------------------------- fit
-def _inverse(A: np.ndarray) -> tuple[np.ndarray, bool | np.ndarray]:
-    """A^-1 of a normal matrix (scaled to unit diagonal first), or its pseudo-inverse when rank
-    deficient, and whether it has full rank. A (..., m, m): a stack is inverted at once, with a
-    full-rank flag (bool array) per matrix."""
-    m = A.shape[-1]
-    As = A.reshape(-1, m, m)
-    d = np.sqrt(np.abs(np.diagonal(As, axis1=1, axis2=2)))
-    d[d == 0] = 1.0
-    outer = d[:, :, None] * d[:, None, :]
-    As = As / outer
-    full = np.zeros(len(As), bool)
-    inv, inverted = np.empty_like(As), False
-    if m:
-        try:
-            inv, inverted = np.linalg.inv(As), True
-            # full rank is s_min > 1e-12 s_max over the eigenvalues; with unit diagonal s_max <= m
-            # and 1 / s_min <= |A^-1|_F, so a small inverse proves it without the eigenvalues
-            # (a rounding-negative eigenvalue of a singular A makes the inverse huge; NaN fails)
-            full = m * np.sqrt(np.einsum("nij,nij->n", inv, inv)) < 1e12
-        except np.linalg.LinAlgError:   # an exactly singular matrix in the stack
-            pass
-    rest = np.flatnonzero(~full)
-    if m and rest.size:
-        s = np.abs(np.linalg.eigvalsh(As[rest]))    # singular values (symmetric), in half an SVD's time
-        ok = s.min(axis=1) > 1e-12 * s.max(axis=1)
-        full[rest[ok]] = True
-        if ok.any() and not inverted:
-            inv[rest[ok]] = np.linalg.inv(As[rest[ok]])
-    if not full.all():
-        inv[~full] = np.linalg.pinv(As[~full], rcond=1e-12, hermitian=True)
-    inv = (inv / outer).reshape(A.shape)
-    return (inv, bool(full[0])) if A.ndim == 2 else (inv, full.reshape(A.shape[:-2]))
-
-
 @dataclass(frozen=True)
 class _Linearised:
     """The least-squares normal equations ``ne`` of a problem's rows at a solution, their
@@ -1029,7 +995,7 @@ class _Linearised:
 def _linearised(problem: Problem, x: np.ndarray) -> _Linearised:
     """The :class:`_Linearised` of ``problem``'s rows at x (least squares whatever its loss)."""
     ne = problem.derived(loss="linear").normal_equations(x)
-    Ainv, full_rank = _inverse(ne.A)
+    Ainv, full_rank = normal_inverse(ne.A)
     share_p = float(np.trace(Ainv @ ne.A_pos)) if ne.A_pos is not None else 0.0
     share_r = float(np.trace(Ainv @ ne.A_rot)) if ne.A_rot is not None else 0.0
     return _Linearised(ne, Ainv, full_rank, ne.n_pos - share_p, ne.n_rot - share_r)
@@ -1377,7 +1343,7 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
         pos_e, rot_e = pos, rot
     else:
         A_eff = ne.A_pos / infl_p + (ne.A_rot / infl_r if ne.A_rot is not None else 0.0)
-        C_eff, _ = _inverse(A_eff)
+        C_eff, _ = normal_inverse(A_eff)
         pos_e, rot_e = propagate(C_eff)
     if setup.val is not None:
         # new rows at the validation configurations: the parameter error propagated there, plus
@@ -1453,7 +1419,7 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
                 g_fold[f] += Jf.T @ rf
         A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
         # the folds' refits: A without each fold's rows, inverted at once
-        A_inv, full = _inverse(A_all[None] - A_fold)
+        A_inv, full = normal_inverse(A_all[None] - A_fold)
         bad = np.flatnonzero(~full)
         if len(bad) and fit.full_rank:
             # without this fold the rows cannot identify the parameters: its prediction would be
@@ -1574,7 +1540,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         "auto": nested candidate sets (joint offsets and frames; + lengths; + twists; the
         identifiable set) compared by cross-validated held-out error, the smallest within one
         standard error of the best chosen; "paper": all but u_z, u_alpha, v_x, v_z, v_alpha,
-        v_gamma (Section 4.2); "all": every parameter (rank deficiency left to the damping); or
+        v_gamma (Section 4.2); "all": every parameter (LM takes minimum-norm steps: combinations the data do not
+        determine stay where they start, parameters without effect keep their values); or
         parameter names. Default (None): "auto" when the calibration rows hold fewer than
         AUTO_BELOW_COMPONENTS_PER_PARAM residual components per identifiable parameter, else "base".
     sigma_pos : position noise per axis, metres; sigma_rot : orientation noise per axis, radians.

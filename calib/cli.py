@@ -571,7 +571,7 @@ cross-validated error (--cv K, when there are no validation rows) measures it.
   base   the identifiable set at these poses (the default otherwise): redundant partners held
          at nominal
   paper  all but u_z, u_alpha, v_x, v_z, v_alpha, v_gamma (the paper's Section 4.2)
-  all    every parameter, the rank deficiency left to the damping
+  all    every parameter; combinations the data do not determine stay where they start
   LIST   comma-separated parameter names, e.g. theta2,d2,a2,alpha2,beta2
 
 Exit codes: 0 converged; 3 the fit did not converge or stopped in a local minimum (outputs

@@ -41,6 +41,7 @@ from .checks import (check_configurations, check_int, check_number, check_rng, c
 from .errors import DataError, ParameterError
 from .jacobian import MEASURES, identification_jacobian
 from .robot import RobotModel
+from .solvers import NO_EFFECT_RTOL
 
 #: Default noise levels used for row weighting (the paper's simulation, Section 4.3).
 SIGMA_POS_M = 0.02e-3
@@ -153,7 +154,7 @@ def observability_indices(J: np.ndarray) -> dict[str, float]:
 def no_effect(norms: np.ndarray, j: int) -> bool:
     """Whether column j is zero up to rounding (relative to the largest column of the
     noise-weighted Jacobian, whose columns all have the dimension 1 / unit of the parameter)."""
-    return bool(norms[j] <= 1e-10 * norms.max())
+    return bool(norms[j] <= NO_EFFECT_RTOL * norms.max())
 
 
 def select_identifiable(J: np.ndarray, order: Sequence[int], tol: float = RANK_TOL):

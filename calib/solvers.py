@@ -19,8 +19,12 @@ retried. It stops when a step lowers the cost by less than ftol times the cost, 
 Gauss-Newton model predicts that of the next step; that step is then evaluated once and kept
 unless it raises the cost beyond its rounding (COST_RTOL; near the minimum the actual decrease is
 rounding noise: judging it by "lower or retry" would only reject steps until the damping
-saturates). This differs from the paper's Eq. (27)-(28) as printed (mu I, mu reset to 0.001
-lambda^+-1, unweighted residuals): that variant is :mod:`calib.paper_lm`.
+saturates). A problem that is rank deficient at its start (a parameter set the data do not
+determine, e.g. "all") takes minimum-norm steps: no step moves along the combinations the data
+leave free at its point (a tie that curves, such as a twist turning the tool offset, is followed
+a bounded way), and parameters without effect (a Jacobian column of rounding noise) stay put.
+This differs from the paper's Eq. (27)-(28) as printed (mu I, mu reset to 0.001 lambda^+-1,
+unweighted residuals): that variant is :mod:`calib.paper_lm`.
 
 Memory and time are linear in the number of poses: the solvers work on the normal equations
 ``J^T J``, ``J^T r`` accumulated over chunks of poses (:meth:`Problem.normal_equations`), never on
@@ -53,6 +57,14 @@ FUSE_BELOW_POSES = 2048
 #: positions, ~1e-16 m, against a noise level of microns): LM's last step is kept unless it
 #: raises the cost by more than this fraction (or ftol, if larger).
 COST_RTOL = 1e-9
+#: A normal matrix scaled to unit diagonal is rank deficient when an eigenvalue is at most this
+#: times the largest (its computed eigenvalues are exact to ~1e-16 of the largest; a parameter
+#: combination below it has a standard deviation 1e6 times that of the best determined one):
+#: the statistics then use its pseudo-inverse and LM steps leave those combinations alone.
+RANK_RCOND = 1e-12
+#: A column of a Jacobian whose norm is at most this times the largest column's is zero up to
+#: rounding: the parameter has no effect on these data (LM does not move it).
+NO_EFFECT_RTOL = 1e-10
 STATUSES = ("converged", "max_iterations", "diverged", "local_minimum")
 
 
@@ -475,6 +487,41 @@ def robust_scaling(r: np.ndarray, J: np.ndarray | None, loss: str, c: float):
     return r_out, J * (drho / f)[:, None, None]
 
 
+def normal_inverse(A: np.ndarray) -> tuple[np.ndarray, bool | np.ndarray]:
+    """A^-1 of a normal matrix (scaled to unit diagonal first), or its pseudo-inverse when rank
+    deficient (an eigenvalue of the scaled matrix at most RANK_RCOND times the largest), and
+    whether it has full rank. A (..., m, m): a stack is inverted at once, with a full-rank flag
+    (bool array) per matrix."""
+    m = A.shape[-1]
+    As = A.reshape(-1, m, m)
+    d = np.sqrt(np.abs(np.diagonal(As, axis1=1, axis2=2)))
+    d[d == 0] = 1.0
+    outer = d[:, :, None] * d[:, None, :]
+    As = As / outer
+    full = np.zeros(len(As), bool)
+    inv, inverted = np.empty_like(As), False
+    if m:
+        try:
+            inv, inverted = np.linalg.inv(As), True
+            # full rank is s_min > RANK_RCOND s_max over the eigenvalues; with unit diagonal s_max <= m
+            # and 1 / s_min <= |A^-1|_F, so a small inverse proves it without the eigenvalues
+            # (a rounding-negative eigenvalue of a singular A makes the inverse huge; NaN fails)
+            full = m * np.sqrt(np.einsum("nij,nij->n", inv, inv)) < 1.0 / RANK_RCOND
+        except np.linalg.LinAlgError:   # an exactly singular matrix in the stack
+            pass
+    rest = np.flatnonzero(~full)
+    if m and rest.size:
+        s = np.abs(np.linalg.eigvalsh(As[rest]))    # singular values (symmetric), in half an SVD's time
+        ok = s.min(axis=1) > RANK_RCOND * s.max(axis=1)
+        full[rest[ok]] = True
+        if ok.any() and not inverted:
+            inv[rest[ok]] = np.linalg.inv(As[rest[ok]])
+    if not full.all():
+        inv[~full] = np.linalg.pinv(As[~full], rcond=RANK_RCOND, hermitian=True)
+    inv = (inv / outer).reshape(A.shape)
+    return (inv, bool(full[0])) if A.ndim == 2 else (inv, full.reshape(A.shape[:-2]))
+
+
 def _trial_cost(problem: Problem, x: np.ndarray, parts: str, fuse: bool) -> float:
     """The cost at a trial point: with ``fuse`` from its normal equations (kept for the next
     step), else from the residuals alone."""
@@ -484,12 +531,52 @@ def _trial_cost(problem: Problem, x: np.ndarray, parts: str, fuse: bool) -> floa
     return 0.5 * float(r @ r)
 
 
-def _damped_step(A: np.ndarray, d: np.ndarray, g: np.ndarray, mu: float) -> np.ndarray | None:
-    """The LM step -(A + mu diag(d))^-1 g, or None when the matrix is singular."""
-    try:
-        return -np.linalg.solve(A + mu * np.diag(d), g)
-    except np.linalg.LinAlgError:
-        return None
+def _without_inert(ne: NormalEquations) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(A, g, d = diag(A)) of the normal equations with the parameters that have no effect
+    (NO_EFFECT_RTOL: a Jacobian column of rounding noise) taken out: their rows and columns of
+    A and entries of g zero, d one. Marquardt's scaling would blow such a column up to the size
+    of the others and LM would move the parameter by noise / noise."""
+    A, g = ne.A, ne.g
+    d = np.diag(A).copy()
+    inert = d <= NO_EFFECT_RTOL ** 2 * max(d.max(initial=0.0), 0.0)
+    if inert.any():
+        A, g = A.copy(), np.where(inert, 0.0, g)
+        A[inert] = 0.0
+        A[:, inert] = 0.0
+        d[inert] = 1.0
+    return A, g, d
+
+
+class _DampedSystem:
+    """The LM steps ``-(A + mu diag(d))^-1 g`` of one iteration, for any damping mu.
+
+    ``minimum_norm`` (a rank-deficient problem): solved in the eigenbasis of A scaled to
+    diag(d) = 1, without the directions whose eigenvalue is at most RANK_RCOND times the largest.
+    Along a combination the data do not determine, the gradient is rounding noise and the
+    damped step noise / (mu d): as mu falls with each accepted step, LM would carry such a
+    combination without bound (an angle to 1e10 rad); here it stays where it started. The
+    eigendecomposition is made once per iteration and serves its retries.
+    """
+
+    def __init__(self, A: np.ndarray, d: np.ndarray, g: np.ndarray, minimum_norm: bool):
+        self.A, self.d, self.g = A, d, g
+        self.eig = None
+        if minimum_norm:
+            s = 1.0 / np.sqrt(d)
+            w, V = np.linalg.eigh(A * np.outer(s, s))
+            keep = w > RANK_RCOND * max(w[-1], 0.0)
+            V = V[:, keep] * s[:, None]           # back to the parameters' units
+            self.eig = (w[keep], V, V.T @ g)
+
+    def step(self, mu: float) -> np.ndarray | None:
+        """The step at damping mu, or None when there is none (a singular matrix)."""
+        if self.eig is not None:
+            w, V, Vg = self.eig
+            return -(V @ (Vg / (w + mu))) if len(w) else None
+        try:
+            return -np.linalg.solve(self.A + mu * np.diag(self.d), self.g)
+        except np.linalg.LinAlgError:
+            return None
 
 
 def _usable(step: np.ndarray | None) -> bool:
@@ -539,6 +626,8 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
         return SolverResult(x, cost, "diverged", "the cost is not finite at the start", 0)
     mu = options.mu0
     trace.costs.append(cost)
+    # a problem that is rank deficient at the start takes minimum-norm steps (see _DampedSystem)
+    minimum_norm = not normal_inverse(_without_inert(ne)[0])[1]
     # Few poses: a trial step computes the normal equations with its cost, in one pass over the
     # data instead of two when it is accepted (a Jacobian costs little more than the residuals
     # there). Only after an iteration whose first trial was accepted: a rejected trial wastes
@@ -549,13 +638,12 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
         trace.iterations += 1
         fuse = fuse_next
         fuse_next = few_poses
-        A, g = ne.A, ne.g
-        d = np.diag(A).copy()
-        d[d <= 0] = 1.0
+        A, g, d = _without_inert(ne)
         if np.max(np.abs(g) / np.sqrt(d), initial=0.0) <= options.gtol * max(np.sqrt(2 * cost), 1e-300):
             return SolverResult(x, cost, "converged", f"gradient below tolerance after {it} iterations",
                                 trace.iterations - it0)
-        step = _damped_step(A, d, g, mu)
+        system = _DampedSystem(A, d, g, minimum_norm)
+        step = system.step(mu)
         if _usable(step):
             # converged when even the Gauss-Newton model of the cost promises a decrease below the
             # tolerance (see _last_step)
@@ -579,7 +667,7 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
                 return SolverResult(x, cost, "converged",
                                     f"no step lowers the cost (damping saturated) after {it} "
                                     f"iterations; last scaled step {small:.3g}", trace.iterations - it0)
-            step = _damped_step(A, d, g, mu)
+            step = system.step(mu)
         scaled_step = np.sqrt(np.sum(d * step ** 2)) / max(np.sqrt(np.sum(d * x ** 2)), 1.0)
         decrease = cost - cost_new
         x, cost = x_new, cost_new

@@ -123,19 +123,91 @@ def test_lm_stop_on_the_predicted_decrease():
         assert np.max(np.abs(taken.x - stopped.x)) > 0.0
 
 
+class _Curved:
+    """A one-parameter least-squares problem, r(x) = (x, 1 + k x^2), duck-typed as a Problem:
+    near x = 0 the Gauss-Newton model predicts almost no decrease while a step raises the
+    actual cost by the curvature k."""
+
+    n_poses = 1
+
+    def __init__(self, k: float):
+        self.k = k
+
+    def residuals(self, x, parts="pose"):
+        return np.array([x[0], 1.0 + self.k * x[0] ** 2])
+
+    def normal_equations(self, x, parts="pose"):
+        r = self.residuals(x)
+        J = np.array([[1.0], [2.0 * self.k * x[0]]])
+        A = J.T @ J
+        return solvers.NormalEquations(A, J.T @ r, A, None, float(r @ r), 0.0, 2, 0)
+
+
 def test_lm_last_step_kept_only_if_it_does_not_raise_the_cost():
-    """Every parameter free on position-only data (rank deficient) and a loose ftol: the last
-    step runs along parameters the data do not determine, where the model's predicted decrease
-    says nothing; evaluated, it raises the cost by far more than ftol, so LM returns the point
-    before it, with that point's cost (the cost reported is always the one at the returned x)."""
+    """A loose ftol where the model's predicted decrease says nothing (a curved residual): the
+    last step, evaluated, raises the cost by far more than ftol, so LM returns the point before
+    it, with that point's cost (the cost reported is always the one at the returned x)."""
+    prob, x0 = _Curved(100.0), np.array([1.5e-5])
+    taken = levenberg_marquardt(prob, x0, "pose", LMOptions(ftol=1e-5))
+    stopped = levenberg_marquardt(prob, x0, "pose", LMOptions(ftol=1e-5, last_step=False))
+    assert "predicted decrease is below tolerance" in taken.message
+    r = prob.residuals(x0)
+    assert taken.cost == 0.5 * float(r @ r) == stopped.cost
+    np.testing.assert_array_equal(taken.x, x0)       # the step was refused here
+    np.testing.assert_array_equal(stopped.x, x0)
+    x1 = x0 - prob.normal_equations(x0).g / prob.normal_equations(x0).A[0, 0]
+    assert 0.5 * float(prob.residuals(x1) @ prob.residuals(x1)) > taken.cost * (1 + 1e-4)   # (the refused step)
+
+
+def test_lm_leaves_undetermined_parameters_where_they_start():
+    """Every parameter free on position-only data (rank deficient: the tool's orientation and
+    seven relations undetermined): LM takes minimum-norm steps, so no parameter runs off along
+    what the data do not fix (they went to 1e14 when the damping alone held them; parameters of
+    no effect do not move at all), and the fit
+    predicts the validation poses as the identifiable set's does."""
     robot = calib.load_robot(BUNDLED_URDF)
-    meas = simulate_measurements(apply_deviations(robot, PAPER_DEVIATIONS), robot.random_configurations(40, 2),
-                                 rng=3, position_only=True)
-    free = np.arange(robot.n_params)
-    prob = Problem(ChainKinematics(robot), meas.q, meas.position, None, robot.values, free, 2e-5, 2e-3)
-    taken = levenberg_marquardt(prob, robot.values, "pose", LMOptions(ftol=1e-5))
-    stopped = levenberg_marquardt(prob, robot.values, "pose", LMOptions(ftol=1e-5, last_step=False))
-    r = prob.residuals(taken.x)
-    assert taken.cost == pytest.approx(0.5 * float(r @ r), rel=1e-11)
-    assert taken.cost <= stopped.cost * (1 + 1e-5)
-    np.testing.assert_array_equal(taken.x, stopped.x)       # the step was refused here
+    true = apply_deviations(robot, PAPER_DEVIATIONS)
+    meas = simulate_measurements(true, robot.random_configurations(40, 2), rng=3, position_only=True)
+    val = robot.random_configurations(30, 5)
+    ident = robot.indices(calib.analyze_identifiability(robot, meas.q, measure="position").identifiable)
+    fits = {}
+    for label, free in (("all", np.arange(robot.n_params)), ("identifiable", ident)):
+        prob = Problem(ChainKinematics(robot), meas.q, meas.position, None, robot.values, free, 2e-5, 2e-3)
+        res = levenberg_marquardt(prob, robot.values[free], "pose", LMOptions())
+        assert res.status == "converged"
+        fits[label] = prob.full(res.x)
+    # (metres and radians; the ties are nonlinear: alpha6 turns the tool offset, v_y and v_z
+    # follow it, by 0.3 rad here: bounded, not fixed)
+    assert np.max(np.abs(fits["all"] - robot.values)) < 0.5
+    untouched = [robot.names.index(n) for n in ("v_alpha", "v_beta", "v_gamma")]   # no effect on positions
+    np.testing.assert_array_equal(fits["all"][untouched], robot.values[untouched])
+    p_true = ChainKinematics(true).frame_poses(val)[1]
+    err = {k: np.sqrt(np.mean(np.sum((ChainKinematics(robot.with_values(v)).frame_poses(val)[1] - p_true) ** 2, axis=1)))
+           for k, v in fits.items()}
+    assert err["identifiable"] < 1e-4
+    assert err["all"] < 1.5 * err["identifiable"] + 1e-6
+
+
+def test_minimum_norm_step_is_the_pseudo_inverse_step():
+    """The damped step of a rank-deficient system, in Marquardt's scaling: the pseudo-inverse
+    solution (nothing along the null vector), which solves the damped equations on the range."""
+    rng = np.random.default_rng(4)
+    J = rng.normal(size=(30, 6)) * np.array([1e3, 1.0, 1e-2, 5.0, 1.0, 1.0])
+    J[:, 5] = 2.0 * J[:, 1] - 0.5 * J[:, 3]          # an exact tie
+    A, g = J.T @ J, J.T @ rng.normal(size=30)
+    d = np.diag(A).copy()
+    s = 1.0 / np.sqrt(d)
+    for mu in (1e-3, 1e-9):
+        step = solvers._DampedSystem(A, d, g, True).step(mu)
+        As = A * np.outer(s, s)
+        # (As + mu P) restricted to the range of As (P its projector), pseudo-inverted
+        ref = -s * (np.linalg.pinv(As + mu * _range_projector(As), rcond=1e-10) @ (s * g))
+        np.testing.assert_allclose(step, ref, rtol=1e-8, atol=1e-12 * np.abs(ref).max())
+        w, V = np.linalg.eigh(As)
+        assert abs(V[:, 0] @ (step / s)) < 1e-9 * np.linalg.norm(step / s)   # no null component
+
+
+def _range_projector(As):
+    w, V = np.linalg.eigh(As)
+    Vr = V[:, w > 1e-12 * w[-1]]
+    return Vr @ Vr.T
