@@ -243,6 +243,7 @@ class ChainKinematics:
         self._pin = None
         self._pin_values = None
         self._plans: dict = {}
+        self._last_joint_terms = None
         self.compliance = compliance_term(robot)   # None without compliance (calib.compliance)
         self.n_targets = robot.n_targets
         self.set_values(robot.values)
@@ -324,12 +325,8 @@ class ChainKinematics:
         (Rt (3, 3, N), p (3, N)); with ``frames`` = (Rt_F (n + 1, 3, 3, N), p_F (n + 1, 3, N))
         also store the frame of each joint placement (before the joint's motion) in its first
         n entries."""
-        Qt = np.ascontiguousarray(np.asarray(Q, float).T)
+        Qt, c2, s2 = self._joint_terms(Q)
         N = Qt.shape[1]
-        cos_q, sin_q = np.cos(Qt), np.sin(Qt)
-        # R Rz(q): column 0 <- c col0 + s col1, column 1 <- c col1 - s col0
-        c2 = np.stack((cos_q, cos_q), axis=1)[:, :, None]      # (n, 2, 1, N)
-        s2 = np.stack((sin_q, -sin_q), axis=1)[:, :, None]
         rot_T, trans = self._rot_T, self._trans
         Rt = np.empty((3, 3, N))
         Rt[:] = rot_T[0, :, :, None]
@@ -350,6 +347,23 @@ class ChainKinematics:
                 Rt[:2] *= c2[k]
                 Rt[:2] += mixed
         return Rt, p
+
+    def _joint_terms(self, Q: np.ndarray):
+        """(Qt (n, N), c2, s2 (n, 2, 1, N)) of configurations Q (N, n) for :meth:`_walk`: the
+        joint values and the cosines and sines that turn a rotation's first two columns,
+        ``R Rz(q)``: column 0 <- c col0 + s col1, column 1 <- c col1 - s col0. Those of the last
+        Q are kept: an LM run walks the same configurations at every evaluation."""
+        Q = np.asarray(Q, float)
+        last = self._last_joint_terms
+        if last is not None and last[0].shape == Q.shape and np.array_equal(last[0], Q):
+            return last[1]
+        Qt = np.ascontiguousarray(Q.T)
+        cos_q, sin_q = np.cos(Qt), np.sin(Qt)
+        terms = (Qt, np.stack((cos_q, cos_q), axis=1)[:, :, None], np.stack((sin_q, -sin_q), axis=1)[:, :, None])
+        for a in terms:
+            a.setflags(write=False)
+        self._last_joint_terms = (Q.copy(), terms)
+        return terms
 
     @staticmethod
     def _attach(Rt: np.ndarray, p: np.ndarray, T: np.ndarray):
