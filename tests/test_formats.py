@@ -446,3 +446,21 @@ def test_joint_column_outside_the_chain_is_named_as_such(tmp_path):
         calib.read_measurements(src, robot)
     assert "joint 'joint1' of the URDF is not in the chain calibrated here (joint4, joint5, joint6" in str(err.value)
     assert "did you mean" not in str(err.value)
+
+
+def test_missing_gripper_column_names_the_tool_frame_before_it(tmp_path):
+    """Z1: the default chain ends with the gripper's joint; a tracker file of the six arm joints
+    is refused with the tool frame that leaves the gripper out, and that frame reads the file."""
+    from conftest import erd_urdf
+
+    urdf = erd_urdf("z1")
+    path = tmp_path / "z1.csv"
+    path.write_text("joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg,x_mm,y_mm,z_mm\n"
+                    "10,20,-30,5,15,25,300,10,200\n")
+    with pytest.raises(MeasurementFormatError,
+                       match=r"expected jointGripper_rad or jointGripper_deg; if jointGripper is a gripper, "
+                             r"not an axis of the measured arm, choose a tool frame before it: "
+                             r"--tool-frame gripperStator \(the link it is attached to\)"):
+        calib.read_measurements(path, calib.load_robot(urdf))
+    meas = calib.read_measurements(path, calib.load_robot(urdf, tool_frame="gripperStator"))
+    assert meas.q.shape == (1, 6) and meas.q[0, 2] == pytest.approx(math.radians(-30))

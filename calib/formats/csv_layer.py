@@ -488,6 +488,24 @@ class _Header:
                 self._outside = {n.lower() for n, j in joints.items() if j.kind != "fixed"} - inside
         return self._outside
 
+    def _trailing_hint(self, missing: list[int]) -> str:
+        """When the joints without a column end the chain (a gripper joint taken as the arm's
+        last axis), how to leave them out: a tool frame before the first of them."""
+        robot = self.robot
+        if not missing or missing != list(range(missing[0], robot.n_joints)) or missing[0] == 0:
+            return ""
+        from ..errors import CalibError
+        from ..urdf import UrdfDocument
+
+        try:
+            joint = UrdfDocument.read(robot.urdf_path).joints[robot.joints[missing[0]].name]
+        except (CalibError, OSError, KeyError):
+            return ""
+        names = ", ".join(robot.joints[i].name for i in missing)
+        return (f"; if {names} {'is a gripper' if len(missing) == 1 else 'are a gripper'}, not an axis of the "
+                f"measured arm, choose a tool frame before it: --tool-frame {joint.parent} (the link it is "
+                f"attached to) or a frame fixed to that link")
+
     def _spelling(self, valid_lower: str) -> str:
         base, sep, suffix = valid_lower.rpartition("_")
         for j in self.robot.joints:
@@ -509,7 +527,7 @@ class _Header:
                 self.fail(f"missing joint column{'s' if len(missing) > 1 else ''}: the header has "
                           f"{len(present)} joint columns but the robot has {robot.n_joints} joints "
                           f"({', '.join(robot.joint_names)}); expected "
-                          f"{'; '.join(expected(i) for i in missing)}")
+                          f"{'; '.join(expected(i) for i in missing)}{self._trailing_hint(missing)}")
         have_pos = [k for k in POSITION_COLUMNS if k in cols]
         if spec.position == "required" or have_pos:
             for k in POSITION_COLUMNS:
