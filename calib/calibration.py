@@ -93,6 +93,11 @@ MIN_REDUNDANCY = 6
 CV_FOLDS = 5
 #: Model selection cross-validates leave-one-out below this many calibration rows.
 LOO_BELOW_ROWS = 80
+#: Residual noise per axis beyond any calibration instrument's (laser trackers give hundredths
+#: of a millimetre, cameras and motion capture a few millimetres and milliradians): the data
+#: and the model disagree, whatever the fit's status says.
+IMPLAUSIBLE_NOISE_M = 0.010
+IMPLAUSIBLE_NOISE_RAD = 0.05
 
 
 # ====================================================================== accuracy
@@ -1700,6 +1705,12 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         notes.append(f"the fit converged but its residuals are {math.sqrt(nz.reduced_chi2):.1f} times the given "
                      f"noise (reduced chi^2 {nz.reduced_chi2:.3g}): a wrong sigma, or errors the model "
                      f"does not describe; omit the noise levels to estimate them from the data")
+    if nz.estimated and (nz.position > IMPLAUSIBLE_NOISE_M or (nz.rotation or 0.0) > IMPLAUSIBLE_NOISE_RAD):
+        level = (f"{nz.position * 1e3:.3g} mm" + ("" if nz.rotation is None else f" and {nz.rotation:.3g} rad"))
+        notes.append(f"the residuals after calibration are {level} per axis, beyond any measuring "
+                     f"instrument's noise: the data and the model disagree. Check the units of the columns, "
+                     f"which joint each column is, which frames were measured, and that the robot's base "
+                     f"did not move between rows")
 
     stats = statistics_stage(setup, fit, problem)
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
