@@ -282,9 +282,9 @@ def test_readme_real_measurements_example_runs_as_printed(tmp_path, monkeypatch,
     start = readme.index("### Real measurements")
     section = readme[start:readme.index("\n### ", start + 1)]
     commands = re.findall(r"^calib .*$", section, re.M)
-    assert len(commands) == 2
+    assert len(commands) == 3
     monkeypatch.chdir(tmp_path)
-    for command in commands:
+    for command in commands[:2]:
         assert main(shlex.split(command)[1:]) == 0
     out = capsys.readouterr().out
     for quoted in ("noise estimated from the residuals (4 re-weighted fits): position 1.026 mm, "
@@ -292,6 +292,15 @@ def test_readme_real_measurements_example_runs_as_printed(tmp_path, monkeypatch,
                    "cross-validated (leave-one-out) held-out RMS error: position 2.078 mm",
                    "predicted RMS error on new measured rows (calibration configurations): position 2.116 mm"):
         assert quoted in section and quoted in out
+    # the real data (the repository's example, the output written here)
+    args = shlex.split(commands[2])[1:]
+    args[args.index("examples/tiago_qualisys/measurements.csv")] = str(TIAGO_REAL)
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    for shown, printed in (("1.58 mm of noise per axis", "position 1.576 mm per axis"),
+                           ("predicts 2.95 mm on new rows", "position 2.948 mm"),
+                           ("against 2.92 mm\ncross-validated", "held-out RMS error: position 2.92 mm")):
+        assert shown in section and printed in out
 
 
 def test_no_spare_residuals_is_refused_and_cv_never_leaks(bundled_robot, paper_data):
