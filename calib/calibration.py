@@ -449,8 +449,9 @@ class CalibrationResult:
     parameters : the parameter table; free : names of the identified parameters.
     status : "converged", "max_iterations", "diverged" or "local_minimum" (an explicit lm / c-lm
     fit that a search from another start beats); success : status == "converged".
-    before, after : accuracy on the calibration rows; validation_before/after on the validation
-    rows (None without validation data); before_registered / validation_before_registered : the
+    before, after : accuracy on the calibration rows (outliers included); after_without_outliers :
+    the same without the rows flagged as outliers (None when none were); validation_before/after
+    on the validation rows (None without validation data); before_registered / validation_before_registered : the
     nominal model after a best-fit registration of the measurement frame only (None unless the
     measurement frame is far from the nominal one).
     noise : the noise levels of the fit (:class:`NoiseEstimate`); sigma_pos, sigma_rot : the same
@@ -495,6 +496,7 @@ class CalibrationResult:
     before_registered: AccuracyStats | None = field(default=None, repr=False)
     validation_before_registered: AccuracyStats | None = field(default=None, repr=False)
     targets: tuple[TargetAccuracy, ...] = field(default=(), repr=False)
+    after_without_outliers: AccuracyStats | None = field(default=None, repr=False)
 
     @property
     def success(self) -> bool:
@@ -562,6 +564,8 @@ class CalibrationResult:
                           "sigmas": o.sigmas} for o in self.outliers],
             "before": self.before.to_dict(),
             "after": self.after.to_dict(),
+            "after_without_outliers": None if self.after_without_outliers is None
+            else self.after_without_outliers.to_dict(),
             "before_registered": None if self.before_registered is None else {
                 "calibration": self.before_registered.to_dict(),
                 "validation": None if self.validation_before_registered is None
@@ -622,6 +626,8 @@ class CalibrationResult:
         if self.before_registered is not None:
             rows.append(("  before, frame registered", self.before_registered))
         rows.append(("calibration rows, after", self.after))
+        if self.after_without_outliers is not None:
+            rows.append(("  after, without outliers", self.after_without_outliers))
         if self.validation_after is not None:
             rows.append(("validation rows, before", self.validation_before))
             if self.validation_before_registered is not None:
@@ -1758,7 +1764,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         sigma_rot=nz.rotation if nz.rotation is not None else weights[1], notes=tuple(notes),
         outliers=fit.outliers, loss=loss, noise=nz, predicted_holdout=stats.predicted_holdout,
         cross_validation=cross, selection=selection, before_registered=breg,
-        validation_before_registered=vbreg, targets=per_target)
+        validation_before_registered=vbreg, targets=per_target,
+        after_without_outliers=after.subset(fit.keep) if fit.outliers else None)
 
 
 def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,

@@ -40,6 +40,13 @@ def test_flagging_finds_the_corrupted_rows(data, loss):
     assert all(o.position_error > 0.9e-3 for o in res.outliers)
     assert res.validation_after.position["rms"] < 1.2 * ref       # within 20% of the clean fit
     assert "outlier" in res.format() and res.to_dict()["outliers"][0]["row"] in bad_rows
+    # the accuracy after calibration with and without the flagged rows
+    inliers = res.after_without_outliers
+    assert len(inliers.position_errors) == 95 and len(res.after.position_errors) == 100
+    assert np.all(np.isin(inliers.position_errors, res.after.position_errors))
+    assert inliers.position["max"] < 0.9e-3 < res.after.position["max"]
+    assert "  after, without outliers       95 |" in res.format()
+    assert res.to_dict()["after_without_outliers"]["n_poses"] == 95
 
 
 @pytest.mark.parametrize("loss", ["huber", "soft_l1"])
@@ -52,7 +59,9 @@ def test_robust_loss_without_flagging(data, loss):
 
 def test_no_false_alarms_on_clean_data(data):
     robot, clean, _, val, _ = data
-    assert calib.calibrate(robot, clean).outliers == ()
+    res = calib.calibrate(robot, clean)
+    assert res.outliers == () and res.after_without_outliers is None
+    assert "without outliers" not in res.format()
 
 
 def test_wrong_sigma_removes_nothing(data):
