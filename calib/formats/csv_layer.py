@@ -492,7 +492,8 @@ class _Header:
         """When the joints without a column end the chain (a gripper joint taken as the arm's
         last axis), how to leave them out: a tool frame before the first of them."""
         robot = self.robot
-        if not missing or missing != list(range(missing[0], robot.n_joints)) or missing[0] == 0:
+        if (not missing or missing != list(range(missing[0], robot.n_joints)) or missing[0] == 0
+                or robot.urdf_path is None):     # (a model built in code: no URDF to name the link)
             return ""
         from ..errors import CalibError
         from ..urdf import UrdfDocument
