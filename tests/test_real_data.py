@@ -367,7 +367,7 @@ def test_real_tiago_data_held_out_configurations(tiago_real):
     after = np.sqrt(np.mean(res.validation_after.position_errors ** 2))
     assert np.sqrt(np.mean(res.validation_before.position_errors ** 2)) > 0.4
     assert after < 4.5e-3
-    assert after / 1.5 < res.predicted_holdout["position_rms"] < after * 1.5
+    assert after / 1.8 < res.predicted_holdout["position_rms"] < after       # (1.46 here)
 
 
 def test_data_the_model_cannot_fit_get_a_note(bundled_robot, tiago_real):
