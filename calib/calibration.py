@@ -1152,6 +1152,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     notes: list[str] = []
     first = True
     stuck = None
+    unjudged = False
     vce_total = 0
     two_groups = setup.measure == "pose"
     last_lin = None
@@ -1171,9 +1172,13 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
             # (pose data: the weights change the fit, so a re-weighted fit follows the first)
             loose = first and estimate and two_groups
             sol = _solve_logged(solve, problem, x, trace, first, loose=loose)
-            if first:   # judged at the starting weights, before they adapt to a stuck fit's residuals
+            if first or (unjudged and sol.status == "converged"):
+                # judged at the starting weights, before they adapt to a stuck fit's residuals;
+                # a first fit that stopped unconverged (the paper's LM at its iteration limit) is
+                # judged when a re-fit from it first calls itself converged
                 sol = _check_local_minimum(sol, problem, solve)
                 stuck = sol if sol.status == "local_minimum" else None
+                unjudged = sol.status != "converged" and stuck is None
             first = False
             x = sol.x
             if not estimate or sol.status == "diverged":
