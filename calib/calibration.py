@@ -85,6 +85,13 @@ LOCAL_MINIMUM_RATIO = 0.9
 #: origin are refused (wrong units or gross errors): the longest-range laser trackers measure
 #: to 160 m (Leica AT403, 320 m diameter), so 200 m bounds any tracker or camera set-up.
 TRACKER_RANGE_M = 200.0
+#: A calibrated model whose calibration rows keep a position RMS error above this fraction of
+#: the robot's reach, or an orientation RMS error above IMPLAUSIBLE_ROT_RAD, does not describe
+#: the data (a joint column in radians read as degrees leaves 60 % of a UR5's reach): a note
+#: says so. Real set-ups stay far below (a camera on a UR5 with an unmodelled gear error: 2 mm,
+#: 0.2 % of its reach, and 0.01 rad).
+IMPLAUSIBLE_REACH_FRACTION = 0.05
+IMPLAUSIBLE_ROT_RAD = 0.1
 #: Joint readings that agree to this (rad / m) are one configuration when counting distinct poses.
 DISTINCT_Q_TOL = 1e-9
 #: Residual components beyond the number of free parameters needed to estimate the noise.
@@ -1705,6 +1712,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         notes.append(f"the fit converged but its residuals are {math.sqrt(nz.reduced_chi2):.1f} times the given "
                      f"noise (reduced chi^2 {nz.reduced_chi2:.3g}): a wrong sigma, or errors the model "
                      f"does not describe; omit the noise levels to estimate them from the data")
+    notes += _implausible_fit_notes(robot, fit.errors)
 
     stats = statistics_stage(setup, fit, problem)
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
@@ -1753,6 +1761,24 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         outliers=fit.outliers, loss=loss, noise=nz, predicted_holdout=stats.predicted_holdout,
         cross_validation=cross, selection=selection, before_registered=breg,
         validation_before_registered=vbreg, targets=per_target)
+
+
+def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]:
+    """A note when the calibrated model leaves errors on its calibration rows that no robot and
+    instrument give (:data:`IMPLAUSIBLE_REACH_FRACTION` of the reach, :data:`IMPLAUSIBLE_ROT_RAD`):
+    the fit converged, but to data that do not belong to this robot as read."""
+    reach = _robot_memo("reach", robot, (), lambda: _reach(robot))
+    pos = after.position["rms"]
+    rot = after.rotation["rms"] if after.rotation is not None else 0.0
+    if not (pos > IMPLAUSIBLE_REACH_FRACTION * reach or rot > IMPLAUSIBLE_ROT_RAD):
+        return []
+    what = f"position RMS error {pos * 1e3:.4g} mm ({100 * pos / reach:.0f} % of the robot's reach " \
+           f"{reach * 1e3:.0f} mm)"
+    if after.rotation is not None:
+        what += f", orientation RMS error {rot:.3g} rad"
+    return [f"the calibrated model does not describe these measurements: on the calibration rows it "
+            f"leaves a {what}; check the joint units (degrees read as radians, or radians as "
+            f"degrees), the joint order, the robot, and the base and tool frames"]
 
 
 def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,

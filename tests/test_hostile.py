@@ -400,6 +400,29 @@ def test_gross_row_left_out_of_the_frame_estimate_and_flagged(sim):
             assert abs(p.identified - q.identified) < 3 * q.std + 1e-9, p.name
 
 
+def test_joints_in_radians_read_as_degrees_get_a_note_not_silence(sim):
+    """Every joint value divided by 57.3 (a radian column named _deg): within the limits, so
+    the reader cannot tell. The fit leaves errors of a third of a metre; it said only that it
+    stopped at the iteration limit (UR5: converged, exit 0). A clean fit gets no such note."""
+    from calib.calibration import _reach
+
+    _, robot, meas = sim
+    res = calib.calibrate(robot, replace(meas, q=np.radians(meas.q)), params="base", cv=0,
+                          outlier_k=None)
+    pos_rms = res.after.position["rms"]
+    assert pos_rms > 0.05                                   # metres: nothing like a calibration
+    reach = _reach(robot)                                   # metres: 1.225 m for this robot
+    bad = [n for n in res.notes if n.startswith("the calibrated model does not describe")]
+    assert bad == [f"the calibrated model does not describe these measurements: on the calibration "
+                   f"rows it leaves a position RMS error {pos_rms * 1e3:.4g} mm "
+                   f"({100 * pos_rms / reach:.0f} % of the robot's reach {reach * 1e3:.0f} mm), "
+                   f"orientation RMS error {res.after.rotation['rms']:.3g} rad; check the joint units "
+                   f"(degrees read as radians, or radians as degrees), the joint order, the robot, and "
+                   f"the base and tool frames"]
+    clean = calib.calibrate(robot, meas, params="base", cv=0)
+    assert not any("does not describe" in n for n in clean.notes)
+
+
 def test_robust_frame_estimate_ignores_a_row_a_million_km_off(sim):
     from calib.frames import estimate_frames, estimate_frames_robust
 
