@@ -191,7 +191,8 @@ OPTION_CASES = {
     # (extra arguments of calibrate, fragment, usage error?)
     "sigma 1e-300": (["--sigma-pos-mm", "1e-300"], r"sigma_pos must be between 1e-12 and 1", False),
     "sigma nan": (["--sigma-pos-mm", "nan"], r"argument --sigma-pos-mm: nan must be a finite number", True),
-    "sigma -1": (["--sigma-rot-rad", "-1"], r"argument --sigma-rot-rad: -1 must be a finite number >= 0", True),
+    "sigma -1": (["--sigma-rot-rad", "-1"], r"argument --sigma-rot-rad: -1 must be a finite number > 0$", True),
+    "sigma 0": (["--sigma-pos-mm", "0"], r"argument --sigma-pos-mm: 0 must be a finite number > 0$", True),
     "params empty": (["--params", ""], r"empty parameter list ''", False),
     "params comma": (["--params", ","], r"empty parameter list ','", False),
     "params unknown": (["--params", "d2,bogus"], r"bogus", False),
