@@ -460,8 +460,9 @@ class CalibrationResult:
     fit that a search from another start beats); success : status == "converged".
     before, after : accuracy on the calibration rows; validation_before/after on the validation
     rows (None without validation data); before_registered / validation_before_registered : the
-    nominal model after a best-fit registration of the measurement frame only (None unless the
-    measurement frame is far from the nominal one).
+    nominal model after a best-fit registration of the measurement frame, with the tool (or
+    target) frames at their closed-form estimates when those were far from the nominal ones
+    (None unless a frame was: the nominal model's errors otherwise).
     noise : the noise levels of the fit (:class:`NoiseEstimate`); sigma_pos, sigma_rot : the same
     numbers (sigma_rot is that of the weighting also for position-only data).
     predicted : the Cramer-Rao prediction of the calibrated model's RMS error against the true
@@ -1805,8 +1806,13 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     if val is not None:
         va = pose_errors(calibrated, val.q, val.position, val.rotation, kin, val_rows)
     breg = vbreg = None
-    if "measurement->base" in setup.rebased:
-        registered = register_measurement_frame(robot, cal)
+    if setup.rebased:
+        # the nominal geometry, with the tool or targets where the closed-form estimate put them
+        # when it moved them (an SMR's unknown offset is not an error of the robot), and the
+        # measurement frame registered by a best fit
+        ref = robot if setup.rebased == ("measurement->base",) else replace(
+            robot, T_flange_tool_ref=start.T_flange_tool_ref, T_flange_target_refs=start.T_flange_target_refs)
+        registered = register_measurement_frame(ref, cal)
         breg = pose_errors(registered, cal.q, cal.position, cal.rotation, targets=cal_rows)
         if val is not None:
             vbreg = pose_errors(registered, val.q, val.position, val.rotation, targets=val_rows)
