@@ -1838,19 +1838,24 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
 def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]:
     """A note when the calibrated model leaves errors on its calibration rows that no robot and
     instrument give (:data:`IMPLAUSIBLE_REACH_FRACTION` of the reach, :data:`IMPLAUSIBLE_ROT_RAD`):
-    the fit converged, but to data that do not belong to this robot as read."""
+    the fit ran, but on data that do not belong to this robot as read."""
     reach = _robot_memo("reach", robot, (), lambda: _reach(robot))
     pos = after.position["rms"]
     rot = after.rotation["rms"] if after.rotation is not None else 0.0
-    if not (pos > IMPLAUSIBLE_REACH_FRACTION * reach or rot > IMPLAUSIBLE_ROT_RAD):
+    what, check = [], []
+    if pos > IMPLAUSIBLE_REACH_FRACTION * reach:
+        what.append(f"a position RMS error of {pos * 1e3:.4g} mm ({100 * pos / reach:.0f} % of the robot's "
+                    f"reach {reach * 1e3:.0f} mm)")
+        check.append("the joint units (degrees read as radians, or radians as degrees), the joint order "
+                     "and the robot")
+    if rot > IMPLAUSIBLE_ROT_RAD:
+        what.append(f"an orientation RMS error of {rot:.3g} rad")
+        check.append("the orientation columns (quaternion order w, x, y, z; --euler sequence; angle "
+                     "units) and the tool frame")
+    if not what:
         return []
-    what = f"position RMS error {pos * 1e3:.4g} mm ({100 * pos / reach:.0f} % of the robot's reach " \
-           f"{reach * 1e3:.0f} mm)"
-    if after.rotation is not None:
-        what += f", orientation RMS error {rot:.3g} rad"
     return [f"the calibrated model does not describe these measurements: on the calibration rows it "
-            f"leaves a {what}; check the joint units (degrees read as radians, or radians as "
-            f"degrees), the joint order, the robot, and the base and tool frames"]
+            f"leaves {' and '.join(what)}; check {', and '.join(check)}"]
 
 
 def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,

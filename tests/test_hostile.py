@@ -401,10 +401,12 @@ def test_gross_row_left_out_of_the_frame_estimate_and_flagged(sim):
             assert abs(p.identified - q.identified) < 3 * q.std + 1e-9, p.name
 
 
-def test_joints_in_radians_read_as_degrees_get_a_note_not_silence(sim):
+def test_data_that_do_not_fit_the_robot_get_a_note_not_silence(sim):
     """Every joint value divided by 57.3 (a radian column named _deg): within the limits, so
     the reader cannot tell. The fit leaves errors of a third of a metre; it said only that it
-    stopped at the iteration limit (UR5: converged, exit 0). A clean fit gets no such note."""
+    stopped at the iteration limit (UR5: converged, exit 0). A clean fit gets no such note.
+    Quaternions in x, y, z, w order read as w, x, y, z: 1.4 rad RMS left (UR5: converged, exit 0,
+    nothing said); the note names the orientation columns."""
     from calib.calibration import _reach
 
     _, robot, meas = sim
@@ -415,13 +417,25 @@ def test_joints_in_radians_read_as_degrees_get_a_note_not_silence(sim):
     reach = _reach(robot)                                   # metres: 1.225 m for this robot
     bad = [n for n in res.notes if n.startswith("the calibrated model does not describe")]
     assert bad == [f"the calibrated model does not describe these measurements: on the calibration "
-                   f"rows it leaves a position RMS error {pos_rms * 1e3:.4g} mm "
-                   f"({100 * pos_rms / reach:.0f} % of the robot's reach {reach * 1e3:.0f} mm), "
-                   f"orientation RMS error {res.after.rotation['rms']:.3g} rad; check the joint units "
-                   f"(degrees read as radians, or radians as degrees), the joint order, the robot, and "
-                   f"the base and tool frames"]
+                   f"rows it leaves a position RMS error of {pos_rms * 1e3:.4g} mm "
+                   f"({100 * pos_rms / reach:.0f} % of the robot's reach {reach * 1e3:.0f} mm) and an "
+                   f"orientation RMS error of {res.after.rotation['rms']:.3g} rad; check the joint "
+                   f"units (degrees read as radians, or radians as degrees), the joint order and the "
+                   f"robot, and the orientation columns (quaternion order w, x, y, z; --euler "
+                   f"sequence; angle units) and the tool frame"]
     clean = calib.calibrate(robot, meas, params="base", cv=0)
     assert not any("does not describe" in n for n in clean.notes)
+    # quaternions written x, y, z, w and read as w, x, y, z: the note names the orientation
+    from scipy.spatial.transform import Rotation
+
+    xyzw = Rotation.from_matrix(meas.rotation).as_quat()            # written x, y, z, w
+    swapped = Rotation.from_quat(np.roll(xyzw, -1, axis=1)).as_matrix()   # read as w, x, y, z
+    res = calib.calibrate(robot, replace(meas, rotation=swapped), params="base", cv=0)
+    bad = [n for n in res.notes if n.startswith("the calibrated model does not describe")]
+    assert len(bad) == 1 and res.after.rotation["rms"] > 0.1
+    assert (f"an orientation RMS error of {res.after.rotation['rms']:.3g} rad; check " in bad[0]
+            and bad[0].endswith("the orientation columns (quaternion order w, x, y, z; --euler sequence; "
+                                "angle units) and the tool frame"))
 
 
 def test_copied_rows_get_a_note(sim):
