@@ -92,6 +92,10 @@ TRACKER_RANGE_M = 200.0
 #: 0.2 % of its reach, and 0.01 rad).
 IMPLAUSIBLE_REACH_FRACTION = 0.05
 IMPLAUSIBLE_ROT_RAD = 0.1
+#: A joint's length parameter (d, a) identified further than this fraction of the reach from its
+#: nominal value gets a note (no robot is built so far from its drawing; joint offsets and
+#: twists can be off by any angle, and the frames by any distance).
+IMPLAUSIBLE_LENGTH_FRACTION = 0.1
 #: Below this many residual components per free parameter (a mean leverage above 1 %), the
 #: outlier check always judges the rows against a robust (Huber) fit: a least-squares fit of
 #: few rows spreads gross errors over the others and inflates the noise estimate until none
@@ -1779,7 +1783,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         notes.append(f"the fit converged but its residuals are {math.sqrt(nz.reduced_chi2):.1f} times the given "
                      f"noise (reduced chi^2 {nz.reduced_chi2:.3g}): a wrong sigma, or errors the model "
                      f"does not describe; omit the noise levels to estimate them from the data")
-    notes += _implausible_fit_notes(robot, fit.errors)
+    notes += _implausible_fit_notes(robot, fit.errors) + _implausible_length_notes(robot, fit.model)
 
     stats = statistics_stage(setup, fit, problem)
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
@@ -1856,6 +1860,23 @@ def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]
         return []
     return [f"the calibrated model does not describe these measurements: on the calibration rows it "
             f"leaves {' and '.join(what)}; check {', and '.join(check)}"]
+
+
+def _implausible_length_notes(nominal: RobotModel, calibrated: RobotModel) -> list[str]:
+    """A note naming the link lengths (d, a of the joints) identified further than
+    :data:`IMPLAUSIBLE_LENGTH_FRACTION` of the reach from their nominal values: no robot is built
+    that far from its drawing (positions in metres named _mm shrink a UR5's 425 mm link to
+    0.6 mm and the fit converges at the noise; the URDF of another robot model)."""
+    reach = _robot_memo("reach", nominal, (), lambda: _reach(nominal))
+    far = [(p.name, b - a) for p, a, b in zip(nominal.parameters, nominal.values, calibrated.values)
+           if p.group == "joint" and p.unit == "m" and abs(b - a) > IMPLAUSIBLE_LENGTH_FRACTION * reach
+           and not (p.kind == "d" and nominal.prismatic[p.joint - 1])]   # (a slide's offset: any)
+    if not far:
+        return []
+    shown = ", ".join(f"{name} {dev * 1e3:+.1f} mm" for name, dev in far)
+    return [f"identified link lengths far from the URDF's: {shown} (more than "
+            f"{100 * IMPLAUSIBLE_LENGTH_FRACTION:g} % of the robot's reach {reach * 1e3:.0f} mm); check the "
+            f"length unit of the positions (metres named _mm?) and that the URDF is this robot's"]
 
 
 def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,

@@ -438,6 +438,24 @@ def test_data_that_do_not_fit_the_robot_get_a_note_not_silence(sim):
                                 "angle units) and the tool frame"))
 
 
+def test_positions_in_metres_named_mm_get_a_note(sim):
+    """Positions in metres in _mm columns: 1000 times too small, the fit shrinks the robot (a2
+    by 350 mm, d4 by 364 mm) and converges at 3e-5 mm, exit 0 and nothing said. The identified
+    link lengths are now named; a clean fit names none."""
+    from calib.calibration import _reach
+
+    _, robot, meas = sim
+    res = calib.calibrate(robot, replace(meas, position=meas.position / 1000), params="base", cv=0)
+    reach = _reach(robot)
+    far = [n for n in res.notes if n.startswith("identified link lengths far from the URDF's")]
+    assert len(far) == 1 and far[0].endswith(
+        f"(more than 10 % of the robot's reach {reach * 1e3:.0f} mm); check the length unit of the "
+        f"positions (metres named _mm?) and that the URDF is this robot's")
+    a2 = next(p for p in res.parameters if p.name == "a2")
+    assert abs(a2.deviation) > 0.1 * reach and f"a2 {a2.deviation * 1e3:+.1f} mm" in far[0]
+    assert not any("link lengths" in n for n in calib.calibrate(robot, meas, params="base", cv=0).notes)
+
+
 def test_copied_rows_get_a_note(sim):
     """Rows 1-10 pasted again as rows 31-40 (the last copy's y changed by 1 nm: a measurement,
     not a copy), and three calibration rows copied as validation rows. Copies made a UR5 fit's
