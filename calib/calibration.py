@@ -85,6 +85,24 @@ LOCAL_MINIMUM_RATIO = 0.9
 #: origin are refused (wrong units or gross errors): the longest-range laser trackers measure
 #: to 160 m (Leica AT403, 320 m diameter), so 200 m bounds any tracker or camera set-up.
 TRACKER_RANGE_M = 200.0
+#: A calibrated model whose calibration rows keep a position RMS error above this fraction of
+#: the robot's reach, or an orientation RMS error above IMPLAUSIBLE_ROT_RAD, does not describe
+#: the data (a joint column in radians read as degrees leaves 60 % of a UR5's reach): a note
+#: says so. Real set-ups stay far below (a camera on a UR5 with an unmodelled gear error: 2 mm,
+#: 0.2 % of its reach, and 0.01 rad).
+IMPLAUSIBLE_REACH_FRACTION = 0.05
+IMPLAUSIBLE_ROT_RAD = 0.1
+#: A joint's length parameter (d, a) identified further than this fraction of the reach from its
+#: nominal value gets a note (no robot is built so far from its drawing; joint offsets and
+#: twists can be off by any angle, and the frames by any distance).
+IMPLAUSIBLE_LENGTH_FRACTION = 0.1
+#: Below this many residual components per free parameter (a mean leverage above 1 %), the
+#: outlier check always judges the rows against a robust (Huber) fit: a least-squares fit of
+#: few rows spreads gross errors over the others and inflates the noise estimate until none
+#: stands out (2 rows 4 mm off among 25 position-only UR10 rows of 0.05 mm noise: the fit's
+#: true error was 0.81 mm RMS, 0.053 mm without them). Above it the spread is negligible and
+#: the least-squares residuals suffice (the robust fit costs ~30 % of a 20,000-row calibration).
+ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM = 100
 #: Joint readings that agree to this (rad / m) are one configuration when counting distinct poses.
 DISTINCT_Q_TOL = 1e-9
 #: Residual components beyond the number of free parameters needed to estimate the noise.
@@ -93,11 +111,6 @@ MIN_REDUNDANCY = 6
 CV_FOLDS = 5
 #: Model selection cross-validates leave-one-out below this many calibration rows.
 LOO_BELOW_ROWS = 80
-#: Residual noise per axis beyond any calibration instrument's (laser trackers give hundredths
-#: of a millimetre, cameras and motion capture a few millimetres and milliradians): the data
-#: and the model disagree, whatever the fit's status says.
-IMPLAUSIBLE_NOISE_M = 0.010
-IMPLAUSIBLE_NOISE_RAD = 0.05
 
 
 # ====================================================================== accuracy
@@ -451,9 +464,10 @@ class CalibrationResult:
     fit that a search from another start beats); success : status == "converged".
     before, after : accuracy on the calibration rows (outliers included); after_without_outliers :
     the same without the rows flagged as outliers (None when none were); validation_before/after
-    on the validation rows (None without validation data); before_registered / validation_before_registered : the
-    nominal model after a best-fit registration of the measurement frame only (None unless the
-    measurement frame is far from the nominal one).
+    on the validation rows (None without validation data); before_registered /
+    validation_before_registered : the nominal model after a best-fit registration of the
+    measurement frame, with the tool (or target) frames at their closed-form estimates when those
+    were far from the nominal ones (None unless a frame was: the nominal model's errors otherwise).
     noise : the noise levels of the fit (:class:`NoiseEstimate`); sigma_pos, sigma_rot : the same
     numbers (sigma_rot is that of the weighting also for position-only data).
     predicted : the Cramer-Rao prediction of the calibrated model's RMS error against the true
@@ -750,12 +764,66 @@ def prepare(robot: RobotModel, measurements: Measurements, validation: Measureme
                         f"{'' if distinct == cal.n_poses else 'independent '}equations, "
                         f"fewer than the {needed} identifiable parameters need; measure at least "
                         f"{-(-needed // rows_per_pose)} distinct poses (several times more for accuracy)")
+    notes += _duplicate_row_notes(cal, val)
     start, rebased, suspect = robot, (), None
     kin = ChainKinematics(robot)
     if init_frames:
         start, rebased, suspect = _rebase_frames(robot, cal, notes, always=init_frames is True, kin=kin)
     return Setup(robot, start, cal, val, measure, rebased, suspect,
                  kin if start is robot else ChainKinematics(start)), notes
+
+
+def _earliest_equal_rows(*ms: Measurements) -> np.ndarray:
+    """For the rows of ``ms`` one after the other, the index of the first row equal to each (its
+    own index when none before it is): joint values, measured pose and target, bit for bit."""
+    x = np.concatenate([m.position[:, 0] for m in ms]) + 0.0       # + 0.0: -0.0 equals 0.0
+    first = np.arange(len(x))
+    # equal rows have an equal measured x: only rows whose x recurs are compared in full (a
+    # sort of all 19 columns takes 0.8 s on 200,000 rows)
+    o = np.argsort(x, kind="stable")
+    same_x = np.flatnonzero(x[o][1:] == x[o][:-1])
+    cand = np.unique(np.concatenate([o[same_x], o[same_x + 1]]))
+    if not cand.size:
+        return first
+    ids = {t: k for k, t in enumerate(dict.fromkeys(t for m in ms if m.target is not None for t in m.target))}
+    blocks = []
+    for m in ms:
+        parts = [m.q, m.position] + ([m.rotation.reshape(m.n_poses, 9)] if m.rotation is not None else [])
+        code = [ids[t] for t in m.target] if m.target is not None else np.full(m.n_poses, -1)
+        blocks.append(np.column_stack(parts + [np.asarray(code, float)]))
+    K = np.vstack(blocks)[cand] + 0.0
+    order = np.lexsort(K.T[::-1])          # stable: equal rows stay in their order
+    S = K[order]
+    starts = np.concatenate([[True], np.any(S[1:] != S[:-1], axis=1)])
+    first[cand[order]] = cand[order[np.flatnonzero(starts)[np.cumsum(starts) - 1]]]
+    return first
+
+
+def _duplicate_row_notes(cal: Measurements, val: Measurements | None) -> list[str]:
+    """Notes naming rows that repeat an earlier row exactly (joints, measured pose and target):
+    a copy (a row pasted twice, a file appended to itself) is not a second measurement, yet the
+    noise estimate, the standard deviations and the predicted errors would count it as one, and
+    a validation row that copies a calibration row validates nothing."""
+    def listing(rows, firsts):
+        shown = ", ".join(f"{r} = {f}" for r, f in list(zip(rows, firsts))[:8])
+        return shown + (f" and {len(rows) - 8} more" if len(rows) > 8 else "")
+
+    notes = []
+    first = _earliest_equal_rows(cal)
+    k = np.flatnonzero(first != np.arange(cal.n_poses))
+    if k.size:
+        notes.append(f"{k.size} calibration row(s) repeat an earlier row exactly (joints and measured "
+                     f"pose; row = earlier row: {listing(cal.rows[k], cal.rows[first[k]])}): a copy is "
+                     f"not a new measurement, but the noise estimate, the standard deviations and the "
+                     f"predicted errors count it as one and are too optimistic; remove the copies")
+    if val is not None and val.n_poses and val.has_orientation == cal.has_orientation:
+        first = _earliest_equal_rows(cal, val)[cal.n_poses:]
+        k = np.flatnonzero(first < cal.n_poses)
+        if k.size:
+            notes.append(f"{k.size} validation row(s) repeat a calibration row exactly (validation row = "
+                         f"calibration row: {listing(val.rows[k], cal.rows[first[k]])}): they are not "
+                         f"held out, and the validation errors are too optimistic")
+    return notes
 
 
 def distinct_configurations(Q: np.ndarray, tol: float = DISTINCT_Q_TOL) -> int:
@@ -1163,6 +1231,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     notes: list[str] = []
     first = True
     stuck = None
+    unjudged = False
     vce_total = 0
     two_groups = setup.measure == "pose"
     last_lin = None
@@ -1182,9 +1251,13 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
             # (pose data: the weights change the fit, so a re-weighted fit follows the first)
             loose = first and estimate and two_groups
             sol = _solve_logged(solve, problem, x, trace, first, loose=loose)
-            if first:   # judged at the starting weights, before they adapt to a stuck fit's residuals
+            if first or (unjudged and sol.status == "converged"):
+                # judged at the starting weights, before they adapt to a stuck fit's residuals;
+                # a first fit that stopped unconverged (the paper's LM at its iteration limit) is
+                # judged when a re-fit from it first calls itself converged
                 sol = _check_local_minimum(sol, problem, solve)
                 stuck = sol if sol.status == "local_minimum" else None
+                unjudged = sol.status != "converged" and stuck is None
             first = False
             x = sol.x
             if not estimate or sol.status == "diverged":
@@ -1214,11 +1287,16 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
             fsp = rsp if sigma_pos is None else sp
             fsr = rsr if sigma_rot is None else sr
         new, too_many = _flag_outliers(everything, x, cal.rows, keep, outlier_k, fsp, fsr)
-        if new and loss == "linear":
+        few = everything.n_poses * (6 if two_groups else 3) < ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM * len(x)
+        if loss == "linear" and (new or few):
             # a least-squares fit spreads a gross error over its neighbours: judge the rows
-            # against a robust (Huber) fit instead, then refit by least squares without them
+            # against a robust (Huber) fit instead, then refit by least squares without them;
+            # on few rows always (there the spread can hide the gross rows altogether)
             robust = problem.derived(loss="huber", sigma_pos=fsp, sigma_rot=fsr)
             x_robust = levenberg_marquardt(robust, x, "pose", solve.options, trace).x
+            if estimate:    # (the spread of a least-squares fit's residuals is the smeared one)
+                fsp, fsr = _robust_sigmas(everything, x_robust, keep, lin.red_pos, lin.red_rot)
+                fsp, fsr = (fsp if sigma_pos is None else sp), (fsr if sigma_rot is None else sr)
             new, too_many = _flag_outliers(everything, x_robust, cal.rows, keep, outlier_k, fsp, fsr)
             if new and not too_many:
                 x = x_robust
@@ -1711,12 +1789,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         notes.append(f"the fit converged but its residuals are {math.sqrt(nz.reduced_chi2):.1f} times the given "
                      f"noise (reduced chi^2 {nz.reduced_chi2:.3g}): a wrong sigma, or errors the model "
                      f"does not describe; omit the noise levels to estimate them from the data")
-    if nz.estimated and (nz.position > IMPLAUSIBLE_NOISE_M or (nz.rotation or 0.0) > IMPLAUSIBLE_NOISE_RAD):
-        level = (f"{nz.position * 1e3:.3g} mm" + ("" if nz.rotation is None else f" and {nz.rotation:.3g} rad"))
-        notes.append(f"the residuals after calibration are {level} per axis, beyond any measuring "
-                     f"instrument's noise: the data and the model disagree. Check the units of the columns, "
-                     f"which joint each column is, which frames were measured, and that the robot's base "
-                     f"did not move between rows")
+    notes += _implausible_fit_notes(robot, fit.errors) + _implausible_length_notes(robot, fit.model)
 
     stats = statistics_stage(setup, fit, problem)
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
@@ -1743,8 +1816,13 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     if val is not None:
         va = pose_errors(calibrated, val.q, val.position, val.rotation, kin, val_rows)
     breg = vbreg = None
-    if "measurement->base" in setup.rebased:
-        registered = register_measurement_frame(robot, cal)
+    if setup.rebased:
+        # the nominal geometry, with the tool or targets where the closed-form estimate put them
+        # when it moved them (an SMR's unknown offset is not an error of the robot), and the
+        # measurement frame registered by a best fit
+        ref = robot if setup.rebased == ("measurement->base",) else replace(
+            robot, T_flange_tool_ref=start.T_flange_tool_ref, T_flange_target_refs=start.T_flange_target_refs)
+        registered = register_measurement_frame(ref, cal)
         breg = pose_errors(registered, cal.q, cal.position, cal.rotation, targets=cal_rows)
         if val is not None:
             vbreg = pose_errors(registered, val.q, val.position, val.rotation, targets=val_rows)
@@ -1766,6 +1844,46 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         cross_validation=cross, selection=selection, before_registered=breg,
         validation_before_registered=vbreg, targets=per_target,
         after_without_outliers=after.subset(fit.keep) if fit.outliers else None)
+
+
+def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]:
+    """A note when the calibrated model leaves errors on its calibration rows that no robot and
+    instrument give (:data:`IMPLAUSIBLE_REACH_FRACTION` of the reach, :data:`IMPLAUSIBLE_ROT_RAD`):
+    the fit ran, but on data that do not belong to this robot as read."""
+    reach = _robot_memo("reach", robot, (), lambda: _reach(robot))
+    pos = after.position["rms"]
+    rot = after.rotation["rms"] if after.rotation is not None else 0.0
+    what, check = [], []
+    if pos > IMPLAUSIBLE_REACH_FRACTION * reach:
+        what.append(f"a position RMS error of {pos * 1e3:.4g} mm ({100 * pos / reach:.0f} % of the robot's "
+                    f"reach {reach * 1e3:.0f} mm)")
+        check.append("the joint units (degrees read as radians, or radians as degrees), the joint order "
+                     "and the robot")
+    if rot > IMPLAUSIBLE_ROT_RAD:
+        what.append(f"an orientation RMS error of {rot:.3g} rad")
+        check.append("the orientation columns (quaternion order w, x, y, z; --euler sequence; angle "
+                     "units) and the tool frame")
+    if not what:
+        return []
+    return [f"the calibrated model does not describe these measurements: on the calibration rows it "
+            f"leaves {' and '.join(what)}; check {', and '.join(check)}"]
+
+
+def _implausible_length_notes(nominal: RobotModel, calibrated: RobotModel) -> list[str]:
+    """A note naming the link lengths (d, a of the joints) identified further than
+    :data:`IMPLAUSIBLE_LENGTH_FRACTION` of the reach from their nominal values: no robot is built
+    that far from its drawing (positions in metres named _mm shrink a UR5's 425 mm link to
+    0.6 mm and the fit converges at the noise; the URDF of another robot model)."""
+    reach = _robot_memo("reach", nominal, (), lambda: _reach(nominal))
+    far = [(p.name, b - a) for p, a, b in zip(nominal.parameters, nominal.values, calibrated.values)
+           if p.group == "joint" and p.unit == "m" and abs(b - a) > IMPLAUSIBLE_LENGTH_FRACTION * reach
+           and not (p.kind == "d" and nominal.prismatic[p.joint - 1])]   # (a slide's offset: any)
+    if not far:
+        return []
+    shown = ", ".join(f"{name} {dev * 1e3:+.1f} mm" for name, dev in far)
+    return [f"identified link lengths far from the URDF's: {shown} (more than "
+            f"{100 * IMPLAUSIBLE_LENGTH_FRACTION:g} % of the robot's reach {reach * 1e3:.0f} mm); check the "
+            f"length unit of the positions (metres named _mm?) and that the URDF is this robot's"]
 
 
 def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,

@@ -76,9 +76,12 @@ def nonnegative(text: str) -> float:
 
 
 def positive(text: str) -> float:
-    value = nonnegative(text)
-    if value == 0:
-        raise argparse.ArgumentTypeError(f"{text} must be > 0")
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):    # (-1 is told > 0, not >= 0: 0 is refused too)
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0")
     return value
 
 

@@ -191,7 +191,8 @@ OPTION_CASES = {
     # (extra arguments of calibrate, fragment, usage error?)
     "sigma 1e-300": (["--sigma-pos-mm", "1e-300"], r"sigma_pos must be between 1e-12 and 1", False),
     "sigma nan": (["--sigma-pos-mm", "nan"], r"argument --sigma-pos-mm: nan must be a finite number", True),
-    "sigma -1": (["--sigma-rot-rad", "-1"], r"argument --sigma-rot-rad: -1 must be a finite number >= 0", True),
+    "sigma -1": (["--sigma-rot-rad", "-1"], r"argument --sigma-rot-rad: -1 must be a finite number > 0$", True),
+    "sigma 0": (["--sigma-pos-mm", "0"], r"argument --sigma-pos-mm: 0 must be a finite number > 0$", True),
     "params empty": (["--params", ""], r"empty parameter list ''", False),
     "params comma": (["--params", ","], r"empty parameter list ','", False),
     "params unknown": (["--params", "d2,bogus"], r"bogus", False),
@@ -398,6 +399,85 @@ def test_gross_row_left_out_of_the_frame_estimate_and_flagged(sim):
     for p, q in zip(res.parameters, clean.parameters):
         if np.isfinite(q.std) and q.std > 0:
             assert abs(p.identified - q.identified) < 3 * q.std + 1e-9, p.name
+
+
+def test_data_that_do_not_fit_the_robot_get_a_note_not_silence(sim):
+    """Every joint value divided by 57.3 (a radian column named _deg): within the limits, so
+    the reader cannot tell. The fit leaves errors of a third of a metre; it said only that it
+    stopped at the iteration limit (UR5: converged, exit 0). A clean fit gets no such note.
+    Quaternions in x, y, z, w order read as w, x, y, z: 1.4 rad RMS left (UR5: converged, exit 0,
+    nothing said); the note names the orientation columns."""
+    from calib.calibration import _reach
+
+    _, robot, meas = sim
+    res = calib.calibrate(robot, replace(meas, q=np.radians(meas.q)), params="base", cv=0,
+                          outlier_k=None)
+    pos_rms = res.after.position["rms"]
+    assert pos_rms > 0.05                                   # metres: nothing like a calibration
+    reach = _reach(robot)                                   # metres: 1.225 m for this robot
+    bad = [n for n in res.notes if n.startswith("the calibrated model does not describe")]
+    assert bad == [f"the calibrated model does not describe these measurements: on the calibration "
+                   f"rows it leaves a position RMS error of {pos_rms * 1e3:.4g} mm "
+                   f"({100 * pos_rms / reach:.0f} % of the robot's reach {reach * 1e3:.0f} mm) and an "
+                   f"orientation RMS error of {res.after.rotation['rms']:.3g} rad; check the joint "
+                   f"units (degrees read as radians, or radians as degrees), the joint order and the "
+                   f"robot, and the orientation columns (quaternion order w, x, y, z; --euler "
+                   f"sequence; angle units) and the tool frame"]
+    clean = calib.calibrate(robot, meas, params="base", cv=0)
+    assert not any("does not describe" in n for n in clean.notes)
+    # quaternions written x, y, z, w and read as w, x, y, z: the note names the orientation
+    from scipy.spatial.transform import Rotation
+
+    xyzw = Rotation.from_matrix(meas.rotation).as_quat()            # written x, y, z, w
+    swapped = Rotation.from_quat(np.roll(xyzw, -1, axis=1)).as_matrix()   # read as w, x, y, z
+    res = calib.calibrate(robot, replace(meas, rotation=swapped), params="base", cv=0)
+    bad = [n for n in res.notes if n.startswith("the calibrated model does not describe")]
+    assert len(bad) == 1 and res.after.rotation["rms"] > 0.1
+    assert (f"an orientation RMS error of {res.after.rotation['rms']:.3g} rad; check " in bad[0]
+            and bad[0].endswith("the orientation columns (quaternion order w, x, y, z; --euler sequence; "
+                                "angle units) and the tool frame"))
+
+
+def test_positions_in_metres_named_mm_get_a_note(sim):
+    """Positions in metres in _mm columns: 1000 times too small, the fit shrinks the robot (a2
+    by 350 mm, d4 by 364 mm) and converges at 3e-5 mm, exit 0 and nothing said. The identified
+    link lengths are now named; a clean fit names none."""
+    from calib.calibration import _reach
+
+    _, robot, meas = sim
+    res = calib.calibrate(robot, replace(meas, position=meas.position / 1000), params="base", cv=0)
+    reach = _reach(robot)
+    far = [n for n in res.notes if n.startswith("identified link lengths far from the URDF's")]
+    assert len(far) == 1 and far[0].endswith(
+        f"(more than 10 % of the robot's reach {reach * 1e3:.0f} mm); check the length unit of the "
+        f"positions (metres named _mm?) and that the URDF is this robot's")
+    a2 = next(p for p in res.parameters if p.name == "a2")
+    assert abs(a2.deviation) > 0.1 * reach and f"a2 {a2.deviation * 1e3:+.1f} mm" in far[0]
+    assert not any("link lengths" in n for n in calib.calibrate(robot, meas, params="base", cv=0).notes)
+
+
+def test_copied_rows_get_a_note(sim):
+    """Rows 1-10 pasted again as rows 31-40 (the last copy's y changed by 1 nm: a measurement,
+    not a copy), and three calibration rows copied as validation rows. Copies made a UR5 fit's
+    Cramer-Rao accuracy 10 times too optimistic (0.004 mm; true 0.039 mm) with nothing said."""
+    _, robot, meas = sim
+    m = meas.subset(np.r_[0:30, 0:10])
+    pos = m.position.copy()
+    pos[39, 1] += 1e-9
+    m = replace(m, position=pos, rows=np.arange(1, 41))
+    res = calib.calibrate(robot, m, params="base", cv=0)
+    assert [n for n in res.notes if "repeat" in n] == [
+        "9 calibration row(s) repeat an earlier row exactly (joints and measured pose; row = earlier "
+        "row: 31 = 1, 32 = 2, 33 = 3, 34 = 4, 35 = 5, 36 = 6, 37 = 7, 38 = 8 and 1 more): a copy is "
+        "not a new measurement, but the noise estimate, the standard deviations and the predicted "
+        "errors count it as one and are too optimistic; remove the copies"]
+    leak = replace(meas.subset(np.r_[0:30, 0:3]), rows=np.arange(1, 34),
+                   sets=np.array(["cal"] * 30 + ["val"] * 3))
+    res = calib.calibrate(robot, leak, params="base", cv=0)
+    assert [n for n in res.notes if "repeat" in n] == [
+        "3 validation row(s) repeat a calibration row exactly (validation row = calibration row: "
+        "31 = 1, 32 = 2, 33 = 3): they are not held out, and the validation errors are too optimistic"]
+    assert not any("repeat" in n for n in calib.calibrate(robot, meas, params="base", cv=0).notes)
 
 
 def test_robust_frame_estimate_ignores_a_row_a_million_km_off(sim):

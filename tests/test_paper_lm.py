@@ -222,3 +222,22 @@ def test_calibrate_with_the_paper_variant(method, bundled_robot, tmp_path, capsy
     code = main(["calibrate", str(ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"), str(tmp_path / "m.csv"),
                  "-o", str(tmp_path / "c.urdf"), "--method", method, "--lm-variant", "paper", "--params", "paper"])
     assert code == 0 and "paper's LM as printed" in capsys.readouterr().out
+
+
+def test_paper_variant_stalled_first_fit_is_not_called_converged(bundled_robot):
+    """A tracker 2.8 m away and turned by 2 rad: the printed LM stops its first fit at the
+    iteration limit, and a noise re-weighted re-fit from there stops on its cost-change rule
+    ("converged after 1 iterations") 30 times above the noise (1.6 mm RMS for 0.05 mm per
+    axis; calib's LM reaches 0.06 mm). It was reported converged (exit 0); the re-fit's
+    solution is now judged by the angle search like a first fit: a local minimum."""
+    import calib
+
+    far = {"u_x": 2.5, "u_y": -1.2, "u_z": 0.4, "u_alpha": 0.3, "u_beta": -0.2, "u_gamma": 2.0,
+           "theta2": 0.003, "d2": 0.0005, "a3": -0.0007}
+    true = apply_deviations(bundled_robot, far)
+    meas = simulate_measurements(true, bundled_robot.random_configurations(25, 4), sigma_pos=5e-5,
+                                 sigma_rot=1e-3, rng=4)
+    res = calib.calibrate(bundled_robot, meas, method="lm", lm_variant="paper", params="base", cv=0)
+    assert res.after.position["rms"] > 1e-3                 # metres: the printed LM's stall
+    assert res.status == "local_minimum" and not res.success
+    assert "an angle search from its solution, then LM, reaches a cost" in res.message

@@ -179,6 +179,22 @@ def test_noisy_calibration_of_three_targets_is_within_its_statistics(bundled_rob
         assert 0.7 * np.sqrt(3) * sigma < t.after.position["rms"] < 1.2 * np.sqrt(3) * sigma
 
 
+def test_before_errors_are_also_given_with_the_targets_where_the_data_put_them(bundled_robot):
+    """The nominal model has no target offsets (the CLI cannot give any), so its errors before
+    calibration are the reflectors' 60-120 mm from the tool frame, not the robot's. The
+    closed-form estimate moves the targets; the registered "before" takes them from it (it was
+    given only for a far measurement frame), and comes out as the nominal geometry's error with
+    the true offsets."""
+    truth = _truth(bundled_robot, seed=3)
+    Q, ids = _every_target(bundled_robot.random_configurations(30, 4))
+    m = simulate_measurements(truth, Q, sigma_pos=0.02e-3, position_only=True, targets=ids, rng=5)
+    res = calibrate(bundled_robot, m, params="base", cv=0)
+    assert res.before.position["rms"] > 0.05                # metres: the targets' offsets
+    known = evaluate(_with_targets(bundled_robot), m).position["rms"]   # 1.1 mm; registered 0.75
+    assert 0.5 * known < res.before_registered.position["rms"] < known
+    assert "before, frame registered" in res.format()
+
+
 def test_pose_data_of_several_targets_runs_lm_and_recovers_truth(bundled_robot):
     truth = _truth(bundled_robot, seed=6)
     Q, ids = _every_target(bundled_robot.random_configurations(15, 7))
