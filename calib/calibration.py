@@ -1630,7 +1630,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         identifiable set) compared by cross-validated held-out error, the smallest within one
         standard error of the best chosen; "paper": all but u_z, u_alpha, v_x, v_z, v_alpha,
         v_gamma (Section 4.2); "all": every parameter (LM takes minimum-norm steps: combinations the data do not
-        determine stay where they start, parameters without effect keep their values); or
+        determine at the start stay there while the data barely see them, parameters without
+        effect keep their values); or
         parameter names. Default (None): "auto" when the calibration rows hold fewer than
         AUTO_BELOW_COMPONENTS_PER_PARAM residual components per identifiable parameter, else "base".
     sigma_pos : position noise per axis, metres; sigma_rot : orientation noise per axis, radians.

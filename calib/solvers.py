@@ -21,8 +21,9 @@ unless it raises the cost beyond its rounding (COST_RTOL; near the minimum the a
 rounding noise: judging it by "lower or retry" would only reject steps until the damping
 saturates). A problem that is rank deficient at its start (a parameter set the data do not
 determine, e.g. "all") takes minimum-norm steps: no step moves along the combinations the data
-leave free at its point (a tie that curves, such as a twist turning the tool offset, is followed
-a bounded way), and parameters without effect (a Jacobian column of rounding noise) stay put.
+leave undetermined at the start while the data barely see them (WEAK_RCOND: away from the start
+a tie such as a twist turning the tool offset is seen to second order, and following it fits the
+noise), and parameters without effect (a Jacobian column of rounding noise) stay put.
 This differs from the paper's Eq. (27)-(28) as printed (mu I, mu reset to 0.001 lambda^+-1,
 unweighted residuals): that variant is :mod:`calib.paper_lm`.
 
@@ -65,6 +66,11 @@ RANK_RCOND = 1e-12
 #: A column of a Jacobian whose norm is at most this times the largest column's is zero up to
 #: rounding: the parameter has no effect on these data (LM does not move it).
 NO_EFFECT_RTOL = 1e-10
+#: LM on a problem rank deficient at its start holds the directions that were undetermined there
+#: while their eigenvalue (unit-diagonal scaling) stays below this times the largest: a
+#: combination the data determine 100 times worse than a typical parameter (its standard
+#: deviation 100 times larger), which a fit would move by the noise (see _DampedSystem).
+WEAK_RCOND = 1e-4
 STATUSES = ("converged", "max_iterations", "diverged", "local_minimum")
 
 
@@ -183,6 +189,7 @@ class Problem:
         # by the problems derived with other weights (see _normal_equations)
         self._shared: dict = {}
         self._rows_key = None
+        self._rank_deficit = None
 
     def _targets(self, sl=slice(None)):
         return None if self.targets is None else self.targets[sl]
@@ -213,6 +220,7 @@ class Problem:
         p._last_ne = p._last_pr = p._last_wb = None
         if free is not None:
             p.free = np.asarray(free, int)
+            p._rank_deficit = None
         if values is not None:
             p.values = np.array(values, float)
         if sigma_pos is not None:
@@ -231,6 +239,15 @@ class Problem:
             p.R_meas_T = None if self.R_meas_T is None else self.R_meas_T[keep]
             p.targets = self._targets(keep)
         return p
+
+    def rank_deficit(self, ne: NormalEquations) -> int:
+        """How many directions the free parameters' normal matrix ``ne`` leaves undetermined
+        (see _rank_deficit), counted at the first point asked and kept: the LM runs of one
+        problem (its noise re-weighted re-fits, its row subsets) hold the directions that were
+        undetermined where the first one started (see _DampedSystem)."""
+        if getattr(self, "_rank_deficit", None) is None:
+            self._rank_deficit = _rank_deficit(_without_inert(ne))
+        return self._rank_deficit
 
     def _chunks(self):
         N = self.n_poses
@@ -531,6 +548,18 @@ def _trial_cost(problem: Problem, x: np.ndarray, parts: str, fuse: bool) -> floa
     return 0.5 * float(r @ r)
 
 
+def _rank_deficit(system: tuple[np.ndarray, np.ndarray, np.ndarray]) -> int:
+    """How many directions of the normal matrix A of ``system`` (A, g, d from _without_inert)
+    the data do not determine: its eigenvalues, scaled to diag(d) = 1, at most RANK_RCOND times
+    the largest (0 without an eigendecomposition when :func:`normal_inverse` proves full rank)."""
+    A, _, d = system
+    if normal_inverse(A)[1]:
+        return 0
+    s = 1.0 / np.sqrt(d)
+    w = np.linalg.eigvalsh(A * np.outer(s, s))
+    return int(np.sum(w <= RANK_RCOND * max(w[-1], 0.0)))
+
+
 def _without_inert(ne: NormalEquations) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(A, g, d = diag(A)) of the normal equations with the parameters that have no effect
     (NO_EFFECT_RTOL: a Jacobian column of rounding noise) taken out: their rows and columns of
@@ -550,21 +579,27 @@ def _without_inert(ne: NormalEquations) -> tuple[np.ndarray, np.ndarray, np.ndar
 class _DampedSystem:
     """The LM steps ``-(A + mu diag(d))^-1 g`` of one iteration, for any damping mu.
 
-    ``minimum_norm`` (a rank-deficient problem): solved in the eigenbasis of A scaled to
-    diag(d) = 1, without the directions whose eigenvalue is at most RANK_RCOND times the largest.
-    Along a combination the data do not determine, the gradient is rounding noise and the
-    damped step noise / (mu d): as mu falls with each accepted step, LM would carry such a
-    combination without bound (an angle to 1e10 rad); here it stays where it started. The
+    ``n_tied`` > 0 (a problem rank deficient at its start, by that many directions): solved in
+    the eigenbasis of A scaled to diag(d) = 1, without the directions whose eigenvalue is at
+    most RANK_RCOND times the largest, nor the ``n_tied`` smallest while they stay below
+    WEAK_RCOND times it. Along a combination the data do not determine, the gradient is rounding
+    noise and the damped step noise / (mu d): as mu falls with each accepted step, LM would carry
+    such a combination without bound (an angle to 1e10 rad). Away from the start, the ties the
+    start had are often only nearly exact (a twist that turns the tool offset, seen by the
+    positions to second order): following such a weak direction fits the noise (0.3-0.5 rad of a
+    twist on position-only data), so it is held while the data barely see it. The
     eigendecomposition is made once per iteration and serves its retries.
     """
 
-    def __init__(self, A: np.ndarray, d: np.ndarray, g: np.ndarray, minimum_norm: bool):
+    def __init__(self, A: np.ndarray, d: np.ndarray, g: np.ndarray, n_tied: int):
         self.A, self.d, self.g = A, d, g
         self.eig = None
-        if minimum_norm:
+        if n_tied:
             s = 1.0 / np.sqrt(d)
-            w, V = np.linalg.eigh(A * np.outer(s, s))
-            keep = w > RANK_RCOND * max(w[-1], 0.0)
+            w, V = np.linalg.eigh(A * np.outer(s, s))          # (ascending)
+            top = max(w[-1], 0.0)
+            keep = w > RANK_RCOND * top
+            keep[:n_tied] &= w[:n_tied] > WEAK_RCOND * top
             V = V[:, keep] * s[:, None]           # back to the parameters' units
             self.eig = (w[keep], V, V.T @ g)
 
@@ -627,7 +662,7 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
     mu = options.mu0
     trace.costs.append(cost)
     # a problem that is rank deficient at the start takes minimum-norm steps (see _DampedSystem)
-    minimum_norm = not normal_inverse(_without_inert(ne)[0])[1]
+    n_tied = problem.rank_deficit(ne)
     # Few poses: a trial step computes the normal equations with its cost, in one pass over the
     # data instead of two when it is accepted (a Jacobian costs little more than the residuals
     # there). Only after an iteration whose first trial was accepted: a rejected trial wastes
@@ -642,7 +677,7 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
         if np.max(np.abs(g) / np.sqrt(d), initial=0.0) <= options.gtol * max(np.sqrt(2 * cost), 1e-300):
             return SolverResult(x, cost, "converged", f"gradient below tolerance after {it} iterations",
                                 trace.iterations - it0)
-        system = _DampedSystem(A, d, g, minimum_norm)
+        system = _DampedSystem(A, d, g, n_tied)
         step = system.step(mu)
         if _usable(step):
             # converged when even the Gauss-Newton model of the cost promises a decrease below the
