@@ -96,13 +96,14 @@ IMPLAUSIBLE_ROT_RAD = 0.1
 #: nominal value gets a note (no robot is built so far from its drawing; joint offsets and
 #: twists can be off by any angle, and the frames by any distance).
 IMPLAUSIBLE_LENGTH_FRACTION = 0.1
-#: Below this many residual components per free parameter (a mean leverage above 1 %), the
+#: Below this many residual components per free parameter (a mean leverage above 10 %), the
 #: outlier check always judges the rows against a robust (Huber) fit: a least-squares fit of
 #: few rows spreads gross errors over the others and inflates the noise estimate until none
-#: stands out (2 rows 4 mm off among 25 position-only UR10 rows of 0.05 mm noise: the fit's
-#: true error was 0.81 mm RMS, 0.053 mm without them). Above it the spread is negligible and
-#: the least-squares residuals suffice (the robust fit costs ~30 % of a 20,000-row calibration).
-ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM = 100
+#: stands out (2 rows 4 mm off among 25 position-only UR10 rows of 0.05 mm noise, 2.8
+#: components per parameter: the fit's true error was 0.81 mm RMS, 0.053 mm without them).
+#: Above it a gross row keeps most of its residual and the least-squares residuals suffice (the
+#: robust fit, ~70 Huber LM iterations, would cost 60 % more per calibration at 100 full poses).
+ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM = 10
 #: Joint readings that agree to this (rad / m) are one configuration when counting distinct poses.
 DISTINCT_Q_TOL = 1e-9
 #: Residual components beyond the number of free parameters needed to estimate the noise.
