@@ -476,6 +476,9 @@ class CalibrationResult:
     new measured rows (:class:`Statistics`). cross_validation, selection : see
     :class:`CrossValidation`, :class:`ModelSelection` (None when not run).
     covariance : (n_free, n_free) covariance of the free parameters (SI units).
+    estimated_frames : the frames estimated in closed form because the data put them far from the
+    nominal ones ("measurement->base", "flange->tool" or "flange-><id>" per target; () if none):
+    the calibrated model's base frame is then the instrument's, its tool the measured point.
     targets : per target of a multi-target calibration, its accuracy (:class:`TargetAccuracy`;
     the overall figures are ``before``/``after``); () for one target.
     """
@@ -512,6 +515,7 @@ class CalibrationResult:
     validation_before_registered: AccuracyStats | None = field(default=None, repr=False)
     targets: tuple[TargetAccuracy, ...] = field(default=(), repr=False)
     after_without_outliers: AccuracyStats | None = field(default=None, repr=False)
+    estimated_frames: tuple[str, ...] = ()
 
     @property
     def success(self) -> bool:
@@ -539,7 +543,8 @@ class CalibrationResult:
         :func:`calib.compliance.sidecar_path` beside it (:func:`calib.compliance.write_sidecar`)."""
         from .urdf_writer import write_calibrated_urdf
 
-        write_calibrated_urdf(self.robot.geometry(), path, nominal=self.nominal.geometry())
+        write_calibrated_urdf(self.robot.geometry(), path, nominal=self.nominal.geometry(),
+                              estimated=self.estimated_frames)
         if self.robot.has_compliance:
             from .compliance import sidecar_path, write_sidecar
 
@@ -579,6 +584,7 @@ class CalibrationResult:
                           "sigmas": o.sigmas} for o in self.outliers],
             "before": self.before.to_dict(),
             "after": self.after.to_dict(),
+            "estimated_frames": list(self.estimated_frames),
             "after_without_outliers": None if self.after_without_outliers is None
             else self.after_without_outliers.to_dict(),
             "before_registered": None if self.before_registered is None else {
@@ -1845,7 +1851,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         outliers=fit.outliers, loss=loss, noise=nz, predicted_holdout=stats.predicted_holdout,
         cross_validation=cross, selection=selection, before_registered=breg,
         validation_before_registered=vbreg, targets=per_target,
-        after_without_outliers=after.subset(fit.keep) if fit.outliers else None)
+        after_without_outliers=after.subset(fit.keep) if fit.outliers else None,
+        estimated_frames=setup.rebased)
 
 
 def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]:

@@ -374,7 +374,8 @@ def cmd_calibrate(args) -> int:
 
     written_frames = []
     outputs.stage_from_file(out_urdf, lambda p: written_frames.append(
-        write_calibrated_urdf(result.robot.geometry(), p, nominal=result.nominal.geometry())))
+        write_calibrated_urdf(result.robot.geometry(), p, nominal=result.nominal.geometry(),
+                              estimated=result.estimated_frames)))
     frames = written_frames[0]
     if out_sidecar is not None:
         outputs.stage(out_sidecar, _json_text(result.compliance_record()))

@@ -25,7 +25,8 @@ import numpy as np
 from .cli_args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_targets,
                        count, nonnegative, positive, positive_int, print_notes, read_options,
                        with_compliance_file, with_targets)
-from .compensation import SINGULAR_THRESHOLD, compensate, compensate_poses, load_compensation_models
+from .compensation import (SINGULAR_THRESHOLD, check_joint_targets, compensate, compensate_poses,
+                           load_compensation_models)
 from .errors import CalibError
 from .fileio import check_not_input
 from .formats import read_targets, write_compensation, write_poses
@@ -256,6 +257,7 @@ def run_compensate(args) -> int:
     log.info("read %d %s targets from %s", targets.n_targets, targets.kind, args.targets)
     opts = dict(singular_threshold=args.singular_threshold)
     if targets.kind == "joints":
+        check_joint_targets(args.calibrated)
         result = compensate(calibrated, nominal, targets.q, measure=args.measure, **opts)
     elif targets.kind == "pose":
         T = _homogeneous(targets.rotation, targets.position)

@@ -68,7 +68,7 @@ from .urdf import UrdfDocument
 from .spatial import log3_batch
 
 __all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "compensate",
-           "compensate_poses", "load_compensation_models"]
+           "compensate_poses", "load_compensation_models", "check_joint_targets"]
 
 #: Statuses of a target, from the most to the least severe (see the module docstring).
 STATUSES = ("singular", "not_converged", "limit", "ok")
@@ -321,6 +321,28 @@ def nominal_frames(calibrated_urdf: str | Path, *, base_frame: str | None = None
         base_frame = base_frame or recorded.nominal_base_frame
         tool_frame = tool_frame or recorded.nominal_tool_frame
     return base_frame, tool_frame
+
+
+def check_joint_targets(calibrated_urdf: str | Path) -> None:
+    """Refuse joint targets for a calibrated URDF whose measurement or tool frame the calibration
+    estimated from the data (its ``<calib:frames>`` record): a joint target stands for the nominal
+    tool's pose in the nominal base frame, and that model's base frame is the instrument's, its
+    tool the measured point (compensating the nominal tool with it moves the measured point onto
+    the tool's poses: joint changes of tens of degrees, each one "ok"). Pose targets, given in
+    the measurement frame for the measured point, apply."""
+    path = robot_path(calibrated_urdf)
+    rec = UrdfDocument.read(path).frames
+    if rec is None or not (rec.measurement_estimated or rec.tool_estimated):
+        return
+    what = [w for w, flag in (("the measurement frame (the instrument's, not the robot's base)",
+                               rec.measurement_estimated),
+                              ("the tool frame (the measured point, not the nominal tool)", rec.tool_estimated))
+            if flag]
+    raise CalibError(f"{path}: the calibration estimated {' and '.join(what)} from the data: joint targets "
+                     f"stand for poses of the nominal tool in the nominal base frame, which this model does "
+                     f"not hold; give pose targets of the measured point in the measurement frame, or give "
+                     f"the URDF the frames that were measured (the instrument, the measured point) and "
+                     f"calibrate with --base-frame / --tool-frame naming them")
 
 
 def _check_models(calibrated: RobotModel, nominal: RobotModel) -> None:

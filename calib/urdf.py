@@ -65,6 +65,10 @@ class RecordedFrames:
     """The frames a calibrated URDF records (see the module docstring); link names.
 
     targets : (id, link) of each target of a multi-target calibration, () otherwise.
+    measurement_estimated, tool_estimated : whether the calibration estimated the measurement
+    frame, or the tool (or target) frames, from the data because they were far from the nominal
+    ones (attributes ``measurement_estimated="true"``, ``tool_estimated="true"``): the base
+    frame is then the instrument's, the tool frame the measured point's, not the nominal ones.
     """
 
     base_frame: str
@@ -73,11 +77,17 @@ class RecordedFrames:
     nominal_tool_frame: str
     source: str = ""
     targets: tuple[tuple[str, str], ...] = ()
+    measurement_estimated: bool = False
+    tool_estimated: bool = False
 
     def _attributes(self) -> dict:
-        return {"base_frame": self.base_frame, "tool_frame": self.tool_frame,
-                "nominal_base_frame": self.nominal_base_frame,
-                "nominal_tool_frame": self.nominal_tool_frame, "source": self.source}
+        out = {"base_frame": self.base_frame, "tool_frame": self.tool_frame,
+               "nominal_base_frame": self.nominal_base_frame,
+               "nominal_tool_frame": self.nominal_tool_frame, "source": self.source}
+        for key in ("measurement_estimated", "tool_estimated"):
+            if getattr(self, key):
+                out[key] = "true"
+        return out
 
     def to_dict(self) -> dict:
         out = self._attributes()
@@ -197,7 +207,13 @@ class UrdfDocument:
             if not target or link not in self.links:
                 raise URDFError(self.path, f"<calib:target id={target!r} link={link!r}>: expected an id "
                                            f"and a link of this file")
-        return RecordedFrames(*(el.get(k) for k in keys), source=el.get("source", ""), targets=targets)
+        flags = {}
+        for k in ("measurement_estimated", "tool_estimated"):
+            if el.get(k, "false") not in ("true", "false"):
+                raise URDFError(self.path, f"<calib:frames> {k}={el.get(k)!r}: expected true or false")
+            flags[k] = el.get(k) == "true"
+        return RecordedFrames(*(el.get(k) for k in keys), source=el.get("source", ""), targets=targets,
+                              **flags)
 
     # ------------------------------------------------------------------ tree queries
     def link_of(self, frame: str) -> str:

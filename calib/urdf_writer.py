@@ -55,6 +55,7 @@ import math
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -80,7 +81,8 @@ _UNCHANGED_TOL = 1e-13
 
 # ====================================================================== public API
 def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
-                          nominal: RobotModel | None = None) -> RecordedFrames:
+                          nominal: RobotModel | None = None,
+                          estimated: Sequence[str] = ()) -> RecordedFrames:
     """Write a copy of ``robot.urdf_path`` whose kinematics are exactly ``robot``'s.
 
     Parameters
@@ -91,6 +93,9 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
         base/tool frames as ``robot``. Default:
         ``load_robot(robot.urdf_path, robot.base_frame, robot.tool_frame,
         robot.parallel_threshold)``.
+    estimated : the frames the calibration estimated from the data
+        (:attr:`calib.CalibrationResult.estimated_frames`: "measurement->base", "flange->tool",
+        "flange-><id>"), recorded as ``measurement_estimated`` / ``tool_estimated``.
 
     Returns the frames the output records (:class:`calib.urdf.RecordedFrames`): in the output,
     Pinocchio's pose of ``tool_frame`` in ``base_frame`` is ``robot.T_meas_tool(q)`` (4x4,
@@ -109,6 +114,9 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
     check_robot(robot)
     check_not_input(check_path(path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
     doc, plan = _prepare(robot, nominal)
+    estimated = tuple(estimated)
+    plan = replace(plan, frames=replace(plan.frames, measurement_estimated="measurement->base" in estimated,
+                                        tool_estimated=any(e.startswith("flange->") for e in estimated)))
     atomic_write_text(path, doc.render(plan))
     return plan.frames
 

@@ -340,3 +340,41 @@ def test_help_teaches(command, capsys):
     text = capsys.readouterr().out
     assert "examples:" in text and f"calib {command} " in text and "Exit codes" in text
     assert len(text) > 1500
+
+
+def test_joint_targets_refused_when_the_calibration_estimated_the_tool(tmp_path, bundled):
+    """A measured point 70 mm off the nominal tool: calibrate estimates the tool frame and the
+    URDF records it; joint targets (poses of the nominal tool) are then refused with one line
+    and nothing written (they came out "ok" with joint changes up to 40 degrees), pose targets
+    of the measured point are compensated; an ordinary calibration records nothing."""
+    from calib import calibrate, simulate_measurements
+    from calib.urdf import UrdfDocument
+
+    true = apply_deviations(bundled, {"v_x": 0.03, "v_y": -0.02, "v_z": 0.06, "theta2": 0.002})
+    Q = bundled.random_configurations(30, 4)
+    res = calibrate(bundled, simulate_measurements(true, Q, rng=4), cv=0)
+    assert res.estimated_frames == ("flange->tool",) and res.to_dict()["estimated_frames"] == ["flange->tool"]
+    cal_urdf = tmp_path / "cal.urdf"
+    res.write_urdf(cal_urdf)
+    rec = UrdfDocument.read(cal_urdf).frames
+    assert rec.tool_estimated and not rec.measurement_estimated
+    targets = np.array([[0.1, 0.3, 0.2, 0.4, 0.6, 0.5], [-0.7, -0.2, 0.9, -1.0, -0.9, 2.0]])
+    write_poses(tmp_path / "joints.csv", bundled, targets)
+    with pytest.raises(CalibError, match=r"estimated the tool frame \(the measured point, not the nominal "
+                                         r"tool\) from the data: joint targets stand for poses"):
+        _run(["compensate", cal_urdf, BUNDLED_URDF, tmp_path / "joints.csv", "-o", tmp_path / "c.csv"])
+    assert not (tmp_path / "c.csv").exists()
+    # pose targets of the measured point (where the true robot puts it at the targets)
+    R_t, p_t = ChainKinematics(true).frame_poses(targets)
+    from scipy.spatial.transform import Rotation
+    wxyz = Rotation.from_matrix(R_t).as_quat()[:, [3, 0, 1, 2]]
+    (tmp_path / "poses.csv").write_text("x_mm,y_mm,z_mm,qw,qx,qy,qz\n" + "".join(
+        ",".join(repr(float(v)) for v in (*(p * 1e3), *w)) + "\n" for p, w in zip(p_t, wxyz)))
+    assert _run(["compensate", cal_urdf, BUNDLED_URDF, tmp_path / "poses.csv", "-o", tmp_path / "c2.csv"]) == 0
+    rows = [l.split(",") for l in (tmp_path / "c2.csv").read_text().splitlines() if not l.startswith("#")][1:]
+    q = np.radians(np.array([[float(v) for v in r[:6]] for r in rows]))
+    assert np.abs(q - targets).max() < 2e-3          # the calibrated model, not the truth: close to it
+    plain = calibrate(bundled, simulate_measurements(apply_deviations(bundled, {"theta2": 0.002}), Q, rng=4), cv=0)
+    assert plain.estimated_frames == ()
+    plain.write_urdf(tmp_path / "plain.urdf")
+    assert not UrdfDocument.read(tmp_path / "plain.urdf").frames.tool_estimated
