@@ -1745,10 +1745,20 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                     sigma_pos=weights[0], sigma_rot=weights[1])
     n_free = len(ident if want == "auto" else free)
     spare = cal.n_poses * setup.components_per_pose - n_free
+    rank_note = ""
+    if spare < MIN_REDUNDANCY and not derived:
+        # a set given by name ("all", a list) may be rank deficient: the fit spends its rank only
+        # (the greedy selection with the set first keeps a maximal independent part of it)
+        kept = set(analyze_identifiability(start, cal.q, measure=setup.measure, sigma_pos=weights[0],
+                                           sigma_rot=weights[1], priority=free,
+                                           targets=target_rows(start, cal)).identifiable)
+        rank = sum(name in kept for name in free)
+        spare += n_free - rank
+        rank_note = f" (of rank {rank})" if rank < n_free else ""
     if (sigma_pos is None or sigma_rot is None) and spare < MIN_REDUNDANCY:
         where = f"{measurements.source}: " if measurements.source is not None else ""
         raise DataError(f"{where}{cal.n_poses} calibration rows give {cal.n_poses * setup.components_per_pose} "
-                        f"residual components for {n_free} parameters: at least {MIN_REDUNDANCY} more are "
+                        f"residual components for {n_free} parameters{rank_note}: at least {MIN_REDUNDANCY} more are "
                         f"needed to estimate the noise (a fit with none to spare passes through every "
                         f"row and says nothing of its accuracy); measure more rows, or give the noise "
                         f"levels (sigma_pos / sigma_rot, --sigma-pos-mm / --sigma-rot-rad)")

@@ -315,6 +315,21 @@ def test_no_spare_residuals_is_refused_and_cv_never_leaks(bundled_robot, paper_d
     assert any("no cross-validation" in n and "cannot identify" in n for n in res.notes)
 
 
+def test_spare_residuals_count_the_rank_of_a_named_set(bundled_robot):
+    """params='all' on position-only rows: 37 parameters of rank 25 on the bundled robot (its
+    nominal tool point on the last axis). 12 rows (36 components) leave 11 to estimate the noise
+    from: calibrated (they were refused, counted against 37); 10 rows (30 components) leave 5:
+    refused, the message giving the rank."""
+    true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
+    meas = _data(bundled_robot, true, 12, sigma_pos=2e-5, sigma_rot=2e-3, seed=8, position_only=True)
+    twelve = meas.calibration()
+    res = calib.calibrate(bundled_robot, twelve, params="all", cv=0)
+    assert res.status == "converged" and len(res.free) == 37
+    with pytest.raises(calib.CalibError, match=r"30 residual components for 37 parameters \(of rank 25\): "
+                                               r"at least 6 more"):
+        calib.calibrate(bundled_robot, twelve.subset(np.arange(10)), params="all", cv=0)
+
+
 def test_predicted_holdout_without_validation_rows_matches_cross_validation(ur5_small):
     """Without validation rows the prediction is for a held-out calibration-like row: on the
     23-row camera set it agrees with the leave-one-out error (and with the 1000 held-out rows)."""
