@@ -233,3 +233,27 @@ def test_weak_directions_undetermined_at_the_start_are_held():
     A2 = (V * np.array([1e-3, 0.5, 1.0, 2.0, 3.0])) @ V.T       # above WEAK_RCOND: released
     np.testing.assert_allclose(solvers._DampedSystem(A2, d, g, 1).step(1e-9),
                                -np.linalg.solve(A2 + 1e-9 * np.eye(5), g), rtol=1e-8)
+
+
+@pytest.mark.parametrize("loss", ["huber", "soft_l1"])
+def test_robust_curvature_rows_are_those_of_reweighted_least_squares(loss):
+    """robust_scaling's kappa turns the scaled Jacobian rows into sqrt(rho') J: the Gauss-Newton
+    matrix of iteratively reweighted least squares (the scaled rows alone under-weight a pose
+    beyond c by up to half), while the scaled residuals keep the cost and the gradient exact."""
+    rng = np.random.default_rng(3)
+    r = rng.normal(size=(40, 6)) * rng.uniform(0.1, 8.0, size=(40, 1))     # some beyond c = 3
+    J = rng.normal(size=(40, 6, 5))
+    c = 3.0
+    r_s, J_s, kappa = solvers.robust_scaling(r, J, loss, c, curvature=True)
+    z = np.sum(r * r, axis=1)
+    if loss == "huber":
+        rho = np.where(z > c * c, 2 * c * np.sqrt(z) - c * c, z)
+        drho = np.where(z > c * c, c / np.sqrt(z), 1.0)
+    else:
+        rho = 2 * c * c * (np.sqrt(1 + z / (c * c)) - 1)
+        drho = 1 / np.sqrt(1 + z / (c * c))
+    np.testing.assert_allclose(np.sum(r_s * r_s, axis=1), rho, rtol=1e-12)                 # cost
+    np.testing.assert_allclose(np.einsum("nkm,nk->m", J_s, r_s), np.einsum("n,nkm,nk->m", drho, J, r),
+                               rtol=1e-10)                                                  # gradient
+    np.testing.assert_allclose(J_s * kappa[:, None, None], J * np.sqrt(drho)[:, None, None], rtol=1e-12)
+    assert (z > c * c).sum() > 5 and kappa.max() > 1.2          # (the correction matters here)
