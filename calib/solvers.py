@@ -189,7 +189,8 @@ class Problem:
         # by the problems derived with other weights (see _normal_equations)
         self._shared: dict = {}
         self._rows_key = None
-        self._rank_deficit = None
+        # rank deficit per free set at the first point LM asked (shared by derived problems)
+        self._rank_deficits: dict = {}
 
     def _targets(self, sl=slice(None)):
         return None if self.targets is None else self.targets[sl]
@@ -220,7 +221,6 @@ class Problem:
         p._last_ne = p._last_pr = p._last_wb = None
         if free is not None:
             p.free = np.asarray(free, int)
-            p._rank_deficit = None
         if values is not None:
             p.values = np.array(values, float)
         if sigma_pos is not None:
@@ -242,12 +242,15 @@ class Problem:
 
     def rank_deficit(self, ne: NormalEquations) -> int:
         """How many directions the free parameters' normal matrix ``ne`` leaves undetermined
-        (see _rank_deficit), counted at the first point asked and kept: the LM runs of one
-        problem (its noise re-weighted re-fits, its row subsets) hold the directions that were
-        undetermined where the first one started (see _DampedSystem)."""
-        if getattr(self, "_rank_deficit", None) is None:
-            self._rank_deficit = _rank_deficit(_without_inert(ne))
-        return self._rank_deficit
+        (see _rank_deficit), counted at the first point asked and kept for this free set by the
+        problem and those derived from it: the LM runs of one calibration (its noise re-weighted
+        re-fits, its row subsets) hold the directions that were undetermined where the first one
+        started (see _DampedSystem)."""
+        memo = self.__dict__.setdefault("_rank_deficits", {})
+        key = self.free.tobytes()
+        if key not in memo:
+            memo[key] = _rank_deficit(_without_inert(ne))
+        return memo[key]
 
     def _chunks(self):
         N = self.n_poses
