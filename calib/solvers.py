@@ -240,14 +240,15 @@ class Problem:
             p.targets = self._targets(keep)
         return p
 
-    def rank_deficit(self, ne: NormalEquations) -> int:
-        """How many directions the free parameters' normal matrix ``ne`` leaves undetermined
-        (see _rank_deficit), counted at the first point asked and kept for this free set by the
-        problem and those derived from it: the LM runs of one calibration (its noise re-weighted
-        re-fits, its row subsets) hold the directions that were undetermined where the first one
-        started (see _DampedSystem)."""
+    def rank_deficit(self, ne: NormalEquations, parts: str = "pose") -> int:
+        """How many directions the free parameters' normal matrix ``ne`` of the residuals
+        ``parts`` leaves undetermined (see _rank_deficit), counted at the first point asked and
+        kept for this free set and these parts by the problem and those derived from it: the LM
+        runs of one calibration (its noise re-weighted re-fits, its row subsets) hold the
+        directions that were undetermined where the first one started (see _DampedSystem).
+        (C-LM's rotation steps and its pose fits may have the same free set, not the same ties.)"""
         memo = self.__dict__.setdefault("_rank_deficits", {})
-        key = self.free.tobytes()
+        key = (parts, self.free.tobytes())
         if key not in memo:
             memo[key] = _rank_deficit(_without_inert(ne))
         return memo[key]
@@ -675,7 +676,7 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
     mu = options.mu0
     trace.costs.append(cost)
     # a problem that is rank deficient at the start takes minimum-norm steps (see _DampedSystem)
-    n_tied = problem.rank_deficit(ne)
+    n_tied = problem.rank_deficit(ne, parts)
     # Few poses: a trial step computes the normal equations with its cost, in one pass over the
     # data instead of two when it is accepted (a Jacobian costs little more than the residuals
     # there). Only after an iteration whose first trial was accepted: a rejected trial wastes

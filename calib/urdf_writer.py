@@ -95,7 +95,8 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
         robot.parallel_threshold)``.
     estimated : the frames the calibration estimated from the data
         (:attr:`calib.CalibrationResult.estimated_frames`: "measurement->base", "flange->tool",
-        "flange-><id>"), recorded as ``measurement_estimated`` / ``tool_estimated``.
+        "flange-><id>"), recorded as ``measurement_estimated`` / ``tool_estimated``; a calibrated
+        input's record of its frames (same base / tool frame) is kept.
 
     Returns the frames the output records (:class:`calib.urdf.RecordedFrames`): in the output,
     Pinocchio's pose of ``tool_frame`` in ``base_frame`` is ``robot.T_meas_tool(q)`` (4x4,
@@ -115,8 +116,10 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
     check_not_input(check_path(path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
     doc, plan = _prepare(robot, nominal)
     estimated = tuple(estimated)
-    plan = replace(plan, frames=replace(plan.frames, measurement_estimated="measurement->base" in estimated,
-                                        tool_estimated=any(e.startswith("flange->") for e in estimated)))
+    f = plan.frames     # (a calibrated input's record kept: see _prepare)
+    plan = replace(plan, frames=replace(
+        f, measurement_estimated=f.measurement_estimated or "measurement->base" in estimated,
+        tool_estimated=f.tool_estimated or any(e.startswith("flange->") for e in estimated)))
     atomic_write_text(path, doc.render(plan))
     return plan.frames
 
@@ -475,13 +478,17 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
 
     rec = doc.frames      # a calibrated input: its frames stand for the same nominal frames
     nominal_base, nominal_tool = robot.base_frame, robot.tool_frame
+    # (and a frame an earlier calibration estimated from the data stays the instrument's / the
+    # measured point's in a recalibration of that URDF)
+    meas_estimated = tool_estimated = False
     if rec is not None and base_link == rec.base_frame:
-        nominal_base = rec.nominal_base_frame
+        nominal_base, meas_estimated = rec.nominal_base_frame, rec.measurement_estimated
     if rec is not None and tool_link == rec.tool_frame:
-        nominal_tool = rec.nominal_tool_frame
+        nominal_tool, tool_estimated = rec.nominal_tool_frame, rec.tool_estimated
     frames = RecordedFrames(base_frame=base_link, tool_frame=out_tool,
                             nominal_base_frame=nominal_base, nominal_tool_frame=nominal_tool,
-                            source=(rec.source if rec is not None and rec.source else doc.path.name))
+                            source=(rec.source if rec is not None and rec.source else doc.path.name),
+                            measurement_estimated=meas_estimated, tool_estimated=tool_estimated)
     return _Plan(source=doc.path.name, origins=origins, frames=frames, new_tool=new_tool)
 
 

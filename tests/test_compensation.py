@@ -378,3 +378,36 @@ def test_joint_targets_refused_when_the_calibration_estimated_the_tool(tmp_path,
     assert plain.estimated_frames == ()
     plain.write_urdf(tmp_path / "plain.urdf")
     assert not UrdfDocument.read(tmp_path / "plain.urdf").frames.tool_estimated
+
+
+def test_a_recalibration_keeps_the_record_of_frames_estimated_before(tmp_path, bundled):
+    """A calibrated URDF whose tool frame the calibration estimated (the measured point, 70 mm
+    off the nominal tool) recalibrated with new data of the same setup: its tool frame is still
+    the measured point, though the second calibration estimates no frame (its start is close);
+    the output keeps the record, and joint targets stay refused (the record was lost: joint
+    targets were compensated as poses of the nominal tool)."""
+    from calib import calibrate, load_robot, simulate_measurements
+    from calib.compensation import check_joint_targets
+    from calib.urdf import UrdfDocument
+
+    true = apply_deviations(bundled, {"v_x": 0.03, "v_y": -0.02, "v_z": 0.06, "theta2": 0.002})
+    first = calibrate(bundled, simulate_measurements(true, bundled.random_configurations(30, 4), rng=4), cv=0)
+    first.write_urdf(tmp_path / "cal1.urdf")
+    again = calibrate(load_robot(tmp_path / "cal1.urdf"),
+                      simulate_measurements(true, bundled.random_configurations(30, 8), rng=5), cv=0)
+    assert again.estimated_frames == ()          # (nothing far from the calibrated start)
+    again.write_urdf(tmp_path / "cal2.urdf")
+    rec = UrdfDocument.read(tmp_path / "cal2.urdf").frames
+    assert (rec.tool_estimated, rec.measurement_estimated) == (True, False)
+    with pytest.raises(CalibError, match=r"cal2\.urdf: the calibration estimated the tool frame"):
+        check_joint_targets(tmp_path / "cal2.urdf")
+    # an ordinary calibration of an ordinary calibrated URDF still records nothing
+    plain = calibrate(bundled, simulate_measurements(apply_deviations(bundled, {"theta2": 0.002}),
+                                                     bundled.random_configurations(30, 4), rng=4), cv=0)
+    plain.write_urdf(tmp_path / "plain1.urdf")
+    calibrate(load_robot(tmp_path / "plain1.urdf"), simulate_measurements(
+        apply_deviations(bundled, {"theta2": 0.002}), bundled.random_configurations(30, 4), rng=5),
+        cv=0).write_urdf(tmp_path / "plain2.urdf")
+    rec = UrdfDocument.read(tmp_path / "plain2.urdf").frames
+    assert (rec.tool_estimated, rec.measurement_estimated) == (False, False)
+    check_joint_targets(tmp_path / "plain2.urdf")
