@@ -986,6 +986,16 @@ def _idealised(robot: RobotModel) -> RobotModel:
     return robot.with_values(np.where(near, snapped, v))
 
 
+def _set_rank_deficit(setup: Setup, free: Sequence[str], weights: tuple[float, float]) -> int:
+    """How many directions the parameter set ``free`` leaves undetermined at the start model on
+    the calibration rows: its size minus the identifiable parameters a greedy selection with
+    ``free`` first keeps (a maximal independent part of it)."""
+    kept = set(analyze_identifiability(setup.start, setup.cal.q, measure=setup.measure, sigma_pos=weights[0],
+                                       sigma_rot=weights[1], priority=free,
+                                       targets=target_rows(setup.start, setup.cal)).identifiable)
+    return len(free) - sum(name in kept for name in free)
+
+
 def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
                      sigma_rot: float = SIGMA_ROT_RAD, targets: np.ndarray | None = None) -> tuple[str, ...]:
     """The identifiable parameter names at configurations Q (N, n) (see
@@ -1206,7 +1216,7 @@ def _solver_for(setup: Setup, free: Sequence[str], method: str, options: LMOptio
 def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: float | None,
               sigma_rot: float | None, loss: str = "linear", loss_scale: float = 3.0,
               outlier_k: float | None = 5.0, keep: np.ndarray | None = None,
-              kin: ChainKinematics | None = None) -> tuple[Fit, Problem]:
+              kin: ChainKinematics | None = None, rank_deficit: int = 0) -> tuple[Fit, Problem]:
     """The fit stage: identify ``free`` on the calibration rows of ``setup``.
 
     sigma_pos (m) / sigma_rot (rad): the noise per axis, or None to estimate it from the residuals
@@ -1214,6 +1224,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     squares over its redundancy, and the fit repeated, until both change by less than VCE_RTOL).
     With ``outlier_k``, rows whose whitened residual RMS exceeds it (judged against a robust fit,
     with noise levels that outliers cannot inflate) are removed and the fit repeated.
+    rank_deficit : how many directions ``free`` leaves undetermined at the nominal model on these
+    rows (0 for an identifiable set; see :meth:`calib.solvers.Problem.set_rank_deficit`).
     Returns the :class:`Fit` and the final weighted problem on the kept rows.
     """
     cal, start = setup.cal, setup.start
@@ -1225,6 +1237,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     sr = SIGMA_ROT_RAD if sigma_rot is None else sigma_rot
     everything = Problem(kin, cal.q, cal.position, cal.rotation, start.values, idx, sp, sr, loss, loss_scale,
                          targets=target_rows(start, cal))
+    everything.set_rank_deficit(rank_deficit)     # (of the set at the nominal model, these rows)
     suspect = None
     if keep is None:
         keep = np.ones(cal.n_poses, bool)
@@ -1760,14 +1773,14 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     n_free = len(ident if want == "auto" else free)
     spare = cal.n_poses * setup.components_per_pose - n_free
     rank_note = ""
-    if spare < MIN_REDUNDANCY and not derived:
+    deficit = 0         # (an identifiable set: full rank at the nominal model on these rows)
+    if not derived:
         # a set given by name ("all", a list) may be rank deficient: the fit spends its rank only
-        # (the greedy selection with the set first keeps a maximal independent part of it)
-        kept = set(analyze_identifiability(start, cal.q, measure=setup.measure, sigma_pos=weights[0],
-                                           sigma_rot=weights[1], priority=free,
-                                           targets=target_rows(start, cal)).identifiable)
-        rank = sum(name in kept for name in free)
-        spare += n_free - rank
+        # (the greedy selection with the set first keeps a maximal independent part of it), and
+        # LM holds the rest (Problem.set_rank_deficit)
+        deficit = _set_rank_deficit(setup, free, weights)
+        rank = n_free - deficit
+        spare += deficit
         rank_note = f" (of rank {rank})" if rank < n_free else ""
     if (sigma_pos is None or sigma_rot is None) and spare < MIN_REDUNDANCY:
         where = f"{measurements.source}: " if measurements.source is not None else ""
@@ -1811,10 +1824,13 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         log.info("model selection: %s", selection.chosen)
     else:
         if label in PARAM_SETS:     # a named set; a list of names is honoured as given
-            free = _compliance_filter(start, free, compliance, notes)
+            filtered = _compliance_filter(start, free, compliance, notes)
+            if not derived and filtered != tuple(free):
+                deficit = _set_rank_deficit(setup, filtered, weights)
+            free = filtered
         solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds, lm_variant)
         fit, problem = fit_stage(setup, free, solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss=loss,
-                                 loss_scale=loss_scale, outlier_k=outlier_k, kin=kin)
+                                 loss_scale=loss_scale, outlier_k=outlier_k, kin=kin, rank_deficit=deficit)
     notes += fit.notes
     nz = fit.noise
     if not nz.estimated and fit.solver.status == "converged" and nz.reduced_chi2 > CHI2_ESCAPE:

@@ -253,6 +253,14 @@ class Problem:
             memo[key] = _rank_deficit(_without_inert(ne))
         return memo[key]
 
+    def set_rank_deficit(self, n: int, parts: str = "pose") -> None:
+        """Declare how many directions the free parameters leave undetermined for the residuals
+        ``parts`` (known from the parameter set, e.g. 0 for an identifiable set), instead of
+        counting them where LM first starts: a start far from the solution can be singular
+        where the set is not (two axes momentarily perpendicular), and its count would hold
+        directions the data determine at the solution."""
+        self.__dict__.setdefault("_rank_deficits", {})[(parts, self.free.tobytes())] = int(n)
+
     def _chunks(self):
         N = self.n_poses
         for s in range(0, N, CHUNK_POSES):
