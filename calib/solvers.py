@@ -260,6 +260,12 @@ class Problem:
         where the set is not (two axes momentarily perpendicular), and its count would hold
         directions the data determine at the solution."""
         self.__dict__.setdefault("_rank_deficits", {})[(parts, self.free.tobytes())] = int(n)
+        self.__dict__.setdefault("_declared_deficits", set()).add((parts, self.free.tobytes()))
+
+    def declared_rank_deficit(self, parts: str = "pose") -> bool:
+        """Whether the rank deficit for ``parts`` was declared (:meth:`set_rank_deficit`): only
+        then does LM hold the nearly undetermined directions too (see _DampedSystem)."""
+        return (parts, self.free.tobytes()) in self.__dict__.get("_declared_deficits", ())
 
     def _chunks(self):
         N = self.n_poses
@@ -603,8 +609,9 @@ class _DampedSystem:
 
     ``n_tied`` > 0 (a problem rank deficient at its start, by that many directions): solved in
     the eigenbasis of A scaled to diag(d) = 1, without the directions whose eigenvalue is at
-    most RANK_RCOND times the largest, nor the ``n_tied`` smallest while they stay below
-    WEAK_RCOND times it. Along a combination the data do not determine, the gradient is rounding
+    most RANK_RCOND times the largest, and, with ``hold_weak`` (the deficit is known from the
+    parameter set, not merely counted at a start that may be singular), nor the ``n_tied``
+    smallest while they stay below WEAK_RCOND times it. Along a combination the data do not determine, the gradient is rounding
     noise and the damped step noise / (mu d): as mu falls with each accepted step, LM would carry
     such a combination without bound (an angle to 1e10 rad). Away from the start, the ties the
     start had are often only nearly exact (a twist that turns the tool offset, seen by the
@@ -613,7 +620,7 @@ class _DampedSystem:
     eigendecomposition is made once per iteration and serves its retries.
     """
 
-    def __init__(self, A: np.ndarray, d: np.ndarray, g: np.ndarray, n_tied: int):
+    def __init__(self, A: np.ndarray, d: np.ndarray, g: np.ndarray, n_tied: int, hold_weak: bool = True):
         self.A, self.d, self.g = A, d, g
         self.eig = None
         if n_tied:
@@ -621,7 +628,8 @@ class _DampedSystem:
             w, V = np.linalg.eigh(A * np.outer(s, s))          # (ascending)
             top = max(w[-1], 0.0)
             keep = w > RANK_RCOND * top
-            keep[:n_tied] &= w[:n_tied] > WEAK_RCOND * top
+            if hold_weak:
+                keep[:n_tied] &= w[:n_tied] > WEAK_RCOND * top
             V = V[:, keep] * s[:, None]           # back to the parameters' units
             self.eig = (w[keep], V, V.T @ g)
 
@@ -685,6 +693,7 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
     trace.costs.append(cost)
     # a problem that is rank deficient at the start takes minimum-norm steps (see _DampedSystem)
     n_tied = problem.rank_deficit(ne, parts)
+    hold_weak = problem.declared_rank_deficit(parts)
     # Few poses: a trial step computes the normal equations with its cost, in one pass over the
     # data instead of two when it is accepted (a Jacobian costs little more than the residuals
     # there). Only after an iteration whose first trial was accepted: a rejected trial wastes
@@ -699,7 +708,7 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
         if np.max(np.abs(g) / np.sqrt(d), initial=0.0) <= options.gtol * max(np.sqrt(2 * cost), 1e-300):
             return SolverResult(x, cost, "converged", f"gradient below tolerance after {it} iterations",
                                 trace.iterations - it0)
-        system = _DampedSystem(A, d, g, n_tied)
+        system = _DampedSystem(A, d, g, n_tied, hold_weak)
         step = system.step(mu)
         if _usable(step):
             # converged when even the Gauss-Newton model of the cost promises a decrease below the
