@@ -471,36 +471,35 @@ class _Header:
                       f"--rename '{written}=NEW', or drop it with --rename '{written}=')", written)
         return None
 
-    def _joints_outside_chain(self) -> set[str]:
-        """Lower-case names of the URDF's moving joints that are not in the robot's chain (read
-        only on this error path; empty when the model has no URDF)."""
-        if getattr(self, "_outside", None) is None:
-            self._outside = set()
+    def _urdf_joints(self) -> dict:
+        """The joints of the robot's URDF (name -> :class:`calib.urdf.UrdfJoint`), read once and
+        only on an error path; empty when the model has no URDF or it cannot be read."""
+        if getattr(self, "_joints", None) is None:
+            self._joints = {}
             if getattr(self.robot, "urdf_path", None) is not None:
                 from ..errors import CalibError
                 from ..urdf import UrdfDocument
 
                 try:
-                    joints = UrdfDocument.read(self.robot.urdf_path).joints
+                    self._joints = UrdfDocument.read(self.robot.urdf_path).joints
                 except (CalibError, OSError):
-                    joints = {}
-                inside = {n.lower() for n in self.robot.joint_names}
-                self._outside = {n.lower() for n, j in joints.items() if j.kind != "fixed"} - inside
-        return self._outside
+                    pass
+        return self._joints
+
+    def _joints_outside_chain(self) -> set[str]:
+        """Lower-case names of the URDF's moving joints that are not in the robot's chain."""
+        inside = {n.lower() for n in self.robot.joint_names}
+        return {n.lower() for n, j in self._urdf_joints().items() if j.kind != "fixed"} - inside
 
     def _trailing_hint(self, missing: list[int]) -> str:
         """When the joints without a column end the chain (a gripper joint taken as the arm's
-        last axis), how to leave them out: a tool frame before the first of them."""
+        last axis), how to leave them out: a tool frame before the first of them (no hint
+        without a URDF to name the link: a model built in code)."""
         robot = self.robot
-        if (not missing or missing != list(range(missing[0], robot.n_joints)) or missing[0] == 0
-                or robot.urdf_path is None):     # (a model built in code: no URDF to name the link)
+        if not missing or missing != list(range(missing[0], robot.n_joints)) or missing[0] == 0:
             return ""
-        from ..errors import CalibError
-        from ..urdf import UrdfDocument
-
-        try:
-            joint = UrdfDocument.read(robot.urdf_path).joints[robot.joints[missing[0]].name]
-        except (CalibError, OSError, KeyError):
+        joint = self._urdf_joints().get(robot.joints[missing[0]].name)
+        if joint is None:
             return ""
         names = ", ".join(robot.joints[i].name for i in missing)
         return (f"; if {names} {'is a gripper' if len(missing) == 1 else 'are a gripper'}, not an axis of the "
