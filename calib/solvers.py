@@ -189,7 +189,8 @@ class Problem:
         # by the problems derived with other weights (see _normal_equations)
         self._shared: dict = {}
         self._rows_key = None
-        # rank deficit per free set at the first point LM asked (shared by derived problems)
+        # (parts, free) -> (rank deficit, declared): declared by set_rank_deficit, else counted
+        # at the first point LM asked; shared by the problems derived from this one
         self._rank_deficits: dict = {}
 
     def _targets(self, sl=slice(None)):
@@ -247,11 +248,10 @@ class Problem:
         runs of one calibration (its noise re-weighted re-fits, its row subsets) hold the
         directions that were undetermined where the first one started (see _DampedSystem).
         (C-LM's rotation steps and its pose fits may have the same free set, not the same ties.)"""
-        memo = self.__dict__.setdefault("_rank_deficits", {})
         key = (parts, self.free.tobytes())
-        if key not in memo:
-            memo[key] = _rank_deficit(_without_inert(ne))
-        return memo[key]
+        if key not in self._rank_deficits:
+            self._rank_deficits[key] = (_rank_deficit(_without_inert(ne)), False)
+        return self._rank_deficits[key][0]
 
     def set_rank_deficit(self, n: int, parts: str = "pose") -> None:
         """Declare how many directions the free parameters leave undetermined for the residuals
@@ -259,13 +259,12 @@ class Problem:
         counting them where LM first starts: a start far from the solution can be singular
         where the set is not (two axes momentarily perpendicular), and its count would hold
         directions the data determine at the solution."""
-        self.__dict__.setdefault("_rank_deficits", {})[(parts, self.free.tobytes())] = int(n)
-        self.__dict__.setdefault("_declared_deficits", set()).add((parts, self.free.tobytes()))
+        self._rank_deficits[(parts, self.free.tobytes())] = (int(n), True)
 
     def declared_rank_deficit(self, parts: str = "pose") -> bool:
         """Whether the rank deficit for ``parts`` was declared (:meth:`set_rank_deficit`): only
         then does LM hold the nearly undetermined directions too (see _DampedSystem)."""
-        return (parts, self.free.tobytes()) in self.__dict__.get("_declared_deficits", ())
+        return self._rank_deficits.get((parts, self.free.tobytes()), (0, False))[1]
 
     def _chunks(self):
         N = self.n_poses
@@ -611,8 +610,9 @@ class _DampedSystem:
     the eigenbasis of A scaled to diag(d) = 1, without the directions whose eigenvalue is at
     most RANK_RCOND times the largest, and, with ``hold_weak`` (the deficit is known from the
     parameter set, not merely counted at a start that may be singular), nor the ``n_tied``
-    smallest while they stay below WEAK_RCOND times it. Along a combination the data do not determine, the gradient is rounding
-    noise and the damped step noise / (mu d): as mu falls with each accepted step, LM would carry
+    smallest while they stay below WEAK_RCOND times it. Along a combination the data do not
+    determine, the gradient is rounding noise and the damped step noise / (mu d): as mu falls
+    with each accepted step, LM would carry
     such a combination without bound (an angle to 1e10 rad). Away from the start, the ties the
     start had are often only nearly exact (a twist that turns the tool offset, seen by the
     positions to second order): following such a weak direction fits the noise (0.3-0.5 rad of a
