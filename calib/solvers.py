@@ -612,12 +612,12 @@ class _DampedSystem:
     parameter set, not merely counted at a start that may be singular), nor the ``n_tied``
     smallest while they stay below WEAK_RCOND times it. Along a combination the data do not
     determine, the gradient is rounding noise and the damped step noise / (mu d): as mu falls
-    with each accepted step, LM would carry
-    such a combination without bound (an angle to 1e10 rad). Away from the start, the ties the
-    start had are often only nearly exact (a twist that turns the tool offset, seen by the
-    positions to second order): following such a weak direction fits the noise (0.3-0.5 rad of a
-    twist on position-only data), so it is held while the data barely see it. The
-    eigendecomposition is made once per iteration and serves its retries.
+    with each accepted step, LM would carry such a combination without bound (an angle to 1e10
+    rad). Away from the start, the ties the start had are often only nearly exact (a twist that
+    turns the tool offset, seen by the positions to second order): following such a weak
+    direction fits the noise (0.3-0.5 rad of a twist on position-only data), so it is held while
+    the data barely see it. The eigendecomposition is made once per iteration and serves its
+    retries.
     """
 
     def __init__(self, A: np.ndarray, d: np.ndarray, g: np.ndarray, n_tied: int, hold_weak: bool = True):
