@@ -15,29 +15,31 @@ See README.md for the command line.
 #: The package version (the one place it is written: pyproject.toml reads it from here).
 __version__ = "0.1.0"
 
-from .errors import (CalibError, ChainError, DataError, FrameNotFound, MeasurementFormatError,
-                     OutputError, ParameterError, URDFError)
+from calib.errors import (CalibError, ChainError, DataError, FrameNotFound, MeasurementFormatError,
+                          OutputError, ParameterError, URDFError)
 
 #: Where each public name lives. They are imported on first use (PEP 562), so that ``import
 #: calib`` - and the ``calib`` command, which must handle Ctrl-C from its first instant - does
 #: not load numpy, scipy and Pinocchio before they are needed.
 _HOME = {
-    "robot": ("ChainJoint", "Parameter", "RobotModel", "load_robot", "robot_path"),
-    "jacobian": ("identification_jacobian",),
-    "identifiability": ("IdentifiabilityReport", "analyze_identifiability"),
-    "measurements": ("Measurements",),
-    "formats": ("CompensationTargets", "ReadOptions", "read_measurements", "read_poses", "read_targets",
-                "write_compensation", "write_measurements", "write_poses"),
-    "calibration": ("AccuracyStats", "CalibrationResult", "ParameterEstimate", "TargetAccuracy",
-                    "calibrate", "evaluate"),
-    "simulate": ("PAPER_DEVIATIONS", "apply_deviations", "random_deviations", "simulate_measurements"),
-    "urdf_writer": ("check_writable", "write_calibrated_urdf"),
-    "urdf": ("RecordedFrames",),
-    "report": ("build_report", "render_html"),
-    "poses": ("PoseDesign", "design_poses", "select_poses"),
-    "compensation": ("CompensationResult", "compensate", "compensate_poses"),
-    "compliance": ("GravityModel", "Payload"),
-    "paper_lm": ("PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm"),
+    "model.robot": ("ChainJoint", "Parameter", "RobotModel"),
+    "io.urdf_reader": ("load_robot", "robot_path"),
+    "model.jacobian": ("identification_jacobian",),
+    "model.identifiability": ("IdentifiabilityReport", "analyze_identifiability"),
+    "model.measurements": ("Measurements",),
+    "io.csv_layer": ("ReadOptions",),
+    "io.specs": ("CompensationTargets", "read_measurements", "read_poses", "read_targets",
+                 "write_compensation", "write_measurements", "write_poses"),
+    "calibration.core": ("AccuracyStats", "CalibrationResult", "ParameterEstimate", "TargetAccuracy",
+                         "calibrate", "evaluate"),
+    "model.simulate": ("PAPER_DEVIATIONS", "apply_deviations", "random_deviations", "simulate_measurements"),
+    "io.urdf_writer": ("check_writable", "write_calibrated_urdf"),
+    "io.urdf": ("RecordedFrames",),
+    "calibration.report": ("build_report", "render_html"),
+    "calibration.poses": ("PoseDesign", "design_poses", "select_poses"),
+    "calibration.compensation": ("CompensationResult", "compensate", "compensate_poses"),
+    "model.compliance": ("GravityModel", "Payload"),
+    "solvers.paper_lm": ("PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm"),
 }
 _MODULE_OF = {name: module for module, names in _HOME.items() for name in names}
 

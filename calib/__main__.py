@@ -1,5 +1,5 @@
-"""``python -m calib``: the ``calib`` command (see :mod:`calib.cli`)."""
-from ._entry import main
+"""``python -m calib``: the ``calib`` command (see :mod:`calib.cli.main`)."""
+from calib._entry import main
 
 if __name__ == "__main__":
     main()

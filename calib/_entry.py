@@ -1,9 +1,9 @@
 """The ``calib`` console command's entry point: Ctrl-C and SIGTERM handled from the first instant.
 
-``import calib.cli`` loads numpy, scipy and Pinocchio (a second or more on a cold start). A
+``import calib.cli.main`` loads numpy, scipy and Pinocchio (a second or more on a cold start). A
 signal in that time would otherwise end the process with a traceback (SIGINT) or silently
 (SIGTERM); here it ends it with the command's one line and exit code 128 + the signal, as
-:func:`calib.cli.main` does later. Nothing has been written yet at that point.
+:func:`calib.cli.main.main` does later. Nothing has been written yet at that point.
 """
 from __future__ import annotations
 
@@ -19,9 +19,9 @@ def _stop(signum, frame) -> None:      # noqa: ARG001 - signal handler signature
 
 
 def main() -> None:
-    """Install the start-up handlers, import the command, hand over to :func:`calib.cli.main_entry`."""
+    """Install the start-up handlers, import the command, hand over to :func:`calib.cli.main.main_entry`."""
     previous = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    from .cli import main_entry          # the heavy imports
+    from calib.cli.main import main_entry
 
     for s, handler in previous.items():
         signal.signal(s, handler)

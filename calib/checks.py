@@ -14,7 +14,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from .errors import DataError, ParameterError
+from calib.errors import DataError, ParameterError
 
 _REAL = (int, float, np.integer, np.floating)
 
@@ -81,14 +81,14 @@ def check_instance(value: Any, name: str, cls: type, how: str, *, allow_none: bo
 
 def check_robot(value: Any, name: str = "robot"):
     """``value`` if it is a :class:`calib.RobotModel`."""
-    from .robot import RobotModel
+    from calib.model.robot import RobotModel
 
     return check_instance(value, name, RobotModel, "from calib.load_robot")
 
 
 def check_measurements(value: Any, name: str = "measurements", *, allow_none: bool = False):
     """``value`` if it is a :class:`calib.Measurements`."""
-    from .measurements import Measurements
+    from calib.model.measurements import Measurements
 
     return check_instance(value, name, Measurements, "from calib.read_measurements",
                           allow_none=allow_none)

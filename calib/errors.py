@@ -79,7 +79,7 @@ class DataError(CalibError):
 class OutputError(CalibError):
     """An output that cannot be written (read-only folder, full disk, ...): names the path.
 
-    When it is raised by :class:`calib.fileio.OutputSet`, no output was changed."""
+    When it is raised by :class:`calib.io.fileio.OutputSet`, no output was changed."""
 
     def __init__(self, path: str | Path, reason: str):
         self.path = Path(path)

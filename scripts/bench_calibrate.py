@@ -17,11 +17,13 @@ import _bench  # noqa: F401  (sets one BLAS thread before numpy loads)
 import numpy as np
 
 import calib
-from calib.jacobian import pose_jacobian
-from calib.kinematics import ChainKinematics
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
-from calib.angles import RotationChain
-from calib.solvers import LMOptions, LMTrace, Problem, cross_lm, levenberg_marquardt, search_lm
+from calib.model.jacobian import pose_jacobian
+from calib.model.kinematics import ChainKinematics
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+from calib.solvers.angles import RotationChain
+from calib.solvers.lm import LMOptions, LMTrace, levenberg_marquardt
+from calib.solvers.problem import Problem
+from calib.solvers.schemes import cross_lm, search_lm
 
 ROOT = Path(__file__).resolve().parents[1]
 

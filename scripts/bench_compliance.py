@@ -26,7 +26,7 @@ import _bench  # noqa: E402  (one BLAS thread)
 import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
-from calib.compliance import Payload, with_gravity  # noqa: E402
+from calib.model.compliance import Payload, with_gravity
 
 TRUE_C = np.array([0.0, 3e-6, 4e-6, 5e-6, 5e-6, 5e-6])       # rad/(N m)
 PAYLOAD = Payload(10.0, np.array([0.0, 0.05, 0.10]))          # kg; m in the tool frame

@@ -29,9 +29,9 @@ import _bench  # noqa: E402,F401  (one BLAS thread)
 import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
-from calib.calibration import candidate_sets, identifiable_set  # noqa: E402
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements  # noqa: E402
-from calib.spatial import zyx_transform  # noqa: E402
+from calib.calibration.core import candidate_sets, identifiable_set
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
+from calib.model.spatial import zyx_transform
 
 ROOT = Path(__file__).resolve().parents[1]
 

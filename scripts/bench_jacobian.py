@@ -2,7 +2,7 @@
 
 Prints the median over repeated runs of: a per-pose loop of Pinocchio's forward kinematics plus
 kinematic regressor (the reference the tests compare with), and calib's whole Jacobian
-(vectorised over poses, :meth:`calib.kinematics.ChainKinematics.poses_and_jacobian`), and their
+(vectorised over poses, :meth:`calib.model.kinematics.ChainKinematics.poses_and_jacobian`), and their
 ratio.
 Targets: 100 poses < 1 ms, 10,000 poses < 60 ms, on one core.
 
@@ -17,8 +17,8 @@ import numpy as np
 import pinocchio as pin
 
 import calib
-from calib.jacobian import pose_jacobian
-from calib.kinematics import ChainKinematics
+from calib.model.jacobian import pose_jacobian
+from calib.model.kinematics import ChainKinematics
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -69,7 +69,7 @@ def _env() -> dict:
 def problem(n: int, seed: int = 1):
     """(nominal robot, simulated measurements of n poses)."""
     import calib
-    from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+    from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
 
     robot = calib.load_robot(URDF)
     true = apply_deviations(robot, PAPER_DEVIATIONS)
@@ -81,9 +81,11 @@ def calibrate_100(repeats: int = 21) -> dict:
     import numpy as np
 
     import calib
-    from calib.angles import RotationChain
-    from calib.kinematics import ChainKinematics
-    from calib.solvers import LMOptions, LMTrace, Problem, search_lm
+    from calib.solvers.angles import RotationChain
+    from calib.model.kinematics import ChainKinematics
+    from calib.solvers.lm import LMOptions, LMTrace
+    from calib.solvers.problem import Problem
+    from calib.solvers.schemes import search_lm
 
     robot, meas = problem(100)
     wall = _bench.median_time(lambda: calib.calibrate(robot, meas), repeats)

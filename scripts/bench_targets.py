@@ -19,9 +19,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from calib import calibrate, load_robot  # noqa: E402
-from calib.jacobian import pose_jacobian  # noqa: E402
-from calib.kinematics import ChainKinematics  # noqa: E402
-from calib.simulate import apply_deviations, random_deviations, simulate_measurements  # noqa: E402
+from calib.model.jacobian import pose_jacobian
+from calib.model.kinematics import ChainKinematics
+from calib.model.simulate import apply_deviations, random_deviations, simulate_measurements
 
 URDF = Path(__file__).resolve().parents[1] / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
 OFFSETS = {"A": [0.10, 0.0, 0.05], "B": [-0.05, 0.08, 0.05], "C": [0.0, -0.07, 0.10]}

@@ -48,16 +48,18 @@ from typing import Sequence  # noqa: E402
 import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
-from calib.calibration import PAPER_EXCLUDED, select_parameters  # noqa: E402
-from calib.fileio import atomic_write_bytes, atomic_write_text  # noqa: E402
-from calib.angles import RotationChain  # noqa: E402
-from calib.kinematics import ChainKinematics  # noqa: E402
-from calib.progress import Progress  # noqa: E402
-from calib.robot import RobotModel  # noqa: E402
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements  # noqa: E402
-from calib.paper_lm import PaperLMOptions, paper_cross_lm, paper_lm  # noqa: E402
-from calib.solvers import CHI2_ESCAPE, LMOptions, LMTrace, Problem, cross_lm, levenberg_marquardt, search_lm  # noqa: E402
-from calib.spatial import log3_batch  # noqa: E402
+from calib.calibration.core import PAPER_EXCLUDED, select_parameters
+from calib.io.fileio import atomic_write_bytes, atomic_write_text
+from calib.solvers.angles import RotationChain
+from calib.model.kinematics import ChainKinematics
+from calib.cli.progress import Progress
+from calib.model.robot import RobotModel
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+from calib.solvers.paper_lm import PaperLMOptions, paper_cross_lm, paper_lm
+from calib.solvers.problem import CHI2_ESCAPE, Problem
+from calib.solvers.lm import LMOptions, LMTrace, levenberg_marquardt
+from calib.solvers.schemes import cross_lm, search_lm
+from calib.model.spatial import log3_batch
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
@@ -123,7 +125,7 @@ SWEEP_SPAN = {"m": 0.1e-3, "rad": 0.005}
 METHOD_LABELS = {"lm": "LM", "c-lm": "C-LM", "lm-paper": "LM (paper)", "c-lm-paper": "C-LM (paper)",
                  "best": "best strategy", "default": "calib.calibrate() defaults"}
 #: The methods of the convergence study: calib's LM and C-LM, the paper's as printed
-#: (:mod:`calib.paper_lm`), our best strategy.
+#: (:mod:`calib.solvers.paper_lm`), our best strategy.
 STUDY_METHODS = ("lm", "c-lm", "lm-paper", "c-lm-paper", "best")
 #: The paper's algorithm as printed and the variants of what it leaves open: method -> (LM or
 #: C-LM, translation rows of plain LM, lambda of Eq. 28).
@@ -250,7 +252,7 @@ def stats3(e: np.ndarray) -> tuple[float, float, float]:
 
 
 # ====================================================================== best strategy
-# RotationChain (the closed-form angle search) lives in calib.angles.
+# RotationChain (the closed-form angle search) lives in calib.solvers.angles.
 
 
 @dataclass
@@ -291,8 +293,8 @@ def identify(start: RobotModel, meas: calib.Measurements, free_names: Sequence[s
     """Identify ``free_names`` from ``start`` with the library's solvers, without the rest of
     :func:`calib.calibrate` (frame initialisation, statistics): the calls the study times.
 
-    method : "lm", "c-lm" (:func:`calib.solvers.cross_lm`), "lm-paper", "c-lm-paper" (the paper's
-        LM and C-LM as printed, :mod:`calib.paper_lm`, with ``options.max_iterations``) or "best"
+    method : "lm", "c-lm" (:func:`calib.solvers.schemes.cross_lm`), "lm-paper", "c-lm-paper" (the paper's
+        LM and C-LM as printed, :mod:`calib.solvers.paper_lm`, with ``options.max_iterations``) or "best"
         (:func:`identify_best`).
     kin, chain : optional workspaces of a model with ``start``'s structure, reused across calls.
     """
@@ -323,7 +325,7 @@ def identify(start: RobotModel, meas: calib.Measurements, free_names: Sequence[s
 def identify_paper(start: RobotModel, meas: calib.Measurements, free_names: Sequence[str], method: str, *,
                    max_iterations: int = STUDY_LM_ITERATIONS, max_rounds: int = STUDY_CLM_ROUNDS,
                    fixed_rounds: int | None = None, kin: ChainKinematics | None = None) -> Identification:
-    """The paper's LM ("lm-paper") or C-LM ("c-lm-paper") as printed (:mod:`calib.paper_lm`):
+    """The paper's LM ("lm-paper") or C-LM ("c-lm-paper") as printed (:mod:`calib.solvers.paper_lm`):
     mu I damping reset to 0.001 lambda^(+-1), every step taken, unweighted residuals in mm and rad;
     or one of the variants of :data:`PAPER_VARIANTS` (position-error rows for plain LM, lambda
     2.5). The returned cost is the paper's 1/2 |Delta P|^2 (mm, rad), not a noise-weighted one."""
@@ -356,7 +358,7 @@ def identify_best(start: RobotModel, meas: calib.Measurements, free_names: Seque
                   options: LMOptions | None = None, sigma_pos: float = SIGMA_POS_M,
                   sigma_rot: float = SIGMA_ROT_RAD, max_escapes: int = 3,
                   kin: ChainKinematics | None = None, chain: RotationChain | None = None) -> Identification:
-    """Our best strategy, the library's ``search-lm`` (:func:`calib.solvers.search_lm`):
+    """Our best strategy, the library's ``search-lm`` (:func:`calib.solvers.schemes.search_lm`):
     closed-form global search of the angles, then LM, escaping local minima.
 
     1. :meth:`RotationChain.search` moves the free angular parameters to the global optimum of
@@ -618,7 +620,7 @@ def _convergence_row(i: int, offsets: np.ndarray, methods: tuple[str, ...], seed
 
 
 class ProgressBar(Progress):
-    """The stage's progress line on stderr (:class:`calib.progress.Progress`), drawn from the
+    """The stage's progress line on stderr (:class:`calib.cli.progress.Progress`), drawn from the
     start: the studies report to a person who launched them."""
 
     def __init__(self, total: int, label: str):
@@ -947,7 +949,7 @@ def write_report(path: Path, *, setup: Setup, t67: tuple, sweeps: list | None, s
     w("## Setup")
     w("")
     w("- Robot: the bundled BRTIRUS0707A (Table 3); true model = nominal + the deviations of Tables 4-5 "
-      "(`calib.simulate.PAPER_DEVIATIONS`); nominal u = v = 0 (measurement and tool frames at the "
+      "(`calib.model.simulate.PAPER_DEVIATIONS`); nominal u = v = 0 (measurement and tool frames at the "
       "identity, as in the paper).")
     w(f"- Calibration: {setup.meas_exact.n_poses} configurations uniform within the joint limits (seed "
       f"{SEED_CAL}). Validation: {len(setup.Q_val)} other configurations (seed {SEED_VAL}), noise-free, "
@@ -955,14 +957,14 @@ def write_report(path: Path, *, setup: Setup, t67: tuple, sweeps: list | None, s
       "depends on this random sample, as the paper's do on theirs.")
     w(f"- Noise (Section 4.3): position N(0, ({SIGMA_POS_M * 1e3} mm)^2) per axis; orientation: the true "
       f"rotation turned by a rotation vector with N(0, ({SIGMA_ROT_RAD} rad)^2) components "
-      "(`calib.simulate`). The paper does not say how it applies its orientation noise (to Euler angles "
+      "(`calib.model.simulate`). The paper does not say how it applies its orientation noise (to Euler angles "
       "or as a rotation), which changes the effective noise by a factor of order one.")
-    w("- Solvers (`calib.solvers`): LM on noise-weighted residuals (position / sigma_pos, SO(3) log of "
+    w("- Solvers (`calib.solvers.problem`): LM on noise-weighted residuals (position / sigma_pos, SO(3) log of "
       "the rotation error / sigma_rot), re-linearised exactly at every step, damping mu diag(J^T J) "
       "with the usual multiplicative update (READING-NOTES on Eq. 28); the paper writes mu I and "
       "resets mu to 0.001 lambda^(+-1). C-LM (Section 3.2.2) = rounds of (LM on the angular "
       "parameters with the rotation residuals, then LM on all parameters with all residuals).")
-    w("- The paper's LM and C-LM as printed (`calib.paper_lm`, rows \"LM (paper)\" and \"C-LM (paper)\" "
+    w("- The paper's LM and C-LM as printed (`calib.solvers.paper_lm`, rows \"LM (paper)\" and \"C-LM (paper)\" "
       "of Table 8): step -(J^T J + mu I)^-1 J^T Delta P (Eq. 27), mu reset to 0.001 lambda or "
       "0.001 / lambda after each step (Eq. 28, lambda = 10), every step taken; Delta P unweighted "
       "in mm and rad, read from the differential transform delta T = dT T^-1 of Eq. (5) (its "
@@ -1310,7 +1312,7 @@ def write_report(path: Path, *, setup: Setup, t67: tuple, sweeps: list | None, s
         p_lm, p_clm = study.ratio("lm-paper"), study.ratio("c-lm-paper")
         order = ("C-LM ahead of LM, as in the paper" if p_clm > p_lm else "C-LM not ahead of LM, unlike the paper")
         w("")
-        w(f"The paper's algorithm as printed (`calib.paper_lm`) converges in **{100 * p_lm:.2f} %** (LM) and "
+        w(f"The paper's algorithm as printed (`calib.solvers.paper_lm`) converges in **{100 * p_lm:.2f} %** (LM) and "
           f"**{100 * p_clm:.1f} %** (C-LM) of the same cases, against the paper's 22.45 % and 53.16 %: "
           f"{order}, and the gap between the two "
           + ("wider" if (p_clm - p_lm) > (0.5316 - 0.2245) else "narrower")
@@ -1432,12 +1434,12 @@ ERRATA = [
     "- **Eq. (26)-(27), the sign.** If Delta P = J Delta rho (Eq. 26) is the pose error that a "
     "parameter error Delta rho causes (measured minus model), the printed step "
     "`-(J^T J + mu I)^-1 J^T Delta P` added to rho (Step 3) moves away from the solution; it is a "
-    "descent step when Delta P is model minus measured, as `calib.paper_lm` reads it "
+    "descent step when Delta P is model minus measured, as `calib.solvers.paper_lm` reads it "
     "(READING-NOTES).",
     "- **Eq. (28), the damping.** Printed: mu becomes 0.001 lambda or 0.001 / lambda after each "
     "step, a reset, where Marquardt multiplies the previous mu by lambda or 1 / lambda. With the "
     "reset mu never exceeds 0.01 (lambda = 10), so repeated failures never shorten the step; "
-    "`calib.paper_lm` implements it as printed (Table 8's 'paper' rows), `calib.solvers` the usual "
+    "`calib.solvers.paper_lm` implements it as printed (Table 8's 'paper' rows), `calib.solvers.problem` the usual "
     "rule.",
     "- **Section 3.2.2, 'the position error Delta p and the differential translation d differ by a "
     "rotation matrix R'.** With Eq. (5)'s differential `dT = delta T T` they differ by the cross "

@@ -6,8 +6,8 @@ import math
 import numpy as np
 
 from calib import analyze_identifiability
-from calib.angles import RotationChain, spread_subset
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+from calib.solvers.angles import RotationChain, spread_subset
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
 
 
 def _chordal(X, Y):

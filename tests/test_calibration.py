@@ -10,10 +10,10 @@ from scipy.spatial.transform import Rotation
 
 import calib
 from calib import DataError, ParameterError
-from calib.kinematics import ChainKinematics
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
-from calib.solvers import LMOptions
-from calib.spatial import log3_batch
+from calib.model.kinematics import ChainKinematics
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+from calib.solvers.lm import LMOptions
+from calib.model.spatial import log3_batch
 
 from conftest import erd_urdf
 
@@ -217,7 +217,7 @@ def test_evaluate(setup):
 
 
 def test_distinct_configurations_counts_as_numpy_unique():
-    from calib.calibration import distinct_configurations
+    from calib.calibration.core import distinct_configurations
 
     rng = np.random.default_rng(3)
     Q = np.round(rng.normal(size=(30, 6)), 1)
@@ -228,9 +228,9 @@ def test_distinct_configurations_counts_as_numpy_unique():
 def test_normal_equations_reweighted_from_the_shared_linearisation():
     """A problem derived with other noise levels re-scales the normal equations of its parent
     at the same x: equal to computing them afresh."""
-    from calib.kinematics import ChainKinematics
-    from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
-    from calib.solvers import Problem
+    from calib.model.kinematics import ChainKinematics
+    from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+    from calib.solvers.problem import Problem
 
     robot = calib.load_robot(Path(__file__).resolve().parents[1] / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
     meas = simulate_measurements(apply_deviations(robot, PAPER_DEVIATIONS), robot.random_configurations(20, 1), rng=2)

@@ -16,8 +16,8 @@ import pytest
 import yourdfpy
 
 import calib
-from calib.cli import main
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations
+from calib.cli.main import main
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations
 
 from conftest import BUNDLED_URDF, ROOT
 
@@ -477,8 +477,8 @@ def test_output_equal_to_input_urdf_is_refused_and_input_unchanged(good_csv, tmp
 
 def test_not_converged_exits_3_and_still_writes(good_csv, tmp_path, capsys, monkeypatch):
     """A fit that stops at the iteration limit: status on stderr, exit 3, outputs written."""
-    import calib.cli as cli
-    from calib.solvers import LMOptions
+    import calib.cli.main as cli
+    from calib.solvers.lm import LMOptions
 
     real = cli.calibrate
     monkeypatch.setattr(cli, "calibrate", lambda *a, **k: real(*a, method="lm", options=LMOptions(
@@ -533,7 +533,7 @@ def test_readme_opens_with_the_two_setup_commands_and_ci_runs_the_test_one():
 
 
 def test_every_calib_command_in_the_docs_parses():
-    from calib.cli import build_parser
+    from calib.cli.main import build_parser
 
     shown = [c for doc in (ROOT / "README.md", ROOT / "examples" / "README.md")
              for c in _readme_commands(doc)]

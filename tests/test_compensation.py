@@ -10,14 +10,14 @@ import pytest
 
 from calib import (DataError, MeasurementFormatError, PAPER_DEVIATIONS, apply_deviations,
                    load_robot, random_deviations)
-from calib.cli_practice import add_compensate_parser, add_select_poses_parser
-from calib.compensation import (compensate, compensate_poses, load_compensation_models,
-                                tool_poses_and_joint_jacobians)
+from calib.cli.practice import add_compensate_parser, add_select_poses_parser
+from calib.calibration.compensation import (compensate, compensate_poses, load_compensation_models,
+                                            tool_poses_and_joint_jacobians)
 from calib.errors import CalibError
-from calib.kinematics import ChainKinematics
-from calib.formats import read_poses, read_targets, write_poses
-from calib.spatial import log3_batch
-from calib.urdf_writer import write_calibrated_urdf
+from calib.model.kinematics import ChainKinematics
+from calib.io.specs import read_poses, read_targets, write_poses
+from calib.model.spatial import log3_batch
+from calib.io.urdf_writer import write_calibrated_urdf
 
 from conftest import BUNDLED_URDF, erd_urdf
 
@@ -348,7 +348,7 @@ def test_joint_targets_refused_when_the_calibration_estimated_the_tool(tmp_path,
     and nothing written (they came out "ok" with joint changes up to 40 degrees), pose targets
     of the measured point are compensated; an ordinary calibration records nothing."""
     from calib import calibrate, simulate_measurements
-    from calib.urdf import UrdfDocument
+    from calib.io.urdf import UrdfDocument
 
     true = apply_deviations(bundled, {"v_x": 0.03, "v_y": -0.02, "v_z": 0.06, "theta2": 0.002})
     Q = bundled.random_configurations(30, 4)
@@ -387,8 +387,8 @@ def test_a_recalibration_keeps_the_record_of_frames_estimated_before(tmp_path, b
     the output keeps the record, and joint targets stay refused (the record was lost: joint
     targets were compensated as poses of the nominal tool)."""
     from calib import calibrate, load_robot, simulate_measurements
-    from calib.compensation import check_joint_targets
-    from calib.urdf import UrdfDocument
+    from calib.calibration.compensation import check_joint_targets
+    from calib.io.urdf import UrdfDocument
 
     true = apply_deviations(bundled, {"v_x": 0.03, "v_y": -0.02, "v_z": 0.06, "theta2": 0.002})
     first = calibrate(bundled, simulate_measurements(true, bundled.random_configurations(30, 4), rng=4), cv=0)

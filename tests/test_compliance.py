@@ -1,4 +1,4 @@
-"""Joint compliance under gravity (calib.compliance): torques, Jacobian columns, identification,
+"""Joint compliance under gravity (calib.model.compliance): torques, Jacobian columns, identification,
 sidecar and compensation, bad input."""
 from __future__ import annotations
 
@@ -9,12 +9,12 @@ import pinocchio as pin
 import pytest
 
 import calib
-from calib.cli import main
-from calib.compliance import (GravityModel, Payload, apply_record, effective_configurations,
-                              read_compliance, sidecar_path, with_gravity)
-from calib.jacobian import pose_jacobian
-from calib.kinematics import ChainKinematics
-from calib.spatial import log3_batch
+from calib.cli.main import main
+from calib.model.compliance import (GravityModel, Payload, apply_record, effective_configurations,
+                                    read_compliance, sidecar_path, with_gravity)
+from calib.model.jacobian import pose_jacobian
+from calib.model.kinematics import ChainKinematics
+from calib.model.spatial import log3_batch
 
 PAYLOAD = Payload(10.0, np.array([0.0, 0.03, 0.1]))
 TRUE_C = np.array([0.0, 3e-6, 4e-6, 5e-6, 0.0, 0.0])        # rad/(N m)

@@ -15,8 +15,8 @@ from scipy.spatial.transform import Rotation
 
 import calib
 from calib import DataError, MeasurementFormatError, ParameterError, ReadOptions
-from calib.cli import main
-from calib.formats import read_poses, read_targets
+from calib.cli.main import main
+from calib.io.specs import read_poses, read_targets
 
 from conftest import BUNDLED_URDF
 

@@ -6,14 +6,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calib.frames import estimate_frames
-from calib.simulate import simulate_measurements
-from calib.spatial import zyx_transform
+from calib.calibration.frames import estimate_frames
+from calib.model.simulate import simulate_measurements
+from calib.model.spatial import zyx_transform
 
 
 @pytest.mark.parametrize("chunk", [4096, 7])
 def test_frames_recovered_from_exact_data(bundled_robot, monkeypatch, chunk):
-    import calib.frames as frames
+    import calib.calibration.frames as frames
 
     monkeypatch.setattr(frames, "CHUNK", chunk)
     robot = bundled_robot
@@ -29,7 +29,7 @@ def test_frames_recovered_from_exact_data(bundled_robot, monkeypatch, chunk):
 
 
 def test_median_equals_numpy_median():
-    from calib.frames import median
+    from calib.calibration.frames import median
 
     rng = np.random.default_rng(5)
     for n in (1, 2, 7, 10):

@@ -16,8 +16,8 @@ import pinocchio as pin
 import pytest
 
 from calib import ChainError, URDFError, load_robot
-from calib.cli import main
-from calib.urdf_writer import format_number, rpy_nearest, write_calibrated_urdf
+from calib.cli.main import main
+from calib.io.urdf_writer import format_number, rpy_nearest, write_calibrated_urdf
 
 ROOT = Path(__file__).resolve().parents[1]
 BUNDLED = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
@@ -241,11 +241,11 @@ def test_rpy_nearest_the_input_near_pitch_pi_2():
 
 # ====================================================================== reports
 def test_json_and_html_reports(capsys, tmp_path, monkeypatch):
-    import calib.report
+    import calib.calibration.report
 
     # the plots themselves are tested in test_cli; here a stand-in keeps the test fast
-    fake = {name: b"\x89PNG fake " + name.encode() for name in calib.report.PLOT_FILES}
-    monkeypatch.setattr(calib.report, "render_plots", lambda *a, **k: fake)
+    fake = {name: b"\x89PNG fake " + name.encode() for name in calib.calibration.report.PLOT_FILES}
+    monkeypatch.setattr(calib.calibration.report, "render_plots", lambda *a, **k: fake)
     meas = tmp_path / "m.csv"
     assert run(capsys, "simulate", BUNDLED, "-o", meas, "--poses", 40, "--val-poses", 20,
                "--seed", 2)[0] == 0
@@ -315,7 +315,7 @@ def test_readme_compensate_example_runs_as_printed(capsys, tmp_path):
 def test_compensate_defaults_to_the_frames_calibrate_used(tmp_path):
     """Calibrated with --tool-frame tool0 (not ur5's default): compensation without frame
     options uses tool0 of the nominal URDF and the same frame of the calibrated one."""
-    from calib.compensation import load_compensation_models
+    from calib.calibration.compensation import load_compensation_models
 
     nominal = load_robot("ur5", tool_frame="tool0")
     true = nominal.with_changes(v_x=1e-3, a2=5e-4, u_y=-1e-3)

@@ -4,7 +4,7 @@ Every CLI case asserts the exit code, the exact shape of stderr (one line ``cali
 usage errors: the usage line and that line) with a fragment naming what is wrong, and that no
 file of the output folder changed (outputs from an earlier run are left as they were, no
 temporary file is left behind). API cases assert a :class:`calib.CalibError` subclass naming the
-argument. CLI cases run in-process through ``calib.cli.main`` (fast); signals need subprocesses.
+argument. CLI cases run in-process through ``calib.cli.main.main`` (fast); signals need subprocesses.
 """
 from __future__ import annotations
 
@@ -23,9 +23,9 @@ import numpy as np
 import pytest
 
 import calib
-from calib.cli import main
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations
-from calib.solvers import LMOptions
+from calib.cli.main import main
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations
+from calib.solvers.lm import LMOptions
 
 from conftest import BUNDLED_URDF, ROOT
 
@@ -262,7 +262,7 @@ def test_unwritable_report_folder_leaves_the_urdf_unchanged(sim, out, capfd):
 
 def test_full_disk_on_the_second_output_changes_nothing(sim, out, capfd, monkeypatch):
     d, _, _ = sim
-    import calib.fileio as fileio
+    import calib.io.fileio as fileio
 
     calls = []
     real_fsync = os.fsync
@@ -283,7 +283,7 @@ def test_full_disk_on_the_second_output_changes_nothing(sim, out, capfd, monkeyp
 
 
 def test_failed_rename_puts_back_the_outputs_already_replaced(tmp_path, monkeypatch):
-    import calib.fileio as fileio
+    import calib.io.fileio as fileio
 
     a, b, c = tmp_path / "a.txt", tmp_path / "b.txt", tmp_path / "c.txt"
     a.write_bytes(b"old a")
@@ -307,7 +307,7 @@ def test_failed_rename_puts_back_the_outputs_already_replaced(tmp_path, monkeypa
 
 
 def test_output_set_creates_its_folder_only_when_it_succeeds(tmp_path, monkeypatch):
-    import calib.fileio as fileio
+    import calib.io.fileio as fileio
 
     outputs = fileio.OutputSet()
     outputs.make_folder(tmp_path / "plots")
@@ -359,7 +359,7 @@ def test_signal_ends_with_one_line_and_no_partial_files(signum, code, big_csv, o
 def test_signal_in_process_prints_exactly_one_line(signum, code, sim, out, capfd, monkeypatch):
     """The signal arrives in the middle of the fit (sent by the patched calibrate to its own
     process): exit 128 + signal, stderr exactly one line, nothing written."""
-    import calib.cli as cli
+    import calib.cli.main as cli
 
     d, _, _ = sim
     real = cli.calibrate
@@ -407,7 +407,7 @@ def test_data_that_do_not_fit_the_robot_get_a_note_not_silence(sim):
     stopped at the iteration limit (UR5: converged, exit 0). A clean fit gets no such note.
     Quaternions in x, y, z, w order read as w, x, y, z: 1.4 rad RMS left (UR5: converged, exit 0,
     nothing said); the note names the orientation columns."""
-    from calib.calibration import _reach
+    from calib.calibration.core import _reach
 
     _, robot, meas = sim
     res = calib.calibrate(robot, replace(meas, q=np.radians(meas.q)), params="base", cv=0,
@@ -442,7 +442,7 @@ def test_positions_in_metres_named_mm_get_a_note(sim):
     """Positions in metres in _mm columns: 1000 times too small, the fit shrinks the robot (a2
     by 350 mm, d4 by 364 mm) and converges at 3e-5 mm, exit 0 and nothing said. The identified
     link lengths are now named; a clean fit names none."""
-    from calib.calibration import _reach
+    from calib.calibration.core import _reach
 
     _, robot, meas = sim
     res = calib.calibrate(robot, replace(meas, position=meas.position / 1000), params="base", cv=0)
@@ -481,7 +481,7 @@ def test_copied_rows_get_a_note(sim):
 
 
 def test_robust_frame_estimate_ignores_a_row_a_million_km_off(sim):
-    from calib.frames import estimate_frames, estimate_frames_robust
+    from calib.calibration.frames import estimate_frames, estimate_frames_robust
 
     _, robot, meas = sim
     pos = meas.position.copy()
@@ -505,14 +505,14 @@ def test_data_that_do_not_move_a_joint_are_refused_naming_the_parameters(sim):
 
 
 def test_distinct_configurations_counts_repeats_once():
-    from calib.calibration import distinct_configurations
+    from calib.calibration.core import distinct_configurations
 
     Q = np.array([[0.1, 0.2], [0.1, 0.2], [0.1, 0.2 + 1e-12], [0.3, 0.2]])
     assert distinct_configurations(Q) == 2
 
 
 def test_file_too_large_for_the_memory_is_refused_before_reading(sim, monkeypatch):
-    import calib.formats.csv_layer as layer
+    import calib.io.csv_layer as layer
 
     d, robot, _ = sim
     size = (d / "cal.csv").stat().st_size
@@ -524,7 +524,7 @@ def test_file_too_large_for_the_memory_is_refused_before_reading(sim, monkeypatc
 
 # ====================================================================== quiet stderr
 def test_zyx_parameters_at_gimbal_lock_warns_nothing():
-    from calib.spatial import zyx_parameters, zyx_transform
+    from calib.model.spatial import zyx_parameters, zyx_transform
 
     T = zyx_transform(0.1, 0.2, 0.3, 0.4, np.pi / 2, 0.0)
     with warnings.catch_warnings():
@@ -536,7 +536,7 @@ def test_zyx_parameters_at_gimbal_lock_warns_nothing():
 def test_library_warnings_do_not_reach_stderr(sim, capfd, monkeypatch):
     """Warnings raised inside a command (numpy's overflow, scipy's gimbal lock) are logged at
     debug level only: stderr stays empty."""
-    import calib.cli as cli
+    import calib.cli.main as cli
 
     d, _, _ = sim
     real = cli.evaluate
@@ -674,11 +674,11 @@ def test_signal_while_importing_ends_with_one_line(signum, code, sim, out):
     d, _, _ = sim
     before = snapshot(out)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    # the entry point with calib.cli's import slowed down, so that the signal surely lands in it
+    # the entry point with calib.cli.main's import slowed down, so that the signal surely lands in it
     code_text = ("import sys, time, calib._entry as e\n"
                  "class Slow:\n"
                  "    def find_spec(self, name, path=None, target=None):\n"
-                 "        if name == 'calib.cli':\n"
+                 "        if name == 'calib.cli.main':\n"
                  "            print('importing', file=sys.stderr, flush=True); time.sleep(3)\n"
                  "sys.meta_path.insert(0, Slow())\n"
                  "e.main()\n")

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from calib import identification_jacobian, load_robot
-from calib.kinematics import _Factor, _product_and_twists
-from calib.mdh import link_transform
-from calib.spatial import inverse, log3_batch, skew, zyx_transform
+from calib.model.kinematics import _Factor, _product_and_twists
+from calib.model.mdh import link_transform
+from calib.model.spatial import inverse, log3_batch, skew, zyx_transform
 
 from conftest import BUNDLED_URDF, erd_urdf
 

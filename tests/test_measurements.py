@@ -9,11 +9,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calib import CalibError, DataError, MeasurementFormatError
-from calib.formats import ReadOptions
-from calib.measurements import Measurements, read_measurements, write_measurements
-from calib.robot import ChainJoint, RobotModel
+from calib.io.specs import ReadOptions
+from calib.model.measurements import Measurements
+from calib.io.specs import read_measurements, write_measurements
+from calib.model.robot import ChainJoint, RobotModel
 
-import calib.formats.specs as measurements_module
+import calib.io.specs as measurements_module
 
 JOINTS_DEG = ",".join(f"joint{i}_deg" for i in range(1, 7))
 HEADER = f"{JOINTS_DEG},x_mm,y_mm,z_mm"

@@ -11,12 +11,14 @@ import numpy as np
 import pytest
 
 import calib
-import calib.solvers as solvers
-from calib.calibration import target_rows
-from calib.kinematics import ChainKinematics
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
-from calib.solvers import COST_RTOL, LMOptions, Problem, levenberg_marquardt
-from calib.spatial import zyx_transform
+import calib.solvers.lm as lm_module
+import calib.solvers.problem as solvers
+from calib.calibration.core import target_rows
+from calib.model.kinematics import ChainKinematics
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
+from calib.solvers.problem import COST_RTOL, Problem
+from calib.solvers.lm import LMOptions, levenberg_marquardt
+from calib.model.spatial import zyx_transform
 
 from conftest import BUNDLED_URDF
 
@@ -28,7 +30,7 @@ def _data(kind: str, position_only: bool):
     """(model, measurements, targets column or None) of 25 simulated rows."""
     robot = calib.load_robot(BUNDLED_URDF)
     if kind == "compliance":
-        from calib.compliance import Payload, with_gravity
+        from calib.model.compliance import Payload, with_gravity
 
         robot = with_gravity(calib.load_robot("ur10"), payload=Payload(10.0, np.array([0.0, 0.03, 0.1])),
                              values=np.array([0.0, 3e-6, 4e-6, 5e-6, 0.0, 0.0]))
@@ -210,7 +212,7 @@ def test_minimum_norm_step_is_the_pseudo_inverse_step():
     d = np.diag(A).copy()
     s = 1.0 / np.sqrt(d)
     for mu in (1e-3, 1e-9):
-        step = solvers._DampedSystem(A, d, g, 1).step(mu)
+        step = lm_module._DampedSystem(A, d, g, 1).step(mu)
         As = A * np.outer(s, s)
         # (As + mu P) restricted to the range of As (P its projector), pseudo-inverted
         ref = -s * (np.linalg.pinv(As + mu * _range_projector(As), rcond=1e-10) @ (s * g))
@@ -233,13 +235,13 @@ def test_weak_directions_undetermined_at_the_start_are_held():
     w = np.array([1e-6, 0.5, 1.0, 2.0, 3.0])
     A, g = (V * w) @ V.T, rng.normal(size=5)
     d = np.ones(5)
-    held = solvers._DampedSystem(A, d, g, 1).step(1e-9)
-    full = solvers._DampedSystem(A, d, g, 0).step(1e-9)
+    held = lm_module._DampedSystem(A, d, g, 1).step(1e-9)
+    full = lm_module._DampedSystem(A, d, g, 0).step(1e-9)
     assert abs(V[:, 0] @ held) < 1e-12 * np.linalg.norm(held)
     np.testing.assert_allclose(full, -np.linalg.solve(A + 1e-9 * np.eye(5), g), rtol=1e-9)
     assert abs(V[:, 0] @ full) > 0.9 * np.linalg.norm(full)       # (the weak direction dominates)
     A2 = (V * np.array([1e-3, 0.5, 1.0, 2.0, 3.0])) @ V.T       # above WEAK_RCOND: released
-    np.testing.assert_allclose(solvers._DampedSystem(A2, d, g, 1).step(1e-9),
+    np.testing.assert_allclose(lm_module._DampedSystem(A2, d, g, 1).step(1e-9),
                                -np.linalg.solve(A2 + 1e-9 * np.eye(5), g), rtol=1e-8)
 
 
@@ -286,7 +288,7 @@ def test_clm_pose_fits_count_their_own_rank_deficit_not_that_of_the_rotation_ste
     two apart) have the same free set; the pose fits count their own deficit (none), not the
     rotation steps' (they held theta2 - theta3 at the start where the positions weigh little:
     noise-free data fitted to a cost of 0.098 instead of 0, both angles left at 0)."""
-    from calib.solvers import cross_lm
+    from calib.solvers.schemes import cross_lm
 
     robot = calib.load_robot(BUNDLED_URDF)
     names = [n for n in robot.names if n.startswith(("theta", "alpha", "beta"))]

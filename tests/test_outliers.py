@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 import calib
-from calib.measurements import Measurements
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+from calib.model.measurements import Measurements
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +79,7 @@ def test_two_gross_rows_among_few_position_only_rows_are_found(bundled_robot, se
     fit on every pass, as the robust losses judge them."""
     from dataclasses import replace
 
-    from calib.simulate import random_deviations
+    from calib.model.simulate import random_deviations
 
     rng = np.random.default_rng(seed)
     true = apply_deviations(bundled_robot, random_deviations(bundled_robot, 0.5e-3, rng))
@@ -104,7 +104,7 @@ def test_several_gross_rows_among_few_with_the_noise_estimated():
     import dataclasses
 
     from conftest import erd_urdf
-    from calib.simulate import random_deviations
+    from calib.model.simulate import random_deviations
 
     robot = calib.load_robot(erd_urdf("ur5"))
     rng = np.random.default_rng(108)

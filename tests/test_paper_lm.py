@@ -1,16 +1,17 @@
-"""The paper's LM and C-LM as printed (calib.paper_lm): model, step, damping rule, convergence."""
+"""The paper's LM and C-LM as printed (calib.solvers.paper_lm): model, step, damping rule, convergence."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from calib import ParameterError, load_robot
-from calib.calibration import select_parameters
-from calib.kinematics import ChainKinematics
-from calib.paper_lm import (PaperLMOptions, _PaperResiduals, paper_cross_lm, paper_lm)
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
-from calib.solvers import Problem, levenberg_marquardt
-from calib.spatial import inverse
+from calib.calibration.core import select_parameters
+from calib.model.kinematics import ChainKinematics
+from calib.solvers.paper_lm import PaperLMOptions, _PaperResiduals, paper_cross_lm, paper_lm
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+from calib.solvers.problem import Problem
+from calib.solvers.lm import levenberg_marquardt
+from calib.model.spatial import inverse
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -201,8 +202,8 @@ def test_calibrate_with_the_paper_variant(method, bundled_robot, tmp_path, capsy
     """calibrate and `calib calibrate --lm-variant paper` run the printed LM; noise-free data from
     the nominal model: validation error below 1e-6 mm (issue 15, item 1)."""
     import calib
-    from calib.cli import main
-    from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+    from calib.cli.main import main
+    from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
 
     true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
     Q = bundled_robot.random_configurations(160, 3)

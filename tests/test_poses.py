@@ -8,9 +8,9 @@ import pytest
 from calib import (CalibError, DataError, MeasurementFormatError, ParameterError, PAPER_DEVIATIONS,
                    analyze_identifiability, apply_deviations, calibrate, load_robot,
                    random_deviations, read_measurements, simulate_measurements)
-from calib.identifiability import weighted_jacobian
-from calib.formats import read_poses, write_poses
-from calib.poses import _logdet_gains, design_poses, select_poses
+from calib.model.identifiability import weighted_jacobian
+from calib.io.specs import read_poses, write_poses
+from calib.calibration.poses import _logdet_gains, design_poses, select_poses
 
 from conftest import BUNDLED_URDF, erd_urdf
 

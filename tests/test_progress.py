@@ -4,8 +4,8 @@ from __future__ import annotations
 import io
 import math
 
-from calib.cli import main
-from calib.progress import Progress, format_eta, working
+from calib.cli.main import main
+from calib.cli.progress import Progress, format_eta, working
 from conftest import BUNDLED_URDF, ROOT
 
 

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 import calib
-from calib.calibration import candidate_sets, identifiable_set
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
-from calib.spatial import zyx_transform
+from calib.calibration.core import candidate_sets, identifiable_set
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
+from calib.model.spatial import zyx_transform
 
 N_VAL = 1000
 
@@ -235,7 +235,7 @@ def test_no_registration_when_the_frame_is_nominal(bundled_robot, paper_data):
 
 # ---------------------------------------------------------------- CLI
 def test_cli_prints_noise_prediction_and_exit_3_for_a_stuck_lm(tmp_path, bundled_robot, capsys):
-    from calib.cli import main
+    from calib.cli.main import main
 
     urdf = "robots/brtirus0707a/brtirus0707a.urdf"
     import os
@@ -260,7 +260,7 @@ def test_cli_prints_noise_prediction_and_exit_3_for_a_stuck_lm(tmp_path, bundled
     rng = np.random.default_rng(41)
     calib.write_measurements(tmp_path / "m60.csv",
                              simulate_measurements(true, bundled_robot.random_configurations(60, rng), rng=rng))
-    from calib.urdf_writer import write_calibrated_urdf
+    from calib.io.urdf_writer import write_calibrated_urdf
     write_calibrated_urdf(bundled_robot.with_changes(alpha1=1.38, theta1=-1.95, theta5=2.18),
                           tmp_path / "stuck.urdf", nominal=bundled_robot)
     capsys.readouterr()
@@ -276,7 +276,7 @@ def test_readme_real_measurements_example_runs_as_printed(tmp_path, monkeypatch,
     import re
     import shlex
 
-    from calib.cli import main
+    from calib.cli.main import main
 
     readme = open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "README.md")).read()
     start = readme.index("### Real measurements")

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from calib import ChainError, FrameNotFound, URDFError, load_robot
-from calib.robot import read_urdf_chain
-from calib.spatial import log3_batch
+from calib.io.urdf_reader import read_urdf_chain
+from calib.model.spatial import log3_batch
 
 from conftest import BUNDLED_URDF, ERD_ARMS, erd_urdf
 

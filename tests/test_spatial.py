@@ -1,12 +1,12 @@
-"""The numpy rotation conversions of calib.spatial against scipy's Rotation."""
+"""The numpy rotation conversions of calib.model.spatial against scipy's Rotation."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib.spatial import (log3_batch, quaternion_from_rotation, rotation_from_rotvec, rotation_from_zyx,
-                           zyx_from_rotation)
+from calib.model.spatial import (log3_batch, quaternion_from_rotation, rotation_from_rotvec,
+                                 rotation_from_zyx, zyx_from_rotation)
 
 
 @pytest.fixture(scope="module")

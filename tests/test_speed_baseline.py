@@ -21,8 +21,8 @@ DATA = Path(__file__).with_name("data") / "speed_baseline.json"
 def compute_baseline() -> dict:
     """Estimates and statistics of fixed-seed calibrations of the bundled robot (SI units)."""
     import calib
-    from calib.angles import RotationChain
-    from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+    from calib.solvers.angles import RotationChain
+    from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
 
     robot = calib.load_robot(ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
     true = apply_deviations(robot, PAPER_DEVIATIONS)

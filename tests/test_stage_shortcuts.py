@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import calib
-import calib.calibration as cc
-from calib.solvers import normal_inverse
-from calib.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+import calib.calibration.core as cc
+from calib.solvers.problem import normal_inverse
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
 
 
 def _reference_inverse(A):
@@ -149,8 +149,8 @@ def test_errors_before_and_after_are_those_of_the_models(fitted):
 def test_whitened_blocks_from_the_normal_equations_pass(bundled_robot, position_only):
     """whitened_blocks at the point of the last normal equations reuses their pass: the same
     blocks as computed afresh (and afresh when the point differs)."""
-    from calib.kinematics import ChainKinematics
-    from calib.solvers import Problem
+    from calib.model.kinematics import ChainKinematics
+    from calib.solvers.problem import Problem
 
     robot = bundled_robot
     meas = simulate_measurements(apply_deviations(robot, PAPER_DEVIATIONS), robot.random_configurations(30, 1),

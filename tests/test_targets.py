@@ -10,15 +10,15 @@ import pytest
 
 import calib
 from calib import identification_jacobian, load_robot
-from calib.calibration import calibrate, evaluate
-from calib.cli import main
+from calib.calibration.core import calibrate, evaluate
+from calib.cli.main import main
 from calib.errors import DataError, ParameterError
-from calib.frames import estimate_target_frames
-from calib.identifiability import analyze_identifiability
-from calib.kinematics import ChainKinematics
-from calib.simulate import apply_deviations, random_deviations, simulate_measurements
-from calib.spatial import log3_batch, zyx_transform
-from calib.urdf_writer import write_calibrated_urdf
+from calib.calibration.frames import estimate_target_frames
+from calib.model.identifiability import analyze_identifiability
+from calib.model.kinematics import ChainKinematics
+from calib.model.simulate import apply_deviations, random_deviations, simulate_measurements
+from calib.model.spatial import log3_batch, zyx_transform
+from calib.io.urdf_writer import write_calibrated_urdf
 
 from conftest import BUNDLED_URDF, erd_urdf
 
@@ -340,7 +340,7 @@ def test_cli_identifiability_with_targets(capsys):
 
 
 def test_stages_take_multi_target_data_directly(bundled_robot):
-    from calib.calibration import prepare
+    from calib.calibration.core import prepare
 
     truth = _truth(bundled_robot)
     Q, ids = _every_target(bundled_robot.random_configurations(20, 2))

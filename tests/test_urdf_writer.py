@@ -1,4 +1,4 @@
-"""Round trips of calib.urdf_writer: a calibrated model written into its URDF, read back.
+"""Round trips of calib.io.urdf_writer: a calibrated model written into its URDF, read back.
 
 Kinematics are checked with Pinocchio's own URDF parser (independent of the writer's XML code),
 content with yourdfpy and with a canonical XML comparison of every element the writer must keep.
@@ -17,8 +17,8 @@ from lxml import etree
 
 from calib import CalibError, RobotModel, load_robot
 from calib.errors import ChainError
-from calib.kinematics import ChainKinematics
-from calib.urdf_writer import write_calibrated_urdf
+from calib.model.kinematics import ChainKinematics
+from calib.io.urdf_writer import write_calibrated_urdf
 
 BUNDLED = Path(__file__).resolve().parents[1] / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
 

@@ -1,0 +1,1 @@
+"""calib.calibration.core: see ARCHITECTURE.md."""

@@ -1,0 +1,1 @@
+"""calib.cli.main: see ARCHITECTURE.md."""

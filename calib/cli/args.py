@@ -1,0 +1,272 @@
+"""Argument types and the help formatter shared by the ``calib`` subcommands."""
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the description's line breaks; appends "(default: ...)" where there is one."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if "%(default)" not in text and not any(action.default is v for v in (None, False, argparse.SUPPRESS)) \
+                and action.option_strings and not isinstance(action, argparse._VersionAction):
+            text += " (default: %(default)s)"
+        return text
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with short usage errors: one usage line (the positional arguments and required
+    options, ``[options]`` for the rest) and one ``calib: error: ...`` line, exit code 2.
+    Subcommand parsers made with ``add_subparsers`` inherit the class."""
+
+    def error(self, message: str):
+        message = " ".join(str(message).split())
+        self.exit(2, f"usage: {self.short_usage()}\n{self.prog.split()[0]}: error: {message}\n")
+
+    def short_usage(self) -> str:
+        parts, optional = [self.prog], False
+        for action in self._actions:
+            if isinstance(action, (argparse._HelpAction, argparse._VersionAction)):
+                continue
+            if isinstance(action, argparse._SubParsersAction):
+                parts.append("COMMAND ...")
+            elif not action.option_strings:
+                parts.append(str(action.metavar or action.dest))
+            elif action.required:
+                parts.append(f"{action.option_strings[0]} {action.metavar or action.dest.upper()}")
+            else:
+                optional = True
+        if optional:
+            parts.insert(1, "[options]")
+        return " ".join(parts) + f"  (help: {self.prog} --help)"
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text} must be at least 1")
+    return value
+
+
+def count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text} must not be negative")
+    return value
+
+
+def nonnegative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number >= 0")
+    return value
+
+
+def positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):    # (-1 is told > 0, not >= 0: 0 is refused too)
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0")
+    return value
+
+
+def add_frames(p: argparse.ArgumentParser, base_help: str | None = None,
+               tool_help: str | None = None) -> None:
+    """The --base-frame / --tool-frame options, in their own help group."""
+    g = p.add_argument_group("frames")
+    g.add_argument("--base-frame", metavar="F", default=None,
+                   help=base_help or "URDF link (or joint) that plays the measurement frame; the "
+                                     "measured poses are in it (default: the root link)")
+    g.add_argument("--tool-frame", metavar="F", default=None,
+                   help=tool_help or "URDF link (or joint) whose pose is measured (default: the "
+                                     "last link before the tree branches)")
+
+
+# ---------------------------------------------------------------------- file-format options
+def _rename(text: str):
+    from calib.errors import CalibError
+    from calib.io.csv_layer import parse_rename
+
+    try:
+        return parse_rename(text)
+    except CalibError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _euler(text: str) -> str:
+    from calib.errors import CalibError
+    from calib.io.csv_layer import check_euler_sequence
+
+    try:
+        return check_euler_sequence(text)
+    except CalibError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _fraction(text: str) -> float:
+    """A fraction in [0, 1], written 0.01 or 1%."""
+    percent = text.strip().endswith("%")
+    try:
+        value = float(text.strip().rstrip("%")) / (100.0 if percent else 1.0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a fraction (0.01) or a percentage "
+                                         f"(1%)") from None
+    if not (math.isfinite(value) and 0 <= value <= 1):
+        raise argparse.ArgumentTypeError(f"{text} must be between 0 and 1 (0% and 100%)")
+    return value
+
+
+def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> None:
+    """The options that read CSV files as trackers and controllers write them, in their own help
+    group: --rename, --euler, --limit-tolerance, and with ``tracker`` --tracker and --key."""
+    g = p.add_argument_group("file format (see README, Measurement file format)")
+    g.add_argument("--rename", metavar="OLD=NEW[,...]", type=_rename, default=None,
+                   help="rename the file's columns to calib's names before reading, e.g. "
+                        "'X=x_mm,Y=y_mm,Z=z_mm'; OLD= (empty NEW) drops a column")
+    g.add_argument("--euler", metavar="SEQ", type=_euler, default=None,
+                   help="axis sequence of the e1, e2, e3 angle columns in scipy's notation: upper "
+                        "case intrinsic (ZYX, ZYZ, ...), lower case extrinsic (xyz, ...)")
+    g.add_argument("--limit-tolerance", metavar="F", type=_fraction, default=0.01,
+                   help="keep joint readings at most this fraction of the joint range past a "
+                        "limit (with a note); 0.01 or 1%%")
+    if tracker:
+        g.add_argument("--tracker", metavar="POSES.csv", default=None,
+                       help="the measured poses (x, y, z and an orientation) in a second file, "
+                            "joined to the joint file row by row by --key")
+        g.add_argument("--key", metavar="COLUMN", default=None,
+                       help="column present in both files whose values pair their rows (e.g. a "
+                            "point name), in any order")
+
+
+def read_options(args: argparse.Namespace, *, joined: bool = True):
+    """The :class:`calib.io.specs.ReadOptions` of parsed file-format options (``joined=False``:
+    without the key, for a file read on its own)."""
+    from calib.io.specs import ReadOptions
+
+    return ReadOptions(rename=args.rename or (), euler=args.euler, limit_tolerance=args.limit_tolerance,
+                       key=getattr(args, "key", None) if joined else None)
+
+
+def print_notes(notes, prog: str = "calib") -> None:
+    """Each note of a reading (ignored columns, readings kept past a limit) as one stderr line."""
+    import sys
+
+    for note in notes:
+        sys.stderr.write(f"{prog}: note: {' '.join(str(note).split())}\n")
+
+
+def add_compliance(p: argparse.ArgumentParser, role: str):
+    """The joint-compliance options (calib.model.compliance), in their own help group. ``role``:
+    "calibrate" (--compliance is a flag), "compensate" or "evaluate" (--compliance FILE) or
+    "simulate" (no --compliance: the --deviations JSON names c<i>). Returns the help group."""
+    g = p.add_argument_group("joint compliance under gravity (q + c_i tau_i(q))")
+    if role == "calibrate":
+        g.add_argument("--compliance", action="store_true",
+                       help="joint compliances c<i> (urad/(N m); um/N prismatic) under the gravity "
+                            "torque of the links (URDF inertias) and the payload: calibrate "
+                            "identifies them (into the report and CALIBRATED.compliance.json beside "
+                            "the URDF), identifiability says which the poses can see")
+    elif role in ("compensate", "evaluate"):
+        g.add_argument("--compliance", metavar="REPORT.json|SIDECAR.json", default=None,
+                       help=("correct for joint compliance too" if role == "compensate" else
+                             "apply joint compliance to the model (a note on stderr says so)")
+                       + ": the JSON report of calib calibrate --compliance, or the "
+                         "CALIBRATED.compliance.json written beside the URDF")
+    g.add_argument("--payload-kg", metavar="M", default=None,
+                   help="payload mass, kg (default: the one in the compliance file, else none)")
+    g.add_argument("--payload-com-mm", metavar="X,Y,Z", default=None,
+                   help="payload centre of mass in the tool frame, mm (default 0,0,0)")
+    g.add_argument("--gravity", metavar="X,Y,Z", default=None,
+                   help="gravity in the URDF root frame, m/s^2 (default 0,0,-9.80665)")
+    return g
+
+
+def compliance_options(args):
+    """(payload or None, gravity (3,) or None) from the options of :func:`add_compliance`;
+    :class:`calib.ParameterError` naming the option for bad values."""
+    from calib.model.compliance import Payload, parse_triple
+    from calib.errors import ParameterError
+
+    payload = None
+    if args.payload_kg is not None:
+        try:
+            mass = float(args.payload_kg)
+        except ValueError:
+            raise ParameterError(f"--payload-kg {args.payload_kg!r}: expected a mass in kg") from None
+        if not (math.isfinite(mass) and mass >= 0):
+            raise ParameterError(f"--payload-kg {args.payload_kg}: expected a finite mass >= 0 kg")
+        com = (np.zeros(3) if args.payload_com_mm is None
+               else parse_triple(args.payload_com_mm, "--payload-com-mm", 1e-3))
+        payload = Payload(mass, com)
+    elif args.payload_com_mm is not None:
+        raise ParameterError("--payload-com-mm without --payload-kg: give the payload mass too")
+    gravity = None if args.gravity is None else parse_triple(args.gravity, "--gravity")
+    return payload, gravity
+
+
+def with_compliance_file(robot, args, *, torques_from=None, hint: str = ""):
+    """``robot`` with the compliances of ``--compliance FILE`` (a sidecar or a calibration
+    report, :func:`calib.model.compliance.read_compliance`) and the payload and gravity of the options,
+    else of the file; unchanged without ``--compliance``. torques_from : the model whose URDF
+    gives the gravity torques (default ``robot``; see :func:`calib.model.compliance.apply_record`).
+    :class:`calib.ParameterError` for --payload-kg or --gravity without --compliance (``hint``
+    ends that message)."""
+    from calib.errors import ParameterError
+
+    payload, gravity = compliance_options(args)
+    if args.compliance is None:
+        if payload is not None or gravity is not None:
+            raise ParameterError(f"--payload-kg and --gravity need --compliance{hint}")
+        return robot
+    from calib.model.compliance import apply_record, read_compliance
+
+    return apply_record(robot, read_compliance(args.compliance), payload=payload, gravity=gravity,
+                        torques_from=torques_from, source=args.compliance)
+
+
+def _target_offset(text: str) -> tuple[str, tuple[float, float, float]]:
+    """``ID=X,Y,Z`` (mm) of ``--target``."""
+    tid, sep, rest = text.partition("=")
+    try:
+        xyz = tuple(float(v) for v in rest.split(","))
+    except ValueError:
+        xyz = ()
+    if not sep or not tid.strip() or len(xyz) != 3 or not all(math.isfinite(v) for v in xyz):
+        raise argparse.ArgumentTypeError(f"expected ID=X,Y,Z (millimetres in the tool frame), got {text!r}")
+    return tid.strip(), xyz
+
+
+def add_targets(p: argparse.ArgumentParser) -> None:
+    """``--target ID=X,Y,Z`` (repeated): targets at known points of the tool, each measured at
+    every pose (see :func:`with_targets`)."""
+    p.add_argument("--target", dest="targets", type=_target_offset, action="append", default=None,
+                   metavar="ID=X,Y,Z", help="a target (reflector) on the tool at X,Y,Z mm in the tool "
+                   "frame, measured at every pose; repeat for each (two or more)")
+
+
+def with_targets(robot, args: argparse.Namespace):
+    """``robot`` with the ``--target`` offsets of ``args`` (unchanged without any);
+    :class:`calib.ParameterError` unless two or more distinct ids are given."""
+    if not getattr(args, "targets", None):
+        return robot
+    from calib.errors import ParameterError
+
+    ids = [t for t, _ in args.targets]
+    if len(ids) < 2 or len(set(ids)) != len(ids):
+        raise ParameterError(f"--target: give two or more targets with distinct ids, got {', '.join(ids)}")
+    return robot.with_target_offsets({t: [v * 1e-3 for v in xyz] for t, xyz in args.targets})

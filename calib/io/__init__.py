@@ -1,0 +1,1 @@
+"""calib.io: see ARCHITECTURE.md."""

@@ -1,0 +1,762 @@
+"""The CSV layer of calib: one reader for every file kind, driven by a column :class:`Spec`.
+
+A file kind (measurements, poses to measure, compensation targets, the two halves of a keyed
+pair of files) is a :class:`Spec`: which quantities it needs (joints, position, orientation) and
+which text labels it takes (``set``, ``target``, a key column). :func:`read_table` reads any of
+them into a :class:`Table` in SI units; :mod:`calib.io.specs` turns tables into the objects
+the algorithms take. Everything about the text of a file lives here, so every file kind has the
+same rules, errors and hints:
+
+- UTF-8 (a byte-order mark is accepted); ``#`` comment lines and blank lines anywhere; row numbers
+  are line numbers in the file.
+- The delimiter (comma, semicolon or tab) is the one that splits the header into the most
+  fields; with a semicolon or a tab, a decimal comma (``441,5``) is accepted.
+- Header names are matched case-insensitively; ``X (mm)`` and ``X [mm]`` read as ``x_mm``;
+  :attr:`ReadOptions.rename` maps a file's names onto calib's first. Columns calib does not know
+  are ignored and listed (:attr:`Table.ignored_columns`), except near-misses of a known name
+  (``x_mn``), which are errors with a "did you mean" hint.
+- Orientations: a quaternion, ZYX angles, Euler angles of any sequence, a rotation vector or a
+  rotation matrix, converted by Pinocchio (quaternions, ZYX angles, rotation vectors) and
+  :class:`scipy.spatial.transform.Rotation` (the other Euler sequences).
+- Joint values beyond a limit by at most :attr:`ReadOptions.limit_tolerance` of the joint range
+  are kept with a note; further beyond is an error whose hint fits the size of the excess.
+
+Errors are :class:`calib.MeasurementFormatError`: one line naming the file, row and column.
+"""
+from __future__ import annotations
+
+import csv
+import difflib
+import math
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from calib.errors import MeasurementFormatError, ParameterError
+
+__all__ = ["ANGLE_UNITS", "LENGTH_UNITS", "ORIENTATIONS", "ReadOptions", "Spec", "Table",
+           "read_table", "parse_rename", "check_euler_sequence", "joint_columns", "csv_text"]
+
+#: Multiply a value in the unit of the suffix by this to get SI (radians, metres).
+ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
+LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
+POSITION_COLUMNS = ("x", "y", "z")
+
+#: Orientation column groups: kind -> (column base names, units (None: no suffix), label).
+ORIENTATIONS = {
+    "quaternion": (("qw", "qx", "qy", "qz"), None, "a quaternion (qw, qx, qy, qz)", "quaternion"),
+    "zyx": (("rz", "ry", "rx"), ANGLE_UNITS, "ZYX angles (rz, ry, rx)", "ZYX angle"),
+    "euler": (("e1", "e2", "e3"), ANGLE_UNITS, "Euler angles (e1, e2, e3)", "Euler angle"),
+    "rotvec": (("rvx", "rvy", "rvz"), ANGLE_UNITS, "a rotation vector (rvx, rvy, rvz)",
+               "rotation vector"),
+    "matrix": (tuple(f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)), None,
+               "a rotation matrix (r11 ... r33)", "rotation matrix"),
+}
+
+#: Largest accepted distance of a quaternion's norm from 1.
+QUATERNION_NORM_TOLERANCE = 1e-3
+#: Largest accepted entry of R R^T - I (and |det R - 1|) of a rotation matrix given in a file.
+MATRIX_TOLERANCE = 1e-3
+#: Default joint limit tolerance, as a fraction of the joint range.
+LIMIT_TOLERANCE = 0.01
+#: Past a limit by more than this fraction of the joint range is more than a reading just past it.
+UNIT_HINT_EXCESS = 0.1
+#: A unit mix-up is suggested only for values at least this many times the largest limit.
+UNIT_HINT_RATIO = 3.0
+_DELIMITERS = (",", ";", "\t")
+_NEAR_MISS_CUTOFF = 0.75
+#: Unit suffixes calib does not take but that are units, not typos (no "did you mean").
+_OTHER_UNITS = {"cm", "dm", "um", "km", "in", "ft", "mrad", "urad", "grad", "gon", "rev", "turn"}
+
+
+# ====================================================================== options and specs
+def check_euler_sequence(seq: str) -> str:
+    """``seq`` if it is one of scipy's 12 Euler sequences (``ZYX`` intrinsic, ``xyz`` extrinsic),
+    else :class:`calib.ParameterError`."""
+    s = str(seq)
+    if len(s) != 3 or not (set(s) <= set("XYZ") or set(s) <= set("xyz")) or s[0] == s[1] \
+            or s[1] == s[2]:
+        raise ParameterError(f"--euler {s!r} is not an Euler sequence: expected 3 axes, all upper "
+                             f"case (intrinsic, e.g. ZYX) or all lower case (extrinsic, e.g. xyz), "
+                             f"no axis twice in a row (one of scipy's 12 sequences)")
+    return s
+
+
+def parse_rename(text: str) -> tuple[tuple[str, str], ...]:
+    """``"OLD=NEW,OLD=NEW"`` as pairs; ``OLD=`` (empty NEW) drops the column."""
+    pairs = []
+    for item in str(text).split(","):
+        old, sep, new = item.partition("=")
+        if not sep or not old.strip():
+            raise ParameterError(f"--rename {text!r}: {item.strip()!r} is not OLD=NEW (column "
+                                 f"names; an empty NEW drops the column)")
+        pairs.append((old.strip(), new.strip()))
+    olds = [o.lower() for o, _ in pairs]
+    dup = next((o for o in olds if olds.count(o) > 1), None)
+    if dup is not None:
+        raise ParameterError(f"--rename {text!r}: column {dup!r} renamed twice")
+    return tuple(pairs)
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """How to read tracker files as they come (all optional).
+
+    rename : ((old, new), ...) header names mapped onto calib's names before parsing (matched
+        case-insensitively, after stripping blanks); an empty ``new`` drops the column.
+    euler : scipy Euler sequence of the ``e1, e2, e3`` columns (``"ZYX"`` intrinsic, ``"xyz"``
+        extrinsic, ...), or None.
+    limit_tolerance : joint values beyond a limit by at most this fraction of the joint range
+        (upper - lower) are kept with a note (default 0.01, 1 %).
+    key : name of the column that joins a joint file and a tracker file, or None.
+    """
+
+    rename: tuple[tuple[str, str], ...] = ()
+    euler: str | None = None
+    limit_tolerance: float = LIMIT_TOLERANCE
+    key: str | None = None
+
+    def __post_init__(self):
+        if isinstance(self.rename, str):
+            object.__setattr__(self, "rename", parse_rename(self.rename))
+        else:
+            object.__setattr__(self, "rename", tuple((str(o).strip(), str(n).strip())
+                                                     for o, n in self.rename))
+        if self.euler is not None:
+            check_euler_sequence(self.euler)
+        tol = self.limit_tolerance
+        if not (isinstance(tol, (int, float)) and math.isfinite(tol) and 0 <= tol <= 1):
+            raise ParameterError(f"limit_tolerance must be a fraction of the joint range in "
+                                 f"[0, 1], got {tol!r}")
+        if self.key is not None:
+            if not str(self.key).strip():
+                raise ParameterError("key must be a column name, got an empty string")
+            object.__setattr__(self, "key", str(self.key).strip())
+
+
+@dataclass(frozen=True)
+class Spec:
+    """The columns of one file kind.
+
+    kind : what the file is, for messages ("measurement", "poses", "targets", ...).
+    joints, position : "required", "optional" or "none".
+    orientation : whether orientation columns are read (optional in every kind that has them).
+    labels : text columns read as strings (``set``, ``target``).
+    keyed : the key column of :attr:`ReadOptions.key` is required.
+    """
+
+    kind: str
+    joints: str = "required"
+    position: str = "none"
+    orientation: bool = False
+    labels: tuple[str, ...] = ()
+    keyed: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class Table:
+    """A file read by :func:`read_table`, SI units, one entry per data row.
+
+    rows : (N,) int, line numbers. q : (N, n) rad / m in chain order, or None.
+    position : (N, 3) metres, or None. rotation : (N, 3, 3), or None.
+    orientation : "none" or a key of :data:`ORIENTATIONS`.
+    labels : label name (``set``, ``target``, the key) -> N stripped strings.
+    names : quantity ("x", "qw", "set", joint index, ...) -> header name as written.
+    ignored_columns : header names (as written) of columns calib does not know or that were
+        dropped by a rename. notes : one-line remarks (ignored columns, readings kept just past a
+        limit). renamed : the rename sources that matched a column of this file.
+    """
+
+    path: Path
+    header_row: int
+    rows: np.ndarray
+    q: np.ndarray | None
+    position: np.ndarray | None
+    rotation: np.ndarray | None
+    orientation: str
+    labels: dict
+    names: dict
+    ignored_columns: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+    renamed: tuple[str, ...] = ()
+
+
+# ====================================================================== text
+#: Peak memory of reading a CSV file and calibrating from it, in bytes per byte of the file
+#: (scripts/bench_memory.py prints the measured figure); a file whose size times this exceeds
+#: the memory available is refused before it is read, rather than the process being killed.
+MEMORY_BYTES_PER_FILE_BYTE = 40.0
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to this process: MemAvailable of /proc/meminfo (Linux), else
+    the free physical pages; None when unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_size(path: Path) -> None:
+    """Refuse a file too large for this machine's memory (see MEMORY_BYTES_PER_FILE_BYTE)."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        return                 # reported by the read itself
+    available = available_memory()
+    need = size * MEMORY_BYTES_PER_FILE_BYTE
+    if available is not None and need > available:
+        raise MeasurementFormatError(path, f"{size / 1e6:.0f} MB: reading and calibrating from it "
+                                           f"needs about {need / 1e9:.1f} GB of memory, "
+                                           f"{available / 1e9:.1f} GB are available; split the file "
+                                           f"or use a larger machine")
+
+
+def read_lines(path: Path) -> list[str]:
+    if path.is_file():
+        check_size(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise MeasurementFormatError(path, "file not found") from None
+    except IsADirectoryError:
+        raise MeasurementFormatError(path, "is a directory, expected a CSV file") from None
+    except OSError as exc:
+        raise MeasurementFormatError(path, f"cannot be read: {exc.strerror or exc}") from None
+    if not data:
+        raise MeasurementFormatError(path, "file is empty, expected a header row and data rows")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        row = data[:exc.start].count(b"\n") + 1
+        raise MeasurementFormatError(path, f"not UTF-8 text (byte 0x{data[exc.start]:02x})",
+                                     row=row) from None
+    return text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+
+
+def split_fields(path: Path, row: int, line: str, delimiter: str = ",") -> list[str]:
+    try:
+        return next(csv.reader([line], delimiter=delimiter, strict=True))
+    except csv.Error as exc:
+        raise MeasurementFormatError(path, f"malformed CSV: {exc}", row=row) from None
+
+
+def parse_number(path: Path, row: int, column: str, text: str, decimal_comma: bool = False) -> float:
+    s = text.strip()
+    if not s:
+        raise MeasurementFormatError(path, "empty value, expected a number", row, column)
+    t = s.replace(",", ".") if decimal_comma and s.count(",") == 1 and "." not in s else s
+    try:
+        if "_" in t:
+            raise ValueError(t)
+        value = float(t)
+    except ValueError:
+        hint = ""
+        if "," in s and not decimal_comma:
+            hint = " (a decimal comma is read only in files separated by ; or tabs)"
+        raise MeasurementFormatError(path, f"{s!r} is not a number{hint}", row, column) from None
+    if math.isnan(value):
+        raise MeasurementFormatError(path, f"{s!r}: NaN value, expected a finite number", row, column)
+    if math.isinf(value):
+        raise MeasurementFormatError(path, f"{s!r}: infinite value, expected a finite number",
+                                     row, column)
+    return value
+
+
+def _looks_numeric(fields: list[str]) -> bool:
+    try:
+        [float(f.replace(",", ".")) for f in fields]
+    except ValueError:
+        return False
+    return True
+
+
+def _records(path: Path) -> tuple[int, list[str], str, list[tuple[int, str]]]:
+    """(header line number, header names as written, delimiter, [(line number, line), ...])."""
+    lines = read_lines(path)
+    records = [(k + 1, line) for k, line in enumerate(lines)
+               if line.strip() and not line.lstrip().startswith("#")]
+    if not records:
+        raise MeasurementFormatError(path, "no header row: the file holds only comments and blank "
+                                           "lines")
+    header_row, header_line = records[0]
+    best = max(_DELIMITERS, key=lambda d: len(split_fields(path, header_row, header_line, d)))
+    names = split_fields(path, header_row, header_line, best)
+    if _looks_numeric(names):
+        raise MeasurementFormatError(path, "this line looks like data, expected the header row "
+                                           "(column names such as joint1_deg, x_mm; a line starting "
+                                           "with # is a comment)", row=header_row)
+    return header_row, names, best, records[1:]
+
+
+# ====================================================================== header
+@dataclass(frozen=True)
+class _Column:
+    index: int
+    name: str             # as written (after a rename)
+    quantity: object      # joint index, "x", "qw", "rz", "e1", "r11", a label name
+    scale: float = 1.0    # value * scale is in rad or m
+    unit: str = ""
+    style: str = ""       # joint naming style
+
+
+_UNIT_IN_BRACKETS = re.compile(r"^(.*?)\s*[\(\[]\s*([A-Za-z]+)\s*[\)\]]$")
+_STYLE_TEXT = {"urdf": "URDF joint names", "q": "q1..q{n}", "j": "J1..J{n}", "a": "A1..A{n}"}
+
+
+def _unit_text(units) -> str:
+    return " or ".join(f"_{u}" for u in units)
+
+
+class _Header:
+    """A header checked against a spec and a robot."""
+
+    def __init__(self, path: Path, row: int, names: list[str], spec: Spec, robot,
+                 options: ReadOptions):
+        self.path, self.row, self.spec, self.robot, self.options = path, row, spec, robot, options
+        joints = robot.joints if spec.joints != "none" else ()
+        n = robot.n_joints
+        self.joint_units = [LENGTH_UNITS if j.is_prismatic else ANGLE_UNITS for j in robot.joints]
+        # base name (lower case) -> (quantity, units or None for no suffix, style)
+        suffixed: dict[str, tuple] = {}
+        plain: dict[str, tuple] = {}
+        if spec.position != "none":
+            for k in POSITION_COLUMNS:
+                suffixed[k] = (k, LENGTH_UNITS, "")
+        if spec.orientation:
+            for kind, (cols, units, _, _) in ORIENTATIONS.items():
+                for c in cols:
+                    (suffixed if units else plain)[c] = (c, units, "")
+        for label in spec.labels:
+            plain[label] = (label, None, "")
+        self.key = None
+        if spec.keyed:
+            self.key = str(options.key).strip()
+            plain[self.key.lower()] = (self.key, None, "")
+        for i, j in enumerate(joints):
+            if j.name.lower() not in plain:
+                suffixed.setdefault(j.name.lower(), (i, self.joint_units[i], "urdf"))
+        if joints:
+            for style in ("q", "j", "a"):
+                for i in range(n):
+                    if f"{style}{i + 1}" not in plain:
+                        suffixed.setdefault(f"{style}{i + 1}", (i, self.joint_units[i], style))
+        self.suffixed, self.plain = suffixed, plain
+        self.valid = [f"{b}_{u}" for b, (_, units, _) in suffixed.items() for u in units] + list(plain)
+
+        renames = {old.lower(): new for old, new in options.rename}
+        self.renamed: list[str] = []
+        self.columns: dict[object, _Column] = {}
+        self.ignored: list[str] = []
+        styles: dict[str, str] = {}
+        for index, raw in enumerate(names):
+            name = raw.strip()
+            if name.lower() in renames:
+                self.renamed.append(name.lower())
+                name = renames[name.lower()]
+                if not name:
+                    self.ignored.append(raw.strip())
+                    continue
+            col = self._classify(index, name)
+            if col is None:
+                self.ignored.append(name)
+                continue
+            if col.quantity in self.columns:
+                prev = self.columns[col.quantity]
+                what = (f"joint {robot.joints[col.quantity].name}" if isinstance(col.quantity, int)
+                        else col.quantity)
+                if prev.name.lower() == name.lower():
+                    reason = (f"duplicated column: {name!r} appears in columns {prev.index + 1} "
+                              f"and {index + 1}")
+                else:
+                    reason = (f"duplicated column: {what} is given twice, by {prev.name!r} (column "
+                              f"{prev.index + 1}) and {name!r} (column {index + 1}); give each once")
+                self.fail(reason, name)
+            if col.style:
+                other = next((s for s in styles if s != col.style), None)
+                if other is not None:
+                    self.fail(f"mixes joint naming styles: {styles[other]!r} uses "
+                              f"{self._style_text(other)} but {name!r} uses "
+                              f"{self._style_text(col.style)}; use one style for all joints", name)
+                styles.setdefault(col.style, name)
+            self.columns[col.quantity] = col
+        self.orientation = self._check_complete()
+
+    # -------------------------------------------------------------- helpers
+    def fail(self, reason: str, column: str | None = None):
+        raise MeasurementFormatError(self.path, reason, row=self.row, column=column)
+
+    def _style_text(self, style: str) -> str:
+        return _STYLE_TEXT[style].format(n=self.robot.n_joints)
+
+    def accepted(self) -> str:
+        spec, robot = self.spec, self.robot
+        parts = []
+        if spec.joints != "none":
+            prism = [j.name for j in robot.joints if j.is_prismatic]
+            junits = "_rad or _deg"
+            if prism:
+                junits += (f" (_m or _mm for the prismatic joint{'s' if len(prism) > 1 else ''} "
+                           f"{', '.join(prism)})")
+            n = robot.n_joints
+            parts.append(f"one per joint, named {', '.join(robot.joint_names)} or q1..q{n}, "
+                         f"J1..J{n}, A1..A{n}, with suffix {junits}")
+        if spec.position != "none":
+            parts.append("x, y, z with _m or _mm")
+        if spec.orientation:
+            parts.append("optionally qw, qx, qy, qz; rz, ry, rx; e1, e2, e3 (with --euler); "
+                         "rvx, rvy, rvz (these with _rad or _deg); or r11 ... r33")
+        if spec.labels:
+            parts.append("optionally " + ", ".join(spec.labels))
+        if self.key:
+            parts.append(f"the key column {self.key}")
+        return f"{spec.kind} file columns: " + "; ".join(parts)
+
+    def _classify(self, index: int, written: str) -> _Column | None:
+        if not written:
+            self.fail(f"column {index + 1} of the header has an empty name (a stray delimiter?); "
+                      f"{self.accepted()}")
+        m = _UNIT_IN_BRACKETS.match(written)
+        name = f"{m.group(1)}_{m.group(2)}" if m and m.group(1) else written
+        low = name.lower()
+        if low in self.plain:
+            q, _, _ = self.plain[low]
+            return _Column(index, written, q)
+        if low in self.suffixed:
+            _, units, _ = self.suffixed[low]
+            self.fail(f"missing unit suffix: expected a unit suffix {_unit_text(units)} "
+                      f"(e.g. {name}_{list(units)[-1]})", written)
+        base, sep, suffix = low.rpartition("_")
+        if sep and base in self.suffixed:
+            quantity, units, style = self.suffixed[base]
+            if suffix not in units:
+                hint = ""
+                if suffix not in _OTHER_UNITS:  # a typo (_mn, _dg), not another unit (_cm)
+                    typo = [u for u in units if len(u) == len(suffix)
+                            and sum(a != b for a, b in zip(u, suffix)) == 1]
+                    close = typo or difflib.get_close_matches(suffix, list(units), n=1, cutoff=0.5)
+                    hint = f"; did you mean '{name[:len(base)]}_{close[0]}'?" if close else ""
+                self.fail(f"wrong unit suffix _{suffix}: {base} takes {_unit_text(units)}{hint}",
+                          written)
+            return _Column(index, written, quantity, units[suffix], suffix, style)
+        if sep and base in self.plain:
+            group = next((label for cols, u, _, label in ORIENTATIONS.values() if base in cols),
+                         base)
+            self.fail(f"{group} components take no unit suffix: expected {base!r}", written)
+        n = self.robot.n_joints
+        if self.spec.joints != "none" and sep and re.fullmatch(r"[qja]\d+", base) \
+                and suffix in ANGLE_UNITS.keys() | LENGTH_UNITS.keys():
+            self.fail(f"too many joint columns: the robot has {n} joints "
+                      f"({', '.join(self.robot.joint_names)}), so joint columns run q1..q{n}", written)
+        if self.spec.joints != "none" and sep and suffix in ANGLE_UNITS.keys() | LENGTH_UNITS.keys() \
+                and base in self._joints_outside_chain():
+            self.fail(f"joint {name[:len(base)]!r} of the URDF is not in the chain calibrated here "
+                      f"({', '.join(self.robot.joint_names)}, from base frame {self.robot.base_frame!r} to "
+                      f"tool frame {self.robot.tool_frame!r}): choose --base-frame / --tool-frame to take "
+                      f"it in, or drop the column with --rename '{written}='", written)
+        close = difflib.get_close_matches(low, self.valid, n=1, cutoff=_NEAR_MISS_CUTOFF)
+        if close:
+            self.fail(f"unknown column: did you mean {self._spelling(close[0])!r}? (rename it with "
+                      f"--rename '{written}=NEW', or drop it with --rename '{written}=')", written)
+        return None
+
+    def _urdf_joints(self) -> dict:
+        """The joints of the robot's URDF (name -> :class:`calib.io.urdf.UrdfJoint`), read once and
+        only on an error path; empty when the model has no URDF or it cannot be read."""
+        if getattr(self, "_joints", None) is None:
+            self._joints = {}
+            if getattr(self.robot, "urdf_path", None) is not None:
+                from calib.errors import CalibError
+                from calib.io.urdf import UrdfDocument
+
+                try:
+                    self._joints = UrdfDocument.read(self.robot.urdf_path).joints
+                except (CalibError, OSError):
+                    pass
+        return self._joints
+
+    def _joints_outside_chain(self) -> set[str]:
+        """Lower-case names of the URDF's moving joints that are not in the robot's chain."""
+        inside = {n.lower() for n in self.robot.joint_names}
+        return {n.lower() for n, j in self._urdf_joints().items() if j.kind != "fixed"} - inside
+
+    def _trailing_hint(self, missing: list[int]) -> str:
+        """When the joints without a column end the chain (a gripper joint taken as the arm's
+        last axis), how to leave them out: a tool frame before the first of them (no hint
+        without a URDF to name the link: a model built in code)."""
+        robot = self.robot
+        if not missing or missing != list(range(missing[0], robot.n_joints)) or missing[0] == 0:
+            return ""
+        joint = self._urdf_joints().get(robot.joints[missing[0]].name)
+        if joint is None:
+            return ""
+        names = ", ".join(robot.joints[i].name for i in missing)
+        return (f"; if {names} {'is a gripper' if len(missing) == 1 else 'are a gripper'}, not an axis of the "
+                f"measured arm, choose a tool frame before it: --tool-frame {joint.parent} (the link it is "
+                f"attached to) or a frame fixed to that link")
+
+    def _spelling(self, valid_lower: str) -> str:
+        base, sep, suffix = valid_lower.rpartition("_")
+        for j in self.robot.joints:
+            if j.name.lower() == base:
+                return f"{j.name}_{suffix}"
+        return self.key if self.key and valid_lower == self.key.lower() else valid_lower
+
+    def _check_complete(self) -> str:
+        robot, spec, cols = self.robot, self.spec, self.columns
+        present = [c for c in cols.values() if isinstance(c.quantity, int)]
+        if spec.joints == "required" or (spec.joints == "optional" and present):
+            style = present[0].style if present else "urdf"
+            missing = [i for i in range(robot.n_joints) if i not in cols]
+            if missing:
+                def expected(i):
+                    base = robot.joints[i].name if style == "urdf" else \
+                        f"{style.upper() if style != 'q' else 'q'}{i + 1}"
+                    return " or ".join(f"{base}_{u}" for u in self.joint_units[i])
+                self.fail(f"missing joint column{'s' if len(missing) > 1 else ''}: the header has "
+                          f"{len(present)} joint columns but the robot has {robot.n_joints} joints "
+                          f"({', '.join(robot.joint_names)}); expected "
+                          f"{'; '.join(expected(i) for i in missing)}{self._trailing_hint(missing)}")
+        have_pos = [k for k in POSITION_COLUMNS if k in cols]
+        if spec.position == "required" or have_pos:
+            for k in POSITION_COLUMNS:
+                if k not in cols:
+                    self.fail(f"missing column {k}: expected {k}_m or {k}_mm (the position x, y, z "
+                              f"is required{' with an orientation' if spec.position != 'required' else ''})")
+        kinds = []
+        for kind, (group, _, _, label) in ORIENTATIONS.items():
+            have = [k for k in group if k in cols]
+            if have and len(have) < len(group):
+                lack = [k for k in group if k not in cols]
+                self.fail(f"incomplete {label} columns: found {', '.join(have)} but not "
+                          f"{', '.join(lack)}; give all of {', '.join(group)} or none")
+            if have:
+                kinds.append(kind)
+        if len(kinds) > 1:
+            a, b = (ORIENTATIONS[k][2] for k in kinds[:2])
+            self.fail(f"both {a} and {b} are given; give one orientation or none")
+        orientation = kinds[0] if kinds else "none"
+        if orientation != "none" and not have_pos:
+            self.fail("an orientation without a position: give x, y, z with _m or _mm too")
+        if orientation == "euler" and self.options.euler is None:
+            self.fail("Euler angle columns e1, e2, e3 need their sequence: give --euler SEQ in "
+                      "scipy's notation (ZYX intrinsic, xyz extrinsic, ...)", cols["e1"].name)
+        if self.key is not None and self.key not in cols:
+            close = difflib.get_close_matches(self.key.lower(),
+                                              [c.strip().lower() for c in self.ignored], n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            self.fail(f"no key column {self.key!r} (given by --key){hint}")
+        if spec.joints == "optional" and spec.position != "none" and not present and not have_pos:
+            self.fail(f"no {spec.kind}: give joint columns or a position x, y, z; {self.accepted()}")
+        return orientation
+
+
+# ====================================================================== reading
+def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None = None) -> Table:
+    """Read a CSV file of kind ``spec`` for ``robot`` (its joint names, units and limits).
+
+    Returns a :class:`Table` in SI units (rad, m; rotations as (N, 3, 3) matrices of the tool
+    frame in the meas frame). Raises :class:`calib.MeasurementFormatError` naming the file, row
+    and column on any departure from the format.
+    """
+    from calib.checks import check_instance, check_path, check_robot
+
+    path = check_path(path, "path")
+    check_robot(robot)
+    options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
+        or ReadOptions()
+    header_row, names, delimiter, data = _records(path)
+    header = _Header(path, header_row, names, spec, robot, options)
+    if not data:
+        raise MeasurementFormatError(path, "header but no data rows", row=header_row)
+    decimal_comma = delimiter != ","
+    cols = header.columns
+    N, ncols = len(data), len(names)
+    label_names = set(spec.labels) | ({header.key} if header.key else set())
+    numeric = {k: c for k, c in cols.items() if k not in label_names}
+    values = {k: np.empty(N) for k in numeric}
+    labels = {k: [] for k in cols if k not in numeric}
+    rows = np.array([r for r, _ in data], dtype=int)
+    for k, (row, line) in enumerate(data):
+        fields = split_fields(path, row, line, delimiter)
+        if len(fields) != ncols:
+            raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
+                                               f"{ncols} (one per header column)", row=row)
+        for key, c in numeric.items():
+            values[key][k] = parse_number(path, row, c.name, fields[c.index], decimal_comma) * c.scale
+        for key in labels:
+            c = cols[key]
+            text = fields[c.index].strip()
+            if key == "set":
+                if text.lower() not in ("cal", "val"):
+                    raise MeasurementFormatError(path, f"{text!r} is not a set; expected cal or val",
+                                                 row=row, column=c.name)
+                text = text.lower()
+            elif not text:
+                raise MeasurementFormatError(path, f"empty {'key' if key == header.key else key}, "
+                                                   f"expected an id", row=row, column=c.name)
+            labels[key].append(text)
+
+    q = None
+    notes: list[str] = []
+    if any(isinstance(k, int) for k in cols):
+        q = np.column_stack([values[i] for i in range(robot.n_joints)])
+        notes += _check_limits(path, robot, header, q, rows, options.limit_tolerance)
+    position = None
+    if "x" in cols:
+        position = np.column_stack([values[k] for k in POSITION_COLUMNS])
+    rotation = None
+    if header.orientation != "none":
+        group = ORIENTATIONS[header.orientation][0]
+        rotation = _rotation(path, header, np.column_stack([values[k] for k in group]), rows,
+                             options.euler)
+    if header.ignored:
+        notes.insert(0, f"{path}: ignored columns (not calib's): {', '.join(header.ignored)}")
+    for arr in (q, position, rotation, rows):
+        if arr is not None:
+            arr.setflags(write=False)
+    return Table(path=path, header_row=header_row, rows=rows, q=q, position=position,
+                 rotation=rotation, orientation=header.orientation,
+                 labels={k: tuple(v) for k, v in labels.items()},
+                 names={k: c.name for k, c in cols.items()},
+                 ignored_columns=tuple(header.ignored), notes=tuple(notes),
+                 renamed=tuple(header.renamed))
+
+
+def _rotation(path: Path, header: _Header, values: np.ndarray, rows: np.ndarray,
+              euler: str | None) -> np.ndarray:
+    """(N, 3, 3) rotation matrices from the orientation columns (SI values), by libraries:
+    quaternions, ZYX angles and rotation vectors by Pinocchio (already loaded), other Euler
+    sequences by scipy's Rotation (imported only then: it takes longer to import than a whole
+    calibration)."""
+    import pinocchio as pin
+
+    kind, cols = header.orientation, header.columns
+    first = cols[ORIENTATIONS[kind][0][0]].name
+    if kind == "quaternion":
+        norm = np.linalg.norm(values, axis=1)
+        bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE)
+        if len(bad):
+            raise MeasurementFormatError(
+                path, f"quaternion (qw, qx, qy, qz) has norm {norm[bad[0]]:.6g}, expected 1 "
+                      f"(within {QUATERNION_NORM_TOLERANCE:g})", row=int(rows[bad[0]]), column=first)
+        return np.array([pin.Quaternion(w, x, y, z).toRotationMatrix()
+                         for w, x, y, z in values / norm[:, None]]).reshape(-1, 3, 3)
+    if kind == "zyx":   # R = Rz(rz) Ry(ry) Rx(rx) = Pinocchio's rpy (roll rx, pitch ry, yaw rz)
+        return np.array([pin.rpy.rpyToMatrix(rx, ry, rz) for rz, ry, rx in values]).reshape(-1, 3, 3)
+    if kind == "euler":
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_euler(euler, values).as_matrix()
+    if kind == "rotvec":
+        return np.array([pin.exp3(v) for v in values]).reshape(-1, 3, 3)
+    R = values.reshape(-1, 3, 3)
+    err = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    bad = np.flatnonzero((err > MATRIX_TOLERANCE) | (np.abs(det - 1.0) > MATRIX_TOLERANCE))
+    if len(bad):
+        k = bad[0]
+        raise MeasurementFormatError(
+            path, f"r11 ... r33 is not a rotation matrix: |R R^T - I| = {err[k]:.3g}, det R = "
+                  f"{det[k]:.6g}, expected orthonormal with det +1 (within {MATRIX_TOLERANCE:g}; "
+                  f"rows of the matrix are r1j, r2j, r3j)", row=int(rows[k]), column=first)
+    U, _, Vt = np.linalg.svd(R)          # the nearest rotation (within the tolerance above)
+    return U @ Vt
+
+
+def _check_limits(path: Path, robot, header: _Header, q: np.ndarray, rows: np.ndarray,
+                  tolerance: float) -> list[str]:
+    """Notes for readings just past a limit; raise on the first row (then first column in header
+    order) further beyond."""
+    lo, hi = robot.lower, robot.upper
+    checked = np.array([j.kind != "continuous" for j in robot.joints]) & np.isfinite(lo) & \
+        np.isfinite(hi)
+    span = np.where(checked, hi - lo, 0.0)
+    tol = tolerance * span
+    below, above = lo - q, q - hi                       # > 0 outside
+    excess = np.where(checked, np.maximum(below, above), -np.inf)
+    beyond = excess > tol + 1e-12
+    notes = []
+    for i in np.flatnonzero(((excess > 0) & ~beyond).any(axis=0)):
+        c = header.columns[int(i)]
+        near = np.flatnonzero((excess[:, i] > 0) & ~beyond[:, i])
+        shown = ", ".join(str(r) for r in rows[near[:10]]) + (", ..." if len(near) > 10 else "")
+        notes.append(f"{path}: {robot.joints[i].name} is past its joint limit by up to "
+                     f"{excess[near, i].max() / c.scale:.4g} {c.unit} (within the limit tolerance, "
+                     f"{100 * tolerance:.3g} % of the range = {tol[i] / c.scale:.3g} {c.unit}) in row"
+                     f"{'s' if len(near) > 1 else ''} {shown}; kept as read")
+    if not beyond.any():
+        return notes
+    k = int(np.flatnonzero(beyond.any(axis=1))[0])
+    i = int(min(np.flatnonzero(beyond[k]), key=lambda j: header.columns[int(j)].index))
+    c, joint = header.columns[i], robot.joints[i]
+    value = q[k, i] / c.scale
+    count = int(beyond[:, i].sum())
+    others = f" ({count} rows of this column are outside)" if count > 1 else ""
+    side = "upper" if above[k, i] > 0 else "lower"
+    reason = (f"{joint.name} = {value:.6g} {c.unit} is outside the joint limits "
+              f"[{lo[i] / c.scale:.6g}, {hi[i] / c.scale:.6g}] {c.unit}{others}: "
+              f"{excess[k, i] / c.scale:.4g} {c.unit} past the {side} limit, "
+              f"{100 * excess[k, i] / span[i]:.3g} % of the joint range")
+    hint = (f"; beyond the limit tolerance ({100 * tolerance:.3g} % of the range); if the reading "
+            f"is right, raise it (--limit-tolerance) or the URDF limit")
+    if excess[k, i] > UNIT_HINT_EXCESS * span[i]:
+        hint = "; check the joint order, the zero offsets and the URDF limits"
+        # a unit mix-up multiplies the value by 180/pi or 1000: only suggest one when the value
+        # is several times the largest limit and fits the limits in the other unit
+        scale_off = abs(value) >= UNIT_HINT_RATIO * max(abs(lo[i]), abs(hi[i]))
+        if c.unit == "rad" and not joint.is_prismatic and scale_off:
+            fits = lo[i] - tol[i] <= value * ANGLE_UNITS["deg"] <= hi[i] + tol[i]
+            small = max(abs(lo[i]), abs(hi[i])) <= 2 * math.pi + 1e-3
+            if fits or (abs(value) > 2 * math.pi and small):
+                hint = "; degrees given as radians? use the _deg suffix"
+        elif c.unit == "m" and joint.is_prismatic and scale_off:
+            if lo[i] - tol[i] <= value * LENGTH_UNITS["mm"] <= hi[i] + tol[i]:
+                hint = "; millimetres given as metres? use the _mm suffix"
+    raise MeasurementFormatError(path, reason + hint, row=int(rows[k]), column=c.name)
+
+
+# ====================================================================== writing
+def joint_columns(joint_names: Sequence[str], prismatic, q, angle_unit: str, length_unit: str):
+    """(header names, values in the column units) of the joint columns of q (N, n) rad / m."""
+    from calib.errors import DataError
+
+    if angle_unit not in ANGLE_UNITS:
+        raise ParameterError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
+    if length_unit not in LENGTH_UNITS:
+        raise ParameterError(f"length_unit must be 'mm' or 'm', got {length_unit!r}")
+    q = np.atleast_2d(np.asarray(q, float))
+    n = len(joint_names)
+    if q.ndim != 2 or q.shape[1] != n:
+        raise DataError(f"q must be (N, {n}) joint values, got shape {q.shape}")
+    if not np.isfinite(q).all():
+        raise DataError("q holds NaN or infinite values")
+    prismatic = np.asarray(prismatic, bool)
+    scale = np.where(prismatic, LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit])
+    header = [f"{name}_{length_unit if p else angle_unit}" for name, p in zip(joint_names, prismatic)]
+    return header, q / scale
+
+
+def csv_text(header: Sequence[str], rows, comment: str | None = None) -> str:
+    """CSV text (comma separated, ``\\n`` line ends): ``#`` comment lines, the header, the rows."""
+    from io import StringIO
+
+    buf = StringIO()
+    if comment is not None:
+        for line in str(comment).splitlines() or [""]:
+            buf.write(f"# {line}".rstrip() + "\n")
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows(rows)
+    return buf.getvalue()

@@ -1,0 +1,225 @@
+"""Atomic file output: write to a temporary file beside the target, then rename.
+
+A reader never sees a half-written file, and a failure leaves any existing file untouched.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import sys
+import tempfile
+import threading
+from pathlib import Path
+from typing import Iterable
+
+from calib.errors import CalibError, OutputError
+
+
+def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> None:
+    """Refuse an output path that is one of the inputs (inputs are never overwritten)."""
+    out = Path(output).resolve()
+    for p in inputs:
+        if p is not None and Path(p).resolve() == out:
+            raise CalibError(f"{output}: refusing to overwrite an input file; choose another output path")
+
+
+def output_target(path: str | Path) -> Path:
+    """The file an output at ``path`` replaces: ``path`` itself, or the file a symbolic link there
+    points to (the link is kept; the file it names is replaced). Raises :class:`OutputError` when
+    that is something other than a regular file (a device such as /dev/null, a FIFO, a socket):
+    writing by rename would destroy it."""
+    import stat
+
+    path = Path(path)
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    try:
+        mode = os.stat(target).st_mode
+    except FileNotFoundError:
+        return target
+    except OSError as exc:
+        raise OutputError(path, f"cannot be inspected: {_reason(exc)}") from None
+    if not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
+        raise OutputError(path, "is not a regular file (a device, FIFO or socket): outputs are "
+                                "written by replacing the file, which would destroy it; choose a file name")
+    return target
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _reason(exc: OSError) -> str:
+    return exc.strerror or type(exc).__name__
+
+
+class OutputSet:
+    """Output files written as a set: all or none.
+
+    :meth:`stage` keeps each file's bytes; :meth:`commit` writes every one to a temporary file
+    in its target folder (``.NAME.XXXX.tmp``), and only when all are written and flushed renames
+    them into place (SIGINT and SIGTERM are held back during the renames). If anything fails --
+    a read-only folder, a full disk, a signal before the renames -- every temporary file is
+    removed, folders it created are removed again, and no existing output has changed; the
+    failure is an :class:`calib.errors.OutputError` naming the path. Should a rename itself fail
+    half-way (the folder was made read-only in between), the files already renamed are put back
+    from hard-linked copies where the file system allows it.
+    """
+
+    def __init__(self) -> None:
+        self.data: dict[Path, bytes] = {}
+        self.folders: list[Path] = []
+
+    def stage(self, path: str | Path, data: bytes | str) -> None:
+        """Keep ``data`` (str: UTF-8) to be written to ``path`` by :meth:`commit` (through a
+        symbolic link: into the file it names; see :func:`output_target`)."""
+        self.data[output_target(path)] = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+
+    def make_folder(self, folder: str | Path) -> None:
+        """Create ``folder`` (its parent must exist) at commit time, if it does not exist then."""
+        folder = Path(folder)
+        if folder not in self.folders:
+            self.folders.append(folder)
+
+    def commit(self) -> list[Path]:
+        """Write every staged file (see the class docstring); returns the paths written."""
+        made: list[Path] = []
+        temps: list[tuple[str, Path]] = []
+        try:
+            for folder in self.folders:
+                if not folder.is_dir():
+                    try:
+                        folder.mkdir()
+                    except OSError as exc:
+                        raise OutputError(folder, f"cannot create the folder: {_reason(exc)}") from None
+                    made.append(folder)
+            for path, data in self.data.items():
+                temps.append((_write_temporary(path, data), path))
+            _rename_all(temps)
+        except BaseException:
+            for tmp, _ in temps:
+                _unlink(tmp)
+            for folder in reversed(made):
+                try:
+                    folder.rmdir()
+                except OSError:
+                    pass
+            raise
+        return [path for _, path in temps]
+
+
+def _unlink(path) -> None:
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+def _write_temporary(path: Path, data: bytes) -> str:
+    """``data`` in a new temporary file beside ``path`` (flushed to disk); its name."""
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise OutputError(path, f"folder {folder} does not exist")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise OutputError(path, f"cannot write in folder {folder}: {_reason(exc)}") from None
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual permissions
+    except OSError as exc:
+        _unlink(tmp)
+        raise OutputError(path, f"cannot be written: {_reason(exc)}") from None
+    except BaseException:
+        _unlink(tmp)
+        raise
+    return tmp
+
+
+def _rename_all(temps: list[tuple[str, Path]]) -> None:
+    """Rename each temporary file onto its target, signals held back; on a failure put back the
+    targets already replaced (from hard-linked copies) and raise OutputError."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    blocked = threading.current_thread() is threading.main_thread() and hasattr(signal, "pthread_sigmask")
+    if blocked:
+        old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    backups: list[tuple[Path, str | None]] = []
+    try:
+        for tmp, path in temps:
+            backup = None
+            if path.exists():
+                backup = f"{tmp}.old"
+                try:
+                    os.link(path, backup)
+                except OSError:
+                    backup = None
+            try:
+                os.replace(tmp, path)
+            except OSError as exc:
+                if backup:
+                    _unlink(backup)
+                for done, saved in reversed(backups):
+                    if saved is not None:
+                        os.replace(saved, done)
+                    else:
+                        _unlink(done)
+                backups.clear()
+                raise OutputError(path, f"cannot be replaced: {_reason(exc)}") from None
+            backups.append((path, backup))
+    finally:
+        for _, saved in backups:
+            if saved is not None:
+                _unlink(saved)
+        if blocked:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename);
+    :class:`calib.errors.OutputError` naming the path if it cannot be written."""
+    out = OutputSet()
+    out.stage(path, data)
+    out.commit()
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+@contextlib.contextmanager
+def captured_c_output():
+    """Capture what C/C++ code writes to the process's stdout and stderr (file descriptors 1
+    and 2; e.g. Pinocchio's URDF parser) instead of letting it reach the terminal.
+
+    Yields a list that holds, on exit, the captured text (one string). Python's own
+    ``sys.stdout``/``sys.stderr`` are flushed first so that nothing of theirs is captured.
+    """
+    captured: list[str] = []
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (AttributeError, ValueError, OSError):
+            pass
+    try:
+        saved = [os.dup(1), os.dup(2)]
+    except OSError:          # no such descriptors (embedded interpreter): nothing to capture
+        yield captured
+        return
+    with tempfile.TemporaryFile() as tmp:
+        try:
+            os.dup2(tmp.fileno(), 1)
+            os.dup2(tmp.fileno(), 2)
+            yield captured
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            tmp.seek(0)
+            captured.append(tmp.read().decode("utf-8", "replace"))

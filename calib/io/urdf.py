@@ -1,0 +1,280 @@
+"""The one URDF document layer of calib: reading a URDF's tree and the frames a calibrated URDF
+records, shared by the loader (:mod:`calib.model.robot`), the writer (:mod:`calib.io.urdf_writer`) and
+compensation (:mod:`calib.calibration.compensation`).
+
+The document is parsed with lxml (the parser yourdfpy uses), which keeps every element, comment
+and namespace, so the writer can edit a copy without losing content; Pinocchio builds the
+kinematic model from the same file. No other XML parser reads URDFs in calib.
+
+Frames recorded in a calibrated URDF
+------------------------------------
+A calibrated URDF written by calib carries one extra top-level element in its own namespace::
+
+    <calib:frames xmlns:calib="urn:calib:frames:1" base_frame="world" tool_frame="tool"
+                  nominal_base_frame="world" nominal_tool_frame="wrist_3_link"
+                  source="ur5.urdf"/>
+
+``base_frame``/``tool_frame`` are the links of this file between which the calibrated
+kinematics hold (the writer may have added a link ``tool``); ``nominal_base_frame`` and
+``nominal_tool_frame`` the frames of the nominal URDF they stand for (the frames the measurements
+and compensation targets are expressed in). A calibration of several targets (reflectors) adds one fixed link per target under the tool
+frame and records each with its id::
+
+    <calib:frames ... tool_frame="tool" ...>
+      <calib:target id="A" link="tool_A"/>
+      <calib:target id="B" link="tool_B"/>
+    </calib:frames>
+
+URDF consumers (urdfdom and so ROS, Pinocchio,
+yourdfpy) read only ``link``, ``joint``, ``material``, ``transmission`` and ``gazebo``
+elements and ignore a namespaced element, as they ignore ``xacro:`` leftovers.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from lxml import etree
+
+from calib.errors import ChainError, URDFError
+
+__all__ = ["FRAMES_NAMESPACE", "RecordedFrames", "UrdfDocument", "UrdfJoint"]
+
+#: Namespace of the element that records a calibrated URDF's frames.
+FRAMES_NAMESPACE = "urn:calib:frames:1"
+FRAMES_TAG = f"{{{FRAMES_NAMESPACE}}}frames"
+TARGET_TAG = f"{{{FRAMES_NAMESPACE}}}target"
+
+
+@dataclass(frozen=True)
+class UrdfJoint:
+    """A ``<joint>`` of a URDF: name, type, parent and child link, whether it has ``<mimic>``
+    and ``<limit lower/upper>``."""
+
+    name: str
+    kind: str
+    parent: str
+    child: str
+    mimic: bool = False
+    has_limits: bool = False
+
+
+@dataclass(frozen=True)
+class RecordedFrames:
+    """The frames a calibrated URDF records (see the module docstring); link names.
+
+    targets : (id, link) of each target of a multi-target calibration, () otherwise.
+    measurement_estimated, tool_estimated : whether the calibration estimated the measurement
+    frame, or the tool (or target) frames, from the data because they were far from the nominal
+    ones (attributes ``measurement_estimated="true"``, ``tool_estimated="true"``): the base
+    frame is then the instrument's, the tool frame the measured point's, not the nominal ones.
+    """
+
+    base_frame: str
+    tool_frame: str
+    nominal_base_frame: str
+    nominal_tool_frame: str
+    source: str = ""
+    targets: tuple[tuple[str, str], ...] = ()
+    measurement_estimated: bool = False
+    tool_estimated: bool = False
+
+    def _attributes(self) -> dict:
+        out = {"base_frame": self.base_frame, "tool_frame": self.tool_frame,
+               "nominal_base_frame": self.nominal_base_frame,
+               "nominal_tool_frame": self.nominal_tool_frame, "source": self.source}
+        for key in ("measurement_estimated", "tool_estimated"):
+            if getattr(self, key):
+                out[key] = "true"
+        return out
+
+    def to_dict(self) -> dict:
+        out = self._attributes()
+        if self.targets:
+            out["targets"] = {t: link for t, link in self.targets}
+        return out
+
+    def element(self) -> etree._Element:
+        """The ``<calib:frames>`` element (namespace declared on it)."""
+        el = etree.Element(FRAMES_TAG, nsmap={"calib": FRAMES_NAMESPACE})
+        for key, value in self._attributes().items():
+            el.set(key, value)
+        for target, link in self.targets:
+            etree.SubElement(el, TARGET_TAG, {"id": target, "link": link})
+        return el
+
+
+class UrdfDocument:
+    """A URDF as an lxml tree (comments, namespaces and unknown tags kept) and its joint tree.
+
+    Attributes: ``path``; ``tree`` (lxml ElementTree; do not modify, copy it); ``links`` (names
+    in file order); ``joints`` (name -> :class:`UrdfJoint`, file order); ``root_link``;
+    ``frames`` (:class:`RecordedFrames` of a calibrated URDF, or None).
+    """
+
+    def __init__(self, path: Path, tree: etree._ElementTree):
+        self.path = path
+        self.tree = tree
+        root = tree.getroot()
+        if root.tag != "robot":
+            raise URDFError(path, f"root element is <{root.tag}>, expected <robot>")
+        self.links = [el.get("name") for el in root.findall("link")]
+        if not self.links:
+            raise URDFError(path, "has no <link> element")
+        self.joints: dict[str, UrdfJoint] = {}
+        for el in root.findall("joint"):
+            name, kind = el.get("name"), el.get("type")
+            parent, child = el.find("parent"), el.find("child")
+            if name is None or kind is None or parent is None or child is None:
+                raise URDFError(path, f"joint {name!r} lacks a name, type, <parent> or <child>")
+            lim = el.find("limit")
+            self._check_numbers(el, name, kind)
+            self.joints[name] = UrdfJoint(
+                name, kind, parent.get("link"), child.get("link"), el.find("mimic") is not None,
+                lim is not None and (lim.get("lower") is not None or lim.get("upper") is not None))
+        self.parent_joint = {j.child: j for j in self.joints.values()}
+        roots = [l for l in self.links if l not in self.parent_joint]
+        if len(roots) != 1:
+            raise URDFError(path, f"expected one root link, found {len(roots)}: {roots}")
+        self.root_link = roots[0]
+        self.frames = self._read_frames(root)
+
+    def _check_numbers(self, el, name: str, kind: str) -> None:
+        """The joint's origin, axis and limits are finite numbers; a moving joint's axis is not
+        zero; lower <= upper. (Pinocchio would build a model of NaN or fail with a message that
+        does not name the joint.)"""
+        def numbers(child: str, attr: str, count: int):
+            sub = el.find(child)
+            text = None if sub is None else sub.get(attr)
+            if text is None:
+                return None
+            try:
+                values = [float(v) for v in text.split()]
+            except ValueError:
+                values = []
+            if len(values) != count or not all(math.isfinite(v) for v in values):
+                what = f"{count} finite numbers" if count > 1 else "a finite number"
+                raise URDFError(self.path, f'joint {name!r}: <{child} {attr}="{text}"> is not {what}')
+            return values
+        numbers("origin", "xyz", 3)
+        numbers("origin", "rpy", 3)
+        axis = numbers("axis", "xyz", 3)
+        if kind in ("revolute", "continuous", "prismatic") and axis is not None \
+                and math.hypot(*axis) < 1e-9:
+            raise URDFError(self.path, f"joint {name!r}: <axis xyz=\"{el.find('axis').get('xyz')}\"> is a "
+                                       f"zero vector, expected the direction of the joint axis")
+        lower, upper = numbers("limit", "lower", 1), numbers("limit", "upper", 1)
+        if kind in ("revolute", "prismatic") and lower is not None and upper is not None \
+                and lower[0] > upper[0]:
+            raise URDFError(self.path, f"joint {name!r}: <limit lower=\"{lower[0]:g}\" upper=\"{upper[0]:g}\">"
+                                       f" has lower > upper")
+
+    @classmethod
+    def read(cls, path: str | Path) -> "UrdfDocument":
+        """Parse a URDF file; :class:`URDFError` naming the file (and line) if it cannot be."""
+        path = Path(path)
+        if not path.exists():
+            raise URDFError(path, "file not found")
+        if path.is_dir():
+            raise URDFError(path, "is a directory, expected a URDF file")
+        parser = etree.XMLParser(remove_blank_text=False, remove_comments=False,
+                                 resolve_entities=False)
+        try:
+            tree = etree.parse(str(path), parser)
+        except etree.XMLSyntaxError as exc:
+            line, col = exc.position
+            raise URDFError(path, f"malformed XML at line {line}, column {col}: "
+                                  f"{exc.msg.split(',')[0]}") from None
+        except OSError as exc:
+            raise URDFError(path, f"cannot be read: {exc}") from None
+        return cls(path, tree)
+
+    def _read_frames(self, root) -> RecordedFrames | None:
+        el = root.find(FRAMES_TAG)
+        if el is None:
+            return None
+        keys = ("base_frame", "tool_frame", "nominal_base_frame", "nominal_tool_frame")
+        missing = [k for k in keys if not el.get(k)]
+        if missing:
+            raise URDFError(self.path, f"<calib:frames> lacks the attribute(s) {', '.join(missing)}")
+        for k in ("base_frame", "tool_frame"):
+            if el.get(k) not in self.links:
+                raise URDFError(self.path, f"<calib:frames> {k}={el.get(k)!r} is not a link of "
+                                           f"this file")
+        targets = tuple((t.get("id"), t.get("link")) for t in el.findall(TARGET_TAG))
+        for target, link in targets:
+            if not target or link not in self.links:
+                raise URDFError(self.path, f"<calib:target id={target!r} link={link!r}>: expected an id "
+                                           f"and a link of this file")
+        flags = {}
+        for k in ("measurement_estimated", "tool_estimated"):
+            if el.get(k, "false") not in ("true", "false"):
+                raise URDFError(self.path, f"<calib:frames> {k}={el.get(k)!r}: expected true or false")
+            flags[k] = el.get(k) == "true"
+        return RecordedFrames(*(el.get(k) for k in keys), source=el.get("source", ""), targets=targets,
+                              **flags)
+
+    # ------------------------------------------------------------------ tree queries
+    def link_of(self, frame: str) -> str:
+        """The link a frame name denotes: a link, or the child link of a joint of that name
+        (the name itself if it is neither)."""
+        if frame in self.links:
+            return frame
+        if frame in self.joints:
+            return self.joints[frame].child
+        return frame
+
+    def children(self, link: str) -> list[UrdfJoint]:
+        """The joints whose parent is ``link``, in file order."""
+        return [j for j in self.joints.values() if j.parent == link]
+
+    def fixed_path(self, start: str, end: str) -> list[tuple[UrdfJoint, bool]]:
+        """Joints on the tree path from link ``start`` to link ``end``, each with ``True`` when
+        it is traversed from parent to child. All must be fixed (else :class:`ChainError`)."""
+        def up(link):
+            out = []
+            while link in self.parent_joint:
+                j = self.parent_joint[link]
+                out.append(j)
+                link = j.parent
+            return out
+        up_s, up_e = up(start), up(end)
+        ancestors_e = [end] + [j.parent for j in up_e]
+        ancestors_s = [start] + [j.parent for j in up_s]
+        common = next(l for l in ancestors_s if l in ancestors_e)
+        path = [(j, False) for j in up_s[:ancestors_s.index(common)]]
+        path += [(j, True) for j in reversed(up_e[:ancestors_e.index(common)])]
+        for j, _ in path:
+            if j.kind != "fixed":
+                raise ChainError(self.path, f"joint {j.name!r} of type {j.kind!r} lies between links "
+                                            f"{start!r} and {end!r} where a fixed joint was expected")
+        return path
+
+    def moving_joints_below(self, link: str) -> int:
+        """The largest number of moving (non-fixed, non-mimic) joints on a path down from
+        ``link``."""
+        best = 0
+        for j in self.children(link):
+            n = self.moving_joints_below(j.child) + (j.kind != "fixed" and not j.mimic)
+            best = max(best, n)
+        return best
+
+    # ------------------------------------------------------------------ frames of a calibrated URDF
+    def resolve_frames(self, base_frame: str | None,
+                       tool_frame: str | None) -> tuple[str | None, str | None]:
+        """The frames to use in this file for requested ``base_frame``/``tool_frame``.
+
+        In a calibrated URDF (one that records its frames), None means the recorded frame, and
+        a request for the nominal frame a recorded frame stands for gives the recorded frame
+        (``--tool-frame wrist_3_link`` gives the link ``tool`` the writer added under it).
+        Elsewhere the requests are returned as given.
+        """
+        rec = self.frames
+        if rec is None:
+            return base_frame, tool_frame
+        if base_frame is None or base_frame == rec.nominal_base_frame:
+            base_frame = rec.base_frame
+        if tool_frame is None or tool_frame == rec.nominal_tool_frame:
+            tool_frame = rec.tool_frame
+        return base_frame, tool_frame

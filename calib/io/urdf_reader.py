@@ -1,0 +1,341 @@
+"""The robot model: a serial chain read from a URDF with Pinocchio, described by TM-MDH parameters.
+
+A :class:`RobotModel` is immutable. It holds the chain's joints (names, types, limits) and one
+value per TM-MDH parameter:
+
+    T_meas_tool(q) = T_meas_base_ref . T(u) . prod_i L_i(q_i) . T(v) . T_flange_tool_ref
+
+with ``L_i`` the link transform of Eq. (1) (:func:`calib.model.mdh.link_transform`), ``T(u)`` and
+``T(v)`` the ZYX transforms of Eq. (3) (:func:`calib.model.spatial.zyx_transform`), and two constant
+reference transforms. ``meas`` is the chosen base frame of the URDF (the measurement frame),
+``base`` is MDH frame 0 (z on axis 1), ``flange`` is MDH frame n, ``tool`` the chosen tool frame.
+For a URDF derived model u = v = 0 and the reference transforms carry the nominal geometry; for the
+bundled BRTIRUS0707A both references are the identity, as in the paper.
+
+Parameters are named ``theta1``, ``d1``, ``a1``, ``alpha1``, ``beta2`` (only for joints whose
+axis is parallel to the next one), ``u_x``, ``u_y``, ``u_z``, ``u_alpha``, ``u_beta``,
+``u_gamma`` and ``v_x`` ... ``v_gamma`` (alpha = yaw about z, beta = pitch about y, gamma = roll
+about x, as in Eq. (3)). Lengths in metres, angles in radians.
+
+Several targets (reflectors) on the tool: a model with ``targets`` (two or more ids) has one
+flange->target transform per target, ``T(v_k) . T_flange_tool_ref_k``, with parameters named
+``v_x@<id>`` ... ``v_gamma@<id>``; the chain and the measurement frame are shared. A model with
+one tool frame (``targets == ()``) keeps the names ``v_x`` ... ``v_gamma``.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from calib.checks import check_number, check_path
+from calib.errors import ChainError, FrameNotFound, ParameterError, URDFError
+from calib.io.fileio import captured_c_output
+from calib.model.mdh import PARALLEL_THRESHOLD_RAD, derive_mdh
+from calib.io.urdf import UrdfDocument, UrdfJoint
+from calib.model.robot import ChainJoint, JOINT_KINDS, RobotModel
+
+log = logging.getLogger(__name__)
+
+
+# ====================================================================== URDF reading
+@dataclass(frozen=True)
+class UrdfChain:
+    """A serial chain found in a URDF, with the Pinocchio model of the whole file.
+
+    ``model`` is Pinocchio's model of the URDF; ``joint_ids`` the Pinocchio ids of the chain's
+    moving joints (base to tool); ``base_frame_id``/``tool_frame_id`` Pinocchio frame ids;
+    ``document`` the URDF's XML document (:class:`calib.io.urdf.UrdfDocument`).
+    """
+
+    path: Path
+    model: pin.Model
+    joints: tuple[ChainJoint, ...]
+    joint_ids: tuple[int, ...]
+    base_frame: str
+    tool_frame: str
+    base_frame_id: int
+    tool_frame_id: int
+    document: UrdfDocument | None = None
+
+    def configuration(self, q: np.ndarray) -> np.ndarray:
+        """Pinocchio configuration of the whole URDF model for chain joint values q (n,).
+
+        Joints off the chain stay at their neutral value; continuous joints take (cos, sin).
+        """
+        qf = pin.neutral(self.model)
+        for k, jid in enumerate(self.joint_ids):
+            jm = self.model.joints[jid]
+            if jm.nq == 2:
+                qf[jm.idx_q], qf[jm.idx_q + 1] = math.cos(q[k]), math.sin(q[k])
+            else:
+                qf[jm.idx_q] = q[k]
+        return qf
+
+    def T_meas_tool(self, Q: np.ndarray) -> np.ndarray:
+        """(N, 4, 4) pose of the tool frame in the base (meas) frame by Pinocchio, for Q (N, n)."""
+        data = self.model.createData()
+        out = np.empty((len(Q), 4, 4))
+        for k, q in enumerate(np.atleast_2d(Q)):
+            pin.framesForwardKinematics(self.model, data, self.configuration(q))
+            out[k] = (data.oMf[self.base_frame_id].actInv(data.oMf[self.tool_frame_id])).homogeneous
+        return out
+
+
+def _moving(j: UrdfJoint) -> bool:
+    return j.kind != "fixed" and not j.mimic
+
+
+def _longest_moving(doc: UrdfDocument, j: UrdfJoint) -> int:
+    """Moving joints on the longest path down from the parent of ``j`` through ``j``."""
+    return _moving(j) + doc.moving_joints_below(j.child)
+
+
+def _is_mechanism(doc: UrdfDocument, j: UrdfJoint) -> bool:
+    """Whether anything moves (or mimics) in the branch that starts with joint ``j``."""
+    return j.kind != "fixed" or j.mimic or any(_is_mechanism(doc, k) for k in doc.children(j.child))
+
+
+def _default_tool_frame(doc: UrdfDocument, start: str) -> str:
+    """The default tool frame: follow the tree down from link ``start``.
+
+    At a link with one child, go on. At a link with several children, compare the branches by
+    the moving joints on their longest path (mimic joints do not count):
+
+    * nothing moves below: stop here;
+    * other branches are mechanisms too (they move or mimic) and the longest branch has fewer
+      moving joints than the chain already followed: an end effector (gripper fingers, a hand):
+      stop here, at the last link before the branch;
+    * one branch is the longest, and it has at least 2 moving joints or no other branch is a
+      mechanism (a fixed sensor mount beside the next joint): go on into it (an arm past a
+      mobile base's wheels, or past a head);
+    * several branches are equally long with at least 2 moving joints (two arms of a humanoid)
+      and the chain followed is shorter: :class:`ChainError` naming the candidates.
+    """
+    link, passed = start, 0
+    while True:
+        kids = doc.children(link)
+        if not kids:
+            return link
+        if len(kids) == 1:
+            passed += _moving(kids[0])
+            link = kids[0].child
+            continue
+        counts = [_longest_moving(doc, j) for j in kids]
+        best = max(counts)
+        top = [j for j, c in zip(kids, counts) if c == best]
+        others_move = [j for j, c in zip(kids, counts) if c < best and _is_mechanism(doc, j)]
+        if best == 0 or ((others_move or len(top) > 1) and best < passed):
+            return link
+        if len(top) == 1 and (best >= 2 or not others_move):
+            passed += _moving(top[0])
+            link = top[0].child
+            continue
+        if len(top) > 1 and best >= 2:
+            candidates = [_default_tool_frame(doc, j.child) for j in top]
+            raise ChainError(doc.path, f"no default tool frame: the tree branches at link {link!r} "
+                                       f"into {len(top)} arms of {best} moving joints; choose one "
+                                       f"with --tool-frame (tool_frame=), e.g. "
+                                       f"{', '.join(candidates)}")
+        return link
+
+
+def robot_path(robot: str | Path) -> Path:
+    """The URDF file of ``robot``: a path, or a robot name example-robot-data knows (``ur5``,
+    ``panda``, ``z1``, ...).
+
+    A name is tried only when no file of that name exists and it has no folder or suffix; an
+    unknown name raises :class:`URDFError` listing the known names.
+    """
+    path = check_path(robot, "robot")
+    if path.exists() or path.suffix or len(path.parts) != 1:
+        return path
+    try:
+        from example_robot_data.robots_loader import ROBOTS
+        from example_robot_data.utils import getModelPath
+    except ImportError:       # example-robot-data is a dependency, but may be broken
+        return path
+    name = str(robot)
+    loader = ROBOTS.get(name)
+    if loader is None or not getattr(loader, "urdf_filename", ""):
+        known = sorted(k for k, v in ROBOTS.items() if getattr(v, "urdf_filename", ""))
+        raise URDFError(path, f"file not found, and not a robot name example-robot-data knows "
+                              f"({', '.join(known)})")
+    sub = os.path.join(loader.path, loader.urdf_subpath, loader.urdf_filename)
+    try:
+        folder = loader.model_path or getModelPath(sub)
+    except OSError as exc:
+        raise URDFError(path, f"example-robot-data knows this robot but its URDF is missing: "
+                              f"{exc}") from None
+    return Path(os.path.normpath(os.path.join(folder, sub)))
+
+
+def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
+                    tool_frame: str | None = None) -> UrdfChain:
+    """Read a URDF and find the serial chain of moving joints between two of its frames.
+
+    ``urdf_path`` is a file or a robot name of example-robot-data (:func:`robot_path`).
+    ``base_frame`` defaults to the root link; ``tool_frame`` to the last link before the tree
+    branches into an end effector (see :func:`_default_tool_frame`). A calibrated URDF written
+    by calib records its frames, which are then the defaults (and requests for the nominal
+    frames they stand for map to them; :meth:`calib.io.urdf.UrdfDocument.resolve_frames`). Frames
+    may be link or joint names. Raises :class:`URDFError`, :class:`FrameNotFound` or
+    :class:`ChainError`.
+    """
+    path = robot_path(check_path(urdf_path, "urdf_path"))
+    for name, frame in (("base_frame", base_frame), ("tool_frame", tool_frame)):
+        if frame is not None and not (isinstance(frame, str) and frame):
+            raise ParameterError(f"{name} must be a frame name (a non-empty str) or None, got {frame!r}")
+    doc = UrdfDocument.read(path)
+    parser_output: list[str] = []
+    try:
+        with captured_c_output() as parser_output:   # Pinocchio's parser prints to C stderr
+            model = pin.buildModelFromUrdf(str(path))
+    except (RuntimeError, ValueError) as exc:
+        said = [l.strip()[len("Error:"):].strip() for l in "".join(parser_output).splitlines()
+                if l.strip().startswith("Error:")]
+        msg = " ".join((said[0] if said else str(exc)).split())
+        raise URDFError(path, f"Pinocchio cannot build a model: {msg}") from None
+    if parser_output and parser_output[0].strip():
+        log.debug("Pinocchio's URDF parser said: %s", " ".join(parser_output[0].split()))
+
+    base_frame, tool_frame = doc.resolve_frames(base_frame, tool_frame)
+    base_frame = base_frame or doc.root_link
+    requested_tool = tool_frame
+    frame_names = [f.name for f in model.frames]
+    available = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
+    if base_frame not in frame_names:
+        raise FrameNotFound(base_frame, available, path)
+    tool_frame = tool_frame or _default_tool_frame(doc, doc.link_of(base_frame))
+    ids = {}
+    for role, name in (("base", base_frame), ("tool", tool_frame)):
+        if name not in frame_names:
+            raise FrameNotFound(name, available, path)
+        # prefer the body (link) frame when a joint of the same name exists
+        cands = [k for k, f in enumerate(model.frames) if f.name == name]
+        ids[role] = next((k for k in cands if model.frames[k].type == pin.FrameType.BODY), cands[0])
+
+    base_joint = model.frames[ids["base"]].parentJoint
+    tool_joint = model.frames[ids["tool"]].parentJoint
+    chain = []
+    j = tool_joint
+    while j != base_joint:
+        if j == 0:
+            raise ChainError(path, f"base frame {base_frame!r} and tool frame {tool_frame!r} are not "
+                                   f"on one serial chain: {base_frame!r} is not between the root "
+                                   f"and {tool_frame!r}")
+        chain.append(j)
+        j = model.parents[j]
+    chain.reverse()
+    if not chain:
+        hint = ""
+        if requested_tool is None:
+            stop = doc.link_of(tool_frame)
+            cands = []
+            for j in doc.children(stop):
+                if _is_mechanism(doc, j):
+                    try:
+                        cands.append(_default_tool_frame(doc, j.child))
+                    except ChainError:
+                        pass
+            hint = (f"; choose one with --tool-frame (tool_frame=), e.g. {', '.join(cands)}"
+                    if cands else "")
+        raise ChainError(path, f"no moving joint between base frame {base_frame!r} and tool frame "
+                               f"{tool_frame!r}{hint}")
+
+    cj = []
+    for jid in chain:
+        name = model.names[jid]
+        rec = doc.joints.get(name)
+        jtype = rec.kind if rec else model.joints[jid].shortname()
+        if rec is not None and rec.mimic:
+            raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} is a "
+                                   f"mimic joint: unsupported (it has no independent value)")
+        if jtype not in JOINT_KINDS or model.joints[jid].nv != 1:
+            raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} is of "
+                                   f"type {jtype!r}: unsupported (supported: revolute, continuous, "
+                                   f"prismatic)")
+        if jtype == "continuous":
+            lo, hi = -math.inf, math.inf
+        else:
+            jm = model.joints[jid]
+            lo, hi = float(model.lowerPositionLimit[jm.idx_q]), float(model.upperPositionLimit[jm.idx_q])
+            if rec is None or not rec.has_limits:
+                lo, hi = -math.inf, math.inf
+        if lo == hi:
+            raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} has "
+                                   f"limits lower = upper = {lo:g}: it cannot move; make it a "
+                                   f"fixed joint or give it a range")
+        cj.append(ChainJoint(name, jtype, lo, hi))
+    return UrdfChain(path=path, model=model, joints=tuple(cj), joint_ids=tuple(chain),
+                     base_frame=base_frame, tool_frame=tool_frame,
+                     base_frame_id=ids["base"], tool_frame_id=ids["tool"], document=doc)
+
+
+def chain_axes(chain: UrdfChain) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Joint axes of a URDF chain at q = 0, in the base (meas) frame.
+
+    Returns (points (n, 3), directions (n, 3), T_meas_tool (4, 4)), from Pinocchio's joint
+    Jacobians: a joint's twist gives its axis direction and, for a revolute joint, a point on it.
+    """
+    model = chain.model
+    data = model.createData()
+    q0 = chain.configuration(np.zeros(len(chain.joints)))
+    pin.computeJointJacobians(model, data, q0)
+    pin.updateFramePlacements(model, data)
+    oMb = data.oMf[chain.base_frame_id]
+    pts, dirs = [], []
+    for jid, joint in zip(chain.joint_ids, chain.joints):
+        col = pin.getJointJacobian(model, data, jid, pin.WORLD)[:, model.joints[jid].idx_v]
+        v, w = col[:3], col[3:]
+        if joint.is_prismatic:
+            direction, point = v, data.oMi[jid].translation
+        else:
+            direction, point = w, np.cross(w, v) / (w @ w)
+        pts.append(oMb.actInv(point))
+        dirs.append(oMb.rotation.T @ direction / np.linalg.norm(direction))
+    T_meas_tool = oMb.actInv(data.oMf[chain.tool_frame_id]).homogeneous
+    return np.array(pts), np.array(dirs), T_meas_tool
+
+
+def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame: str | None = None,
+               parallel_threshold: float = PARALLEL_THRESHOLD_RAD) -> RobotModel:
+    """Load a serial arm from a URDF and derive its TM-MDH model.
+
+    Parameters
+    ----------
+    urdf_path : the URDF file.
+    base_frame : URDF frame (link) that plays the measurement frame; default: the root link.
+    tool_frame : URDF frame (link) whose pose is measured; default: the last link before the
+        tree branches (``tool`` for the bundled robot).
+    parallel_threshold : radians; see :data:`calib.model.mdh.PARALLEL_THRESHOLD_RAD`.
+
+    The model reproduces Pinocchio's forward kinematics of ``tool_frame`` in ``base_frame``
+    exactly (to rounding). Raises :class:`calib.CalibError` subclasses on bad input.
+    """
+    check_number(parallel_threshold, "parallel_threshold", minimum=0.0, maximum=math.pi / 2)
+    chain = read_urdf_chain(urdf_path, base_frame, tool_frame)
+    pts, dirs, T_meas_tool = chain_axes(chain)
+    geo = derive_mdh(pts, dirs, T_meas_tool, parallel_threshold)
+    robot = RobotModel.from_mdh(
+        chain.joints, geo.theta, geo.d, geo.a, geo.alpha,
+        beta=np.where(geo.has_beta, geo.beta, np.nan),
+        T_meas_base_ref=geo.T_meas_base_ref, T_flange_tool_ref=geo.T_flange_tool_ref,
+        base_frame=chain.base_frame, tool_frame=chain.tool_frame, urdf_path=chain.path,
+        parallel_threshold=parallel_threshold)
+    rec = chain.document.frames if chain.document is not None else None
+    if rec is not None and len(rec.targets) > 1 and chain.tool_frame == rec.tool_frame:
+        # a calibration of several targets: one fixed link per target under the tool frame
+        data = chain.model.createData()
+        pin.framesForwardKinematics(chain.model, data, chain.configuration(np.zeros(len(chain.joints))))
+        oMt = data.oMf[chain.tool_frame_id]
+        body = {f.name: k for k, f in enumerate(chain.model.frames) if f.type == pin.FrameType.BODY}
+        refs = [geo.T_flange_tool_ref @ oMt.actInv(data.oMf[body[link]]).homogeneous
+                for _, link in rec.targets]
+        robot = robot.with_targets([t for t, _ in rec.targets], np.array(refs))
+    return robot

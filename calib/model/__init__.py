@@ -1,0 +1,1 @@
+"""calib.model: see ARCHITECTURE.md."""

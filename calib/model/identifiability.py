@@ -1,0 +1,302 @@
+"""Which TM-MDH parameters the measurements can identify, and how they are tied to each other.
+
+The analysis looks at the identification Jacobian over a set of configurations (random within
+the joint limits unless given):
+
+1. Rows are weighted by the measurement noise (1/sigma_pos for position rows, 1/sigma_rot for
+   rotation rows), so that metres and radians enter as they would in a maximum-likelihood fit.
+2. Columns are scaled to unit norm, so that a parameter in metres and one in radians compare by
+   the shape of their effect, not by their unit.
+3. Columns are taken in priority order (by default the order of Eq. (23): structural parameters
+   joint by joint kind by kind, then u, then v). A column is identifiable if the part of it that
+   the columns already kept cannot explain has norm above ``tol`` (default 1e-6: a parameter
+   whose effect is reproduced by the others to one part in a million is tied to them; its
+   variance would be amplified by at least 1e12). This is QR with a column order fixed by
+   priority instead of by pivoting, so the structural parameters are kept and the redundant
+   transform parameters dropped, as Section 4.2 of the paper recommends.
+4. Each unidentifiable parameter is reported with the kept parameters it is tied to: the least
+   squares coefficients c with ``J[:, p] ~ sum_k c_k J[:, k]`` in physical units (a change of p by
+   delta acts as changes c_k delta of the partners), or "no effect" if its column is zero.
+
+For BRTIRUS0707A with full-pose data this finds rank 30 of 37 and the seven relations of Section
+4.2: d3-d2, u_z-d1, u_alpha-theta1, v_x-a6, v_z-d6, v_alpha-theta6, v_gamma-alpha6.
+
+Observability indices of the identifiable columns (weighted rows, unit columns, singular values
+sigma_1 >= ... >= sigma_r of an m x r matrix): O1 = (prod sigma)^(1/r) / sqrt(m) (Borm and Menq's
+normalised product), O3 = sigma_r (the smallest), O4 = sigma_r^2 / sigma_1 (noise amplification,
+Nahvi and Hollerbach), and the condition number sigma_1 / sigma_r.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from calib.checks import (check_configurations, check_int, check_number, check_rng, check_robot,
+                          check_target_indices)
+from calib.errors import DataError, ParameterError
+from calib.model.jacobian import MEASURES, identification_jacobian
+from calib.model.robot import RobotModel
+from calib.solvers.problem import NO_EFFECT_RTOL
+
+#: Default noise levels used for row weighting (the paper's simulation, Section 4.3).
+SIGMA_POS_M = 0.02e-3
+SIGMA_ROT_RAD = 0.002
+#: Default relative tolerance on the unexplained part of a unit column.
+RANK_TOL = 1e-6
+#: How many analyses :func:`analyze_identifiability` keeps for repeated calls.
+CACHE_SIZE = 64
+_cache: OrderedDict = OrderedDict()
+
+
+@dataclass(frozen=True)
+class Relation:
+    """An unidentifiable parameter and the identifiable ones it is tied to.
+
+    ``partners``: (name, coefficient) pairs, coefficients in physical units
+    (metres per metre, metres per radian, ...): a change ``delta`` of ``parameter`` moves the
+    measurements as changes ``coefficient * delta`` of the partners would. Empty when the
+    parameter has no effect at all on the measured quantities.
+    """
+
+    parameter: str
+    partners: tuple[tuple[str, float], ...]
+    reason: str
+
+    def describe(self) -> str:
+        if not self.partners:
+            return f"{self.parameter}: {self.reason}"
+        terms = " ".join(f"{c:+.4g}*{n}" for n, c in self.partners)
+        return f"{self.parameter} ~ {terms}"
+
+
+@dataclass(frozen=True)
+class IdentifiabilityReport:
+    """Result of :func:`analyze_identifiability`. Names follow ``robot.parameters``."""
+
+    measure: str
+    n_poses: int
+    n_params: int
+    rank: int
+    identifiable: tuple[str, ...]
+    unidentifiable: tuple[Relation, ...]
+    singular_values: np.ndarray = field(repr=False)
+    condition_number: float
+    O1: float
+    O3: float
+    O4: float
+    tol: float
+    sigma_pos: float
+    sigma_rot: float
+
+    def to_dict(self) -> dict:
+        """A JSON-ready dict (keys n_params, rank, identifiable, unidentifiable, condition_number...)."""
+        return {
+            "measure": self.measure,
+            "n_poses": self.n_poses,
+            "n_params": self.n_params,
+            "rank": self.rank,
+            "identifiable": list(self.identifiable),
+            "unidentifiable": [
+                {"name": r.parameter, "tied_to": [{"name": n, "coefficient": c} for n, c in r.partners],
+                 "reason": r.reason} for r in self.unidentifiable],
+            "condition_number": self.condition_number,
+            "observability": {"O1": self.O1, "O3": self.O3, "O4": self.O4},
+            "singular_values": [float(s) for s in self.singular_values],
+            "tolerance": self.tol,
+            "sigma_pos_m": self.sigma_pos,
+            "sigma_rot_rad": self.sigma_rot,
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+    def format(self) -> str:
+        """A report for a person."""
+        lines = [f"Identifiability ({self.measure} data, {self.n_poses} poses): rank {self.rank} of "
+                 f"{self.n_params} parameters",
+                 f"identifiable ({len(self.identifiable)}): {', '.join(self.identifiable)}",
+                 f"unidentifiable ({len(self.unidentifiable)}):"]
+        lines += [f"  {r.describe()}" + ("" if not r.partners else f"   ({r.reason})")
+                  for r in self.unidentifiable]
+        lines += [f"condition number {self.condition_number:.4g}   "
+                  f"(noise-weighted rows: sigma_pos {self.sigma_pos * 1e3:g} mm, sigma_rot "
+                  f"{self.sigma_rot:g} rad; unit-norm columns)",
+                  f"observability O1 {self.O1:.4g}   O3 {self.O3:.4g}   O4 {self.O4:.4g}"]
+        return "\n".join(lines)
+
+
+def weighted_jacobian(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float,
+                      sigma_rot: float, targets: np.ndarray | None = None) -> np.ndarray:
+    """The identification Jacobian with rows divided by their noise sigma (dimensionless rows);
+    targets: (N,) each row's target index for a multi-target model."""
+    J = identification_jacobian(robot, Q, measure, targets)
+    k = 6 if measure == "pose" else 3
+    w = np.array([1 / sigma_pos] * 3 + [1 / sigma_rot] * 3)[:k]
+    return J * np.tile(w, len(J) // k)[:, None]
+
+
+def observability_indices(J: np.ndarray) -> dict[str, float]:
+    """O1, O3, O4 and the condition number of a (weighted, scaled) Jacobian (m x r)."""
+    s = np.linalg.svd(J, compute_uv=False)
+    m, r = J.shape
+    with np.errstate(divide="ignore"):
+        O1 = float(np.exp(np.mean(np.log(s))) / np.sqrt(m)) if s[-1] > 0 else 0.0
+    return {"O1": O1, "O3": float(s[-1]), "O4": float(s[-1] ** 2 / s[0]),
+            "condition_number": float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
+            "singular_values": s}
+
+
+def no_effect(norms: np.ndarray, j: int) -> bool:
+    """Whether column j is zero up to rounding (relative to the largest column of the
+    noise-weighted Jacobian, whose columns all have the dimension 1 / unit of the parameter)."""
+    return bool(norms[j] <= NO_EFFECT_RTOL * norms.max())
+
+
+def select_identifiable(J: np.ndarray, order: Sequence[int], tol: float = RANK_TOL):
+    """Greedy rank-revealing selection of columns of J in the given priority order.
+
+    Returns (kept column indices, dropped column indices), each in priority order.
+    """
+    norms = np.linalg.norm(J, axis=0)
+    kept: list[int] = []
+    dropped: list[int] = []
+    order = list(order)
+    basis = np.empty((len(order), J.shape[0]))   # the orthonormal basis, one vector per row
+    for j in order:
+        if no_effect(norms, j):
+            dropped.append(j)
+            continue
+        c = J[:, j] / norms[j]
+        B = basis[:len(kept)]
+        r = c - (B @ c) @ B
+        r = r - (B @ r) @ B  # re-orthogonalise (classical Gram-Schmidt twice)
+        nr = np.linalg.norm(r)
+        if nr > tol:
+            basis[len(kept)] = r / nr
+            kept.append(j)
+        else:
+            dropped.append(j)
+    return kept, dropped
+
+
+def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, measure: str = "pose",
+                            n_poses: int = 100, seed: int | None = 0, tol: float = RANK_TOL,
+                            sigma_pos: float = SIGMA_POS_M, sigma_rot: float = SIGMA_ROT_RAD,
+                            priority: Sequence[str] | None = None,
+                            max_poses: int | None = 500,
+                            targets: np.ndarray | None = None) -> IdentifiabilityReport:
+    """Identifiable parameter set, relations and observability of ``robot``'s parameters.
+
+    Parameters
+    ----------
+    robot : the model, linearised at its current values.
+    Q : (N, n) configurations (rad / m); default ``n_poses`` uniform random ones within the
+        joint limits drawn with ``seed``.
+    measure : "pose" (position and orientation) or "position".
+    tol : relative tolerance of the rank decision (see the module docstring).
+    sigma_pos, sigma_rot : noise for row weighting, metres and radians.
+    priority : parameter names in the order in which they should be kept (default: Eq. 23 order);
+        names not listed follow in the default order.
+    max_poses : analyse at most this many of the configurations (an evenly spaced subset): which
+        parameters are tied does not depend on the number of poses once there are a few dozen,
+        and the cost grows with it. None for all.
+    targets : (N,) int, the target index (into ``robot.targets``) measured at each configuration;
+        default for a multi-target model: every target at every configuration (``n_poses`` counts
+        the rows).
+
+    The reports of the last ``CACHE_SIZE`` analyses are kept: a repeated call with the same
+    model values, configurations and options (as a calibration repeated on the same data makes)
+    returns the same report without recomputing it.
+    """
+    check_robot(robot)
+    if measure not in MEASURES:
+        raise ParameterError(f"measure must be one of {', '.join(MEASURES)}, got {measure!r}")
+    check_number(tol, "tol", minimum=0.0, maximum=1.0, strict=True)
+    check_number(sigma_pos, "sigma_pos", minimum=1e-12, maximum=1.0)
+    check_number(sigma_rot, "sigma_rot", minimum=1e-12, maximum=1.0)
+    check_int(max_poses, "max_poses", minimum=1, allow_none=True)
+    if priority is not None and (not isinstance(priority, (list, tuple))
+                                 or not all(isinstance(n, str) for n in priority)):
+        raise ParameterError(f"priority must be a list of parameter names, got {priority!r}")
+    if Q is None:
+        check_int(n_poses, "n_poses", minimum=1)
+        Q = robot.random_configurations(n_poses, check_rng(seed, "seed"))
+    Q = check_configurations(Q, robot.n_joints)
+    if len(Q) == 0:
+        raise DataError("Q has no configurations")
+    targets = check_target_indices(targets, len(Q), robot.n_targets)
+    if max_poses is not None and len(Q) > max_poses:
+        pick = np.linspace(0, len(Q) - 1, max_poses).astype(int)
+        Q, targets = Q[pick], None if targets is None else targets[pick]
+    if targets is None and robot.targets:
+        Q, targets = np.repeat(Q, robot.n_targets, axis=0), np.tile(np.arange(robot.n_targets), len(Q))
+    key = _cache_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
+    report = _cache.get(key)
+    if report is None:
+        report = _analyze(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
+        _cache[key] = report
+        while len(_cache) > CACHE_SIZE:
+            _cache.popitem(last=False)
+    else:
+        _cache.move_to_end(key)
+    return report
+
+
+def _cache_key(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,
+               sigma_rot: float, priority, targets) -> tuple:
+    """What the analysis depends on: the chain's structure and values, the configurations, the
+    options (a digest of the arrays, so that large data are not held by the cache)."""
+    h = hashlib.blake2b(digest_size=20)
+    refs = robot.T_flange_target_refs if robot.T_flange_target_refs is not None else robot.T_flange_tool_ref
+    for a in (robot.values, robot.T_meas_base_ref, refs, Q, np.zeros(0) if targets is None else targets):
+        a = np.ascontiguousarray(a, float)
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    structure = (robot.names, tuple((j.name, j.kind) for j in robot.joints), robot.targets)
+    return (h.hexdigest(), structure, measure, float(tol), float(sigma_pos), float(sigma_rot),
+            None if priority is None else tuple(priority))
+
+
+def _analyze(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,
+             sigma_rot: float, priority, targets) -> IdentifiabilityReport:
+    J = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot, targets)
+    order = list(robot.indices(priority)) if priority else []
+    order += [k for k in range(robot.n_params) if k not in order]
+    kept, dropped = select_identifiable(J, order, tol)
+
+    relations = []
+    norms = np.linalg.norm(J, axis=0)
+    pose_norms = None
+    for j in dropped:
+        if no_effect(norms, j):
+            reason = "no effect on the measured quantities at these configurations"
+            if measure == "position":
+                if pose_norms is None:
+                    pose_norms = np.linalg.norm(
+                        weighted_jacobian(robot, Q, "pose", sigma_pos, sigma_rot, targets), axis=0)
+                if not no_effect(pose_norms, j):
+                    reason = ("rotates the tool about the tool point only: observable with "
+                              "orientation data, not with positions")
+            relations.append(Relation(robot.names[j], (), reason))
+            continue
+        coef, *_ = np.linalg.lstsq(J[:, kept], J[:, j], rcond=None)
+        scale = np.linalg.norm(J[:, kept], axis=0) / np.linalg.norm(J[:, j])
+        partners = tuple((robot.names[k], float(c)) for k, c, s in zip(kept, coef, scale)
+                         if abs(c * s) > 1e-4)
+        relations.append(Relation(robot.names[j], partners,
+                                  "its effect equals that of the listed parameters"))
+
+    Jk = J[:, kept] / np.linalg.norm(J[:, kept], axis=0)
+    idx = observability_indices(Jk)
+    idx["singular_values"].setflags(write=False)   # the report is shared through the cache
+    return IdentifiabilityReport(
+        measure=measure, n_poses=len(Q), n_params=robot.n_params, rank=len(kept),
+        identifiable=tuple(robot.names[k] for k in sorted(kept)),
+        unidentifiable=tuple(relations), singular_values=idx["singular_values"],
+        condition_number=idx["condition_number"], O1=idx["O1"], O3=idx["O3"], O4=idx["O4"],
+        tol=tol, sigma_pos=sigma_pos, sigma_rot=sigma_rot)

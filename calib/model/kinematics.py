@@ -1,0 +1,527 @@
+"""Batch kinematics of a TM-MDH model: vectorised over poses, with a Pinocchio model beside it.
+
+:class:`ChainKinematics` is the scratch workspace (Pinocchio's Model/Data split) of a
+:class:`RobotModel`: it holds the joint placements of the chain (the MDH link transforms) for the
+parameter values last set with :meth:`ChainKinematics.set_values`, and computes tool poses and the
+identification Jacobian for a whole array of configurations at once, in numpy (a few stacked
+3x3 products per joint, no per-pose Python loop). A Pinocchio model with the same placements is
+built on first use of :attr:`ChainKinematics.model` (for callers that run Pinocchio's own
+algorithms, and as the reference the tests compare with). A robot model itself stays immutable.
+
+Structure of the chain of an n-joint robot (joints revolute or prismatic about z):
+
+    placement of joint 1     = T_meas_base_ref . T(u) . Rot(z, theta_1) Trans(z, d_1)
+    placement of joint i > 1 = Trans(x, a_{i-1}) Rot(x, alpha_{i-1}) [Rot(y, beta_{i-1})]
+                               . Rot(z, theta_i) Trans(z, d_i)
+    frame "flange" on joint n = Trans(x, a_n) Rot(x, alpha_n) [Rot(y, beta_n)]
+    placement of the tool mount (an extra joint held at 0, carrying frame "tool")
+                              = flange . T(v) . T_flange_tool_ref
+    frame "base" on universe  = T_meas_base_ref . T(u)
+
+With several targets (``robot.targets``) there is one tool mount and one frame ``tool`` per
+target, each with its own T(v_k) . T_flange_tool_ref_k; ``targets`` (N,) indices choose each
+row's frame, so a target's v columns of the Jacobian are nonzero on its rows only.
+
+(Rot(z) and Trans(z) commute, so the joint motion about or along z may follow Trans(z, d_i).)
+Each placement is a product of elementary screws, one per parameter, so the derivative of a
+placement with respect to a parameter is a constant twist in the placement's own frame:
+``X^-1 dX/dp = Ad(suffix)^-1 s`` with ``s`` the unit screw of the factor and ``suffix`` the
+product of the factors after it. :attr:`ChainKinematics.placement_twists` stacks these twists.
+A right perturbation ``X exp(xi)`` of the placement of frame F moves the tool (LOCAL_WORLD_ALIGNED,
+Pinocchio's kinematic regressor) by ``dp = R_F xi_v + (R_F xi_w) x (p_tool - p_F)``,
+``dw = R_F xi_w`` (:meth:`ChainKinematics.poses_and_jacobian`).
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from calib.model.compliance import compliance_term
+from calib.model.robot import RobotModel
+from calib.model.spatial import to_se3
+
+
+@dataclass(frozen=True)
+class _Factor:
+    kind: str                       # tx, ty, tz, rx, ry, rz, or "const"
+    param: int | None = None        # index into the parameter vector
+    const: np.ndarray | None = None  # 4x4 for "const"
+
+
+def _frame_factors(robot: RobotModel, names) -> list[_Factor]:
+    kinds = ("tx", "ty", "tz", "rz", "ry", "rx")     # x, y, z, alpha, beta, gamma
+    return [_Factor(k, robot.index(name)) for k, name in zip(kinds, names)]
+
+
+def _post_factors(robot: RobotModel, joint: int) -> list[_Factor]:
+    f = [_Factor("tx", robot.index(f"a{joint}")), _Factor("rx", robot.index(f"alpha{joint}"))]
+    if robot.has_beta(joint):
+        f.append(_Factor("ry", robot.index(f"beta{joint}")))
+    return f
+
+
+def _pre_factors(robot: RobotModel, joint: int) -> list[_Factor]:
+    return [_Factor("rz", robot.index(f"theta{joint}")), _Factor("tz", robot.index(f"d{joint}"))]
+
+
+def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
+    """Factors of the n joint placements, then the tool-frame placement of each target
+    (relative to joint n)."""
+    n = robot.n_joints
+    out = [[_Factor("const", const=robot.T_meas_base_ref),
+            *_frame_factors(robot, [f"u_{k}" for k in ("x", "y", "z", "alpha", "beta", "gamma")]),
+            *_pre_factors(robot, 1)]]
+    for i in range(2, n + 1):
+        out.append([*_post_factors(robot, i - 1), *_pre_factors(robot, i)])
+    for k in range(robot.n_targets):
+        out.append([*_post_factors(robot, n), *_frame_factors(robot, robot.v_names(k)),
+                    _Factor("const", const=robot.T_flange_tool_ref_of(k))])
+    return tuple(tuple(f) for f in out)
+
+
+_AXIS = {"x": 0, "y": 1, "z": 2}
+_I4 = np.eye(4)
+_I4.setflags(write=False)
+#: Poses per chunk of the batch kinematics (bounds the scratch memory; a few MB per chunk): the
+#: forward kinematics, and the Jacobian (smaller: its scratch is 36 values per pose and joint).
+CHUNK = 2048
+JACOBIAN_CHUNK = 256
+#: (i, j) of the rotation block entries c, -s (at (i, j)), s (at (j, i)) about axis x, y, z.
+_ROT_IJ = np.array([(1, 2), (2, 0), (0, 1)])
+
+
+class _FactorTable:
+    """The factors of several placements as arrays, padded with identities to equal length,
+    so that their products and twists are computed for all placements at once."""
+
+    def __init__(self, placements, n_params: int):
+        self.n_placements = P = len(placements)
+        self.n_factors = F = max(len(f) for f in placements)
+        self.n_params = n_params
+        self.base = np.tile(np.eye(4), (P, F, 1, 1))
+        rot, trans = [], []   # (placement, factor, axis, param)
+        for k, factors in enumerate(placements):
+            for j, f in enumerate(factors):
+                if f.kind == "const":
+                    self.base[k, j] = f.const
+                else:
+                    (trans if f.kind[0] == "t" else rot).append((k, j, _AXIS[f.kind[1]], f.param))
+        self.rot = np.array(rot, int).reshape(-1, 4)
+        self.trans = np.array(trans, int).reshape(-1, 4)
+        self.rot_i, self.rot_j = _ROT_IJ[self.rot[:, 2]].T
+        # e_k x p = skew(e_k) p for the axis e_k of each rotation factor
+        self.rot_skew = np.zeros((len(self.rot), 3, 3))
+        m = np.arange(len(self.rot))
+        self.rot_skew[m, self.rot_j, self.rot_i] = 1.0
+        self.rot_skew[m, self.rot_i, self.rot_j] = -1.0
+        # a parameter appears once per placement (the flange's a_n, alpha_n, beta_n appear in the
+        # tool placement of every target, each with its own twist rows)
+        pairs = np.concatenate([self.rot[:, [0, 3]], self.trans[:, [0, 3]]])
+        if len(set(map(tuple, pairs.tolist()))) != len(pairs):   # (np.unique(axis=0) imports numpy.ma)
+            raise ValueError("a parameter appears in two factors of one placement")
+
+    def elementary(self, values: np.ndarray) -> np.ndarray:
+        """(P, F, 4, 4) factor matrices at parameter ``values``."""
+        E = self.base.copy()
+        k, j, _, idx = self.rot.T
+        c, s = np.cos(values[idx]), np.sin(values[idx])
+        E[k, j, self.rot_i, self.rot_i] = c
+        E[k, j, self.rot_j, self.rot_j] = c
+        E[k, j, self.rot_i, self.rot_j] = -s
+        E[k, j, self.rot_j, self.rot_i] = s
+        k, j, axis, idx = self.trans.T
+        E[k, j, axis, 3] = values[idx]
+        return E
+
+    def products(self, values: np.ndarray, twists: bool = True):
+        """Products of the placements' factors (P, 4, 4), the factor matrices (P, F, 4, 4) and,
+        with ``twists``, the local twist of each parameter, (6 P, n_params) (rows 6k..6k+5 for
+        placement k)."""
+        E = self.elementary(np.asarray(values, float))
+        P, F = self.n_placements, self.n_factors
+        if not twists:
+            M = E[:, 0]
+            for j in range(1, F):
+                M = M @ E[:, j]
+            return M, E, None
+        # the twist of a factor's parameter is Ad(suffix)^-1 s, suffix = product of the factors
+        # after it: (R[k], 0) for a translation along axis k and (R^T (e_k x p), R[k]) for a
+        # rotation about it, with (R, p) the suffix
+        suffix = np.empty((P, F + 1, 4, 4))
+        suffix[:, F] = _I4
+        for j in range(F - 1, -1, -1):
+            suffix[:, j] = E[:, j] @ suffix[:, j + 1]
+        tw = np.zeros((P, 6, self.n_params))
+        k, j, axis, idx = self.trans.T
+        tw[k, :3, idx] = suffix[k, j + 1, axis, :3]
+        k, j, axis, idx = self.rot.T
+        S = suffix[k, j + 1]
+        R, p = S[:, :3, :3], S[:, :3, 3]
+        e_x_p = np.einsum("mij,mj->mi", self.rot_skew, p)
+        tw[k, :3, idx] = np.einsum("mji,mj->mi", R, e_x_p)
+        tw[k, 3:, idx] = R[np.arange(len(axis)), axis]
+        return suffix[:, 0], E, tw.reshape(6 * P, self.n_params)
+
+
+def _chain(matrices: np.ndarray) -> np.ndarray:
+    """Product of a sequence of 4x4 matrices (k, 4, 4), left to right."""
+    out = matrices[0]
+    for m in matrices[1:]:
+        out = out @ m
+    return out
+
+
+def _product_and_twists(factors, values: np.ndarray, n_params: int):
+    """Product of one placement's factors (4x4) and the local twist of each parameter
+    (6, n_params); see :class:`_FactorTable`."""
+    M, _, tw = _FactorTable([factors], n_params).products(values)
+    return M[0], tw
+
+
+@dataclass(frozen=True)
+class _Structure:
+    """What a ChainKinematics needs that depends only on the robot's structure and reference
+    frames, not on its parameter values (shared by every workspace of the same robot)."""
+
+    factors: tuple
+    table: _FactorTable
+    params_of: list          # per placement: indices of its parameters
+    prismatic: np.ndarray
+
+
+_STRUCTURES: OrderedDict = OrderedDict()
+
+
+def _structure(robot: RobotModel) -> _Structure:
+    refs = robot.T_flange_target_refs if robot.T_flange_target_refs is not None else robot.T_flange_tool_ref
+    key = (robot.names, tuple((j.name, j.kind) for j in robot.joints),
+           robot.T_meas_base_ref.tobytes(), np.ascontiguousarray(refs).tobytes())
+    st = _STRUCTURES.get(key)
+    if st is not None:
+        _STRUCTURES.move_to_end(key)
+        return st
+    factors = placement_factors(robot)
+    params_of = [np.array(sorted({f.param for f in fs if f.param is not None}), int) for fs in factors]
+    placed = set(np.concatenate(params_of).tolist())
+    geometric = [k for k, p in enumerate(robot.parameters) if p.group != "compliance"]
+    if not set(geometric) <= placed:      # compliance parameters act through the joints instead
+        raise ValueError("a parameter belongs to no placement")
+    prismatic = robot.prismatic
+    prismatic.setflags(write=False)
+    st = _Structure(factors, _FactorTable(factors, robot.n_params),
+                    params_of, prismatic)
+    _STRUCTURES[key] = st
+    while len(_STRUCTURES) > 32:
+        _STRUCTURES.popitem(last=False)
+    return st
+
+
+class ChainKinematics:
+    """Kinematics of a TM-MDH chain at given parameter values, batched over poses (scratch
+    workspace).
+
+    Use :meth:`set_values` to move to other parameter values; :attr:`values` are the values last
+    set. What depends only on the robot's structure and reference frames is built once and
+    shared between workspaces of the same robot; a build then costs one :meth:`set_values`.
+    """
+
+    def __init__(self, robot: RobotModel):
+        st = _structure(robot)
+        self.factors = st.factors
+        self.n_joints = robot.n_joints
+        self.n_params = robot.n_params
+        self.prismatic = st.prismatic
+        self.joint_names = robot.joint_names
+        self._table = st.table
+        self._params_of = st.params_of
+        # how many of their placements' first factors make the flange and base frames
+        self._flange_at = len(self.factors[self.n_joints]) - 7
+        self._base_at = 7
+        self._pin = None
+        self._pin_values = None
+        self._plans: dict = {}
+        self._last_joint_terms = None
+        self.compliance = compliance_term(robot)   # None without compliance (calib.model.compliance)
+        self.n_targets = robot.n_targets
+        self.set_values(robot.values)
+
+    # ------------------------------------------------------------------ parameters
+    def set_values(self, values: np.ndarray, twists: bool = True) -> None:
+        """Move to parameter ``values`` ((n_params,) SI); with ``twists`` also compute the
+        placement twists needed by the Jacobian (:attr:`placement_twists`)."""
+        values = np.array(values, float)
+        last = getattr(self, "values", None)
+        if (last is not None and (not twists or self.placement_twists is not None)
+                and np.array_equal(values, last)):
+            return      # already there (an LM step's Jacobian after its trial residuals needs twists)
+        M, E, tw = self._table.products(values, twists)
+        n = self.n_joints
+        self.placements = M          # (n + K, 4, 4): joint placements, then each target's tool mount
+        self._rot_T = np.ascontiguousarray(M[:, :3, :3].transpose(0, 2, 1))   # (for _walk)
+        self._trans = np.ascontiguousarray(M[:, :3, 3])
+        self.flange_placement = _chain(E[n, :self._flange_at])   # relative to joint n
+        self.base_placement = _chain(E[0, :self._base_at])       # T_meas_base
+        self.placement_twists = tw
+        self.values = values
+
+    # ------------------------------------------------------------------ Pinocchio model
+    def _pinocchio(self):
+        if self._pin is None:
+            model = pin.Model()
+            model.name = "tm_mdh"
+            parent = 0
+            for name, prismatic in zip(self.joint_names, self.prismatic):
+                jm = pin.JointModelPZ() if prismatic else pin.JointModelRZ()
+                parent = model.addJoint(parent, jm, pin.SE3.Identity(), name)
+            # The tool placement rides on an extra joint that is always at 0: Pinocchio's
+            # regressor then covers the flange->tool parameters too.
+            mount = model.addJoint(parent, pin.JointModelRZ(), pin.SE3.Identity(), "calib_tool_mount")
+            ids = (model.addFrame(pin.Frame("base", 0, pin.SE3.Identity(), pin.FrameType.OP_FRAME)),
+                   model.addFrame(pin.Frame("flange", parent, pin.SE3.Identity(), pin.FrameType.OP_FRAME)),
+                   model.addFrame(pin.Frame("tool", mount, pin.SE3.Identity(), pin.FrameType.OP_FRAME)))
+            self._pin = (model, model.createData(), ids)
+        model = self._pin[0]
+        if self._pin_values is not self.values:
+            for k, M in enumerate(self.placements[:self.n_joints + 1]):   # the first target's tool
+                model.jointPlacements[k + 1] = to_se3(M)
+            model.frames[self._pin[2][1]].placement = to_se3(self.flange_placement)
+            model.frames[self._pin[2][0]].placement = to_se3(self.base_placement)
+            self._pin_values = self.values
+        return self._pin
+
+    @property
+    def model(self) -> pin.Model:
+        """A Pinocchio model of the chain at the current values: joints 1..n the robot's, joint
+        n + 1 the tool mount (keep it at 0), frames "base", "flange", "tool"."""
+        return self._pinocchio()[0]
+
+    @property
+    def data(self) -> pin.Data:
+        """Scratch data of :attr:`model`."""
+        return self._pinocchio()[1]
+
+    @property
+    def base_frame_id(self) -> int:
+        return self._pinocchio()[2][0]
+
+    @property
+    def flange_frame_id(self) -> int:
+        return self._pinocchio()[2][1]
+
+    @property
+    def tool_frame_id(self) -> int:
+        return self._pinocchio()[2][2]
+
+    # ------------------------------------------------------------------ batch kinematics
+    # Inside, poses are held with the pose index last and the rotation's columns first:
+    # Rt (3, 3, N), Rt[j, i, n] the (i, j) element of pose n's rotation, and p (3, N). A constant
+    # placement then acts on all poses in one matrix product (R M: Rt <- M^T Rt over (3, 3 N)),
+    # and a joint's motion mixes two contiguous column blocks.
+    def _walk(self, Q: np.ndarray, frames: tuple | None = None):
+        """Pose of the last joint's frame (after its motion) at configurations Q (N, n), as
+        (Rt (3, 3, N), p (3, N)); with ``frames`` = (Rt_F (n + 1, 3, 3, N), p_F (n + 1, 3, N))
+        also store the frame of each joint placement (before the joint's motion) in its first
+        n entries."""
+        Qt, c2, s2 = self._joint_terms(Q)
+        N = Qt.shape[1]
+        rot_T, trans = self._rot_T, self._trans
+        Rt = np.empty((3, 3, N))
+        Rt[:] = rot_T[0, :, :, None]
+        p = np.empty((3, N))
+        p[:] = trans[0, :, None]
+        for k in range(self.n_joints):
+            if k:
+                flat = Rt.reshape(3, 3 * N)
+                p = p + np.dot(trans[k], flat).reshape(3, N)
+                Rt = np.dot(rot_T[k], flat).reshape(3, 3, N)
+            if frames is not None:
+                frames[0][k] = Rt
+                frames[1][k] = p
+            if self.prismatic[k]:
+                p = p + Qt[k] * Rt[2]
+            else:
+                mixed = Rt[1::-1] * s2[k]
+                Rt[:2] *= c2[k]
+                Rt[:2] += mixed
+        return Rt, p
+
+    def _joint_terms(self, Q: np.ndarray):
+        """(Qt (n, N), c2, s2 (n, 2, 1, N)) of configurations Q (N, n) for :meth:`_walk`: the
+        joint values and the cosines and sines that turn a rotation's first two columns,
+        ``R Rz(q)``: column 0 <- c col0 + s col1, column 1 <- c col1 - s col0. Those of the last
+        Q are kept: an LM run walks the same configurations at every evaluation."""
+        Q = np.asarray(Q, float)
+        last = self._last_joint_terms
+        if last is not None and last[0].shape == Q.shape and np.array_equal(last[0], Q):
+            return last[1]
+        Qt = np.ascontiguousarray(Q.T)
+        cos_q, sin_q = np.cos(Qt), np.sin(Qt)
+        terms = (Qt, np.stack((cos_q, cos_q), axis=1)[:, :, None], np.stack((sin_q, -sin_q), axis=1)[:, :, None])
+        for a in terms:
+            a.setflags(write=False)
+        self._last_joint_terms = (Q.copy(), terms)
+        return terms
+
+    @staticmethod
+    def _attach(Rt: np.ndarray, p: np.ndarray, T: np.ndarray):
+        """The pose (Rt (3, 3, N), p (3, N), see :meth:`_walk`) followed by the constant 4x4 T."""
+        N = p.shape[1]
+        flat = Rt.reshape(3, 3 * N)
+        return (np.dot(np.ascontiguousarray(T[:3, :3].T), flat).reshape(3, 3, N),
+                p + np.dot(T[:3, 3], flat).reshape(3, N))
+
+    def effective(self, Q: np.ndarray) -> np.ndarray:
+        """(N, n) joint values the chain takes at commanded Q (N, n): Q itself, or with
+        compliance q + C tau(q) at the current values (:mod:`calib.model.compliance`)."""
+        Q = np.atleast_2d(np.asarray(Q, float))
+        return Q if self.compliance is None else self.compliance.effective(Q, self.values)
+
+    def frame_poses(self, Q: np.ndarray, frame: str = "tool",
+                    targets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Poses of a frame ("tool", "flange" or "base") in the meas frame for configurations Q.
+
+        Q : (N, n) joint values, radians / metres; targets : (N,) int, each row's target index
+        for the "tool" frame of a multi-target model (None: the first target). Returns
+        (R (N, 3, 3), p (N, 3) metres). Computed in chunks of ``CHUNK`` poses: the memory beyond
+        the outputs is bounded.
+        """
+        Q = self.effective(Q)
+        N = len(Q)
+        if frame == "base":
+            T = self.base_placement
+            return np.repeat(T[None, :3, :3], N, axis=0), np.repeat(T[None, :3, 3], N, axis=0)
+        R, p = np.empty((N, 3, 3)), np.empty((N, 3))
+        for t, rows in self._target_groups(N, targets if frame == "tool" else None):
+            T = self.placements[self.n_joints + t] if frame == "tool" else self.flange_placement
+            Q_rows = Q[rows]
+            R_rows, p_rows = np.empty((len(Q_rows), 3, 3)), np.empty((len(Q_rows), 3))
+            for a in range(0, len(Q_rows), CHUNK):
+                Rc, pc = self._attach(*self._walk(Q_rows[a:a + CHUNK]), T)
+                R_rows[a:a + CHUNK] = Rc.transpose(2, 1, 0)
+                p_rows[a:a + CHUNK] = pc.T
+            R[rows], p[rows] = R_rows, p_rows
+        return R, p
+
+    def _target_groups(self, N: int, targets):
+        """(target index, rows) pairs covering N rows: all rows with target 0 when ``targets``
+        is None or the model has one tool frame."""
+        if targets is None or self.n_targets == 1:
+            return [(0, slice(None))]
+        targets = np.asarray(targets, int)
+        return [(int(t), np.flatnonzero(targets == t)) for t in np.unique(targets)]
+
+    def poses_and_jacobian(self, Q: np.ndarray, columns: np.ndarray | None = None, *,
+                           transposed: bool = False, targets: np.ndarray | None = None):
+        """See :meth:`_poses_and_jacobian`; with compliance (:mod:`calib.model.compliance`) at the
+        effective joint values, the column of c_i being that of theta_i (d_i) times tau_i(q)."""
+        Q = np.atleast_2d(np.asarray(Q, float))
+        if self.compliance is None:
+            return self._poses_and_jacobian(Q, columns, transposed=transposed, targets=targets)
+        cols = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
+        c_pos = {int(c): j for j, c in enumerate(self.compliance.c_idx)}
+        wanted = [(k, c_pos[int(c)]) for k, c in enumerate(cols) if int(c) in c_pos]
+        if not wanted:
+            return self._poses_and_jacobian(self.effective(Q), cols, transposed=transposed, targets=targets)
+        m = len(cols)
+        ext = list(map(int, cols))            # each column once: add the missing theta_i / d_i
+        ext += [int(q) for q in self.compliance.q_cols if int(q) not in ext]
+        at = {c: k for k, c in enumerate(ext)}
+        R, p, J = self._poses_and_jacobian(self.effective(Q), np.array(ext, int), targets=targets)
+        tau = self.compliance.torques(Q)
+        for k, j in wanted:
+            J[:, :, k] = J[:, :, at[int(self.compliance.q_cols[j])]] * tau[:, j, None]
+        J = J[:, :, :m]
+        return R, p, (np.ascontiguousarray(J.transpose(2, 1, 0)) if transposed else np.ascontiguousarray(J))
+
+    def _poses_and_jacobian(self, Q: np.ndarray, columns: np.ndarray | None = None, *,
+                            transposed: bool = False, targets: np.ndarray | None = None):
+        """Tool poses and the identification Jacobian at configurations Q (N, n), rad / m.
+
+        columns : parameter indices of the wanted Jacobian columns, in the wanted order (default
+        all, in the order of the parameters).
+        Returns (R (N, 3, 3), p (N, 3) metres, J (N, 6, m)): J[:, :3] the derivative of the tool
+        position in the meas frame (metres per unit), J[:, 3:] the differential rotation of the
+        tool in the meas frame (radians per unit), ``R(x + dx) = exp([J[:, 3:] dx]) R(x)``.
+        With ``transposed`` J comes as Jt (m, 6, N), ``Jt[c, i, n] = J[n, i, c]``, the layout it
+        is computed in: ``Jt.reshape(m, -1)`` is the transposed stacked Jacobian with its rows
+        ordered component first (dx of every pose, then dy, ...), ready for ``Jt @ Jt.T``; pair
+        it with residuals laid out (6, N).
+        Computed in chunks of ``JACOBIAN_CHUNK`` poses: the memory beyond the outputs is bounded.
+
+        A right perturbation ``exp(xi)`` of the placement of frame F (R_F, p_F) moves the tool by
+        ``Ad xi`` about the tool point: ``Ad = [[R_F, [p_F - p_tool]x R_F], [0, R_F]]``.
+        """
+        if self.placement_twists is None:
+            self.set_values(self.values)
+        Q = np.atleast_2d(np.asarray(Q, float))
+        N = len(Q)
+        m = len(columns) if columns is not None else self.n_params
+        R, p = np.empty((N, 3, 3)), np.empty((N, 3))
+        J = np.empty((m, 6, N)) if transposed else np.empty((N, 6, m))
+        for t, rows in self._target_groups(N, targets):
+            plan = self._column_plan(columns, t)
+            idx = np.arange(N)[rows]
+            for a in range(0, len(idx), JACOBIAN_CHUNK):
+                # (a slice when the rows are consecutive: cheaper to gather and scatter)
+                at = slice(a, a + JACOBIAN_CHUNK) if isinstance(rows, slice) else idx[a:a + JACOBIAN_CHUNK]
+                Rc, pc, Jc = self._jacobian_chunk(Q[at], plan, t)
+                R[at] = Rc.transpose(2, 1, 0)
+                p[at] = pc.T
+                if transposed:
+                    J[:, :, at] = Jc
+                else:
+                    J[at] = Jc.transpose(2, 1, 0)
+        return R, p, J
+
+    def _jacobian_chunk(self, Q, plan, target: int = 0):
+        """Tool pose (Rt (3, 3, N), p (3, N), see :meth:`_walk`) and Jt (m, 6, N) of a chunk of
+        poses.
+
+        A parameter with twist (v, w) in a placement frame (R, p_F) moves the tool by
+        (R v + D x R w, R w), D = p_F - p_tool. All placements at once: the twists, (P, 2 w, 3)
+        padded to the widest placement w, times each frame's rotation, then the D x R w terms."""
+        N = len(Q)
+        P = self.n_joints + 1
+        RtF, pF = np.empty((P, 3, 3, N)), np.empty((P, 3, N))
+        Rt, p = self._attach(*self._walk(Q, (RtF, pF)), self.placements[self.n_joints + target])
+        RtF[-1], pF[-1] = Rt, p
+        D = (pF - p)[:, None]                                                # (P, 1, 3, N)
+        slot, param, out_col, width, m = plan
+        TW = np.zeros((P * width, 6))
+        used = list(range(self.n_joints)) + [self.n_joints + target]   # joints, this target's tool
+        TW[slot] = self.placement_twists.reshape(-1, 6, self.n_params)[used][slot // width, :, param]
+        # (R v, R w) of every slot: (R x)[i] = sum_j x[j] Rt[j, i]
+        X = np.matmul(TW.reshape(P, 2 * width, 3), RtF.reshape(P, 3, 3 * N)).reshape(P, width, 6, N)
+        Rw = X[:, :, 3:]
+        X[:, :, 0] += D[:, :, 1] * Rw[:, :, 2] - D[:, :, 2] * Rw[:, :, 1]
+        X[:, :, 1] += D[:, :, 2] * Rw[:, :, 0] - D[:, :, 0] * Rw[:, :, 2]
+        X[:, :, 2] += D[:, :, 0] * Rw[:, :, 1] - D[:, :, 1] * Rw[:, :, 0]
+        Jt = np.empty((m, 6, N)) if len(slot) == m else np.zeros((m, 6, N))   # other targets: 0
+        Jt[out_col] = X.reshape(P * width, 6, N)[slot]
+        return Rt, p, Jt
+
+    def _column_plan(self, columns, target: int = 0):
+        """Where each wanted parameter sits: (slot = placement * width + place in it, parameter,
+        output column, width = most wanted parameters of one placement, number of columns).
+        The plans of the last few column sets are kept (an LM run asks for the same ones)."""
+        columns = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
+        key = (columns.tobytes(), target)
+        plan = self._plans.get(key)
+        if plan is None:
+            plan = self._plans[key] = self._make_plan(columns, target)
+            if len(self._plans) > 8:
+                self._plans.pop(next(iter(self._plans)))
+        return plan
+
+    def _make_plan(self, columns, target: int = 0):
+        out_col = np.full(self.n_params, -1)
+        out_col[columns] = np.arange(len(columns))
+        placements = self._params_of[:self.n_joints] + [self._params_of[self.n_joints + target]]
+        params = [ps[out_col[ps] >= 0] for ps in placements]
+        width = max(1, max(len(ps) for ps in params))
+        slot = np.concatenate([k * width + np.arange(len(ps)) for k, ps in enumerate(params)])
+        param = np.concatenate(params)
+        return slot, param, out_col[param], width, len(columns)

@@ -1,0 +1,493 @@
+"""The robot model: a serial chain read from a URDF with Pinocchio, described by TM-MDH parameters.
+
+A :class:`RobotModel` is immutable. It holds the chain's joints (names, types, limits) and one
+value per TM-MDH parameter:
+
+    T_meas_tool(q) = T_meas_base_ref . T(u) . prod_i L_i(q_i) . T(v) . T_flange_tool_ref
+
+with ``L_i`` the link transform of Eq. (1) (:func:`calib.model.mdh.link_transform`), ``T(u)`` and
+``T(v)`` the ZYX transforms of Eq. (3) (:func:`calib.model.spatial.zyx_transform`), and two constant
+reference transforms. ``meas`` is the chosen base frame of the URDF (the measurement frame),
+``base`` is MDH frame 0 (z on axis 1), ``flange`` is MDH frame n, ``tool`` the chosen tool frame.
+For a URDF derived model u = v = 0 and the reference transforms carry the nominal geometry; for the
+bundled BRTIRUS0707A both references are the identity, as in the paper.
+
+Parameters are named ``theta1``, ``d1``, ``a1``, ``alpha1``, ``beta2`` (only for joints whose
+axis is parallel to the next one), ``u_x``, ``u_y``, ``u_z``, ``u_alpha``, ``u_beta``,
+``u_gamma`` and ``v_x`` ... ``v_gamma`` (alpha = yaw about z, beta = pitch about y, gamma = roll
+about x, as in Eq. (3)). Lengths in metres, angles in radians.
+
+Several targets (reflectors) on the tool: a model with ``targets`` (two or more ids) has one
+flange->target transform per target, ``T(v_k) . T_flange_tool_ref_k``, with parameters named
+``v_x@<id>`` ... ``v_gamma@<id>``; the chain and the measurement frame are shared. A model with
+one tool frame (``targets == ()``) keeps the names ``v_x`` ... ``v_gamma``.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from calib.errors import ParameterError
+from calib.model.mdh import PARALLEL_THRESHOLD_RAD, link_transform
+from calib.model.spatial import zyx_parameters, zyx_transform
+
+log = logging.getLogger(__name__)
+
+JOINT_KINDS = ("revolute", "continuous", "prismatic")
+_STRUCTURAL_KINDS = ("theta", "d", "a", "alpha", "beta")
+_FRAME_KINDS = ("x", "y", "z", "alpha", "beta", "gamma")
+
+
+@dataclass(frozen=True)
+class ChainJoint:
+    """One moving joint of the chain: URDF name, kind, limits (rad or m; +-inf if unlimited)."""
+
+    name: str
+    kind: str
+    lower: float
+    upper: float
+
+    @property
+    def is_prismatic(self) -> bool:
+        return self.kind == "prismatic"
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One TM-MDH parameter.
+
+    ``group`` is ``"joint"`` (structural, of joint ``joint``, 1-based), ``"u"`` (meas->base),
+    ``"v"`` (flange->tool) or ``"compliance"`` (``c<i>`` of joint ``joint``, only in a model made
+    by :meth:`RobotModel.with_compliance`); ``kind`` is theta, d, a, alpha, beta for joints, x, y,
+    z, alpha, beta, gamma for u and v, ``c`` for compliance; ``unit`` is ``"m"``, ``"rad"``, or
+    ``"rad/(N m)"`` / ``"m/N"`` for the compliance of a revolute / prismatic joint; ``target`` the
+    target id of a v parameter of a multi-target model (None otherwise).
+    """
+
+    name: str
+    group: str
+    kind: str
+    joint: int | None
+    unit: str
+    target: str | None = None
+
+    @property
+    def is_angular(self) -> bool:
+        return self.unit == "rad"
+
+    @property
+    def symbol(self) -> str:
+        """The paper's symbol: theta1, d2, x, alpha, x', gamma' ..."""
+        if self.group == "joint":
+            return self.name
+        return self.kind + ("'" if self.group == "v" else "") + \
+            ("" if self.target is None else f"@{self.target}")
+
+
+def v_names(target: str | None = None) -> tuple[str, ...]:
+    """Names of the six flange->tool parameters: ``v_x`` ... or ``v_x@<target>`` ..."""
+    suffix = "" if target is None else f"@{target}"
+    return tuple(f"v_{k}{suffix}" for k in _FRAME_KINDS)
+
+
+def make_parameters(n_joints: int, beta_joints: Iterable[int],
+                    targets: Sequence[str] = ()) -> tuple[Parameter, ...]:
+    """The parameter list in the order of Eq. (23): theta, d, a, alpha, beta, u, v.
+
+    ``beta_joints`` are the 1-based joints that carry a beta parameter. ``targets``: two or more
+    target ids give one v block per target (``v_x@<id>`` ...), in that order; () one block ``v_x``.
+    """
+    params: list[Parameter] = []
+    for kind in ("theta", "d", "a", "alpha"):
+        unit = "m" if kind in ("d", "a") else "rad"
+        params += [Parameter(f"{kind}{i}", "joint", kind, i, unit) for i in range(1, n_joints + 1)]
+    params += [Parameter(f"beta{i}", "joint", "beta", i, "rad") for i in sorted(beta_joints)]
+    for kind in _FRAME_KINDS:
+        params.append(Parameter(f"u_{kind}", "u", kind, None, "m" if kind in "xyz" else "rad"))
+    for target in (tuple(targets) or (None,)):
+        for kind, name in zip(_FRAME_KINDS, v_names(target)):
+            params.append(Parameter(name, "v", kind, None, "m" if kind in "xyz" else "rad", target))
+    return tuple(params)
+
+
+@dataclass(frozen=True, eq=False)
+class RobotModel:
+    """A serial arm described by TM-MDH parameters (immutable; see the module docstring).
+
+    Attributes
+    ----------
+    joints : the moving joints from base to tool, in chain order.
+    parameters : the TM-MDH parameters, in the order of Eq. (23).
+    values : (n_params,) float, metres / radians: one value per parameter (read-only array).
+    T_meas_base_ref, T_flange_tool_ref : (4, 4) constant reference transforms (of the first
+        target for a multi-target model).
+    base_frame, tool_frame : names of the URDF frames the chain runs between.
+    urdf_path : the URDF the model was read from (None for a model built in code).
+    targets : ids of the targets on the tool (two or more), or () for one tool frame.
+    T_flange_target_refs : (K, 4, 4) the reference flange->target transform of each target
+        (K = len(targets)), or None for one tool frame; default: ``T_flange_tool_ref`` for each.
+    """
+
+    joints: tuple[ChainJoint, ...]
+    parameters: tuple[Parameter, ...]
+    values: np.ndarray
+    T_meas_base_ref: np.ndarray = field(default_factory=lambda: np.eye(4))
+    T_flange_tool_ref: np.ndarray = field(default_factory=lambda: np.eye(4))
+    base_frame: str = "meas"
+    tool_frame: str = "tool"
+    urdf_path: Path | None = None
+    parallel_threshold: float = PARALLEL_THRESHOLD_RAD
+    #: :class:`calib.model.compliance.GravityModel` of a model with compliance parameters, else None.
+    gravity: object | None = None
+    targets: tuple[str, ...] = ()
+    T_flange_target_refs: np.ndarray | None = None
+
+    def __post_init__(self):
+        targets = tuple(self.targets)
+        if len(targets) == 1 or len(set(targets)) != len(targets) or \
+                not all(isinstance(t, str) and t for t in targets):
+            raise ParameterError(f"targets must be two or more distinct non-empty ids, or () for one "
+                                 f"tool frame; got {targets!r}")
+        object.__setattr__(self, "targets", targets)
+        refs = None
+        if targets:
+            refs = np.array(np.broadcast_to(self.T_flange_tool_ref, (len(targets), 4, 4))
+                            if self.T_flange_target_refs is None else self.T_flange_target_refs, float)
+            if refs.shape != (len(targets), 4, 4):
+                raise ParameterError(f"T_flange_target_refs must be ({len(targets)}, 4, 4), got {refs.shape}")
+            if not np.array_equal(np.asarray(self.T_flange_tool_ref, float), refs[0]) and \
+                    not np.array_equal(np.asarray(self.T_flange_tool_ref, float), np.eye(4)):
+                raise ParameterError("T_flange_tool_ref of a multi-target model is that of its first "
+                                     "target: change T_flange_target_refs instead")
+            object.__setattr__(self, "T_flange_tool_ref", refs[0].copy())
+            refs.setflags(write=False)
+        elif self.T_flange_target_refs is not None:
+            raise ParameterError("T_flange_target_refs needs targets")
+        object.__setattr__(self, "T_flange_target_refs", refs)
+        vals = np.array(self.values, dtype=float)
+        if vals.shape != (len(self.parameters),):
+            raise ParameterError(f"expected {len(self.parameters)} parameter values, got {vals.shape}")
+        vals.setflags(write=False)
+        object.__setattr__(self, "values", vals)
+        for name in ("T_meas_base_ref", "T_flange_tool_ref"):
+            T = np.array(getattr(self, name), dtype=float)
+            T.setflags(write=False)
+            object.__setattr__(self, name, T)
+        object.__setattr__(self, "_index", {p.name: k for k, p in enumerate(self.parameters)})
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_mdh(cls, joints: Sequence[ChainJoint], theta, d, a, alpha, beta=None, u=None, v=None,
+                 T_meas_base_ref=None, T_flange_tool_ref=None, **kwargs) -> "RobotModel":
+        """A model from MDH tables (arrays of length n; ``beta`` may hold NaN where a joint has no
+        beta parameter, or be None for none), and optional u, v (6 each, Eq. 3 order)."""
+        n = len(joints)
+        beta = np.full(n, np.nan) if beta is None else np.asarray(beta, float)
+        beta_joints = [i + 1 for i in range(n) if not np.isnan(beta[i])]
+        params = make_parameters(n, beta_joints)
+        vals = np.concatenate([theta, d, a, alpha, beta[~np.isnan(beta)],
+                               np.zeros(6) if u is None else u, np.zeros(6) if v is None else v])
+        return cls(joints=tuple(joints), parameters=params, values=vals,
+                   T_meas_base_ref=np.eye(4) if T_meas_base_ref is None else T_meas_base_ref,
+                   T_flange_tool_ref=np.eye(4) if T_flange_tool_ref is None else T_flange_tool_ref,
+                   **kwargs)
+
+    def with_targets(self, targets: Sequence[str],
+                     T_flange_target_refs: np.ndarray | None = None) -> "RobotModel":
+        """This model with the given targets on the tool (a new model).
+
+        targets : two or more ids (one id or () gives a one-tool-frame model with the first
+        target's transform). Each target starts with the v values and reference of the target of
+        this model of the same id, else of the first target; ``T_flange_target_refs`` (K, 4, 4)
+        replaces the references.
+        """
+        targets = tuple(str(t) for t in targets)
+        if targets == self.targets and T_flange_target_refs is None:
+            return self
+        if self.has_compliance:     # the c<i> stay last: targets on the geometry, then them
+            return self.geometry().with_targets(targets, T_flange_target_refs).with_compliance(
+                self.gravity, self.compliances())
+        if len(targets) < 2:
+            return self.for_target(targets[0] if targets and targets[0] in self.targets else None)
+        vals = [x for x, p in zip(self.values, self.parameters) if p.group != "v"]
+        refs = []
+        for t in targets:
+            src = t if t in self.targets else None
+            vals += list(self.v(src))
+            refs.append(self.T_flange_tool_ref_of(src))
+        if T_flange_target_refs is not None:
+            refs = T_flange_target_refs
+        beta_joints = [p.joint for p in self.parameters if p.kind == "beta" and p.group == "joint"]
+        return replace(self, parameters=make_parameters(self.n_joints, beta_joints, targets),
+                       values=np.array(vals), targets=targets, T_flange_target_refs=np.array(refs),
+                       T_flange_tool_ref=np.array(refs[0]))
+
+    def with_target_offsets(self, offsets) -> "RobotModel":
+        """This model with targets at known points of the tool: ``offsets`` maps each id to its
+        position (3,) in metres in the tool frame (of the first target, for a multi-target model);
+        each target's frame is the tool frame moved there. Two or more targets."""
+        ids = tuple(str(t) for t in offsets)
+        if len(ids) < 2:
+            raise ParameterError(f"with_target_offsets: give two or more targets (got {len(ids)}); one "
+                                 f"target is the tool frame itself (move it with the tool frame's URDF "
+                                 f"link or with_changes(v_x=...))")
+        refs = []
+        for t in ids:
+            p = np.asarray(offsets[t], float)
+            if p.shape != (3,) or not np.isfinite(p).all():
+                raise ParameterError(f"target {t!r}: expected a finite position (x, y, z) in metres, got {p!r}")
+            T = np.eye(4)
+            T[:3, 3] = p
+            refs.append(self.T_flange_tool_ref_of(0) @ T)
+        return self.for_target(0).with_targets(ids, np.array(refs))
+
+    def for_target(self, target: str | int | None = None) -> "RobotModel":
+        """The one-tool-frame model of one target (default the first): its v values (named
+        ``v_x`` ...) and reference (the tool frame name stays that of the chain)."""
+        if not self.targets:
+            return self
+        if self.has_compliance:
+            return self.geometry().for_target(target).with_compliance(self.gravity, self.compliances())
+        k = self.target_index(target)
+        vals = np.concatenate([[x for x, p in zip(self.values, self.parameters) if p.group != "v"],
+                               self.v(k)])
+        beta_joints = [p.joint for p in self.parameters if p.kind == "beta" and p.group == "joint"]
+        return replace(self, parameters=make_parameters(self.n_joints, beta_joints), values=vals,
+                       targets=(), T_flange_target_refs=None,
+                       T_flange_tool_ref=np.array(self.T_flange_target_refs[k]))
+
+    def with_values(self, values: np.ndarray) -> "RobotModel":
+        """A copy of this model with other parameter values (full vector, same order)."""
+        return replace(self, values=np.asarray(values, float))
+
+    def with_changes(self, **deltas: float) -> "RobotModel":
+        """A copy with parameter values changed by the given amounts: ``with_changes(d2=1e-4)``."""
+        vals = self.values.copy()
+        for name, delta in deltas.items():
+            vals[self.index(name)] += delta
+        return self.with_values(vals)
+
+    def with_compliance(self, gravity, values: Sequence[float] | None = None) -> "RobotModel":
+        """A copy with one compliance parameter ``c<i>`` per joint (group "compliance", after the
+        geometric parameters; rad/(N m), or m/N for a prismatic joint) and the gravity model
+        (:class:`calib.model.compliance.GravityModel`) that gives the joint torques. ``values`` (n,)
+        defaults to the model's current compliances, else zeros. See :mod:`calib.model.compliance`."""
+        if gravity is None:
+            raise ParameterError("a model with compliance needs a gravity model (calib.model.compliance.GravityModel)")
+        geo = self.geometry()
+        n = self.n_joints
+        old = self.compliances() if self.has_compliance else np.zeros(n)
+        vals = old if values is None else np.asarray(values, float)
+        if vals.shape != (n,):
+            raise ParameterError(f"expected {n} compliance values, got shape {vals.shape}")
+        params = tuple(Parameter(f"c{i}", "compliance", "c", i, "m/N" if j.is_prismatic else "rad/(N m)")
+                       for i, j in enumerate(self.joints, start=1))
+        return replace(geo, parameters=geo.parameters + params,
+                       values=np.concatenate([geo.values, vals]), gravity=gravity)
+
+    def geometry(self) -> "RobotModel":
+        """This model without compliance parameters (itself if it has none)."""
+        if not self.has_compliance:
+            return self
+        keep = [k for k, p in enumerate(self.parameters) if p.group != "compliance"]
+        return replace(self, parameters=tuple(self.parameters[k] for k in keep),
+                       values=self.values[keep], gravity=None)
+
+    @property
+    def has_compliance(self) -> bool:
+        return self.gravity is not None
+
+    @property
+    def compliance_names(self) -> tuple[str, ...]:
+        """Names of the compliance parameters (empty without compliance)."""
+        return tuple(p.name for p in self.parameters if p.group == "compliance")
+
+    def compliances(self) -> np.ndarray:
+        """(n,) joint compliances, rad/(N m) (m/N prismatic); zeros without compliance."""
+        if not self.has_compliance:
+            return np.zeros(self.n_joints)
+        return self.values[self.indices(self.compliance_names)]
+
+    # ------------------------------------------------------------------ lookup
+    @property
+    def n_joints(self) -> int:
+        return len(self.joints)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.parameters)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.parameters)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(j.name for j in self.joints)
+
+    @property
+    def lower(self) -> np.ndarray:
+        """(n,) lower joint limits (rad or m)."""
+        return np.array([j.lower for j in self.joints])
+
+    @property
+    def upper(self) -> np.ndarray:
+        """(n,) upper joint limits (rad or m)."""
+        return np.array([j.upper for j in self.joints])
+
+    @property
+    def prismatic(self) -> np.ndarray:
+        """(n,) bool: which joints are prismatic."""
+        return np.array([j.is_prismatic for j in self.joints])
+
+    def index(self, name: str) -> int:
+        """Position of the parameter ``name`` in :attr:`values`."""
+        try:
+            return self._index[name]
+        except KeyError:
+            raise ParameterError(f"unknown parameter {name!r}; known: {', '.join(self.names)}") from None
+
+    def indices(self, names: Iterable[str]) -> np.ndarray:
+        return np.array([self.index(n) for n in names], dtype=int)
+
+    def value(self, name: str) -> float:
+        return float(self.values[self.index(name)])
+
+    def has_beta(self, joint: int) -> bool:
+        return f"beta{joint}" in self._index
+
+    def mdh_table(self) -> dict[str, np.ndarray]:
+        """Arrays theta, d, a, alpha, beta (NaN where absent), each (n,), SI units."""
+        n = self.n_joints
+        table = {k: np.array([self.value(f"{k}{i}") for i in range(1, n + 1)])
+                 for k in ("theta", "d", "a", "alpha")}
+        table["beta"] = np.array([self.value(f"beta{i}") if self.has_beta(i) else np.nan
+                                  for i in range(1, n + 1)])
+        return table
+
+    @property
+    def n_targets(self) -> int:
+        """Number of flange->tool transforms (1 for a one-tool-frame model)."""
+        return max(1, len(self.targets))
+
+    def target_index(self, target: str | int | None = None) -> int:
+        """Position of a target (id, or index) in :attr:`targets`; None is the first."""
+        if target is None:
+            return 0
+        if isinstance(target, (int, np.integer)) and not isinstance(target, bool):
+            if not 0 <= target < self.n_targets:
+                raise ParameterError(f"target index {target} out of range for {self.n_targets} target(s)")
+            return int(target)
+        try:
+            return self.targets.index(target)
+        except ValueError:
+            known = ", ".join(self.targets) if self.targets else "none: the model has one tool frame"
+            raise ParameterError(f"unknown target {target!r}; targets of the model: {known}") from None
+
+    def target_rows(self, target_ids: Sequence[str] | None) -> np.ndarray | None:
+        """(N,) int: the target index of each row's target id (from ``Measurements.target``), or
+        None for a one-tool-frame model. Raises :class:`calib.DataError` for an unknown id."""
+        if not self.targets:
+            return None
+        from calib.errors import DataError
+
+        if target_ids is None:
+            raise DataError(f"the model has {self.n_targets} targets ({', '.join(self.targets)}): the "
+                            f"measurements need a target column")
+        lookup = {t: k for k, t in enumerate(self.targets)}
+        out = np.empty(len(target_ids), int)
+        for i, t in enumerate(target_ids):
+            if t not in lookup:
+                raise DataError(f"row {i + 1}: target {t!r} is not a target of the model "
+                                f"({', '.join(self.targets)})")
+            out[i] = lookup[t]
+        return out
+
+    @property
+    def T_flange_tool_refs(self) -> np.ndarray:
+        """(K, 4, 4) the reference flange->tool transform of each target (K = n_targets)."""
+        return self.T_flange_target_refs if self.targets else self.T_flange_tool_ref[None]
+
+    def T_flange_tool_ref_of(self, target: str | int | None = None) -> np.ndarray:
+        """(4, 4) the reference flange->tool transform of one target (default the first)."""
+        return self.T_flange_tool_refs[self.target_index(target)]
+
+    def v_names(self, target: str | int | None = None) -> tuple[str, ...]:
+        """Names of the six v parameters of one target (default the first)."""
+        return v_names(self.targets[self.target_index(target)] if self.targets else None)
+
+    def u(self) -> np.ndarray:
+        """(6,) u = (x, y, z, alpha, beta, gamma), metres / radians."""
+        return self.values[self.indices([f"u_{k}" for k in _FRAME_KINDS])]
+
+    def v(self, target: str | int | None = None) -> np.ndarray:
+        """(6,) v = (x', y', z', alpha', beta', gamma') of one target (default the first),
+        metres / radians."""
+        return self.values[self.indices(self.v_names(target))]
+
+    # ------------------------------------------------------------------ kinematics (reference)
+    def T_meas_base(self) -> np.ndarray:
+        """(4, 4) pose of MDH frame 0 (base) in the meas frame."""
+        return self.T_meas_base_ref @ zyx_transform(*self.u())
+
+    def T_flange_tool(self, target: str | int | None = None) -> np.ndarray:
+        """(4, 4) pose of the tool frame (of one target, default the first) in MDH frame n (flange)."""
+        return zyx_transform(*self.v(target)) @ self.T_flange_tool_ref_of(target)
+
+    def T_base_flange(self, q: np.ndarray) -> np.ndarray:
+        """(4, 4) pose of the flange in the base frame at one configuration q (n,), rad / m.
+
+        A direct product of Eq. (1) matrices, kept simple on purpose: it is the reference that
+        the Pinocchio-based batch kinematics (:mod:`calib.model.kinematics`) is tested against.
+        """
+        t = self.mdh_table()
+        T = np.eye(4)
+        for i, joint in enumerate(self.joints):
+            beta = 0.0 if np.isnan(t["beta"][i]) else t["beta"][i]
+            if joint.is_prismatic:
+                T = T @ link_transform(t["theta"][i], t["d"][i] + q[i], t["a"][i], t["alpha"][i], beta)
+            else:
+                T = T @ link_transform(t["theta"][i] + q[i], t["d"][i], t["a"][i], t["alpha"][i], beta)
+        return T
+
+    def T_meas_tool(self, q: np.ndarray, target: str | int | None = None) -> np.ndarray:
+        """(4, 4) pose of the tool (of one target, default the first) in the meas frame at one
+        configuration q (n,)."""
+        return self.T_meas_base() @ self.T_base_flange(q) @ self.T_flange_tool(target)
+
+    def random_configurations(self, n: int, rng: np.random.Generator | int | None = None,
+                              unlimited_range: float = math.pi) -> np.ndarray:
+        """(n, n_joints) configurations uniform within the joint limits (radians / metres).
+
+        Unlimited (continuous) joints are drawn in [-unlimited_range, unlimited_range].
+        """
+        rng = np.random.default_rng(rng)
+        lo = np.where(np.isfinite(self.lower), self.lower, -unlimited_range)
+        hi = np.where(np.isfinite(self.upper), self.upper, unlimited_range)
+        return rng.uniform(lo, hi, size=(n, self.n_joints))
+
+    def describe(self) -> str:
+        """A human-readable table of the MDH parameters (mm, rad) and the two frame transforms."""
+        t = self.mdh_table()
+        lines = [f"{'joint':<16}{'type':<11}{'theta/rad':>11}{'d/mm':>11}{'a/mm':>11}"
+                 f"{'alpha/rad':>11}{'beta/rad':>11}"]
+        for i, j in enumerate(self.joints):
+            beta = "/" if np.isnan(t["beta"][i]) else f"{t['beta'][i]:.6f}"
+            lines.append(f"{j.name:<16}{j.kind:<11}{t['theta'][i]:>11.6f}{t['d'][i] * 1e3:>11.4f}"
+                         f"{t['a'][i] * 1e3:>11.4f}{t['alpha'][i]:>11.6f}{beta:>11}")
+        frames = [("meas->base", self.T_meas_base())]
+        frames += [(f"flange->{'tool' if not self.targets else t}", self.T_flange_tool(k))
+                   for k, t in enumerate(self.targets or ("tool",))]
+        for label, T in frames:
+            x = zyx_parameters(T)
+            lines.append(f"{label:<14} x,y,z/mm = {x[0] * 1e3:.4f}, {x[1] * 1e3:.4f}, {x[2] * 1e3:.4f};"
+                         f"  alpha,beta,gamma/rad = {x[3]:.6f}, {x[4]:.6f}, {x[5]:.6f}")
+        if self.has_compliance:
+            lines.append("compliance/(urad/(N m) or um/N): " + ", ".join(
+                f"{n} {v * 1e6:.4g}" for n, v in zip(self.compliance_names, self.compliances())))
+        return "\n".join(lines)

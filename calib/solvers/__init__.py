@@ -1,0 +1,1 @@
+"""calib.solvers.problem: see ARCHITECTURE.md."""

@@ -1,0 +1,534 @@
+"""The identification solvers: Levenberg-Marquardt (Section 3.2.1), the cross identification
+C-LM (3.2.2) and search-lm (a closed-form angle search, then LM).
+
+The problem: find the free parameter values x that minimise the noise-weighted squared residuals
+
+    cost(x) = 1/2 sum_poses |(p_model - p_meas) / sigma_pos|^2 + |log(R_model R_meas^T) / sigma_rot|^2
+
+(the rotation term only for data with orientation). This is the maximum-likelihood fit for
+Gaussian noise of standard deviation sigma_pos per position axis and sigma_rot per rotation axis.
+Every iteration re-linearises the exact model (Pinocchio forward kinematics and regressor); the
+rotation residual's Jacobian includes the inverse left Jacobian of SO(3), so the fixed point is
+the exact minimiser, not that of a linearised model.
+
+calib's LM (the default variant) solves ``(J^T J + mu D) dx = -J^T r`` with D = diag(J^T J)
+(Marquardt's scaling, so that the damping does not depend on the units of the parameters), on
+noise-weighted residuals defined as model - measured. mu starts at 1e-3; a step that lowers the
+cost is accepted and mu divided by lambda = 10, otherwise mu is multiplied by lambda and the step
+retried. It stops when a step lowers the cost by less than ftol times the cost, or when the
+Gauss-Newton model predicts that of the next step; that step is then evaluated once and kept
+unless it raises the cost beyond its rounding (COST_RTOL; near the minimum the actual decrease is
+rounding noise: judging it by "lower or retry" would only reject steps until the damping
+saturates). A problem that is rank deficient at its start (a parameter set the data do not
+determine, e.g. "all") takes minimum-norm steps: no step moves along the combinations the data
+leave undetermined at the start while the data barely see them (WEAK_RCOND: away from the start
+a tie such as a twist turning the tool offset is seen to second order, and following it fits the
+noise), and parameters without effect (a Jacobian column of rounding noise) stay put.
+This differs from the paper's Eq. (27)-(28) as printed (mu I, mu reset to 0.001 lambda^+-1,
+unweighted residuals): that variant is :mod:`calib.solvers.paper_lm`.
+
+Memory and time are linear in the number of poses: the solvers work on the normal equations
+``J^T J``, ``J^T r`` accumulated over chunks of poses (:meth:`Problem.normal_equations`), never on
+the stacked Jacobian, and a trial step evaluates residuals only.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.model.jacobian import pose_jacobian
+from calib.model.kinematics import ChainKinematics
+from calib.model.spatial import left_jacobian_inverse_batch, log3_batch
+
+log = logging.getLogger("calib.solvers.problem")
+
+#: Poses per chunk when accumulating the normal equations (bounded memory: ~2 MB per chunk for a
+#: 6-axis arm's 37 parameters).
+CHUNK_POSES = 2048
+#: search-lm: a fit whose reduced chi-square stays above this is not at the noise level, and the
+#: angle search is tried again from it (a local minimum is the likely cause).
+CHI2_ESCAPE = 10.0
+#: LM trial steps compute the normal equations with the cost below this many poses (see
+#: levenberg_marquardt).
+FUSE_BELOW_POSES = 2048
+#: A cost is reproducible only to about 1e-12 .. 1e-10 of it (the rounding of the modelled
+#: positions, ~1e-16 m, against a noise level of microns): LM's last step is kept unless it
+#: raises the cost by more than this fraction (or ftol, if larger).
+COST_RTOL = 1e-9
+#: A normal matrix scaled to unit diagonal is rank deficient when an eigenvalue is at most this
+#: times the largest (its computed eigenvalues are exact to ~1e-16 of the largest; a parameter
+#: combination below it has a standard deviation 1e6 times that of the best determined one):
+#: the statistics then use its pseudo-inverse and LM steps leave those combinations alone.
+RANK_RCOND = 1e-12
+#: A column of a Jacobian whose norm is at most this times the largest column's is zero up to
+#: rounding: the parameter has no effect on these data (LM does not move it).
+NO_EFFECT_RTOL = 1e-10
+#: LM on a problem rank deficient at its start holds the directions that were undetermined there
+#: while their eigenvalue (unit-diagonal scaling) stays below this times the largest: a
+#: combination the data determine 100 times worse than a typical parameter (its standard
+#: deviation 100 times larger), which a fit would move by the noise (see _DampedSystem).
+WEAK_RCOND = 1e-4
+
+
+LOSSES = ("linear", "huber", "soft_l1")
+PARTS = ("pose", "position", "rotation")
+
+
+@dataclass(frozen=True)
+class NormalEquations:
+    """``J^T J`` and ``J^T r`` of the weighted residuals, with each group's share.
+
+    A : (m, m) J^T J; g : (m,) J^T r; A_pos / A_rot : the position / rotation rows' share of A
+    (A_rot None without orientation data); rss_pos / rss_rot : sums of squared weighted residuals
+    of each group; n_pos / n_rot : number of residual components of each group.
+    """
+
+    A: np.ndarray
+    g: np.ndarray
+    A_pos: np.ndarray | None
+    A_rot: np.ndarray | None
+    rss_pos: float
+    rss_rot: float
+    n_pos: int
+    n_rot: int
+
+    @property
+    def cost(self) -> float:
+        return 0.5 * (self.rss_pos + self.rss_rot)
+
+
+class Problem:
+    """Weighted residuals of a set of measurements for a chain model, over free parameters.
+
+    kin : the chain's kinematics (scratch workspace, updated in place).
+    Q : (N, n) joints (rad / m); p_meas : (N, 3) metres, meas frame; R_meas : (N, 3, 3) or None
+    (position only). values : full parameter vector (start); free : indices of the free
+    parameters. sigma_pos (m), sigma_rot (rad): noise per axis, the weights. loss: "linear",
+    "huber" or "soft_l1" on each pose's whitened residual (see :func:`robust_scaling`).
+    targets : (N,) int, each row's target index for a multi-target model (None: one tool frame).
+    """
+
+    def __init__(self, kin: ChainKinematics, Q, p_meas, R_meas, values, free, sigma_pos, sigma_rot,
+                 loss: str = "linear", loss_scale: float = 3.0, targets: np.ndarray | None = None):
+        if loss not in LOSSES:
+            raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+        self.loss = loss
+        self.loss_scale = float(loss_scale)
+        self.kin = kin
+        self.Q = np.asarray(Q, float)
+        self.p_meas = np.asarray(p_meas, float)
+        self.R_meas_T = None if R_meas is None else np.transpose(R_meas, (0, 2, 1))
+        self.values = np.array(values, float)
+        self.free = np.asarray(free, int)
+        self.sigma_pos = float(sigma_pos)
+        self.sigma_rot = float(sigma_rot)
+        self.targets = None if targets is None else np.asarray(targets, int)
+        # least-squares normal equations of the same rows at the same parameter values, shared
+        # by the problems derived with other weights (see _normal_equations)
+        self._shared: dict = {}
+        self._rows_key = None
+        # (parts, free) -> (rank deficit, declared): declared by set_rank_deficit, else counted
+        # at the first point LM asked; shared by the problems derived from this one
+        self._rank_deficits: dict = {}
+
+    def _targets(self, sl=slice(None)):
+        return None if self.targets is None else self.targets[sl]
+
+    @property
+    def has_orientation(self) -> bool:
+        return self.R_meas_T is not None
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.Q)
+
+    def full(self, x: np.ndarray) -> np.ndarray:
+        v = self.values.copy()
+        v[self.free] = x
+        return v
+
+    def derived(self, *, free=None, values=None, sigma_pos=None, sigma_rot=None, loss=None,
+                keep: np.ndarray | None = None) -> "Problem":
+        """The same data with some settings changed (and ``keep``: a row mask)."""
+        if (free is None and values is None and keep is None
+                and (sigma_pos is None or float(sigma_pos) == self.sigma_pos)
+                and (sigma_rot is None or float(sigma_rot) == self.sigma_rot)
+                and (loss is None or loss == self.loss)):
+            return self
+        p = object.__new__(Problem)
+        p.__dict__.update(self.__dict__)
+        p._last_ne = p._last_pr = p._last_wb = None
+        if free is not None:
+            p.free = np.asarray(free, int)
+        if values is not None:
+            p.values = np.array(values, float)
+        if sigma_pos is not None:
+            p.sigma_pos = float(sigma_pos)
+        if sigma_rot is not None:
+            p.sigma_rot = float(sigma_rot)
+        if loss is not None:
+            p.loss = loss
+        if keep is not None:
+            k = np.asarray(keep)
+            if getattr(self, "_rows_key", None) is None and hasattr(self, "_shared"):
+                p._rows_key = (k.dtype.str, k.shape, k.tobytes())   # rows of this problem's data
+            else:
+                p._shared, p._rows_key = {}, None    # a subset of a subset: its own cache
+            p.Q, p.p_meas = self.Q[keep], self.p_meas[keep]
+            p.R_meas_T = None if self.R_meas_T is None else self.R_meas_T[keep]
+            p.targets = self._targets(keep)
+        return p
+
+    def rank_deficit(self, ne: NormalEquations, parts: str = "pose") -> int:
+        """How many directions the free parameters' normal matrix ``ne`` of the residuals
+        ``parts`` leaves undetermined (see _rank_deficit), counted at the first point asked and
+        kept for this free set and these parts by the problem and those derived from it: the LM
+        runs of one calibration (its noise re-weighted re-fits, its row subsets) hold the
+        directions that were undetermined where the first one started (see _DampedSystem).
+        (C-LM's rotation steps and its pose fits may have the same free set, not the same ties.)"""
+        key = (parts, self.free.tobytes())
+        if key not in self._rank_deficits:
+            self._rank_deficits[key] = (_rank_deficit(_without_inert(ne)), False)
+        return self._rank_deficits[key][0]
+
+    def set_rank_deficit(self, n: int, parts: str = "pose") -> None:
+        """Declare how many directions the free parameters leave undetermined for the residuals
+        ``parts`` (known from the parameter set, e.g. 0 for an identifiable set), instead of
+        counting them where LM first starts: a start far from the solution can be singular
+        where the set is not (two axes momentarily perpendicular), and its count would hold
+        directions the data determine at the solution."""
+        self._rank_deficits[(parts, self.free.tobytes())] = (int(n), True)
+
+    def declared_rank_deficit(self, parts: str = "pose") -> bool:
+        """Whether the rank deficit for ``parts`` was declared (:meth:`set_rank_deficit`): only
+        then does LM hold the nearly undetermined directions too (see _DampedSystem)."""
+        return self._rank_deficits.get((parts, self.free.tobytes()), (0, False))[1]
+
+    def _chunks(self):
+        N = self.n_poses
+        for s in range(0, N, CHUNK_POSES):
+            yield slice(s, min(s + CHUNK_POSES, N))
+
+    def pose_residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Unweighted residuals at x: position (N, 3) metres and rotation (N, 3) radians (None
+        without orientation data), model - measured, in the meas frame; read-only arrays (the
+        last result is kept: asking again at the same x costs nothing)."""
+        v = self.full(x)
+        last = getattr(self, "_last_pr", None)
+        if last is not None and np.array_equal(last[0], v):
+            return last[1], last[2]     # (read-only arrays)
+        self.kin.set_values(v, twists=False)
+        R, p = self.kin.frame_poses(self.Q, targets=self._targets())
+        dr = None if self.R_meas_T is None else log3_batch(R @ self.R_meas_T)
+        dp = p - self.p_meas
+        for a in (dp, dr):
+            if a is not None:
+                a.setflags(write=False)
+        self._last_pr = (v, dp, dr)
+        return dp, dr
+
+    def residuals(self, x: np.ndarray, parts: str = "pose") -> np.ndarray:
+        """Weighted residual vector; parts: "pose" (position and rotation), "position", "rotation"."""
+        self.kin.set_values(self.full(x), twists=False)
+        out = []
+        for sl in self._chunks():
+            R, p = self.kin.frame_poses(self.Q[sl], targets=self._targets(sl))
+            out.append(self._assemble(R, p, None, parts, sl)[0])
+        return np.concatenate(out) if out else np.zeros(0)
+
+    def normal_equations(self, x: np.ndarray, parts: str = "pose") -> NormalEquations:
+        """J^T J and J^T r at x, accumulated over chunks of poses (memory independent of N).
+        The last result is kept: asking again at the same x costs nothing."""
+        key = (np.asarray(x, float).tobytes(), parts)
+        last = getattr(self, "_last_ne", None)
+        if last is not None and last[0] == key:
+            return last[1]
+        ne = self._normal_equations(x, parts)
+        self._last_ne = (key, ne)
+        return ne
+
+    def _normal_equations(self, x: np.ndarray, parts: str) -> NormalEquations:
+        """The normal equations at x. Least squares (loss "linear"): those of the same rows at
+        the same parameter values under other weights (a problem derived with other noise
+        levels: the re-weighted fits and the statistics) are re-scaled instead of recomputed."""
+        shared = getattr(self, "_shared", None)
+        if self.loss != "linear" or shared is None:
+            return self._compute_normal_equations(x, parts)[0]
+        key = (self.full(x).tobytes(), self.free.tobytes(), parts, getattr(self, "_rows_key", None))
+        hit = shared.get(key)
+        if hit is not None:
+            ne, g_pos, sp, sr, _ = hit
+            if sp == self.sigma_pos and sr == self.sigma_rot:
+                return ne
+            return _reweighted(ne, g_pos, (sp / self.sigma_pos) ** 2, (sr / self.sigma_rot) ** 2)
+        ne, g_pos, blocks = self._compute_normal_equations(x, parts)
+        for k, hit in shared.items():      # (the blocks of the latest point only: bounded memory)
+            shared[k] = hit[:4] + (None,)
+        shared[key] = (ne, g_pos, self.sigma_pos, self.sigma_rot, blocks)
+        while len(shared) > 4:
+            shared.pop(next(iter(shared)))
+        return ne
+
+    def _kept_blocks(self, x: np.ndarray):
+        """The unweighted blocks of the least-squares normal equations last computed at x for
+        these rows (one chunk only; see _compute_normal_equations), or None."""
+        shared = getattr(self, "_shared", None)
+        if self.loss != "linear" or shared is None or self.n_poses > CHUNK_POSES:
+            return None
+        hit = shared.get((self.full(x).tobytes(), self.free.tobytes(), "pose", getattr(self, "_rows_key", None)))
+        return None if hit is None else hit[4]
+
+    def _compute_normal_equations(self, x: np.ndarray, parts: str):
+        """(normal equations, the position rows' share of g, blocks): the blocks are the
+        unweighted ones the least-squares sums were made of when the rows are one chunk and
+        ``parts`` is "pose" (Jt (m, 6, N), the rotation rows Jl^-1 Jt (m, 3 N) or None, residuals
+        (3 N,) and (3 N,) or None, laid out component first), else None: :meth:`whitened_blocks`
+        at the same x is then assembled from them without another pass over the data."""
+        if self.loss != "linear":
+            return self._compute_robust_normal_equations(x, parts) + (None,)
+        keep_blocks = parts == "pose" and self.n_poses <= CHUNK_POSES
+        blocks = None
+        self.kin.set_values(self.full(x))
+        m = len(self.free)
+        use_pos = parts in ("pose", "position")
+        use_rot = self.has_orientation and parts != "position"
+        A_pos, A_rot = np.zeros((m, m)), (np.zeros((m, m)) if use_rot else None)
+        g_pos, g_rot = np.zeros(m), np.zeros(m)
+        rss = [0.0, 0.0]
+        for sl in self._chunks():
+            # the Jacobian as Jt (m, 6, N): its position block is the transposed stacked Jacobian
+            # of the position rows (m, 3 N) as it is, no copy; residuals laid out (3, N) to match
+            R, p, Jt = pose_jacobian(self.kin, self.Q[sl], self.free, transposed=True,
+                                     targets=self._targets(sl))
+            n = len(p)
+            if use_pos:
+                Jp = Jt[:, :3].reshape(m, 3 * n)
+                rp = (p - self.p_meas[sl]).T.reshape(-1)
+                A_pos += Jp @ Jp.T
+                g_pos += Jp @ rp
+                rss[0] += float(rp @ rp)
+            if use_rot:
+                rr = log3_batch(R @ self.R_meas_T[sl])
+                # d log(R R_meas^T) = Jl^-1(r) dw, pose by pose
+                # (3, 3, N), contiguous: einsum on the transposed view is ten times slower
+                L = np.ascontiguousarray(left_jacobian_inverse_batch(rr).transpose(1, 2, 0))
+                Jr = np.einsum("ijn,cjn->cin", L, Jt[:, 3:]).reshape(m, 3 * n)
+                rr = rr.T.reshape(-1)
+                A_rot += Jr @ Jr.T
+                g_rot += Jr @ rr
+                rss[1] += float(rr @ rr)
+            if keep_blocks:
+                blocks = (Jt, Jr if use_rot else None, rp, rr if use_rot else None)
+        wp, wr = 1.0 / self.sigma_pos ** 2, 1.0 / self.sigma_rot ** 2
+        A_pos, g_pos, rss[0] = A_pos * wp, g_pos * wp, rss[0] * wp
+        A = A_pos
+        g = g_pos
+        if use_rot:
+            A_rot, g_rot, rss[1] = A_rot * wr, g_rot * wr, rss[1] * wr
+            A, g = A_pos + A_rot, g_pos + g_rot
+            if not use_pos:
+                A, g = A_rot, g_rot
+        N = self.n_poses
+        ne = NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1],
+                             3 * N if use_pos else 0, 3 * N if use_rot else 0)
+        return ne, g_pos, blocks
+
+    def _compute_robust_normal_equations(self, x: np.ndarray, parts: str) -> tuple[NormalEquations, np.ndarray]:
+        """:meth:`_compute_normal_equations` of a robust loss (residuals and Jacobian rescaled
+        pose by pose, :func:`robust_scaling`: the cost and the exact gradient, and the Gauss-Newton
+        matrix of iteratively reweighted least squares)."""
+        self.kin.set_values(self.full(x))
+        m = len(self.free)
+        A_pos = np.zeros((m, m))
+        A_rot = np.zeros((m, m)) if (self.has_orientation and parts != "position") else None
+        g = np.zeros(m)
+        g_pos = np.zeros(m)
+        rss = [0.0, 0.0]
+        use_pos = parts in ("pose", "position")
+        for sl in self._chunks():
+            R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free, targets=self._targets(sl))
+            r, Jw, kappa = self._assemble(R, p, J, parts, sl, flat=False, curvature=True)
+            Jc = Jw * kappa[:, None, None]      # (the rows of the reweighted Gauss-Newton matrix)
+            k = r.shape[1]
+            # columns of the per-pose blocks: 0:3 position (when used), the rest rotation
+            npos = 3 if use_pos else 0
+            if npos:
+                Jp = Jc[:, :npos].reshape(-1, m)
+                A_pos += Jp.T @ Jp
+                g_pos += Jw[:, :npos].reshape(-1, m).T @ r[:, :npos].reshape(-1)
+                rss[0] += float(np.sum(r[:, :npos] ** 2))
+            if k > npos:
+                Jr = Jc[:, npos:].reshape(-1, m)
+                A_rot += Jr.T @ Jr
+                rss[1] += float(np.sum(r[:, npos:] ** 2))
+            g += Jw.reshape(-1, m).T @ r.reshape(-1)
+        N = self.n_poses
+        n_pos = 3 * N if use_pos else 0
+        n_rot = 3 * N if A_rot is not None else 0
+        A = A_pos + (A_rot if A_rot is not None else 0.0)
+        return NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1], n_pos, n_rot), g_pos
+
+    def whitened_blocks(self, x: np.ndarray, raw: bool = False):
+        """Per chunk of poses: (r (n, k), Jw (n, k, m)), the weighted residual and Jacobian blocks
+        of each pose at x (k = 6 with orientation data, else 3); with ``raw`` also the pose
+        Jacobian (n, 6, m) they come from (:func:`calib.model.jacobian.pose_jacobian`)."""
+        blocks = self._kept_blocks(x)
+        if blocks is not None:      # from the normal equations' pass at x (the last result kept)
+            last = getattr(self, "_last_wb", None)
+            if last is not None and last[0] is blocks:
+                yield last[1] if raw else last[1][:2]
+                return
+            Jt, Jr, rp, rr = blocks
+            m, _, n = Jt.shape
+            J = np.ascontiguousarray(Jt.transpose(2, 1, 0))
+            k = 3 if rr is None else 6
+            r, Jw = np.empty((n, k)), np.empty((n, k, m))
+            r[:, :3] = rp.reshape(3, n).T / self.sigma_pos
+            Jw[:, :3] = J[:, :3] / self.sigma_pos
+            if rr is not None:
+                r[:, 3:] = rr.reshape(3, n).T / self.sigma_rot
+                Jw[:, 3:] = Jr.reshape(m, 3, n).transpose(2, 1, 0) / self.sigma_rot
+            for a in (r, Jw, J):
+                a.setflags(write=False)
+            self._last_wb = (blocks, (r, Jw, J))
+            yield (r, Jw, J) if raw else (r, Jw)
+            return
+        self.kin.set_values(self.full(x))
+        for sl in self._chunks():
+            R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free, targets=self._targets(sl))
+            r, Jw = self._assemble(R, p, J, "pose", sl, flat=False)
+            yield (r, Jw, J) if raw else (r, Jw)
+
+    def _assemble(self, R, p, J, parts, sl, flat=True, curvature=False):
+        """(r, J) of the rows ``sl``: weighted, robustly scaled (:func:`robust_scaling`), flat or
+        per pose (N, k) / (N, k, m); with ``curvature`` (a robust loss, per pose) also kappa."""
+        res, jac = [], []
+        if parts in ("pose", "position"):
+            res.append((p - self.p_meas[sl]) / self.sigma_pos)
+            if J is not None:
+                jac.append(J[:, :3] / self.sigma_pos)
+        if parts in ("pose", "rotation") and self.has_orientation:
+            r = log3_batch(R @ self.R_meas_T[sl])
+            res.append(r / self.sigma_rot)
+            if J is not None:
+                jac.append(left_jacobian_inverse_batch(r) @ J[:, 3:] / self.sigma_rot)
+        r = np.concatenate(res, axis=1)
+        J_all = None if J is None else np.concatenate(jac, axis=1)
+        if curvature:
+            return robust_scaling(r, J_all, self.loss, self.loss_scale, curvature=True)
+        if self.loss != "linear":
+            r, J_all = robust_scaling(r, J_all, self.loss, self.loss_scale)
+        if not flat:
+            return r, J_all
+        r = r.reshape(-1)
+        if J_all is None:
+            return r, None
+        return r, J_all.reshape(len(r), -1)
+
+
+def _reweighted(ne: NormalEquations, g_pos: np.ndarray, f_pos: float, f_rot: float) -> NormalEquations:
+    """Least-squares normal equations ``ne`` (``g_pos``: the position rows' share of its g) with
+    the position rows' weights multiplied by f_pos (sigma_pos_old^2 / sigma_pos_new^2) and the
+    rotation rows' by f_rot."""
+    A_pos = None if ne.A_pos is None else ne.A_pos * f_pos
+    A_rot = None if ne.A_rot is None else ne.A_rot * f_rot
+    A = (A_pos if A_pos is not None else 0.0) + (A_rot if A_rot is not None else 0.0)
+    g = (ne.g * f_rot if A_pos is None else ne.g * f_pos if A_rot is None
+         else g_pos * f_pos + (ne.g - g_pos) * f_rot)
+    return NormalEquations(A, g, A_pos, A_rot, ne.rss_pos * f_pos, ne.rss_rot * f_rot, ne.n_pos, ne.n_rot)
+
+
+def robust_scaling(r: np.ndarray, J: np.ndarray | None, loss: str, c: float, curvature: bool = False):
+    """Rescale per-pose residual blocks r (N, k) and Jacobian blocks J (N, k, m) for a robust loss.
+
+    With z = |r_i|^2 (the whitened squared residual of pose i) and rho the loss ("huber":
+    z below c^2, 2 c sqrt(z) - c^2 above; "soft_l1": 2 c^2 (sqrt(1 + z / c^2) - 1)), the returned
+    residuals have |r~_i|^2 = rho(z_i), so the LM cost is 1/2 sum rho, and the Jacobian is scaled
+    so that J~^T r~ = sum rho'(z_i) J_i^T r_i, the exact gradient. c is in units of sigma.
+    With ``curvature`` also kappa (N,): J~_i kappa_i = sqrt(rho'(z_i)) J_i, the rows whose
+    products make the Gauss-Newton matrix of iteratively reweighted least squares,
+    sum rho' J_i^T J_i (J~^T J~ alone weights a pose beyond c by rho' z rho' / rho, down to half
+    of that, and LM then needs about twice the iterations).
+    """
+    z = np.einsum("nk,nk->n", r, r)
+    if loss == "huber":
+        big = z > c * c
+        sz = np.sqrt(z)
+        rho = np.where(big, 2 * c * sz - c * c, z)
+        drho = np.where(big, c / np.where(big, sz, 1.0), 1.0)
+    else:  # soft_l1
+        t = np.sqrt(1.0 + z / (c * c))
+        rho = 2 * c * c * (t - 1.0)
+        drho = 1.0 / t
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = np.where(z > 0, np.sqrt(rho / np.where(z > 0, z, 1.0)), 1.0)
+    r_out = r * f[:, None]
+    if J is None:
+        return r_out, None
+    J_out = J * (drho / f)[:, None, None]
+    return (r_out, J_out, f / np.sqrt(drho)) if curvature else (r_out, J_out)
+
+
+def normal_inverse(A: np.ndarray) -> tuple[np.ndarray, bool | np.ndarray]:
+    """A^-1 of a normal matrix (scaled to unit diagonal first), or its pseudo-inverse when rank
+    deficient (an eigenvalue of the scaled matrix at most RANK_RCOND times the largest), and
+    whether it has full rank. A (..., m, m): a stack is inverted at once, with a full-rank flag
+    (bool array) per matrix."""
+    m = A.shape[-1]
+    As = A.reshape(-1, m, m)
+    d = np.sqrt(np.abs(np.diagonal(As, axis1=1, axis2=2)))
+    d[d == 0] = 1.0
+    outer = d[:, :, None] * d[:, None, :]
+    As = As / outer
+    full = np.zeros(len(As), bool)
+    inv, inverted = np.empty_like(As), False
+    if m:
+        try:
+            inv, inverted = np.linalg.inv(As), True
+            # full rank is s_min > RANK_RCOND s_max over the eigenvalues; with unit diagonal s_max <= m
+            # and 1 / s_min <= |A^-1|_F, so a small inverse proves it without the eigenvalues
+            # (a rounding-negative eigenvalue of a singular A makes the inverse huge; NaN fails)
+            full = m * np.sqrt(np.einsum("nij,nij->n", inv, inv)) < 1.0 / RANK_RCOND
+        except np.linalg.LinAlgError:   # an exactly singular matrix in the stack
+            pass
+    rest = np.flatnonzero(~full)
+    if m and rest.size:
+        s = np.abs(np.linalg.eigvalsh(As[rest]))    # singular values (symmetric), in half an SVD's time
+        ok = s.min(axis=1) > RANK_RCOND * s.max(axis=1)
+        full[rest[ok]] = True
+        if ok.any() and not inverted:
+            inv[rest[ok]] = np.linalg.inv(As[rest[ok]])
+    if not full.all():
+        inv[~full] = np.linalg.pinv(As[~full], rcond=RANK_RCOND, hermitian=True)
+    inv = (inv / outer).reshape(A.shape)
+    return (inv, bool(full[0])) if A.ndim == 2 else (inv, full.reshape(A.shape[:-2]))
+
+
+def _rank_deficit(system: tuple[np.ndarray, np.ndarray, np.ndarray]) -> int:
+    """How many directions of the normal matrix A of ``system`` (A, g, d from _without_inert)
+    the data do not determine: its eigenvalues, scaled to diag(d) = 1, at most RANK_RCOND times
+    the largest (0 without an eigendecomposition when :func:`normal_inverse` proves full rank)."""
+    A, _, d = system
+    if normal_inverse(A)[1]:
+        return 0
+    s = 1.0 / np.sqrt(d)
+    w = np.linalg.eigvalsh(A * np.outer(s, s))
+    return int(np.sum(w <= RANK_RCOND * max(w[-1], 0.0)))
+
+
+def _without_inert(ne: NormalEquations) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(A, g, d = diag(A)) of the normal equations with the parameters that have no effect
+    (NO_EFFECT_RTOL: a Jacobian column of rounding noise) taken out: their rows and columns of
+    A and entries of g zero, d one. Marquardt's scaling would blow such a column up to the size
+    of the others and LM would move the parameter by noise / noise."""
+    A, g = ne.A, ne.g
+    d = np.diag(A).copy()
+    inert = d <= NO_EFFECT_RTOL ** 2 * max(d.max(initial=0.0), 0.0)
+    if inert.any():
+        A, g = A.copy(), np.where(inert, 0.0, g)
+        A[inert] = 0.0
+        A[:, inert] = 0.0
+        d[inert] = 1.0
+    return A, g, d
