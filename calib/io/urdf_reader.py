@@ -1,26 +1,9 @@
-"""The robot model: a serial chain read from a URDF with Pinocchio, described by TM-MDH parameters.
+"""Reading a robot from a URDF: the serial chain between two frames, found with Pinocchio, and its
+TM-MDH model (:func:`load_robot`).
 
-A :class:`RobotModel` is immutable. It holds the chain's joints (names, types, limits) and one
-value per TM-MDH parameter:
-
-    T_meas_tool(q) = T_meas_base_ref . T(u) . prod_i L_i(q_i) . T(v) . T_flange_tool_ref
-
-with ``L_i`` the link transform of Eq. (1) (:func:`calib.model.mdh.link_transform`), ``T(u)`` and
-``T(v)`` the ZYX transforms of Eq. (3) (:func:`calib.model.spatial.zyx_transform`), and two constant
-reference transforms. ``meas`` is the chosen base frame of the URDF (the measurement frame),
-``base`` is MDH frame 0 (z on axis 1), ``flange`` is MDH frame n, ``tool`` the chosen tool frame.
-For a URDF derived model u = v = 0 and the reference transforms carry the nominal geometry; for the
-bundled BRTIRUS0707A both references are the identity, as in the paper.
-
-Parameters are named ``theta1``, ``d1``, ``a1``, ``alpha1``, ``beta2`` (only for joints whose
-axis is parallel to the next one), ``u_x``, ``u_y``, ``u_z``, ``u_alpha``, ``u_beta``,
-``u_gamma`` and ``v_x`` ... ``v_gamma`` (alpha = yaw about z, beta = pitch about y, gamma = roll
-about x, as in Eq. (3)). Lengths in metres, angles in radians.
-
-Several targets (reflectors) on the tool: a model with ``targets`` (two or more ids) has one
-flange->target transform per target, ``T(v_k) . T_flange_tool_ref_k``, with parameters named
-``v_x@<id>`` ... ``v_gamma@<id>``; the chain and the measurement frame are shared. A model with
-one tool frame (``targets == ()``) keeps the names ``v_x`` ... ``v_gamma``.
+The default tool frame follows the tree from the base frame past mobile-base wheels and heads
+into the longest arm (:func:`_default_tool_frame`); a robot may also be named by its
+example-robot-data name (:func:`robot_path`).
 """
 from __future__ import annotations
 

@@ -1,35 +1,6 @@
-"""The identification solvers: Levenberg-Marquardt (Section 3.2.1), the cross identification
-C-LM (3.2.2) and search-lm (a closed-form angle search, then LM).
-
-The problem: find the free parameter values x that minimise the noise-weighted squared residuals
-
-    cost(x) = 1/2 sum_poses |(p_model - p_meas) / sigma_pos|^2 + |log(R_model R_meas^T) / sigma_rot|^2
-
-(the rotation term only for data with orientation). This is the maximum-likelihood fit for
-Gaussian noise of standard deviation sigma_pos per position axis and sigma_rot per rotation axis.
-Every iteration re-linearises the exact model (Pinocchio forward kinematics and regressor); the
-rotation residual's Jacobian includes the inverse left Jacobian of SO(3), so the fixed point is
-the exact minimiser, not that of a linearised model.
-
-calib's LM (the default variant) solves ``(J^T J + mu D) dx = -J^T r`` with D = diag(J^T J)
-(Marquardt's scaling, so that the damping does not depend on the units of the parameters), on
-noise-weighted residuals defined as model - measured. mu starts at 1e-3; a step that lowers the
-cost is accepted and mu divided by lambda = 10, otherwise mu is multiplied by lambda and the step
-retried. It stops when a step lowers the cost by less than ftol times the cost, or when the
-Gauss-Newton model predicts that of the next step; that step is then evaluated once and kept
-unless it raises the cost beyond its rounding (COST_RTOL; near the minimum the actual decrease is
-rounding noise: judging it by "lower or retry" would only reject steps until the damping
-saturates). A problem that is rank deficient at its start (a parameter set the data do not
-determine, e.g. "all") takes minimum-norm steps: no step moves along the combinations the data
-leave undetermined at the start while the data barely see them (WEAK_RCOND: away from the start
-a tie such as a twist turning the tool offset is seen to second order, and following it fits the
-noise), and parameters without effect (a Jacobian column of rounding noise) stay put.
-This differs from the paper's Eq. (27)-(28) as printed (mu I, mu reset to 0.001 lambda^+-1,
-unweighted residuals): that variant is :mod:`calib.solvers.paper_lm`.
-
-Memory and time are linear in the number of poses: the solvers work on the normal equations
-``J^T J``, ``J^T r`` accumulated over chunks of poses (:meth:`Problem.normal_equations`), never on
-the stacked Jacobian, and a trial step evaluates residuals only.
+"""Identification schemes built on calib's LM: the paper's cross identification C-LM
+(Section 3.2.2: rounds of LM on the angular parameters with the rotation residuals, then LM on
+everything) and search-lm (a closed-form angle search on the rotation data, then LM).
 """
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ from calib.solvers.lm import levenberg_marquardt
 from calib.model.spatial import inverse
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 from conftest import BUNDLED_URDF, erd_urdf
 

@@ -232,7 +232,7 @@ def test_normal_equations_reweighted_from_the_shared_linearisation():
     from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
     from calib.solvers.problem import Problem
 
-    robot = calib.load_robot(Path(__file__).resolve().parents[1] / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
+    robot = calib.load_robot(Path(__file__).resolve().parents[2] / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
     meas = simulate_measurements(apply_deviations(robot, PAPER_DEVIATIONS), robot.random_configurations(20, 1), rng=2)
     idx = robot.indices(["theta2", "d3", "alpha4", "u_x", "v_y"])
     keep = np.arange(20) % 4 != 0

@@ -239,7 +239,7 @@ def test_cli_prints_noise_prediction_and_exit_3_for_a_stuck_lm(tmp_path, bundled
 
     urdf = "robots/brtirus0707a/brtirus0707a.urdf"
     import os
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     urdf = os.path.join(root, urdf)
     meas = tmp_path / "m.csv"
     assert main(["simulate", urdf, "-o", str(meas), "--poses", "40", "--seed", "3", "--sigma-pos-mm", "0.05",
@@ -278,7 +278,7 @@ def test_readme_real_measurements_example_runs_as_printed(tmp_path, monkeypatch,
 
     from calib.cli.main import main
 
-    readme = open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "README.md")).read()
+    readme = open(os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "README.md")).read()
     start = readme.index("### Real measurements")
     section = readme[start:readme.index("\n### ", start + 1)]
     commands = re.findall(r"^calib .*$", section, re.M)
@@ -344,7 +344,7 @@ def test_predicted_holdout_without_validation_rows_matches_cross_validation(ur5_
 # ---------------------------------------------------------------- real measurements
 #: FIGAROH's TIAGo motion-capture data (examples/tiago_qualisys/README.md): 35 configurations of
 #: the torso lift and 7 arm joints, 3 markers on the hand, positions in a base marker plate's frame.
-TIAGO_REAL = Path(__file__).resolve().parents[1] / "examples" / "tiago_qualisys" / "measurements.csv"
+TIAGO_REAL = Path(__file__).resolve().parents[2] / "examples" / "tiago_qualisys" / "measurements.csv"
 
 
 @pytest.fixture(scope="module")

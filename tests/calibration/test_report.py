@@ -19,7 +19,7 @@ from calib import ChainError, URDFError, load_robot
 from calib.cli.main import main
 from calib.io.urdf_writer import format_number, rpy_nearest, write_calibrated_urdf
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BUNDLED = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
 STATS = ("mean", "rms", "max", "min")
 

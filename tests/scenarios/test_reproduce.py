@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_paper.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "reproduce_paper.py"
 
 
 @pytest.fixture(scope="module")

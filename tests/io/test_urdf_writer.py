@@ -20,7 +20,7 @@ from calib.errors import ChainError
 from calib.model.kinematics import ChainKinematics
 from calib.io.urdf_writer import write_calibrated_urdf
 
-BUNDLED = Path(__file__).resolve().parents[1] / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
+BUNDLED = Path(__file__).resolve().parents[2] / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
 
 #: Exact model, exact transcription: only rounding separates written and reference kinematics.
 TOL_M = 1e-9

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-DATA = Path(__file__).with_name("data") / "speed_baseline.json"
+ROOT = Path(__file__).resolve().parents[2]
+DATA = Path(__file__).resolve().parents[1] / "data" / "speed_baseline.json"
 
 
 def compute_baseline() -> dict:
