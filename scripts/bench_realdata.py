@@ -238,7 +238,6 @@ def figaroh_worker(data: Path, name: str, k: int, model: str) -> dict:
     the fit time."""
     import pandas as pd
     import pinocchio as pin
-    from figaroh.calibration.base_calibration import BaseCalibration
     from figaroh.calibration.calibration_tools import calc_updated_fkm
     from figaroh.tools.robot import Robot
 
@@ -248,16 +247,7 @@ def figaroh_worker(data: Path, name: str, k: int, model: str) -> dict:
     cal, val = m.calibration(), m.validation()
     rot = cal.has_orientation
 
-    class Fit(BaseCalibration):
-        def __init__(self, figaroh_robot, config):
-            super().__init__(figaroh_robot, config)
-            self.calib_config["known_baseframe"] = False
-            self.calib_config["known_tipframe"] = False
-
-        def cost_function(self, var):
-            est = calc_updated_fkm(self.model, self.data, var, self.q_measured, self.calib_config)
-            return self.apply_measurement_weighting(self._compute_logmap_residuals(self.PEE_measured, est),
-                                                    pos_weight=1 / 1e-3, orient_weight=1 / 1e-2)
+    Fit = _bench.figaroh_fit_class(1 / 1e-3, 1 / 1e-2)
 
     with tempfile.TemporaryDirectory() as tmp:
         csv = Path(tmp) / "data.csv"
