@@ -114,27 +114,29 @@ def main(argv: Sequence[str] | None = None) -> int:
     ``calib: interrupted by SIGINT`` and 130 / 143 (128 + the signal number); outputs are
     committed as a set with the signals held back, so none is half-written."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
-    try:
-        args, extra = parser.parse_known_args(argv)
-        if extra:  # reported by the subcommand's parser, so that its usage line is shown
-            sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-            sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
-    except SystemExit as exc:  # --help, --version (0) and usage errors (2)
-        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else EXIT_INPUT)
-    args.argv = argv
-
     root_log = logging.getLogger("calib")     # every module logs as calib.<module>
     handler = None
-    if args.verbose:
-        handler = logging.StreamHandler(sys.stderr)
-        handler.setFormatter(_ElapsedFormatter(f"{PROG}: %(message)s  [%(elapsed).2f s]"))
-        root_log.addHandler(handler)
-        root_log.setLevel(logging.DEBUG if args.verbose > 1 else logging.INFO)
     previous_term = None
     if threading.current_thread() is threading.main_thread():
         previous_term = signal.signal(signal.SIGTERM, _raise_interrupted)
     try:
+        # the parser's choices and defaults come from the library: building it imports numpy
+        # and Pinocchio, so a signal may land here too
+        parser = build_parser()
+        try:
+            args, extra = parser.parse_known_args(argv)
+            if extra:  # reported by the subcommand's parser, so that its usage line is shown
+                sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+                sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+        except SystemExit as exc:  # --help, --version (0) and usage errors (2)
+            return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else EXIT_INPUT)
+        args.argv = argv
+
+        if args.verbose:
+            handler = logging.StreamHandler(sys.stderr)
+            handler.setFormatter(_ElapsedFormatter(f"{PROG}: %(message)s  [%(elapsed).2f s]"))
+            root_log.addHandler(handler)
+            root_log.setLevel(logging.DEBUG if args.verbose > 1 else logging.INFO)
         return _run(args)
     except CalibError as exc:
         sys.stderr.write(f"{PROG}: error: {_one_line(exc)}\n")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 
@@ -73,3 +74,24 @@ def test_select_poses_writes_nothing_when_the_folder_is_missing(tmp_path, capsys
     assert (code, out) == (2, "")
     assert "folder" in err and "does not exist" in err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_signal_while_the_parser_imports_the_library_ends_with_one_line(signum, code):
+    """Building the parser imports the library (the choices of --method, --loss, ...): a signal
+    then ends the command like a signal anywhere else, one line and 128 + signal."""
+    code_text = ("import sys, time, calib._entry as e\n"
+                 "class Slow:\n"
+                 "    def find_spec(self, name, path=None, target=None):\n"
+                 "        if name == 'calib.calibration.core':\n"
+                 "            print('importing', file=sys.stderr, flush=True); time.sleep(3)\n"
+                 "sys.meta_path.insert(0, Slow())\n"
+                 "e.main()\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-c", code_text, "identifiability", str(BUNDLED_URDF)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=ROOT, text=True)
+    assert proc.stderr.readline() == "importing\n"
+    proc.send_signal(signum)
+    stdout, err = proc.communicate(timeout=60)
+    assert (proc.returncode, stdout) == (code, "")
+    assert err == f"calib: interrupted by {signal.Signals(signum).name}\n"
