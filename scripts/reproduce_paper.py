@@ -48,7 +48,8 @@ from typing import Sequence  # noqa: E402
 import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
-from calib.calibration.core import PAPER_EXCLUDED, select_parameters
+from calib.calibration.options import PAPER_EXCLUDED
+from calib.calibration.parameters import select_parameters
 from calib.io.fileio import atomic_write_bytes, atomic_write_text
 from calib.solvers.angles import RotationChain
 from calib.model.kinematics import ChainKinematics

@@ -43,7 +43,8 @@ from calib.cli.practice import add_compensate_parser, add_select_poses_parser
 from calib import (CalibError, DataError, PAPER_DEVIATIONS, ParameterError, analyze_identifiability,
                    apply_deviations, calibrate, evaluate, load_robot, random_deviations, read_measurements,
                    simulate_measurements, write_measurements)
-from calib.calibration.core import _EDGE_UNITS, METHODS, format_accuracy_table
+from calib.calibration.accuracy import _EDGE_UNITS, format_accuracy_table
+from calib.calibration.options import METHODS
 from calib.io.fileio import OutputSet, check_not_input, output_target
 from calib.cli.progress import working
 from calib.solvers.problem import LOSSES

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import calib
-import calib.calibration.core as cc
+import calib.calibration.pipeline as cc
+from calib.calibration.validation import _held_out_traces, cross_validate
 from calib.solvers.problem import normal_inverse
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
 
@@ -104,12 +105,12 @@ def test_held_out_traces_match_the_eigen_decomposition(fitted, scale):
     M = (V / (1.0 - np.minimum(w, 0.99))[:, None, :]) @ np.transpose(V, (0, 2, 1))
     ref = (np.trace(M[:, :3, :3], axis1=1, axis2=2).mean(), np.trace(M[:, 3:, 3:], axis1=1, axis2=2).mean())
     # rounding only: the inverse instead of the eigenvectors on the low-leverage rows
-    np.testing.assert_allclose(cc._held_out_traces(problem, x, C), ref, rtol=1e-12)
+    np.testing.assert_allclose(_held_out_traces(problem, x, C), ref, rtol=1e-12)
 
 
 def test_cross_validation_refits_are_gauss_newton_steps_without_each_fold(fitted):
     setup, fit, problem, _ = fitted
-    cv = cc.cross_validate(setup, fit, problem, 4, seed=3)
+    cv = cross_validate(setup, fit, problem, 4, seed=3)
     x0 = fit.model.values[fit.model.indices(fit.free)]
     n = problem.n_poses
     fold_of = np.empty(n, int)
