@@ -27,9 +27,9 @@ from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
 from calib.solvers.angles import RotationChain
+from calib.solvers import dispatch
 from calib.solvers.lm import LMOptions, LMTrace, SolverResult, levenberg_marquardt
 from calib.solvers.problem import NormalEquations, Problem, normal_inverse
-from calib.solvers.schemes import cross_lm, search_lm
 
 log = logging.getLogger(__name__)
 
@@ -216,26 +216,21 @@ class _Solve:
         if loose:   # (stopping at its last evaluated point, whose normal equations the estimate uses)
             opts = replace(opts, ftol=max(opts.ftol, VCE_FIRST_FTOL), last_step=False)
         if not first:
-            return levenberg_marquardt(problem, x, "pose", replace(opts, mu0=min(opts.mu0, WARM_MU0)), trace)
-        if self.measure == "position" or self.method == "lm":
-            return levenberg_marquardt(problem, x, "pose", opts, trace)
-        if self.method == "c-lm":
-            return cross_lm(problem, x, self.angular, max_rounds=self.max_rounds,
-                            fixed_rounds=self.fixed_rounds, options=opts, trace=trace)
-        return search_lm(problem, x, self.angular, self.chain, options=opts, trace=trace)
+            return dispatch.solve(problem, x, "lm", options=replace(opts, mu0=min(opts.mu0, WARM_MU0)), trace=trace)
+        method = "lm" if self.measure == "position" else self.method
+        return dispatch.solve(problem, x, method, angular=self.angular, chain=self.chain, options=opts,
+                              trace=trace, max_rounds=self.max_rounds, fixed_rounds=self.fixed_rounds)
 
     def _paper(self, problem: Problem, x: np.ndarray, trace: LMTrace) -> SolverResult:
         """The LM of Eq. (27)-(28) as printed (:mod:`calib.solvers.paper_lm`): unweighted residuals in mm
         and rad, so the noise levels do not change its solution; its cost is re-expressed in the
         fit's noise weights."""
-        from calib.solvers.paper_lm import PaperLMOptions, paper_cross_lm, paper_lm
+        from calib.solvers.paper_lm import PaperLMOptions
 
         popts = PaperLMOptions(max_iterations=self.options.max_iterations)
-        if self.method == "c-lm" and self.measure == "pose":
-            r = paper_cross_lm(problem, x, self.angular, options=popts, max_rounds=self.max_rounds,
-                               fixed_rounds=self.fixed_rounds)
-        else:
-            r = paper_lm(problem, x, self.angular, options=popts)
+        method = "c-lm" if (self.method == "c-lm" and self.measure == "pose") else "lm"
+        r = dispatch.solve(problem, x, method, angular=self.angular, variant="paper", paper_options=popts,
+                           max_rounds=self.max_rounds, fixed_rounds=self.fixed_rounds)
         trace.iterations += r.iterations
         cost = 0.5 * float(np.sum(problem.residuals(r.x) ** 2))
         return SolverResult(r.x, cost, r.status, f"paper's LM as printed: {r.message}", r.iterations,
@@ -432,7 +427,8 @@ def _check_local_minimum(sol: SolverResult, problem: Problem, solve: _Solve) -> 
     if solve.model.targets:     # the angle search takes one tool frame
         return sol
     chain = solve.chain or RotationChain(solve.model)
-    other = search_lm(problem, sol.x, solve.angular, chain, options=solve.options, max_escapes=0)
+    other = dispatch.solve(problem, sol.x, "search-lm", angular=solve.angular, chain=chain,
+                           options=solve.options, max_escapes=0)
     # clearly lower: by a fraction of the cost and by more than chance (1 in chi^2 / 2 units)
     if other.cost < LOCAL_MINIMUM_RATIO * sol.cost and sol.cost - other.cost > 1.0:
         msg = (f"{solve.method.upper()} stopped in a local minimum: an angle search from its solution, "

@@ -9,11 +9,14 @@ from calib.checks import check_int, check_number
 from calib.errors import DataError, ParameterError
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
+from calib.solvers.dispatch import METHODS as _METHODS
+from calib.solvers.dispatch import VARIANTS as _VARIANTS
 from calib.solvers.problem import LOSSES
 
-METHODS = ("search-lm", "c-lm", "lm")
-#: "calib": calib's LM (:mod:`calib.solvers.problem`); "paper": Eq. (27)-(28) as printed (:mod:`calib.solvers.paper_lm`).
-LM_VARIANTS = ("calib", "paper")
+#: The methods (:data:`calib.solvers.dispatch.METHODS`) and LM variants ("calib": calib's LM; "paper":
+#: Eq. (27)-(28) as printed, :mod:`calib.solvers.paper_lm`) that calibrate runs.
+METHODS = _METHODS
+LM_VARIANTS = _VARIANTS
 PARAM_SETS = ("base", "paper", "all", "auto")
 #: Parameters that Section 4.2 of the paper leaves out when the frames are well known.
 PAPER_EXCLUDED = ("u_z", "u_alpha", "v_x", "v_z", "v_alpha", "v_gamma")
