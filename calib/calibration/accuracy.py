@@ -165,3 +165,83 @@ def register_measurement_frame(robot: RobotModel, measurements: Measurements) ->
     T[:3, :3] = R.as_matrix()
     T[:3, 3] = c_meas - T[:3, :3] @ c_nom
     return replace(robot, T_meas_base_ref=T @ robot.T_meas_base_ref)
+
+
+@dataclass(frozen=True)
+class TargetAccuracy:
+    """Accuracy on the rows of one target of a multi-target calibration (see
+    :class:`AccuracyStats`): before / after on the calibration rows, and on the validation rows
+    (None without validation data)."""
+
+    target: str
+    before: AccuracyStats = field(repr=False)
+    after: AccuracyStats = field(repr=False)
+    validation_before: AccuracyStats | None = field(default=None, repr=False)
+    validation_after: AccuracyStats | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict:
+        return {"before": self.before.to_dict(), "after": self.after.to_dict(),
+                "validation": None if self.validation_after is None else {
+                    "before": self.validation_before.to_dict(), "after": self.validation_after.to_dict()}}
+
+
+@dataclass(frozen=True)
+class BeforeAfter:
+    """Accuracy of a calibration on its rows (see :class:`AccuracyStats`): ``before`` (the nominal
+    model) and ``after`` (the calibrated one) on the calibration rows, ``validation_before`` /
+    ``validation_after`` on the validation rows (None without any), the ``*_registered`` errors of
+    the nominal model with its measurement frame registered by a best fit (None unless the frames
+    were estimated), per ``targets`` of a multi-target model; cal_rows / val_rows: (N,) each row's
+    target index (None for one tool frame). Made by :func:`accuracy_before`, completed by
+    :func:`accuracy_after`."""
+
+    before: AccuracyStats
+    validation_before: AccuracyStats | None = None
+    before_registered: AccuracyStats | None = None
+    validation_before_registered: AccuracyStats | None = None
+    cal_rows: np.ndarray | None = field(default=None, repr=False)
+    val_rows: np.ndarray | None = field(default=None, repr=False)
+    after: AccuracyStats | None = None
+    validation_after: AccuracyStats | None = None
+    targets: tuple[TargetAccuracy, ...] = ()
+
+
+def accuracy_before(nominal: RobotModel, start: RobotModel, cal: Measurements, val: Measurements | None, *,
+                    rebased: Sequence[str], kin: ChainKinematics | None = None) -> BeforeAfter:
+    """The errors before calibration: of ``nominal`` (with the measured targets) on the
+    calibration rows ``cal`` and validation rows ``val``, and, when the frames were estimated
+    (``rebased``, see :class:`calib.calibration.prepare.Setup`), of the nominal geometry with the
+    tool or targets where the closed-form estimate on ``start`` put them when it moved them (an
+    SMR's unknown offset is not an error of the robot) and the measurement frame registered by a
+    best fit. kin : a kinematics workspace of ``nominal``'s structure."""
+    cal_rows = target_rows(nominal, cal)
+    before = pose_errors(nominal, cal.q, cal.position, cal.rotation, kin, cal_rows)
+    vb = val_rows = None
+    if val is not None:
+        val_rows = target_rows(nominal, val)
+        vb = pose_errors(nominal, val.q, val.position, val.rotation, kin, val_rows)
+    breg = vbreg = None
+    if rebased:
+        ref = nominal if tuple(rebased) == ("measurement->base",) else replace(
+            nominal, T_flange_tool_ref=start.T_flange_tool_ref, T_flange_target_refs=start.T_flange_target_refs)
+        registered = register_measurement_frame(ref, cal)
+        breg = pose_errors(registered, cal.q, cal.position, cal.rotation, targets=cal_rows)
+        if val is not None:
+            vbreg = pose_errors(registered, val.q, val.position, val.rotation, targets=val_rows)
+    return BeforeAfter(before, vb, breg, vbreg, cal_rows, val_rows)
+
+
+def accuracy_after(before: BeforeAfter, calibrated: RobotModel, after: AccuracyStats, val: Measurements | None,
+                   targets: Sequence[str], kin: ChainKinematics | None = None) -> BeforeAfter:
+    """``before`` completed with the errors of the ``calibrated`` model: ``after`` on the
+    calibration rows (the fit's), on the validation rows ``val``, and per target (``targets``:
+    the model's target ids)."""
+    va = None
+    if val is not None:
+        va = pose_errors(calibrated, val.q, val.position, val.rotation, kin, before.val_rows)
+    per_target = tuple(
+        TargetAccuracy(t, before.before.subset(before.cal_rows == k), after.subset(before.cal_rows == k),
+                       None if val is None else before.validation_before.subset(before.val_rows == k),
+                       None if val is None else va.subset(before.val_rows == k))
+        for k, t in enumerate(targets))
+    return replace(before, after=after, validation_after=va, targets=per_target)

@@ -21,15 +21,16 @@ from calib.calibration.options import (
     VCE_MAX_ITERATIONS,
     VCE_RTOL,
     WARM_MU0,
+    CalibrationOptions,
 )
-from calib.calibration.prepare import Setup
+from calib.calibration.prepare import Setup, _implausible_fit_notes, _implausible_length_notes
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
-from calib.solvers.angles import RotationChain
 from calib.solvers import dispatch
+from calib.solvers.angles import RotationChain
 from calib.solvers.lm import LMOptions, LMTrace, SolverResult, levenberg_marquardt
-from calib.solvers.problem import NormalEquations, Problem, normal_inverse
+from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem, normal_inverse
 
 log = logging.getLogger(__name__)
 
@@ -436,3 +437,38 @@ def _check_local_minimum(sol: SolverResult, problem: Problem, solve: _Solve) -> 
                f"escapes it)")
         return replace(sol, status="local_minimum", message=msg)
     return sol
+
+
+def method_notes(setup: Setup, method: str) -> list[str]:
+    """A note when the data make ``method`` run as LM (position-only data; several targets for
+    the angle search of search-lm)."""
+    if setup.measure == "position" and method != "lm":
+        return [f"position-only data: {method.upper()} needs orientations for its angle step; ran LM"]
+    if method == "search-lm" and setup.start.targets:
+        return ["several targets: the angle search of SEARCH-LM takes one tool frame; ran LM"]
+    return []
+
+
+def fit_notes(nominal: RobotModel, fit: Fit) -> list[str]:
+    """The fit's notes, and what its outcome says about the data: residuals far above given noise
+    levels, errors no robot and instrument give, link lengths far from ``nominal``'s."""
+    notes = list(fit.notes)
+    nz = fit.noise
+    if not nz.estimated and fit.solver.status == "converged" and nz.reduced_chi2 > CHI2_ESCAPE:
+        notes.append(f"the fit converged but its residuals are {math.sqrt(nz.reduced_chi2):.1f} times the given "
+                     f"noise (reduced chi^2 {nz.reduced_chi2:.3g}): a wrong sigma, or errors the model "
+                     f"does not describe; omit the noise levels to estimate them from the data")
+    return notes + _implausible_fit_notes(nominal, fit.errors) + _implausible_length_notes(nominal, fit.model)
+
+
+def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, outlier_k: float | None,
+             keep: np.ndarray | None = None, kin: ChainKinematics | None = None, rank_deficit: int = 0,
+             sigma_pos: float | None = None, sigma_rot: float | None = None) -> tuple[Fit, Problem]:
+    """:func:`fit_stage` of ``free`` with the solver, loss and noise levels of ``options``
+    (sigma_pos / sigma_rot: given instead of the options' ones when not None)."""
+    solve = _solver_for(setup, free, options.method, options.lm, options.max_rounds, options.fixed_rounds,
+                        options.lm_variant)
+    return fit_stage(setup, free, solve, sigma_pos=options.sigma_pos if sigma_pos is None else sigma_pos,
+                     sigma_rot=options.sigma_rot if sigma_rot is None else sigma_rot, loss=options.loss,
+                     loss_scale=options.loss_scale, outlier_k=outlier_k, keep=keep, kin=kin,
+                     rank_deficit=rank_deficit)

@@ -3,14 +3,19 @@ thresholds the stages use, and the checks of every option before any work.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Sequence
+
 import numpy as np
 
 from calib.checks import check_int, check_number
 from calib.errors import DataError, ParameterError
+from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.solvers.dispatch import METHODS as _METHODS
 from calib.solvers.dispatch import VARIANTS as _VARIANTS
+from calib.solvers.lm import LMOptions
 from calib.solvers.problem import LOSSES
 
 #: The methods (:data:`calib.solvers.dispatch.METHODS`) and LM variants ("calib": calib's LM; "paper":
@@ -84,9 +89,44 @@ def _check_compatible(robot: RobotModel, m: Measurements) -> None:
                         f"{robot.n_joints} joints ({', '.join(robot.joint_names)})")
 
 
-def _check_options(method, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds, loss,
-                   loss_scale, outlier_k, cv) -> str:
-    """Every option of :func:`calibrate` checked before any work (as scipy's least_squares does)."""
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """The options of :func:`calib.calibrate`, checked once (:func:`resolve_options`); see its
+    docstring for each. sigma_pos (m) / sigma_rot (rad): given noise levels, None to estimate.
+    method is lower-case; lm is the LM's options (defaults when none were given)."""
+
+    method: str
+    params: str | Sequence[str] | None
+    sigma_pos: float | None
+    sigma_rot: float | None
+    init_frames: bool | str
+    max_rounds: int
+    fixed_rounds: int | None
+    lm: LMOptions
+    loss: str
+    loss_scale: float
+    outlier_k: float | None
+    cv: int | None
+    compliance: bool
+    lm_variant: str
+
+    @property
+    def folds(self) -> int:
+        """Cross-validation folds (0: off)."""
+        return CV_FOLDS if self.cv is None else self.cv
+
+    @property
+    def weights(self) -> tuple[float, float]:
+        """(position m, rotation rad) noise levels that weight the identifiability analysis:
+        the given ones, else the defaults of :mod:`calib.model.identifiability`."""
+        return self.sigma_pos or SIGMA_POS_M, self.sigma_rot or SIGMA_ROT_RAD
+
+
+def resolve_options(robot, measurements, validation, *, method, params, sigma_pos, sigma_rot, init_frames,
+                    max_rounds, fixed_rounds, options, loss, loss_scale, outlier_k, cv, compliance,
+                    lm_variant) -> CalibrationOptions:
+    """Every option of :func:`calib.calibrate` and the types of its inputs checked before any work
+    (as scipy's least_squares does), each error naming the option; the frozen options."""
     if not isinstance(method, str) or method.lower() not in METHODS:
         raise ParameterError(f"unknown method {method!r}: expected one of {', '.join(METHODS)}")
     check_number(sigma_pos, "sigma_pos", minimum=0.0, strict=True, allow_none=True)
@@ -104,4 +144,24 @@ def _check_options(method, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_
     check_number(outlier_k, "outlier_k", minimum=0.0, strict=True, allow_none=True)
     if cv is not None and (isinstance(cv, bool) or not isinstance(cv, (int, np.integer)) or cv < 0 or cv == 1):
         raise ParameterError(f"cv must be 0 (off) or a number of folds >= 2, got {cv!r}")
-    return method.lower()
+    method = method.lower()
+    if lm_variant not in LM_VARIANTS:
+        raise ParameterError(f"unknown lm_variant {lm_variant!r}: expected one of {', '.join(LM_VARIANTS)}")
+    if lm_variant == "paper" and method == "search-lm":
+        raise ParameterError("lm_variant 'paper' is the paper's LM for methods 'lm' and 'c-lm'; "
+                             "search-lm runs calib's LM")
+    if lm_variant == "paper" and loss != "linear":
+        raise ParameterError("lm_variant 'paper' fits unweighted least squares: loss must be 'linear'")
+    if options is not None and not isinstance(options, LMOptions):
+        raise ParameterError(f"options must be an LMOptions, got {type(options).__name__}")
+    if not isinstance(robot, RobotModel):
+        raise ParameterError(f"robot must be a RobotModel (calib.load_robot), got {type(robot).__name__}")
+    if not isinstance(measurements, Measurements):
+        raise ParameterError(f"measurements must be a Measurements (calib.read_measurements), got "
+                             f"{type(measurements).__name__}")
+    if validation is not None and not isinstance(validation, Measurements):
+        raise ParameterError(f"validation must be a Measurements, got {type(validation).__name__}")
+    if not isinstance(compliance, bool):
+        raise ParameterError(f"compliance must be True or False, got {compliance!r}")
+    return CalibrationOptions(method, params, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds,
+                              options or LMOptions(), loss, loss_scale, outlier_k, cv, compliance, lm_variant)

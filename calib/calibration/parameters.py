@@ -4,14 +4,21 @@ model selection, and the compliance filter.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from calib.calibration.accuracy import target_rows
-from calib.calibration.options import PAPER_EXCLUDED, PARAM_SETS
-from calib.calibration.prepare import Setup
-from calib.errors import ParameterError
+from calib.calibration.options import (
+    AUTO_BELOW_COMPONENTS_PER_PARAM,
+    MIN_REDUNDANCY,
+    PAPER_EXCLUDED,
+    PARAM_SETS,
+    CalibrationOptions,
+)
+from calib.calibration.prepare import Setup, check_data_rank
+from calib.errors import DataError, ParameterError
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability
 from calib.model.robot import RobotModel
 
@@ -133,3 +140,86 @@ def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,
     if unseen and note not in notes:
         notes.append(note)
     return tuple(free)
+
+
+@dataclass(frozen=True)
+class ParameterChoice:
+    """The parameter-set choice of :func:`choose_parameters`.
+
+    label : "base", "paper", "all", "list" or "auto"; free : the names to fit (for "auto": the
+    identifiable set, the largest candidate of model selection); deficit : directions of ``free``
+    the calibration rows leave undetermined at the start model (0 for a derived set); notes :
+    what the choice says to the user.
+    """
+
+    label: str
+    free: tuple[str, ...]
+    deficit: int = 0
+    notes: tuple[str, ...] = ()
+
+    @property
+    def auto(self) -> bool:
+        """Whether the set is chosen by model selection among nested candidates."""
+        return self.label == "auto"
+
+
+def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) -> ParameterChoice:
+    """The parameter set of a calibration (``options.params``, see :func:`calib.calibrate`),
+    chosen on the start model of ``setup`` (after the frame estimate: where the tool point lies
+    decides what positions can identify), with the checks that the calibration rows determine it
+    and leave residual components to estimate the noise. source : the measurements' file, named
+    in the errors. Raises :class:`DataError` for too few rows, :class:`ParameterError` for an
+    unusable choice."""
+    start, cal, params, notes = setup.start, setup.cal, options.params, []
+    weights = options.weights
+    want, ident = params, None
+    if params is None or (isinstance(params, str) and params.strip().lower() == "auto"):
+        ident = _compliance_filter(start, identifiable_set(start, cal.q, setup.measure, *weights,
+                                                          target_rows(start, cal)), options.compliance, notes)
+        per_param = cal.n_poses * setup.components_per_pose / max(len(ident), 1)
+        if params is None:
+            few = per_param < AUTO_BELOW_COMPONENTS_PER_PARAM
+            no_cv = options.cv is not None and options.cv < 2
+            want = "auto" if (few and not no_cv) else "base"
+            notes.append(f"parameter set {want!r} chosen by default: {cal.n_poses * setup.components_per_pose} "
+                         f"residual components for {len(ident)} identifiable parameters "
+                         f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g}"
+                         + (", but it compares the sets by cross-validation, which cv=0 turns off)"
+                            if few and no_cv else ")"))
+        else:
+            want = "auto"
+    if want == "auto":
+        label, free = "auto", ident
+    elif want == "base" and ident is not None:
+        label, free = "base", ident     # (the identifiable set just found)
+    else:
+        label, free = select_parameters(start, want, cal.q, setup.measure, *weights, target_rows(start, cal))
+    derived = want == "auto" or (isinstance(want, str) and want.strip().lower() == "base")
+    check_data_rank(start, cal, setup.measure, free, derived=derived, sigma_pos=weights[0], sigma_rot=weights[1])
+    n_free = len(free)
+    spare = cal.n_poses * setup.components_per_pose - n_free
+    rank_note = ""
+    deficit = 0         # (an identifiable set: full rank at the nominal model on these rows)
+    if not derived:
+        # a set given by name ("all", a list) may be rank deficient: the fit spends its rank only
+        # (the greedy selection with the set first keeps a maximal independent part of it), and
+        # LM holds the rest (Problem.set_rank_deficit)
+        deficit = _set_rank_deficit(setup, free, weights)
+        rank = n_free - deficit
+        spare += deficit
+        rank_note = f" (of rank {rank})" if rank < n_free else ""
+    if (options.sigma_pos is None or options.sigma_rot is None) and spare < MIN_REDUNDANCY:
+        where = f"{source}: " if source is not None else ""
+        raise DataError(f"{where}{cal.n_poses} calibration rows give {cal.n_poses * setup.components_per_pose} "
+                        f"residual components for {n_free} parameters{rank_note}: at least {MIN_REDUNDANCY} more are "
+                        f"needed to estimate the noise (a fit with none to spare passes through every "
+                        f"row and says nothing of its accuracy); measure more rows, or give the noise "
+                        f"levels (sigma_pos / sigma_rot, --sigma-pos-mm / --sigma-rot-rad)")
+    if label == "auto" and options.folds < 2:
+        raise ParameterError("params 'auto' compares candidate sets by cross-validation: cv must be >= 2")
+    if label in PARAM_SETS and label != "auto":     # a named set; a list of names is honoured as given
+        filtered = _compliance_filter(start, free, options.compliance, notes)
+        if not derived and filtered != tuple(free):
+            deficit = _set_rank_deficit(setup, filtered, weights)
+        free = filtered
+    return ParameterChoice(label, free, deficit, tuple(notes))

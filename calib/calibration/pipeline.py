@@ -26,45 +26,21 @@
 from __future__ import annotations
 
 import logging
-import math
 import time
-from dataclasses import replace
 from typing import Sequence
 
-from calib.calibration.accuracy import pose_errors, register_measurement_frame, target_rows
-from calib.calibration.fit import _solver_for, fit_stage
-from calib.calibration.options import (
-    AUTO_BELOW_COMPONENTS_PER_PARAM,
-    CV_FOLDS,
-    LM_VARIANTS,
-    LOO_BELOW_ROWS,
-    MIN_REDUNDANCY,
-    PARAM_SETS,
-    _check_options,
-)
-from calib.calibration.parameters import (
-    _compliance_filter,
-    _set_rank_deficit,
-    candidate_sets,
-    identifiable_set,
-    select_parameters,
-)
-from calib.calibration.prepare import (
-    _implausible_fit_notes,
-    _implausible_length_notes,
-    check_data_rank,
-    prepare,
-)
-from calib.calibration.result import CalibrationResult, TargetAccuracy, _parameter_table
-from calib.calibration.statistics import statistics_stage
-from calib.calibration.validation import cross_validate, select_model
-from calib.errors import DataError, ParameterError
-from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
+from calib.calibration.accuracy import accuracy_after, accuracy_before
+from calib.calibration.fit import fit_notes, fit_with, method_notes
+from calib.calibration.options import resolve_options
+from calib.calibration.parameters import choose_parameters
+from calib.calibration.prepare import prepare, with_gravity_for
+from calib.calibration.result import CalibrationResult, _parameter_table
+from calib.calibration.statistics import statistics_notes, statistics_stage
+from calib.calibration.validation import held_out_error, select_and_fit
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.solvers.lm import LMOptions
-from calib.solvers.problem import CHI2_ESCAPE
 
 log = logging.getLogger(__name__)
 
@@ -137,198 +113,54 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     ``status``, never raised. Raises :class:`calib.CalibError` for unusable input.
     """
     t0 = time.perf_counter()
-    method = _check_options(method, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds, loss,
-                            loss_scale, outlier_k, cv)
-    if lm_variant not in LM_VARIANTS:
-        raise ParameterError(f"unknown lm_variant {lm_variant!r}: expected one of {', '.join(LM_VARIANTS)}")
-    if lm_variant == "paper" and method == "search-lm":
-        raise ParameterError("lm_variant 'paper' is the paper's LM for methods 'lm' and 'c-lm'; "
-                             "search-lm runs calib's LM")
-    if lm_variant == "paper" and loss != "linear":
-        raise ParameterError("lm_variant 'paper' fits unweighted least squares: loss must be 'linear'")
-    if options is not None and not isinstance(options, LMOptions):
-        raise ParameterError(f"options must be an LMOptions, got {type(options).__name__}")
-    if not isinstance(robot, RobotModel):
-        raise ParameterError(f"robot must be a RobotModel (calib.load_robot), got {type(robot).__name__}")
-    if not isinstance(measurements, Measurements):
-        raise ParameterError(f"measurements must be a Measurements (calib.read_measurements), got "
-                             f"{type(measurements).__name__}")
-    if validation is not None and not isinstance(validation, Measurements):
-        raise ParameterError(f"validation must be a Measurements, got {type(validation).__name__}")
-    opts = options or LMOptions()
-    if not isinstance(compliance, bool):
-        raise ParameterError(f"compliance must be True or False, got {compliance!r}")
-    pre_notes: list[str] = []
-    if compliance or payload is not None or gravity is not None:
-        from calib.model.compliance import with_gravity
-
-        if not (compliance or robot.has_compliance):
-            raise ParameterError("a payload or gravity only matters for joint compliance: pass compliance=True")
-        robot = with_gravity(robot, payload=payload if payload is not None else
-                             (robot.gravity.payload if robot.has_compliance else None),
-                             gravity=gravity if gravity is not None else
-                             (robot.gravity.gravity if robot.has_compliance else None))
-        if robot.gravity.note:
-            pre_notes.append(robot.gravity.note)
-    setup, notes = prepare(robot, measurements, validation, init_frames)
-    notes = pre_notes + notes
-    robot = setup.nominal       # with the measured targets
-    start, cal, val = setup.start, setup.cal, setup.val
-    if setup.measure == "position" and method != "lm":
-        notes.append(f"position-only data: {method.upper()} needs orientations for its angle step; ran LM")
-    elif method == "search-lm" and start.targets:
-        notes.append("several targets: the angle search of SEARCH-LM takes one tool frame; ran LM")
+    opts = resolve_options(robot, measurements, validation, method=method, params=params, sigma_pos=sigma_pos,
+                           sigma_rot=sigma_rot, init_frames=init_frames, max_rounds=max_rounds,
+                           fixed_rounds=fixed_rounds, options=options, loss=loss, loss_scale=loss_scale,
+                           outlier_k=outlier_k, cv=cv, compliance=compliance, lm_variant=lm_variant)
+    robot, notes = with_gravity_for(robot, opts.compliance, payload, gravity)
+    setup, prepare_notes = prepare(robot, measurements, validation, opts.init_frames)
+    notes += prepare_notes + method_notes(setup, opts.method)
+    robot, start, cal, val = setup.nominal, setup.start, setup.cal, setup.val     # (with the measured targets)
     log.info("prepare: %d calibration rows, %d validation rows, %s data%s", cal.n_poses,
              0 if val is None else val.n_poses, setup.measure,
              "".join(f"; {r} frame estimated" for r in setup.rebased))
 
-    # parameter set (after the frame estimate: where the tool point lies decides what
-    # positions can identify)
-    weights = (sigma_pos or SIGMA_POS_M, sigma_rot or SIGMA_ROT_RAD)
-    want = params
-    ident = None
-    if params is None or (isinstance(params, str) and params.strip().lower() == "auto"):
-        ident = _compliance_filter(start, identifiable_set(start, cal.q, setup.measure, *weights,
-                                                          target_rows(start, cal)), compliance, notes)
-        per_param = cal.n_poses * setup.components_per_pose / max(len(ident), 1)
-        if params is None:
-            few = per_param < AUTO_BELOW_COMPONENTS_PER_PARAM
-            no_cv = cv is not None and cv < 2
-            want = "auto" if (few and not no_cv) else "base"
-            notes.append(f"parameter set {want!r} chosen by default: {cal.n_poses * setup.components_per_pose} "
-                         f"residual components for {len(ident)} identifiable parameters "
-                         f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g}"
-                         + (", but it compares the sets by cross-validation, which cv=0 turns off)"
-                            if few and no_cv else ")"))
-        else:
-            want = "auto"
-    if want == "base" and ident is not None:
-        label, free = "base", ident     # (the identifiable set just found)
-    elif want != "auto":
-        label, free = select_parameters(start, want, cal.q, setup.measure, *weights, target_rows(start, cal))
-    derived = want == "auto" or (isinstance(want, str) and want.strip().lower() == "base")
-    check_data_rank(start, cal, setup.measure, ident if want == "auto" else free, derived=derived,
-                    sigma_pos=weights[0], sigma_rot=weights[1])
-    n_free = len(ident if want == "auto" else free)
-    spare = cal.n_poses * setup.components_per_pose - n_free
-    rank_note = ""
-    deficit = 0         # (an identifiable set: full rank at the nominal model on these rows)
-    if not derived:
-        # a set given by name ("all", a list) may be rank deficient: the fit spends its rank only
-        # (the greedy selection with the set first keeps a maximal independent part of it), and
-        # LM holds the rest (Problem.set_rank_deficit)
-        deficit = _set_rank_deficit(setup, free, weights)
-        rank = n_free - deficit
-        spare += deficit
-        rank_note = f" (of rank {rank})" if rank < n_free else ""
-    if (sigma_pos is None or sigma_rot is None) and spare < MIN_REDUNDANCY:
-        where = f"{measurements.source}: " if measurements.source is not None else ""
-        raise DataError(f"{where}{cal.n_poses} calibration rows give {cal.n_poses * setup.components_per_pose} "
-                        f"residual components for {n_free} parameters{rank_note}: at least {MIN_REDUNDANCY} more are "
-                        f"needed to estimate the noise (a fit with none to spare passes through every "
-                        f"row and says nothing of its accuracy); measure more rows, or give the noise "
-                        f"levels (sigma_pos / sigma_rot, --sigma-pos-mm / --sigma-rot-rad)")
-    folds = CV_FOLDS if cv is None else cv
+    choice = choose_parameters(setup, opts, source=measurements.source)
+    notes += choice.notes
     kin = setup.kin or ChainKinematics(start)
     # the errors before calibration first: the fit's kinematics start at the nominal values when
     # the frames were not moved
-    nominal_kin = kin if start is robot else ChainKinematics(robot)
-    cal_rows = target_rows(robot, cal)
-    before = pose_errors(robot, cal.q, cal.position, cal.rotation, nominal_kin, cal_rows)
-    vb = val_rows = None
-    if val is not None:
-        val_rows = target_rows(robot, val)
-        vb = pose_errors(robot, val.q, val.position, val.rotation, nominal_kin, val_rows)
-    selection = None
-    if want == "auto":
-        if folds < 2:
-            raise ParameterError("params 'auto' compares candidate sets by cross-validation: cv must be >= 2")
-        label = "auto"
-        full_solve = _solver_for(setup, ident, method, opts, max_rounds, fixed_rounds, lm_variant)
-        full, full_problem = fit_stage(setup, ident, full_solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
-                                       loss=loss, loss_scale=loss_scale, outlier_k=outlier_k, kin=kin)
-        # leave-one-out on small sets: far less noisy than K folds at a few ms per refit
-        sel_folds = int(full.keep.sum()) if full.keep.sum() <= LOO_BELOW_ROWS else folds
-        selection, fits = select_model(setup, candidate_sets(start, ident), full, full_problem, full_solve,
-                                       sel_folds, kin, opts)
-        free = next(c.free for c in selection.candidates if c.label == selection.chosen)
+    accuracy = accuracy_before(robot, start, cal, val, rebased=setup.rebased,
+                               kin=kin if start is robot else ChainKinematics(robot))
+    selection, label = None, choice.label
+    if choice.auto:
+        selection, fit, problem = select_and_fit(setup, choice.free, opts, kin)
         label = f"auto: {selection.chosen}"
-        solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds, lm_variant)
-        if free == full.free:
-            fit, problem = full, full_problem
-        else:
-            fit, problem = fit_stage(setup, free, solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss=loss,
-                                     loss_scale=loss_scale, outlier_k=None, keep=full.keep, kin=kin)
-            fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes)
-        log.info("model selection: %s", selection.chosen)
     else:
-        if label in PARAM_SETS:     # a named set; a list of names is honoured as given
-            filtered = _compliance_filter(start, free, compliance, notes)
-            if not derived and filtered != tuple(free):
-                deficit = _set_rank_deficit(setup, filtered, weights)
-            free = filtered
-        solve = _solver_for(setup, free, method, opts, max_rounds, fixed_rounds, lm_variant)
-        fit, problem = fit_stage(setup, free, solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss=loss,
-                                 loss_scale=loss_scale, outlier_k=outlier_k, kin=kin, rank_deficit=deficit)
-    notes += fit.notes
-    nz = fit.noise
-    if not nz.estimated and fit.solver.status == "converged" and nz.reduced_chi2 > CHI2_ESCAPE:
-        notes.append(f"the fit converged but its residuals are {math.sqrt(nz.reduced_chi2):.1f} times the given "
-                     f"noise (reduced chi^2 {nz.reduced_chi2:.3g}): a wrong sigma, or errors the model "
-                     f"does not describe; omit the noise levels to estimate them from the data")
-    notes += _implausible_fit_notes(robot, fit.errors) + _implausible_length_notes(robot, fit.model)
+        fit, problem = fit_with(setup, choice.free, opts, outlier_k=opts.outlier_k, kin=kin,
+                                rank_deficit=choice.deficit)
+    notes += fit_notes(robot, fit)
 
     stats = statistics_stage(setup, fit, problem)
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
              stats.predicted_holdout["position_rms"] * 1e3)
-    if not stats.full_rank:
-        notes.append("the free parameters are not all identifiable (rank-deficient set): standard "
-                     "deviations come from the pseudo-inverse and describe only the identifiable "
-                     "combinations")
-    cross = None
-    if val is None and folds >= 2:
-        if selection is not None:
-            cross = next(c.cv for c in selection.candidates if c.label == selection.chosen)
-        elif fit.keep.sum() >= folds:
-            try:
-                cross = cross_validate(setup, fit, problem, folds, options=opts)
-            except DataError as exc:
-                notes.append(f"no cross-validation: {exc}")
-        else:
-            notes.append(f"no cross-validation: fewer rows than the {folds} folds")
+    notes += statistics_notes(stats)
+    cross, cv_notes = held_out_error(setup, fit, problem, selection, opts.folds, opts.lm)
+    notes += cv_notes
+    accuracy = accuracy_after(accuracy, fit.model, fit.errors, val, robot.targets, kin)
 
-    calibrated = fit.model
-    after = fit.errors
-    va = None
-    if val is not None:
-        va = pose_errors(calibrated, val.q, val.position, val.rotation, kin, val_rows)
-    breg = vbreg = None
-    if setup.rebased:
-        # the nominal geometry, with the tool or targets where the closed-form estimate put them
-        # when it moved them (an SMR's unknown offset is not an error of the robot), and the
-        # measurement frame registered by a best fit
-        ref = robot if setup.rebased == ("measurement->base",) else replace(
-            robot, T_flange_tool_ref=start.T_flange_tool_ref, T_flange_target_refs=start.T_flange_target_refs)
-        registered = register_measurement_frame(ref, cal)
-        breg = pose_errors(registered, cal.q, cal.position, cal.rotation, targets=cal_rows)
-        if val is not None:
-            vbreg = pose_errors(registered, val.q, val.position, val.rotation, targets=val_rows)
-    per_target = tuple(
-        TargetAccuracy(t, before.subset(cal_rows == k), after.subset(cal_rows == k),
-                       None if val is None else vb.subset(val_rows == k),
-                       None if val is None else va.subset(val_rows == k))
-        for k, t in enumerate(robot.targets))
-
-    table = _parameter_table(robot, calibrated, fit.free, stats.covariance)
+    nz = fit.noise
     return CalibrationResult(
-        robot=calibrated, nominal=robot, method=method, param_set=label, parameters=table, free=fit.free,
+        robot=fit.model, nominal=robot, method=opts.method, param_set=label,
+        parameters=_parameter_table(robot, fit.model, fit.free, stats.covariance), free=fit.free,
         status=fit.solver.status, message=fit.solver.message, iterations=fit.iterations,
         rounds=fit.solver.rounds, wall_time=time.perf_counter() - t0, cost=float(fit.solver.cost),
-        reduced_chi2=nz.reduced_chi2, covariance=stats.covariance, before=before, after=after,
-        validation_before=vb, validation_after=va, predicted=stats.predicted, sigma_pos=nz.position,
-        sigma_rot=nz.rotation if nz.rotation is not None else weights[1], notes=tuple(notes),
-        outliers=fit.outliers, loss=loss, noise=nz, predicted_holdout=stats.predicted_holdout,
-        cross_validation=cross, selection=selection, before_registered=breg,
-        validation_before_registered=vbreg, targets=per_target,
-        after_without_outliers=after.subset(fit.keep) if fit.outliers else None,
+        reduced_chi2=nz.reduced_chi2, covariance=stats.covariance, before=accuracy.before, after=accuracy.after,
+        validation_before=accuracy.validation_before, validation_after=accuracy.validation_after,
+        predicted=stats.predicted, sigma_pos=nz.position,
+        sigma_rot=nz.rotation if nz.rotation is not None else opts.weights[1], notes=tuple(notes),
+        outliers=fit.outliers, loss=opts.loss, noise=nz, predicted_holdout=stats.predicted_holdout,
+        cross_validation=cross, selection=selection, before_registered=accuracy.before_registered,
+        validation_before_registered=accuracy.validation_before_registered, targets=accuracy.targets,
+        after_without_outliers=fit.errors.subset(fit.keep) if fit.outliers else None,
         estimated_frames=setup.rebased)

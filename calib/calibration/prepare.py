@@ -23,7 +23,7 @@ from calib.calibration.options import (
     TRACKER_RANGE_M,
     _check_compatible,
 )
-from calib.errors import DataError
+from calib.errors import DataError, ParameterError
 from calib.model.identifiability import (
     SIGMA_POS_M,
     SIGMA_ROT_RAD,
@@ -338,3 +338,23 @@ def _implausible_length_notes(nominal: RobotModel, calibrated: RobotModel) -> li
     return [f"identified link lengths far from the URDF's: {shown} (more than "
             f"{100 * IMPLAUSIBLE_LENGTH_FRACTION:g} % of the robot's reach {reach * 1e3:.0f} mm); check the "
             f"length unit of the positions (metres named _mm?) and that the URDF is this robot's"]
+
+
+def with_gravity_for(robot: RobotModel, compliance: bool, payload=None,
+                     gravity: Sequence[float] | None = None) -> tuple[RobotModel, list[str]]:
+    """``robot`` with the gravity load its compliance model sees during the measurements, and a
+    note on it (:func:`calib.model.compliance.with_gravity`), when compliance is identified or the
+    model has compliances; ``robot`` unchanged otherwise. payload : a
+    :class:`calib.model.compliance.Payload`; gravity : (3,) m/s^2 in the URDF root frame (None:
+    the model's, else the default)."""
+    if not (compliance or payload is not None or gravity is not None):
+        return robot, []
+    from calib.model.compliance import with_gravity
+
+    if not (compliance or robot.has_compliance):
+        raise ParameterError("a payload or gravity only matters for joint compliance: pass compliance=True")
+    robot = with_gravity(robot, payload=payload if payload is not None else
+                         (robot.gravity.payload if robot.has_compliance else None),
+                         gravity=gravity if gravity is not None else
+                         (robot.gravity.gravity if robot.has_compliance else None))
+    return robot, [robot.gravity.note] if robot.gravity.note else []

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.calibration.accuracy import AccuracyStats, _out, _unit, format_accuracy_table
+from calib.calibration.accuracy import AccuracyStats, TargetAccuracy, _out, _unit, format_accuracy_table
 from calib.calibration.fit import NoiseEstimate, Outlier
 from calib.calibration.validation import CrossValidation, ModelSelection
 from calib.errors import ParameterError
@@ -20,24 +20,6 @@ from calib.model.spatial import zyx_parameters
 
 
 # ====================================================================== result
-@dataclass(frozen=True)
-class TargetAccuracy:
-    """Accuracy on the rows of one target of a multi-target calibration (see
-    :class:`AccuracyStats`): before / after on the calibration rows, and on the validation rows
-    (None without validation data)."""
-
-    target: str
-    before: AccuracyStats = field(repr=False)
-    after: AccuracyStats = field(repr=False)
-    validation_before: AccuracyStats | None = field(default=None, repr=False)
-    validation_after: AccuracyStats | None = field(default=None, repr=False)
-
-    def to_dict(self) -> dict:
-        return {"before": self.before.to_dict(), "after": self.after.to_dict(),
-                "validation": None if self.validation_after is None else {
-                    "before": self.validation_before.to_dict(), "after": self.validation_after.to_dict()}}
-
-
 @dataclass(frozen=True)
 class ParameterEstimate:
     """One row of the parameter table. Values in SI units (``unit``: m or rad).

@@ -111,3 +111,11 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     predicted = {"position_rms": pos, "rotation_rms": rot if has_rot else None, "where": where}
     holdout = {"position_rms": holdout_p, "rotation_rms": holdout_r, "where": where}
     return Statistics(C, full_rank, rank, predicted, holdout, where)
+
+
+def statistics_notes(stats: Statistics) -> list[str]:
+    """A note when the free parameters are not all identifiable."""
+    if stats.full_rank:
+        return []
+    return ["the free parameters are not all identifiable (rank-deficient set): standard "
+            "deviations come from the pseudo-inverse and describe only the identifiable combinations"]

@@ -3,19 +3,23 @@
 """
 from __future__ import annotations
 
+import logging
 import math
-from dataclasses import dataclass, field
-from typing import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Callable, Sequence
 
 import numpy as np
 
-from calib.calibration.fit import Fit, _Solve, _solver_for, fit_stage
-from calib.calibration.options import CV_FOLDS
+from calib.calibration.fit import Fit, _Solve, _solver_for, fit_stage, fit_with
+from calib.calibration.options import CV_FOLDS, LOO_BELOW_ROWS, CalibrationOptions
+from calib.calibration.parameters import candidate_sets
 from calib.calibration.prepare import Setup
 from calib.errors import DataError, ParameterError
 from calib.model.kinematics import ChainKinematics
 from calib.solvers.lm import LMOptions, levenberg_marquardt
 from calib.solvers.problem import Problem, normal_inverse
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -175,12 +179,24 @@ def _standard_error(values: np.ndarray) -> float:
     return float(np.std(values, ddof=1) / math.sqrt(len(values))) if len(values) > 1 else 0.0
 
 
+def one_standard_error(candidates: Sequence[Candidate]) -> Candidate:
+    """The one-standard-error rule: the first (smallest) of the nested ``candidates`` whose mean
+    held-out score exceeds the best one's by at most one standard error of their paired difference
+    (the candidates are scored on the same rows and folds, so their row scores are strongly
+    correlated and the difference is what is uncertain)."""
+    best = min(candidates, key=lambda c: c.cv.score)
+    return next(c for c in candidates
+                if np.mean(c.cv.row_scores - best.cv.row_scores) <= _standard_error(c.cv.row_scores - best.cv.row_scores))
+
+
 def select_model(setup: Setup, candidates: Sequence[tuple[str, tuple[str, ...]]], full: Fit,
                  full_problem: Problem, solve: _Solve, folds: int, kin: ChainKinematics,
-                 options: LMOptions) -> tuple[ModelSelection, dict[str, tuple[Fit, Problem]]]:
-    """Cross-validate each candidate set at the noise levels and kept rows of ``full`` (the fit of
-    the largest set) and choose by the one-standard-error rule. Returns the selection and the
-    candidates' fits."""
+                 options: LMOptions, *, rule: Callable[[Sequence[Candidate]], Candidate] = one_standard_error,
+                 ) -> tuple[ModelSelection, dict[str, tuple[Fit, Problem]]]:
+    """Cross-validate each candidate set (label, names), smallest first, at the noise levels and
+    kept rows of ``full`` (the fit of the largest set) and choose by ``rule`` (a function of the
+    scored candidates returning one of them; default :func:`one_standard_error`, as scikit-learn's
+    ``GridSearchCV(refit=callable)``). Returns the selection and the candidates' fits."""
     sp, sr = full_problem.sigma_pos, full_problem.sigma_rot
     fits, cands = {}, []
     for label, free in candidates:
@@ -201,8 +217,46 @@ def select_model(setup: Setup, candidates: Sequence[tuple[str, tuple[str, ...]]]
                         f"cross-validation (no candidate can be identified with a row held out): "
                         f"measure more rows, or name the parameter set (params / --params)")
     best = min(cands, key=lambda c: c.cv.score)
-    # one standard error of the paired difference: the candidates are scored on the same rows and
-    # folds, so their row scores are strongly correlated and the difference is what is uncertain
-    chosen = next(c for c in cands
-                  if np.mean(c.cv.row_scores - best.cv.row_scores) <= _standard_error(c.cv.row_scores - best.cv.row_scores))
+    chosen = rule(tuple(cands))
     return ModelSelection(tuple(cands), chosen.label, best.label), fits
+
+
+def select_and_fit(setup: Setup, ident: Sequence[str], options: CalibrationOptions, kin: ChainKinematics, *,
+                   rule: Callable[[Sequence[Candidate]], Candidate] = one_standard_error,
+                   ) -> tuple[ModelSelection, Fit, Problem]:
+    """Model selection ("auto"): the fit of the identifiable set ``ident`` (noise estimate,
+    outlier check), :func:`select_model` among the nested :func:`candidate_sets` at its noise
+    levels and kept rows, and the fit of the chosen set (the full fit when it is the largest)."""
+    full_solve = _solver_for(setup, ident, options.method, options.lm, options.max_rounds, options.fixed_rounds,
+                             options.lm_variant)
+    full, full_problem = fit_stage(setup, ident, full_solve, sigma_pos=options.sigma_pos, sigma_rot=options.sigma_rot,
+                                   loss=options.loss, loss_scale=options.loss_scale, outlier_k=options.outlier_k,
+                                   kin=kin)
+    # leave-one-out on small sets: far less noisy than K folds at a few ms per refit
+    sel_folds = int(full.keep.sum()) if full.keep.sum() <= LOO_BELOW_ROWS else options.folds
+    selection, _ = select_model(setup, candidate_sets(setup.start, ident), full, full_problem, full_solve,
+                                sel_folds, kin, options.lm, rule=rule)
+    free = next(c.free for c in selection.candidates if c.label == selection.chosen)
+    if free == full.free:
+        fit, problem = full, full_problem
+    else:
+        fit, problem = fit_with(setup, free, options, outlier_k=None, keep=full.keep, kin=kin)
+        fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes)
+    log.info("model selection: %s", selection.chosen)
+    return selection, fit, problem
+
+
+def held_out_error(setup: Setup, fit: Fit, problem: Problem, selection: ModelSelection | None, folds: int,
+                   options: LMOptions) -> tuple[CrossValidation | None, list[str]]:
+    """The cross-validated held-out error of ``fit`` when there are no validation rows and
+    ``folds`` >= 2 (the chosen candidate's after model selection), and a note when it cannot run."""
+    if setup.val is not None or folds < 2:
+        return None, []
+    if selection is not None:
+        return next(c.cv for c in selection.candidates if c.label == selection.chosen), []
+    if fit.keep.sum() < folds:
+        return None, [f"no cross-validation: fewer rows than the {folds} folds"]
+    try:
+        return cross_validate(setup, fit, problem, folds, options=options), []
+    except DataError as exc:
+        return None, [f"no cross-validation: {exc}"]
