@@ -122,9 +122,10 @@ class CalibrationOptions:
         return self.sigma_pos or SIGMA_POS_M, self.sigma_rot or SIGMA_ROT_RAD
 
 
-def resolve_options(robot, measurements, validation, *, method, params, sigma_pos, sigma_rot, init_frames,
-                    max_rounds, fixed_rounds, options, loss, loss_scale, outlier_k, cv, compliance,
-                    lm_variant) -> CalibrationOptions:
+def resolve_options(robot, measurements, validation=None, *, method="search-lm", params=None, sigma_pos=None,
+                    sigma_rot=None, init_frames="auto", max_rounds=20, fixed_rounds=None, options=None,
+                    loss="linear", loss_scale=3.0, outlier_k=5.0, cv=None, compliance=False,
+                    lm_variant="calib") -> CalibrationOptions:
     """Every option of :func:`calib.calibrate` and the types of its inputs checked before any work
     (as scipy's least_squares does), each error naming the option; the frozen options."""
     if not isinstance(method, str) or method.lower() not in METHODS:
