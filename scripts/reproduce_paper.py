@@ -1341,7 +1341,7 @@ def write_report(path: Path, *, setup: Setup, t67: tuple, sweeps: list | None, s
             if lo <= PAPER_TABLE8["lm"]["ratio"] <= hi:
                 w("The paper's 22.45 % lies between the two readings (the grids differ, so roughly).")
     w("")
-    w(f"On this pose sample calib's C-LM converges "
+    w("On this pose sample calib's C-LM converges "
       + (f"more often than its LM ({100 * r_clm:.1f} % vs {100 * r_lm:.1f} %)" if r_clm > r_lm else
          f"no more often than its LM ({100 * r_clm:.1f} % vs {100 * r_lm:.1f} %)")
       + f"; it costs {np.mean(study.cpu['c-lm']) / max(np.mean(study.cpu['lm']), 1e-12):.1f}x LM's mean "

@@ -14,6 +14,9 @@ import numpy as np
 from calib.calibration.accuracy import AccuracyStats, target_rows
 from calib.calibration.frames import median
 from calib.calibration.options import (
+    IMPLAUSIBLE_LENGTH_FRACTION,
+    IMPLAUSIBLE_REACH_FRACTION,
+    IMPLAUSIBLE_ROT_RAD,
     LOCAL_MINIMUM_RATIO,
     ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM,
     ROBUST_CHECK_ITERATIONS,
@@ -23,7 +26,7 @@ from calib.calibration.options import (
     WARM_MU0,
     CalibrationOptions,
 )
-from calib.calibration.prepare import Setup, _implausible_fit_notes, _implausible_length_notes
+from calib.calibration.prepare import Setup, _reach, _robot_memo
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -194,7 +197,7 @@ def _robust_sigmas(problem: Problem, x: np.ndarray, keep: np.ndarray, red_p: flo
 
 
 @dataclass(frozen=True)
-class _Solve:
+class Solver:
     """How the fit stage solves: method, options, and the search-lm ingredients."""
 
     method: str
@@ -238,18 +241,21 @@ class _Solve:
                             max(r.rounds, 1))
 
 
-def _solver_for(setup: Setup, free: Sequence[str], method: str, options: LMOptions, max_rounds: int,
-                fixed_rounds: int | None, lm_variant: str = "calib") -> _Solve:
+def solver_for(setup: Setup, free: Sequence[str], method: str, options: LMOptions, max_rounds: int,
+                fixed_rounds: int | None, lm_variant: str = "calib") -> Solver:
+    """The :class:`Solver` of the fit stage for the free parameters ``free`` of ``setup``'s start
+    model: ``method`` run as LM for several targets (the angle search takes one tool frame), the
+    angle search's rotation chain for search-lm on pose data."""
     idx = setup.start.indices(free)
     angular = np.array([setup.start.parameters[k].is_angular for k in idx], bool)
     if method == "search-lm" and setup.start.targets:
         method = "lm"       # the angle search takes one tool frame (a note says so)
     chain = RotationChain(setup.start) if (method == "search-lm" and setup.measure == "pose") else None
-    return _Solve(method, setup.measure, options, max_rounds, fixed_rounds, angular, chain, setup.start,
+    return Solver(method, setup.measure, options, max_rounds, fixed_rounds, angular, chain, setup.start,
                   lm_variant)
 
 
-def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: float | None,
+def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: float | None,
               sigma_rot: float | None, loss: str = "linear", loss_scale: float = 3.0,
               outlier_k: float | None = 5.0, keep: np.ndarray | None = None,
               kin: ChainKinematics | None = None, rank_deficit: int = 0) -> tuple[Fit, Problem]:
@@ -411,7 +417,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: _Solve, *, sigma_pos: fl
     return fit, problem
 
 
-def _solve_logged(solve: _Solve, problem: Problem, x, trace, first, loose: bool = False) -> SolverResult:
+def _solve_logged(solve: Solver, problem: Problem, x, trace, first, loose: bool = False) -> SolverResult:
     t = time.perf_counter()
     sol = solve(problem, x, trace, first, loose=loose)
     log.info("fit (%s%s): %s, cost %.6g, %d iterations, %.1f ms", solve.method if first else "lm",
@@ -420,7 +426,7 @@ def _solve_logged(solve: _Solve, problem: Problem, x, trace, first, loose: bool 
     return sol
 
 
-def _check_local_minimum(sol: SolverResult, problem: Problem, solve: _Solve) -> SolverResult:
+def _check_local_minimum(sol: SolverResult, problem: Problem, solve: Solver) -> SolverResult:
     """An explicit lm / c-lm fit: an angle search from its solution, then LM; if that reaches a
     clearly lower cost, the fit stopped in a local minimum and is not called converged."""
     if solve.measure != "pose" or solve.method == "search-lm" or sol.status != "converged":
@@ -466,9 +472,49 @@ def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, 
              sigma_pos: float | None = None, sigma_rot: float | None = None) -> tuple[Fit, Problem]:
     """:func:`fit_stage` of ``free`` with the solver, loss and noise levels of ``options``
     (sigma_pos / sigma_rot: given instead of the options' ones when not None)."""
-    solve = _solver_for(setup, free, options.method, options.lm, options.max_rounds, options.fixed_rounds,
+    solve = solver_for(setup, free, options.method, options.lm, options.max_rounds, options.fixed_rounds,
                         options.lm_variant)
     return fit_stage(setup, free, solve, sigma_pos=options.sigma_pos if sigma_pos is None else sigma_pos,
                      sigma_rot=options.sigma_rot if sigma_rot is None else sigma_rot, loss=options.loss,
                      loss_scale=options.loss_scale, outlier_k=outlier_k, keep=keep, kin=kin,
                      rank_deficit=rank_deficit)
+
+
+def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]:
+    """A note when the calibrated model leaves errors on its calibration rows that no robot and
+    instrument give (:data:`IMPLAUSIBLE_REACH_FRACTION` of the reach, :data:`IMPLAUSIBLE_ROT_RAD`):
+    the fit ran, but on data that do not belong to this robot as read."""
+    reach = _robot_memo("reach", robot, (), lambda: _reach(robot))
+    pos = after.position["rms"]
+    rot = after.rotation["rms"] if after.rotation is not None else 0.0
+    what, check = [], []
+    if pos > IMPLAUSIBLE_REACH_FRACTION * reach:
+        what.append(f"a position RMS error of {pos * 1e3:.4g} mm ({100 * pos / reach:.0f} % of the robot's "
+                    f"reach {reach * 1e3:.0f} mm)")
+        check.append("the joint units (degrees read as radians, or radians as degrees), the joint order "
+                     "and the robot")
+    if rot > IMPLAUSIBLE_ROT_RAD:
+        what.append(f"an orientation RMS error of {rot:.3g} rad")
+        check.append("the orientation columns (quaternion order w, x, y, z; --euler sequence; angle "
+                     "units) and the tool frame")
+    if not what:
+        return []
+    return [f"the calibrated model does not describe these measurements: on the calibration rows it "
+            f"leaves {' and '.join(what)}; check {', and '.join(check)}"]
+
+
+def _implausible_length_notes(nominal: RobotModel, calibrated: RobotModel) -> list[str]:
+    """A note naming the link lengths (d, a of the joints) identified further than
+    :data:`IMPLAUSIBLE_LENGTH_FRACTION` of the reach from their nominal values: no robot is built
+    that far from its drawing (positions in metres named _mm shrink a UR5's 425 mm link to
+    0.6 mm and the fit converges at the noise; the URDF of another robot model)."""
+    reach = _robot_memo("reach", nominal, (), lambda: _reach(nominal))
+    far = [(p.name, b - a) for p, a, b in zip(nominal.parameters, nominal.values, calibrated.values)
+           if p.group == "joint" and p.unit == "m" and abs(b - a) > IMPLAUSIBLE_LENGTH_FRACTION * reach
+           and not (p.kind == "d" and nominal.prismatic[p.joint - 1])]   # (a slide's offset: any)
+    if not far:
+        return []
+    shown = ", ".join(f"{name} {dev * 1e3:+.1f} mm" for name, dev in far)
+    return [f"identified link lengths far from the URDF's: {shown} (more than "
+            f"{100 * IMPLAUSIBLE_LENGTH_FRACTION:g} % of the robot's reach {reach * 1e3:.0f} mm); check the "
+            f"length unit of the positions (metres named _mm?) and that the URDF is this robot's"]

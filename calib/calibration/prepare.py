@@ -11,15 +11,12 @@ from typing import Sequence
 
 import numpy as np
 
-from calib.calibration.accuracy import AccuracyStats, target_rows, with_measured_targets
+from calib.calibration.accuracy import target_rows, with_measured_targets
 from calib.calibration.frames import estimate_frames_robust
 from calib.calibration.options import (
     DISTINCT_Q_TOL,
     FRAME_REBASE_M,
     FRAME_REBASE_RAD,
-    IMPLAUSIBLE_LENGTH_FRACTION,
-    IMPLAUSIBLE_REACH_FRACTION,
-    IMPLAUSIBLE_ROT_RAD,
     TRACKER_RANGE_M,
     _check_compatible,
 )
@@ -298,46 +295,6 @@ def _rebase_frames(robot: RobotModel, m: Measurements, notes: list, always: bool
             notes.append(f"{label} initialised in closed form: {dist * 1e3:.1f} mm and {ang:.3g} rad "
                          f"from the nominal transform")
     return out, tuple(moved), (None if est.inliers.all() else ~est.inliers)
-
-
-def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]:
-    """A note when the calibrated model leaves errors on its calibration rows that no robot and
-    instrument give (:data:`IMPLAUSIBLE_REACH_FRACTION` of the reach, :data:`IMPLAUSIBLE_ROT_RAD`):
-    the fit ran, but on data that do not belong to this robot as read."""
-    reach = _robot_memo("reach", robot, (), lambda: _reach(robot))
-    pos = after.position["rms"]
-    rot = after.rotation["rms"] if after.rotation is not None else 0.0
-    what, check = [], []
-    if pos > IMPLAUSIBLE_REACH_FRACTION * reach:
-        what.append(f"a position RMS error of {pos * 1e3:.4g} mm ({100 * pos / reach:.0f} % of the robot's "
-                    f"reach {reach * 1e3:.0f} mm)")
-        check.append("the joint units (degrees read as radians, or radians as degrees), the joint order "
-                     "and the robot")
-    if rot > IMPLAUSIBLE_ROT_RAD:
-        what.append(f"an orientation RMS error of {rot:.3g} rad")
-        check.append("the orientation columns (quaternion order w, x, y, z; --euler sequence; angle "
-                     "units) and the tool frame")
-    if not what:
-        return []
-    return [f"the calibrated model does not describe these measurements: on the calibration rows it "
-            f"leaves {' and '.join(what)}; check {', and '.join(check)}"]
-
-
-def _implausible_length_notes(nominal: RobotModel, calibrated: RobotModel) -> list[str]:
-    """A note naming the link lengths (d, a of the joints) identified further than
-    :data:`IMPLAUSIBLE_LENGTH_FRACTION` of the reach from their nominal values: no robot is built
-    that far from its drawing (positions in metres named _mm shrink a UR5's 425 mm link to
-    0.6 mm and the fit converges at the noise; the URDF of another robot model)."""
-    reach = _robot_memo("reach", nominal, (), lambda: _reach(nominal))
-    far = [(p.name, b - a) for p, a, b in zip(nominal.parameters, nominal.values, calibrated.values)
-           if p.group == "joint" and p.unit == "m" and abs(b - a) > IMPLAUSIBLE_LENGTH_FRACTION * reach
-           and not (p.kind == "d" and nominal.prismatic[p.joint - 1])]   # (a slide's offset: any)
-    if not far:
-        return []
-    shown = ", ".join(f"{name} {dev * 1e3:+.1f} mm" for name, dev in far)
-    return [f"identified link lengths far from the URDF's: {shown} (more than "
-            f"{100 * IMPLAUSIBLE_LENGTH_FRACTION:g} % of the robot's reach {reach * 1e3:.0f} mm); check the "
-            f"length unit of the positions (metres named _mm?) and that the URDF is this robot's"]
 
 
 def with_gravity_for(robot: RobotModel, compliance: bool, payload=None,

@@ -10,7 +10,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from calib.calibration.fit import Fit, _Solve, _solver_for, fit_stage, fit_with
+from calib.calibration.fit import Fit, Solver, solver_for, fit_stage, fit_with
 from calib.calibration.options import CV_FOLDS, LOO_BELOW_ROWS, CalibrationOptions
 from calib.calibration.parameters import candidate_sets
 from calib.calibration.prepare import Setup
@@ -190,7 +190,7 @@ def one_standard_error(candidates: Sequence[Candidate]) -> Candidate:
 
 
 def select_model(setup: Setup, candidates: Sequence[tuple[str, tuple[str, ...]]], full: Fit,
-                 full_problem: Problem, solve: _Solve, folds: int, kin: ChainKinematics,
+                 full_problem: Problem, solve: Solver, folds: int, kin: ChainKinematics,
                  options: LMOptions, *, rule: Callable[[Sequence[Candidate]], Candidate] = one_standard_error,
                  ) -> tuple[ModelSelection, dict[str, tuple[Fit, Problem]]]:
     """Cross-validate each candidate set (label, names), smallest first, at the noise levels and
@@ -203,7 +203,7 @@ def select_model(setup: Setup, candidates: Sequence[tuple[str, tuple[str, ...]]]
         if tuple(free) == full.free:
             fit, problem = full, full_problem
         else:
-            s = _solver_for(setup, free, solve.method, options, solve.max_rounds, solve.fixed_rounds,
+            s = solver_for(setup, free, solve.method, options, solve.max_rounds, solve.fixed_rounds,
                             solve.lm_variant)
             fit, problem = fit_stage(setup, free, s, sigma_pos=sp, sigma_rot=sr, outlier_k=None,
                                      keep=full.keep, kin=kin)
@@ -227,7 +227,7 @@ def select_and_fit(setup: Setup, ident: Sequence[str], options: CalibrationOptio
     """Model selection ("auto"): the fit of the identifiable set ``ident`` (noise estimate,
     outlier check), :func:`select_model` among the nested :func:`candidate_sets` at its noise
     levels and kept rows, and the fit of the chosen set (the full fit when it is the largest)."""
-    full_solve = _solver_for(setup, ident, options.method, options.lm, options.max_rounds, options.fixed_rounds,
+    full_solve = solver_for(setup, ident, options.method, options.lm, options.max_rounds, options.fixed_rounds,
                              options.lm_variant)
     full, full_problem = fit_stage(setup, ident, full_solve, sigma_pos=options.sigma_pos, sigma_rot=options.sigma_rot,
                                    loss=options.loss, loss_scale=options.loss_scale, outlier_k=options.outlier_k,
