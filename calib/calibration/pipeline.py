@@ -1,27 +1,37 @@
 """The calibration API: identify a robot's TM-MDH parameters from measured tool poses.
 
-``calibrate(robot, measurements)`` runs named stages, each returning a small frozen object:
+``calibrate(robot, measurements)`` runs public stages, each taking and returning small frozen
+values, so that a script or a test can call them one after the other:
 
-1. **prepare** (:class:`Setup`): the calibration and validation rows, what is measured (pose or
-   position), and a closed-form estimate of the measurement and tool frames (:mod:`calib.calibration.frames`)
-   when the data put them far from the nominal ones (more than ``FRAME_REBASE_M`` or
-   ``FRAME_REBASE_RAD``): the model's constant reference transforms move to the estimates, u and
-   v keep their nominal values relative to them.
-2. **parameter set** (``params``): the identifiable set of :mod:`calib.model.identifiability`
-   (``"base"``), the paper's set, all, a list of names, or ``"auto"``: nested candidate sets
-   compared by cross-validated held-out error (:class:`ModelSelection`).
-3. **fit** (:class:`Fit`): identification by search-lm, C-LM or LM (:mod:`calib.solvers.problem`),
-   noise-weighted. Unless the noise levels are given, they are estimated from the residuals by
-   variance-component estimation iterated with the fit (:class:`NoiseEstimate`). Outlier rows are
-   flagged against a robust fit and the fit repeated without them.
-4. **statistics** (:class:`Statistics`): parameter covariance, the predicted accuracy of the
-   calibrated model against the true poses (``predicted_rms``, the Cramer-Rao figure) and against
-   new measured rows (``predicted_holdout_rms``: parameter uncertainty inflated by the measured
-   misfit, plus the measurement noise), chi-square consistency of given noise levels.
-5. **cross-validation** (:class:`CrossValidation`): K-fold held-out error when no validation rows
-   are given.
-6. accuracy before and after on the calibration and validation rows, raw and (for a measurement
-   frame far from the base) after a best-fit registration of the measurement frame only.
+0. **options** (:func:`calib.calibration.options.resolve_options`): every option checked once,
+   one frozen :class:`~calib.calibration.options.CalibrationOptions`.
+1. **prepare** (:func:`calib.calibration.prepare.prepare` -> :class:`~calib.calibration.prepare.Setup`):
+   the calibration and validation rows, what is measured (pose or position), and a closed-form
+   estimate of the measurement and tool frames (:mod:`calib.calibration.frames`) when the data
+   put them far from the nominal ones (more than ``FRAME_REBASE_M`` or ``FRAME_REBASE_RAD``): the
+   model's constant reference transforms move to the estimates, u and v keep their nominal values
+   relative to them.
+2. **parameter set** (:func:`calib.calibration.parameters.choose_parameters`): the identifiable set
+   of :mod:`calib.model.identifiability` (``"base"``), the paper's set, all, a list of names, or
+   ``"auto"``: nested candidate sets compared by cross-validated held-out error
+   (:func:`calib.calibration.validation.select_and_fit`, :func:`~calib.calibration.validation.select_model`
+   with its selection rule passed in).
+3. **fit** (:func:`calib.calibration.fit.fit_stage` -> :class:`~calib.calibration.fit.Fit`):
+   identification by search-lm, C-LM or LM (:func:`calib.solvers.dispatch.solve`), noise-weighted.
+   Unless the noise levels are given, they are estimated from the residuals by variance-component
+   estimation iterated with the fit (:class:`~calib.calibration.fit.NoiseEstimate`). Outlier rows
+   are flagged against a robust fit and the fit repeated without them.
+4. **statistics** (:func:`calib.calibration.statistics.statistics_stage`): parameter covariance,
+   the predicted accuracy of the calibrated model against the true poses (``predicted_rms``, the
+   Cramer-Rao figure) and against new measured rows (``predicted_holdout_rms``: parameter
+   uncertainty inflated by the measured misfit, plus the measurement noise), chi-square
+   consistency of given noise levels.
+5. **cross-validation** (:func:`calib.calibration.validation.held_out_error`): K-fold held-out
+   error when no validation rows are given.
+6. **accuracy** before and after (:func:`calib.calibration.accuracy.accuracy_before`,
+   :func:`~calib.calibration.accuracy.accuracy_after`) on the calibration and validation rows, raw
+   and (for a measurement frame far from the base) after a best-fit registration of the
+   measurement frame only; then the :class:`~calib.calibration.result.CalibrationResult`.
 """
 from __future__ import annotations
 
