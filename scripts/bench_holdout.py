@@ -29,7 +29,7 @@ import _bench  # noqa: E402,F401  (one BLAS thread)
 import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
-from calib.calibration.core import candidate_sets, identifiable_set
+from calib.calibration.parameters import candidate_sets, identifiable_set
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
 from calib.model.spatial import zyx_transform
 

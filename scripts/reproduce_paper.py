@@ -48,17 +48,18 @@ from typing import Sequence  # noqa: E402
 import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
-from calib.calibration.core import PAPER_EXCLUDED, select_parameters
+from calib.calibration.options import PAPER_EXCLUDED
+from calib.calibration.parameters import select_parameters
 from calib.io.fileio import atomic_write_bytes, atomic_write_text
 from calib.solvers.angles import RotationChain
 from calib.model.kinematics import ChainKinematics
 from calib.cli.progress import Progress
 from calib.model.robot import RobotModel
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
-from calib.solvers.paper_lm import PaperLMOptions, paper_cross_lm, paper_lm
+from calib.solvers.paper_lm import PaperLMOptions
 from calib.solvers.problem import CHI2_ESCAPE, Problem
-from calib.solvers.lm import LMOptions, LMTrace, levenberg_marquardt
-from calib.solvers.schemes import cross_lm, search_lm
+from calib.solvers.lm import LMOptions, LMTrace
+from calib.solvers.dispatch import solve
 from calib.model.spatial import log3_batch
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -311,14 +312,11 @@ def identify(start: RobotModel, meas: calib.Measurements, free_names: Sequence[s
     problem = Problem(kin, meas.q, meas.position, meas.rotation, start.values, free, sigma_pos, sigma_rot)
     trace = LMTrace()
     x0 = start.values[free]
-    if method == "lm":
-        res = levenberg_marquardt(problem, x0, "pose", opts, trace)
-    elif method == "c-lm":
-        angular = np.array([start.parameters[k].is_angular for k in free])
-        res = cross_lm(problem, x0, angular, max_rounds=max_rounds, fixed_rounds=fixed_rounds,
-                       options=opts, trace=trace)
-    else:
+    if method not in ("lm", "c-lm"):
         raise ValueError(f"unknown method {method!r}")
+    angular = np.array([start.parameters[k].is_angular for k in free])
+    res = solve(problem, x0, method, angular=angular, options=opts, trace=trace, max_rounds=max_rounds,
+                fixed_rounds=fixed_rounds)
     return Identification(problem.full(res.x), float(res.cost), res.status, trace.iterations, trace.jacobians, *timer.done())
 
 
@@ -338,13 +336,9 @@ def identify_paper(start: RobotModel, meas: calib.Measurements, free_names: Sequ
         raise ValueError(f"unknown method {method!r}")
     kind, translation, lam = PAPER_VARIANTS[method]
     opts = PaperLMOptions(max_iterations=max_iterations, lam=lam)
-    if kind == "lm":
-        res = paper_lm(problem, start.values[free], angular, options=opts, translation=translation)
-        runs = 1
-    else:
-        res = paper_cross_lm(problem, start.values[free], angular, options=opts, max_rounds=max_rounds,
-                             fixed_rounds=fixed_rounds)
-        runs = 2 * res.rounds
+    res = solve(problem, start.values[free], kind, angular=angular, variant="paper", paper_options=opts,
+                translation=translation, max_rounds=max_rounds, fixed_rounds=fixed_rounds)
+    runs = 1 if kind == "lm" else 2 * res.rounds
     # one Jacobian per step and one at the start of each LM run
     return Identification(problem.full(res.x), float(res.cost), res.status, res.iterations,
                           res.iterations + runs, *timer.done())
@@ -376,11 +370,11 @@ def identify_best(start: RobotModel, meas: calib.Measurements, free_names: Seque
     trace = LMTrace()
     x0 = start.values[free]
     if meas.rotation is None:
-        res = levenberg_marquardt(problem, x0, "pose", opts, trace)
+        res = solve(problem, x0, "lm", options=opts, trace=trace)
     else:
         angular = np.array([start.parameters[k].is_angular for k in free])
-        res = search_lm(problem, x0, angular, chain or RotationChain(start), options=opts, trace=trace,
-                        max_escapes=max_escapes)
+        res = solve(problem, x0, "search-lm", angular=angular, chain=chain or RotationChain(start), options=opts,
+                    trace=trace, max_escapes=max_escapes)
     return Identification(problem.full(res.x), float(res.cost), res.status, trace.iterations, trace.jacobians, *timer.done())
 
 
@@ -1347,7 +1341,7 @@ def write_report(path: Path, *, setup: Setup, t67: tuple, sweeps: list | None, s
             if lo <= PAPER_TABLE8["lm"]["ratio"] <= hi:
                 w("The paper's 22.45 % lies between the two readings (the grids differ, so roughly).")
     w("")
-    w(f"On this pose sample calib's C-LM converges "
+    w("On this pose sample calib's C-LM converges "
       + (f"more often than its LM ({100 * r_clm:.1f} % vs {100 * r_lm:.1f} %)" if r_clm > r_lm else
          f"no more often than its LM ({100 * r_clm:.1f} % vs {100 * r_lm:.1f} %)")
       + f"; it costs {np.mean(study.cpu['c-lm']) / max(np.mean(study.cpu['lm']), 1e-12):.1f}x LM's mean "

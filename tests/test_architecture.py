@@ -26,10 +26,17 @@ def _modules() -> dict[str, Path]:
 
 def _imports(path: Path, name: str, known: set[str]) -> set[str]:
     """The calib modules ``path`` imports (``from calib.x import y`` counts calib.x.y when that
-    is a module)."""
+    is a module), at any depth but those under ``if TYPE_CHECKING:``."""
     is_pkg = path.name == "__init__.py"
     out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text())
+    # imports for type annotations only (``if TYPE_CHECKING:``) are no dependency at run time
+    typing_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If)
+                   and getattr(block.test, "id", getattr(block.test, "attr", None)) == "TYPE_CHECKING"
+                   for stmt in block.body for n in ast.walk(stmt)}
+    for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names if a.name.startswith("calib")}
         elif isinstance(node, ast.ImportFrom):

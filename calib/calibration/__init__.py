@@ -1,1 +1,1 @@
-"""calib.calibration.core: see ARCHITECTURE.md."""
+"""calib.calibration: the calibration stages and the pipeline (see ARCHITECTURE.md)."""

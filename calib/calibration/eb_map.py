@@ -28,7 +28,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.calibration.core import _propagate, prepare, target_rows
+from calib.calibration.accuracy import target_rows
+from calib.calibration.prepare import prepare
+from calib.calibration.statistics import _propagate
 from calib.checks import check_instance, check_int, check_number
 from calib.errors import DataError, ParameterError
 from calib.model.measurements import Measurements

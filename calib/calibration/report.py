@@ -34,7 +34,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from calib.calibration.core import CalibrationResult
+from calib.calibration.result import CalibrationResult
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
@@ -73,7 +73,7 @@ class PoseDeviations:
 def pose_deviations(robot: RobotModel, measurements: Measurements) -> PoseDeviations:
     """Deviations of ``robot``'s tool poses from ``measurements`` (both in the meas frame; rows
     of several targets against the model's transform of their target)."""
-    from calib.calibration.core import target_rows, with_measured_targets
+    from calib.calibration.accuracy import target_rows, with_measured_targets
 
     robot = with_measured_targets(robot, measurements)
     R, p = ChainKinematics(robot).frame_poses(measurements.q, targets=target_rows(robot, measurements))
@@ -243,9 +243,9 @@ def _residual_rows(result: CalibrationResult, parts: Sequence[tuple[str, str, Me
 
 def _covariance_dict(result: CalibrationResult) -> dict:
     names = list(result.free)
-    from calib.calibration.core import _EDGE_UNITS
+    from calib.units import DISPLAY_UNITS
 
-    edge = [_EDGE_UNITS[result.robot.parameters[result.robot.index(n)].unit] for n in names]
+    edge = [DISPLAY_UNITS[result.robot.parameters[result.robot.index(n)].unit] for n in names]
     units = [u for u, _ in edge]
     scale = np.array([f for _, f in edge])
     cov = np.asarray(result.covariance, float) * np.outer(scale, scale)

@@ -68,7 +68,7 @@ def _outlier_k(text: str) -> float | None:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add ``calibrate`` to ``subparsers`` (from ``add_subparsers``); it runs :func:`run`."""
-    from calib.calibration.core import METHODS
+    from calib.solvers.dispatch import METHODS
     from calib.solvers.problem import LOSSES
 
     p = subparsers.add_parser("calibrate", help="identify the parameters, write the calibrated URDF",

@@ -84,7 +84,7 @@ def _evaluate_compliance(robot, args):
     robot = with_compliance_file(robot, args, torques_from=nominal,
                                  hint=" (the report or the compliance sidecar of the calibration)")
     if args.compliance is not None:
-        from calib.model.compliance import DISPLAY_UNITS
+        from calib.units import DISPLAY_UNITS
 
         gm = robot.gravity
         units = [DISPLAY_UNITS[robot.parameters[robot.index(n)].unit] for n in robot.compliance_names]
@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     import calib
-    from calib.calibration.core import format_accuracy_table
+    from calib.calibration.accuracy import format_accuracy_table
 
     robot = _evaluate_compliance(load(args), args)
     meas = read(args.measurements, robot, args, args.tracker)

@@ -52,7 +52,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calib identifiability`` with parsed arguments; returns the exit code."""
-    from calib.calibration.core import _EDGE_UNITS
+    from calib.units import DISPLAY_UNITS
     from calib.model.identifiability import analyze_identifiability
 
     robot = with_targets(load(args), args)
@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
             status, partners = "no", " ".join(f"{c:+.4g}*{n}" for n, c in r.partners)
         else:
             status, partners = "no", f"({r.reason})"
-        lines.append(f"{p.name:<{w}}{_EDGE_UNITS[p.unit][0]:>5}  {of:<14}{status:<13}"
+        lines.append(f"{p.name:<{w}}{DISPLAY_UNITS[p.unit][0]:>5}  {of:<14}{status:<13}"
                      f"{partners}".rstrip())
     lines += ["", report.format(), ""]
     sys.stdout.write("\n".join(lines))

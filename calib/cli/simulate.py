@@ -144,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``calib simulate`` with parsed arguments; returns the exit code."""
     import numpy as np
 
-    from calib.calibration.core import _EDGE_UNITS
+    from calib.units import DISPLAY_UNITS
     from calib.io.specs import write_measurements
     from calib.model.simulate import apply_deviations, simulate_measurements
 
@@ -212,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
              f"{'parameter':<{w}}{'unit':>5}{'deviation':>14}"]
     for p in robot.parameters:
         if p.name in deviations:
-            unit, scale = _EDGE_UNITS[p.unit]
+            unit, scale = DISPLAY_UNITS[p.unit]
             lines.append(f"{p.name:<{w}}{unit:>5}{deviations[p.name] * scale:>14.6g}")
     sys.stdout.write("\n".join(lines) + "\n")
     return EXIT_OK

@@ -57,8 +57,6 @@ from calib.io.urdf_reader import read_urdf_chain
 STANDARD_GRAVITY = 9.80665
 #: Format tag of the compliance sidecar file.
 SIDECAR_FORMAT = "calib-compliance/1"
-#: Compliance display units at the edges (tables, JSON): name and factor from SI.
-DISPLAY_UNITS = {"rad/(N m)": ("urad/(N m)", 1e6), "m/N": ("um/N", 1e6)}
 URDF_NOTE = ("the calibrated URDF holds the geometry only (URDF cannot hold joint compliance); "
              "the compliances are in this report and in the sidecar JSON written beside the URDF, "
              "which 'calib compensate --compliance' reads")

@@ -8,7 +8,7 @@ minimum along that coordinate is ``v = atan2(a, b)``, exactly, however far away 
 of angles by pi when that stalls above the noise level, which escapes the local minima of large
 joint-offset and twist errors (for example theta1 and alpha2 both off by up to +-3.1 rad, the
 convergence study of the paper's Table 8 / Figure 6). LM then finishes from there
-(:func:`calib.calibration.core.calibrate` with ``method="search-lm"``).
+(:func:`calib.calibration.pipeline.calibrate` with ``method="search-lm"``).
 """
 from __future__ import annotations
 

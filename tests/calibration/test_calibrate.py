@@ -217,7 +217,7 @@ def test_evaluate(setup):
 
 
 def test_distinct_configurations_counts_as_numpy_unique():
-    from calib.calibration.core import distinct_configurations
+    from calib.calibration.prepare import distinct_configurations
 
     rng = np.random.default_rng(3)
     Q = np.round(rng.normal(size=(30, 6)), 1)

@@ -1,4 +1,5 @@
-"""The shortcuts calibrate() takes outside the solver give what the direct computations give.
+"""The stages of calibrate(), called directly (no monkeypatching), compose to calibrate(); the
+shortcuts they take outside the solver give what the direct computations give.
 
 Each quantity the stages now reuse or compute another way (issue 14, speed) is checked against
 the computation it replaces: the rank test of the normal-matrix inverse, the held-out traces,
@@ -10,7 +11,12 @@ import numpy as np
 import pytest
 
 import calib
-import calib.calibration.core as cc
+from calib.calibration.options import resolve_options
+from calib.calibration.parameters import choose_parameters
+from calib.calibration.prepare import prepare
+from calib.calibration.statistics import statistics_stage
+from calib.calibration.validation import _held_out_traces, cross_validate, one_standard_error, select_and_fit
+from calib.model.kinematics import ChainKinematics
 from calib.solvers.problem import normal_inverse
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
 
@@ -67,25 +73,52 @@ def test_inverse_of_a_stack_is_the_inverse_of_each():
         np.testing.assert_array_equal(inv[k], ref_inv)
 
 
+def _stages(robot, meas, **kw):
+    """The stages of calibrate(robot, meas, **kw), called one after the other with the values the
+    previous one returned: (options, setup, choice, kin)."""
+    opts = resolve_options(robot, meas, **kw)
+    setup, _ = prepare(robot, meas, None, opts.init_frames)
+    choice = choose_parameters(setup, opts)
+    return opts, setup, choice, setup.kin or ChainKinematics(setup.start)
+
+
 @pytest.fixture(scope="module")
 def fitted(bundled_robot):
-    """(setup, fit, problem) of a default calibration of 40 simulated poses, where some rows
-    have leverages above 0.99 in trace (so both branches of the held-out traces run)."""
+    """(setup, fit, problem, result) of a default calibration of 40 simulated poses, where some
+    rows have leverages above 0.99 in trace (so both branches of the held-out traces run): the
+    stages called directly, and calibrate's result."""
     true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
     meas = simulate_measurements(true, bundled_robot.random_configurations(40, 11), rng=12)
-    seen = {}
-    original = cc.statistics_stage
+    opts, setup, choice, kin = _stages(bundled_robot, meas, cv=5)
+    assert choice.auto       # 40 rows: fewer than 10 residual components per parameter
+    _, fit, problem = select_and_fit(setup, choice.free, opts, kin)
+    return setup, fit, problem, calib.calibrate(bundled_robot, meas, cv=5)
 
-    def spy(setup, fit, problem):
-        seen.update(setup=setup, fit=fit, problem=problem)
-        return original(setup, fit, problem)
 
-    cc.statistics_stage = spy
-    try:
-        result = calib.calibrate(bundled_robot, meas, cv=5)
-    finally:
-        cc.statistics_stage = original
-    return seen["setup"], seen["fit"], seen["problem"], result
+def test_the_stages_compose_to_calibrate(fitted):
+    setup, fit, problem, result = fitted
+    # the same computations in the same order: identical, not merely close
+    np.testing.assert_array_equal(fit.model.values, result.robot.values)
+    assert fit.free == result.free and fit.solver.status == result.status
+    stats = statistics_stage(setup, fit, problem)
+    np.testing.assert_array_equal(stats.covariance, result.covariance)
+
+
+def test_select_model_takes_the_rule(bundled_robot):
+    """A rule passed in decides: the smallest candidate instead of the one-standard-error choice
+    (here the identifiable set: the paper's deviations need every parameter), with the same
+    candidates and scores, and the chosen set is the one fitted."""
+    true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
+    meas = simulate_measurements(true, bundled_robot.random_configurations(30, 4), rng=5)
+    opts, setup, choice, kin = _stages(bundled_robot, meas)
+    assert choice.auto
+    default, fit_default, _ = select_and_fit(setup, choice.free, opts, kin)
+    smallest, fit, _ = select_and_fit(setup, choice.free, opts, kin, rule=lambda cands: cands[0])
+    assert default.chosen == one_standard_error(default.candidates).label == "identifiable set"
+    assert fit_default.free == tuple(choice.free)
+    assert smallest.chosen == smallest.candidates[0].label == "offsets+frames"
+    assert fit.free == smallest.candidates[0].free and len(fit.free) < len(fit_default.free)
+    assert [c.cv.score for c in smallest.candidates] == [c.cv.score for c in default.candidates]
 
 
 @pytest.mark.parametrize("scale", [1.0, 3.0])
@@ -104,12 +137,12 @@ def test_held_out_traces_match_the_eigen_decomposition(fitted, scale):
     M = (V / (1.0 - np.minimum(w, 0.99))[:, None, :]) @ np.transpose(V, (0, 2, 1))
     ref = (np.trace(M[:, :3, :3], axis1=1, axis2=2).mean(), np.trace(M[:, 3:, 3:], axis1=1, axis2=2).mean())
     # rounding only: the inverse instead of the eigenvectors on the low-leverage rows
-    np.testing.assert_allclose(cc._held_out_traces(problem, x, C), ref, rtol=1e-12)
+    np.testing.assert_allclose(_held_out_traces(problem, x, C), ref, rtol=1e-12)
 
 
 def test_cross_validation_refits_are_gauss_newton_steps_without_each_fold(fitted):
     setup, fit, problem, _ = fitted
-    cv = cc.cross_validate(setup, fit, problem, 4, seed=3)
+    cv = cross_validate(setup, fit, problem, 4, seed=3)
     x0 = fit.model.values[fit.model.indices(fit.free)]
     n = problem.n_poses
     fold_of = np.empty(n, int)

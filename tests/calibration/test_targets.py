@@ -10,7 +10,8 @@ import pytest
 
 import calib
 from calib import identification_jacobian, load_robot
-from calib.calibration.core import calibrate, evaluate
+from calib.calibration.pipeline import calibrate
+from calib.calibration.accuracy import evaluate
 from calib.cli.main import main
 from calib.errors import DataError, ParameterError
 from calib.calibration.frames import estimate_target_frames
@@ -340,7 +341,7 @@ def test_cli_identifiability_with_targets(capsys):
 
 
 def test_stages_take_multi_target_data_directly(bundled_robot):
-    from calib.calibration.core import prepare
+    from calib.calibration.prepare import prepare
 
     truth = _truth(bundled_robot)
     Q, ids = _every_target(bundled_robot.random_configurations(20, 2))

@@ -83,7 +83,7 @@ def test_signal_while_the_parser_imports_the_library_ends_with_one_line(signum, 
     code_text = ("import sys, time, calib._entry as e\n"
                  "class Slow:\n"
                  "    def find_spec(self, name, path=None, target=None):\n"
-                 "        if name == 'calib.calibration.core':\n"
+                 "        if name == 'calib.solvers.dispatch':\n"
                  "            print('importing', file=sys.stderr, flush=True); time.sleep(3)\n"
                  "sys.meta_path.insert(0, Slow())\n"
                  "e.main()\n")

@@ -64,7 +64,7 @@ def test_fixed_set_does_not_depend_on_the_start(bundled_robot):
     """Linearised at a perturbed model (the paper's deviations), the raw priority-ordered QR fixes
     beta2, u_gamma, v_beta; calibrate's identifiable set picks the partners on the idealised model
     and fixes the same seven as at the nominal one (issue 15, item 5)."""
-    from calib.calibration.core import identifiable_set
+    from calib.calibration.parameters import identifiable_set
     from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations
 
     perturbed = apply_deviations(bundled_robot, PAPER_DEVIATIONS)

@@ -407,7 +407,7 @@ def test_data_that_do_not_fit_the_robot_get_a_note_not_silence(sim):
     stopped at the iteration limit (UR5: converged, exit 0). A clean fit gets no such note.
     Quaternions in x, y, z, w order read as w, x, y, z: 1.4 rad RMS left (UR5: converged, exit 0,
     nothing said); the note names the orientation columns."""
-    from calib.calibration.core import _reach
+    from calib.calibration.prepare import _reach
 
     _, robot, meas = sim
     res = calib.calibrate(robot, replace(meas, q=np.radians(meas.q)), params="base", cv=0,
@@ -442,7 +442,7 @@ def test_positions_in_metres_named_mm_get_a_note(sim):
     """Positions in metres in _mm columns: 1000 times too small, the fit shrinks the robot (a2
     by 350 mm, d4 by 364 mm) and converges at 3e-5 mm, exit 0 and nothing said. The identified
     link lengths are now named; a clean fit names none."""
-    from calib.calibration.core import _reach
+    from calib.calibration.prepare import _reach
 
     _, robot, meas = sim
     res = calib.calibrate(robot, replace(meas, position=meas.position / 1000), params="base", cv=0)
@@ -505,7 +505,7 @@ def test_data_that_do_not_move_a_joint_are_refused_naming_the_parameters(sim):
 
 
 def test_distinct_configurations_counts_repeats_once():
-    from calib.calibration.core import distinct_configurations
+    from calib.calibration.prepare import distinct_configurations
 
     Q = np.array([[0.1, 0.2], [0.1, 0.2], [0.1, 0.2 + 1e-12], [0.3, 0.2]])
     assert distinct_configurations(Q) == 2

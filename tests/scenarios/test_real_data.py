@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import calib
-from calib.calibration.core import candidate_sets, identifiable_set
+from calib.calibration.parameters import candidate_sets, identifiable_set
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
 from calib.model.spatial import zyx_transform
 

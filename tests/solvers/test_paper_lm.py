@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from calib import ParameterError, load_robot
-from calib.calibration.core import select_parameters
+from calib.calibration.parameters import select_parameters
 from calib.model.kinematics import ChainKinematics
 from calib.solvers.paper_lm import PaperLMOptions, _PaperResiduals, paper_cross_lm, paper_lm
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements

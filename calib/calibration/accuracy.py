@@ -1,0 +1,234 @@
+"""Pose errors of a model against measured poses (:class:`AccuracyStats`, :func:`evaluate`), their
+table, the rows' targets, and the best-fit registration of the measurement frame.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+
+from calib.calibration.options import _check_compatible
+from calib.checks import check_measurements, check_robot
+from calib.errors import DataError
+from calib.model.kinematics import ChainKinematics
+from calib.model.measurements import Measurements
+from calib.model.robot import RobotModel
+from calib.model.spatial import log3_batch
+
+
+# ====================================================================== accuracy
+@dataclass(frozen=True)
+class AccuracyStats:
+    """Pose errors of a model against measurements (or the truth).
+
+    position_errors : (N,) metres, |p_model - p_measured|; rotation_errors : (N,) radians, the
+    angle of R_model R_measured^T (None for position-only data). Statistics in the same units.
+    """
+
+    position_errors: np.ndarray = field(repr=False)
+    rotation_errors: np.ndarray | None = field(repr=False)
+
+    @staticmethod
+    def from_residuals(dp: np.ndarray, dr: np.ndarray | None) -> "AccuracyStats":
+        """The errors of position residuals dp (N, 3) metres and rotation residuals dr (N, 3)
+        radians, the rotation vectors of R_model R_measured^T (None for position-only data)."""
+        return AccuracyStats(np.linalg.norm(dp, axis=1), None if dr is None else np.linalg.norm(dr, axis=1))
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.position_errors)
+
+    def subset(self, mask: np.ndarray) -> "AccuracyStats":
+        """The errors of the rows selected by ``mask`` ((N,) bool or indices)."""
+        return AccuracyStats(self.position_errors[mask],
+                             None if self.rotation_errors is None else self.rotation_errors[mask])
+
+    @staticmethod
+    def _stats(e: np.ndarray | None) -> dict[str, float] | None:
+        if e is None or len(e) == 0:
+            return None
+        return {"mean": float(np.mean(e)), "rms": float(np.sqrt(np.mean(e ** 2))),
+                "max": float(np.max(e)), "min": float(np.min(e))}
+
+    @property
+    def position(self) -> dict[str, float] | None:
+        """mean, rms, max, min of the position error, metres."""
+        return self._stats(self.position_errors)
+
+    @property
+    def rotation(self) -> dict[str, float] | None:
+        """mean, rms, max, min of the orientation error, radians (None if position only)."""
+        return self._stats(self.rotation_errors)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: position in mm, rotation in rad."""
+        pos = self.position
+        return {"n_poses": self.n_poses,
+                "position_mm": None if pos is None else {k: v * 1e3 for k, v in pos.items()},
+                "rotation_rad": self.rotation}
+
+
+def pose_errors(robot: RobotModel, Q: np.ndarray, position: np.ndarray,
+                rotation: np.ndarray | None, kin: ChainKinematics | None = None,
+                targets: np.ndarray | None = None) -> AccuracyStats:
+    """Errors of ``robot``'s tool poses at Q (N, n) against positions (N, 3) m and rotations
+    (targets: (N,) each row's target index for a multi-target model)."""
+    kin = kin or ChainKinematics(robot)
+    if kin.values is not robot.values:
+        kin.set_values(robot.values)
+    R, p = kin.frame_poses(Q, targets=targets)
+    dr = None if rotation is None else log3_batch(R @ np.transpose(rotation, (0, 2, 1)))
+    return AccuracyStats.from_residuals(p - position, dr)
+
+
+def evaluate(robot: RobotModel, measurements: Measurements) -> AccuracyStats:
+    """Accuracy of ``robot`` against all rows of ``measurements`` (tool pose in the meas frame).
+
+    Rows of several targets are compared with the model's transform of their target; a model
+    with one tool frame serves every target with it (:meth:`RobotModel.with_targets`).
+    """
+    check_robot(robot)
+    check_measurements(measurements)
+    _check_compatible(robot, measurements)
+    robot = with_measured_targets(robot, measurements)
+    return pose_errors(robot, measurements.q, measurements.position, measurements.rotation,
+                       targets=target_rows(robot, measurements))
+
+
+def with_measured_targets(robot: RobotModel, *measurements: Measurements | None) -> RobotModel:
+    """A one-tool-frame ``robot`` with the targets of the measurements (two or more ids: one
+    flange->target transform each, starting at the model's tool transform); unchanged for data
+    of one target and for a model that has targets already (:func:`target_rows` then refuses
+    an id it does not know)."""
+    ids = tuple(dict.fromkeys(t for m in measurements if m is not None for t in m.target_ids))
+    if len(ids) < 2 or robot.targets:
+        return robot
+    return robot.with_targets(ids)
+
+
+def target_rows(robot: RobotModel, m: Measurements) -> np.ndarray | None:
+    """(N,) int: each row's target index in ``robot.targets`` (None for a one-tool-frame model);
+    an unknown id is a :class:`DataError` naming the file and row."""
+    if not robot.targets:
+        return None
+    where = f"{m.source}: " if m.source is not None else ""
+    if m.target is None:
+        raise DataError(f"{where}the model has {robot.n_targets} targets ({', '.join(robot.targets)}): "
+                        f"the measurements need a target column")
+    for row, t in zip(m.rows, m.target):
+        if t not in robot.targets:
+            raise DataError(f"{where}row {row}, column target: {t!r} is not a target of the model "
+                            f"({', '.join(robot.targets)})")
+    return robot.target_rows(m.target)
+
+
+def format_accuracy_table(rows: Sequence[tuple[str, AccuracyStats]]) -> str:
+    """Mean, RMS, max, min of position (mm) and orientation (rad) errors, one line per row."""
+    head = (f"{'':<28}{'poses':>6} | {'position/mm':^40} | {'orientation/rad':^44}\n"
+            f"{'':<28}{'':>6} | {'mean':>9}{'rms':>10}{'max':>10}{'min':>10}"
+            f"  | {'mean':>10}{'rms':>11}{'max':>11}{'min':>11}")
+    lines = [head]
+    for label, s in rows:
+        p = s.position
+        line = f"{label:<28}{s.n_poses:>6} | " + "".join(f"{p[k] * 1e3:>10.4f}" for k in ("mean", "rms", "max", "min"))
+        r = s.rotation
+        line += "  | " + ("".join(f"{r[k]:>11.3e}" for k in ("mean", "rms", "max", "min")) if r else f"{'(position only)':>44}")
+        lines.append(line)
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------- before, registered
+def register_measurement_frame(robot: RobotModel, measurements: Measurements) -> RobotModel:
+    """``robot`` with its measurement frame moved by the rigid transform that best fits its tool
+    positions to the measured ones (least squares over the positions only; the convention of
+    tracker software for "before calibration" errors)."""
+    from scipy.spatial.transform import Rotation
+
+    _, p_nom = ChainKinematics(robot).frame_poses(measurements.q, targets=target_rows(robot, measurements))
+    c_nom, c_meas = p_nom.mean(axis=0), measurements.position.mean(axis=0)
+    R, _ = Rotation.align_vectors(measurements.position - c_meas, p_nom - c_nom)
+    T = np.eye(4)
+    T[:3, :3] = R.as_matrix()
+    T[:3, 3] = c_meas - T[:3, :3] @ c_nom
+    return replace(robot, T_meas_base_ref=T @ robot.T_meas_base_ref)
+
+
+@dataclass(frozen=True)
+class TargetAccuracy:
+    """Accuracy on the rows of one target of a multi-target calibration (see
+    :class:`AccuracyStats`): before / after on the calibration rows, and on the validation rows
+    (None without validation data)."""
+
+    target: str
+    before: AccuracyStats = field(repr=False)
+    after: AccuracyStats = field(repr=False)
+    validation_before: AccuracyStats | None = field(default=None, repr=False)
+    validation_after: AccuracyStats | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict:
+        return {"before": self.before.to_dict(), "after": self.after.to_dict(),
+                "validation": None if self.validation_after is None else {
+                    "before": self.validation_before.to_dict(), "after": self.validation_after.to_dict()}}
+
+
+@dataclass(frozen=True)
+class BeforeAfter:
+    """Accuracy of a calibration on its rows (see :class:`AccuracyStats`): ``before`` (the nominal
+    model) and ``after`` (the calibrated one) on the calibration rows, ``validation_before`` /
+    ``validation_after`` on the validation rows (None without any), the ``*_registered`` errors of
+    the nominal model with its measurement frame registered by a best fit (None unless the frames
+    were estimated), per ``targets`` of a multi-target model; cal_rows / val_rows: (N,) each row's
+    target index (None for one tool frame). Made by :func:`accuracy_before`, completed by
+    :func:`accuracy_after`."""
+
+    before: AccuracyStats
+    validation_before: AccuracyStats | None = None
+    before_registered: AccuracyStats | None = None
+    validation_before_registered: AccuracyStats | None = None
+    cal_rows: np.ndarray | None = field(default=None, repr=False)
+    val_rows: np.ndarray | None = field(default=None, repr=False)
+    after: AccuracyStats | None = None
+    validation_after: AccuracyStats | None = None
+    targets: tuple[TargetAccuracy, ...] = ()
+
+
+def accuracy_before(nominal: RobotModel, start: RobotModel, cal: Measurements, val: Measurements | None, *,
+                    rebased: Sequence[str], kin: ChainKinematics | None = None) -> BeforeAfter:
+    """The errors before calibration: of ``nominal`` (with the measured targets) on the
+    calibration rows ``cal`` and validation rows ``val``, and, when the frames were estimated
+    (``rebased``, see :class:`calib.calibration.prepare.Setup`), of the nominal geometry with the
+    tool or targets where the closed-form estimate on ``start`` put them when it moved them (an
+    SMR's unknown offset is not an error of the robot) and the measurement frame registered by a
+    best fit. kin : a kinematics workspace of ``nominal``'s structure."""
+    cal_rows = target_rows(nominal, cal)
+    before = pose_errors(nominal, cal.q, cal.position, cal.rotation, kin, cal_rows)
+    vb = val_rows = None
+    if val is not None:
+        val_rows = target_rows(nominal, val)
+        vb = pose_errors(nominal, val.q, val.position, val.rotation, kin, val_rows)
+    breg = vbreg = None
+    if rebased:
+        ref = nominal if tuple(rebased) == ("measurement->base",) else replace(
+            nominal, T_flange_tool_ref=start.T_flange_tool_ref, T_flange_target_refs=start.T_flange_target_refs)
+        registered = register_measurement_frame(ref, cal)
+        breg = pose_errors(registered, cal.q, cal.position, cal.rotation, targets=cal_rows)
+        if val is not None:
+            vbreg = pose_errors(registered, val.q, val.position, val.rotation, targets=val_rows)
+    return BeforeAfter(before, vb, breg, vbreg, cal_rows, val_rows)
+
+
+def accuracy_after(before: BeforeAfter, calibrated: RobotModel, after: AccuracyStats, val: Measurements | None,
+                   targets: Sequence[str], kin: ChainKinematics | None = None) -> BeforeAfter:
+    """``before`` completed with the errors of the ``calibrated`` model: ``after`` on the
+    calibration rows (the fit's), on the validation rows ``val``, and per target (``targets``:
+    the model's target ids)."""
+    va = None
+    if val is not None:
+        va = pose_errors(calibrated, val.q, val.position, val.rotation, kin, before.val_rows)
+    per_target = tuple(
+        TargetAccuracy(t, before.before.subset(before.cal_rows == k), after.subset(before.cal_rows == k),
+                       None if val is None else before.validation_before.subset(before.val_rows == k),
+                       None if val is None else va.subset(before.val_rows == k))
+        for k, t in enumerate(targets))
+    return replace(before, after=after, validation_after=va, targets=per_target)

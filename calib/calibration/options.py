@@ -1,0 +1,168 @@
+"""The options of :func:`calib.calibration.pipeline.calibrate`: the method and parameter-set names, the
+thresholds the stages use, and the checks of every option before any work.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from calib.checks import check_int, check_number
+from calib.errors import DataError, ParameterError
+from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
+from calib.model.measurements import Measurements
+from calib.model.robot import RobotModel
+from calib.solvers.dispatch import METHODS as _METHODS
+from calib.solvers.dispatch import VARIANTS as _VARIANTS
+from calib.solvers.lm import LMOptions
+from calib.solvers.problem import LOSSES
+
+#: The methods (:data:`calib.solvers.dispatch.METHODS`) and LM variants ("calib": calib's LM; "paper":
+#: Eq. (27)-(28) as printed, :mod:`calib.solvers.paper_lm`) that calibrate runs.
+METHODS = _METHODS
+LM_VARIANTS = _VARIANTS
+PARAM_SETS = ("base", "paper", "all", "auto")
+#: Parameters that Section 4.2 of the paper leaves out when the frames are well known.
+PAPER_EXCLUDED = ("u_z", "u_alpha", "v_x", "v_z", "v_alpha", "v_gamma")
+#: The closed-form frame estimate replaces the nominal frames beyond these distances.
+FRAME_REBASE_M = 0.010
+FRAME_REBASE_RAD = 0.02
+#: Without ``params``, model selection ("auto") is used when the calibration rows hold fewer
+#: residual components per identifiable parameter than this (scripts/bench_holdout.py).
+AUTO_BELOW_COMPONENTS_PER_PARAM = 10.0
+#: Variance-component estimation: at most this many re-weighted fits, stopping when both noise
+#: levels change by less than VCE_RTOL.
+VCE_MAX_ITERATIONS = 12
+VCE_RTOL = 1e-3
+#: The first fit of a noise estimate only places the residuals the estimate is made from: it
+#: stops when an iteration lowers the cost by less than this fraction (the noise levels it
+#: yields are then exact to ~1e-6, far inside VCE_RTOL); the re-weighted fits converge fully.
+VCE_FIRST_FTOL = 1e-5
+#: Damping at the start of a re-fit from a solution of the same rows (re-weighted, rows
+#: removed): the solution is near, and the default start (LMOptions.mu0) would only slow the
+#: first steps down; a rejected step raises it as usual.
+WARM_MU0 = 1e-6
+#: An explicit lm / c-lm fit is called a local minimum when an angle search from it, then LM,
+#: reaches a cost below this fraction of its own.
+LOCAL_MINIMUM_RATIO = 0.9
+#: Measured positions farther than the robot's reach plus this from the measurement frame's
+#: origin are refused (wrong units or gross errors): the longest-range laser trackers measure
+#: to 160 m (Leica AT403, 320 m diameter), so 200 m bounds any tracker or camera set-up.
+TRACKER_RANGE_M = 200.0
+#: A calibrated model whose calibration rows keep a position RMS error above this fraction of
+#: the robot's reach, or an orientation RMS error above IMPLAUSIBLE_ROT_RAD, does not describe
+#: the data (a joint column in radians read as degrees leaves 60 % of a UR5's reach): a note
+#: says so. Real set-ups stay far below (a camera on a UR5 with an unmodelled gear error: 2 mm,
+#: 0.2 % of its reach, and 0.01 rad).
+IMPLAUSIBLE_REACH_FRACTION = 0.05
+IMPLAUSIBLE_ROT_RAD = 0.1
+#: A joint's length parameter (d, a) identified further than this fraction of the reach from its
+#: nominal value gets a note (no robot is built so far from its drawing; joint offsets and
+#: twists can be off by any angle, and the frames by any distance).
+IMPLAUSIBLE_LENGTH_FRACTION = 0.1
+#: Below this many residual components per free parameter (a mean leverage above 10 %), the
+#: outlier check always judges the rows against a robust (Huber) fit: a least-squares fit of
+#: few rows spreads gross errors over the others and inflates the noise estimate until none
+#: stands out (2 rows 4 mm off among 25 position-only UR10 rows of 0.05 mm noise, 2.8
+#: components per parameter: the fit's true error was 0.81 mm RMS, 0.053 mm without them).
+#: Above it a gross row keeps most of its residual and the least-squares residuals suffice (the
+#: robust fit, ~70 Huber LM iterations, would cost 60 % more per calibration at 100 full poses).
+ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM = 10
+#: The robust fit of the outlier check and the noise levels of its residuals are iterated at
+#: most this many times (until the levels change by less than 10 %).
+ROBUST_CHECK_ITERATIONS = 3
+#: Joint readings that agree to this (rad / m) are one configuration when counting distinct poses.
+DISTINCT_Q_TOL = 1e-9
+#: Residual components beyond the number of free parameters needed to estimate the noise.
+MIN_REDUNDANCY = 6
+#: Default number of cross-validation folds.
+CV_FOLDS = 5
+#: Model selection cross-validates leave-one-out below this many calibration rows.
+LOO_BELOW_ROWS = 80
+
+
+# ====================================================================== stages
+def _check_compatible(robot: RobotModel, m: Measurements) -> None:
+    if m.n_joints != robot.n_joints:
+        raise DataError(f"the measurements have {m.n_joints} joint values per pose, the robot "
+                        f"{robot.n_joints} joints ({', '.join(robot.joint_names)})")
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """The options of :func:`calib.calibrate`, checked once (:func:`resolve_options`); see its
+    docstring for each. sigma_pos (m) / sigma_rot (rad): given noise levels, None to estimate.
+    method is lower-case; lm is the LM's options (defaults when none were given)."""
+
+    method: str
+    params: str | Sequence[str] | None
+    sigma_pos: float | None
+    sigma_rot: float | None
+    init_frames: bool | str
+    max_rounds: int
+    fixed_rounds: int | None
+    lm: LMOptions
+    loss: str
+    loss_scale: float
+    outlier_k: float | None
+    cv: int | None
+    compliance: bool
+    lm_variant: str
+
+    @property
+    def folds(self) -> int:
+        """Cross-validation folds (0: off)."""
+        return CV_FOLDS if self.cv is None else self.cv
+
+    @property
+    def weights(self) -> tuple[float, float]:
+        """(position m, rotation rad) noise levels that weight the identifiability analysis:
+        the given ones, else the defaults of :mod:`calib.model.identifiability`."""
+        return self.sigma_pos or SIGMA_POS_M, self.sigma_rot or SIGMA_ROT_RAD
+
+
+def resolve_options(robot, measurements, validation=None, *, method="search-lm", params=None, sigma_pos=None,
+                    sigma_rot=None, init_frames="auto", max_rounds=20, fixed_rounds=None, options=None,
+                    loss="linear", loss_scale=3.0, outlier_k=5.0, cv=None, compliance=False,
+                    lm_variant="calib") -> CalibrationOptions:
+    """Every option of :func:`calib.calibrate` and the types of its inputs checked before any work
+    (as scipy's least_squares does), each error naming the option; the frozen options."""
+    if not isinstance(method, str) or method.lower() not in METHODS:
+        raise ParameterError(f"unknown method {method!r}: expected one of {', '.join(METHODS)}")
+    check_number(sigma_pos, "sigma_pos", minimum=0.0, strict=True, allow_none=True)
+    check_number(sigma_rot, "sigma_rot", minimum=0.0, strict=True, allow_none=True)
+    for value, name in ((sigma_pos, "sigma_pos"), (sigma_rot, "sigma_rot")):
+        if value is not None and not 1e-12 <= value <= 1.0:
+            raise ParameterError(f"{name} must be between 1e-12 and 1 (metres / radians), got {value!r}")
+    if init_frames not in (True, False, "auto"):
+        raise ParameterError(f"init_frames must be True, False or 'auto', got {init_frames!r}")
+    check_int(max_rounds, "max_rounds", minimum=1)
+    check_int(fixed_rounds, "fixed_rounds", minimum=1, allow_none=True)
+    if loss not in LOSSES:
+        raise ParameterError(f"unknown loss {loss!r}: expected one of {', '.join(LOSSES)}")
+    check_number(loss_scale, "loss_scale", minimum=0.0, strict=True)
+    check_number(outlier_k, "outlier_k", minimum=0.0, strict=True, allow_none=True)
+    if cv is not None and (isinstance(cv, bool) or not isinstance(cv, (int, np.integer)) or cv < 0 or cv == 1):
+        raise ParameterError(f"cv must be 0 (off) or a number of folds >= 2, got {cv!r}")
+    method = method.lower()
+    if lm_variant not in LM_VARIANTS:
+        raise ParameterError(f"unknown lm_variant {lm_variant!r}: expected one of {', '.join(LM_VARIANTS)}")
+    if lm_variant == "paper" and method == "search-lm":
+        raise ParameterError("lm_variant 'paper' is the paper's LM for methods 'lm' and 'c-lm'; "
+                             "search-lm runs calib's LM")
+    if lm_variant == "paper" and loss != "linear":
+        raise ParameterError("lm_variant 'paper' fits unweighted least squares: loss must be 'linear'")
+    if options is not None and not isinstance(options, LMOptions):
+        raise ParameterError(f"options must be an LMOptions, got {type(options).__name__}")
+    if not isinstance(robot, RobotModel):
+        raise ParameterError(f"robot must be a RobotModel (calib.load_robot), got {type(robot).__name__}")
+    if not isinstance(measurements, Measurements):
+        raise ParameterError(f"measurements must be a Measurements (calib.read_measurements), got "
+                             f"{type(measurements).__name__}")
+    if validation is not None and not isinstance(validation, Measurements):
+        raise ParameterError(f"validation must be a Measurements, got {type(validation).__name__}")
+    if not isinstance(compliance, bool):
+        raise ParameterError(f"compliance must be True or False, got {compliance!r}")
+    return CalibrationOptions(method, params, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds,
+                              options or LMOptions(), loss, loss_scale, outlier_k, cv, compliance, lm_variant)

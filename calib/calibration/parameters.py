@@ -1,0 +1,225 @@
+"""The parameter-set choice: the identifiable set, the named sets, the nested candidate sets of
+model selection, and the compliance filter.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from calib.calibration.accuracy import target_rows
+from calib.calibration.options import (
+    AUTO_BELOW_COMPONENTS_PER_PARAM,
+    MIN_REDUNDANCY,
+    PAPER_EXCLUDED,
+    PARAM_SETS,
+    CalibrationOptions,
+)
+from calib.calibration.prepare import Setup, check_data_rank
+from calib.errors import DataError, ParameterError
+from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability
+from calib.model.robot import RobotModel
+
+
+# ---------------------------------------------------------------- parameter sets
+def _idealised(robot: RobotModel) -> RobotModel:
+    """The model with its small deviations removed: angles within 0.05 rad of a multiple of pi/2
+    and lengths within 1 mm of zero snapped there. Which parameters tie to which is decided on
+    this model, so that it does not depend on where a perturbed model happens to be linearised."""
+    v = robot.values
+    angle = np.array([p.unit == "rad" for p in robot.parameters], bool)
+    snapped = np.where(angle, np.round(v / (math.pi / 2)) * (math.pi / 2), 0.0)
+    near = np.abs(v - snapped) < np.where(angle, 0.05, 1e-3)
+    return robot.with_values(np.where(near, snapped, v))
+
+
+def _set_rank_deficit(setup: Setup, free: Sequence[str], weights: tuple[float, float]) -> int:
+    """How many directions the parameter set ``free`` leaves undetermined at the start model on
+    the calibration rows: its size minus the identifiable parameters a greedy selection with
+    ``free`` first keeps (a maximal independent part of it)."""
+    kept = set(analyze_identifiability(setup.start, setup.cal.q, measure=setup.measure, sigma_pos=weights[0],
+                                       sigma_rot=weights[1], priority=free,
+                                       targets=target_rows(setup.start, setup.cal)).identifiable)
+    return len(free) - sum(name in kept for name in free)
+
+
+def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
+                     sigma_rot: float = SIGMA_ROT_RAD, targets: np.ndarray | None = None) -> tuple[str, ...]:
+    """The identifiable parameter names at configurations Q (N, n) (see
+    :func:`calib.model.identifiability.analyze_identifiability`), chosen start-independently: the
+    partners to hold fixed are picked on the idealised model (:func:`_idealised`) and kept when
+    they are also a valid choice at ``robot``; the rank is ``robot``'s. targets: (N,) each
+    row's target index for a multi-target model.
+
+    With several targets, their v parameters come first in the priority: the last joint's
+    parameters they are tied to are held instead (a rigid motion of the flange that every
+    target's v absorbs exactly), never coordinates of single targets (a gauge that turns singular
+    as the fit moves)."""
+    first = [p.name for p in robot.parameters if p.group == "v"] if robot.targets else None
+    ideal = analyze_identifiability(_idealised(robot), Q, measure=measure, sigma_pos=sigma_pos,
+                                    sigma_rot=sigma_rot, targets=targets, priority=first).identifiable
+    return analyze_identifiability(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
+                                   priority=ideal, targets=targets).identifiable
+
+
+def select_parameters(robot: RobotModel, params, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
+                      sigma_rot: float = SIGMA_ROT_RAD,
+                      targets: np.ndarray | None = None) -> tuple[str, tuple[str, ...]]:
+    """(set label, free parameter names) for a ``params`` choice other than "auto"; see
+    :func:`calibrate`."""
+    if isinstance(params, str):
+        key = params.strip().lower()
+        if key == "base":
+            return "base", identifiable_set(robot, Q, measure, sigma_pos, sigma_rot, targets)
+        if key == "paper":
+            return "paper", tuple(p.name for p in robot.parameters
+                                  if p.name.split("@")[0] not in PAPER_EXCLUDED)
+        if key == "all":
+            return "all", robot.names
+        names = [s.strip() for s in params.split(",") if s.strip()]
+        if not names:
+            raise ParameterError(f"empty parameter list {params!r}: expected {', '.join(PARAM_SETS)} "
+                                 f"or a comma-separated list of parameter names")
+        if len(names) == 1 and names[0] not in robot.names:
+            raise ParameterError(f"unknown parameter set {params!r}: expected {', '.join(PARAM_SETS)} or a "
+                                 f"comma-separated list of parameter names ({', '.join(robot.names)})")
+        params = names
+    if isinstance(params, (bytes, dict)) or not hasattr(params, "__iter__"):
+        raise ParameterError(f"params must be a set name or a list of parameter names, got {params!r}")
+    names = tuple(params)
+    if not names:
+        raise ParameterError("params is an empty list: name at least one parameter")
+    if not all(isinstance(n, str) for n in names):
+        raise ParameterError(f"params must be parameter names (strings), got {params!r}")
+    robot.indices(names)  # raises ParameterError for unknown names
+    if len(set(names)) != len(names):
+        twice = sorted({n for n in names if names.count(n) > 1})
+        raise ParameterError(f"parameter listed twice: {', '.join(twice)}")
+    return "list", tuple(n for n in robot.names if n in names)
+
+
+def candidate_sets(robot: RobotModel, identifiable: Sequence[str]) -> list[tuple[str, tuple[str, ...]]]:
+    """Nested parameter sets for ``params="auto"``, smallest first, each within the identifiable
+    set: joint offsets (theta, or d of a prismatic joint) with the measurement and tool frames;
+    + lengths (d, a); + twists (alpha, beta); the whole identifiable set. Duplicates dropped."""
+    ident = set(identifiable)
+
+    def offset(p) -> bool:
+        if p.group != "joint":
+            return False
+        prismatic = robot.joints[p.joint - 1].is_prismatic
+        return p.kind == ("d" if prismatic else "theta")
+
+    steps = [("offsets+frames", lambda p: p.group in ("u", "v", "compliance") or offset(p)),
+             ("+lengths", lambda p: p.kind in ("d", "a")),
+             ("+twists", lambda p: p.kind in ("alpha", "beta"))]
+    out, chosen = [], set()
+    for label, pick in steps:
+        chosen |= {p.name for p in robot.parameters if pick(p)}
+        names = tuple(n for n in robot.names if n in chosen and n in ident)
+        if names and (not out or names != out[-1][1]) and set(names) != ident:
+            out.append((label, names))
+    out.append(("identifiable set", tuple(n for n in robot.names if n in ident)))
+    return out
+
+
+def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,
+                       notes: list) -> tuple[str, ...]:
+    """``free`` without the compliance parameters unless ``compliance``; with it, a note naming
+    the compliances not in ``free`` (the identifiable set leaves out those the data cannot see)."""
+    comp = set(robot.compliance_names)
+    if not comp:
+        return tuple(free)
+    if not compliance:
+        return tuple(n for n in free if n not in comp)
+    unseen = [n for n in robot.compliance_names if n not in free]
+    note = (f"compliance not identifiable from these poses (no gravity torque, or tied to "
+            f"the geometry), held at its value: {', '.join(unseen)}")
+    if unseen and note not in notes:
+        notes.append(note)
+    return tuple(free)
+
+
+@dataclass(frozen=True)
+class ParameterChoice:
+    """The parameter-set choice of :func:`choose_parameters`.
+
+    label : "base", "paper", "all", "list" or "auto"; free : the names to fit (for "auto": the
+    identifiable set, the largest candidate of model selection); deficit : directions of ``free``
+    the calibration rows leave undetermined at the start model (0 for a derived set); notes :
+    what the choice says to the user.
+    """
+
+    label: str
+    free: tuple[str, ...]
+    deficit: int = 0
+    notes: tuple[str, ...] = ()
+
+    @property
+    def auto(self) -> bool:
+        """Whether the set is chosen by model selection among nested candidates."""
+        return self.label == "auto"
+
+
+def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) -> ParameterChoice:
+    """The parameter set of a calibration (``options.params``, see :func:`calib.calibrate`),
+    chosen on the start model of ``setup`` (after the frame estimate: where the tool point lies
+    decides what positions can identify), with the checks that the calibration rows determine it
+    and leave residual components to estimate the noise. source : the measurements' file, named
+    in the errors. Raises :class:`DataError` for too few rows, :class:`ParameterError` for an
+    unusable choice."""
+    start, cal, params, notes = setup.start, setup.cal, options.params, []
+    weights = options.weights
+    want, ident = params, None
+    if params is None or (isinstance(params, str) and params.strip().lower() == "auto"):
+        ident = _compliance_filter(start, identifiable_set(start, cal.q, setup.measure, *weights,
+                                                          target_rows(start, cal)), options.compliance, notes)
+        per_param = cal.n_poses * setup.components_per_pose / max(len(ident), 1)
+        if params is None:
+            few = per_param < AUTO_BELOW_COMPONENTS_PER_PARAM
+            no_cv = options.cv is not None and options.cv < 2
+            want = "auto" if (few and not no_cv) else "base"
+            notes.append(f"parameter set {want!r} chosen by default: {cal.n_poses * setup.components_per_pose} "
+                         f"residual components for {len(ident)} identifiable parameters "
+                         f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g}"
+                         + (", but it compares the sets by cross-validation, which cv=0 turns off)"
+                            if few and no_cv else ")"))
+        else:
+            want = "auto"
+    if want == "auto":
+        label, free = "auto", ident
+    elif want == "base" and ident is not None:
+        label, free = "base", ident     # (the identifiable set just found)
+    else:
+        label, free = select_parameters(start, want, cal.q, setup.measure, *weights, target_rows(start, cal))
+    derived = want == "auto" or (isinstance(want, str) and want.strip().lower() == "base")
+    check_data_rank(start, cal, setup.measure, free, derived=derived, sigma_pos=weights[0], sigma_rot=weights[1])
+    n_free = len(free)
+    spare = cal.n_poses * setup.components_per_pose - n_free
+    rank_note = ""
+    deficit = 0         # (an identifiable set: full rank at the nominal model on these rows)
+    if not derived:
+        # a set given by name ("all", a list) may be rank deficient: the fit spends its rank only
+        # (the greedy selection with the set first keeps a maximal independent part of it), and
+        # LM holds the rest (Problem.set_rank_deficit)
+        deficit = _set_rank_deficit(setup, free, weights)
+        rank = n_free - deficit
+        spare += deficit
+        rank_note = f" (of rank {rank})" if rank < n_free else ""
+    if (options.sigma_pos is None or options.sigma_rot is None) and spare < MIN_REDUNDANCY:
+        where = f"{source}: " if source is not None else ""
+        raise DataError(f"{where}{cal.n_poses} calibration rows give {cal.n_poses * setup.components_per_pose} "
+                        f"residual components for {n_free} parameters{rank_note}: at least {MIN_REDUNDANCY} more are "
+                        f"needed to estimate the noise (a fit with none to spare passes through every "
+                        f"row and says nothing of its accuracy); measure more rows, or give the noise "
+                        f"levels (sigma_pos / sigma_rot, --sigma-pos-mm / --sigma-rot-rad)")
+    if label == "auto" and options.folds < 2:
+        raise ParameterError("params 'auto' compares candidate sets by cross-validation: cv must be >= 2")
+    if label in PARAM_SETS and label != "auto":     # a named set; a list of names is honoured as given
+        filtered = _compliance_filter(start, free, options.compliance, notes)
+        if not derived and filtered != tuple(free):
+            deficit = _set_rank_deficit(setup, filtered, weights)
+        free = filtered
+    return ParameterChoice(label, free, deficit, tuple(notes))

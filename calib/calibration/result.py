@@ -1,0 +1,287 @@
+"""The calibration result (:class:`CalibrationResult`): the parameter table, accuracy before and after,
+its text, dict and JSON forms, and the calibrated URDF.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calib.calibration.accuracy import AccuracyStats, TargetAccuracy, format_accuracy_table
+from calib.units import display_unit as _unit, display_value as _out
+from calib.calibration.fit import NoiseEstimate, Outlier
+from calib.calibration.validation import CrossValidation, ModelSelection
+from calib.errors import ParameterError
+from calib.model.compliance import URDF_NOTE
+from calib.model.robot import RobotModel
+from calib.model.spatial import zyx_parameters
+
+
+# ====================================================================== result
+@dataclass(frozen=True)
+class ParameterEstimate:
+    """One row of the parameter table. Values in SI units (``unit``: m or rad).
+
+    For u and v rows, ``nominal`` and ``identified`` are the Eq. (3) values of the whole
+    transform (T_meas_base or T_flange_tool), so that they read the same whatever reference the
+    model uses internally. ``std`` is NaN for parameters held fixed, and for free parameters in a
+    rank-deficient set (``all``, ``paper``) it comes from the pseudo-inverse.
+    """
+
+    name: str
+    unit: str
+    nominal: float
+    identified: float
+    free: bool
+    std: float
+
+    @property
+    def deviation(self) -> float:
+        d = self.identified - self.nominal
+        if self.unit == "rad":
+            d = (d + math.pi) % (2 * math.pi) - math.pi
+        return d
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """What :func:`calibrate` returns (compare scipy's ``OptimizeResult``).
+
+    robot : the calibrated model; nominal : the model calibration started from.
+    parameters : the parameter table; free : names of the identified parameters.
+    status : "converged", "max_iterations", "diverged" or "local_minimum" (an explicit lm / c-lm
+    fit that a search from another start beats); success : status == "converged".
+    before, after : accuracy on the calibration rows (outliers included); after_without_outliers :
+    the same without the rows flagged as outliers (None when none were); validation_before/after
+    on the validation rows (None without validation data); before_registered /
+    validation_before_registered : the nominal model after a best-fit registration of the
+    measurement frame, with the tool (or target) frames at their closed-form estimates when those
+    were far from the nominal ones (None unless a frame was: the nominal model's errors otherwise).
+    noise : the noise levels of the fit (:class:`NoiseEstimate`); sigma_pos, sigma_rot : the same
+    numbers (sigma_rot is that of the weighting also for position-only data).
+    predicted : the Cramer-Rao prediction of the calibrated model's RMS error against the true
+    poses (position_rms m, rotation_rms rad, where); predicted_holdout : the RMS error expected on
+    new measured rows (:class:`Statistics`). cross_validation, selection : see
+    :class:`CrossValidation`, :class:`ModelSelection` (None when not run).
+    covariance : (n_free, n_free) covariance of the free parameters (SI units).
+    estimated_frames : the frames estimated in closed form because the data put them far from the
+    nominal ones ("measurement->base", "flange->tool" or "flange-><id>" per target; () if none):
+    the calibrated model's base frame is then the instrument's, its tool the measured point.
+    targets : per target of a multi-target calibration, its accuracy (:class:`TargetAccuracy`;
+    the overall figures are ``before``/``after``); () for one target.
+    """
+
+    robot: RobotModel
+    nominal: RobotModel
+    method: str
+    param_set: str
+    parameters: tuple[ParameterEstimate, ...]
+    free: tuple[str, ...]
+    status: str
+    message: str
+    iterations: int
+    rounds: int
+    wall_time: float
+    cost: float
+    reduced_chi2: float
+    covariance: np.ndarray = field(repr=False)
+    before: AccuracyStats = field(repr=False)
+    after: AccuracyStats = field(repr=False)
+    validation_before: AccuracyStats | None = field(repr=False)
+    validation_after: AccuracyStats | None = field(repr=False)
+    predicted: dict = field(repr=False)
+    sigma_pos: float
+    sigma_rot: float
+    notes: tuple[str, ...] = ()
+    outliers: tuple[Outlier, ...] = ()
+    loss: str = "linear"
+    noise: NoiseEstimate | None = None
+    predicted_holdout: dict | None = field(default=None, repr=False)
+    cross_validation: CrossValidation | None = field(default=None, repr=False)
+    selection: ModelSelection | None = field(default=None, repr=False)
+    before_registered: AccuracyStats | None = field(default=None, repr=False)
+    validation_before_registered: AccuracyStats | None = field(default=None, repr=False)
+    targets: tuple[TargetAccuracy, ...] = field(default=(), repr=False)
+    after_without_outliers: AccuracyStats | None = field(default=None, repr=False)
+    estimated_frames: tuple[str, ...] = ()
+
+    @property
+    def success(self) -> bool:
+        return self.status == "converged"
+
+    @property
+    def x(self) -> np.ndarray:
+        """Identified values of the free parameters (SI)."""
+        return self.robot.values[self.robot.indices(self.free)]
+
+    @property
+    def std(self) -> np.ndarray:
+        return np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
+
+    def parameter(self, name: str) -> ParameterEstimate:
+        for p in self.parameters:
+            if p.name == name:
+                return p
+        raise ParameterError(f"unknown parameter {name!r}")
+
+    def write_urdf(self, path: str | Path) -> None:
+        """Write the calibrated model as a URDF (see :func:`calib.io.urdf_writer.write_calibrated_urdf`).
+
+        The URDF holds the geometry; with compliance, the compliances go to the sidecar
+        :func:`calib.model.compliance.sidecar_path` beside it (:func:`calib.model.compliance.write_sidecar`)."""
+        from calib.io.urdf_writer import write_calibrated_urdf
+
+        write_calibrated_urdf(self.robot.geometry(), path, nominal=self.nominal.geometry(),
+                              estimated=self.estimated_frames)
+        if self.robot.has_compliance:
+            from calib.model.compliance import sidecar_path, write_sidecar
+
+            write_sidecar(sidecar_path(path), self.compliance_record())
+
+    def compliance_record(self) -> dict | None:
+        """The compliances with their std, payload and gravity (:func:`calib.model.compliance.compliance_record`),
+        None for a model without compliance."""
+        if not self.robot.has_compliance:
+            return None
+        from calib.model.compliance import compliance_record
+
+        return compliance_record(self.robot, {p.name: p.std for p in self.parameters if p.free})
+
+    def to_dict(self) -> dict:
+        """JSON-ready report: keys status, before, after, validation, parameters, noise, ..."""
+        has_rot = self.predicted.get("rotation_rms") is not None
+        ph = self.predicted_holdout
+        return {
+            "status": self.status,
+            "success": self.success,
+            "message": self.message,
+            "method": self.method,
+            "param_set": self.param_set,
+            "iterations": self.iterations,
+            "rounds": self.rounds,
+            "wall_time_s": self.wall_time,
+            "cost": self.cost,
+            "reduced_chi2": self.reduced_chi2,
+            "sigma_pos_mm": self.sigma_pos * 1e3,
+            "sigma_rot_rad": self.sigma_rot,
+            "noise": None if self.noise is None else self.noise.to_dict(),
+            "notes": list(self.notes),
+            "loss": self.loss,
+            "outliers": [{"row": o.row, "position_error_mm": o.position_error * 1e3,
+                          "rotation_error_rad": None if math.isnan(o.rotation_error) else o.rotation_error,
+                          "sigmas": o.sigmas} for o in self.outliers],
+            "before": self.before.to_dict(),
+            "after": self.after.to_dict(),
+            "estimated_frames": list(self.estimated_frames),
+            "after_without_outliers": None if self.after_without_outliers is None
+            else self.after_without_outliers.to_dict(),
+            "before_registered": None if self.before_registered is None else {
+                "calibration": self.before_registered.to_dict(),
+                "validation": None if self.validation_before_registered is None
+                else self.validation_before_registered.to_dict()},
+            "validation": None if self.validation_after is None else {
+                "before": self.validation_before.to_dict(), "after": self.validation_after.to_dict()},
+            "targets": {t.target: t.to_dict() for t in self.targets} or None,
+            "predicted_rms": {"position_mm": self.predicted["position_rms"] * 1e3,
+                              "rotation_rad": self.predicted.get("rotation_rms"),
+                              "where": self.predicted.get("where")},
+            "predicted_holdout_rms": None if ph is None else {
+                "position_mm": ph["position_rms"] * 1e3,
+                "rotation_rad": ph["rotation_rms"] if has_rot else None},
+            "cross_validation": None if self.cross_validation is None else self.cross_validation.to_dict(),
+            "model_selection": None if self.selection is None else self.selection.to_dict(),
+            "compliance": self.compliance_record(),
+            "parameters": [{"name": p.name, "unit": _unit(p.unit),
+                            "nominal": _out(p.nominal, p.unit), "identified": _out(p.identified, p.unit),
+                            "deviation": _out(p.deviation, p.unit),
+                            "std": None if math.isnan(p.std) else _out(p.std, p.unit),
+                            "free": p.free} for p in self.parameters],
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, allow_nan=False)
+
+    def format(self) -> str:
+        """The report for a person: parameter table, accuracy before/after, status."""
+        nz = self.noise
+        lines = [f"Calibration: {self.method.upper()}, parameter set {self.param_set!r} "
+                 f"({len(self.free)} identified of {len(self.parameters)}), {self.status}: {self.message}",
+                 f"  {self.iterations} LM iterations in all (every fit of the calibration), {self.rounds} rounds, {self.wall_time * 1e3:.1f} ms"]
+        if nz is not None:
+            rot = "" if nz.rotation is None else f", orientation {nz.rotation:.3g} rad"
+            if nz.estimated:
+                lines.append(f"  noise estimated from the residuals ({nz.iterations} re-weighted fits): "
+                             f"position {nz.position * 1e3:.4g} mm{rot} per axis")
+            else:
+                lines.append(f"  noise given: position {nz.position * 1e3:g} mm{rot} per axis; residuals "
+                             f"vs that noise: reduced chi^2 {nz.reduced_chi2:.3g} over {nz.dof:.0f} degrees "
+                             f"of freedom (p = {nz.p_value:.3g}{', consistent' if nz.p_value > 0.01 else ', NOT consistent'})")
+        lines += [f"  note: {n}" for n in self.notes]
+        for o in self.outliers:
+            rot = "" if math.isnan(o.rotation_error) else f", {o.rotation_error:.3g} rad"
+            lines.append(f"  outlier: row {o.row}: {o.position_error * 1e3:.3f} mm{rot} ({o.sigmas:.0f} sigma)")
+        if self.selection is not None:
+            lines += ["", self.selection.format()]
+        w = max([10] + [len(p.name) + 1 for p in self.parameters])
+        lines += ["", f"{'parameter':<{w}}{'unit':>5}{'nominal':>14}{'identified':>14}{'deviation':>13}{'std':>11}"]
+        if self.robot.has_compliance:
+            lines.insert(-1, f"  note: {URDF_NOTE}")
+        for p in self.parameters:
+            unit = _unit(p.unit)
+            std = "fixed" if not p.free else f"{_out(p.std, p.unit):.3g}"
+            lines.append(f"{p.name:<{w}}{unit:>5}{_out(p.nominal, p.unit):>14.6f}"
+                         f"{_out(p.identified, p.unit):>14.6f}{_out(p.deviation, p.unit):>13.6f}{std:>11}")
+        rows = [("calibration rows, before", self.before)]
+        if self.before_registered is not None:
+            rows.append(("  before, frame registered", self.before_registered))
+        rows.append(("calibration rows, after", self.after))
+        if self.after_without_outliers is not None:
+            rows.append(("  after, without outliers", self.after_without_outliers))
+        if self.validation_after is not None:
+            rows.append(("validation rows, before", self.validation_before))
+            if self.validation_before_registered is not None:
+                rows.append(("  before, frame registered", self.validation_before_registered))
+            rows.append(("validation rows, after", self.validation_after))
+        for t in self.targets:
+            rows += [(f"target {t.target}, before", t.before), (f"target {t.target}, after", t.after)]
+            if t.validation_after is not None:
+                rows += [(f"target {t.target}, val. before", t.validation_before),
+                         (f"target {t.target}, val. after", t.validation_after)]
+        lines += ["", format_accuracy_table(rows)]
+        if self.cross_validation is not None:
+            cv = self.cross_validation
+            rot = "" if cv.rotation_rms is None else f", orientation {cv.rotation_rms:.3g} rad"
+            kind = "leave-one-out" if cv.folds == sum(n for n, _, _ in cv.per_fold) else f"{cv.folds}-fold"
+            lines.append(f"cross-validated ({kind}) held-out RMS error: position "
+                         f"{cv.position_rms * 1e3:.4g} mm{rot}")
+        pr = self.predicted
+        rot = "" if pr.get("rotation_rms") is None else f", orientation {pr['rotation_rms']:.3g} rad"
+        if self.predicted_holdout is not None:
+            ph = self.predicted_holdout
+            rot_h = "" if pr.get("rotation_rms") is None else f", orientation {ph['rotation_rms']:.3g} rad"
+            lines.append(f"predicted RMS error on new measured rows ({pr['where']}): position "
+                         f"{ph['position_rms'] * 1e3:.4g} mm{rot_h}")
+        lines.append(f"predicted RMS error of the calibrated model against the true poses (Cramer-Rao, "
+                     f"{pr['where']}): position {pr['position_rms'] * 1e3:.4g} mm{rot}")
+        return "\n".join(lines)
+
+
+def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> tuple[ParameterEstimate, ...]:
+    std = dict(zip(free, np.sqrt(np.maximum(np.diag(cov), 0.0))))
+    frame_vals = {("u", None): (zyx_parameters(nominal.T_meas_base()), zyx_parameters(calibrated.T_meas_base()))}
+    for t in nominal.targets or (None,):
+        frame_vals["v", t] = (zyx_parameters(nominal.T_flange_tool(t)), zyx_parameters(calibrated.T_flange_tool(t)))
+    kinds = ("x", "y", "z", "alpha", "beta", "gamma")
+    rows = []
+    for k, p in enumerate(nominal.parameters):
+        if p.group in ("u", "v"):
+            i = kinds.index(p.kind)
+            nom, ide = frame_vals[p.group, p.target][0][i], frame_vals[p.group, p.target][1][i]
+        else:
+            nom, ide = nominal.values[k], calibrated.values[k]
+        rows.append(ParameterEstimate(p.name, p.unit, float(nom), float(ide), p.name in std,
+                                      float(std.get(p.name, math.nan))))
+    return tuple(rows)

@@ -1,0 +1,121 @@
+"""The statistics stage (:class:`Statistics`): parameter covariance and the predicted accuracy of the
+calibrated model (propagation of the covariance through the pose Jacobian).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from calib.calibration.accuracy import target_rows
+from calib.calibration.fit import Fit
+from calib.calibration.prepare import Setup
+from calib.calibration.validation import _held_out_traces
+from calib.model.jacobian import pose_jacobian
+from calib.model.kinematics import ChainKinematics
+from calib.model.robot import RobotModel
+from calib.solvers.problem import CHUNK_POSES, Problem, normal_inverse
+
+
+@dataclass(frozen=True)
+class Statistics:
+    """The statistics stage.
+
+    covariance : (n_free, n_free) covariance of the free parameters (SI units), from the noise
+    levels of the fit; full_rank : False when it is a pseudo-inverse. rank : rank of the weighted
+    Jacobian. predicted : RMS error of the calibrated model against the true poses at ``where``
+    (position_rms m, rotation_rms rad): the covariance propagated to the poses. predicted_holdout :
+    RMS error against new measured rows: the covariance inflated by the measured misfit, plus the
+    measurement noise (inflated likewise).
+    """
+
+    covariance: np.ndarray = field(repr=False)
+    full_rank: bool
+    rank: int
+    predicted: dict
+    predicted_holdout: dict
+    where: str
+
+
+# ---------------------------------------------------------------- statistics
+def _propagate(model: RobotModel, Q: np.ndarray, free: Sequence[str], C: np.ndarray,
+               kin: ChainKinematics | None = None, targets: np.ndarray | None = None) -> tuple[float, float]:
+    """(position, rotation) RMS over configurations Q of the pose error that a parameter error of
+    covariance C (free parameters, SI) causes: sqrt of the mean trace of J C J^T (m, rad);
+    targets: (N,) each row's target index for a multi-target model."""
+    kin = kin or ChainKinematics(model)
+    kin.set_values(model.values)
+    idx = model.indices(free)
+    jacobians = (pose_jacobian(kin, Q[s:s + CHUNK_POSES], idx,
+                               targets=None if targets is None else targets[s:s + CHUNK_POSES])[2]
+                 for s in range(0, len(Q), CHUNK_POSES))
+    return _propagated(jacobians, len(Q), C)
+
+
+def _propagated(jacobians, n: int, C: np.ndarray) -> tuple[float, float]:
+    """(position, rotation) RMS over n poses of J C J^T, from their pose Jacobians (chunks of
+    (k, 6, m))."""
+    tr_p = tr_r = 0.0
+    for Jf in jacobians:
+        JC = Jf @ C
+        tr_p += float(np.einsum("nij,nij->", JC[:, :3], Jf[:, :3]))
+        tr_r += float(np.einsum("nij,nij->", JC[:, 3:], Jf[:, 3:]))
+    n = max(n, 1)
+    return math.sqrt(max(tr_p, 0.0) / n), math.sqrt(max(tr_r, 0.0) / n)
+
+
+def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
+    """Covariance and predictions (see :class:`Statistics`)."""
+    x = fit.model.values[fit.model.indices(fit.free)]
+    ne = problem.derived(loss="linear").normal_equations(x)
+    C, full_rank = fit.covariance, fit.full_rank
+    rank = int(round(float(np.trace(C @ ne.A))))
+    where = "validation configurations" if setup.val is not None else "calibration configurations"
+    Q = setup.val.q if setup.val is not None else setup.cal.q[fit.keep]
+    rows = target_rows(fit.model, setup.val) if setup.val is not None else problem.targets
+    kin = problem.kin
+
+    def propagate(cov):
+        if setup.val is not None:
+            return _propagate(fit.model, Q, fit.free, cov, kin, rows)
+        # at the calibration rows: the Jacobian of the fit's rows at its solution, computed once
+        return _propagated((J for _, _, J in problem.derived(loss="linear").whitened_blocks(x, raw=True)), len(Q), cov)
+
+    pos, rot = propagate(C)
+    nz = fit.noise
+    has_rot = setup.measure == "pose"
+    # misfit: a group whose residuals exceed the given noise inflates both the parameter
+    # uncertainty and the error of a new measurement (an estimated noise level already holds it)
+    infl_p = 1.0 if nz.estimated else max(1.0, nz.chi2_pos)
+    infl_r = 1.0 if (nz.estimated or not has_rot) else max(1.0, nz.chi2_rot)
+    if infl_p == 1.0 and infl_r == 1.0:
+        pos_e, rot_e = pos, rot
+    else:
+        A_eff = ne.A_pos / infl_p + (ne.A_rot / infl_r if ne.A_rot is not None else 0.0)
+        C_eff, _ = normal_inverse(A_eff)
+        pos_e, rot_e = propagate(C_eff)
+    if setup.val is not None:
+        # new rows at the validation configurations: the parameter error propagated there, plus
+        # the measurement noise of the new row
+        holdout_p = math.sqrt(pos_e ** 2 + 3.0 * nz.position ** 2 * infl_p)
+        holdout_r = math.sqrt(rot_e ** 2 + 3.0 * nz.rotation ** 2 * infl_r) if has_rot else None
+    else:
+        # new rows like the calibration rows: a row's error when it is held out of the fit is
+        # (I - H_ii)^-1 times its residual, H_ii its block of the hat matrix, so its expected
+        # square is sigma^2 tr (I - H_ii)^-1 - on few rows far above sigma^2 (1 + tr H_ii)
+        t_p, t_r = _held_out_traces(problem.derived(loss="linear"), x, C)
+        holdout_p = math.sqrt(nz.position ** 2 * infl_p * t_p)
+        holdout_r = math.sqrt(nz.rotation ** 2 * infl_r * t_r) if has_rot else None
+    predicted = {"position_rms": pos, "rotation_rms": rot if has_rot else None, "where": where}
+    holdout = {"position_rms": holdout_p, "rotation_rms": holdout_r, "where": where}
+    return Statistics(C, full_rank, rank, predicted, holdout, where)
+
+
+def statistics_notes(stats: Statistics) -> list[str]:
+    """A note when the free parameters are not all identifiable."""
+    if stats.full_rank:
+        return []
+    return ["the free parameters are not all identifiable (rank-deficient set): standard "
+            "deviations come from the pseudo-inverse and describe only the identifiable combinations"]

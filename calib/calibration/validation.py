@@ -1,0 +1,262 @@
+"""Cross-validation (:class:`CrossValidation`) and the choice among candidate parameter sets
+(:class:`ModelSelection`, :func:`select_model`).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field, replace
+from typing import Callable, Sequence
+
+import numpy as np
+
+from calib.calibration.fit import Fit, Solver, solver_for, fit_stage, fit_with
+from calib.calibration.options import CV_FOLDS, LOO_BELOW_ROWS, CalibrationOptions
+from calib.calibration.parameters import candidate_sets
+from calib.calibration.prepare import Setup
+from calib.errors import DataError, ParameterError
+from calib.model.kinematics import ChainKinematics
+from calib.solvers.lm import LMOptions, levenberg_marquardt
+from calib.solvers.problem import Problem, normal_inverse
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class CrossValidation:
+    """K-fold cross-validated held-out error of a fit: each fold's rows predicted by the model
+    fitted on the other folds. position_rms (m) and rotation_rms (rad, None position only) pooled
+    over every held-out row; per_fold : per fold (rows, position_rms, rotation_rms);
+    row_scores : (n,) whitened squared held-out error of each kept row (position and rotation,
+    weighted by the fit's noise levels; rows in the order of the calibration rows);
+    score / score_se : their mean and its standard error."""
+
+    folds: int
+    position_rms: float
+    rotation_rms: float | None
+    per_fold: tuple[tuple[int, float, float | None], ...]
+    score: float
+    score_se: float
+    row_scores: np.ndarray = field(repr=False, default=None)
+
+    def to_dict(self) -> dict:
+        return {"folds": self.folds, "position_rms_mm": self.position_rms * 1e3,
+                "rotation_rms_rad": self.rotation_rms,
+                "per_fold": [{"rows": n, "position_rms_mm": p * 1e3, "rotation_rms_rad": r}
+                             for n, p, r in self.per_fold]}
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate parameter set of the model selection and its cross-validated error."""
+
+    label: str
+    free: tuple[str, ...]
+    cv: CrossValidation
+
+
+@dataclass(frozen=True)
+class ModelSelection:
+    """``params="auto"``: the candidates (smallest first) and the chosen one: the smallest whose
+    cross-validated score exceeds the best one's by at most one standard error of their paired
+    row-by-row difference (the one-standard-error rule)."""
+
+    candidates: tuple[Candidate, ...]
+    chosen: str
+    best: str
+
+    def to_dict(self) -> dict:
+        return {"chosen": self.chosen, "best": self.best, "rule": "one standard error",
+                "candidates": [{"label": c.label, "n_free": len(c.free), "score": c.cv.score,
+                                "score_se": c.cv.score_se, "position_rms_mm": c.cv.position_rms * 1e3,
+                                "rotation_rms_rad": c.cv.rotation_rms} for c in self.candidates]}
+
+    def format(self) -> str:
+        lines = [f"model selection ({self.candidates[0].cv.folds}-fold cross-validation, one-standard-error "
+                 f"rule toward the smaller set; score: mean noise-weighted squared held-out error per row):",
+                 f"  {'candidate':<26}{'params':>7}{'score':>10}{'+-se':>9}{'pos rms/mm':>12}{'rot rms/rad':>13}"]
+        for c in self.candidates:
+            rot = "-" if c.cv.rotation_rms is None else f"{c.cv.rotation_rms:.3e}"
+            mark = "  <- chosen" if c.label == self.chosen else ("  (lowest)" if c.label == self.best else "")
+            lines.append(f"  {c.label:<26}{len(c.free):>7}{c.cv.score:>10.3f}{c.cv.score_se:>9.3f}"
+                         f"{c.cv.position_rms * 1e3:>12.4f}{rot:>13}{mark}")
+        return "\n".join(lines)
+
+
+def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, float]:
+    """Means over the rows of tr (I - H_ii)^-1 over the position and the rotation components
+    (whitened units), H_ii = Jw_i C Jw_i^T the row's block of the hat matrix. A row whose
+    leverage reaches 1 (it alone determines a parameter) counts as leverage 0.99."""
+    t_p = t_r = 0.0
+    n = 0
+    for _, Jw, _ in problem.whitened_blocks(x, raw=True):
+        H = Jw @ C @ np.transpose(Jw, (0, 2, 1))                     # (n, k, k)
+        M = np.empty_like(H)                                         # (I - H)^-1
+        # H is positive semi-definite: a leverage can reach 0.99 only where its trace does
+        high = np.trace(H, axis1=1, axis2=2) >= 0.99
+        M[~high] = np.linalg.inv(np.eye(H.shape[1]) - H[~high])
+        if high.any():
+            w, V = np.linalg.eigh(H[high])
+            w = np.minimum(w, 0.99)
+            M[high] = (V / (1.0 - w)[:, None, :]) @ np.transpose(V, (0, 2, 1))
+        d = np.diagonal(M, axis1=1, axis2=2)
+        t_p += float(d[:, :3].sum())
+        t_r += float(d[:, 3:].sum())
+        n += len(Jw)
+    return t_p / max(n, 1), t_r / max(n, 1)
+
+
+# ---------------------------------------------------------------- cross-validation
+def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOLDS, *,
+                   options: LMOptions = LMOptions(), seed: int = 0, refit: str = "newton") -> CrossValidation:
+    """K-fold cross-validated held-out error of ``fit`` (its parameter set, noise weights and
+    kept rows): the kept calibration rows split at random (``seed``) into ``folds`` folds, each
+    predicted by the model refitted on the others. The refit is one Gauss-Newton step from the
+    fit's solution with the fold's rows taken out of its normal equations, and the fold's
+    residuals predicted to first order from the same linearisation (``refit="newton"``, default:
+    exact for a model linear in its parameters, and one pass over the data in all; the
+    second-order terms are of the order of the parameter errors squared), or LM run to
+    convergence and the fold's residuals evaluated (``refit="lm"``)."""
+    n = int(fit.keep.sum())
+    if folds > n:
+        raise ParameterError(f"cv: {folds} folds need at least {folds} calibration rows, there are {n}")
+    fold_of = np.empty(n, int)
+    fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
+    kept = problem.derived(loss="linear")   # the kept rows, least squares
+    x0 = fit.model.values[fit.model.indices(fit.free)]
+    e_p, e_r = np.zeros(n), np.zeros(n)
+    has_rot = setup.measure == "pose"
+    if refit == "newton":
+        # J^T J and J^T r of each fold's rows (their sums are the fit's normal equations)
+        m = len(x0)
+        A_fold, g_fold = np.zeros((folds, m, m)), np.zeros((folds, m))
+        start = 0
+        for r, Jw, _ in kept.whitened_blocks(x0, raw=True):
+            lab = fold_of[start:start + len(r)]
+            start += len(r)
+            for f in range(folds):
+                Jf, rf = Jw[lab == f].reshape(-1, m), r[lab == f].reshape(-1)
+                A_fold[f] += Jf.T @ Jf
+                g_fold[f] += Jf.T @ rf
+        A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
+        # the folds' refits: A without each fold's rows, inverted at once
+        A_inv, full = normal_inverse(A_all[None] - A_fold)
+        bad = np.flatnonzero(~full)
+        if len(bad) and fit.full_rank:
+            # without this fold the rows cannot identify the parameters: its prediction would be
+            # the whole fit's, which has seen it (a leak), not a held-out error
+            f = int(bad[0])
+            raise DataError(f"cross-validation: without fold {f + 1} of {folds} the remaining "
+                            f"{n - int(np.sum(fold_of == f))} rows cannot identify the "
+                            f"{len(x0)} parameters")
+        dx = -np.einsum("fij,fj->fi", A_inv, g_all[None] - g_fold)       # (folds, m)
+        # each row's whitened residual at its fold's refit, r + Jw dx, back in m and rad
+        start = 0
+        for r, Jw, _ in kept.whitened_blocks(x0, raw=True):
+            lab = fold_of[start:start + len(r)]
+            pred = r + np.einsum("nkm,nm->nk", Jw, dx[lab])
+            e_p[start:start + len(r)] = np.sum(pred[:, :3] ** 2, axis=1) * kept.sigma_pos ** 2
+            if has_rot:
+                e_r[start:start + len(r)] = np.sum(pred[:, 3:] ** 2, axis=1) * kept.sigma_rot ** 2
+            start += len(r)
+    else:
+        for f in range(folds):
+            where = fold_of == f
+            x_f = levenberg_marquardt(kept.derived(keep=~where), x0, "pose", options).x
+            dp, dr = kept.derived(keep=where).pose_residuals(x_f)
+            e_p[where] = np.sum(dp ** 2, axis=1)
+            if dr is not None:
+                e_r[where] = np.sum(dr ** 2, axis=1)
+    per_fold = [(int(np.sum(fold_of == f)), math.sqrt(float(np.mean(e_p[fold_of == f]))),
+                 math.sqrt(float(np.mean(e_r[fold_of == f]))) if has_rot else None) for f in range(folds)]
+    score = e_p / problem.sigma_pos ** 2 + (e_r / problem.sigma_rot ** 2 if has_rot else 0.0)
+    return CrossValidation(folds, math.sqrt(float(np.mean(e_p))),
+                           math.sqrt(float(np.mean(e_r))) if has_rot else None, tuple(per_fold),
+                           float(np.mean(score)), _standard_error(score), score)
+
+
+def _standard_error(values: np.ndarray) -> float:
+    return float(np.std(values, ddof=1) / math.sqrt(len(values))) if len(values) > 1 else 0.0
+
+
+def one_standard_error(candidates: Sequence[Candidate]) -> Candidate:
+    """The one-standard-error rule: the first (smallest) of the nested ``candidates`` whose mean
+    held-out score exceeds the best one's by at most one standard error of their paired difference
+    (the candidates are scored on the same rows and folds, so their row scores are strongly
+    correlated and the difference is what is uncertain)."""
+    best = min(candidates, key=lambda c: c.cv.score)
+    return next(c for c in candidates
+                if np.mean(c.cv.row_scores - best.cv.row_scores) <= _standard_error(c.cv.row_scores - best.cv.row_scores))
+
+
+def select_model(setup: Setup, candidates: Sequence[tuple[str, tuple[str, ...]]], full: Fit,
+                 full_problem: Problem, solve: Solver, folds: int, kin: ChainKinematics,
+                 options: LMOptions, *, rule: Callable[[Sequence[Candidate]], Candidate] = one_standard_error,
+                 ) -> tuple[ModelSelection, dict[str, tuple[Fit, Problem]]]:
+    """Cross-validate each candidate set (label, names), smallest first, at the noise levels and
+    kept rows of ``full`` (the fit of the largest set) and choose by ``rule`` (a function of the
+    scored candidates returning one of them; default :func:`one_standard_error`, as scikit-learn's
+    ``GridSearchCV(refit=callable)``). Returns the selection and the candidates' fits."""
+    sp, sr = full_problem.sigma_pos, full_problem.sigma_rot
+    fits, cands = {}, []
+    for label, free in candidates:
+        if tuple(free) == full.free:
+            fit, problem = full, full_problem
+        else:
+            s = solver_for(setup, free, solve.method, options, solve.max_rounds, solve.fixed_rounds,
+                            solve.lm_variant)
+            fit, problem = fit_stage(setup, free, s, sigma_pos=sp, sigma_rot=sr, outlier_k=None,
+                                     keep=full.keep, kin=kin)
+        fits[label] = (fit, problem)
+        try:
+            cands.append(Candidate(label, tuple(free), cross_validate(setup, fit, problem, folds, options=options)))
+        except DataError:
+            continue            # too few rows to hold any out for this set: not a candidate
+    if not cands:
+        raise DataError(f"{setup.cal.n_poses} calibration rows are too few to compare parameter sets by "
+                        f"cross-validation (no candidate can be identified with a row held out): "
+                        f"measure more rows, or name the parameter set (params / --params)")
+    best = min(cands, key=lambda c: c.cv.score)
+    chosen = rule(tuple(cands))
+    return ModelSelection(tuple(cands), chosen.label, best.label), fits
+
+
+def select_and_fit(setup: Setup, ident: Sequence[str], options: CalibrationOptions, kin: ChainKinematics, *,
+                   rule: Callable[[Sequence[Candidate]], Candidate] = one_standard_error,
+                   ) -> tuple[ModelSelection, Fit, Problem]:
+    """Model selection ("auto"): the fit of the identifiable set ``ident`` (noise estimate,
+    outlier check), :func:`select_model` among the nested :func:`candidate_sets` at its noise
+    levels and kept rows, and the fit of the chosen set (the full fit when it is the largest)."""
+    full_solve = solver_for(setup, ident, options.method, options.lm, options.max_rounds, options.fixed_rounds,
+                             options.lm_variant)
+    full, full_problem = fit_stage(setup, ident, full_solve, sigma_pos=options.sigma_pos, sigma_rot=options.sigma_rot,
+                                   loss=options.loss, loss_scale=options.loss_scale, outlier_k=options.outlier_k,
+                                   kin=kin)
+    # leave-one-out on small sets: far less noisy than K folds at a few ms per refit
+    sel_folds = int(full.keep.sum()) if full.keep.sum() <= LOO_BELOW_ROWS else options.folds
+    selection, _ = select_model(setup, candidate_sets(setup.start, ident), full, full_problem, full_solve,
+                                sel_folds, kin, options.lm, rule=rule)
+    free = next(c.free for c in selection.candidates if c.label == selection.chosen)
+    if free == full.free:
+        fit, problem = full, full_problem
+    else:
+        fit, problem = fit_with(setup, free, options, outlier_k=None, keep=full.keep, kin=kin)
+        fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes)
+    log.info("model selection: %s", selection.chosen)
+    return selection, fit, problem
+
+
+def held_out_error(setup: Setup, fit: Fit, problem: Problem, selection: ModelSelection | None, folds: int,
+                   options: LMOptions) -> tuple[CrossValidation | None, list[str]]:
+    """The cross-validated held-out error of ``fit`` when there are no validation rows and
+    ``folds`` >= 2 (the chosen candidate's after model selection), and a note when it cannot run."""
+    if setup.val is not None or folds < 2:
+        return None, []
+    if selection is not None:
+        return next(c.cv for c in selection.candidates if c.label == selection.chosen), []
+    if fit.keep.sum() < folds:
+        return None, [f"no cross-validation: fewer rows than the {folds} folds"]
+    try:
+        return cross_validate(setup, fit, problem, folds, options=options), []
+    except DataError as exc:
+        return None, [f"no cross-validation: {exc}"]
