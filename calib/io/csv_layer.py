@@ -254,6 +254,15 @@ def parse_number(path: Path, row: int, column: str, text: str, decimal_comma: bo
     return value
 
 
+def _field_count(line: str, delimiter: str) -> int:
+    """How many fields ``line`` splits into at ``delimiter``; 0 when it is not valid CSV with it
+    (a header quoted field by field, ``"a","b"``, is malformed for every other delimiter)."""
+    try:
+        return len(next(csv.reader([line], delimiter=delimiter, strict=True)))
+    except csv.Error:
+        return 0
+
+
 def _looks_numeric(fields: list[str]) -> bool:
     try:
         [float(f.replace(",", ".")) for f in fields]
@@ -271,7 +280,7 @@ def _records(path: Path) -> tuple[int, list[str], str, list[tuple[int, str]]]:
         raise MeasurementFormatError(path, "no header row: the file holds only comments and blank "
                                            "lines")
     header_row, header_line = records[0]
-    best = max(_DELIMITERS, key=lambda d: len(split_fields(path, header_row, header_line, d)))
+    best = max(_DELIMITERS, key=lambda d: _field_count(header_line, d))
     names = split_fields(path, header_row, header_line, best)
     if _looks_numeric(names):
         raise MeasurementFormatError(path, "this line looks like data, expected the header row "

@@ -482,3 +482,36 @@ def test_missing_gripper_column_without_a_readable_urdf_is_the_plain_message(tmp
             calib.read_measurements(path, model)
         assert str(err.value).endswith("expected jointGripper_rad or jointGripper_deg")
         assert "\n" not in str(err.value)
+
+
+# ---------------------------------------------------------------- quoted headers (RFC 4180)
+def test_a_file_quoted_field_by_field_reads_as_the_plain_one(tmp_path):
+    """Spreadsheet and tracker exports quote every field (csv.QUOTE_ALL); the header of such a
+    file was malformed CSV for the ';' delimiter the sniffing also tried, and refused."""
+    import csv as _csv
+
+    from calib import load_robot, read_measurements
+
+    robot = load_robot(BUNDLED_URDF)
+    src = BUNDLED_URDF.parents[2] / "examples" / "brtirus0707a" / "measurements.csv"
+    lines = [l for l in src.read_text().splitlines() if l.strip() and not l.startswith("#")][:30]
+    plain = tmp_path / "plain.csv"
+    plain.write_text("\n".join(lines) + "\n")
+    for delimiter in (",", ";", "\t"):
+        quoted = tmp_path / f"quoted{ord(delimiter)}.csv"
+        with open(quoted, "w", newline="") as f:
+            _csv.writer(f, delimiter=delimiter, quoting=_csv.QUOTE_ALL).writerows(_csv.reader(lines))
+        a, b = read_measurements(plain, robot), read_measurements(quoted, robot)
+        np.testing.assert_array_equal(a.q, b.q)
+        np.testing.assert_array_equal(a.position, b.position)
+        np.testing.assert_array_equal(a.rotation, b.rotation)
+
+
+def test_a_header_name_holding_the_delimiter_is_read(tmp_path):
+    """A quoted column name that holds a comma (calib's own writer quotes it) is one column."""
+    from calib.io.csv_layer import _records, csv_text
+
+    path = tmp_path / "t.csv"
+    path.write_text(csv_text(["wrist, roll_rad", "x_mm"], [[0.5, 1.0]]))
+    _, names, delimiter, records = _records(path)
+    assert names == ["wrist, roll_rad", "x_mm"] and delimiter == "," and len(records) == 1
