@@ -58,7 +58,8 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from calib.checks import check_rng, check_robot
+from calib.checks import check_rng
+from calib.model.robot import check_robot
 from calib.errors import CalibError, DataError, ParameterError
 from calib.model.jacobian import MEASURES
 from calib.model.kinematics import ChainKinematics

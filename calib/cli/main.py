@@ -348,7 +348,7 @@ def cmd_calibrate(args) -> int:
         raise ParameterError("--payload-kg and --gravity only matter with --compliance")
     out_sidecar = None
     if args.compliance:
-        from calib.model.compliance import sidecar_path
+        from calib.io.compliance_file import sidecar_path
 
         out_sidecar = outputs.add(sidecar_path(out_urdf))
     frames = check_writable(robot)     # what cannot be written is refused before the fit
@@ -424,7 +424,7 @@ def _evaluate_compliance(robot, args):
     """``robot`` with the compliances of --compliance (torques from --nominal's URDF if given,
     else from ROBOT.urdf's), and the stderr note that says so; without --compliance, a note when
     a compliance sidecar lies beside ROBOT.urdf (its accuracy is then geometry-only)."""
-    from calib.model.compliance import sidecar_path
+    from calib.io.compliance_file import sidecar_path
 
     nominal = None
     if args.nominal is not None:

@@ -302,14 +302,19 @@ def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame:
     exactly (to rounding). Raises :class:`calib.CalibError` subclasses on bad input.
     """
     check_number(parallel_threshold, "parallel_threshold", minimum=0.0, maximum=math.pi / 2)
-    chain = read_urdf_chain(urdf_path, base_frame, tool_frame)
+    return robot_from_chain(read_urdf_chain(urdf_path, base_frame, tool_frame), parallel_threshold)
+
+
+def robot_from_chain(chain: UrdfChain, parallel_threshold: float = PARALLEL_THRESHOLD_RAD) -> RobotModel:
+    """The TM-MDH model of a chain already read (:func:`read_urdf_chain`), carrying it as its
+    ``source``: no file is read and nothing is rebuilt. See :func:`load_robot`."""
     pts, dirs, T_meas_tool = chain_axes(chain)
     geo = derive_mdh(pts, dirs, T_meas_tool, parallel_threshold)
     robot = RobotModel.from_mdh(
         chain.joints, geo.theta, geo.d, geo.a, geo.alpha,
         beta=np.where(geo.has_beta, geo.beta, np.nan),
         T_meas_base_ref=geo.T_meas_base_ref, T_flange_tool_ref=geo.T_flange_tool_ref,
-        base_frame=chain.base_frame, tool_frame=chain.tool_frame, urdf_path=chain.path,
+        base_frame=chain.base_frame, tool_frame=chain.tool_frame, source=chain,
         parallel_threshold=parallel_threshold)
     rec = chain.document.frames if chain.document is not None else None
     if rec is not None and len(rec.targets) > 1 and chain.tool_frame == rec.tool_frame:

@@ -65,7 +65,7 @@ from calib.errors import CalibError
 from calib.io.fileio import atomic_write_text, check_not_input
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
-from calib.io.urdf_reader import chain_axes, load_robot, read_urdf_chain
+from calib.io.urdf_reader import chain_axes, robot_from_chain
 from calib.io.urdf import FRAMES_TAG, RecordedFrames, UrdfDocument
 from calib.model.spatial import inverse
 
@@ -84,16 +84,16 @@ _UNCHANGED_TOL = 1e-13
 def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
                           nominal: RobotModel | None = None,
                           estimated: Sequence[str] = ()) -> RecordedFrames:
-    """Write a copy of ``robot.urdf_path`` whose kinematics are exactly ``robot``'s.
+    """Write a copy of the URDF ``robot`` was read from whose kinematics are exactly ``robot``'s.
 
     Parameters
     ----------
-    robot : the calibrated model; it must have been read from a URDF (``robot.urdf_path``).
+    robot : the calibrated model; it must have been read from a URDF (it carries the parsed
+        document, ``robot.source``; the input file is not read again).
     path : output file; written atomically; must not be the input URDF.
     nominal : the model derived from the input URDF, with the same parameter names, joints and
-        base/tool frames as ``robot``. Default:
-        ``load_robot(robot.urdf_path, robot.base_frame, robot.tool_frame,
-        robot.parallel_threshold)``.
+        base/tool frames as ``robot``. Default: the model derived from the URDF ``robot`` carries
+        (``robot_from_chain(robot.source, robot.parallel_threshold)``; no file is read).
     estimated : the frames the calibration estimated from the data
         (:attr:`calib.CalibrationResult.estimated_frames`: "measurement->base", "flange->tool",
         "flange-><id>"), recorded as ``measurement_estimated`` / ``tool_estimated``; a calibrated
@@ -111,7 +111,8 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
     Raises :class:`~calib.errors.CalibError` (or a subclass): no URDF to start from, output =
     input, ``nominal`` incompatible with ``robot`` or not describing the URDF.
     """
-    from calib.checks import check_path, check_robot
+    from calib.checks import check_path
+    from calib.model.robot import check_robot
 
     check_robot(robot)
     check_not_input(check_path(path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
@@ -135,21 +136,25 @@ def check_writable(robot: RobotModel) -> RecordedFrames:
 
 
 def _prepare(robot: RobotModel, nominal: RobotModel | None):
-    from calib.checks import check_instance, check_robot
+    from calib.checks import check_instance
+    from calib.model.robot import check_robot
 
     check_robot(robot)
     check_instance(nominal, "nominal", RobotModel, "from calib.load_robot", allow_none=True)
     if robot.targets:      # the chain and first target as one model, then a link per target
         doc, plan = _prepare(robot.for_target(0), None if nominal is None else nominal.for_target(0))
         return doc, _plan_targets(robot, doc, plan)
-    if robot.urdf_path is None:
-        raise CalibError("the robot model was not read from a URDF (urdf_path is None): there is no "
-                         "URDF to write calibrated kinematics into")
-    src = Path(robot.urdf_path)
+    chain = robot.source      # the URDF as the loader parsed it: no file is read again
+    if chain is None:
+        raise CalibError("the robot model was not read from a URDF (it carries no URDF source): "
+                         "there is no URDF to write calibrated kinematics into")
+    if (chain.base_frame, chain.tool_frame) != (robot.base_frame, robot.tool_frame):
+        raise CalibError(f"{chain.path}: the robot model's frames {robot.base_frame!r} -> "
+                         f"{robot.tool_frame!r} are not those of the chain it was read with "
+                         f"({chain.base_frame!r} -> {chain.tool_frame!r}); load it with these frames")
     if nominal is None:
-        nominal = load_robot(src, robot.base_frame, robot.tool_frame, robot.parallel_threshold).for_target(0)
+        nominal = robot_from_chain(chain, robot.parallel_threshold).for_target(0)
     _check_compatible(robot, nominal)
-    chain = read_urdf_chain(src, robot.base_frame, robot.tool_frame)
     doc = _UrdfDocument(chain.document.path, chain.document.tree)
     _check_nominal_matches_urdf(nominal, chain)
     return doc, _plan_edits(robot, nominal, chain, doc)

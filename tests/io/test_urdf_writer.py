@@ -397,7 +397,7 @@ def test_no_file_left_on_error(tmp_path):
     nominal = load_robot(BUNDLED)
     table = nominal.mdh_table()
     other = RobotModel.from_mdh(nominal.joints, table["theta"], table["d"], table["a"],
-                                table["alpha"], urdf_path=BUNDLED)
+                                table["alpha"], source=nominal.source)
     assert "beta2" in robot.names and "beta2" not in other.names
     with pytest.raises(CalibError, match="different parameters"):
         write_calibrated_urdf(robot, out, nominal=other)
@@ -428,7 +428,7 @@ def test_model_without_urdf_is_refused(tmp_path):
     robot = load_robot(BUNDLED)
     from dataclasses import replace
     with pytest.raises(CalibError, match="not read from a URDF"):
-        write_calibrated_urdf(replace(robot, urdf_path=None), tmp_path / "x.urdf")
+        write_calibrated_urdf(replace(robot, source=None), tmp_path / "x.urdf")
     assert list(tmp_path.iterdir()) == []
 
 
