@@ -432,7 +432,7 @@ def _evaluate_compliance(robot, args):
             raise ParameterError("--nominal only matters with --compliance (it gives the gravity torques)")
         from calib.calibration.compensation import nominal_frames
 
-        base, tool = nominal_frames(robot.urdf_path, base_frame=args.base_frame, tool_frame=args.tool_frame)
+        base, tool = nominal_frames(robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
         nominal = load_robot(args.nominal, base_frame=base, tool_frame=tool)
     elif args.compliance is not None and robot.targets:
         raise ParameterError(f"--compliance: {args.robot} holds {robot.n_targets} targets and its tool "

@@ -159,7 +159,8 @@ def robot_path(robot: str | Path) -> Path:
 
 
 def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
-                    tool_frame: str | None = None) -> UrdfChain:
+                    tool_frame: str | None = None, *,
+                    document: UrdfDocument | None = None) -> UrdfChain:
     """Read a URDF and find the serial chain of moving joints between two of its frames.
 
     ``urdf_path`` is a file or a robot name of example-robot-data (:func:`robot_path`).
@@ -168,13 +169,14 @@ def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
     by calib records its frames, which are then the defaults (and requests for the nominal
     frames they stand for map to them; :meth:`calib.io.urdf.UrdfDocument.resolve_frames`). Frames
     may be link or joint names. Raises :class:`URDFError`, :class:`FrameNotFound` or
-    :class:`ChainError`.
+    :class:`ChainError`. ``document``: the file's document when the caller has already read it
+    (it is then not read again).
     """
     path = robot_path(check_path(urdf_path, "urdf_path"))
     for name, frame in (("base_frame", base_frame), ("tool_frame", tool_frame)):
         if frame is not None and not (isinstance(frame, str) and frame):
             raise ParameterError(f"{name} must be a frame name (a non-empty str) or None, got {frame!r}")
-    doc = UrdfDocument.read(path)
+    doc = UrdfDocument.read(path) if document is None else document
     parser_output: list[str] = []
     try:
         with captured_c_output() as parser_output:   # Pinocchio's parser prints to C stderr

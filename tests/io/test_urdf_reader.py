@@ -60,3 +60,36 @@ def test_calibrate_with_compliance_builds_the_urdf_once(tmp_path, count_reads, c
                  "--params", "base", "--method", "lm", "--cv", "0"]) == 0
     assert out.is_file() and out.with_name("cal.compliance.json").is_file()
     assert count_reads == {"build": 1, "read": 1}
+
+
+def test_compensate_and_evaluate_read_each_urdf_once(tmp_path, count_reads, capsys):
+    """compensate reads and builds the calibrated and the nominal URDF once each (the frames the
+    calibrated URDF records and the joint-target check use the document its model carries);
+    evaluate reads and builds its URDF once."""
+    cal = tmp_path / "cal.urdf"
+    assert main(["calibrate", str(BUNDLED), str(EXAMPLE), "-o", str(cal)]) == 0
+    count_reads.update(build=0, read=0)
+    assert main(["compensate", str(cal), str(BUNDLED), str(ROOT / "examples" / "brtirus0707a" / "targets.csv"),
+                 "-o", str(tmp_path / "corrected.csv")]) == 0
+    assert count_reads == {"build": 2, "read": 2}
+    count_reads.update(build=0, read=0)
+    assert main(["evaluate", str(cal), str(EXAMPLE)]) == 0
+    assert count_reads == {"build": 1, "read": 1}
+
+
+def test_the_model_carries_its_source():
+    """load_robot's model carries the parsed chain; derived models keep it; urdf_path is its path."""
+    chain = read_urdf_chain(BUNDLED)
+    robot = robot_from_chain(chain)
+    assert robot.source is chain and robot.urdf_path == BUNDLED
+    derived = [robot.with_values(robot.values * 1.0), robot.with_changes(d2=1e-4),
+               robot.with_target_offsets({"A": [0, 0, 0.01], "B": [0, 0.01, 0]}).for_target("B"),
+               replace(robot, tool_frame=robot.tool_frame)]
+    assert all(r.source is chain for r in derived)
+    assert replace(robot, source=None).urdf_path is None
+    with pytest.raises(AttributeError):
+        robot.urdf_path = Path("other.urdf")
+    # the same kinematics as a fresh load (to rounding: the same arithmetic)
+    q = robot.random_configurations(5, rng=1)
+    fresh = calib.load_robot(BUNDLED)
+    assert np.array_equal(np.array([robot.T_meas_tool(x) for x in q]), np.array([fresh.T_meas_tool(x) for x in q]))
