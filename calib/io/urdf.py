@@ -177,6 +177,11 @@ class UrdfDocument:
             raise URDFError(self.path, f"joint {name!r}: <limit lower=\"{lower[0]:g}\" upper=\"{upper[0]:g}\">"
                                        f" has lower > upper")
 
+    def __reduce__(self):
+        """Pickled as its path and XML text (an lxml tree cannot be pickled), so that a model
+        carrying its document can go to another process."""
+        return _document_from_text, (type(self), self.path, etree.tostring(self.tree))
+
     @classmethod
     def read(cls, path: str | Path) -> "UrdfDocument":
         """Parse a URDF file; :class:`URDFError` naming the file (and line) if it cannot be."""
@@ -285,6 +290,12 @@ class UrdfDocument:
         if tool_frame is None or tool_frame == rec.nominal_tool_frame:
             tool_frame = rec.tool_frame
         return base_frame, tool_frame
+
+
+def _document_from_text(cls: type, path: Path, text: bytes) -> UrdfDocument:
+    """The document of a pickled :class:`UrdfDocument` (see its ``__reduce__``)."""
+    parser = etree.XMLParser(remove_blank_text=False, remove_comments=False, resolve_entities=False)
+    return cls(path, etree.ElementTree(etree.fromstring(text, parser)))
 
 
 # ====================================================================== writing: numbers and names

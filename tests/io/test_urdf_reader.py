@@ -93,3 +93,20 @@ def test_the_model_carries_its_source():
     q = robot.random_configurations(5, rng=1)
     fresh = calib.load_robot(BUNDLED)
     assert np.array_equal(np.array([robot.T_meas_tool(x) for x in q]), np.array([fresh.T_meas_tool(x) for x in q]))
+
+
+def test_a_model_with_its_source_pickles(tmp_path, capsys):
+    """A model goes to another process with what it carries (the document is pickled as its
+    text): same kinematics, same recorded frames, and it can still be written."""
+    import pickle
+
+    cal = tmp_path / "cal.urdf"
+    assert main(["calibrate", str(BUNDLED), str(EXAMPLE), "-o", str(cal)]) == 0
+    robot = calib.load_robot(cal)
+    back = pickle.loads(pickle.dumps(robot))
+    assert back.urdf_path == robot.urdf_path and back.source.document.frames == robot.source.document.frames
+    q = robot.random_configurations(3, rng=0)
+    assert np.array_equal(np.array([back.T_meas_tool(x) for x in q]), np.array([robot.T_meas_tool(x) for x in q]))
+    calib.write_calibrated_urdf(robot, tmp_path / "a.urdf")
+    calib.write_calibrated_urdf(back, tmp_path / "b.urdf")
+    assert (tmp_path / "a.urdf").read_bytes() == (tmp_path / "b.urdf").read_bytes()
