@@ -301,7 +301,9 @@ def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame:
     parallel_threshold : radians; see :data:`calib.model.mdh.PARALLEL_THRESHOLD_RAD`.
 
     The model reproduces Pinocchio's forward kinematics of ``tool_frame`` in ``base_frame``
-    exactly (to rounding). Raises :class:`calib.CalibError` subclasses on bad input.
+    exactly (to rounding), and carries what was parsed (``robot.source``, the :class:`UrdfChain`:
+    the document and Pinocchio model), which the writer, compliance and messages use: the file
+    is read and built once. Raises :class:`calib.CalibError` subclasses on bad input.
     """
     check_number(parallel_threshold, "parallel_threshold", minimum=0.0, maximum=math.pi / 2)
     return robot_from_chain(read_urdf_chain(urdf_path, base_frame, tool_frame), parallel_threshold)

@@ -106,7 +106,7 @@ class GravityModel:
     """
 
     model: pin.Model = field(repr=False)
-    chain: object = field(repr=False)
+    chain: UrdfSource = field(repr=False)
     payload: Payload | None
     gravity: np.ndarray
     link_mass: float
