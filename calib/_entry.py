@@ -1,7 +1,8 @@
 """The ``calib`` console command's entry point: Ctrl-C and SIGTERM handled from the first instant.
 
-``import calib.cli.main`` loads numpy, scipy and Pinocchio (a second or more on a cold start). A
-signal in that time would otherwise end the process with a traceback (SIGINT) or silently
+Python's start-up and ``import calib.cli.main`` take a moment on a cold start (numpy, scipy and
+Pinocchio come later, inside :func:`calib.cli.main.main`, which handles the signals from there on).
+A signal in that time would otherwise end the process with a traceback (SIGINT) or silently
 (SIGTERM); here it ends it with the command's one line and exit code 128 + the signal, as
 :func:`calib.cli.main.main` does later. Nothing has been written yet at that point.
 """

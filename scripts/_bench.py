@@ -30,3 +30,24 @@ def machine() -> str:
 
     return (f"{platform.processor() or platform.machine()}, Python {platform.python_version()}, "
             f"numpy {numpy.__version__}, pinocchio {pinocchio.__version__}, 1 BLAS thread")
+
+
+def figaroh_fit_class(pos_weight: float, orient_weight: float):
+    """FIGAROH 1.0.2's calibration with the base and tool frames unknown and log-map residuals
+    weighted ``pos_weight`` (1/m) : ``orient_weight`` (1/rad): the one way the benchmarks run the
+    peer (import only in an interpreter that has FIGAROH)."""
+    from figaroh.calibration.base_calibration import BaseCalibration
+    from figaroh.calibration.calibration_tools import calc_updated_fkm
+
+    class Fit(BaseCalibration):
+        def __init__(self, figaroh_robot, config):
+            super().__init__(figaroh_robot, config)
+            self.calib_config["known_baseframe"] = False
+            self.calib_config["known_tipframe"] = False
+
+        def cost_function(self, var):
+            est = calc_updated_fkm(self.model, self.data, var, self.q_measured, self.calib_config)
+            return self.apply_measurement_weighting(self._compute_logmap_residuals(self.PEE_measured, est),
+                                                    pos_weight=pos_weight, orient_weight=orient_weight)
+
+    return Fit

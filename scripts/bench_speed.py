@@ -141,7 +141,6 @@ def figaroh_worker(repeats: int = 3) -> dict:
     import numpy as np
     import pandas as pd
     import pinocchio as pin
-    from figaroh.calibration.base_calibration import BaseCalibration
     from figaroh.calibration.calibration_tools import calc_updated_fkm
     from figaroh.tools.robot import Robot
 
@@ -150,16 +149,7 @@ def figaroh_worker(repeats: int = 3) -> dict:
     robot, meas = problem(100)
     validation = problem(200, seed=3)[1]
 
-    class Fit(BaseCalibration):
-        def __init__(self, figaroh_robot, config):
-            super().__init__(figaroh_robot, config)
-            self.calib_config["known_baseframe"] = False
-            self.calib_config["known_tipframe"] = False
-
-        def cost_function(self, var):
-            est = calc_updated_fkm(self.model, self.data, var, self.q_measured, self.calib_config)
-            return self.apply_measurement_weighting(self._compute_logmap_residuals(self.PEE_measured, est),
-                                                    pos_weight=1 / 2e-5, orient_weight=1 / 2e-3)
+    Fit = _bench.figaroh_fit_class(1 / 2e-5, 1 / 2e-3)
 
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "data.csv"

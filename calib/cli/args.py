@@ -1,10 +1,11 @@
-"""Argument types and the help formatter shared by the ``calib`` subcommands."""
+"""What the ``calib`` subcommands share: argument types, the help formatter, the common options
+(robot, frames, file format, compliance, targets, -v), and the loading of the robot and the
+measurements from them."""
 from __future__ import annotations
 
 import argparse
+import logging
 import math
-
-import numpy as np
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
@@ -199,6 +200,8 @@ def add_compliance(p: argparse.ArgumentParser, role: str):
 def compliance_options(args):
     """(payload or None, gravity (3,) or None) from the options of :func:`add_compliance`;
     :class:`calib.ParameterError` naming the option for bad values."""
+    import numpy as np
+
     from calib.model.compliance import Payload, parse_triple
     from calib.errors import ParameterError
 
@@ -270,3 +273,52 @@ def with_targets(robot, args: argparse.Namespace):
     if len(ids) < 2 or len(set(ids)) != len(ids):
         raise ParameterError(f"--target: give two or more targets with distinct ids, got {', '.join(ids)}")
     return robot.with_target_offsets({t: [v * 1e-3 for v in xyz] for t, xyz in args.targets})
+
+
+COMMON_EPILOG = """
+Units: the measurement CSV carries its units in its column names (joint1_deg, x_mm, ...); printed
+positions are in mm, orientations in rad. Exit codes: 0 success, 2 bad input (one-line message on
+stderr, no file written)."""
+
+
+def add_robot(p: argparse.ArgumentParser) -> None:
+    """The ROBOT.urdf positional argument."""
+    p.add_argument("robot", metavar="ROBOT.urdf",
+                   help="URDF of the robot (the nominal model), or a robot name example-robot-data "
+                        "knows (ur5, panda, ...); a calibrated URDF written by calib brings its own "
+                        "base and tool frames")
+
+
+def add_verbose(p: argparse.ArgumentParser, *, top: bool = False,
+                help: str = "log progress on stderr (-vv: also the nominal model)") -> None:
+    """-v / --verbose: on the main parser (``top``) it counts from 0; on a subcommand's it adds
+    to the count given before the subcommand."""
+    p.add_argument("-v", "--verbose", action="count", default=0 if top else argparse.SUPPRESS,
+                   help=help)
+
+
+def load(args: argparse.Namespace):
+    """The robot of ``args.robot`` with the frames of --base-frame / --tool-frame (logged)."""
+    from calib.io.urdf_reader import load_robot
+
+    log = logging.getLogger("calib.cli")
+    robot = load_robot(args.robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
+    log.info("robot %s: %d joints (%s), base frame %r, tool frame %r, %d parameters",
+             args.robot, robot.n_joints, ", ".join(robot.joint_names), robot.base_frame,
+             robot.tool_frame, robot.n_params)
+    log.debug("nominal model:\n%s", robot.describe())
+    return robot
+
+
+def read(path, robot, args: argparse.Namespace, tracker=None, *, joined: bool = True):
+    """The measurements of ``path`` for ``robot``, read with the file-format options (its notes
+    on stderr)."""
+    from calib.cli.progress import working
+    from calib.io.specs import read_measurements
+
+    log = logging.getLogger("calib.cli")
+    with working(f"reading {path}", logger=log):
+        m = read_measurements(path, robot, tracker=tracker, options=read_options(args, joined=joined))
+    log.info("read %r", m)
+    print_notes(m.notes)
+    return m

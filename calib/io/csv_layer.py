@@ -4,8 +4,8 @@ A file kind (measurements, poses to measure, compensation targets, the two halve
 pair of files) is a :class:`Spec`: which quantities it needs (joints, position, orientation) and
 which text labels it takes (``set``, ``target``, a key column). :func:`read_table` reads any of
 them into a :class:`Table` in SI units; :mod:`calib.io.specs` turns tables into the objects
-the algorithms take. Everything about the text of a file lives here, so every file kind has the
-same rules, errors and hints:
+the algorithms take. Everything about the text of a file lives here (the matching of its header
+in :mod:`calib.io.csv_header`), so every file kind has the same rules, errors and hints:
 
 - UTF-8 (a byte-order mark is accepted); ``#`` comment lines and blank lines anywhere; row numbers
   are line numbers in the file.
@@ -26,10 +26,8 @@ Errors are :class:`calib.MeasurementFormatError`: one line naming the file, row 
 from __future__ import annotations
 
 import csv
-import difflib
 import math
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -37,25 +35,10 @@ from typing import Sequence
 import numpy as np
 
 from calib.errors import MeasurementFormatError, ParameterError
+from calib.io.csv_header import ANGLE_UNITS, LENGTH_UNITS, ORIENTATIONS, POSITION_COLUMNS, Header
 
 __all__ = ["ANGLE_UNITS", "LENGTH_UNITS", "ORIENTATIONS", "ReadOptions", "Spec", "Table",
            "read_table", "parse_rename", "check_euler_sequence", "joint_columns", "csv_text"]
-
-#: Multiply a value in the unit of the suffix by this to get SI (radians, metres).
-ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
-LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
-POSITION_COLUMNS = ("x", "y", "z")
-
-#: Orientation column groups: kind -> (column base names, units (None: no suffix), label).
-ORIENTATIONS = {
-    "quaternion": (("qw", "qx", "qy", "qz"), None, "a quaternion (qw, qx, qy, qz)", "quaternion"),
-    "zyx": (("rz", "ry", "rx"), ANGLE_UNITS, "ZYX angles (rz, ry, rx)", "ZYX angle"),
-    "euler": (("e1", "e2", "e3"), ANGLE_UNITS, "Euler angles (e1, e2, e3)", "Euler angle"),
-    "rotvec": (("rvx", "rvy", "rvz"), ANGLE_UNITS, "a rotation vector (rvx, rvy, rvz)",
-               "rotation vector"),
-    "matrix": (tuple(f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)), None,
-               "a rotation matrix (r11 ... r33)", "rotation matrix"),
-}
 
 #: Largest accepted distance of a quaternion's norm from 1.
 QUATERNION_NORM_TOLERANCE = 1e-3
@@ -68,9 +51,6 @@ UNIT_HINT_EXCESS = 0.1
 #: A unit mix-up is suggested only for values at least this many times the largest limit.
 UNIT_HINT_RATIO = 3.0
 _DELIMITERS = (",", ";", "\t")
-_NEAR_MISS_CUTOFF = 0.75
-#: Unit suffixes calib does not take but that are units, not typos (no "did you mean").
-_OTHER_UNITS = {"cm", "dm", "um", "km", "in", "ft", "mrad", "urad", "grad", "gon", "rev", "turn"}
 
 
 # ====================================================================== options and specs
@@ -300,263 +280,6 @@ def _records(path: Path) -> tuple[int, list[str], str, list[tuple[int, str]]]:
     return header_row, names, best, records[1:]
 
 
-# ====================================================================== header
-@dataclass(frozen=True)
-class _Column:
-    index: int
-    name: str             # as written (after a rename)
-    quantity: object      # joint index, "x", "qw", "rz", "e1", "r11", a label name
-    scale: float = 1.0    # value * scale is in rad or m
-    unit: str = ""
-    style: str = ""       # joint naming style
-
-
-_UNIT_IN_BRACKETS = re.compile(r"^(.*?)\s*[\(\[]\s*([A-Za-z]+)\s*[\)\]]$")
-_STYLE_TEXT = {"urdf": "URDF joint names", "q": "q1..q{n}", "j": "J1..J{n}", "a": "A1..A{n}"}
-
-
-def _unit_text(units) -> str:
-    return " or ".join(f"_{u}" for u in units)
-
-
-class _Header:
-    """A header checked against a spec and a robot."""
-
-    def __init__(self, path: Path, row: int, names: list[str], spec: Spec, robot,
-                 options: ReadOptions):
-        self.path, self.row, self.spec, self.robot, self.options = path, row, spec, robot, options
-        joints = robot.joints if spec.joints != "none" else ()
-        n = robot.n_joints
-        self.joint_units = [LENGTH_UNITS if j.is_prismatic else ANGLE_UNITS for j in robot.joints]
-        # base name (lower case) -> (quantity, units or None for no suffix, style)
-        suffixed: dict[str, tuple] = {}
-        plain: dict[str, tuple] = {}
-        if spec.position != "none":
-            for k in POSITION_COLUMNS:
-                suffixed[k] = (k, LENGTH_UNITS, "")
-        if spec.orientation:
-            for kind, (cols, units, _, _) in ORIENTATIONS.items():
-                for c in cols:
-                    (suffixed if units else plain)[c] = (c, units, "")
-        for label in spec.labels:
-            plain[label] = (label, None, "")
-        self.key = None
-        if spec.keyed:
-            self.key = str(options.key).strip()
-            plain[self.key.lower()] = (self.key, None, "")
-        for i, j in enumerate(joints):
-            if j.name.lower() not in plain:
-                suffixed.setdefault(j.name.lower(), (i, self.joint_units[i], "urdf"))
-        if joints:
-            for style in ("q", "j", "a"):
-                for i in range(n):
-                    if f"{style}{i + 1}" not in plain:
-                        suffixed.setdefault(f"{style}{i + 1}", (i, self.joint_units[i], style))
-        self.suffixed, self.plain = suffixed, plain
-        self.valid = [f"{b}_{u}" for b, (_, units, _) in suffixed.items() for u in units] + list(plain)
-
-        renames = {old.lower(): new for old, new in options.rename}
-        self.renamed: list[str] = []
-        self.columns: dict[object, _Column] = {}
-        self.ignored: list[str] = []
-        styles: dict[str, str] = {}
-        for index, raw in enumerate(names):
-            name = raw.strip()
-            if name.lower() in renames:
-                self.renamed.append(name.lower())
-                name = renames[name.lower()]
-                if not name:
-                    self.ignored.append(raw.strip())
-                    continue
-            col = self._classify(index, name)
-            if col is None:
-                self.ignored.append(name)
-                continue
-            if col.quantity in self.columns:
-                prev = self.columns[col.quantity]
-                what = (f"joint {robot.joints[col.quantity].name}" if isinstance(col.quantity, int)
-                        else col.quantity)
-                if prev.name.lower() == name.lower():
-                    reason = (f"duplicated column: {name!r} appears in columns {prev.index + 1} "
-                              f"and {index + 1}")
-                else:
-                    reason = (f"duplicated column: {what} is given twice, by {prev.name!r} (column "
-                              f"{prev.index + 1}) and {name!r} (column {index + 1}); give each once")
-                self.fail(reason, name)
-            if col.style:
-                other = next((s for s in styles if s != col.style), None)
-                if other is not None:
-                    self.fail(f"mixes joint naming styles: {styles[other]!r} uses "
-                              f"{self._style_text(other)} but {name!r} uses "
-                              f"{self._style_text(col.style)}; use one style for all joints", name)
-                styles.setdefault(col.style, name)
-            self.columns[col.quantity] = col
-        self.orientation = self._check_complete()
-
-    # -------------------------------------------------------------- helpers
-    def fail(self, reason: str, column: str | None = None):
-        raise MeasurementFormatError(self.path, reason, row=self.row, column=column)
-
-    def _style_text(self, style: str) -> str:
-        return _STYLE_TEXT[style].format(n=self.robot.n_joints)
-
-    def accepted(self) -> str:
-        spec, robot = self.spec, self.robot
-        parts = []
-        if spec.joints != "none":
-            prism = [j.name for j in robot.joints if j.is_prismatic]
-            junits = "_rad or _deg"
-            if prism:
-                junits += (f" (_m or _mm for the prismatic joint{'s' if len(prism) > 1 else ''} "
-                           f"{', '.join(prism)})")
-            n = robot.n_joints
-            parts.append(f"one per joint, named {', '.join(robot.joint_names)} or q1..q{n}, "
-                         f"J1..J{n}, A1..A{n}, with suffix {junits}")
-        if spec.position != "none":
-            parts.append("x, y, z with _m or _mm")
-        if spec.orientation:
-            parts.append("optionally qw, qx, qy, qz; rz, ry, rx; e1, e2, e3 (with --euler); "
-                         "rvx, rvy, rvz (these with _rad or _deg); or r11 ... r33")
-        if spec.labels:
-            parts.append("optionally " + ", ".join(spec.labels))
-        if self.key:
-            parts.append(f"the key column {self.key}")
-        return f"{spec.kind} file columns: " + "; ".join(parts)
-
-    def _classify(self, index: int, written: str) -> _Column | None:
-        if not written:
-            self.fail(f"column {index + 1} of the header has an empty name (a stray delimiter?); "
-                      f"{self.accepted()}")
-        m = _UNIT_IN_BRACKETS.match(written)
-        name = f"{m.group(1)}_{m.group(2)}" if m and m.group(1) else written
-        low = name.lower()
-        if low in self.plain:
-            q, _, _ = self.plain[low]
-            return _Column(index, written, q)
-        if low in self.suffixed:
-            _, units, _ = self.suffixed[low]
-            self.fail(f"missing unit suffix: expected a unit suffix {_unit_text(units)} "
-                      f"(e.g. {name}_{list(units)[-1]})", written)
-        base, sep, suffix = low.rpartition("_")
-        if sep and base in self.suffixed:
-            quantity, units, style = self.suffixed[base]
-            if suffix not in units:
-                hint = ""
-                if suffix not in _OTHER_UNITS:  # a typo (_mn, _dg), not another unit (_cm)
-                    typo = [u for u in units if len(u) == len(suffix)
-                            and sum(a != b for a, b in zip(u, suffix)) == 1]
-                    close = typo or difflib.get_close_matches(suffix, list(units), n=1, cutoff=0.5)
-                    hint = f"; did you mean '{name[:len(base)]}_{close[0]}'?" if close else ""
-                self.fail(f"wrong unit suffix _{suffix}: {base} takes {_unit_text(units)}{hint}",
-                          written)
-            return _Column(index, written, quantity, units[suffix], suffix, style)
-        if sep and base in self.plain:
-            group = next((label for cols, u, _, label in ORIENTATIONS.values() if base in cols),
-                         base)
-            self.fail(f"{group} components take no unit suffix: expected {base!r}", written)
-        n = self.robot.n_joints
-        if self.spec.joints != "none" and sep and re.fullmatch(r"[qja]\d+", base) \
-                and suffix in ANGLE_UNITS.keys() | LENGTH_UNITS.keys():
-            self.fail(f"too many joint columns: the robot has {n} joints "
-                      f"({', '.join(self.robot.joint_names)}), so joint columns run q1..q{n}", written)
-        if self.spec.joints != "none" and sep and suffix in ANGLE_UNITS.keys() | LENGTH_UNITS.keys() \
-                and base in self._joints_outside_chain():
-            self.fail(f"joint {name[:len(base)]!r} of the URDF is not in the chain calibrated here "
-                      f"({', '.join(self.robot.joint_names)}, from base frame {self.robot.base_frame!r} to "
-                      f"tool frame {self.robot.tool_frame!r}): choose --base-frame / --tool-frame to take "
-                      f"it in, or drop the column with --rename '{written}='", written)
-        close = difflib.get_close_matches(low, self.valid, n=1, cutoff=_NEAR_MISS_CUTOFF)
-        if close:
-            self.fail(f"unknown column: did you mean {self._spelling(close[0])!r}? (rename it with "
-                      f"--rename '{written}=NEW', or drop it with --rename '{written}=')", written)
-        return None
-
-    def _urdf_joints(self) -> dict:
-        """The joints of the robot's URDF (name -> :class:`calib.io.urdf.UrdfJoint`), from the
-        document the model carries (only on an error path); empty for a model built in code."""
-        if getattr(self, "_joints", None) is None:
-            self._joints = {}
-            source = getattr(self.robot, "source", None)    # the URDF as it was parsed
-            if source is not None and source.document is not None:
-                self._joints = source.document.joints
-        return self._joints
-
-    def _joints_outside_chain(self) -> set[str]:
-        """Lower-case names of the URDF's moving joints that are not in the robot's chain."""
-        inside = {n.lower() for n in self.robot.joint_names}
-        return {n.lower() for n, j in self._urdf_joints().items() if j.kind != "fixed"} - inside
-
-    def _trailing_hint(self, missing: list[int]) -> str:
-        """When the joints without a column end the chain (a gripper joint taken as the arm's
-        last axis), how to leave them out: a tool frame before the first of them (no hint
-        without a URDF to name the link: a model built in code)."""
-        robot = self.robot
-        if not missing or missing != list(range(missing[0], robot.n_joints)) or missing[0] == 0:
-            return ""
-        joint = self._urdf_joints().get(robot.joints[missing[0]].name)
-        if joint is None:
-            return ""
-        names = ", ".join(robot.joints[i].name for i in missing)
-        return (f"; if {names} {'is a gripper' if len(missing) == 1 else 'are a gripper'}, not an axis of the "
-                f"measured arm, choose a tool frame before it: --tool-frame {joint.parent} (the link it is "
-                f"attached to) or a frame fixed to that link")
-
-    def _spelling(self, valid_lower: str) -> str:
-        base, sep, suffix = valid_lower.rpartition("_")
-        for j in self.robot.joints:
-            if j.name.lower() == base:
-                return f"{j.name}_{suffix}"
-        return self.key if self.key and valid_lower == self.key.lower() else valid_lower
-
-    def _check_complete(self) -> str:
-        robot, spec, cols = self.robot, self.spec, self.columns
-        present = [c for c in cols.values() if isinstance(c.quantity, int)]
-        if spec.joints == "required" or (spec.joints == "optional" and present):
-            style = present[0].style if present else "urdf"
-            missing = [i for i in range(robot.n_joints) if i not in cols]
-            if missing:
-                def expected(i):
-                    base = robot.joints[i].name if style == "urdf" else \
-                        f"{style.upper() if style != 'q' else 'q'}{i + 1}"
-                    return " or ".join(f"{base}_{u}" for u in self.joint_units[i])
-                self.fail(f"missing joint column{'s' if len(missing) > 1 else ''}: the header has "
-                          f"{len(present)} joint columns but the robot has {robot.n_joints} joints "
-                          f"({', '.join(robot.joint_names)}); expected "
-                          f"{'; '.join(expected(i) for i in missing)}{self._trailing_hint(missing)}")
-        have_pos = [k for k in POSITION_COLUMNS if k in cols]
-        if spec.position == "required" or have_pos:
-            for k in POSITION_COLUMNS:
-                if k not in cols:
-                    self.fail(f"missing column {k}: expected {k}_m or {k}_mm (the position x, y, z "
-                              f"is required{' with an orientation' if spec.position != 'required' else ''})")
-        kinds = []
-        for kind, (group, _, _, label) in ORIENTATIONS.items():
-            have = [k for k in group if k in cols]
-            if have and len(have) < len(group):
-                lack = [k for k in group if k not in cols]
-                self.fail(f"incomplete {label} columns: found {', '.join(have)} but not "
-                          f"{', '.join(lack)}; give all of {', '.join(group)} or none")
-            if have:
-                kinds.append(kind)
-        if len(kinds) > 1:
-            a, b = (ORIENTATIONS[k][2] for k in kinds[:2])
-            self.fail(f"both {a} and {b} are given; give one orientation or none")
-        orientation = kinds[0] if kinds else "none"
-        if orientation != "none" and not have_pos:
-            self.fail("an orientation without a position: give x, y, z with _m or _mm too")
-        if orientation == "euler" and self.options.euler is None:
-            self.fail("Euler angle columns e1, e2, e3 need their sequence: give --euler SEQ in "
-                      "scipy's notation (ZYX intrinsic, xyz extrinsic, ...)", cols["e1"].name)
-        if self.key is not None and self.key not in cols:
-            close = difflib.get_close_matches(self.key.lower(),
-                                              [c.strip().lower() for c in self.ignored], n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            self.fail(f"no key column {self.key!r} (given by --key){hint}")
-        if spec.joints == "optional" and spec.position != "none" and not present and not have_pos:
-            self.fail(f"no {spec.kind}: give joint columns or a position x, y, z; {self.accepted()}")
-        return orientation
-
-
 # ====================================================================== reading
 def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None = None) -> Table:
     """Read a CSV file of kind ``spec`` for ``robot`` (its joint names, units and limits).
@@ -573,7 +296,7 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
         or ReadOptions()
     header_row, names, delimiter, data = _records(path)
-    header = _Header(path, header_row, names, spec, robot, options)
+    header = Header(path, header_row, names, spec, robot, options)
     if not data:
         raise MeasurementFormatError(path, "header but no data rows", row=header_row)
     decimal_comma = delimiter != ","
@@ -630,7 +353,7 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
                  renamed=tuple(header.renamed))
 
 
-def _rotation(path: Path, header: _Header, values: np.ndarray, rows: np.ndarray,
+def _rotation(path: Path, header: Header, values: np.ndarray, rows: np.ndarray,
               euler: str | None) -> np.ndarray:
     """(N, 3, 3) rotation matrices from the orientation columns (SI values), by libraries:
     quaternions, ZYX angles and rotation vectors by Pinocchio (already loaded), other Euler
@@ -671,7 +394,7 @@ def _rotation(path: Path, header: _Header, values: np.ndarray, rows: np.ndarray,
     return U @ Vt
 
 
-def _check_limits(path: Path, robot, header: _Header, q: np.ndarray, rows: np.ndarray,
+def _check_limits(path: Path, robot, header: Header, q: np.ndarray, rows: np.ndarray,
                   tolerance: float) -> list[str]:
     """Notes for readings just past a limit; raise on the first row (then first column in header
     order) further beyond."""

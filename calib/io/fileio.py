@@ -18,10 +18,23 @@ from calib.errors import CalibError, OutputError
 
 def check_not_input(output: str | Path, inputs: Iterable[str | Path | None]) -> None:
     """Refuse an output path that is one of the inputs (inputs are never overwritten)."""
-    out = Path(output).resolve()
+    out = _resolved(output, output=True)
     for p in inputs:
-        if p is not None and Path(p).resolve() == out:
+        if p is not None and _resolved(p) == out:
             raise CalibError(f"{output}: refusing to overwrite an input file; choose another output path")
+
+
+def _resolved(path: str | Path, output: bool = False) -> Path:
+    """``path`` with its symbolic links resolved; a link loop (which no file can be written
+    through) is an :class:`OutputError` for an output, and left unresolved for an input (its
+    reader then says it cannot be read)."""
+    try:
+        return Path(path).resolve()
+    except (RuntimeError, OSError):     # Python < 3.13: RuntimeError; later: OSError (ELOOP)
+        if output:
+            raise OutputError(Path(path), "is a symbolic link loop: no file can be written through it; "
+                                          "choose another output path") from None
+        return Path(os.path.abspath(path))
 
 
 def output_target(path: str | Path) -> Path:

@@ -41,7 +41,7 @@ from calib.model.robot import check_robot
 from calib.errors import DataError, ParameterError
 from calib.model.jacobian import MEASURES, identification_jacobian
 from calib.model.robot import RobotModel
-from calib.solvers.problem import NO_EFFECT_RTOL
+from calib.model.jacobian import NO_EFFECT_RTOL
 
 #: Default noise levels used for row weighting (the paper's simulation, Section 4.3).
 SIGMA_POS_M = 0.02e-3

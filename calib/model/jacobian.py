@@ -24,6 +24,10 @@ from calib.model.robot import RobotModel
 MEASURES = ("pose", "position")
 
 
+#: A column of a Jacobian whose norm is at most this times the largest column's is zero up to
+#: rounding: the parameter has no effect on these data (LM does not move it).
+NO_EFFECT_RTOL = 1e-10
+
 def pose_jacobian(kin: ChainKinematics, Q: np.ndarray, columns: np.ndarray | None = None, *,
                   transposed: bool = False, targets: np.ndarray | None = None):
     """Tool poses and the pose Jacobian at the kinematics' current parameter values.

@@ -174,13 +174,6 @@ def _chain(matrices: np.ndarray) -> np.ndarray:
     return out
 
 
-def _product_and_twists(factors, values: np.ndarray, n_params: int):
-    """Product of one placement's factors (4x4) and the local twist of each parameter
-    (6, n_params); see :class:`_FactorTable`."""
-    M, _, tw = _FactorTable([factors], n_params).products(values)
-    return M[0], tw
-
-
 @dataclass(frozen=True)
 class _Structure:
     """What a ChainKinematics needs that depends only on the robot's structure and reference

@@ -153,13 +153,6 @@ def to_se3(T: np.ndarray) -> pin.SE3:
     return pin.SE3(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
 
 
-def adjoint_inverse_apply(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
-    """``Ad(T^-1) xi`` for a twist ``xi = (v, w)``: the twist expressed in the frame T leads to."""
-    R, p = T[:3, :3], T[:3, 3]
-    v, w = xi[:3], xi[3:]
-    return np.concatenate([R.T @ (v - np.cross(p, w)), R.T @ w])
-
-
 def skew(w: np.ndarray) -> np.ndarray:
     """3x3 skew matrix of a 3-vector (or (..., 3, 3) of (..., 3))."""
     w = np.asarray(w)

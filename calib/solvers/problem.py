@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.model.jacobian import pose_jacobian
+from calib.model.jacobian import NO_EFFECT_RTOL, pose_jacobian
 from calib.model.kinematics import ChainKinematics
 from calib.model.spatial import left_jacobian_inverse_batch, log3_batch
 
@@ -62,9 +62,6 @@ COST_RTOL = 1e-9
 #: combination below it has a standard deviation 1e6 times that of the best determined one):
 #: the statistics then use its pseudo-inverse and LM steps leave those combinations alone.
 RANK_RCOND = 1e-12
-#: A column of a Jacobian whose norm is at most this times the largest column's is zero up to
-#: rounding: the parameter has no effect on these data (LM does not move it).
-NO_EFFECT_RTOL = 1e-10
 #: LM on a problem rank deficient at its start holds the directions that were undetermined there
 #: while their eigenvalue (unit-diagonal scaling) stays below this times the largest: a
 #: combination the data determine 100 times worse than a typical parameter (its standard

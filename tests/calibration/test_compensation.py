@@ -10,7 +10,7 @@ import pytest
 
 from calib import (DataError, MeasurementFormatError, PAPER_DEVIATIONS, apply_deviations,
                    load_robot, random_deviations)
-from calib.cli.practice import add_compensate_parser, add_select_poses_parser
+from calib.cli import compensate as compensate_command, select_poses as select_poses_command
 from calib.calibration.compensation import (compensate, compensate_poses, load_compensation_models,
                                             tool_poses_and_joint_jacobians)
 from calib.errors import CalibError
@@ -254,8 +254,8 @@ def test_targets_file_kinds_and_errors(tmp_path, bundled):
 def _parser():
     parser = argparse.ArgumentParser(prog="calib")
     sub = parser.add_subparsers(dest="command", required=True)
-    add_select_poses_parser(sub)
-    add_compensate_parser(sub)
+    select_poses_command.add_parser(sub)
+    compensate_command.add_parser(sub)
     return parser
 
 

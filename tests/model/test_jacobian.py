@@ -5,7 +5,13 @@ import numpy as np
 import pytest
 
 from calib import identification_jacobian, load_robot
-from calib.model.kinematics import _Factor, _product_and_twists
+from calib.model.kinematics import _Factor, _FactorTable
+
+
+def _product_and_twists(factors, values, n_params):
+    """One placement's product (4x4) and local twists (6, n_params) from the factor table."""
+    M, _, tw = _FactorTable([factors], n_params).products(values)
+    return M[0], tw
 from calib.model.mdh import link_transform
 from calib.model.spatial import inverse, log3_batch, skew, zyx_transform
 

@@ -359,10 +359,10 @@ def test_signal_ends_with_one_line_and_no_partial_files(signum, code, big_csv, o
 def test_signal_in_process_prints_exactly_one_line(signum, code, sim, out, capfd, monkeypatch):
     """The signal arrives in the middle of the fit (sent by the patched calibrate to its own
     process): exit 128 + signal, stderr exactly one line, nothing written."""
-    import calib.cli.main as cli
+    # the commands call the API through the package: patch it there
 
     d, _, _ = sim
-    real = cli.calibrate
+    real = calib.calibrate
     # Python's KeyboardInterrupt handler, as in a foreground process (a background job of a
     # shell inherits SIGINT ignored; the test is about what calib does with it)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -372,7 +372,7 @@ def test_signal_in_process_prints_exactly_one_line(signum, code, sim, out, capfd
         time.sleep(5)     # the handler raises at once; never reached
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(cli, "calibrate", interrupted)
+    monkeypatch.setattr(calib, "calibrate", interrupted)
     before = snapshot(out)
     try:
         code_, stdout, err = run_cli(capfd, ["calibrate", URDF, d / "cal.csv", "-o", out / "calibrated.urdf"])
@@ -536,17 +536,17 @@ def test_zyx_parameters_at_gimbal_lock_warns_nothing():
 def test_library_warnings_do_not_reach_stderr(sim, capfd, monkeypatch):
     """Warnings raised inside a command (numpy's overflow, scipy's gimbal lock) are logged at
     debug level only: stderr stays empty."""
-    import calib.cli.main as cli
+    # the commands call the API through the package: patch it there
 
     d, _, _ = sim
-    real = cli.evaluate
+    real = calib.evaluate
 
     def noisy(robot, meas):
         np.float64(1e308) * np.float64(10.0)          # RuntimeWarning: overflow encountered
         warnings.warn("Gimbal lock detected. Setting third angle to zero", UserWarning)
         return real(robot, meas)
 
-    monkeypatch.setattr(cli, "evaluate", noisy)
+    monkeypatch.setattr(calib, "evaluate", noisy)
     with warnings.catch_warnings():
         # as outside pytest: warnings shown on stderr, each time
         warnings.simplefilter("always")

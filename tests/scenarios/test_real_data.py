@@ -18,6 +18,9 @@ from calib.calibration.core import candidate_sets, identifiable_set
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
 from calib.model.spatial import zyx_transform
 
+#: End-to-end studies: skipped by the fast inner loop (pytest -m "not slow"), run in CI.
+pytestmark = pytest.mark.slow
+
 N_VAL = 1000
 
 

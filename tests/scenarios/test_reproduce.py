@@ -12,6 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+#: End-to-end studies: skipped by the fast inner loop (pytest -m "not slow"), run in CI.
+pytestmark = pytest.mark.slow
+
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "reproduce_paper.py"
 
 

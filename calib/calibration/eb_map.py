@@ -1,0 +1,542 @@
+"""Regularised identification by empirical Bayes (EB-MAP), after ../shared/design/eb-map.md.
+
+The maximum a posteriori estimate of every TM-MDH parameter that has an effect on the data,
+with Gaussian priors centred on the start model for three groups of structural parameters and
+no prior on the measurement and tool frames:
+
+* ``theta`` : joint offsets theta (rad); ``length`` : d and a (m); ``twist`` : alpha and beta
+  (rad), each prior ``N(mu_j, tau_g^2)``, mu the start after calib's prepare stage (structure
+  nominal; the frames after the closed-form estimate when far from the nominal ones);
+* ``frame`` : u and v (flat prior), reduced to a maximal independent subset of their columns
+  (column-pivoted QR of the unit-normalised columns) since nothing else holds their ties.
+
+The prior scales tau_g and the noise levels (sigma_pos per position axis, sigma_rot per rotation
+axis) maximise the evidence (marginal likelihood) of the model linearised at the current
+estimate; the MAP fit at those hyper-parameters is the next linearisation point (at most
+``passes`` passes). Tied structural parameters are harmless: the prior holds the combinations the
+data do not see at the start. With data that determine every parameter well the evidence sets
+large scales and the estimate equals least squares.
+
+Everything is SI inside: metres, radians. Pose residuals are calib's (:class:`calib.solvers.
+Problem`): position model - measured in the meas frame, rotation log(R_model R_measured^T) with
+its Jacobian through the inverse left Jacobian of SO(3).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib.calibration.core import _propagate, prepare, target_rows
+from calib.checks import check_instance, check_int, check_number
+from calib.errors import DataError, ParameterError
+from calib.model.measurements import Measurements
+from calib.model.robot import RobotModel
+from calib.solvers.lm import LMOptions, levenberg_marquardt
+from calib.solvers.problem import Problem
+
+#: The prior groups of the structural parameters (by parameter kind); u and v are "frame".
+GROUP_OF_KIND = {"theta": "theta", "d": "length", "a": "length", "alpha": "twist", "beta": "twist"}
+PRIOR_GROUPS = ("theta", "length", "twist")
+#: Bounds of the hyper-parameters (design note): noise per axis and prior scales.
+SIGMA_POS_BOUNDS = (1e-6, 0.1)          # m
+SIGMA_ROT_BOUNDS = (1e-6, 0.5)          # rad
+TAU_BOUNDS = (1e-7, 0.5)                # m or rad
+#: Noise levels of the first fit of the frames alone (m, rad).
+START_SIGMA_POS = 1e-3
+START_SIGMA_ROT = 5e-3
+#: Angles count as lengths at this radius (m) when comparing parameter changes.
+LENGTH_SCALE_M = 0.5
+#: A column whose norm is at most this times the largest (noise-weighted) has no effect.
+NO_EFFECT_RTOL = 1e-10
+#: Frame columns (unit-normalised) kept while |R_kk| of their pivoted QR exceeds this.
+FRAME_QR_TOL = 1e-6
+#: Rows flagged as gross are taken out only while they are at most this share of the rows.
+MAX_OUTLIER_SHARE = 0.25
+#: Residual components to spare beyond the flat (frame) parameters, to estimate the noise.
+MIN_REDUNDANCY = 6
+
+
+@dataclass(frozen=True)
+class EBMapResult:
+    """What :func:`eb_map` returns (values SI: m, rad).
+
+    robot : the calibrated model (the MAP estimate; its reference frames those of ``start``).
+    start : the model the estimate starts from and whose values are the prior means.
+    names : (m,) the free parameters, in ``robot.parameters`` order; groups : (m,) each one's
+    group ("frame", "theta", "length", "twist"). estimate : (m,) MAP values; prior_mean : (m,)
+    their prior means (start values); covariance : (m, m) posterior covariance
+    ``(J^T W J + diag(lambda))^-1`` at the estimate; std : (m,) its square-rooted diagonal.
+    prior_scales : tau per prior group present ("theta" rad, "length" m, "twist" rad);
+    pinned : the groups whose scale sits at its lower bound (held at the prior mean).
+    effective_parameters : tr(C J^T W J), the parameters the data determine (frames count 1 each).
+    log_evidence : the log marginal likelihood of the final linearisation (flat prior's constant
+    dropped). sigma_pos (m) / sigma_rot (rad, None for position-only data): noise per axis
+    from the evidence. keep : (N_cal,) bool, the calibration rows used; outliers : the file rows
+    left out as gross errors. passes : linearisations made; notes : remarks for the user.
+    """
+
+    robot: RobotModel = field(repr=False)
+    start: RobotModel = field(repr=False)
+    names: tuple[str, ...]
+    groups: tuple[str, ...]
+    estimate: np.ndarray = field(repr=False)
+    prior_mean: np.ndarray = field(repr=False)
+    covariance: np.ndarray = field(repr=False)
+    prior_scales: dict
+    pinned: tuple[str, ...]
+    effective_parameters: float
+    log_evidence: float
+    sigma_pos: float
+    sigma_rot: float | None
+    keep: np.ndarray = field(repr=False)
+    outliers: tuple[int, ...] = ()
+    passes: int = 0
+    notes: tuple[str, ...] = ()
+
+    @property
+    def std(self) -> np.ndarray:
+        return np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
+
+    def predicted_holdout(self, Q: np.ndarray, targets: np.ndarray | None = None) -> dict:
+        """Predicted RMS error of new measured rows at configurations Q (N, n) (rad / m):
+        position_rms (m) = sqrt(mean_q tr(J_p C J_p^T) + 3 sigma_pos^2), rotation_rms (rad, None
+        for position-only data) likewise; targets : (N,) target index per row of a multi-target
+        model."""
+        Q = np.asarray(Q, float)
+        pos, rot = _propagate(self.robot, Q, self.names, self.covariance, targets=targets)
+        out = {"position_rms": math.sqrt(pos ** 2 + 3.0 * self.sigma_pos ** 2), "rotation_rms": None}
+        if self.sigma_rot is not None:
+            out["rotation_rms"] = math.sqrt(rot ** 2 + 3.0 * self.sigma_rot ** 2)
+        return out
+
+    def to_dict(self) -> dict:
+        """The ``estimator`` record of a report: kind, prior scales (mm for lengths, rad for
+        angles), effective parameters, log evidence, noise."""
+        scales = {g: (t * 1e3 if g == "length" else t) for g, t in self.prior_scales.items()}
+        return {"kind": "eb-map", "prior_scales": scales, "prior_scale_units": {"theta": "rad", "length": "mm",
+                                                                                "twist": "rad"},
+                "pinned": list(self.pinned), "effective_parameters": self.effective_parameters,
+                "log_evidence": self.log_evidence, "sigma_pos_mm": self.sigma_pos * 1e3,
+                "sigma_rot_rad": self.sigma_rot, "passes": self.passes, "outlier_rows": list(self.outliers)}
+
+
+# ---------------------------------------------------------------- linearisation and evidence
+@dataclass(frozen=True)
+class Linearisation:
+    """Sufficient statistics of the model linearised at x (free parameters) about the prior
+    mean mu: with z = x - mu and y = J (x_L - mu) - r0, r(x) ~ J z - y. Unweighted: JpJp (m, m)
+    = Jp^T Jp (m^2 per m^2 of parameter unit), Jpy = Jp^T y_p, yyp = y_p^T y_p (m^2), n_p
+    position components; the rotation ones likewise (None / 0 without orientation data)."""
+
+    JpJp: np.ndarray
+    Jpy: np.ndarray
+    yyp: float
+    n_p: int
+    JrJr: np.ndarray | None
+    Jry: np.ndarray | None
+    yyr: float
+    n_r: int
+
+
+def linearise(problem: Problem, x: np.ndarray, mu: np.ndarray) -> Linearisation:
+    """The :class:`Linearisation` of ``problem``'s rows at free values x about mu (both (m,))."""
+    p1 = problem.derived(sigma_pos=1.0, sigma_rot=1.0, loss="linear")
+    m = len(x)
+    JpJp, Jpr, rrp = np.zeros((m, m)), np.zeros(m), 0.0
+    rot = problem.has_orientation
+    JrJr, Jrr, rrr = (np.zeros((m, m)), np.zeros(m), 0.0) if rot else (None, None, 0.0)
+    n = 0
+    for r, Jw in p1.whitened_blocks(x):
+        Jp, rp = Jw[:, :3].reshape(-1, m), r[:, :3].reshape(-1)
+        JpJp += Jp.T @ Jp
+        Jpr += Jp.T @ rp
+        rrp += float(rp @ rp)
+        if rot:
+            Jr, rr = Jw[:, 3:].reshape(-1, m), r[:, 3:].reshape(-1)
+            JrJr += Jr.T @ Jr
+            Jrr += Jr.T @ rr
+            rrr += float(rr @ rr)
+        n += len(r)
+    d = x - mu
+    # y = J d - r0: J^T y = J^T J d - J^T r0; y^T y = d^T J^T J d - 2 d^T J^T r0 + r0^T r0
+    Jpy, yyp = JpJp @ d - Jpr, float(d @ JpJp @ d - 2.0 * d @ Jpr + rrp)
+    Jry = yyr = None
+    if rot:
+        Jry, yyr = JrJr @ d - Jrr, float(d @ JrJr @ d - 2.0 * d @ Jrr + rrr)
+    return Linearisation(JpJp, Jpy, max(yyp, 0.0), 3 * n, JrJr, Jry, max(yyr or 0.0, 0.0), 3 * n if rot else 0)
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """The linearised model's log evidence at log hyper-parameters ``log_h`` and what comes
+    with it. log_h : (log w_p, [log w_r,] log lambda_g ...) with w = 1 / sigma^2 and
+    lambda_g = 1 / tau_g^2; value : L; gradient : dL / d log_h; z : (m,) posterior mean of
+    x - mu; covariance : (m, m) (J^T W J + diag lambda)^-1; A_data : J^T W J; red_p / red_r :
+    each noise group's residual degrees of freedom n - w tr(C J^T J)."""
+
+    log_h: np.ndarray
+    value: float
+    gradient: np.ndarray
+    z: np.ndarray
+    covariance: np.ndarray
+    A_data: np.ndarray
+    red_p: float
+    red_r: float
+
+
+def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray) -> Evidence:
+    """Log evidence of the linearised model (design note, step 2b) and its gradient.
+
+    group_index : (m,) int, each free parameter's prior group (index into the lambda part of
+    log_h), -1 for a frame parameter (flat prior). log_h : see :class:`Evidence`.
+    L = -1/2 (y^T W y - b^T A^-1 b) - 1/2 log det A + 1/2 sum_j log lambda_j + n_p/2 log w_p
+        + n_r/2 log w_r - M/2 log 2 pi, A = J^T W J + diag(lambda), b = J^T W y.
+    """
+    rot = lin.JrJr is not None
+    k = 2 if rot else 1
+    wp = math.exp(log_h[0])
+    wr = math.exp(log_h[1]) if rot else 0.0
+    lam_g = np.exp(log_h[k:])
+    prior = group_index >= 0
+    lam = np.zeros(len(group_index))
+    lam[prior] = lam_g[group_index[prior]]
+    A_data = wp * lin.JpJp + (wr * lin.JrJr if rot else 0.0)
+    b = wp * lin.Jpy + (wr * lin.Jry if rot else 0.0)
+    A = A_data + np.diag(lam)
+    s = 1.0 / np.sqrt(np.maximum(np.diag(A), 1e-300))
+    As = A * s[:, None] * s[None, :]
+    try:
+        Lc = np.linalg.cholesky(As)
+    except np.linalg.LinAlgError:
+        # not positive definite: a frame direction without information (should not happen
+        # after the frame reduction); a tiny ridge keeps the value finite and low
+        As = As + 1e-12 * np.eye(len(As))
+        Lc = np.linalg.cholesky(As)
+    Linv = np.linalg.inv(Lc)
+    C = (Linv.T @ Linv) * s[:, None] * s[None, :]
+    z = C @ b
+    logdet = 2.0 * float(np.sum(np.log(np.diag(Lc)))) - 2.0 * float(np.sum(np.log(s)))
+    yWy = wp * lin.yyp + (wr * lin.yyr if rot else 0.0)
+    M = lin.n_p + lin.n_r
+    value = (-0.5 * (yWy - float(b @ z)) - 0.5 * logdet + 0.5 * float(np.sum(np.log(lam[prior])))
+             + 0.5 * lin.n_p * log_h[0] + (0.5 * lin.n_r * log_h[1] if rot else 0.0)
+             - 0.5 * M * math.log(2.0 * math.pi))
+    # gradient: d/d log w = n/2 - w/2 (|y - J z|^2 + tr(C J^T J)); d/d log lambda_g =
+    # n_g/2 - lambda_g/2 sum_{j in g} (z_j^2 + C_jj)
+    grad = np.zeros(len(log_h))
+    rss_p = lin.yyp - 2.0 * float(z @ lin.Jpy) + float(z @ lin.JpJp @ z)
+    tr_p = float(np.sum(C * lin.JpJp))
+    grad[0] = 0.5 * lin.n_p - 0.5 * wp * (rss_p + tr_p)
+    red_p, red_r = lin.n_p - wp * tr_p, 0.0
+    if rot:
+        rss_r = lin.yyr - 2.0 * float(z @ lin.Jry) + float(z @ lin.JrJr @ z)
+        tr_r = float(np.sum(C * lin.JrJr))
+        grad[1] = 0.5 * lin.n_r - 0.5 * wr * (rss_r + tr_r)
+        red_r = lin.n_r - wr * tr_r
+    q = z ** 2 + np.diag(C)
+    for g in range(len(lam_g)):
+        mem = group_index == g
+        grad[k + g] = 0.5 * np.count_nonzero(mem) - 0.5 * lam_g[g] * float(np.sum(q[mem]))
+    return Evidence(np.array(log_h, float), float(value), grad, z, C, A_data, red_p, red_r)
+
+
+def _log_bounds(rot: bool, n_groups: int) -> np.ndarray:
+    """(k, 2) bounds of log_h: log w = -2 log sigma, log lambda = -2 log tau."""
+    rows = [(-2 * math.log(SIGMA_POS_BOUNDS[1]), -2 * math.log(SIGMA_POS_BOUNDS[0]))]
+    if rot:
+        rows.append((-2 * math.log(SIGMA_ROT_BOUNDS[1]), -2 * math.log(SIGMA_ROT_BOUNDS[0])))
+    rows += [(-2 * math.log(TAU_BOUNDS[1]), -2 * math.log(TAU_BOUNDS[0]))] * n_groups
+    return np.array(rows)
+
+
+def maximise_evidence(lin: Linearisation, group_index: np.ndarray, log_h0: np.ndarray) -> Evidence:
+    """The hyper-parameters of largest evidence within the bounds, from log_h0: MacKay's
+    fixed-point updates (gamma_j = 1 - lambda_j C_jj; lambda_g = sum gamma / sum z^2;
+    sigma^2 = RSS / (n - w tr(C J^T J))), then L-BFGS-B on log_h with the analytic gradient."""
+    from scipy.optimize import minimize
+
+    rot = lin.JrJr is not None
+    k = 2 if rot else 1
+    n_groups = len(log_h0) - k
+    bounds = _log_bounds(rot, n_groups)
+    h = np.clip(np.array(log_h0, float), bounds[:, 0], bounds[:, 1])
+    ev = evidence(lin, group_index, h)
+    for _ in range(30):
+        new = h.copy()
+        rss_p = lin.yyp - 2.0 * float(ev.z @ lin.Jpy) + float(ev.z @ lin.JpJp @ ev.z)
+        new[0] = math.log(max(ev.red_p, 1e-9) / max(rss_p, 1e-300))
+        if rot:
+            rss_r = lin.yyr - 2.0 * float(ev.z @ lin.Jry) + float(ev.z @ lin.JrJr @ ev.z)
+            new[1] = math.log(max(ev.red_r, 1e-9) / max(rss_r, 1e-300))
+        lam = np.exp(h[k:])
+        diagC = np.diag(ev.covariance)
+        for g in range(n_groups):
+            mem = group_index == g
+            gamma = float(np.sum(1.0 - lam[g] * diagC[mem]))
+            new[k + g] = math.log(max(gamma, 1e-12) / max(float(np.sum(ev.z[mem] ** 2)), 1e-300))
+        new = np.clip(new, bounds[:, 0], bounds[:, 1])
+        done = np.max(np.abs(new - h)) < 1e-3
+        trial = evidence(lin, group_index, new)
+        if trial.value < ev.value - 1e-9 * abs(ev.value):
+            break       # (the updates are not ascent steps far from the optimum)
+        h, ev = new, trial
+        if done:
+            break
+    res = minimize(lambda v: (lambda e: (-e.value, -e.gradient))(evidence(lin, group_index, v)), h,
+                   jac=True, method="L-BFGS-B", bounds=[tuple(b) for b in bounds],
+                   options={"maxiter": 200, "ftol": 1e-13, "gtol": 1e-8})
+    best = evidence(lin, group_index, res.x)
+    return best if best.value >= ev.value else ev
+
+
+# ---------------------------------------------------------------- MAP fit
+def map_fit(problem: Problem, x0: np.ndarray, mu: np.ndarray, lam: np.ndarray,
+            max_iterations: int = 100) -> tuple[np.ndarray, float, int]:
+    """Minimise 1/2 |r_w(x)|^2 + 1/2 sum lambda_j (x_j - mu_j)^2 from x0 by LM (Marquardt's
+    scaling), r_w the noise-weighted residuals of ``problem`` (its sigma_pos, sigma_rot).
+    Returns (x, cost, iterations)."""
+    x = np.array(x0, float)
+    ne = problem.normal_equations(x)
+    cost = ne.cost + 0.5 * float(np.sum(lam * (x - mu) ** 2))
+    damping = 1e-3
+    it = 0
+    for it in range(1, max_iterations + 1):
+        A = ne.A + np.diag(lam)
+        g = ne.g + lam * (x - mu)
+        D = np.maximum(np.diag(A), 1e-300)
+        s = 1.0 / np.sqrt(D)
+        As = A * s[:, None] * s[None, :]
+        gs = g * s
+        accepted = False
+        while damping < 1e16:
+            try:
+                step = -np.linalg.solve(As + damping * np.eye(len(x)), gs) * s
+            except np.linalg.LinAlgError:
+                damping *= 10.0
+                continue
+            predicted = -float(g @ step) - 0.5 * float(step @ A @ step)
+            x_new = x + step
+            r = problem.residuals(x_new)
+            cost_new = 0.5 * float(r @ r) + 0.5 * float(np.sum(lam * (x_new - mu) ** 2))
+            if np.isfinite(cost_new) and cost_new <= cost:
+                accepted = True
+                damping = max(damping / 10.0, 1e-12)
+                break
+            if predicted <= 1e-14 * cost:
+                break
+            damping *= 10.0
+        if not accepted:
+            break
+        decrease = cost - cost_new
+        x, cost = x_new, cost_new
+        if decrease <= 1e-12 * cost or predicted <= 1e-12 * cost:
+            break
+        ne = problem.normal_equations(x)
+    return x, cost, it
+
+
+# ---------------------------------------------------------------- free set
+def _free_set(problem_all: Problem, robot: RobotModel, candidates: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """The free parameter indices among ``candidates`` (indices into robot.parameters): those
+    with an effect on the rows of ``problem_all`` (free = candidates, at the start values), the
+    frame parameters reduced to a maximal independent subset: the column-pivoted QR of their
+    unit-normalised columns, computed as the pivoted Cholesky factorisation of their Gram matrix
+    (accumulated over chunks of rows: memory independent of the number of rows)."""
+    m = len(candidates)
+    G = np.zeros((m, m))
+    for _, Jw in problem_all.whitened_blocks(problem_all.values[candidates]):
+        J = Jw.reshape(-1, m)
+        G += J.T @ J
+    norms = np.sqrt(np.maximum(np.diag(G), 0.0))
+    effect = norms > NO_EFFECT_RTOL * norms.max()
+    notes = []
+    frame = np.array([robot.parameters[i].group in ("u", "v") for i in candidates])
+    fcols = np.flatnonzero(frame & effect)
+    keep = effect & ~frame
+    if fcols.size:
+        rank, piv = _pivoted_rank(G[np.ix_(fcols, fcols)] / np.outer(norms[fcols], norms[fcols]), FRAME_QR_TOL)
+        keep[fcols[piv[:rank]]] = True
+        held = [robot.names[candidates[c]] for c in fcols[piv[rank:]]]
+        if held:
+            notes.append(f"frame parameters tied to other frame parameters held at their start: {', '.join(held)}")
+    inert = [robot.names[candidates[c]] for c in np.flatnonzero(~effect)]
+    if inert:
+        notes.append(f"parameters without effect on these data held: {', '.join(inert)}")
+    return candidates[keep], notes
+
+
+def _pivoted_rank(G: np.ndarray, tol: float) -> tuple[int, np.ndarray]:
+    """(rank, pivot order) of the Gram matrix G (k, k) of unit columns: greedy pivoted Cholesky,
+    the column with the largest remaining squared norm first, stopping when its norm |R_kk|
+    (that of the pivoted QR of the columns) is at most ``tol``."""
+    k = len(G)
+    R = np.zeros((k, k))
+    piv = np.arange(k)
+    d = np.diag(G).astype(float).copy()
+    for j in range(k):
+        p = j + int(np.argmax(d[piv[j:]]))
+        piv[[j, p]] = piv[[p, j]]
+        if d[piv[j]] <= tol ** 2:
+            return j, piv
+        c = piv[j]
+        R[j, c] = math.sqrt(d[c])
+        rest = piv[j + 1:]
+        R[j, rest] = (G[c, rest] - R[:j, c] @ R[:j, rest]) / R[j, c]
+        d[rest] -= R[j, rest] ** 2
+    return k, piv
+
+
+# ---------------------------------------------------------------- the estimator
+def _check_options(passes, tol, outlier_k, init_frames, max_iterations) -> None:
+    check_int(passes, "passes", minimum=1, maximum=20)
+    check_number(tol, "tol", minimum=0.0, strict=True)
+    check_number(outlier_k, "outlier_k", minimum=0.0, strict=True, allow_none=True)
+    if init_frames not in (True, False, "auto"):
+        raise ParameterError(f"init_frames must be True, False or 'auto', got {init_frames!r}")
+    check_int(max_iterations, "max_iterations", minimum=1)
+
+
+def eb_map(robot: RobotModel, measurements: Measurements, *, passes: int = 3, tol: float = 1e-7,
+           outlier_k: float | None = 5.0, init_frames: bool | str = "auto",
+           max_iterations: int = 100) -> EBMapResult:
+    """Regularised identification by empirical Bayes (module docstring; design eb-map.md).
+
+    Parameters
+    ----------
+    robot : the nominal model (:func:`calib.load_robot`); compliance parameters, if any, are
+        held at their values.
+    measurements : measured tool poses (positions, with or without orientations) in the meas
+        frame; the ``cal`` rows are fitted, ``val`` rows are ignored (score them with
+        :func:`calib.evaluate` on ``result.robot``).
+    passes : linearisations at most (each: evidence maximised, then the MAP fit).
+    tol : stop when no parameter moves by more than this between passes (m; angles times
+        LENGTH_SCALE_M).
+    outlier_k : rows whose noise-whitened residual RMS per component exceeds this, against noise
+        levels from the median absolute residual, are left out and the estimate repeated (at
+        most three times, and only while they are at most a quarter of the rows); None: off.
+    init_frames : calib's closed-form frame estimate ("auto": used when the frames are far from
+        the nominal ones; True: always; False: never).
+    max_iterations : LM iterations per MAP fit.
+
+    Returns an :class:`EBMapResult`. Raises :class:`calib.CalibError` (ParameterError,
+    DataError) for unusable input.
+    """
+    check_instance(robot, "robot", RobotModel, "calib.load_robot")
+    check_instance(measurements, "measurements", Measurements, "calib.read_measurements")
+    _check_options(passes, tol, outlier_k, init_frames, max_iterations)
+    setup, notes = prepare(robot, measurements, None, init_frames)
+    start, cal = setup.start, setup.cal
+    rot = setup.measure == "pose"
+    kin = setup.kin
+    rows_t = target_rows(start, cal)
+    mu_all = start.values.copy()
+    candidates = np.array([i for i, p in enumerate(start.parameters) if p.group != "compliance"], int)
+    everything = Problem(kin, cal.q, cal.position, cal.rotation, mu_all, candidates, START_SIGMA_POS,
+                         START_SIGMA_ROT, targets=rows_t)
+    free, free_notes = _free_set(everything, start, candidates)
+    notes += free_notes
+    names = tuple(start.names[i] for i in free)
+    groups = tuple("frame" if start.parameters[i].group in ("u", "v") else GROUP_OF_KIND[start.parameters[i].kind]
+                   for i in free)
+    present = [g for g in PRIOR_GROUPS if g in groups]
+    group_index = np.array([present.index(g) if g != "frame" else -1 for g in groups], int)
+    n_frame = int(np.sum(group_index < 0))
+    M = cal.n_poses * (6 if rot else 3)
+    if M - n_frame < MIN_REDUNDANCY:
+        raise DataError(f"{measurements.source or '<measurements>'}: {cal.n_poses} calibration rows give {M} "
+                        f"residual components for {n_frame} frame parameters: at least {MIN_REDUNDANCY} "
+                        f"more are needed to estimate the noise and the prior scales")
+    mu = mu_all[free]
+    scale = np.array([LENGTH_SCALE_M if start.parameters[i].unit == "rad" else 1.0 for i in free])
+    base = everything.derived(free=free)
+    keep = np.ones(cal.n_poses, bool) if setup.suspect is None or outlier_k is None else ~setup.suspect
+    frame_pos = np.flatnonzero(group_index < 0)
+
+    def estimate(keep):
+        problem = base.derived(keep=keep)
+        # 1. the frames alone, structure at mu
+        x = mu.copy()
+        if frame_pos.size:
+            fp = problem.derived(free=free[frame_pos])
+            x[frame_pos] = levenberg_marquardt(fp, mu[frame_pos], "pose", LMOptions(max_iterations=max_iterations)).x
+        log_h = None
+        ev = None
+        done = 0
+        for done in range(1, passes + 1):
+            lin = linearise(problem, x, mu)
+            if log_h is None:
+                sp = math.sqrt(max(lin.yyp, 1e-30) / max(lin.n_p - n_frame, 1))
+                h0 = [-2 * math.log(max(sp, SIGMA_POS_BOUNDS[0]))]
+                if rot:
+                    sr = math.sqrt(max(lin.yyr, 1e-30) / max(lin.n_r, 1))
+                    h0.append(-2 * math.log(max(sr, SIGMA_ROT_BOUNDS[0])))
+                log_h = np.array(h0 + [-2 * math.log(1e-3)] * len(present))
+            ev = maximise_evidence(lin, group_index, log_h)
+            log_h = ev.log_h
+            sp, sr = math.exp(-0.5 * log_h[0]), (math.exp(-0.5 * log_h[1]) if rot else START_SIGMA_ROT)
+            lam = np.zeros(len(free))
+            k = 2 if rot else 1
+            lam[group_index >= 0] = np.exp(log_h[k:])[group_index[group_index >= 0]]
+            x_new, _, _ = map_fit(problem.derived(sigma_pos=sp, sigma_rot=sr), x, mu, lam, max_iterations)
+            change = float(np.max(np.abs(x_new - x) * scale))
+            x = x_new
+            if change < tol:
+                break
+        # statistics at the estimate, with the final hyper-parameters
+        final = evidence(linearise(problem, x, mu), group_index, log_h)
+        return x, final, done, problem
+
+    outliers: tuple[int, ...] = ()
+    rounds = 3 if outlier_k is not None else 1
+    for rnd in range(rounds):
+        x, ev, done, problem = estimate(keep)
+        if outlier_k is None:
+            break
+        new_keep = _judge_rows(everything.derived(free=free), x, ev, rot, keep, outlier_k)
+        if (~new_keep).sum() > MAX_OUTLIER_SHARE * cal.n_poses:
+            notes.append(f"{int((~new_keep).sum())} of {cal.n_poses} rows have residuals above {outlier_k:g} "
+                         f"sigma: too many to be gross errors; all kept (the model does not describe the data?)")
+            if keep.all():
+                break
+            new_keep = np.ones(cal.n_poses, bool)
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+        if rnd == rounds - 1:
+            x, ev, done, problem = estimate(keep)
+    outliers = tuple(int(r) for r in cal.rows[~keep])
+    if outliers:
+        notes.append(f"{len(outliers)} row(s) left out as gross errors: rows {', '.join(map(str, outliers))}")
+    k = 2 if rot else 1
+    taus = {g: float(math.exp(-0.5 * ev.log_h[k + i])) for i, g in enumerate(present)}
+    pinned = tuple(g for g in present if taus[g] <= TAU_BOUNDS[0] * (1 + 1e-3))
+    values = mu_all.copy()
+    values[free] = x
+    C = ev.covariance
+    return EBMapResult(
+        robot=start.with_values(values), start=start, names=names, groups=groups, estimate=x, prior_mean=mu,
+        covariance=C, prior_scales=taus, pinned=pinned,
+        effective_parameters=float(np.sum(C * ev.A_data)), log_evidence=ev.value,
+        sigma_pos=float(math.exp(-0.5 * ev.log_h[0])),
+        sigma_rot=float(math.exp(-0.5 * ev.log_h[1])) if rot else None,
+        keep=keep, outliers=outliers, passes=done, notes=tuple(notes))
+
+
+def _judge_rows(problem_all: Problem, x: np.ndarray, ev: Evidence, rot: bool, keep: np.ndarray,
+                k: float) -> np.ndarray:
+    """Rows to keep: those whose whitened residual RMS per component is at most k, the noise
+    levels from the median absolute residual component of the kept rows (1.4826 MAD, corrected
+    for the fit's share of each group's degrees of freedom), which gross rows cannot inflate."""
+    dp, dr = problem_all.pose_residuals(x)
+    n_p = 3 * int(keep.sum())
+    f_p = max(ev.red_p / max(n_p, 1), 1e-3)
+    sp = max(1.4826 * float(np.median(np.abs(dp[keep]))) / math.sqrt(f_p), 1e-12)
+    w = [dp / sp]
+    if rot and dr is not None:
+        f_r = max(ev.red_r / max(n_p, 1), 1e-3)
+        sr = max(1.4826 * float(np.median(np.abs(dr[keep]))) / math.sqrt(f_r), 1e-12)
+        w.append(dr / sr)
+    rms = np.sqrt(np.mean(np.concatenate(w, axis=1) ** 2, axis=1))
+    return rms <= k

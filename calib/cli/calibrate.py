@@ -1,0 +1,220 @@
+"""``calib calibrate ROBOT.urdf MEAS.csv -o CALIBRATED.urdf``: identify the parameters, write the
+calibrated URDF (and the report, plots, HTML and compliance sidecar asked for)."""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_robot, add_verbose,
+                            compliance_options, count, load, positive, read)
+from calib.cli.output import EXIT_NOT_CONVERGED, EXIT_OK, PROG, Outputs, json_text
+from calib.cli.progress import working
+from calib.errors import DataError, ParameterError
+
+__all__ = ["add_parser", "run"]
+
+log = logging.getLogger(__name__)
+
+_CAL_DESC = """\
+Identify a robot's TM-MDH parameters from measured tool poses and write the calibrated URDF.
+
+Reads the nominal model from ROBOT.urdf and the measurements (CSV, see README.md: joint values
+and the tool pose in the base frame of the URDF, which plays the measurement frame). Rows with
+set=val, and the rows of --validate, are held out for validation. Prints the parameter table
+(nominal, identified, deviation, standard deviation; mm and rad) and the accuracy before and
+after calibration (mean, RMS, max, min of the position error in mm and the orientation error in
+rad, as the paper's Tables 10-11), then writes the calibrated URDF: a copy of ROBOT.urdf with the
+joint origins that carry the kinematics recomputed, so that its forward kinematics equal the
+calibrated model's.
+
+Noise: without --sigma-pos-mm / --sigma-rot-rad the noise levels are estimated from the
+residuals (variance-component estimation iterated with the fit) and printed; given ones are
+honoured and a chi-square test says whether the residuals agree with them. The printed
+"predicted RMS error on new measured rows" is what to expect on rows not used in the fit; the
+cross-validated error (--cv K, when there are no validation rows) measures it.
+
+--params:
+  auto   nested candidate sets (joint offsets + frames; + lengths; + twists; the identifiable
+         set) compared by K-fold cross-validation, the smallest within one standard error of the
+         best chosen (default when the data hold under 10 residuals per identifiable parameter)
+  base   the identifiable set at these poses (the default otherwise): redundant partners held
+         at nominal
+  paper  all but u_z, u_alpha, v_x, v_z, v_alpha, v_gamma (the paper's Section 4.2)
+  all    every parameter; combinations the data do not determine stay where they start
+  LIST   comma-separated parameter names, e.g. theta2,d2,a2,alpha2,beta2
+
+Exit codes: 0 converged; 3 the fit did not converge or stopped in a local minimum (outputs
+written for inspection, status on stderr); 2 bad input (nothing written)."""
+
+_CAL_EPILOG = """\
+examples:
+  calib calibrate robots/brtirus0707a/brtirus0707a.urdf examples/brtirus0707a/measurements.csv \\
+      -o calibrated.urdf --report report.json --plots plots
+  calib calibrate robot.urdf meas.csv -o calibrated.urdf --method lm --params paper \\
+      --sigma-pos-mm 0.05 --validate val.csv
+
+Units: the measurement CSV carries its units in its column names (joint1_deg, x_mm, ...); the
+noise sigmas weight position against orientation residuals (mm and rad per axis)."""
+
+
+def _outlier_k(text: str) -> float | None:
+    if text.strip().lower() == "off":
+        return None
+    return positive(text)
+
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add ``calibrate`` to ``subparsers`` (from ``add_subparsers``); it runs :func:`run`."""
+    from calib.calibration.core import METHODS
+    from calib.solvers.problem import LOSSES
+
+    p = subparsers.add_parser("calibrate", help="identify the parameters, write the calibrated URDF",
+                       description=_CAL_DESC, epilog=_CAL_EPILOG, formatter_class=HelpFormatter)
+    add_robot(p)
+    p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: README.md)")
+    p.add_argument("-o", "--output", required=True, metavar="CALIBRATED.urdf",
+                   help="calibrated URDF to write (must differ from ROBOT.urdf)")
+    p.add_argument("--method", choices=METHODS, default="search-lm",
+                   help="search-lm: closed-form search of the angles on the rotation data, then LM "
+                        "(converges from the largest errors); c-lm: the paper's cross-identification "
+                        "scheme run with calib's LM (not the paper's Eq. 27-28; --lm-variant paper for "
+                        "that); lm: calib's Levenberg-Marquardt alone (lm and c-lm exit 3 when they "
+                        "stop in a local minimum)")
+    p.add_argument("--lm-variant", choices=("calib", "paper"), default="calib",
+                   help="calib: calib's LM (default); paper: the LM of the paper's Eq. (27)-(28) as "
+                        "printed (mu I, mu reset to 0.001 lambda^+-1, unweighted mm/rad residuals), "
+                        "for --method lm or c-lm")
+    p.add_argument("--params", default=None, metavar="auto|base|paper|all|LIST",
+                   help="which parameters to identify (see above); default: auto when the rows "
+                        "hold few residuals per identifiable parameter, else base")
+    p.add_argument("--sigma-pos-mm", type=positive, default=None, metavar="S",
+                   help="position measurement noise per axis, mm (weights the residuals); default: "
+                        "estimated from the residuals")
+    p.add_argument("--sigma-rot-rad", type=positive, default=None, metavar="S",
+                   help="orientation measurement noise per axis, rad (weights the residuals); "
+                        "default: estimated from the residuals")
+    p.add_argument("--cv", type=count, default=5, metavar="K",
+                   help="K-fold cross-validated held-out error when there are no validation rows "
+                        "(0: off)")
+    p.add_argument("--loss", choices=LOSSES, default="linear",
+                   help="linear: least squares (Gaussian noise); huber or soft_l1: robust to "
+                        "outliers, applied to each pose's noise-weighted residual")
+    p.add_argument("--outlier-k", type=_outlier_k, default=5.0, metavar="K|off",
+                   help="after the fit, drop calibration rows whose residual exceeds K sigma and "
+                        "fit again (listed in the report); off disables")
+    p.add_argument("--validate", metavar="VAL.csv", default=None,
+                   help="more validation measurements (all rows held out), same format")
+    p.add_argument("--report", metavar="REPORT.json", default=None,
+                   help="write the full result as JSON (lengths in mm, angles in rad): status, "
+                        "before, after, validation, parameters, ...")
+    p.add_argument("--plots", metavar="DIR", default=None,
+                   help="write PNG plots of the per-pose errors before and after and their "
+                        "histograms into DIR (created if missing; its parent must exist)")
+    p.add_argument("--html", metavar="REPORT.html", default=None,
+                   help="write one self-contained HTML report (tables, the printed report and "
+                        "the plots embedded; no external links) for a person or a customer")
+    add_file_format(p, tracker=True)
+    add_frames(p)
+    add_compliance(p, "calibrate")
+    add_verbose(p)
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``calib calibrate`` with parsed arguments; returns the exit code."""
+    import calib
+    from calib.calibration.report import build_report
+    from calib.io.urdf_reader import robot_path
+    from calib.io.urdf_writer import check_writable, write_calibrated_urdf
+
+    outputs = Outputs([robot_path(args.robot), args.measurements, args.validate, args.tracker])
+    out_urdf = outputs.add(args.output)
+    out_report = outputs.add(args.report) if args.report else None
+    out_html = outputs.add(args.html) if args.html else None
+    plot_paths = {}
+    if args.plots:
+        from calib.calibration.report import PLOT_FILES
+
+        for name in PLOT_FILES:
+            plot_paths[name] = outputs.add(Path(args.plots) / name, make_folder=True)
+
+    robot = load(args)
+    payload, gravity = compliance_options(args)
+    if (payload is not None or gravity is not None) and not args.compliance:
+        raise ParameterError("--payload-kg and --gravity only matter with --compliance")
+    out_sidecar = None
+    if args.compliance:
+        from calib.io.compliance_file import sidecar_path
+
+        out_sidecar = outputs.add(sidecar_path(out_urdf))
+    frames = check_writable(robot)     # what cannot be written is refused before the fit
+    log.info("the calibrated URDF will hold tool frame %r in base frame %r", frames.tool_frame,
+             frames.base_frame)
+    meas = read(args.measurements, robot, args, args.tracker)
+    validation = read(args.validate, robot, args, joined=False) if args.validate else None
+    log.info("calibrating: method %s, parameter set %s, %d calibration rows", args.method,
+             args.params or "default (auto or base)", meas.calibration().n_poses)
+    try:
+        with working(f"calibrating ({args.method})", logger=log):
+            result = calib.calibrate(robot, meas, method=args.method, params=args.params,
+                                     sigma_pos=None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3,
+                                     sigma_rot=args.sigma_rot_rad, validation=validation, loss=args.loss,
+                                     outlier_k=args.outlier_k, cv=args.cv, compliance=args.compliance,
+                                     payload=payload, gravity=gravity, lm_variant=args.lm_variant)
+    except DataError as exc:  # about the data as a whole (too few poses): name the file
+        if str(exc).startswith(str(args.measurements)):
+            raise
+        raise DataError(f"{args.measurements}: {exc}") from None
+    log.info("calibration: %s after %d iterations, %.3f s", result.status, result.iterations,
+             result.wall_time)
+
+    written_frames = []
+    outputs.stage_from_file(out_urdf, lambda p: written_frames.append(
+        write_calibrated_urdf(result.robot.geometry(), p, nominal=result.nominal.geometry(),
+                              estimated=result.estimated_frames)))
+    frames = written_frames[0]
+    if out_sidecar is not None:
+        outputs.stage(out_sidecar, json_text(result.compliance_record()))
+    text = result.format()
+    images = {}
+    if plot_paths or out_html is not None:
+        from calib.calibration.report import render_plots
+
+        with working("drawing the plots", logger=log):
+            images = render_plots(result, meas, validation)
+    if out_report is not None or out_html is not None:
+        report = build_report(
+            result, meas, validation, command_line=["calib", *args.argv],
+            inputs={"robot": robot_path(args.robot), "measurements": args.measurements,
+                    "validation": args.validate},
+            outputs={"calibrated_urdf": out_urdf, "report": out_report, "html": out_html},
+            frames={"written_urdf": frames.to_dict()})
+        if out_report is not None:
+            outputs.stage(out_report, json_text(report))
+        if out_html is not None:
+            from calib.calibration.report import render_html
+
+            outputs.stage(out_html, render_html(report, text, images))
+    for name, path in plot_paths.items():
+        if name in images:
+            outputs.stage(path, images[name])
+    outputs.commit()
+
+    written = [out_urdf] + [p for p in (out_sidecar, out_report, out_html) if p is not None] + \
+              [p for p in plot_paths.values() if p in outputs.data]
+    sys.stdout.write(text + "\n\nwrote " + ", ".join(str(p) for p in written) + "\n"
+                     + f"{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in "
+                       f"base frame {frames.base_frame!r} (standing for {frames.nominal_tool_frame!r} "
+                       f"and {frames.nominal_base_frame!r} of {args.robot}; evaluate and compensate "
+                       f"use them by default)\n")
+    if not result.success:
+        sys.stderr.write(f"{PROG}: warning: the calibration did NOT converge (status "
+                         f"{result.status}: {result.message}); the outputs were written for "
+                         f"inspection, do not use them as a calibrated model\n")
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
+

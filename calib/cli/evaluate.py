@@ -1,0 +1,142 @@
+"""``calib evaluate ROBOT.urdf MEAS.csv``: accuracy of a model against measurements."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from calib.cli.args import (COMMON_EPILOG, HelpFormatter, add_compliance, add_file_format, add_frames, add_robot,
+                            add_verbose, load, read, with_compliance_file)
+from calib.cli.output import EXIT_OK, PROG, json_text
+from calib.errors import ParameterError
+
+__all__ = ["add_parser", "run"]
+
+_EVAL_DESC = """\
+Accuracy of a robot model against measurements: mean, RMS, max and min of the tool position
+error (mm) and orientation error (rad, the angle of R_model R_measured^T), over all rows and,
+when the file has a set column, over the cal and val rows apart. Give it the nominal URDF to see
+the error before calibration, the calibrated one to see it after: a calibrated URDF records its
+base and tool frames (and the nominal frames they stand for), so the same options as for
+`calibrate` (or none) measure the same frames and reproduce calibrate's numbers.
+
+Joint compliance: a calibration made with --compliance keeps its compliances in
+CALIBRATED.compliance.json beside the URDF (the URDF holds the geometry only). --compliance FILE
+(that sidecar, or calibrate's --report JSON) applies them, with the payload and gravity of the
+calibration unless --payload-kg / --gravity say otherwise, as `compensate --compliance` does; a
+note on stderr says so. The gravity torques come from the inertias of ROBOT.urdf, or of
+--nominal NOMINAL.urdf, the URDF calibrate started from: with it the numbers are calibrate's to
+rounding. Without --compliance the accuracy is of the geometry alone (a note says so when a
+sidecar lies beside ROBOT.urdf)."""
+
+_EVAL_EPILOG = """\
+examples:
+  calib evaluate robots/brtirus0707a/brtirus0707a.urdf examples/brtirus0707a/measurements.csv
+  calib evaluate calibrated.urdf examples/brtirus0707a/measurements.csv --json
+  calib evaluate cal.urdf meas.csv --compliance cal.compliance.json --nominal ur10
+""" + COMMON_EPILOG
+
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add ``evaluate`` to ``subparsers`` (from ``add_subparsers``); it runs :func:`run`."""
+    p = subparsers.add_parser("evaluate", help="accuracy of a model against measurements",
+                       description=_EVAL_DESC, epilog=_EVAL_EPILOG, formatter_class=HelpFormatter)
+    add_robot(p)
+    p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: README.md)")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object: n_poses, position_mm and rotation_rad statistics "
+                        "(mean, rms, max, min) for all, cal and val rows")
+    add_file_format(p, tracker=True)
+    add_frames(p)
+    g = add_compliance(p, "evaluate")
+    g.add_argument("--nominal", metavar="NOMINAL.urdf", default=None,
+                   help="with --compliance: the nominal URDF of the calibration, whose inertias give "
+                        "the gravity torques as in calibrate (reproduces its numbers exactly); "
+                        "default: ROBOT.urdf's (its calibrated geometry moves the torques by ~1e-3 "
+                        "of themselves, sub-micrometre at the tool); required for a calibration of "
+                        "several targets")
+    add_verbose(p)
+    p.set_defaults(func=run)
+    return p
+
+
+def _evaluate_compliance(robot, args):
+    """``robot`` with the compliances of --compliance (torques from --nominal's URDF if given,
+    else from ROBOT.urdf's), and the stderr note that says so; without --compliance, a note when
+    a compliance sidecar lies beside ROBOT.urdf (its accuracy is then geometry-only)."""
+    from calib.io.compliance_file import sidecar_path
+
+    nominal = None
+    if args.nominal is not None:
+        if args.compliance is None:
+            raise ParameterError("--nominal only matters with --compliance (it gives the gravity torques)")
+        from calib.calibration.compensation import nominal_frames
+
+        base, tool = nominal_frames(robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
+        from calib.io.urdf_reader import load_robot
+
+        nominal = load_robot(args.nominal, base_frame=base, tool_frame=tool)
+    elif args.compliance is not None and robot.targets:
+        raise ParameterError(f"--compliance: {args.robot} holds {robot.n_targets} targets and its tool "
+                             f"frame is target {robot.targets[0]}'s, not the tool the payload was given "
+                             f"in: give --nominal NOMINAL.urdf (the URDF calibrate started from) for "
+                             f"the gravity torques")
+    robot = with_compliance_file(robot, args, torques_from=nominal,
+                                 hint=" (the report or the compliance sidecar of the calibration)")
+    if args.compliance is not None:
+        from calib.model.compliance import DISPLAY_UNITS
+
+        gm = robot.gravity
+        units = [DISPLAY_UNITS[robot.parameters[robot.index(n)].unit] for n in robot.compliance_names]
+        one_unit = len({u for u, _ in units}) == 1       # else (prismatic joints) a unit each
+        values = [f"{n} {robot.value(n) * f:.4g}" + ("" if one_unit else f" {u}")
+                  for n, (u, f) in zip(robot.compliance_names, units)]
+        unit = f" {units[0][0]}" if one_unit else ""
+        load = (f"payload {gm.payload.mass:g} kg" if gm.payload is not None and gm.payload.mass > 0
+                else "no payload")
+        source = args.nominal if nominal is not None else args.robot
+        sys.stderr.write(f"{PROG}: note: joint compliance of {args.compliance} applied "
+                         f"({', '.join(values)}{unit}; {load}, gravity "
+                         f"({', '.join(f'{g:g}' for g in gm.gravity)}) m/s^2; torques from the "
+                         f"inertias of {source})\n")
+    elif robot.urdf_path is not None and sidecar_path(robot.urdf_path).is_file():
+        sys.stderr.write(f"{PROG}: note: {sidecar_path(robot.urdf_path)} holds joint compliances; "
+                         f"this accuracy is of the geometry alone (--compliance "
+                         f"{sidecar_path(robot.urdf_path)} applies them)\n")
+    return robot
+
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``calib evaluate`` with parsed arguments; returns the exit code."""
+    import numpy as np
+
+    import calib
+    from calib.calibration.core import format_accuracy_table
+
+    robot = _evaluate_compliance(load(args), args)
+    meas = read(args.measurements, robot, args, args.tracker)
+    rows = [("all rows", calib.evaluate(robot, meas))]
+    if meas.sets is not None:
+        for label, part in (("calibration rows (cal)", meas.calibration()),
+                            ("validation rows (val)", meas.validation())):
+            if part.n_poses:
+                rows.append((label, calib.evaluate(robot, part)))
+    per_target = []     # several targets: each target's rows too
+    if len(meas.target_ids) > 1:
+        per_target = [(t, calib.evaluate(robot, meas.subset(np.array(meas.target) == t))) for t in meas.target_ids]
+    if args.json:
+        keys = {"all rows": "all", "calibration rows (cal)": "cal", "validation rows (val)": "val"}
+        out = {"robot": str(args.robot), "measurements": str(args.measurements),
+               "base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
+               "joints": list(robot.joint_names),
+               "compliance": None if args.compliance is None else str(args.compliance)}
+        out.update({keys[label]: s.to_dict() for label, s in rows})
+        if per_target:
+            out["targets"] = {t: s.to_dict() for t, s in per_target}
+        sys.stdout.write(json_text(out))
+        return EXIT_OK
+    sys.stdout.write(f"Accuracy of {args.robot} (tool frame {robot.tool_frame!r} in base frame "
+                     f"{robot.base_frame!r}) against {args.measurements}:\n\n"
+                     + format_accuracy_table(rows + [(f"target {t}", st) for t, st in per_target]) + "\n")
+    return EXIT_OK

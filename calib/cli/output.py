@@ -1,0 +1,114 @@
+"""The one output policy of the ``calib`` subcommands, and their exit codes.
+
+Outputs are produced in memory first and written only when everything succeeded, as a set
+(:class:`calib.io.fileio.OutputSet`: temporary files in the target folders, renamed together);
+an output path that names an input is refused before any work (:class:`Outputs`). JSON printed
+or written by a command is strict (:func:`json_text`).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import shlex
+import tempfile
+from pathlib import Path
+from typing import Callable, Sequence
+
+from calib.errors import CalibError
+from calib.io.fileio import OutputSet, check_not_input, output_target
+
+__all__ = ["PROG", "EXIT_OK", "EXIT_INPUT", "EXIT_NOT_CONVERGED", "Outputs", "json_text", "command_line"]
+
+log = logging.getLogger(__name__)
+
+PROG = "calib"
+EXIT_OK = 0
+EXIT_INPUT = 2
+#: ``calibrate``: the fit did not converge; ``compensate``: some targets were not reached
+#: (the outputs are written all the same, for inspection).
+EXIT_NOT_CONVERGED = 3
+
+
+class Outputs:
+    """Output files staged in memory and written together at the end.
+
+    :meth:`add` checks a path at once (not an input, not another output, its folder exists, not
+    a folder itself), so that a bad path fails before any work is done; :meth:`commit` writes
+    every staged file atomically.
+    """
+
+    def __init__(self, inputs: Sequence[str | Path | None]):
+        self.inputs = [Path(p) for p in inputs if p is not None]
+        self.paths: list[Path] = []
+        self.data: dict[Path, bytes] = {}
+        self.folders: list[Path] = []
+
+    def add(self, path: str | Path, *, make_folder: bool = False) -> Path:
+        """Reserve ``path`` as an output; with ``make_folder`` its folder may not exist yet (it
+        is created by :meth:`commit`)."""
+        path = Path(path)
+        check_not_input(path, self.inputs)
+        check_not_input(path, self.paths)
+        output_target(path)          # a device, FIFO or socket is refused before any work
+        if path.is_dir():
+            raise CalibError(f"{path}: is a folder, expected a file name for the output")
+        folder = path.parent
+        if not folder.is_dir():
+            if make_folder and not folder.exists() and folder.parent.is_dir():
+                if folder not in self.folders:
+                    self.folders.append(folder)
+            elif folder.exists():
+                raise CalibError(f"{path}: {folder} is not a folder")
+            else:
+                raise CalibError(f"{path}: folder {folder} does not exist")
+        self.paths.append(path)
+        return path
+
+    def stage(self, path: Path, data: bytes | str) -> None:
+        if path not in self.paths:
+            raise ValueError(f"{path} was not reserved with Outputs.add")
+        self.data[path] = data.encode("utf-8") if isinstance(data, str) else data
+
+    def stage_from_file(self, path: Path, write: Callable[[Path], None]) -> None:
+        """Stage what ``write(temporary_path)`` writes (for API writers that take a path)."""
+        with tempfile.TemporaryDirectory(prefix="calib-") as tmp:
+            target = Path(tmp) / path.name
+            write(target)
+            self.stage(path, target.read_bytes())
+
+    def commit(self) -> None:
+        """Write every staged file as a set (:class:`calib.io.fileio.OutputSet`): all or none."""
+        out = OutputSet()
+        for folder in self.folders:
+            out.make_folder(folder)
+        for path in self.paths:
+            if path in self.data:
+                out.stage(path, self.data[path])
+        for path in out.commit():
+            log.info("wrote %s", path)
+
+
+def json_text(obj) -> str:
+    """Strict JSON (NaN and infinities become null), indented, newline-terminated."""
+    import numpy as np
+
+    def clean(o):
+        if isinstance(o, float):
+            return o if math.isfinite(o) else None
+        if isinstance(o, dict):
+            return {k: clean(v) for k, v in o.items()}
+        if isinstance(o, (list, tuple)):
+            return [clean(v) for v in o]
+        if isinstance(o, np.generic):
+            return clean(o.item())
+        return o
+    return json.dumps(clean(obj), indent=2, allow_nan=False) + "\n"
+
+
+def command_line(args) -> str:
+    """The command line that ran, shell-quoted (``calib`` and ``args.argv``), for file comments."""
+    argv = getattr(args, "argv", None)
+    if argv is None:
+        return f"{PROG} " + args.command if getattr(args, "command", None) else PROG
+    return " ".join(shlex.quote(a) for a in [PROG, *argv])

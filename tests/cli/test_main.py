@@ -1,0 +1,97 @@
+"""calib/cli/main.py: the parser assembled from one module per subcommand, one registration
+style, one output policy, and a start-up that leaves numpy and Pinocchio to the command run."""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+
+import calib.calibration.poses
+from calib.cli.main import COMMANDS, build_parser, main
+
+from conftest import BUNDLED_URDF, ROOT
+
+#: The subcommands as ``calib --help`` lists them.
+NAMES = ["identifiability", "simulate", "calibrate", "evaluate", "select-poses", "compensate"]
+
+
+def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return dict(action.choices)
+
+
+def test_each_subcommand_module_registers_itself_and_runs_its_own_run():
+    subs = _subparsers(build_parser())
+    assert list(subs) == NAMES
+    for module, name in zip(COMMANDS, NAMES):
+        assert module.__name__ == "calib.cli." + name.replace("-", "_")
+        assert subs[name].get_default("func") is module.run
+
+
+def test_each_subcommand_module_adds_one_parser_to_any_subparsers():
+    """``add_parser`` works on subparsers it did not make (a script's own parser)."""
+    for module, name in zip(COMMANDS, NAMES):
+        parser = argparse.ArgumentParser(prog="x")
+        sub = parser.add_subparsers(dest="command")
+        returned = module.add_parser(sub)
+        assert list(_subparsers(parser)) == [name]
+        assert _subparsers(parser)[name] is returned
+
+
+def test_importing_the_cli_loads_neither_numpy_nor_pinocchio():
+    """``calib --help`` and the signal handlers of calib._entry come before the heavy imports."""
+    code = ("import sys, calib.cli.main\n"
+            "print(sorted(m for m in ('numpy', 'scipy', 'pinocchio') if m in sys.modules))\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT,
+                         check=True).stdout
+    assert out == "[]\n"
+
+
+@pytest.mark.parametrize("output, message", [
+    ("/dev/null", "/dev/null: is not a regular file"),
+    (str(BUNDLED_URDF), "refusing to overwrite an input file"),
+])
+def test_select_poses_refuses_a_bad_output_before_any_work(output, message, capsys, monkeypatch):
+    """The practice commands share the others' output policy: the path is checked first."""
+    def never(*args, **kwargs):
+        raise AssertionError("the poses were selected before the output path was checked")
+
+    monkeypatch.setattr(calib.calibration.poses, "design_poses", never)
+    code = main(["select-poses", str(BUNDLED_URDF), "-n", "5", "-o", output])
+    out, err = capsys.readouterr()
+    assert (code, out) == (2, "")
+    assert err.startswith("calib: error: ") and message in err and err.count("\n") == 1
+
+
+def test_select_poses_writes_nothing_when_the_folder_is_missing(tmp_path, capsys):
+    code = main(["select-poses", str(BUNDLED_URDF), "-n", "5", "-o", str(tmp_path / "no" / "poses.csv")])
+    out, err = capsys.readouterr()
+    assert (code, out) == (2, "")
+    assert "folder" in err and "does not exist" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_signal_while_the_parser_imports_the_library_ends_with_one_line(signum, code):
+    """Building the parser imports the library (the choices of --method, --loss, ...): a signal
+    then ends the command like a signal anywhere else, one line and 128 + signal."""
+    code_text = ("import sys, time, calib._entry as e\n"
+                 "class Slow:\n"
+                 "    def find_spec(self, name, path=None, target=None):\n"
+                 "        if name == 'calib.calibration.core':\n"
+                 "            print('importing', file=sys.stderr, flush=True); time.sleep(3)\n"
+                 "sys.meta_path.insert(0, Slow())\n"
+                 "e.main()\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-c", code_text, "identifiability", str(BUNDLED_URDF)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=ROOT, text=True)
+    assert proc.stderr.readline() == "importing\n"
+    proc.send_signal(signum)
+    stdout, err = proc.communicate(timeout=60)
+    assert (proc.returncode, stdout) == (code, "")
+    assert err == f"calib: interrupted by {signal.Signals(signum).name}\n"
