@@ -79,21 +79,6 @@ def check_instance(value: Any, name: str, cls: type, how: str, *, allow_none: bo
     return value
 
 
-def check_robot(value: Any, name: str = "robot"):
-    """``value`` if it is a :class:`calib.RobotModel`."""
-    from calib.model.robot import RobotModel
-
-    return check_instance(value, name, RobotModel, "from calib.load_robot")
-
-
-def check_measurements(value: Any, name: str = "measurements", *, allow_none: bool = False):
-    """``value`` if it is a :class:`calib.Measurements`."""
-    from calib.model.measurements import Measurements
-
-    return check_instance(value, name, Measurements, "from calib.read_measurements",
-                          allow_none=allow_none)
-
-
 def check_configurations(Q: Any, n_joints: int, name: str = "Q") -> np.ndarray:
     """Q as a finite (N, n_joints) float array (a single (n_joints,) configuration is refused:
     pass [q])."""

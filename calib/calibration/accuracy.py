@@ -9,7 +9,8 @@ from typing import Sequence
 import numpy as np
 
 from calib.calibration.options import _check_compatible
-from calib.checks import check_measurements, check_robot
+from calib.model.measurements import check_measurements
+from calib.model.robot import check_robot
 from calib.errors import DataError
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements

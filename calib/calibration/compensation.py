@@ -58,13 +58,14 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from calib.checks import check_rng, check_robot
+from calib.checks import check_rng
+from calib.model.robot import check_robot
 from calib.errors import CalibError, DataError, ParameterError
 from calib.model.jacobian import MEASURES
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import finite_array
 from calib.model.robot import RobotModel
-from calib.io.urdf_reader import load_robot, robot_path
+from calib.io.urdf_reader import load_robot, read_urdf_chain, robot_from_chain, robot_path
 from calib.io.urdf import UrdfDocument
 from calib.model.spatial import log3_batch
 
@@ -304,35 +305,48 @@ def load_compensation_models(calibrated_urdf: str | Path, nominal_urdf: str | Pa
 
     Raises :class:`calib.CalibError` when the two chains have different joints.
     """
-    base_frame, tool_frame = nominal_frames(calibrated_urdf, base_frame=base_frame, tool_frame=tool_frame)
+    document = UrdfDocument.read(robot_path(calibrated_urdf))     # read once, parsed below
+    base_frame, tool_frame = nominal_frames(document, base_frame=base_frame, tool_frame=tool_frame)
     nominal = load_robot(nominal_urdf, base_frame=base_frame, tool_frame=tool_frame)
-    calibrated = load_robot(calibrated_urdf, base_frame=nominal.base_frame,
-                            tool_frame=nominal.tool_frame)
+    calibrated = robot_from_chain(read_urdf_chain(calibrated_urdf, nominal.base_frame, nominal.tool_frame,
+                                                  document=document))
     _check_models(calibrated, nominal)
     return calibrated, nominal
 
 
-def nominal_frames(calibrated_urdf: str | Path, *, base_frame: str | None = None,
+def _calibrated_document(calibrated: str | Path | UrdfDocument | RobotModel) -> UrdfDocument | None:
+    """The document of a calibrated URDF: read from a path, as given, or the one a model read
+    from it carries (None for a model built in code)."""
+    if isinstance(calibrated, RobotModel):
+        return None if calibrated.source is None else calibrated.source.document
+    if isinstance(calibrated, UrdfDocument):
+        return calibrated
+    return UrdfDocument.read(robot_path(calibrated))
+
+
+def nominal_frames(calibrated_urdf: str | Path | UrdfDocument | RobotModel, *, base_frame: str | None = None,
                    tool_frame: str | None = None) -> tuple[str | None, str | None]:
-    """(base_frame, tool_frame) of the nominal URDF for a calibrated one: the given names, else
-    the nominal frames the calibrated URDF records (``<calib:frames>``), else None (the
-    defaults of :func:`calib.load_robot`)."""
-    recorded = UrdfDocument.read(robot_path(calibrated_urdf)).frames
+    """(base_frame, tool_frame) of the nominal URDF for a calibrated one (a path, its document,
+    or the model read from it): the given names, else the nominal frames the calibrated URDF
+    records (``<calib:frames>``), else None (the defaults of :func:`calib.load_robot`)."""
+    document = _calibrated_document(calibrated_urdf)
+    recorded = None if document is None else document.frames
     if recorded is not None:      # default: the nominal frames the calibration was made for
         base_frame = base_frame or recorded.nominal_base_frame
         tool_frame = tool_frame or recorded.nominal_tool_frame
     return base_frame, tool_frame
 
 
-def check_joint_targets(calibrated_urdf: str | Path) -> None:
+def check_joint_targets(calibrated_urdf: str | Path | UrdfDocument | RobotModel) -> None:
     """Refuse joint targets for a calibrated URDF whose measurement or tool frame the calibration
     estimated from the data (its ``<calib:frames>`` record): a joint target stands for the nominal
     tool's pose in the nominal base frame, and that model's base frame is the instrument's, its
     tool the measured point (compensating the nominal tool with it moves the measured point onto
     the tool's poses: joint changes of tens of degrees, each one "ok"). Pose targets, given in
     the measurement frame for the measured point, apply."""
-    path = robot_path(calibrated_urdf)
-    rec = UrdfDocument.read(path).frames
+    document = _calibrated_document(calibrated_urdf)
+    rec = None if document is None else document.frames
+    path = None if document is None else document.path
     if rec is None or not (rec.measurement_estimated or rec.tool_estimated):
         return
     what = [w for w, flag in (("the measurement frame (the instrument's, not the robot's base)",

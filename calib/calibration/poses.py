@@ -77,7 +77,8 @@ from typing import Mapping
 
 import numpy as np
 
-from calib.checks import check_number, check_rng, check_robot
+from calib.checks import check_number, check_rng
+from calib.model.robot import check_robot
 from calib.errors import DataError, ParameterError
 from calib.model.identifiability import (SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability,
                                          observability_indices, weighted_jacobian)

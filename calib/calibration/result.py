@@ -131,22 +131,22 @@ class CalibrationResult:
         """Write the calibrated model as a URDF (see :func:`calib.io.urdf_writer.write_calibrated_urdf`).
 
         The URDF holds the geometry; with compliance, the compliances go to the sidecar
-        :func:`calib.model.compliance.sidecar_path` beside it (:func:`calib.model.compliance.write_sidecar`)."""
+        :func:`calib.io.compliance_file.sidecar_path` beside it (:func:`calib.io.compliance_file.write_sidecar`)."""
         from calib.io.urdf_writer import write_calibrated_urdf
 
         write_calibrated_urdf(self.robot.geometry(), path, nominal=self.nominal.geometry(),
                               estimated=self.estimated_frames)
         if self.robot.has_compliance:
-            from calib.model.compliance import sidecar_path, write_sidecar
+            from calib.io.compliance_file import sidecar_path, write_sidecar
 
             write_sidecar(sidecar_path(path), self.compliance_record())
 
     def compliance_record(self) -> dict | None:
-        """The compliances with their std, payload and gravity (:func:`calib.model.compliance.compliance_record`),
+        """The compliances with their std, payload and gravity (:func:`calib.io.compliance_file.compliance_record`),
         None for a model without compliance."""
         if not self.robot.has_compliance:
             return None
-        from calib.model.compliance import compliance_record
+        from calib.io.compliance_file import compliance_record
 
         return compliance_record(self.robot, {p.name: p.std for p in self.parameters if p.free})
 

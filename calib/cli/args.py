@@ -224,9 +224,9 @@ def compliance_options(args):
 
 def with_compliance_file(robot, args, *, torques_from=None, hint: str = ""):
     """``robot`` with the compliances of ``--compliance FILE`` (a sidecar or a calibration
-    report, :func:`calib.model.compliance.read_compliance`) and the payload and gravity of the options,
+    report, :func:`calib.io.compliance_file.read_compliance`) and the payload and gravity of the options,
     else of the file; unchanged without ``--compliance``. torques_from : the model whose URDF
-    gives the gravity torques (default ``robot``; see :func:`calib.model.compliance.apply_record`).
+    gives the gravity torques (default ``robot``; see :func:`calib.io.compliance_file.apply_record`).
     :class:`calib.ParameterError` for --payload-kg or --gravity without --compliance (``hint``
     ends that message)."""
     from calib.errors import ParameterError
@@ -236,7 +236,7 @@ def with_compliance_file(robot, args, *, torques_from=None, hint: str = ""):
         if payload is not None or gravity is not None:
             raise ParameterError(f"--payload-kg and --gravity need --compliance{hint}")
         return robot
-    from calib.model.compliance import apply_record, read_compliance
+    from calib.io.compliance_file import apply_record, read_compliance
 
     return apply_record(robot, read_compliance(args.compliance), payload=payload, gravity=gravity,
                         torques_from=torques_from, source=args.compliance)

@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError("--payload-kg and --gravity only matter with --compliance")
     out_sidecar = None
     if args.compliance:
-        from calib.model.compliance import sidecar_path
+        from calib.io.compliance_file import sidecar_path
 
         out_sidecar = outputs.add(sidecar_path(out_urdf))
     frames = check_writable(robot)     # what cannot be written is refused before the fit

@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     log.info("read %d %s targets from %s", targets.n_targets, targets.kind, args.targets)
     opts = dict(singular_threshold=args.singular_threshold)
     if targets.kind == "joints":
-        check_joint_targets(args.calibrated)
+        check_joint_targets(calibrated)
         result = compensate(calibrated, nominal, targets.q, measure=args.measure, **opts)
     elif targets.kind == "pose":
         T = _homogeneous(targets.rotation, targets.position)

@@ -64,7 +64,7 @@ def _evaluate_compliance(robot, args):
     """``robot`` with the compliances of --compliance (torques from --nominal's URDF if given,
     else from ROBOT.urdf's), and the stderr note that says so; without --compliance, a note when
     a compliance sidecar lies beside ROBOT.urdf (its accuracy is then geometry-only)."""
-    from calib.model.compliance import sidecar_path
+    from calib.io.compliance_file import sidecar_path
 
     nominal = None
     if args.nominal is not None:
@@ -72,7 +72,7 @@ def _evaluate_compliance(robot, args):
             raise ParameterError("--nominal only matters with --compliance (it gives the gravity torques)")
         from calib.calibration.compensation import nominal_frames
 
-        base, tool = nominal_frames(robot.urdf_path, base_frame=args.base_frame, tool_frame=args.tool_frame)
+        base, tool = nominal_frames(robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
         from calib.io.urdf_reader import load_robot
 
         nominal = load_robot(args.nominal, base_frame=base, tool_frame=tool)

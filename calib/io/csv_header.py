@@ -216,18 +216,13 @@ class Header:
         return None
 
     def _urdf_joints(self) -> dict:
-        """The joints of the robot's URDF (name -> :class:`calib.io.urdf.UrdfJoint`), read once and
-        only on an error path; empty when the model has no URDF or it cannot be read."""
+        """The joints of the robot's URDF (name -> :class:`calib.io.urdf.UrdfJoint`), from the
+        document the model carries (only on an error path); empty for a model built in code."""
         if getattr(self, "_joints", None) is None:
             self._joints = {}
-            if getattr(self.robot, "urdf_path", None) is not None:
-                from calib.errors import CalibError
-                from calib.io.urdf import UrdfDocument
-
-                try:
-                    self._joints = UrdfDocument.read(self.robot.urdf_path).joints
-                except (CalibError, OSError):
-                    pass
+            source = getattr(self.robot, "source", None)    # the URDF as it was parsed
+            if source is not None and source.document is not None:
+                self._joints = source.document.joints
         return self._joints
 
     def _joints_outside_chain(self) -> set[str]:

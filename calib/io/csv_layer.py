@@ -297,7 +297,8 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     frame in the meas frame). Raises :class:`calib.MeasurementFormatError` naming the file, row
     and column on any departure from the format.
     """
-    from calib.checks import check_instance, check_path, check_robot
+    from calib.checks import check_instance, check_path
+    from calib.model.robot import check_robot
 
     path = check_path(path, "path")
     check_robot(robot)

@@ -103,7 +103,8 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
     ------
     MeasurementFormatError : on any departure from the format, naming file, row and column.
     """
-    from calib.checks import check_instance, check_path, check_robot
+    from calib.checks import check_instance, check_path
+    from calib.model.robot import check_robot
 
     check_path(csv_path, "csv_path")
     check_robot(robot)
@@ -201,7 +202,8 @@ def write_measurements(path: str | Path, measurements: Measurements, *, angle_un
 
     from scipy.spatial.transform import Rotation
 
-    from calib.checks import check_measurements, check_path
+    from calib.checks import check_path
+    from calib.model.measurements import check_measurements
 
     check_path(path, "path")
     check_measurements(measurements)
@@ -251,7 +253,8 @@ def write_poses(path: str | Path, robot, q: np.ndarray, *, angle_unit: str = "de
     length_unit : "mm" or "m" (prismatic joints).
     comment : text written first as ``#`` comment lines.
     """
-    from calib.checks import check_configurations, check_path, check_robot
+    from calib.checks import check_configurations, check_path
+    from calib.model.robot import check_robot
 
     check_path(path, "path")
     check_robot(robot)

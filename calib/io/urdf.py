@@ -25,6 +25,10 @@ frame and records each with its id::
       <calib:target id="B" link="tool_B"/>
     </calib:frames>
 
+The writers' shared pieces live here too: numbers written to 12 significant digits
+(:func:`format_number`), the roll-pitch-yaw triple nearest a reference (:func:`rpy_nearest`),
+``<origin>`` attributes, and the names of added links.
+
 URDF consumers (urdfdom and so ROS, Pinocchio,
 yourdfpy) read only ``link``, ``joint``, ``material``, ``transmission`` and ``gazebo``
 elements and ignore a namespaced element, as they ignore ``xacro:`` leftovers.
@@ -32,9 +36,12 @@ elements and ignore a namespaced element, as they ignore ``xacro:`` leftovers.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+import pinocchio as pin
 from lxml import etree
 
 from calib.errors import ChainError, URDFError
@@ -170,6 +177,11 @@ class UrdfDocument:
             raise URDFError(self.path, f"joint {name!r}: <limit lower=\"{lower[0]:g}\" upper=\"{upper[0]:g}\">"
                                        f" has lower > upper")
 
+    def __reduce__(self):
+        """Pickled as its path and XML text (an lxml tree cannot be pickled), so that a model
+        carrying its document can go to another process."""
+        return _document_from_text, (type(self), self.path, etree.tostring(self.tree))
+
     @classmethod
     def read(cls, path: str | Path) -> "UrdfDocument":
         """Parse a URDF file; :class:`URDFError` naming the file (and line) if it cannot be."""
@@ -278,3 +290,80 @@ class UrdfDocument:
         if tool_frame is None or tool_frame == rec.nominal_tool_frame:
             tool_frame = rec.tool_frame
         return base_frame, tool_frame
+
+
+def _document_from_text(cls: type, path: Path, text: bytes) -> UrdfDocument:
+    """The document of a pickled :class:`UrdfDocument` (see its ``__reduce__``)."""
+    parser = etree.XMLParser(remove_blank_text=False, remove_comments=False, resolve_entities=False)
+    return cls(path, etree.ElementTree(etree.fromstring(text, parser)))
+
+
+# ====================================================================== writing: numbers and names
+#: Largest error (metres, radians) a written number may have (:func:`format_number`).
+ROUND_TRIP_TOL = 1e-12
+
+#: Significant digits of written numbers where they keep the error within ROUND_TRIP_TOL.
+SIGNIFICANT_DIGITS = 12
+
+
+def format_number(x: float) -> str:
+    """``x`` as short text for a URDF: 12 significant digits (``0.117``, not
+    ``0.11700000000000006``), or 12 decimals where 12 significant digits would be off by more
+    than :data:`ROUND_TRIP_TOL` (values of 1 and more: angles near pi); values below 5e-13 are
+    ``0``. The text reads back within 5e-13 of ``x`` (< 1e-12 m or rad)."""
+    x = float(x)
+    if abs(x) < 5e-13:
+        return "0"
+    text = f"{x:.{SIGNIFICANT_DIGITS}g}"
+    if abs(float(text) - x) > 5e-13:
+        text = f"{x:.12f}".rstrip("0").rstrip(".")
+    return text
+
+
+def rpy_nearest(R: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+    """(3,) URDF roll, pitch, yaw (radians; ``R = Rz(yaw) Ry(pitch) Rx(roll)``) of the rotation
+    matrix ``R`` (3, 3), chosen among the equivalent triples (the two branches, each angle
+    shifted by multiples of 2 pi) as the nearest to ``reference`` (3,) (default: zeros, i.e.
+    Pinocchio's principal triple). At pitch = +-pi/2 (roll and yaw then act about one axis), the
+    roll is taken from ``reference``.
+    """
+    ref = np.zeros(3) if reference is None else np.asarray(reference, float)
+    r, p, y = pin.rpy.matrixToRpy(R)
+    if abs(math.cos(p)) < 1e-9:           # gimbal lock: only yaw -/+ roll is defined
+        s = math.copysign(1.0, p)
+        p = s * math.pi / 2
+        r = ref[0]
+        Rr = R @ pin.rpy.rpyToMatrix(r, p, 0.0).T   # R = Rz(y) Ry(p) Rx(r), so Rr = Rz(y)
+        y = math.atan2(Rr[1, 0], Rr[0, 0])
+        cands = [np.array([r, p, y])]
+    else:
+        cands = [np.array([r, p, y]),
+                 np.array([r + math.pi, math.pi - p if p > 0 else -math.pi - p, y + math.pi])]
+    best, best_d = None, math.inf
+    for c in cands:
+        c = c + 2 * math.pi * np.round((ref - c) / (2 * math.pi))   # nearest 2 pi shift per angle
+        d = float(np.abs(c - ref).sum())
+        if d < best_d:
+            best, best_d = c, d
+    return best
+
+
+def origin_attributes(T: np.ndarray, rpy_reference=None) -> dict[str, str]:
+    """The ``xyz`` and ``rpy`` attributes (text) of an ``<origin>`` for the pose T (4, 4),
+    metres; the rpy triple nearest ``rpy_reference`` (3,) (:func:`rpy_nearest`)."""
+    return {"xyz": " ".join(format_number(v) for v in T[:3, 3]),
+            "rpy": " ".join(format_number(v) for v in rpy_nearest(T[:3, :3], rpy_reference))}
+
+
+def unique_name(wanted: str, taken) -> str:
+    """``wanted``, or ``wanted_calibrated`` (``..._calibrated2``, ...) if that name is taken."""
+    name, k = wanted, 1
+    while name in taken:
+        name = f"{wanted}_calibrated" if k == 1 else f"{wanted}_calibrated{k}"
+        k += 1
+    return name
+
+
+def target_link_name(target: str) -> str:
+    """``tool_<id>`` with characters other than letters, digits, ``_``, ``-`` and ``.`` as ``_``."""
+    return "tool_" + re.sub(r"[^A-Za-z0-9_.-]", "_", target)

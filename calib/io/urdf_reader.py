@@ -159,7 +159,8 @@ def robot_path(robot: str | Path) -> Path:
 
 
 def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
-                    tool_frame: str | None = None) -> UrdfChain:
+                    tool_frame: str | None = None, *,
+                    document: UrdfDocument | None = None) -> UrdfChain:
     """Read a URDF and find the serial chain of moving joints between two of its frames.
 
     ``urdf_path`` is a file or a robot name of example-robot-data (:func:`robot_path`).
@@ -168,13 +169,14 @@ def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
     by calib records its frames, which are then the defaults (and requests for the nominal
     frames they stand for map to them; :meth:`calib.io.urdf.UrdfDocument.resolve_frames`). Frames
     may be link or joint names. Raises :class:`URDFError`, :class:`FrameNotFound` or
-    :class:`ChainError`.
+    :class:`ChainError`. ``document``: the file's document when the caller has already read it
+    (it is then not read again).
     """
     path = robot_path(check_path(urdf_path, "urdf_path"))
     for name, frame in (("base_frame", base_frame), ("tool_frame", tool_frame)):
         if frame is not None and not (isinstance(frame, str) and frame):
             raise ParameterError(f"{name} must be a frame name (a non-empty str) or None, got {frame!r}")
-    doc = UrdfDocument.read(path)
+    doc = UrdfDocument.read(path) if document is None else document
     parser_output: list[str] = []
     try:
         with captured_c_output() as parser_output:   # Pinocchio's parser prints to C stderr
@@ -299,17 +301,24 @@ def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame:
     parallel_threshold : radians; see :data:`calib.model.mdh.PARALLEL_THRESHOLD_RAD`.
 
     The model reproduces Pinocchio's forward kinematics of ``tool_frame`` in ``base_frame``
-    exactly (to rounding). Raises :class:`calib.CalibError` subclasses on bad input.
+    exactly (to rounding), and carries what was parsed (``robot.source``, the :class:`UrdfChain`:
+    the document and Pinocchio model), which the writer, compliance and messages use: the file
+    is read and built once. Raises :class:`calib.CalibError` subclasses on bad input.
     """
     check_number(parallel_threshold, "parallel_threshold", minimum=0.0, maximum=math.pi / 2)
-    chain = read_urdf_chain(urdf_path, base_frame, tool_frame)
+    return robot_from_chain(read_urdf_chain(urdf_path, base_frame, tool_frame), parallel_threshold)
+
+
+def robot_from_chain(chain: UrdfChain, parallel_threshold: float = PARALLEL_THRESHOLD_RAD) -> RobotModel:
+    """The TM-MDH model of a chain already read (:func:`read_urdf_chain`), carrying it as its
+    ``source``: no file is read and nothing is rebuilt. See :func:`load_robot`."""
     pts, dirs, T_meas_tool = chain_axes(chain)
     geo = derive_mdh(pts, dirs, T_meas_tool, parallel_threshold)
     robot = RobotModel.from_mdh(
         chain.joints, geo.theta, geo.d, geo.a, geo.alpha,
         beta=np.where(geo.has_beta, geo.beta, np.nan),
         T_meas_base_ref=geo.T_meas_base_ref, T_flange_tool_ref=geo.T_flange_tool_ref,
-        base_frame=chain.base_frame, tool_frame=chain.tool_frame, urdf_path=chain.path,
+        base_frame=chain.base_frame, tool_frame=chain.tool_frame, source=chain,
         parallel_threshold=parallel_threshold)
     rec = chain.document.frames if chain.document is not None else None
     if rec is not None and len(rec.targets) > 1 and chain.tool_frame == rec.tool_frame:

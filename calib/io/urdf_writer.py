@@ -51,8 +51,6 @@ keep their original text.
 from __future__ import annotations
 
 import copy
-import math
-import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
@@ -65,8 +63,13 @@ from calib.errors import CalibError
 from calib.io.fileio import atomic_write_text, check_not_input
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
-from calib.io.urdf_reader import chain_axes, load_robot, read_urdf_chain
-from calib.io.urdf import FRAMES_TAG, RecordedFrames, UrdfDocument
+from calib.io.urdf_reader import chain_axes, robot_from_chain
+from calib.io.urdf import (FRAMES_TAG, ROUND_TRIP_TOL, SIGNIFICANT_DIGITS, RecordedFrames,  # noqa: F401
+                            UrdfDocument, format_number, rpy_nearest)
+from calib.io.urdf import origin_attributes as _origin_attrib
+from calib.io.urdf import target_link_name as _target_link_name
+from calib.io.urdf import unique_name as _unique_name
+from calib.io.urdf_minimal import minimal_urdf
 from calib.model.spatial import inverse
 
 __all__ = ["check_writable", "format_number", "rpy_nearest", "write_calibrated_urdf"]
@@ -84,16 +87,16 @@ _UNCHANGED_TOL = 1e-13
 def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
                           nominal: RobotModel | None = None,
                           estimated: Sequence[str] = ()) -> RecordedFrames:
-    """Write a copy of ``robot.urdf_path`` whose kinematics are exactly ``robot``'s.
+    """Write a copy of the URDF ``robot`` was read from whose kinematics are exactly ``robot``'s.
 
     Parameters
     ----------
-    robot : the calibrated model; it must have been read from a URDF (``robot.urdf_path``).
+    robot : the calibrated model; it must have been read from a URDF (it carries the parsed
+        document, ``robot.source``; the input file is not read again).
     path : output file; written atomically; must not be the input URDF.
     nominal : the model derived from the input URDF, with the same parameter names, joints and
-        base/tool frames as ``robot``. Default:
-        ``load_robot(robot.urdf_path, robot.base_frame, robot.tool_frame,
-        robot.parallel_threshold)``.
+        base/tool frames as ``robot``. Default: the model derived from the URDF ``robot`` carries
+        (``robot_from_chain(robot.source, robot.parallel_threshold)``; no file is read).
     estimated : the frames the calibration estimated from the data
         (:attr:`calib.CalibrationResult.estimated_frames`: "measurement->base", "flange->tool",
         "flange-><id>"), recorded as ``measurement_estimated`` / ``tool_estimated``; a calibrated
@@ -108,13 +111,22 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
     chain's joints and of at most one fixed joint on each side change; everything else of the
     input is kept.
 
-    Raises :class:`~calib.errors.CalibError` (or a subclass): no URDF to start from, output =
-    input, ``nominal`` incompatible with ``robot`` or not describing the URDF.
+    A model built in code (no URDF source, :meth:`calib.RobotModel.from_mdh`) is written as a
+    minimal URDF of its kinematics (:func:`calib.io.urdf_minimal.minimal_urdf`).
+
+    Raises :class:`~calib.errors.CalibError` (or a subclass): output = input, ``nominal`` incompatible with ``robot`` or not describing the URDF.
     """
-    from calib.checks import check_path, check_robot
+    from calib.checks import check_path
+    from calib.model.robot import check_robot
 
     check_robot(robot)
     check_not_input(check_path(path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
+    if robot.source is None:      # a model built in code: a minimal URDF of its kinematics
+        if nominal is not None:
+            _check_compatible(robot, nominal)
+        text, frames = minimal_urdf(robot, estimated=tuple(estimated))
+        atomic_write_text(path, text)
+        return frames
     doc, plan = _prepare(robot, nominal)
     estimated = tuple(estimated)
     f = plan.frames     # (a calibrated input's record kept: see _prepare)
@@ -131,25 +143,33 @@ def check_writable(robot: RobotModel) -> RecordedFrames:
 
     Raises what :func:`write_calibrated_urdf` would raise for this URDF and these frames.
     """
+    from calib.model.robot import check_robot
+
+    if check_robot(robot).source is None:
+        return minimal_urdf(robot)[1]
     return _prepare(robot, None)[1].frames
 
 
 def _prepare(robot: RobotModel, nominal: RobotModel | None):
-    from calib.checks import check_instance, check_robot
+    from calib.checks import check_instance
+    from calib.model.robot import check_robot
 
     check_robot(robot)
     check_instance(nominal, "nominal", RobotModel, "from calib.load_robot", allow_none=True)
     if robot.targets:      # the chain and first target as one model, then a link per target
         doc, plan = _prepare(robot.for_target(0), None if nominal is None else nominal.for_target(0))
         return doc, _plan_targets(robot, doc, plan)
-    if robot.urdf_path is None:
-        raise CalibError("the robot model was not read from a URDF (urdf_path is None): there is no "
-                         "URDF to write calibrated kinematics into")
-    src = Path(robot.urdf_path)
+    chain = robot.source      # the URDF as the loader parsed it: no file is read again
+    if chain is None:
+        raise CalibError("the robot model was not read from a URDF (it carries no URDF source): "
+                         "there is no URDF to write calibrated kinematics into")
+    if (chain.base_frame, chain.tool_frame) != (robot.base_frame, robot.tool_frame):
+        raise CalibError(f"{chain.path}: the robot model's frames {robot.base_frame!r} -> "
+                         f"{robot.tool_frame!r} are not those of the chain it was read with "
+                         f"({chain.base_frame!r} -> {chain.tool_frame!r}); load it with these frames")
     if nominal is None:
-        nominal = load_robot(src, robot.base_frame, robot.tool_frame, robot.parallel_threshold).for_target(0)
+        nominal = robot_from_chain(chain, robot.parallel_threshold).for_target(0)
     _check_compatible(robot, nominal)
-    chain = read_urdf_chain(src, robot.base_frame, robot.tool_frame)
     doc = _UrdfDocument(chain.document.path, chain.document.tree)
     _check_nominal_matches_urdf(nominal, chain)
     return doc, _plan_edits(robot, nominal, chain, doc)
@@ -255,75 +275,11 @@ def _serialize(tree: etree._ElementTree) -> str:
     return "\n".join(parts) + "\n"
 
 
-def _unique_name(wanted: str, taken) -> str:
-    """``wanted``, or ``wanted_calibrated`` (``..._calibrated2``, ...) if that name is taken."""
-    name, k = wanted, 1
-    while name in taken:
-        name = f"{wanted}_calibrated" if k == 1 else f"{wanted}_calibrated{k}"
-        k += 1
-    return name
-
-
 def _child_indent(root: etree._Element) -> str:
     """The whitespace before the children of ``root`` ("\\n  " if none can be seen)."""
     if root.text is not None and root.text.strip() == "" and "\n" in root.text:
         return "\n" + root.text.rsplit("\n", 1)[1]
     return "\n  "
-
-
-# ====================================================================== numbers
-#: Largest error (metres, radians) a written number may have (:func:`format_number`).
-ROUND_TRIP_TOL = 1e-12
-
-#: Significant digits of written numbers where they keep the error within ROUND_TRIP_TOL.
-SIGNIFICANT_DIGITS = 12
-
-
-def format_number(x: float) -> str:
-    """``x`` as short text for a URDF: 12 significant digits (``0.117``, not
-    ``0.11700000000000006``), or 12 decimals where 12 significant digits would be off by more
-    than :data:`ROUND_TRIP_TOL` (values of 1 and more: angles near pi); values below 5e-13 are
-    ``0``. The text reads back within 5e-13 of ``x`` (< 1e-12 m or rad)."""
-    x = float(x)
-    if abs(x) < 5e-13:
-        return "0"
-    text = f"{x:.{SIGNIFICANT_DIGITS}g}"
-    if abs(float(text) - x) > 5e-13:
-        text = f"{x:.12f}".rstrip("0").rstrip(".")
-    return text
-
-
-def rpy_nearest(R: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
-    """(3,) URDF roll, pitch, yaw (radians; ``R = Rz(yaw) Ry(pitch) Rx(roll)``) of the rotation
-    matrix ``R`` (3, 3), chosen among the equivalent triples (the two branches, each angle
-    shifted by multiples of 2 pi) as the nearest to ``reference`` (3,) (default: zeros, i.e.
-    Pinocchio's principal triple). At pitch = +-pi/2 (roll and yaw then act about one axis), the
-    roll is taken from ``reference``.
-    """
-    ref = np.zeros(3) if reference is None else np.asarray(reference, float)
-    r, p, y = pin.rpy.matrixToRpy(R)
-    if abs(math.cos(p)) < 1e-9:           # gimbal lock: only yaw -/+ roll is defined
-        s = math.copysign(1.0, p)
-        p = s * math.pi / 2
-        r = ref[0]
-        Rr = R @ pin.rpy.rpyToMatrix(r, p, 0.0).T   # R = Rz(y) Ry(p) Rx(r), so Rr = Rz(y)
-        y = math.atan2(Rr[1, 0], Rr[0, 0])
-        cands = [np.array([r, p, y])]
-    else:
-        cands = [np.array([r, p, y]),
-                 np.array([r + math.pi, math.pi - p if p > 0 else -math.pi - p, y + math.pi])]
-    best, best_d = None, math.inf
-    for c in cands:
-        c = c + 2 * math.pi * np.round((ref - c) / (2 * math.pi))   # nearest 2 pi shift per angle
-        d = float(np.abs(c - ref).sum())
-        if d < best_d:
-            best, best_d = c, d
-    return best
-
-
-def _origin_attrib(T: np.ndarray, rpy_reference=None) -> dict[str, str]:
-    return {"xyz": " ".join(format_number(v) for v in T[:3, 3]),
-            "rpy": " ".join(format_number(v) for v in rpy_nearest(T[:3, :3], rpy_reference))}
 
 
 def _parse_triple(text: str | None) -> np.ndarray | None:
@@ -491,11 +447,6 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
                             source=(rec.source if rec is not None and rec.source else doc.path.name),
                             measurement_estimated=meas_estimated, tool_estimated=tool_estimated)
     return _Plan(source=doc.path.name, origins=origins, frames=frames, new_tool=new_tool)
-
-
-def _target_link_name(target: str) -> str:
-    """``tool_<id>`` with characters other than letters, digits, ``_``, ``-`` and ``.`` as ``_``."""
-    return "tool_" + re.sub(r"[^A-Za-z0-9_.-]", "_", target)
 
 
 def _plan_targets(robot: RobotModel, doc: _UrdfDocument, plan: _Plan) -> _Plan:

@@ -35,28 +35,23 @@ compliance has no ``c<i>`` parameters and behaves exactly as before):
   :meth:`ComplianceTerm.fill_columns`.
 
 A calibrated URDF holds the geometry only; the compliances travel in a small JSON sidecar
-(:func:`write_sidecar`, the same object as the ``"compliance"`` entry of the JSON report) that
-:func:`read_compliance` reads back for compensation.
+(:mod:`calib.io.compliance_file`, the same object as the ``"compliance"`` entry of the JSON
+report) that is read back for compensation.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 import pinocchio as pin
 
 from calib.errors import CalibError, ParameterError
-from calib.model.robot import RobotModel
-from calib.io.urdf_reader import read_urdf_chain
+from calib.model.robot import RobotModel, UrdfSource
 
 #: Standard gravity, m/s^2, along -z of the URDF root frame by default.
 STANDARD_GRAVITY = 9.80665
-#: Format tag of the compliance sidecar file.
-SIDECAR_FORMAT = "calib-compliance/1"
 URDF_NOTE = ("the calibrated URDF holds the geometry only (URDF cannot hold joint compliance); "
              "the compliances are in this report and in the sidecar JSON written beside the URDF, "
              "which 'calib compensate --compliance' reads")
@@ -103,30 +98,29 @@ class GravityModel:
 
     model : Pinocchio model of the whole URDF with the payload added to the tool frame's body
     and ``model.gravity`` set; joint_ids : Pinocchio ids of the chain's joints (base to tool);
-    chain : the :class:`calib.io.urdf_reader.UrdfChain`; payload : the :class:`Payload` or None;
+    chain : the parsed URDF chain (:class:`calib.model.robot.UrdfSource`); payload : the :class:`Payload` or None;
     gravity : (3,) m/s^2 in the URDF root frame; link_mass : kg of the links the chain moves
     (0 for a URDF without inertias).
     """
 
     model: pin.Model = field(repr=False)
-    chain: object = field(repr=False)
+    chain: UrdfSource = field(repr=False)
     payload: Payload | None
     gravity: np.ndarray
     link_mass: float
 
     @classmethod
-    def from_urdf(cls, urdf_path: str | Path, *, base_frame: str | None = None,
-                  tool_frame: str | None = None, payload: Payload | None = None,
-                  gravity: Sequence[float] | None = None) -> "GravityModel":
-        """The gravity model of the chain between ``base_frame`` and ``tool_frame`` of a URDF.
+    def from_chain(cls, chain: UrdfSource, *, payload: Payload | None = None,
+                   gravity: Sequence[float] | None = None) -> "GravityModel":
+        """The gravity model of a URDF chain already parsed (a model's ``source``,
+        :class:`calib.io.urdf_reader.UrdfChain`), from a copy of its Pinocchio model.
 
-        payload : carried at ``tool_frame``; gravity : (3,) m/s^2 in the URDF root frame
+        payload : carried at the chain's tool frame; gravity : (3,) m/s^2 in the URDF root frame
         (default (0, 0, -9.80665)). Raises :class:`calib.CalibError` subclasses.
         """
         if payload is not None and not isinstance(payload, Payload):
             raise ParameterError(f"payload must be a calib.model.compliance.Payload, got {type(payload).__name__}")
         g = np.array([0.0, 0.0, -STANDARD_GRAVITY]) if gravity is None else _finite_vector(gravity, "gravity")
-        chain = read_urdf_chain(urdf_path, base_frame, tool_frame)
         model = pin.Model(chain.model)
         first = chain.joint_ids[0]
         link_mass = float(sum(model.inertias[j].mass for j in model.subtrees[first]))
@@ -142,12 +136,12 @@ class GravityModel:
     @classmethod
     def for_robot(cls, robot: RobotModel, *, payload: Payload | None = None,
                   gravity: Sequence[float] | None = None) -> "GravityModel":
-        """The gravity model of ``robot``'s chain in the URDF it was read from."""
-        if robot.urdf_path is None:
+        """The gravity model of ``robot``'s chain in the URDF it was read from (the parse it
+        carries, ``robot.source``: the file is not read again)."""
+        if robot.source is None:
             raise ParameterError("compliance needs the robot's URDF (its inertias and tool frame): "
                                  "load the robot with calib.load_robot")
-        gm = cls.from_urdf(robot.urdf_path, base_frame=robot.base_frame, tool_frame=robot.tool_frame,
-                           payload=payload, gravity=gravity)
+        gm = cls.from_chain(robot.source, payload=payload, gravity=gravity)
         names = tuple(j.name for j in gm.chain.joints)
         if names != robot.joint_names:
             raise CalibError(f"{robot.urdf_path}: the chain's joints {list(names)} differ from the "
@@ -226,98 +220,6 @@ def with_gravity(robot: RobotModel, *, payload: Payload | None = None,
     """``robot`` with compliance parameters (kept if it has them, else zeros, or ``values``) and
     the gravity model of its URDF with this payload and gravity."""
     return robot.with_compliance(GravityModel.for_robot(robot, payload=payload, gravity=gravity), values)
-
-
-# ====================================================================== sidecar
-def compliance_record(robot: RobotModel, std: dict[str, float] | None = None) -> dict:
-    """The JSON-ready compliance record of a model with compliance: values in SI units
-    (rad/(N m), m/N), their std (SI, None when fixed), the payload and gravity it was identified
-    with, and the note that the URDF holds the geometry only."""
-    gm: GravityModel = robot.gravity
-    std = std or {}
-    return {"format": SIDECAR_FORMAT,
-            "joints": list(robot.joint_names),
-            "units": {n: robot.parameters[robot.index(n)].unit for n in robot.compliance_names},
-            "compliance": {n: float(v) for n, v in zip(robot.compliance_names, robot.compliances())},
-            "std": {n: (None if n not in std or not math.isfinite(std[n]) else float(std[n]))
-                    for n in robot.compliance_names},
-            "payload": None if gm.payload is None else gm.payload.to_dict(),
-            "gravity_m_s2": [float(x) for x in gm.gravity],
-            "note": URDF_NOTE}
-
-
-def sidecar_path(urdf_path: str | Path) -> Path:
-    """The sidecar beside a calibrated URDF: ``NAME.urdf`` -> ``NAME.compliance.json``."""
-    p = Path(urdf_path)
-    return p.with_name(p.stem + ".compliance.json")
-
-
-def write_sidecar(path: str | Path, record: dict) -> None:
-    """Write a compliance record (:func:`compliance_record`) as JSON, atomically."""
-    from calib.io.fileio import atomic_write_text
-
-    atomic_write_text(path, json.dumps(record, indent=2, allow_nan=False) + "\n")
-
-
-@dataclass(frozen=True)
-class ComplianceRecord:
-    """Compliances read from a sidecar or a JSON report: values (n,) SI, in joint order, the
-    joint names, and the payload and gravity of the calibration (None / (3,) m/s^2)."""
-
-    joints: tuple[str, ...]
-    values: np.ndarray
-    payload: Payload | None
-    gravity: np.ndarray
-
-
-def read_compliance(path: str | Path) -> ComplianceRecord:
-    """Read compliances from a sidecar JSON (:func:`write_sidecar`) or a ``calib calibrate
-    --report`` JSON (its ``"compliance"`` entry). Raises :class:`ParameterError` naming the file
-    and what was expected."""
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ParameterError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ParameterError(f"{path}: not a JSON file ({exc})") from None
-    rec = doc.get("compliance") if isinstance(doc, dict) and doc.get("format") != SIDECAR_FORMAT else doc
-    if not isinstance(rec, dict) or rec.get("format") != SIDECAR_FORMAT:
-        raise ParameterError(f"{path}: no compliance record (expected a {SIDECAR_FORMAT!r} sidecar or a "
-                             f"calibration report made with --compliance)")
-    try:
-        joints = tuple(str(j) for j in rec["joints"])
-        vals = [rec["compliance"][f"c{i}"] for i in range(1, len(joints) + 1)]
-        values = np.array([float(v) for v in vals])
-        pl = rec.get("payload")
-        payload = None if pl is None else Payload(pl["mass_kg"], np.asarray(pl["com_mm"], float) * 1e-3)
-        gravity = _finite_vector(rec["gravity_m_s2"], "gravity_m_s2")
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ParameterError(f"{path}: malformed compliance record: {exc!r}") from None
-    except ParameterError as exc:
-        raise ParameterError(f"{path}: {exc}") from None
-    if not np.all(np.isfinite(values)):
-        raise ParameterError(f"{path}: compliance values must be finite numbers")
-    return ComplianceRecord(joints, values, payload, gravity)
-
-
-def apply_record(robot: RobotModel, record: ComplianceRecord, *, payload: Payload | None = None,
-                 gravity: Sequence[float] | None = None, torques_from: RobotModel | None = None,
-                 source: str | Path = "compliance") -> RobotModel:
-    """``robot`` (geometry) with the record's compliances, and the record's payload and gravity
-    unless others are given (the payload may differ between calibration and use).
-
-    torques_from : the model whose URDF gives the torques (default ``robot``). Calibration
-    computes them on the nominal URDF; pass the nominal model to reproduce the calibrated model
-    exactly (the calibrated URDF's slightly different geometry changes the torques by ~1e-3 of
-    themselves, sub-micrometre at the tool)."""
-    if tuple(record.joints) != robot.joint_names:
-        raise ParameterError(f"{source}: the compliances are for joints {list(record.joints)}, the "
-                             f"robot has {list(robot.joint_names)}")
-    src = robot if torques_from is None else torques_from
-    gm = GravityModel.for_robot(src, payload=record.payload if payload is None else payload,
-                                gravity=record.gravity if gravity is None else gravity)
-    return robot.with_compliance(gm, record.values)
 
 
 def parse_triple(text: str, option: str, scale: float = 1.0) -> np.ndarray:

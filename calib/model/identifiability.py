@@ -36,8 +36,8 @@ from typing import Sequence
 
 import numpy as np
 
-from calib.checks import (check_configurations, check_int, check_number, check_rng, check_robot,
-                          check_target_indices)
+from calib.checks import check_configurations, check_int, check_number, check_rng, check_target_indices
+from calib.model.robot import check_robot
 from calib.errors import DataError, ParameterError
 from calib.model.jacobian import MEASURES, identification_jacobian
 from calib.model.robot import RobotModel

@@ -63,7 +63,8 @@ def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "po
     unit of the parameter) then dwx, dwy, dwz (radians per unit), in the meas frame; columns in
     the order of ``robot.parameters``.
     """
-    from calib.checks import check_choice, check_configurations, check_robot
+    from calib.checks import check_choice, check_configurations
+    from calib.model.robot import check_robot
 
     check_robot(robot)
     check_choice(measure, "measure", MEASURES)

@@ -12,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
+from calib.checks import check_instance
 from calib.errors import DataError
 
 __all__ = ["Measurements"]  # read_measurements, write_measurements: see __getattr__ below
@@ -218,3 +219,10 @@ def finite_array(value, name: str) -> np.ndarray:
         raise DataError(f"{name} holds NaN or infinite values")
     return arr
 
+
+
+def check_measurements(value, name: str = "measurements", *, allow_none: bool = False) -> Measurements | None:
+    """``value`` if it is a :class:`Measurements` (or None when ``allow_none``), else
+    :class:`calib.ParameterError` naming ``name``."""
+    return check_instance(value, name, Measurements, "from calib.read_measurements",
+                          allow_none=allow_none)

@@ -28,10 +28,11 @@ import logging
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Any, Iterable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
+from calib.checks import check_instance
 from calib.errors import ParameterError
 from calib.model.mdh import PARALLEL_THRESHOLD_RAD, link_transform
 from calib.model.spatial import zyx_parameters, zyx_transform
@@ -115,6 +116,30 @@ def make_parameters(n_joints: int, beta_joints: Iterable[int],
     return tuple(params)
 
 
+@runtime_checkable
+class UrdfSource(Protocol):
+    """What a model read from a URDF carries: the parse (:class:`calib.io.urdf_reader.UrdfChain`).
+
+    ``path`` the URDF file; ``document`` its XML document (:class:`calib.io.urdf.UrdfDocument`);
+    ``model`` Pinocchio's model of the whole file (built once, never modified: copy it);
+    ``joints`` the chain's :class:`ChainJoint`; ``joint_ids`` their Pinocchio joint ids;
+    ``base_frame`` / ``tool_frame`` the frame names and ``base_frame_id`` / ``tool_frame_id``
+    their Pinocchio frame ids. Declared here so that the model needs no import of the reader.
+    """
+
+    path: Path
+    document: Any
+    model: Any
+    joints: tuple
+    joint_ids: tuple
+    base_frame: str
+    tool_frame: str
+    base_frame_id: int
+    tool_frame_id: int
+
+    def configuration(self, q: np.ndarray) -> np.ndarray: ...
+
+
 @dataclass(frozen=True, eq=False)
 class RobotModel:
     """A serial arm described by TM-MDH parameters (immutable; see the module docstring).
@@ -127,7 +152,10 @@ class RobotModel:
     T_meas_base_ref, T_flange_tool_ref : (4, 4) constant reference transforms (of the first
         target for a multi-target model).
     base_frame, tool_frame : names of the URDF frames the chain runs between.
-    urdf_path : the URDF the model was read from (None for a model built in code).
+    source : what was parsed from the URDF the model was read from (:class:`UrdfSource`: the
+        document and Pinocchio model, used by the writer, compliance and messages instead of
+        the file), or None for a model built in code. Derived models keep it.
+    urdf_path : (read-only) the URDF the model was read from, ``source.path`` (None without).
     targets : ids of the targets on the tool (two or more), or () for one tool frame.
     T_flange_target_refs : (K, 4, 4) the reference flange->target transform of each target
         (K = len(targets)), or None for one tool frame; default: ``T_flange_tool_ref`` for each.
@@ -140,7 +168,7 @@ class RobotModel:
     T_flange_tool_ref: np.ndarray = field(default_factory=lambda: np.eye(4))
     base_frame: str = "meas"
     tool_frame: str = "tool"
-    urdf_path: Path | None = None
+    source: UrdfSource | None = field(default=None, repr=False)
     parallel_threshold: float = PARALLEL_THRESHOLD_RAD
     #: :class:`calib.model.compliance.GravityModel` of a model with compliance parameters, else None.
     gravity: object | None = None
@@ -314,6 +342,11 @@ class RobotModel:
         return self.values[self.indices(self.compliance_names)]
 
     # ------------------------------------------------------------------ lookup
+    @property
+    def urdf_path(self) -> Path | None:
+        """The URDF the model was read from (``source.path``), or None for a model built in code."""
+        return None if self.source is None else Path(self.source.path)
+
     @property
     def n_joints(self) -> int:
         return len(self.joints)
@@ -491,3 +524,8 @@ class RobotModel:
             lines.append("compliance/(urad/(N m) or um/N): " + ", ".join(
                 f"{n} {v * 1e6:.4g}" for n, v in zip(self.compliance_names, self.compliances())))
         return "\n".join(lines)
+
+
+def check_robot(value: Any, name: str = "robot") -> RobotModel:
+    """``value`` if it is a :class:`RobotModel`, else :class:`calib.ParameterError` naming ``name``."""
+    return check_instance(value, name, RobotModel, "from calib.load_robot")

@@ -12,8 +12,8 @@ from typing import Mapping
 
 import numpy as np
 
-from calib.checks import (check_configurations, check_deviations, check_number, check_rng, check_robot,
-                          check_target_ids)
+from calib.checks import check_configurations, check_deviations, check_number, check_rng, check_target_ids
+from calib.model.robot import check_robot
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel

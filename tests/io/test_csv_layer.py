@@ -467,8 +467,8 @@ def test_missing_gripper_column_names_the_tool_frame_before_it(tmp_path):
 
 
 def test_missing_gripper_column_without_a_readable_urdf_is_the_plain_message(tmp_path):
-    """The tool-frame hint needs the URDF: a model built in code (urdf_path None) or whose file
-    is gone since it was loaded gets the message without it, one line, never a crash."""
+    """The tool-frame hint needs the URDF document the model carries: a model built in code
+    (source None) gets the message without it, one line, never a crash."""
     from dataclasses import replace
 
     from conftest import erd_urdf
@@ -477,7 +477,7 @@ def test_missing_gripper_column_without_a_readable_urdf_is_the_plain_message(tmp
     path.write_text("joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg,x_mm,y_mm,z_mm\n"
                     "10,20,-30,5,15,25,300,10,200\n")
     robot = calib.load_robot(erd_urdf("z1"))
-    for model in (replace(robot, urdf_path=None), replace(robot, urdf_path=tmp_path / "gone.urdf")):
+    for model in (replace(robot, source=None),):
         with pytest.raises(MeasurementFormatError) as err:
             calib.read_measurements(path, model)
         assert str(err.value).endswith("expected jointGripper_rad or jointGripper_deg")

@@ -397,7 +397,7 @@ def test_no_file_left_on_error(tmp_path):
     nominal = load_robot(BUNDLED)
     table = nominal.mdh_table()
     other = RobotModel.from_mdh(nominal.joints, table["theta"], table["d"], table["a"],
-                                table["alpha"], urdf_path=BUNDLED)
+                                table["alpha"], source=nominal.source)
     assert "beta2" in robot.names and "beta2" not in other.names
     with pytest.raises(CalibError, match="different parameters"):
         write_calibrated_urdf(robot, out, nominal=other)
@@ -424,11 +424,51 @@ def test_explicit_nominal_gives_the_same_file(tmp_path):
     assert (tmp_path / "a.urdf").read_bytes() == (tmp_path / "b.urdf").read_bytes()
 
 
-def test_model_without_urdf_is_refused(tmp_path):
-    robot = load_robot(BUNDLED)
-    from dataclasses import replace
-    with pytest.raises(CalibError, match="not read from a URDF"):
-        write_calibrated_urdf(replace(robot, urdf_path=None), tmp_path / "x.urdf")
+def _poses(robot, Q):
+    return np.array([robot.T_meas_tool(q, k) for q in Q for k in range(robot.n_targets)])
+
+
+@pytest.mark.parametrize("targets", [False, True])
+def test_model_built_in_code_is_written_as_a_minimal_urdf(tmp_path, targets):
+    """A model built in code (from_mdh: no URDF source) is written as a minimal URDF of its
+    kinematics: read back, the same tool (and target) poses to 1e-12 m / rad (12 written digits),
+    the same joints and limits (an unlimited revolute joint becomes continuous), no other file."""
+    from calib import ChainJoint
+    from calib.io.urdf_writer import check_writable
+
+    nominal = _perturbed(load_robot(BUNDLED), seed=4)
+    t = nominal.mdh_table()
+    joints = list(nominal.joints)
+    joints[5] = ChainJoint(joints[5].name, "revolute", -np.inf, np.inf)
+    robot = RobotModel.from_mdh(joints, t["theta"], t["d"], t["a"], t["alpha"], t["beta"],
+                                u=nominal.u(), v=nominal.v(), T_meas_base_ref=nominal.T_meas_base_ref,
+                                T_flange_tool_ref=nominal.T_flange_tool_ref)
+    if targets:
+        robot = robot.with_target_offsets({"A": [0.01, 0, 0.02], "B": [0, -0.03, 0.01]})
+    assert robot.source is None
+    out = tmp_path / "code.urdf"
+    frames = write_calibrated_urdf(robot, out, estimated=("flange->tool",))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["code.urdf"]
+    assert check_writable(robot) == write_calibrated_urdf(robot, tmp_path / "again.urdf") != frames
+    back = load_robot(out)
+    assert (frames.base_frame, frames.tool_frame) == (robot.base_frame, robot.tool_frame) == \
+        (back.base_frame, back.tool_frame)
+    assert frames.tool_estimated and not frames.measurement_estimated
+    assert back.joint_names == robot.joint_names and back.targets == robot.targets
+    assert [j.kind for j in back.joints] == ["revolute"] * 5 + ["continuous"]
+    assert np.array_equal(back.lower[:5], robot.lower[:5]) and np.array_equal(back.upper[:5], robot.upper[:5])
+    Q = robot.random_configurations(20, rng=2)
+    err = np.abs(_poses(back, Q) - _poses(robot, Q)).max()
+    assert err < 1e-12, err       # written with 12 significant digits
+
+
+def test_prismatic_joint_without_limits_cannot_be_written(tmp_path):
+    from calib import ChainJoint
+
+    joints = [ChainJoint("j1", "revolute", -1.0, 1.0), ChainJoint("j2", "prismatic", -np.inf, np.inf)]
+    robot = RobotModel.from_mdh(joints, [0, 0], [0.1, 0], [0.2, 0], [0, 0])
+    with pytest.raises(CalibError, match="'j2' is prismatic without finite limits"):
+        write_calibrated_urdf(robot, tmp_path / "x.urdf")
     assert list(tmp_path.iterdir()) == []
 
 

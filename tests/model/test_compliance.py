@@ -10,8 +10,8 @@ import pytest
 
 import calib
 from calib.cli.main import main
-from calib.model.compliance import (GravityModel, Payload, apply_record, effective_configurations,
-                                    read_compliance, sidecar_path, with_gravity)
+from calib.io.compliance_file import apply_record, read_compliance, sidecar_path
+from calib.model.compliance import GravityModel, Payload, effective_configurations, with_gravity
 from calib.model.jacobian import pose_jacobian
 from calib.model.kinematics import ChainKinematics
 from calib.model.spatial import log3_batch
