@@ -51,3 +51,35 @@ def figaroh_fit_class(pos_weight: float, orient_weight: float):
                                                     pos_weight=pos_weight, orient_weight=orient_weight)
 
     return Fit
+
+
+#: FIGAROH's configuration for one data file of a serial chain (frames unknown; ``rot`` "true" for
+#: full-pose data, "false" for positions; ``model`` "full_params" or "joint_offset").
+FIGAROH_CONFIG = """
+robot:
+  name: {name}
+  properties:
+    joints:
+      active_joints: [{joints}]
+tasks:
+  calibration:
+    enabled: true
+    type: kinematic_calibration
+    parameters:
+      calibration_level: {model}
+      include_non_geometric: false
+    kinematics:
+      base_frame: universe
+      tool_frame: {tool}
+    measurements:
+      markers:
+        - name: tool
+          reference_joint: {last_joint}
+          measurable_dof: [true, true, true, {rot}, {rot}, {rot}]
+      poses:
+        base_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        tool_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    data:
+      source_file: {data}
+      number_of_samples: {n}
+"""

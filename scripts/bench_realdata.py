@@ -194,36 +194,6 @@ def tiago_m1():
     return "tiago_qualisys_M1", robot, folds
 
 
-FIGAROH_CONFIG = """
-robot:
-  name: {name}
-  properties:
-    joints:
-      active_joints: [{joints}]
-tasks:
-  calibration:
-    enabled: true
-    type: kinematic_calibration
-    parameters:
-      calibration_level: {model}
-      include_non_geometric: false
-    kinematics:
-      base_frame: universe
-      tool_frame: {tool}
-    measurements:
-      markers:
-        - name: tool
-          reference_joint: {last_joint}
-          measurable_dof: [true, true, true, {rot}, {rot}, {rot}]
-      poses:
-        base_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-        tool_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-    data:
-      source_file: {data}
-      number_of_samples: {n}
-"""
-
-
 def _worker_env() -> dict:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -258,7 +228,7 @@ def figaroh_worker(data: Path, name: str, k: int, model: str) -> dict:
             columns.update({f"phi{a}1": rpy[:, i] for i, a in enumerate("xyz")})
         pd.DataFrame(columns).to_csv(csv, index=False)
         config = Path(tmp) / "config.yaml"
-        config.write_text(FIGAROH_CONFIG.format(
+        config.write_text(_bench.FIGAROH_CONFIG.format(
             name=name, joints=", ".join(robot.joint_names), model=model, tool=robot.tool_frame,
             last_joint=robot.joint_names[-1], rot="true" if rot else "false", data=csv, n=cal.n_poses))
         urdf = Path(robot.urdf_path)

@@ -104,36 +104,6 @@ def calibrate_100(repeats: int = 21) -> dict:
 
 
 # ---------------------------------------------------------------------- 2. FIGAROH
-FIGAROH_CONFIG = """
-robot:
-  name: brtirus0707a
-  properties:
-    joints:
-      active_joints: [{joints}]
-tasks:
-  calibration:
-    enabled: true
-    type: kinematic_calibration
-    parameters:
-      calibration_level: full_params
-      include_non_geometric: false
-    kinematics:
-      base_frame: universe
-      tool_frame: {tool}
-    measurements:
-      markers:
-        - name: tool
-          reference_joint: {last_joint}
-          measurable_dof: [true, true, true, true, true, true]
-      poses:
-        base_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-        tool_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-    data:
-      source_file: {data}
-      number_of_samples: {n}
-"""
-
-
 def figaroh_worker(repeats: int = 3) -> dict:
     """In an interpreter with FIGAROH: its geometric calibration ("full_params": 6 placement
     errors per joint, base and tool frames unknown, SE3 log-map residuals weighted by the same
@@ -159,8 +129,9 @@ def figaroh_worker(repeats: int = 3) -> dict:
         columns.update({f"phi{a}1": rpy[:, i] for i, a in enumerate("xyz")})
         pd.DataFrame(columns).to_csv(data, index=False)
         config = Path(tmp) / "config.yaml"
-        config.write_text(FIGAROH_CONFIG.format(joints=", ".join(robot.joint_names), tool=robot.tool_frame,
-                                                last_joint=robot.joint_names[-1], data=data, n=meas.n_poses))
+        config.write_text(_bench.FIGAROH_CONFIG.format(
+            name="brtirus0707a", joints=", ".join(robot.joint_names), model="full_params", tool=robot.tool_frame,
+            last_joint=robot.joint_names[-1], rot="true", data=data, n=meas.n_poses))
         fig_robot = Robot(str(URDF), package_dirs=str(URDF.parent))
 
         def run():
