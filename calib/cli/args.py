@@ -6,6 +6,10 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:       # numpy is imported where it is used: the CLI starts without it
+    import numpy as np
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
@@ -202,7 +206,7 @@ def compliance_options(args):
     :class:`calib.ParameterError` naming the option for bad values."""
     import numpy as np
 
-    from calib.model.compliance import Payload, parse_triple
+    from calib.model.compliance import Payload
     from calib.errors import ParameterError
 
     payload = None
@@ -322,3 +326,19 @@ def read(path, robot, args: argparse.Namespace, tracker=None, *, joined: bool = 
     log.info("read %r", m)
     print_notes(m.notes)
     return m
+
+
+def parse_triple(text: str, option: str, scale: float = 1.0) -> np.ndarray:
+    """(3,) from "X,Y,Z" (times ``scale``); ParameterError naming ``option`` otherwise."""
+    import numpy as np
+
+    from calib.errors import ParameterError
+
+    parts = [s.strip() for s in str(text).split(",")]
+    try:
+        v = np.array([float(s) for s in parts])
+    except ValueError:
+        raise ParameterError(f"{option} {text!r}: expected three numbers X,Y,Z") from None
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ParameterError(f"{option} {text!r}: expected three finite numbers X,Y,Z")
+    return v * scale

@@ -220,15 +220,3 @@ def with_gravity(robot: RobotModel, *, payload: Payload | None = None,
     """``robot`` with compliance parameters (kept if it has them, else zeros, or ``values``) and
     the gravity model of its URDF with this payload and gravity."""
     return robot.with_compliance(GravityModel.for_robot(robot, payload=payload, gravity=gravity), values)
-
-
-def parse_triple(text: str, option: str, scale: float = 1.0) -> np.ndarray:
-    """(3,) from "X,Y,Z" (times ``scale``); ParameterError naming ``option`` otherwise."""
-    parts = [s.strip() for s in str(text).split(",")]
-    try:
-        v = np.array([float(s) for s in parts])
-    except ValueError:
-        raise ParameterError(f"{option} {text!r}: expected three numbers X,Y,Z") from None
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise ParameterError(f"{option} {text!r}: expected three finite numbers X,Y,Z")
-    return v * scale
