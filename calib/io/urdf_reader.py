@@ -158,6 +158,23 @@ def robot_path(robot: str | Path) -> Path:
     return Path(os.path.normpath(os.path.join(folder, sub)))
 
 
+#: Joint and link origins farther than this (metres) from their parent describe no robot: a
+#: value such as 1e300 overflows the kinematics (a crash in the analysis, not an error message).
+MAX_ORIGIN_M = 1e4
+
+
+def _check_placements(path: Path, model) -> None:
+    """Refuse a URDF whose joint or fixed-frame origins are not finite or farther than
+    :data:`MAX_ORIGIN_M` from their parent, naming the joint."""
+    placements = [(model.names[j], model.jointPlacements[j].translation) for j in range(1, model.njoints)]
+    placements += [(f.name, f.placement.translation) for f in model.frames if f.type == pin.FrameType.FIXED_JOINT]
+    for name, t in placements:
+        if not (np.all(np.isfinite(t)) and np.max(np.abs(t)) <= MAX_ORIGIN_M):
+            raise URDFError(path, f"joint {name!r}: origin xyz {' '.join(f'{v:g}' for v in t)} m is "
+                                  f"more than {MAX_ORIGIN_M:g} m from its parent link along an axis: no robot is that "
+                                  f"large (a unit or a typo in the URDF)")
+
+
 def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
                     tool_frame: str | None = None, *,
                     document: UrdfDocument | None = None) -> UrdfChain:
@@ -188,6 +205,7 @@ def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
         raise URDFError(path, f"Pinocchio cannot build a model: {msg}") from None
     if parser_output and parser_output[0].strip():
         log.debug("Pinocchio's URDF parser said: %s", " ".join(parser_output[0].split()))
+    _check_placements(path, model)
 
     base_frame, tool_frame = doc.resolve_frames(base_frame, tool_frame)
     base_frame = base_frame or doc.root_link

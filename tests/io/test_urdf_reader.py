@@ -110,3 +110,21 @@ def test_a_model_with_its_source_pickles(tmp_path, capsys):
     calib.write_calibrated_urdf(robot, tmp_path / "a.urdf")
     calib.write_calibrated_urdf(back, tmp_path / "b.urdf")
     assert (tmp_path / "a.urdf").read_bytes() == (tmp_path / "b.urdf").read_bytes()
+
+
+@pytest.mark.parametrize("value", ["1e300", "-2e4"])
+def test_an_absurd_joint_origin_is_refused_naming_the_joint(tmp_path, value):
+    """An origin of 1e300 m overflowed the kinematics (an IndexError in the identifiability
+    analysis, exit 1); now the reader refuses it, naming the joint (exit 2 from the CLI)."""
+    import re
+
+    from calib import URDFError, load_robot
+
+    text = BUNDLED.read_text()
+    third = [m.start() for m in re.finditer(r"<joint ", text)][3]
+    j = text.index('<origin xyz="', third)
+    k = text.index('"', j + len('<origin xyz="'))
+    bad = tmp_path / "bad.urdf"
+    bad.write_text(text[:j] + f'<origin xyz="{value} 0 0' + text[k:])
+    with pytest.raises(URDFError, match="joint 'joint3': origin xyz"):
+        load_robot(bad)
