@@ -158,6 +158,10 @@ def robot_path(robot: str | Path) -> Path:
     return Path(os.path.normpath(os.path.join(folder, sub)))
 
 
+#: Degrees of freedom of the whole URDF model beyond which it is refused: Pinocchio's workspace
+#: grows with their square (a 1,000-joint chain took 18 GB and ended in a MemoryError); humanoids
+#: and mobile manipulators have a few dozen.
+MAX_MODEL_DOF = 256
 #: Joint and link origins farther than this (metres) from their parent describe no robot: a
 #: value such as 1e300 overflows the kinematics (a crash in the analysis, not an error message).
 MAX_ORIGIN_M = 1e4
@@ -206,6 +210,10 @@ def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
     if parser_output and parser_output[0].strip():
         log.debug("Pinocchio's URDF parser said: %s", " ".join(parser_output[0].split()))
     _check_placements(path, model)
+    if model.nv > MAX_MODEL_DOF:
+        raise URDFError(path, f"{model.nv} moving degrees of freedom: calib calibrates serial arms of up to "
+                              f"{MAX_MODEL_DOF} (Pinocchio's workspace for this model alone would take "
+                              f"gigabytes)")
 
     base_frame, tool_frame = doc.resolve_frames(base_frame, tool_frame)
     base_frame = base_frame or doc.root_link

@@ -128,3 +128,22 @@ def test_an_absurd_joint_origin_is_refused_naming_the_joint(tmp_path, value):
     bad.write_text(text[:j] + f'<origin xyz="{value} 0 0' + text[k:])
     with pytest.raises(URDFError, match="joint 'joint3': origin xyz"):
         load_robot(bad)
+
+
+def test_a_model_beyond_the_dof_bound_is_refused_before_pinocchio_builds_its_workspace(tmp_path):
+    """A 1,000-joint URDF took 18 GB in 30 s, then a MemoryError; beyond MAX_MODEL_DOF the reader
+    refuses it with one message (exit 2 from the CLI)."""
+    from calib import URDFError, load_robot
+    from calib.io.urdf_reader import MAX_MODEL_DOF
+
+    n = MAX_MODEL_DOF + 1
+    parts = ['<robot name="snake">', '<link name="l0"/>']
+    for i in range(1, n + 1):
+        parts.append(f'<link name="l{i}"/><joint name="j{i}" type="revolute"><parent link="l{i - 1}"/>'
+                     f'<child link="l{i}"/><origin xyz="0 0 0.01"/><axis xyz="0 {i % 2} {1 - i % 2}"/>'
+                     f'<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>')
+    path = tmp_path / "snake.urdf"
+    path.write_text("\n".join(parts + ["</robot>"]))
+    with pytest.raises(URDFError, match=f"{n} moving degrees of freedom"):
+        load_robot(path)
+    assert main(["identifiability", str(path)]) == 2
