@@ -203,11 +203,40 @@ def check_size(path: Path) -> None:
                                            f"or use a larger machine")
 
 
+def _read_stream(path: Path) -> bytes:
+    """The bytes of a file that is not a regular file (a pipe, ``<(...)``), read in chunks up to
+    what this machine's memory can calibrate from (as :func:`check_size`): an endless stream is
+    refused once it passes that, not read until memory runs out."""
+    available = available_memory()
+    limit = int(available / MEMORY_BYTES_PER_FILE_BYTE) if available is not None else 1 << 30
+    chunks, total = [], 0
+    with open(path, "rb") as fh:
+        while True:
+            chunk = fh.read(1 << 20)
+            if not chunk:
+                return b"".join(chunks)
+            chunks.append(chunk)
+            total += len(chunk)
+            if total > limit:
+                raise MeasurementFormatError(path, f"more than {limit / 1e6:.0f} MB and not at its end: "
+                                                   f"more than this machine's memory can calibrate from "
+                                                   f"(an endless stream?); expected a CSV file")
+
+
 def read_lines(path: Path) -> list[str]:
+    import stat
+
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        mode = None            # reported by the read itself
+    if mode is not None and (stat.S_ISCHR(mode) or stat.S_ISBLK(mode)):
+        raise MeasurementFormatError(path, "is a device, expected a CSV file")
     if path.is_file():
         check_size(path)
     try:
-        data = path.read_bytes()
+        data = path.read_bytes() if mode is None or stat.S_ISREG(mode) or stat.S_ISDIR(mode) \
+            else _read_stream(path)
     except FileNotFoundError:
         raise MeasurementFormatError(path, "file not found") from None
     except IsADirectoryError:

@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 import re
 
+import os
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -515,3 +517,51 @@ def test_a_header_name_holding_the_delimiter_is_read(tmp_path):
     path.write_text(csv_text(["wrist, roll_rad", "x_mm"], [[0.5, 1.0]]))
     _, names, delimiter, records = _records(path)
     assert names == ["wrist, roll_rad", "x_mm"] and delimiter == "," and len(records) == 1
+
+
+# ---------------------------------------------------------------- devices and streams
+@pytest.mark.parametrize("device", ["/dev/zero", "/dev/urandom"])
+def test_a_device_as_the_measurement_file_is_refused_at_once(device):
+    """/dev/zero was read until memory ran out (SIGTERM ignored meanwhile)."""
+    from calib import load_robot, read_measurements
+    from calib.errors import MeasurementFormatError
+
+    if not os.path.exists(device):
+        pytest.skip(f"{device} absent")
+    with pytest.raises(MeasurementFormatError, match="is a device"):
+        read_measurements(device, load_robot(BUNDLED_URDF))
+
+
+def test_an_endless_stream_is_refused_past_the_memory_bound(monkeypatch, tmp_path):
+    """A pipe is read in chunks up to what memory can calibrate from, then refused; a finite
+    pipe reads as the file."""
+    import threading
+
+    import calib.io.csv_layer as layer
+    from calib import load_robot, read_measurements
+    from calib.errors import MeasurementFormatError
+
+    robot = load_robot(BUNDLED_URDF)
+    src = BUNDLED_URDF.parents[2] / "examples" / "brtirus0707a" / "measurements.csv"
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)
+
+    def feed(data: bytes, repeat: int):
+        with open(fifo, "wb") as fh:
+            try:
+                for _ in range(repeat):
+                    fh.write(data)
+            except BrokenPipeError:
+                pass
+
+    t = threading.Thread(target=feed, args=(src.read_bytes(), 1))
+    t.start()
+    m = read_measurements(fifo, robot)
+    t.join()
+    assert m.n_poses == read_measurements(src, robot).n_poses
+    monkeypatch.setattr(layer, "available_memory", lambda: 40 * 3_000_000)     # a 3 MB bound
+    t = threading.Thread(target=feed, args=(b"1,2,3,4,5,6\n" * 100_000, 20))   # 24 MB
+    t.start()
+    with pytest.raises(MeasurementFormatError, match="not at its end"):
+        read_measurements(fifo, robot)
+    t.join()
