@@ -19,7 +19,10 @@ from calib.calibration.options import (
     IMPLAUSIBLE_ROT_RAD,
     LOCAL_MINIMUM_RATIO,
     ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM,
+    ROBUST_CHECK_INFLATION,
     ROBUST_CHECK_ITERATIONS,
+    TRIMMED_FIT_STEPS,
+    TRIMMED_MAX_OUTLIER_SHARE,
     VCE_FIRST_FTOL,
     VCE_MAX_ITERATIONS,
     VCE_RTOL,
@@ -164,11 +167,9 @@ def _noise_estimate(problem: Problem, lin: _Linearised, estimated: bool, iterati
                          ne.rss_rot / max(red_r, 1e-300) if has_rot else None, chi2, dof, p_value, iterations)
 
 
-def _flag_outliers(problem: Problem, x: np.ndarray, rows: np.ndarray, keep: np.ndarray, k: float,
-                   sigma_pos: float, sigma_rot: float) -> tuple[list[Outlier], bool]:
-    """Rows still kept whose whitened residual RMS per component exceeds k (with the given noise
-    levels), and whether they are too many (more than a quarter of the kept rows) to be outliers.
-    ``problem`` holds all calibration rows; rows : their line numbers."""
+def _row_rms(problem: Problem, x: np.ndarray, sigma_pos: float, sigma_rot: float):
+    """Each row's whitened residual RMS per component, its position residuals and the norm of
+    its rotation residual (NaN without orientation data)."""
     dp, dr = problem.pose_residuals(x)
     blocks = [dp / sigma_pos]
     rot = np.full(len(dp), np.nan)
@@ -176,10 +177,40 @@ def _flag_outliers(problem: Problem, x: np.ndarray, rows: np.ndarray, keep: np.n
         blocks.append(dr / sigma_rot)
         rot = np.linalg.norm(dr, axis=1)
     w = np.concatenate(blocks, axis=1)
-    rms = np.sqrt(np.mean(w ** 2, axis=1))
+    return np.sqrt(np.mean(w ** 2, axis=1)), dp, rot
+
+
+def _flag_outliers(problem: Problem, x: np.ndarray, rows: np.ndarray, keep: np.ndarray, k: float,
+                   sigma_pos: float, sigma_rot: float,
+                   max_share: float = 0.25) -> tuple[list[Outlier], bool]:
+    """Rows still kept whose whitened residual RMS per component exceeds k (with the given noise
+    levels), and whether they are too many (more than ``max_share`` of the kept rows) to be
+    outliers. ``problem`` holds all calibration rows; rows : their line numbers."""
+    rms, dp, rot = _row_rms(problem, x, sigma_pos, sigma_rot)
     bad = np.flatnonzero(keep & (rms > k))
     found = [Outlier(int(rows[i]), float(np.linalg.norm(dp[i])), float(rot[i]), float(rms[i])) for i in bad]
-    return found, len(bad) > 0.25 * keep.sum()
+    return found, len(bad) > max_share * keep.sum()
+
+
+def _trimmed_fit(problem: Problem, x: np.ndarray, keep: np.ndarray, sigma_pos: float, sigma_rot: float,
+                 options: LMOptions, trace: LMTrace) -> np.ndarray:
+    """A high-breakdown fit of ``problem``'s kept rows from x (least trimmed squares by
+    concentration steps): the least-squares fit of the half of the kept rows with the smallest
+    whitened residuals (at the robust noise levels given), repeated until that half stops
+    changing. ``problem`` holds all calibration rows (its weights: the robust noise levels)."""
+    n = int(keep.sum())
+    h = (n + 1) // 2
+    chosen = None
+    for _ in range(TRIMMED_FIT_STEPS):
+        rms = _row_rms(problem, x, sigma_pos, sigma_rot)[0]
+        rms = np.where(keep, rms, np.inf)
+        half = np.zeros(len(rms), bool)
+        half[np.argsort(rms, kind="stable")[:h]] = True
+        if chosen is not None and np.array_equal(half, chosen):
+            break
+        chosen = half
+        x = levenberg_marquardt(problem.derived(keep=chosen), x, "pose", options, trace).x
+    return x
 
 
 def _robust_sigmas(problem: Problem, x: np.ndarray, keep: np.ndarray, red_p: float, red_r: float):
@@ -353,7 +384,21 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
             fsr = rsr if sigma_rot is None else sr
         new, too_many = _flag_outliers(everything, x, cal.rows, keep, outlier_k, fsp, fsr)
         few = everything.n_poses * (6 if two_groups else 3) < ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM * len(x)
-        if loss == "linear" and (new or few):
+        # a least-squares noise level far above the robust one: many gross rows, which a
+        # least-squares (or Huber) fit spreads until none stands out
+        inflated = estimate and not few and max(sp / fsp, sr / fsr) > ROBUST_CHECK_INFLATION
+        if loss == "linear" and inflated:
+            # judge the rows against a trimmed fit (the rows it explains best), with the noise
+            # levels of its residuals, then refit by least squares without those flagged
+            x_robust = _trimmed_fit(everything.derived(sigma_pos=fsp, sigma_rot=fsr), x, keep, fsp, fsr,
+                                    solve.options, trace)
+            rsp, rsr = _robust_sigmas(everything, x_robust, keep, lin.red_pos, lin.red_rot)
+            fsp, fsr = (rsp if sigma_pos is None else sp), (rsr if sigma_rot is None else sr)
+            new, too_many = _flag_outliers(everything, x_robust, cal.rows, keep, outlier_k, fsp, fsr,
+                                           TRIMMED_MAX_OUTLIER_SHARE)
+            if new and not too_many:
+                x = x_robust
+        elif loss == "linear" and (new or few):
             # a least-squares fit spreads a gross error over its neighbours: judge the rows
             # against a robust (Huber) fit instead, then refit by least squares without them;
             # on few rows always (there the spread can hide the gross rows altogether)

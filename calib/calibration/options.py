@@ -72,6 +72,21 @@ ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM = 10
 #: The robust fit of the outlier check and the noise levels of its residuals are iterated at
 #: most this many times (until the levels change by less than 10 %).
 ROBUST_CHECK_ITERATIONS = 3
+#: Above that, a least-squares noise level more than this factor above the robust one (1.4826
+#: MAD of the residual components at the least-squares fit) in either group means many gross
+#: rows: a least-squares fit spread over 20-40 % of rows 5 mm off leaves none of them above the
+#: threshold (100 full poses of 0.02 mm noise: noise estimated 1.3-1.8 mm, 0.5-1 mm off the
+#: truth, none flagged), and the rows are judged against a trimmed fit instead. Clean simulated
+#: data give about 0.9-1.1, real motion-capture data (examples/tiago_qualisys) 1.2, 5-40 % of
+#: rows 5 mm off about 2-4; clean data never pay for the trimmed fit.
+ROBUST_CHECK_INFLATION = 1.5
+#: The trimmed fit (least trimmed squares by concentration steps: the least-squares fit of the
+#: half of the rows it explains best, repeated until that half stops changing) takes at most
+#: this many steps.
+TRIMMED_FIT_STEPS = 10
+#: Rows flagged against the trimmed fit are outliers up to this share of the kept rows (its
+#: breakdown point); against the other fits, up to a quarter (more mean noise levels too small).
+TRIMMED_MAX_OUTLIER_SHARE = 0.5
 #: Joint readings that agree to this (rad / m) are one configuration when counting distinct poses.
 DISTINCT_Q_TOL = 1e-9
 #: Residual components beyond the number of free parameters needed to estimate the noise.
