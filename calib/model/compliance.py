@@ -92,6 +92,37 @@ class Payload:
         return {"mass_kg": self.mass, "com_mm": [float(x) * 1e3 for x in self.com_tool]}
 
 
+#: Bounds of physically meaningful options: no industrial robot carries more than a few tonnes
+#: (the largest, 2.3 t), nor a load more than MAX_PAYLOAD_TO_ARM times the mass of the links it
+#: moves (a payload in grams read as kg is 1000 times too heavy); a centre of mass farther than
+#: MAX_PAYLOAD_COM_M from the tool is no tool's load; gravity between these magnitudes (m/s^2:
+#: the Moon's 1.62 to three times the Earth's) in any direction (a robot on a ceiling or wall
+#: sees it along +z or sideways of its root frame).
+MAX_PAYLOAD_KG = 5000.0
+MAX_PAYLOAD_TO_ARM = 10.0
+MAX_PAYLOAD_COM_M = 5.0
+GRAVITY_RANGE = (1.0, 30.0)
+
+
+def _check_physical(payload: Payload | None, gravity: np.ndarray, link_mass: float) -> None:
+    """Refuse a payload or gravity that no calibration set-up has (ParameterError naming it)."""
+    g = float(np.linalg.norm(gravity))
+    if not GRAVITY_RANGE[0] <= g <= GRAVITY_RANGE[1]:
+        raise ParameterError(f"gravity of {g:.4g} m/s^2: expected {GRAVITY_RANGE[0]:g} to {GRAVITY_RANGE[1]:g} "
+                             f"m/s^2 (the Earth's is {STANDARD_GRAVITY}; the vector is in m/s^2, not g)")
+    if payload is None:
+        return
+    if payload.mass > MAX_PAYLOAD_KG or (link_mass > 0 and payload.mass > MAX_PAYLOAD_TO_ARM * link_mass):
+        raise ParameterError(f"payload of {payload.mass:.6g} kg: more than any robot carries"
+                             + (f" ({MAX_PAYLOAD_TO_ARM:g} times the {link_mass:.3g} kg of the links it moves)"
+                                if link_mass > 0 else f" ({MAX_PAYLOAD_KG:g} kg)")
+                             + "; the mass is in kg (grams read as kg?)")
+    d = float(np.linalg.norm(payload.com_tool))
+    if d > MAX_PAYLOAD_COM_M:
+        raise ParameterError(f"payload centre of mass {d:.4g} m from the tool frame: no tool's load is farther "
+                             f"than {MAX_PAYLOAD_COM_M:g} m (--payload-com-mm is in mm, Payload.com_tool in metres)")
+
+
 @dataclass(frozen=True, eq=False)
 class GravityModel:
     """Gravity torques on the joints of a URDF chain (a constant model; see the module docstring).
@@ -124,6 +155,7 @@ class GravityModel:
         model = pin.Model(chain.model)
         first = chain.joint_ids[0]
         link_mass = float(sum(model.inertias[j].mass for j in model.subtrees[first]))
+        _check_physical(payload, g, link_mass)
         if payload is not None and payload.mass > 0:
             frame = model.frames[chain.tool_frame_id]
             inertia = pin.Inertia(payload.mass, np.array(payload.com_tool), np.zeros((3, 3)))

@@ -281,3 +281,23 @@ def test_targets_keep_the_compliance_parameters(ur10_c):
     assert np.array_equal(multi.compliances(), TRUE_C) and multi.gravity is ur10_c.gravity
     one = multi.for_target("B")
     assert one.names == ur10_c.names and np.array_equal(one.values, ur10_c.values)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"payload": Payload(1e12)}, "payload of 1e\\+12 kg"),
+    ({"payload": Payload(5000.0)}, "10 times the"),                      # 5 kg written in grams
+    ({"payload": Payload(5.0, [0.0, 0.0, 112.0])}, "centre of mass 112 m"),
+    ({"gravity": [0.0, 0.0, -9810.0]}, "gravity of 9810 m/s\\^2"),
+    ({"gravity": [0.0, 0.0, 0.0]}, "gravity of 0 m/s\\^2"),
+])
+def test_absurd_payload_or_gravity_is_refused(kwargs, match):
+    """A 1e12 kg payload collapsed the identifiable set to 3 parameters with exit 0; a payload in
+    grams, a centre of mass 112 m away or gravity in mm/s^2 were taken silently."""
+    robot = calib.load_robot("ur10")
+    with pytest.raises(calib.ParameterError, match=match):
+        with_gravity(robot, **kwargs)
+
+
+def test_gravity_along_plus_z_is_a_ceiling_mount_and_accepted():
+    robot = with_gravity(calib.load_robot("ur10"), payload=Payload(5.0), gravity=[0.0, 0.0, 9.81])
+    assert np.allclose(robot.gravity.gravity, [0.0, 0.0, 9.81])
