@@ -500,16 +500,27 @@ def method_notes(setup: Setup, method: str) -> list[str]:
     return []
 
 
-def fit_notes(nominal: RobotModel, fit: Fit) -> list[str]:
-    """The fit's notes, and what its outcome says about the data: residuals far above given noise
-    levels, errors no robot and instrument give, link lengths far from ``nominal``'s."""
-    notes = list(fit.notes)
+def implausibility(nominal: RobotModel, fit: Fit) -> list[str]:
+    """Why the fit's result cannot be trusted, one sentence each (empty when it can): residuals
+    far above given noise levels (every uncertainty and prediction is that much too small),
+    errors no robot and instrument give. A calibration with any of these is not called converged
+    (status "implausible")."""
+    notes = []
     nz = fit.noise
     if not nz.estimated and fit.solver.status == "converged" and nz.reduced_chi2 > CHI2_ESCAPE:
         notes.append(f"the fit converged but its residuals are {math.sqrt(nz.reduced_chi2):.1f} times the given "
                      f"noise (reduced chi^2 {nz.reduced_chi2:.3g}): a wrong sigma, or errors the model "
                      f"does not describe; omit the noise levels to estimate them from the data")
-    return notes + _implausible_fit_notes(nominal, fit.errors) + _implausible_length_notes(nominal, fit.model)
+    # judged on the rows the fit kept: a gross row it flagged is not the model's failure
+    return notes + _implausible_fit_notes(nominal, fit.errors.subset(fit.keep))
+
+
+def length_notes(nominal: RobotModel, fit: Fit) -> list[str]:
+    """Notes naming link lengths identified far from ``nominal``'s. A note, not a refusal: a
+    length tied to another (d2 and d3 of parallel axes, d6 and the tool's z) can move along the
+    tie with the model's kinematics exact (from a start 1.55 rad off in alpha2: d2 -26 m,
+    d3 +26 m, error to the truth 1e-9 m)."""
+    return _implausible_length_notes(nominal, fit.model)
 
 
 def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, outlier_k: float | None,

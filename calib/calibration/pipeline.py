@@ -40,7 +40,7 @@ import time
 from typing import Sequence
 
 from calib.calibration.accuracy import accuracy_after, accuracy_before
-from calib.calibration.fit import fit_notes, fit_with, method_notes
+from calib.calibration.fit import fit_with, implausibility, length_notes, method_notes
 from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
@@ -149,7 +149,11 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     else:
         fit, problem = fit_with(setup, choice.free, opts, outlier_k=opts.outlier_k, kin=kin,
                                 rank_deficit=choice.deficit)
-    notes += fit_notes(robot, fit)
+    implausible = implausibility(robot, fit)
+    notes += list(fit.notes) + implausible + length_notes(robot, fit)
+    status, message = fit.solver.status, fit.solver.message
+    if implausible and status == "converged":
+        status, message = "implausible", implausible[0]
 
     stats = statistics_stage(setup, fit, problem)
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
@@ -163,7 +167,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     return CalibrationResult(
         robot=fit.model, nominal=robot, method=opts.method, param_set=label,
         parameters=_parameter_table(robot, fit.model, fit.free, stats.covariance), free=fit.free,
-        status=fit.solver.status, message=fit.solver.message, iterations=fit.iterations,
+        status=status, message=message, iterations=fit.iterations,
         rounds=fit.solver.rounds, wall_time=time.perf_counter() - t0, cost=float(fit.solver.cost),
         reduced_chi2=nz.reduced_chi2, covariance=stats.covariance, before=accuracy.before, after=accuracy.after,
         validation_before=accuracy.validation_before, validation_after=accuracy.validation_after,

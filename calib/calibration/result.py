@@ -52,8 +52,11 @@ class CalibrationResult:
 
     robot : the calibrated model; nominal : the model calibration started from.
     parameters : the parameter table; free : names of the identified parameters.
-    status : "converged", "max_iterations", "diverged" or "local_minimum" (an explicit lm / c-lm
-    fit that a search from another start beats); success : status == "converged".
+    status : "converged", "max_iterations", "diverged", "local_minimum" (an explicit lm / c-lm
+    fit that a search from another start beats) or "implausible" (converged, but to a result no
+    robot and instrument give, or far above given noise levels:
+    :func:`calib.calibration.fit.implausibility`, ``message`` says why); success : status ==
+    "converged".
     before, after : accuracy on the calibration rows (outliers included); after_without_outliers :
     the same without the rows flagged as outliers (None when none were); validation_before/after
     on the validation rows (None without validation data); before_registered /

@@ -211,6 +211,11 @@ def run(args: argparse.Namespace) -> int:
                        f"base frame {frames.base_frame!r} (standing for {frames.nominal_tool_frame!r} "
                        f"and {frames.nominal_base_frame!r} of {args.robot}; evaluate and compensate "
                        f"use them by default)\n")
+    if result.status == "implausible":
+        sys.stderr.write(f"{PROG}: warning: the calibration converged to a result that cannot be trusted "
+                         f"({result.message}); the outputs were written for inspection, do not use them "
+                         f"as a calibrated model\n")
+        return EXIT_NOT_CONVERGED
     if not result.success:
         sys.stderr.write(f"{PROG}: warning: the calibration did NOT converge (status "
                          f"{result.status}: {result.message}); the outputs were written for "

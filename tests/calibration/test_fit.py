@@ -165,3 +165,26 @@ def test_clean_rows_skip_the_trimmed_fit(bundled_robot, monkeypatch):
         meas, _ = _gross_rows(bundled_robot, true, 0.0, seed)
         assert calib.calibrate(bundled_robot, meas, cv=0).outliers == ()
     assert calls == []
+
+
+def test_an_implausible_fit_is_not_called_converged_and_the_cli_exits_3(tmp_path, capsys):
+    """Joint values in radians in a _deg column: the fit "converged" and exit 0 with a URDF
+    hundreds of millimetres wrong, flagged by a note only. Now status "implausible" (success
+    False), and the CLI exits 3 saying the outputs are for inspection only."""
+    import calib
+    from calib.cli.main import main
+    from conftest import BUNDLED_URDF
+
+    robot = calib.load_robot(BUNDLED_URDF)
+    true = calib.apply_deviations(robot, calib.PAPER_DEVIATIONS)
+    meas = calib.simulate_measurements(true, robot.random_configurations(40, 5), sigma_pos=2e-5, sigma_rot=2e-3)
+    wrong = calib.Measurements.from_arrays(np.radians(meas.q), meas.position, meas.rotation)
+    res = calib.calibrate(robot, wrong, params="base", cv=0, outlier_k=None)
+    assert res.status == "implausible" and not res.success
+    assert res.message.startswith("the calibrated model does not describe these measurements")
+    assert calib.calibrate(robot, meas, params="base", cv=0).status == "converged"
+    path = tmp_path / "m.csv"
+    calib.write_measurements(path, wrong)
+    code = main(["calibrate", str(BUNDLED_URDF), str(path), "-o", str(tmp_path / "c.urdf"), "--cv", "0"])
+    err = capsys.readouterr().err
+    assert code == 3 and "cannot be trusted" in err and "do not use them" in err
