@@ -168,9 +168,11 @@ def test_clean_rows_skip_the_trimmed_fit(bundled_robot, monkeypatch):
 
 
 def test_an_implausible_fit_is_not_called_converged_and_the_cli_exits_3(tmp_path, capsys):
-    """Joint values in radians in a _deg column: the fit "converged" and exit 0 with a URDF
-    hundreds of millimetres wrong, flagged by a note only. Now status "implausible" (success
-    False), and the CLI exits 3 saying the outputs are for inspection only."""
+    """Quaternions written x, y, z, w and read as w, x, y, z: the fit "converged" with 1.4 rad
+    left and exit 0, flagged by a note only. Now status "implausible" (success False), and the
+    CLI exits 3 saying the outputs are for inspection only."""
+    from scipy.spatial.transform import Rotation
+
     import calib
     from calib.cli.main import main
     from conftest import BUNDLED_URDF
@@ -178,8 +180,10 @@ def test_an_implausible_fit_is_not_called_converged_and_the_cli_exits_3(tmp_path
     robot = calib.load_robot(BUNDLED_URDF)
     true = calib.apply_deviations(robot, calib.PAPER_DEVIATIONS)
     meas = calib.simulate_measurements(true, robot.random_configurations(40, 5), sigma_pos=2e-5, sigma_rot=2e-3)
-    wrong = calib.Measurements.from_arrays(np.radians(meas.q), meas.position, meas.rotation)
-    res = calib.calibrate(robot, wrong, params="base", cv=0, outlier_k=None)
+    xyzw = Rotation.from_matrix(meas.rotation).as_quat()
+    swapped = Rotation.from_quat(np.roll(xyzw, -1, axis=1)).as_matrix()
+    wrong = calib.Measurements.from_arrays(meas.q, meas.position, swapped)
+    res = calib.calibrate(robot, wrong, params="base", cv=0)
     assert res.status == "implausible" and not res.success
     assert res.message.startswith("the calibrated model does not describe these measurements")
     assert calib.calibrate(robot, meas, params="base", cv=0).status == "converged"
