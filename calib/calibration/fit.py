@@ -500,16 +500,24 @@ def method_notes(setup: Setup, method: str) -> list[str]:
     return []
 
 
-def implausibility(nominal: RobotModel, fit: Fit) -> list[str]:
+def implausibility(nominal: RobotModel, fit: Fit, *, sigma_pos_given: bool | None = None,
+                   sigma_rot_given: bool = False) -> list[str]:
     """Why the fit's result cannot be trusted, one sentence each (empty when it can): residuals
     far above given noise levels (every uncertainty and prediction is that much too small),
     errors no robot and instrument give. A calibration with any of these is not called converged
-    (status "implausible")."""
+    (status "implausible"). sigma_pos_given / sigma_rot_given: which noise levels the user gave
+    (each group is judged against its own; default: both when the fit estimated none)."""
     notes = []
     nz = fit.noise
-    if not nz.estimated and fit.solver.status == "converged" and nz.reduced_chi2 > CHI2_ESCAPE:
-        notes.append(f"the fit converged but its residuals are {math.sqrt(nz.reduced_chi2):.1f} times the given "
-                     f"noise (reduced chi^2 {nz.reduced_chi2:.3g}): a wrong sigma, or errors the model "
+    if sigma_pos_given is None:
+        sigma_pos_given = sigma_rot_given = not nz.estimated
+    given = [("position", nz.chi2_pos)] if sigma_pos_given else []
+    if sigma_rot_given and nz.chi2_rot is not None:
+        given.append(("orientation", nz.chi2_rot))
+    worst = max(given, key=lambda g: g[1], default=None)
+    if worst is not None and fit.solver.status == "converged" and worst[1] > CHI2_ESCAPE:
+        notes.append(f"the fit converged but its {worst[0]} residuals are {math.sqrt(worst[1]):.1f} times the "
+                     f"given noise (reduced chi^2 {worst[1]:.3g}): a wrong sigma, or errors the model "
                      f"does not describe; omit the noise levels to estimate them from the data")
     # judged on the rows the fit kept: a gross row it flagged is not the model's failure
     return notes + _implausible_fit_notes(nominal, fit.errors.subset(fit.keep))

@@ -149,7 +149,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     else:
         fit, problem = fit_with(setup, choice.free, opts, outlier_k=opts.outlier_k, kin=kin,
                                 rank_deficit=choice.deficit)
-    implausible = implausibility(robot, fit)
+    implausible = implausibility(robot, fit, sigma_pos_given=opts.sigma_pos is not None,
+                                 sigma_rot_given=opts.sigma_rot is not None)
     notes += list(fit.notes) + implausible + length_notes(robot, fit)
     status, message = fit.solver.status, fit.solver.message
     if implausible and status == "converged":

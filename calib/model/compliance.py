@@ -112,10 +112,11 @@ def _check_physical(payload: Payload | None, gravity: np.ndarray, link_mass: flo
                              f"m/s^2 (the Earth's is {STANDARD_GRAVITY}; the vector is in m/s^2, not g)")
     if payload is None:
         return
-    if payload.mass > MAX_PAYLOAD_KG or (link_mass > 0 and payload.mass > MAX_PAYLOAD_TO_ARM * link_mass):
+    # (the ratio only where the URDF's link masses are real: placeholder inertias of 1 g weigh nothing)
+    if payload.mass > MAX_PAYLOAD_KG or (link_mass >= 1.0 and payload.mass > MAX_PAYLOAD_TO_ARM * link_mass):
         raise ParameterError(f"payload of {payload.mass:.6g} kg: more than any robot carries"
                              + (f" ({MAX_PAYLOAD_TO_ARM:g} times the {link_mass:.3g} kg of the links it moves)"
-                                if link_mass > 0 else f" ({MAX_PAYLOAD_KG:g} kg)")
+                                if link_mass >= 1.0 and payload.mass <= MAX_PAYLOAD_KG else f" ({MAX_PAYLOAD_KG:g} kg)")
                              + "; the mass is in kg (grams read as kg?)")
     d = float(np.linalg.norm(payload.com_tool))
     if d > MAX_PAYLOAD_COM_M:

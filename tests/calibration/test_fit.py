@@ -192,3 +192,17 @@ def test_an_implausible_fit_is_not_called_converged_and_the_cli_exits_3(tmp_path
     code = main(["calibrate", str(BUNDLED_URDF), str(path), "-o", str(tmp_path / "c.urdf"), "--cv", "0"])
     err = capsys.readouterr().err
     assert code == 3 and "cannot be trusted" in err and "do not use them" in err
+
+
+def test_given_position_noise_is_judged_on_position_only_data():
+    """Position-only data have no rotation noise to give, so the fit counted as 'estimated' and a
+    position sigma 10 times too small passed with exit 0; each given level is judged on its own."""
+    import calib
+    from conftest import BUNDLED_URDF
+
+    robot = calib.load_robot(BUNDLED_URDF)
+    true = calib.apply_deviations(robot, calib.random_deviations(robot, 3e-4, 4))
+    meas = calib.simulate_measurements(true, robot.random_configurations(100, 4), sigma_pos=2e-4,
+                                       position_only=True, rng=4)
+    assert calib.calibrate(robot, meas, sigma_pos=2e-5).status == "implausible"
+    assert calib.calibrate(robot, meas, sigma_pos=2e-4).status == "converged"

@@ -301,3 +301,19 @@ def test_absurd_payload_or_gravity_is_refused(kwargs, match):
 def test_gravity_along_plus_z_is_a_ceiling_mount_and_accepted():
     robot = with_gravity(calib.load_robot("ur10"), payload=Payload(5.0), gravity=[0.0, 0.0, 9.81])
     assert np.allclose(robot.gravity.gravity, [0.0, 0.0, 9.81])
+
+
+def test_placeholder_link_masses_do_not_bound_the_payload(tmp_path):
+    """Kinematics-only URDFs often carry 1 g placeholder inertias: the 10x-the-arm rule would
+    refuse any real payload there, so it applies only to arms of 1 kg or more."""
+    import re
+
+    from conftest import BUNDLED_URDF
+
+    text = re.sub(r'<link name="([^"]+)"\s*/>', r'<link name="\1"><inertial><mass value="0.001"/>'
+                  r'<inertia ixx="1e-6" ixy="0" ixz="0" iyy="1e-6" iyz="0" izz="1e-6"/></inertial></link>',
+                  BUNDLED_URDF.read_text())
+    path = tmp_path / "placeholder.urdf"
+    path.write_text(text)
+    robot = calib.load_robot(path)
+    assert 0 < with_gravity(robot, payload=Payload(20.0)).gravity.link_mass < 1.0
