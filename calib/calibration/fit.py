@@ -500,17 +500,15 @@ def method_notes(setup: Setup, method: str) -> list[str]:
     return []
 
 
-def implausibility(nominal: RobotModel, fit: Fit, *, sigma_pos_given: bool | None = None,
-                   sigma_rot_given: bool = False) -> list[str]:
+def implausibility(nominal: RobotModel, fit: Fit, *, sigma_pos_given: bool,
+                   sigma_rot_given: bool) -> list[str]:
     """Why the fit's result cannot be trusted, one sentence each (empty when it can): residuals
     far above given noise levels (every uncertainty and prediction is that much too small),
     errors no robot and instrument give. A calibration with any of these is not called converged
     (status "implausible"). sigma_pos_given / sigma_rot_given: which noise levels the user gave
-    (each group is judged against its own; default: both when the fit estimated none)."""
+    (each group is judged against its own)."""
     notes = []
     nz = fit.noise
-    if sigma_pos_given is None:
-        sigma_pos_given = sigma_rot_given = not nz.estimated
     given = [("position", nz.chi2_pos)] if sigma_pos_given else []
     if sigma_rot_given and nz.chi2_rot is not None:
         given.append(("orientation", nz.chi2_rot))

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.calibration.accuracy import AccuracyStats, TargetAccuracy, format_accuracy_table
-from calib.units import display_unit as _unit, display_value as _out
+from calib.units import display_unit, display_value
 from calib.calibration.fit import NoiseEstimate, Outlier
 from calib.calibration.validation import CrossValidation, ModelSelection
 from calib.errors import ParameterError
@@ -197,10 +197,10 @@ class CalibrationResult:
             "cross_validation": None if self.cross_validation is None else self.cross_validation.to_dict(),
             "model_selection": None if self.selection is None else self.selection.to_dict(),
             "compliance": self.compliance_record(),
-            "parameters": [{"name": p.name, "unit": _unit(p.unit),
-                            "nominal": _out(p.nominal, p.unit), "identified": _out(p.identified, p.unit),
-                            "deviation": _out(p.deviation, p.unit),
-                            "std": None if math.isnan(p.std) else _out(p.std, p.unit),
+            "parameters": [{"name": p.name, "unit": display_unit(p.unit),
+                            "nominal": display_value(p.nominal, p.unit), "identified": display_value(p.identified, p.unit),
+                            "deviation": display_value(p.deviation, p.unit),
+                            "std": None if math.isnan(p.std) else display_value(p.std, p.unit),
                             "free": p.free} for p in self.parameters],
         }
 
@@ -233,10 +233,10 @@ class CalibrationResult:
         if self.robot.has_compliance:
             lines.insert(-1, f"  note: {URDF_NOTE}")
         for p in self.parameters:
-            unit = _unit(p.unit)
-            std = "fixed" if not p.free else f"{_out(p.std, p.unit):.3g}"
-            lines.append(f"{p.name:<{w}}{unit:>5}{_out(p.nominal, p.unit):>14.6f}"
-                         f"{_out(p.identified, p.unit):>14.6f}{_out(p.deviation, p.unit):>13.6f}{std:>11}")
+            unit = display_unit(p.unit)
+            std = "fixed" if not p.free else f"{display_value(p.std, p.unit):.3g}"
+            lines.append(f"{p.name:<{w}}{unit:>5}{display_value(p.nominal, p.unit):>14.6f}"
+                         f"{display_value(p.identified, p.unit):>14.6f}{display_value(p.deviation, p.unit):>13.6f}{std:>11}")
         rows = [("calibration rows, before", self.before)]
         if self.before_registered is not None:
             rows.append(("  before, frame registered", self.before_registered))

@@ -232,7 +232,7 @@ def read_lines(path: Path) -> list[str]:
         mode = None            # reported by the read itself
     if mode is not None and (stat.S_ISCHR(mode) or stat.S_ISBLK(mode)):
         raise MeasurementFormatError(path, "is a device, expected a CSV file")
-    if path.is_file():
+    if mode is not None and stat.S_ISREG(mode):
         check_size(path)
     try:
         data = path.read_bytes() if mode is None or stat.S_ISREG(mode) or stat.S_ISDIR(mode) \
@@ -283,12 +283,12 @@ def parse_number(path: Path, row: int, column: str, text: str, decimal_comma: bo
     return value
 
 
-def _field_count(line: str, delimiter: str) -> int:
+def _field_count(path: Path, row: int, line: str, delimiter: str) -> int:
     """How many fields ``line`` splits into at ``delimiter``; 0 when it is not valid CSV with it
     (a header quoted field by field, ``"a","b"``, is malformed for every other delimiter)."""
     try:
-        return len(next(csv.reader([line], delimiter=delimiter, strict=True)))
-    except csv.Error:
+        return len(split_fields(path, row, line, delimiter))
+    except MeasurementFormatError:
         return 0
 
 
@@ -309,7 +309,7 @@ def _records(path: Path) -> tuple[int, list[str], str, list[tuple[int, str]]]:
         raise MeasurementFormatError(path, "no header row: the file holds only comments and blank "
                                            "lines")
     header_row, header_line = records[0]
-    best = max(_DELIMITERS, key=lambda d: _field_count(header_line, d))
+    best = max(_DELIMITERS, key=lambda d: _field_count(path, header_row, header_line, d))
     names = split_fields(path, header_row, header_line, best)
     if _looks_numeric(names):
         raise MeasurementFormatError(path, "this line looks like data, expected the header row "
