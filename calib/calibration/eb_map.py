@@ -24,12 +24,12 @@ its Jacobian through the inverse left Jacobian of SO(3).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from calib.calibration.accuracy import target_rows
-from calib.calibration.prepare import prepare
+from calib.calibration.prepare import Setup, prepare
 from calib.calibration.statistics import _propagate
 from calib.checks import check_instance, check_int, check_number
 from calib.errors import DataError, ParameterError
@@ -96,6 +96,9 @@ class EBMapResult:
     outliers: tuple[int, ...] = ()
     passes: int = 0
     notes: tuple[str, ...] = ()
+    #: (m,) prior precision lambda_j = 1 / tau_g(j)^2 of each free parameter (0 for frames), in
+    #: the units of the parameter (1/m^2, 1/rad^2); the posterior is N(estimate, covariance).
+    prior_precision: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def std(self) -> np.ndarray:
@@ -253,16 +256,20 @@ def _log_bounds(rot: bool, n_groups: int) -> np.ndarray:
     return np.array(rows)
 
 
-def maximise_evidence(lin: Linearisation, group_index: np.ndarray, log_h0: np.ndarray) -> Evidence:
+def maximise_evidence(lin: Linearisation, group_index: np.ndarray, log_h0: np.ndarray,
+                      fixed: np.ndarray | None = None) -> Evidence:
     """The hyper-parameters of largest evidence within the bounds, from log_h0: MacKay's
     fixed-point updates (gamma_j = 1 - lambda_j C_jj; lambda_g = sum gamma / sum z^2;
-    sigma^2 = RSS / (n - w tr(C J^T J))), then L-BFGS-B on log_h with the analytic gradient."""
+    sigma^2 = RSS / (n - w tr(C J^T J))), then L-BFGS-B on log_h with the analytic gradient.
+    fixed : (len(log_h0),) bool, entries held at their log_h0 values (given noise levels)."""
     from scipy.optimize import minimize
 
     rot = lin.JrJr is not None
     k = 2 if rot else 1
     n_groups = len(log_h0) - k
     bounds = _log_bounds(rot, n_groups)
+    if fixed is not None and np.any(fixed):
+        bounds[fixed] = np.asarray(log_h0, float)[fixed, None]
     h = np.clip(np.array(log_h0, float), bounds[:, 0], bounds[:, 1])
     ev = evidence(lin, group_index, h)
     for _ in range(30):
@@ -423,13 +430,31 @@ def eb_map(robot: RobotModel, measurements: Measurements, *, passes: int = 3, to
     max_iterations : LM iterations per MAP fit.
 
     Returns an :class:`EBMapResult`. Raises :class:`calib.CalibError` (ParameterError,
-    DataError) for unusable input.
+    DataError) for unusable input. ``calib.calibrate`` runs the same estimator
+    (:func:`eb_map_stage`) behind its own outlier stage when ``estimator`` is "map".
     """
     check_instance(robot, "robot", RobotModel, "calib.load_robot")
     check_instance(measurements, "measurements", Measurements, "calib.read_measurements")
     _check_options(passes, tol, outlier_k, init_frames, max_iterations)
     setup, notes = prepare(robot, measurements, None, init_frames)
+    res = eb_map_stage(setup, passes=passes, tol=tol, outlier_k=outlier_k, max_iterations=max_iterations,
+                       source=measurements.source)
+    return replace(res, notes=tuple(notes) + res.notes)
+
+
+def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: float | None = None,
+                 sigma_rot: float | None = None, x_start: np.ndarray | None = None, passes: int = 3,
+                 tol: float = 1e-7, outlier_k: float | None = None, max_iterations: int = 100,
+                 source=None) -> EBMapResult:
+    """The EB-MAP estimate on the calibration rows of a prepared ``setup`` (:func:`calib.calibration.
+    prepare.prepare`): its start model is the prior mean. keep : (N_cal,) bool, the rows to fit
+    (default: all but the prepare stage's suspects when ``outlier_k`` is set); sigma_pos (m) /
+    sigma_rot (rad): given noise levels, held while the prior scales are chosen (None: from the
+    evidence); x_start : (n_params,) values of the first linearisation point (default: the start
+    model with its frame parameters fitted); outlier_k : see :func:`eb_map` (None: off); source :
+    the measurements' file, named in errors."""
     start, cal = setup.start, setup.cal
+    notes: list[str] = []
     rot = setup.measure == "pose"
     kin = setup.kin
     rows_t = target_rows(start, cal)
@@ -446,40 +471,55 @@ def eb_map(robot: RobotModel, measurements: Measurements, *, passes: int = 3, to
     group_index = np.array([present.index(g) if g != "frame" else -1 for g in groups], int)
     n_frame = int(np.sum(group_index < 0))
     M = cal.n_poses * (6 if rot else 3)
-    if M - n_frame < MIN_REDUNDANCY:
-        raise DataError(f"{measurements.source or '<measurements>'}: {cal.n_poses} calibration rows give {M} "
+    given = (sigma_pos is not None) and (sigma_rot is not None or not rot)
+    if M - n_frame < MIN_REDUNDANCY and not given:
+        raise DataError(f"{source or '<measurements>'}: {cal.n_poses} calibration rows give {M} "
                         f"residual components for {n_frame} frame parameters: at least {MIN_REDUNDANCY} "
                         f"more are needed to estimate the noise and the prior scales")
     mu = mu_all[free]
     scale = np.array([LENGTH_SCALE_M if start.parameters[i].unit == "rad" else 1.0 for i in free])
     base = everything.derived(free=free)
-    keep = np.ones(cal.n_poses, bool) if setup.suspect is None or outlier_k is None else ~setup.suspect
+    if keep is None:
+        keep = np.ones(cal.n_poses, bool) if setup.suspect is None or outlier_k is None else ~setup.suspect
+    keep = np.asarray(keep, bool)
     frame_pos = np.flatnonzero(group_index < 0)
+    k = 2 if rot else 1
+    fixed = np.zeros(k + len(present), bool)
+    fixed[0] = sigma_pos is not None
+    if rot:
+        fixed[1] = sigma_rot is not None
 
     def estimate(keep):
         problem = base.derived(keep=keep)
-        # 1. the frames alone, structure at mu
-        x = mu.copy()
-        if frame_pos.size:
-            fp = problem.derived(free=free[frame_pos])
-            x[frame_pos] = levenberg_marquardt(fp, mu[frame_pos], "pose", LMOptions(max_iterations=max_iterations)).x
+        if x_start is not None:
+            x = np.asarray(x_start, float)[free].copy()
+        else:
+            # the frames alone, structure at mu
+            x = mu.copy()
+            if frame_pos.size:
+                fp = problem.derived(free=free[frame_pos])
+                x[frame_pos] = levenberg_marquardt(fp, mu[frame_pos], "pose",
+                                                   LMOptions(max_iterations=max_iterations)).x
         log_h = None
         ev = None
         done = 0
         for done in range(1, passes + 1):
             lin = linearise(problem, x, mu)
             if log_h is None:
-                sp = math.sqrt(max(lin.yyp, 1e-30) / max(lin.n_p - n_frame, 1))
+                sp = sigma_pos or math.sqrt(max(lin.yyp, 1e-30) / max(lin.n_p - n_frame, 1))
                 h0 = [-2 * math.log(max(sp, SIGMA_POS_BOUNDS[0]))]
                 if rot:
-                    sr = math.sqrt(max(lin.yyr, 1e-30) / max(lin.n_r, 1))
+                    sr = sigma_rot or math.sqrt(max(lin.yyr, 1e-30) / max(lin.n_r, 1))
                     h0.append(-2 * math.log(max(sr, SIGMA_ROT_BOUNDS[0])))
                 log_h = np.array(h0 + [-2 * math.log(1e-3)] * len(present))
-            ev = maximise_evidence(lin, group_index, log_h)
+                if sigma_pos is not None:
+                    log_h[0] = -2 * math.log(sigma_pos)
+                if rot and sigma_rot is not None:
+                    log_h[1] = -2 * math.log(sigma_rot)
+            ev = maximise_evidence(lin, group_index, log_h, fixed)
             log_h = ev.log_h
             sp, sr = math.exp(-0.5 * log_h[0]), (math.exp(-0.5 * log_h[1]) if rot else START_SIGMA_ROT)
             lam = np.zeros(len(free))
-            k = 2 if rot else 1
             lam[group_index >= 0] = np.exp(log_h[k:])[group_index[group_index >= 0]]
             x_new, _, _ = map_fit(problem.derived(sigma_pos=sp, sigma_rot=sr), x, mu, lam, max_iterations)
             change = float(np.max(np.abs(x_new - x) * scale))
@@ -490,7 +530,6 @@ def eb_map(robot: RobotModel, measurements: Measurements, *, passes: int = 3, to
         final = evidence(linearise(problem, x, mu), group_index, log_h)
         return x, final, done, problem
 
-    outliers: tuple[int, ...] = ()
     rounds = 3 if outlier_k is not None else 1
     for rnd in range(rounds):
         x, ev, done, problem = estimate(keep)
@@ -509,9 +548,8 @@ def eb_map(robot: RobotModel, measurements: Measurements, *, passes: int = 3, to
         if rnd == rounds - 1:
             x, ev, done, problem = estimate(keep)
     outliers = tuple(int(r) for r in cal.rows[~keep])
-    if outliers:
+    if outliers and outlier_k is not None:
         notes.append(f"{len(outliers)} row(s) left out as gross errors: rows {', '.join(map(str, outliers))}")
-    k = 2 if rot else 1
     taus = {g: float(math.exp(-0.5 * ev.log_h[k + i])) for i, g in enumerate(present)}
     pinned = tuple(g for g in present if taus[g] <= TAU_BOUNDS[0] * (1 + 1e-3))
     values = mu_all.copy()
@@ -523,7 +561,8 @@ def eb_map(robot: RobotModel, measurements: Measurements, *, passes: int = 3, to
         effective_parameters=float(np.sum(C * ev.A_data)), log_evidence=ev.value,
         sigma_pos=float(math.exp(-0.5 * ev.log_h[0])),
         sigma_rot=float(math.exp(-0.5 * ev.log_h[1])) if rot else None,
-        keep=keep, outliers=outliers, passes=done, notes=tuple(notes))
+        keep=keep, outliers=outliers, passes=done, notes=tuple(notes),
+        prior_precision=np.where(group_index >= 0, np.exp(ev.log_h[k:])[np.maximum(group_index, 0)], 0.0))
 
 
 def _judge_rows(problem_all: Problem, x: np.ndarray, ev: Evidence, rot: bool, keep: np.ndarray,

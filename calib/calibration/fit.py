@@ -101,7 +101,8 @@ class Fit:
     the residuals' agreement with them; iterations : LM iterations of every fit in the stage;
     covariance : (n_free, n_free) covariance of the free parameters (SI units) in the final noise
     weights, from the least-squares normal equations at the solution; full_rank : False when it
-    is a pseudo-inverse; all_rows : the problem of every calibration row, kept or not.
+    is a pseudo-inverse (for a regularised fit: the posterior covariance); all_rows : the problem
+    of every calibration row, kept or not.
     """
 
     model: RobotModel
@@ -115,6 +116,11 @@ class Fit:
     full_rank: bool
     all_rows: Problem = field(repr=False, compare=False)
     notes: tuple[str, ...] = ()
+    #: A regularised fit's Gaussian prior on the free parameters (:mod:`calib.calibration.
+    #: regularised`): precision (n_free,) in the weighted problem's units (1 / unit^2; 0: flat)
+    #: and mean (n_free,); None for least squares. Refits (cross-validation) keep it.
+    prior_precision: np.ndarray | None = field(default=None, repr=False)
+    prior_mean: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def errors(self) -> AccuracyStats:

@@ -23,6 +23,10 @@ from calib.solvers.problem import LOSSES
 METHODS = _METHODS
 LM_VARIANTS = _VARIANTS
 PARAM_SETS = ("base", "paper", "all", "auto")
+#: The estimators of calibrate: "auto" (the default: "map" for data that do not swamp the model,
+#: least squares on the identifiable set for data that do), "map" (EB-MAP,
+#: :mod:`calib.calibration.regularised`), "ls" (least squares on a parameter set).
+ESTIMATORS = ("auto", "map", "ls")
 #: Parameters that Section 4.2 of the paper leaves out when the frames are well known.
 PAPER_EXCLUDED = ("u_z", "u_alpha", "v_x", "v_z", "v_alpha", "v_gamma")
 #: The closed-form frame estimate replaces the nominal frames beyond these distances.
@@ -124,6 +128,7 @@ class CalibrationOptions:
     cv: int | None
     compliance: bool
     lm_variant: str
+    estimator: str = "auto"
 
     @property
     def folds(self) -> int:
@@ -140,7 +145,7 @@ class CalibrationOptions:
 def resolve_options(robot, measurements, validation=None, *, method="search-lm", params=None, sigma_pos=None,
                     sigma_rot=None, init_frames="auto", max_rounds=20, fixed_rounds=None, options=None,
                     loss="linear", loss_scale=3.0, outlier_k=5.0, cv=None, compliance=False,
-                    lm_variant="calib") -> CalibrationOptions:
+                    lm_variant="calib", estimator="auto") -> CalibrationOptions:
     """Every option of :func:`calib.calibrate` and the types of its inputs checked before any work
     (as scipy's least_squares does), each error naming the option; the frozen options."""
     if not isinstance(method, str) or method.lower() not in METHODS:
@@ -179,5 +184,17 @@ def resolve_options(robot, measurements, validation=None, *, method="search-lm",
         raise ParameterError(f"validation must be a Measurements, got {type(validation).__name__}")
     if not isinstance(compliance, bool):
         raise ParameterError(f"compliance must be True or False, got {compliance!r}")
+    if not isinstance(estimator, str) or estimator.lower() not in ESTIMATORS:
+        raise ParameterError(f"unknown estimator {estimator!r}: expected one of {', '.join(ESTIMATORS)}")
+    estimator = estimator.lower()
+    if estimator == "map":
+        clash = ("params (a least-squares parameter set; the MAP estimate frees every structural "
+                 "parameter under its prior)" if params is not None else
+                 f"loss {loss!r} (MAP is least squares with a prior)" if loss != "linear" else
+                 "lm_variant 'paper'" if lm_variant == "paper" else
+                 "compliance (the compliances have no prior group yet)" if compliance else None)
+        if clash:
+            raise ParameterError(f"estimator 'map' cannot be combined with {clash}: use estimator 'ls'")
     return CalibrationOptions(method, params, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds,
-                              options or LMOptions(), loss, loss_scale, outlier_k, cv, compliance, lm_variant)
+                              options or LMOptions(), loss, loss_scale, outlier_k, cv, compliance, lm_variant,
+                              estimator)

@@ -177,24 +177,31 @@ def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) ->
         ident = _compliance_filter(start, identifiable_set(start, cal.q, setup.measure, *weights,
                                                           target_rows(start, cal)), options.compliance, notes)
         per_param = cal.n_poses * setup.components_per_pose / max(len(ident), 1)
-        if params is None:
+        if params is None and options.estimator == "map":
+            want = "map"
+        elif params is None:
             few = per_param < AUTO_BELOW_COMPONENTS_PER_PARAM
             no_cv = options.cv is not None and options.cv < 2
-            want = "auto" if (few and not no_cv) else "base"
-            notes.append(f"parameter set {want!r} chosen by default: {cal.n_poses * setup.components_per_pose} "
+            regularise = (few and options.estimator == "auto" and options.loss == "linear"
+                          and options.lm_variant == "calib" and not options.compliance)
+            want = "map" if regularise else "auto" if (few and not no_cv) else "base"
+            what = {"map": "estimator 'map' (EB-MAP)", "auto": "parameter set 'auto'",
+                    "base": "least squares on the identifiable set"}[want]
+            below = "'map'" if options.estimator == "auto" else "'auto'"
+            notes.append(f"{what} chosen by default: {cal.n_poses * setup.components_per_pose} "
                          f"residual components for {len(ident)} identifiable parameters "
-                         f"({per_param:.1f} per parameter; 'auto' below {AUTO_BELOW_COMPONENTS_PER_PARAM:g}"
+                         f"({per_param:.1f} per parameter; {below} below {AUTO_BELOW_COMPONENTS_PER_PARAM:g}"
                          + (", but it compares the sets by cross-validation, which cv=0 turns off)"
-                            if few and no_cv else ")"))
+                            if want == "base" and few and no_cv else ")"))
         else:
             want = "auto"
-    if want == "auto":
-        label, free = "auto", ident
+    if want in ("auto", "map"):
+        label, free = want, ident
     elif want == "base" and ident is not None:
         label, free = "base", ident     # (the identifiable set just found)
     else:
         label, free = select_parameters(start, want, cal.q, setup.measure, *weights, target_rows(start, cal))
-    derived = want == "auto" or (isinstance(want, str) and want.strip().lower() == "base")
+    derived = want in ("auto", "map") or (isinstance(want, str) and want.strip().lower() == "base")
     check_data_rank(start, cal, setup.measure, free, derived=derived, sigma_pos=weights[0], sigma_rot=weights[1])
     n_free = len(free)
     spare = cal.n_poses * setup.components_per_pose - n_free

@@ -44,6 +44,7 @@ from calib.calibration.fit import fit_with, implausibility, length_notes, method
 from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
+from calib.calibration.regularised import map_fit_stage
 from calib.calibration.result import CalibrationResult, _parameter_table
 from calib.calibration.statistics import statistics_notes, statistics_stage
 from calib.calibration.validation import held_out_error, select_and_fit
@@ -63,7 +64,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
               validation: Measurements | None = None, loss: str = "linear", loss_scale: float = 3.0,
               outlier_k: float | None = 5.0, cv: int | None = None, compliance: bool = False,
               payload=None, gravity: Sequence[float] | None = None,
-              lm_variant: str = "calib") -> CalibrationResult:
+              lm_variant: str = "calib", estimator: str = "auto") -> CalibrationResult:
     """Identify the TM-MDH parameters of ``robot`` from ``measurements``.
 
     Parameters
@@ -126,7 +127,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     opts = resolve_options(robot, measurements, validation, method=method, params=params, sigma_pos=sigma_pos,
                            sigma_rot=sigma_rot, init_frames=init_frames, max_rounds=max_rounds,
                            fixed_rounds=fixed_rounds, options=options, loss=loss, loss_scale=loss_scale,
-                           outlier_k=outlier_k, cv=cv, compliance=compliance, lm_variant=lm_variant)
+                           outlier_k=outlier_k, cv=cv, compliance=compliance, lm_variant=lm_variant,
+                           estimator=estimator)
     robot, notes = with_gravity_for(robot, opts.compliance, payload, gravity)
     setup, prepare_notes = prepare(robot, measurements, validation, opts.init_frames)
     notes += prepare_notes + method_notes(setup, opts.method)
@@ -142,10 +144,15 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     # the frames were not moved
     accuracy = accuracy_before(robot, start, cal, val, rebased=setup.rebased,
                                kin=kin if start is robot else ChainKinematics(robot))
-    selection, label = None, choice.label
+    selection, label, estimator = None, choice.label, None
     if choice.auto:
         selection, fit, problem = select_and_fit(setup, choice.free, opts, kin)
         label = f"auto: {selection.chosen}"
+    elif choice.label == "map":
+        regular = map_fit_stage(setup, choice.free, opts, kin, rank_deficit=choice.deficit,
+                                source=measurements.source)
+        fit, problem, estimator = regular.fit, regular.problem, regular.estimate.to_dict()
+        label = "eb-map"
     else:
         fit, problem = fit_with(setup, choice.free, opts, outlier_k=opts.outlier_k, kin=kin,
                                 rank_deficit=choice.deficit)
@@ -178,4 +185,5 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         cross_validation=cross, selection=selection, before_registered=accuracy.before_registered,
         validation_before_registered=accuracy.validation_before_registered, targets=accuracy.targets,
         after_without_outliers=fit.errors.subset(fit.keep) if fit.outliers else None,
-        estimated_frames=setup.rebased)
+        estimated_frames=setup.rebased,
+        estimator=estimator or {"kind": "least-squares", "param_set": label})

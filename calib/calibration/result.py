@@ -75,6 +75,10 @@ class CalibrationResult:
     the calibrated model's base frame is then the instrument's, its tool the measured point.
     targets : per target of a multi-target calibration, its accuracy (:class:`TargetAccuracy`;
     the overall figures are ``before``/``after``); () for one target.
+    estimator : how the parameters were estimated: ``{"kind": "least-squares", "param_set": ...}``
+    or, for the regularised estimate (:mod:`calib.calibration.regularised`), ``{"kind": "eb-map",
+    "prior_scales": {group: tau} (theta, twist rad; length mm), "effective_parameters",
+    "log_evidence", ...}`` (:meth:`calib.calibration.eb_map.EBMapResult.to_dict`).
     """
 
     robot: RobotModel
@@ -110,6 +114,7 @@ class CalibrationResult:
     targets: tuple[TargetAccuracy, ...] = field(default=(), repr=False)
     after_without_outliers: AccuracyStats | None = field(default=None, repr=False)
     estimated_frames: tuple[str, ...] = ()
+    estimator: dict | None = None
 
     @property
     def success(self) -> bool:
@@ -163,6 +168,7 @@ class CalibrationResult:
             "message": self.message,
             "method": self.method,
             "param_set": self.param_set,
+            "estimator": self.estimator,
             "iterations": self.iterations,
             "rounds": self.rounds,
             "wall_time_s": self.wall_time,
@@ -210,9 +216,22 @@ class CalibrationResult:
     def format(self) -> str:
         """The report for a person: parameter table, accuracy before/after, status."""
         nz = self.noise
-        lines = [f"Calibration: {self.method.upper()}, parameter set {self.param_set!r} "
-                 f"({len(self.free)} identified of {len(self.parameters)}), {self.status}: {self.message}",
-                 f"  {self.iterations} LM iterations in all (every fit of the calibration), {self.rounds} rounds, {self.wall_time * 1e3:.1f} ms"]
+        est = self.estimator or {}
+        if est.get("kind") == "eb-map":
+            head = (f"Calibration: EB-MAP (regularised toward the nominal model; {len(self.free)} parameters "
+                    f"free of {len(self.parameters)}, {est['effective_parameters']:.1f} effective), "
+                    f"{self.status}: {self.message}")
+        else:
+            head = (f"Calibration: {self.method.upper()}, parameter set {self.param_set!r} "
+                    f"({len(self.free)} identified of {len(self.parameters)}), {self.status}: {self.message}")
+        lines = [head, f"  {self.iterations} LM iterations in all (every fit of the calibration), {self.rounds} "
+                       f"rounds, {self.wall_time * 1e3:.1f} ms"]
+        if est.get("kind") == "eb-map":
+            units = est.get("prior_scale_units", {})
+            scales = ", ".join(f"{g} {v:.3g} {units.get(g, '')}".rstrip() for g, v in est["prior_scales"].items())
+            pinned = f" (held at nominal: {', '.join(est['pinned'])})" if est.get("pinned") else ""
+            lines.append(f"  prior scales from the evidence: {scales}{pinned}; log evidence "
+                         f"{est['log_evidence']:.6g}")
         if nz is not None:
             rot = "" if nz.rotation is None else f", orientation {nz.rotation:.3g} rad"
             if nz.estimated:

@@ -139,6 +139,10 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
                 A_fold[f] += Jf.T @ Jf
                 g_fold[f] += Jf.T @ rf
         A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
+        if fit.prior_precision is not None:
+            # a regularised fit: each refit keeps the prior (its hyper-parameters held)
+            A_all = A_all + np.diag(fit.prior_precision)
+            g_all = g_all + fit.prior_precision * (x0 - fit.prior_mean)
         # the folds' refits: A without each fold's rows, inverted at once
         A_inv, full = normal_inverse(A_all[None] - A_fold)
         bad = np.flatnonzero(~full)
@@ -160,6 +164,9 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
                 e_r[start:start + len(r)] = np.sum(pred[:, 3:] ** 2, axis=1) * kept.sigma_rot ** 2
             start += len(r)
     else:
+        if fit.prior_precision is not None:
+            raise ParameterError("cross_validate: refit='lm' is least squares; a regularised fit is "
+                                 "cross-validated with refit='newton'")
         for f in range(folds):
             where = fold_of == f
             x_f = levenberg_marquardt(kept.derived(keep=~where), x0, "pose", options).x

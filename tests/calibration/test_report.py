@@ -283,7 +283,8 @@ def test_json_and_html_reports(capsys, tmp_path, monkeypatch):
     assert page.count("data:image/png;base64,") == 3
     assert not re.search(r"(src|href)=\"(?!data:)", page) and "://" not in page
     assert "validation rows, after" in page and "calibration rows, after" in page
-    assert "Calibration: SEARCH-LM" in page
+    # 40 rows: fewer than 10 residual components per parameter, the regularised estimate
+    assert "Calibration: EB-MAP" in page and r["estimator"]["kind"] == "eb-map"
 
 
 # ====================================================================== README

@@ -89,10 +89,10 @@ def fitted(bundled_robot):
     stages called directly, and calibrate's result."""
     true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
     meas = simulate_measurements(true, bundled_robot.random_configurations(40, 11), rng=12)
-    opts, setup, choice, kin = _stages(bundled_robot, meas, cv=5)
+    opts, setup, choice, kin = _stages(bundled_robot, meas, cv=5, estimator="ls")
     assert choice.auto       # 40 rows: fewer than 10 residual components per parameter
     _, fit, problem = select_and_fit(setup, choice.free, opts, kin)
-    return setup, fit, problem, calib.calibrate(bundled_robot, meas, cv=5)
+    return setup, fit, problem, calib.calibrate(bundled_robot, meas, cv=5, estimator="ls")
 
 
 def test_the_stages_compose_to_calibrate(fitted):
@@ -110,7 +110,7 @@ def test_select_model_takes_the_rule(bundled_robot):
     candidates and scores, and the chosen set is the one fitted."""
     true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
     meas = simulate_measurements(true, bundled_robot.random_configurations(30, 4), rng=5)
-    opts, setup, choice, kin = _stages(bundled_robot, meas)
+    opts, setup, choice, kin = _stages(bundled_robot, meas, estimator="ls")
     assert choice.auto
     default, fit_default, _ = select_and_fit(setup, choice.free, opts, kin)
     smallest, fit, _ = select_and_fit(setup, choice.free, opts, kin, rule=lambda cands: cands[0])
