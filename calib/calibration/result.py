@@ -234,7 +234,10 @@ class CalibrationResult:
                          f"{est['log_evidence']:.6g}")
         if nz is not None:
             rot = "" if nz.rotation is None else f", orientation {nz.rotation:.3g} rad"
-            if nz.estimated:
+            if nz.estimated and est.get("kind") == "eb-map":
+                lines.append(f"  noise estimated with the prior scales (evidence, {nz.iterations} linearisations): "
+                             f"position {nz.position * 1e3:.4g} mm{rot} per axis")
+            elif nz.estimated:
                 lines.append(f"  noise estimated from the residuals ({nz.iterations} re-weighted fits): "
                              f"position {nz.position * 1e3:.4g} mm{rot} per axis")
             else:

@@ -87,9 +87,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="calib: calib's LM (default); paper: the LM of the paper's Eq. (27)-(28) as "
                         "printed (mu I, mu reset to 0.001 lambda^+-1, unweighted mm/rad residuals), "
                         "for --method lm or c-lm")
+    p.add_argument("--estimator", choices=("auto", "map", "ls"), default="auto",
+                   help="map: regularised identification (EB-MAP: every structural parameter under a "
+                        "prior centred on the URDF, its scale per group and the noise from the "
+                        "evidence); ls: least squares on a parameter set (--params); auto (default): "
+                        "map when the rows hold fewer than 10 residual components per identifiable "
+                        "parameter and no --params, --loss or --compliance is given, else ls")
     p.add_argument("--params", default=None, metavar="auto|base|paper|all|LIST",
-                   help="which parameters to identify (see above); default: auto when the rows "
-                        "hold few residuals per identifiable parameter, else base")
+                   help="which parameters to identify by least squares (see above); default: base, "
+                        "or with --estimator ls on few rows auto")
     p.add_argument("--sigma-pos-mm", type=positive, default=None, metavar="S",
                    help="position measurement noise per axis, mm (weights the residuals); default: "
                         "estimated from the residuals")
@@ -157,14 +163,15 @@ def run(args: argparse.Namespace) -> int:
     meas = read(args.measurements, robot, args, args.tracker)
     validation = read(args.validate, robot, args, joined=False) if args.validate else None
     log.info("calibrating: method %s, parameter set %s, %d calibration rows", args.method,
-             args.params or "default (auto or base)", meas.calibration().n_poses)
+             args.params or f"default (estimator {args.estimator})", meas.calibration().n_poses)
     try:
         with working(f"calibrating ({args.method})", logger=log):
             result = calib.calibrate(robot, meas, method=args.method, params=args.params,
                                      sigma_pos=None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3,
                                      sigma_rot=args.sigma_rot_rad, validation=validation, loss=args.loss,
                                      outlier_k=args.outlier_k, cv=args.cv, compliance=args.compliance,
-                                     payload=payload, gravity=gravity, lm_variant=args.lm_variant)
+                                     payload=payload, gravity=gravity, lm_variant=args.lm_variant,
+                                     estimator=args.estimator)
     except DataError as exc:  # about the data as a whole (too few poses): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
