@@ -157,10 +157,11 @@ def test_cv_off_on_few_rows_takes_the_identifiable_set(bundled_robot, paper_data
     """Few rows would choose 'auto', which compares the sets by cross-validation: with cv=0 the
     default is the identifiable set, and says why; 'auto' asked for by name still needs CV."""
     few = paper_data.calibration().subset(np.arange(20))
-    res = calib.calibrate(bundled_robot, few, cv=0)
+    res = calib.calibrate(bundled_robot, few, cv=0, estimator="ls")
     assert res.param_set == "base" and res.cross_validation is None and res.selection is None
     assert any("cv=0 turns off" in n for n in res.notes)
-    assert calib.calibrate(bundled_robot, few).param_set.startswith("auto")
+    assert calib.calibrate(bundled_robot, few, estimator="ls").param_set.startswith("auto")
+    assert calib.calibrate(bundled_robot, few, cv=0).param_set == "eb-map"    # (the default needs no CV)
     with pytest.raises(calib.ParameterError, match="cv must be >= 2"):
         calib.calibrate(bundled_robot, few, params="auto", cv=0)
 
@@ -184,7 +185,7 @@ def test_auto_prefers_offsets_when_the_errors_are_offsets(ur5_small):
     dev = {k: v if k.startswith(("theta", "u_", "v_")) else 0.05 * v
            for k, v in random_deviations(robot, 1e-3, rng).items()}
     meas = _data(robot, _far(apply_deviations(robot, dev), rng), 23, sigma_pos=1e-3, sigma_rot=0.005, seed=32)
-    res = calib.calibrate(robot, meas)   # default: auto (23 x 6 / 30 < 10)
+    res = calib.calibrate(robot, meas, estimator="ls")   # least squares: auto (23 x 6 / 30 < 10)
     assert res.selection is not None and res.param_set == "auto: offsets+frames"
     full = calib.calibrate(robot, meas, params="base")
     assert res.validation_after.position["rms"] < full.validation_after.position["rms"]
@@ -201,7 +202,7 @@ def test_auto_keeps_the_full_set_for_general_errors(ur5_small):
 def test_default_is_base_with_many_rows(bundled_robot, paper_data):
     res = calib.calibrate(bundled_robot, paper_data)
     assert res.param_set == "base" and res.selection is None
-    assert any("'base' chosen by default" in n for n in res.notes)
+    assert any("least squares on the identifiable set chosen by default" in n for n in res.notes)
 
 
 # ---------------------------------------------------------------- honest status
@@ -250,7 +251,7 @@ def test_cli_prints_noise_prediction_and_exit_3_for_a_stuck_lm(tmp_path, bundled
     assert "unmodelled joint error up to 0.0003 rad" in meas.read_text().splitlines()[1]
     capsys.readouterr()
     assert main(["calibrate", urdf, str(meas), "-o", str(tmp_path / "c.urdf"), "--report",
-                 str(tmp_path / "r.json")]) == 0
+                 str(tmp_path / "r.json"), "--estimator", "ls"]) == 0
     out = capsys.readouterr().out
     assert "noise estimated from the residuals" in out
     # 40 rows x 6 / 30 parameters < 10: auto, cross-validated leave-one-out
@@ -285,24 +286,27 @@ def test_readme_real_measurements_example_runs_as_printed(tmp_path, monkeypatch,
     start = readme.index("### Real measurements")
     section = readme[start:readme.index("\n### ", start + 1)]
     commands = re.findall(r"^calib .*$", section, re.M)
-    assert len(commands) == 3
+    assert len(commands) == 4
     monkeypatch.chdir(tmp_path)
-    for command in commands[:2]:
+    for command in commands[:3]:
         assert main(shlex.split(command)[1:]) == 0
     out = capsys.readouterr().out
     for quoted in ("noise estimated from the residuals (4 re-weighted fits): position 1.026 mm, "
                    "orientation 0.00521 rad per axis", "offsets+frames                 12    32.04",
+                   "prior scales from the evidence: theta 0.0026 rad, length 1.43 mm, twist 0.00196 rad",
+                   "cross-validated (5-fold) held-out RMS error: position 2.077 mm",
+                   "predicted RMS error on new measured rows (calibration configurations): position 2.11 mm",
                    "cross-validated (leave-one-out) held-out RMS error: position 2.078 mm",
                    "predicted RMS error on new measured rows (calibration configurations): position 2.116 mm"):
         assert quoted in section and quoted in out
     # the real data (the repository's example, the output written here)
-    args = shlex.split(commands[2])[1:]
+    args = shlex.split(commands[3])[1:]
     args[args.index("examples/tiago_qualisys/measurements.csv")] = str(TIAGO_REAL)
     assert main(args) == 0
     out = capsys.readouterr().out
-    for shown, printed in (("1.58 mm of noise per axis", "position 1.576 mm per axis"),
-                           ("predicts 2.95 mm on new rows", "position 2.948 mm"),
-                           ("against 2.92 mm\ncross-validated", "held-out RMS error: position 2.92 mm")):
+    for shown, printed in (("1.58 mm of noise per axis", "position 1.579 mm per axis"),
+                           ("predicts 2.93 mm on new\nrows", "position 2.933 mm"),
+                           ("against 2.94 mm cross-validated", "held-out RMS error: position 2.936 mm")):
         assert shown in section and printed in out
 
 
