@@ -389,6 +389,13 @@ def map_fit(problem: Problem, x0: np.ndarray, mu: np.ndarray, lam: np.ndarray,
     return x, cost, it
 
 
+def _map_cost(problem: Problem, x: np.ndarray, mu: np.ndarray, lam: np.ndarray) -> float:
+    """1/2 |r_w(x)|^2 + 1/2 sum lambda_j (x_j - mu_j)^2 (inf where the model cannot be evaluated)."""
+    r = problem.residuals(x)
+    cost = 0.5 * float(r @ r) + 0.5 * float(np.sum(lam * (x - mu) ** 2))
+    return cost if np.isfinite(cost) else math.inf
+
+
 # ---------------------------------------------------------------- free set
 def _free_set(problem_all: Problem, robot: RobotModel, candidates: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """The free parameter indices among ``candidates`` (indices into robot.parameters): those
@@ -564,7 +571,14 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
             sp, sr = math.exp(-0.5 * log_h[0]), (math.exp(-0.5 * log_h[1]) if rot else START_SIGMA_ROT)
             lam = np.zeros(len(free))
             lam[group_index >= 0] = np.exp(log_h[k:])[group_index[group_index >= 0]]
-            x_new, _, _ = map_fit(problem.derived(sigma_pos=sp, sigma_rot=sr), x, mu, lam, max_iterations)
+            weighted = problem.derived(sigma_pos=sp, sigma_rot=sr)
+            # the MAP estimate of the linearised model (the evidence's posterior mean) is one
+            # Gauss-Newton step of the MAP objective from x: start there when it is lower
+            x0 = x
+            x_gn = mu + ev.z
+            if _map_cost(weighted, x_gn, mu, lam) < _map_cost(weighted, x, mu, lam):
+                x0 = x_gn
+            x_new, _, _ = map_fit(weighted, x0, mu, lam, max_iterations)
             change = float(np.max(np.abs(x_new - x) * scale))
             x = x_new
             if change < tol:
