@@ -93,7 +93,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         determine at the start stay there while the data barely see them, parameters without
         effect keep their values); or
         parameter names. Default (None): "auto" when the calibration rows hold fewer than
-        AUTO_BELOW_COMPONENTS_PER_PARAM residual components per identifiable parameter, else "base".
+        AUTO_BELOW_COMPONENTS_PER_PARAM residual components per identifiable parameter (with
+        ``estimator="ls"``; the default estimator runs EB-MAP there), else "base".
     sigma_pos : position noise per axis, metres; sigma_rot : orientation noise per axis, radians.
         None (default): estimated from the residuals (variance-component estimation iterated with
         the fit). Given values are honoured and the result's ``noise`` says how consistent the
@@ -119,6 +120,14 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     lm_variant : "calib" (default) or "paper": the LM of Eq. (27)-(28) as printed (mu I, mu reset
         to 0.001 lambda^+-1, unweighted residuals in mm and rad; :mod:`calib.solvers.paper_lm`), for
         methods "lm" and "c-lm" (not "search-lm").
+    estimator : "auto" (default): "map" when ``params`` is None, the calibration rows hold fewer
+        than AUTO_BELOW_COMPONENTS_PER_PARAM residual components per identifiable parameter, the
+        loss is linear, lm_variant "calib" and compliance off; else "ls". "map": the regularised
+        EB-MAP estimate (:mod:`calib.calibration.regularised`: every structural parameter with an
+        effect under a Gaussian prior centred on ``robot``, one scale per group chosen with the
+        noise levels by the evidence, the frames unconstrained; rows judged for gross errors by
+        the least-squares fit first; the result's covariance is the posterior one, its
+        ``estimator`` record gives the prior scales). "ls": least squares on ``params``.
 
     Returns a :class:`CalibrationResult`; a fit that did not converge is reported in its
     ``status``, never raised. Raises :class:`calib.CalibError` for unusable input.
