@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import calib
-from calib.calibration.eb_map import Linearisation, eb_map, evidence, linearise
+from calib.calibration.eb_map import eb_map
+from calib.calibration.evidence import Linearisation, evidence, linearise
 from calib.model.kinematics import ChainKinematics
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
 from calib.model.spatial import zyx_transform
@@ -218,7 +219,7 @@ def test_evidence_maximum_matches_a_general_optimiser(rot):
     scipy's L-BFGS-B finds from the same start, on random linearisations with bounds active."""
     from scipy.optimize import minimize
 
-    from calib.calibration.eb_map import _log_bounds, maximise_evidence
+    from calib.calibration.evidence import _log_bounds, maximise_evidence
 
     for seed in range(6):
         rng = np.random.default_rng(20 + seed)
