@@ -59,6 +59,7 @@ import numpy as np
 import pinocchio as pin
 
 from calib.checks import check_rng
+from calib.choices import SINGULAR_THRESHOLD
 from calib.model.robot import check_robot
 from calib.errors import CalibError, DataError, ParameterError
 from calib.model.jacobian import MEASURES
@@ -75,7 +76,6 @@ __all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "compensate",
 #: Statuses of a target, from the most to the least severe (see the module docstring).
 STATUSES = ("singular", "not_converged", "limit", "ok")
 #: Default threshold on the smallest singular value of the joint Jacobian (see the module docstring).
-SINGULAR_THRESHOLD = 1e-2
 #: Default residual tolerances: a target is reached when both errors are below them.
 TOL_POS_M = 1e-10
 TOL_ROT_RAD = 1e-10

@@ -9,14 +9,12 @@ from typing import Sequence
 import numpy as np
 
 from calib.checks import check_int, check_number
+from calib.choices import ESTIMATORS as _ESTIMATORS, LM_VARIANTS as _VARIANTS, LOSSES, METHODS as _METHODS
 from calib.errors import DataError, ParameterError
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
-from calib.solvers.dispatch import METHODS as _METHODS
-from calib.solvers.dispatch import VARIANTS as _VARIANTS
 from calib.solvers.lm import LMOptions
-from calib.solvers.problem import LOSSES
 
 #: The methods (:data:`calib.solvers.dispatch.METHODS`) and LM variants ("calib": calib's LM; "paper":
 #: Eq. (27)-(28) as printed, :mod:`calib.solvers.paper_lm`) that calibrate runs.
@@ -26,7 +24,7 @@ PARAM_SETS = ("base", "paper", "all", "auto")
 #: The estimators of calibrate: "auto" (the default: "map" for data that do not swamp the model,
 #: least squares on the identifiable set for data that do), "map" (EB-MAP,
 #: :mod:`calib.calibration.regularised`), "ls" (least squares on a parameter set).
-ESTIMATORS = ("auto", "map", "ls")
+ESTIMATORS = _ESTIMATORS
 #: Parameters that Section 4.2 of the paper leaves out when the frames are well known.
 PAPER_EXCLUDED = ("u_z", "u_alpha", "v_x", "v_z", "v_alpha", "v_gamma")
 #: The closed-form frame estimate replaces the nominal frames beyond these distances.

@@ -78,6 +78,7 @@ from typing import Mapping
 import numpy as np
 
 from calib.checks import check_number, check_rng
+from calib.choices import POSE_CRITERIA
 from calib.model.robot import check_robot
 from calib.errors import DataError, ParameterError
 from calib.model.identifiability import (SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability,
@@ -88,7 +89,7 @@ from calib.model.robot import RobotModel
 __all__ = ["CRITERIA", "PoseDesign", "design_poses", "select_poses"]
 
 #: Selection criteria of :func:`select_poses` (see the module docstring).
-CRITERIA = ("D", "O1", "O4")
+CRITERIA = POSE_CRITERIA
 #: Regularisation of the information matrix, relative to the per-pose information of the pool.
 _EPS = 1e-6
 #: Relative improvement below which an exchange is not made.

@@ -68,8 +68,7 @@ def _outlier_k(text: str) -> float | None:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add ``calibrate`` to ``subparsers`` (from ``add_subparsers``); it runs :func:`run`."""
-    from calib.solvers.dispatch import METHODS
-    from calib.solvers.problem import LOSSES
+    from calib.choices import ESTIMATORS, LM_VARIANTS, LOSSES, METHODS
 
     p = subparsers.add_parser("calibrate", help="identify the parameters, write the calibrated URDF",
                        description=_CAL_DESC, epilog=_CAL_EPILOG, formatter_class=HelpFormatter)
@@ -83,11 +82,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "scheme run with calib's LM (not the paper's Eq. 27-28; --lm-variant paper for "
                         "that); lm: calib's Levenberg-Marquardt alone (lm and c-lm exit 3 when they "
                         "stop in a local minimum)")
-    p.add_argument("--lm-variant", choices=("calib", "paper"), default="calib",
+    p.add_argument("--lm-variant", choices=LM_VARIANTS, default="calib",
                    help="calib: calib's LM (default); paper: the LM of the paper's Eq. (27)-(28) as "
                         "printed (mu I, mu reset to 0.001 lambda^+-1, unweighted mm/rad residuals), "
                         "for --method lm or c-lm")
-    p.add_argument("--estimator", choices=("auto", "map", "ls"), default="auto",
+    p.add_argument("--estimator", choices=ESTIMATORS, default="auto",
                    help="map: regularised identification (EB-MAP: every structural parameter under a "
                         "prior centred on the URDF, its scale per group and the noise from the "
                         "evidence); ls: least squares on a parameter set (--params); auto (default): "

@@ -66,7 +66,7 @@ column; a summary is printed); 2 bad input (one-line message, nothing written)."
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``compensate`` subcommand to ``subparsers`` (from ``add_subparsers``)."""
-    from calib.calibration.compensation import SINGULAR_THRESHOLD
+    from calib.choices import SINGULAR_THRESHOLD
 
     p = subparsers.add_parser("compensate", help="corrected joint values for targets",
                               description=_COMP_DESC, epilog=_COMP_EPILOG,

@@ -49,7 +49,7 @@ Same --seed, same poses. Exit codes: 0 success, 2 bad input (one-line message, n
 
 
 def _criterion(text: str) -> str:
-    from calib.calibration.poses import CRITERIA
+    from calib.choices import POSE_CRITERIA as CRITERIA
 
     if text.upper() not in CRITERIA:
         raise argparse.ArgumentTypeError(f"{text!r} is not a criterion; choose from "

@@ -13,14 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib.choices import LM_VARIANTS as VARIANTS, METHODS
 from calib.solvers.lm import LMOptions, LMTrace, levenberg_marquardt
 from calib.solvers.problem import Problem
 from calib.solvers.schemes import cross_lm, search_lm
 
-#: The methods :func:`solve` runs.
-METHODS = ("search-lm", "c-lm", "lm")
-#: "calib": calib's LM (:mod:`calib.solvers.lm`); "paper": Eq. (27)-(28) as printed (:mod:`calib.solvers.paper_lm`).
-VARIANTS = ("calib", "paper")
+#: The methods :func:`solve` runs (METHODS) and its LM variants (VARIANTS): :mod:`calib.choices`.
 
 
 def solve(problem: Problem, x0: np.ndarray, method: str, *, angular: np.ndarray | None = None,

@@ -38,6 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib.choices import LOSSES
+
 from calib.model.jacobian import NO_EFFECT_RTOL, pose_jacobian
 from calib.model.kinematics import ChainKinematics
 from calib.model.spatial import left_jacobian_inverse_batch, log3_batch
@@ -69,7 +71,6 @@ RANK_RCOND = 1e-12
 WEAK_RCOND = 1e-4
 
 
-LOSSES = ("linear", "huber", "soft_l1")
 PARTS = ("pose", "position", "rotation")
 
 

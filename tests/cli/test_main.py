@@ -78,12 +78,13 @@ def test_select_poses_writes_nothing_when_the_folder_is_missing(tmp_path, capsys
 
 @pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_signal_while_the_parser_imports_the_library_ends_with_one_line(signum, code):
-    """Building the parser imports the library (the choices of --method, --loss, ...): a signal
-    then ends the command like a signal anywhere else, one line and 128 + signal."""
+    """A command imports the library when it runs (the parser does not: its choices are in
+    calib.choices): a signal while it loads ends the command like a signal anywhere else, one
+    line and 128 + signal."""
     code_text = ("import sys, time, calib._entry as e\n"
                  "class Slow:\n"
                  "    def find_spec(self, name, path=None, target=None):\n"
-                 "        if name == 'calib.solvers.dispatch':\n"
+                 "        if name == 'calib.model.identifiability':\n"
                  "            print('importing', file=sys.stderr, flush=True); time.sleep(3)\n"
                  "sys.meta_path.insert(0, Slow())\n"
                  "e.main()\n")
@@ -95,3 +96,20 @@ def test_signal_while_the_parser_imports_the_library_ends_with_one_line(signum, 
     stdout, err = proc.communicate(timeout=60)
     assert (proc.returncode, stdout) == (code, "")
     assert err == f"calib: interrupted by {signal.Signals(signum).name}\n"
+
+
+def test_help_loads_neither_numpy_nor_pinocchio():
+    """``calib --help`` and a subcommand's help build every parser from calib.choices: no numpy,
+    no Pinocchio (issue 27: help within 1.5x the start of numpy alone)."""
+    code = ("import sys, contextlib, io, calib._entry as e\n"
+            "for argv in (['--help'], ['calibrate', '--help'], ['compensate', '--help'], ['select-poses', '--help']):\n"
+            "    sys.argv = ['calib'] + argv\n"
+            "    with contextlib.redirect_stdout(io.StringIO()):\n"
+            "        try:\n"
+            "            e.main()\n"
+            "        except SystemExit:\n"
+            "            pass\n"
+            "print(sorted(m for m in ('numpy', 'pinocchio', 'scipy') if m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120)
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stderr

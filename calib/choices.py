@@ -1,0 +1,17 @@
+"""The names (and one default) that calib's options take, in one module without imports: the
+library validates against them and the command line offers them as choices, so that building
+the parser (``calib --help``) loads neither numpy nor Pinocchio."""
+
+#: Identification methods (:func:`calib.solvers.dispatch.solve`).
+METHODS = ("search-lm", "c-lm", "lm")
+#: "calib": calib's LM (:mod:`calib.solvers.lm`); "paper": Eq. (27)-(28) as printed (:mod:`calib.solvers.paper_lm`).
+LM_VARIANTS = ("calib", "paper")
+#: Losses on each pose's whitened residual (:class:`calib.solvers.problem.Problem`).
+LOSSES = ("linear", "huber", "soft_l1")
+#: Estimators of :func:`calib.calibrate` (:mod:`calib.calibration.options`).
+ESTIMATORS = ("auto", "map", "ls")
+#: Pose-selection criteria (:mod:`calib.calibration.poses`).
+POSE_CRITERIA = ("D", "O1", "O4")
+#: Compensation: a configuration whose smallest singular value of the scaled pose Jacobian is
+#: below this is singular (:mod:`calib.calibration.compensation`).
+SINGULAR_THRESHOLD = 1e-2
