@@ -101,7 +101,9 @@ class Fit:
     the residuals' agreement with them; iterations : LM iterations of every fit in the stage;
     covariance : (n_free, n_free) covariance of the free parameters (SI units) in the final noise
     weights, from the least-squares normal equations at the solution; full_rank : False when it
-    is a pseudo-inverse; all_rows : the problem of every calibration row, kept or not.
+    is a pseudo-inverse; all_rows : the problem of every calibration row, kept or not;
+    unremoved : rows whose residuals exceeded the outlier threshold but were kept, being too many
+    to be outliers (the fit's note says so).
     """
 
     model: RobotModel
@@ -115,6 +117,7 @@ class Fit:
     full_rank: bool
     all_rows: Problem = field(repr=False, compare=False)
     notes: tuple[str, ...] = ()
+    unremoved: tuple[Outlier, ...] = ()
 
     @property
     def errors(self) -> AccuracyStats:
@@ -328,6 +331,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     first = True
     stuck = None
     unjudged = False
+    unremoved: tuple[Outlier, ...] = ()
     vce_total = 0
     two_groups = setup.measure == "pose"
     last_lin = None
@@ -425,7 +429,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
             notes.append(f"{len(new)} of {int(keep.sum())} rows have residuals above {outlier_k:g} sigma: "
                          f"the noise is larger than the noise levels (or the model cannot describe the "
                          f"data), so no row was removed as an outlier")
-            new = []
+            unremoved, new = tuple(new), []
         if suspect is not None and not new:
             # the suspect rows against the fit of the others: those within outlier_k are taken
             # back (and the fit repeated), the others are outliers
@@ -458,7 +462,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     # (least squares: the cost from the normal equations of the noise estimate)
     cost = lin.ne.cost if problem.loss == "linear" else 0.5 * float(np.sum(problem.residuals(x) ** 2))
     fit = Fit(model, free, replace(sol, cost=cost), keep, tuple(outliers), noise, trace.iterations,
-              covariance=lin.inverse, full_rank=lin.full_rank, all_rows=everything, notes=tuple(notes))
+              covariance=lin.inverse, full_rank=lin.full_rank, all_rows=everything, notes=tuple(notes),
+              unremoved=unremoved)
     return fit, problem
 
 
