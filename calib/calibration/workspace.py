@@ -175,10 +175,10 @@ def workspace_notes(at_calibration: Mapping | None, workspace: Mapping | None,
     if not at_calibration or not workspace:
         return []
     worse = []
-    for key, unit, scale, fmt in (("position_rms", "mm", 1e3, ".3g"), ("rotation_rms", "rad", 1.0, ".3g")):
+    for key, label, unit, scale in (("position_rms", "position", "mm", 1e3), ("rotation_rms", "orientation", "rad", 1.0)):
         a, w = at_calibration.get(key), workspace.get(key)
         if a is not None and w is not None and a > 0 and w > ratio * a:
-            worse.append(f"{key.split('_')[0]} {w * scale:{fmt}} {unit}, {w / a:.1f}x the {a * scale:{fmt}} {unit}")
+            worse.append(f"{label} {w * scale:.3g} {unit}, {w / a:.1f}x the {a * scale:.3g} {unit}")
     if not worse:
         return []
     where = at_calibration.get("where", "calibration configurations")
