@@ -185,8 +185,9 @@ def workspace_notes(at_calibration: Mapping | None, workspace: Mapping | None,
     poor = sorted(((c, j) for j, c in (workspace.get("joint_coverage") or {}).items()
                    if c is not None and c < POOR_COVERAGE))
     if poor:
-        what = ("add poses spread over the joint ranges, above all of " +
-                ", ".join(f"{j} (the poses span {100 * c:.0f}% of its range)" for c, j in poor))
+        what = ("add poses spread over the joint ranges: the poses span only " +
+                ", ".join(f"{100 * c:.0f}% of the range of {j}" if k == 0 else f"{100 * c:.0f}% of {j}"
+                          for k, (c, j) in enumerate(poor)))
     else:
         what = ("the poses span at least half of each joint's range, so they sit near a singular "
                 "configuration or in a corner of the workspace: add poses spread over the joint ranges "
