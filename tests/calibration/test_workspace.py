@@ -75,7 +75,11 @@ def test_coverage_of_limited_circular_and_unlimited_joints():
     cov = joint_coverage(robot, Q)
     assert cov["j1"] == pytest.approx(0.75 / 1.5)           # -1..-0.25 of -1..0.5
     # 3.0, 3.1 and -3.0 (= 3.283) wrap around pi: they cover an arc of 0.283 rad
-    assert cov["j2"] == pytest.approx((2 * math.pi - 6.0) / (2 * math.pi), rel=1e-12)
+    assert cov["j2"] == pytest.approx((2 * math.pi - 6.0) / (2 * math.pi), abs=3e-5)
+    # (measured in bins of the circle: exact to 2 bins of 65536)
+    assert joint_coverage(robot, np.array([[0.0, 0.0, 0.1, 0.0], [0.1, math.pi, 0.2, 0.0]]))["j2"] == \
+        pytest.approx(0.5, abs=3e-5)
+    assert joint_coverage(robot, Q[:1])["j2"] == 0.0
     assert cov["j3"] == pytest.approx(0.25)
     assert cov["j4"] is None
 
