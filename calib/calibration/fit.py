@@ -102,7 +102,8 @@ class Fit:
     covariance : (n_free, n_free) covariance of the free parameters (SI units) in the final noise
     weights, from the least-squares normal equations at the solution; full_rank : False when it
     is a pseudo-inverse (for a regularised fit: the posterior covariance); all_rows : the problem
-    of every calibration row, kept or not.
+    of every calibration row, kept or not; unremoved : rows whose residuals exceeded the outlier
+    threshold but were kept, being too many to be outliers (the fit's note says so).
     """
 
     model: RobotModel
@@ -116,6 +117,7 @@ class Fit:
     full_rank: bool
     all_rows: Problem = field(repr=False, compare=False)
     notes: tuple[str, ...] = ()
+    unremoved: tuple[Outlier, ...] = ()
     #: A regularised fit's Gaussian prior on the free parameters (:mod:`calib.calibration.
     #: regularised`): precision (n_free,) in the weighted problem's units (1 / unit^2; 0: flat)
     #: and mean (n_free,); None for least squares. Refits (cross-validation) keep it.
@@ -334,6 +336,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     first = True
     stuck = None
     unjudged = False
+    unremoved: tuple[Outlier, ...] = ()
     vce_total = 0
     two_groups = setup.measure == "pose"
     last_lin = None
@@ -431,7 +434,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
             notes.append(f"{len(new)} of {int(keep.sum())} rows have residuals above {outlier_k:g} sigma: "
                          f"the noise is larger than the noise levels (or the model cannot describe the "
                          f"data), so no row was removed as an outlier")
-            new = []
+            unremoved, new = tuple(new), []
         if suspect is not None and not new:
             # the suspect rows against the fit of the others: those within outlier_k are taken
             # back (and the fit repeated), the others are outliers
@@ -464,7 +467,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     # (least squares: the cost from the normal equations of the noise estimate)
     cost = lin.ne.cost if problem.loss == "linear" else 0.5 * float(np.sum(problem.residuals(x) ** 2))
     fit = Fit(model, free, replace(sol, cost=cost), keep, tuple(outliers), noise, trace.iterations,
-              covariance=lin.inverse, full_rank=lin.full_rank, all_rows=everything, notes=tuple(notes))
+              covariance=lin.inverse, full_rank=lin.full_rank, all_rows=everything, notes=tuple(notes),
+              unremoved=unremoved)
     return fit, problem
 
 

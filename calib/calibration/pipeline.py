@@ -40,6 +40,7 @@ import time
 from typing import Sequence
 
 from calib.calibration.accuracy import accuracy_after, accuracy_before
+from calib.calibration.consistency import consistency_notes
 from calib.calibration.fit import fit_with, implausibility, length_notes, method_notes
 from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
@@ -189,10 +190,11 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         reduced_chi2=nz.reduced_chi2, covariance=stats.covariance, before=accuracy.before, after=accuracy.after,
         validation_before=accuracy.validation_before, validation_after=accuracy.validation_after,
         predicted=stats.predicted, sigma_pos=nz.position,
-        sigma_rot=nz.rotation if nz.rotation is not None else opts.weights[1], notes=tuple(notes),
+        sigma_rot=nz.rotation if nz.rotation is not None else opts.weights[1],
+        notes=tuple(consistency_notes(stats.consistency) + notes),
         outliers=fit.outliers, loss=opts.loss, noise=nz, predicted_holdout=stats.predicted_holdout,
         cross_validation=cross, selection=selection, before_registered=accuracy.before_registered,
         validation_before_registered=accuracy.validation_before_registered, targets=accuracy.targets,
         after_without_outliers=fit.errors.subset(fit.keep) if fit.outliers else None,
-        estimated_frames=setup.rebased,
-        estimator=estimator or {"kind": "least-squares", "param_set": label})
+        estimated_frames=setup.rebased, predicted_workspace=stats.predicted_workspace,
+        consistency=stats.consistency, estimator=estimator or {"kind": "least-squares", "param_set": label})

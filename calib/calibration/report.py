@@ -338,6 +338,11 @@ def render_html(report: Mapping, text: str, images: Mapping[str, bytes] | None =
     ok = report.get("success")
     parts.append(f"<p>Status: <b class=\"{'' if ok else 'bad'}\">{e(str(report.get('status')))}</b>"
                  f" &mdash; {e(str(report.get('message', '')))}</p>")
+    dc = report.get("data_consistency")
+    if dc:
+        lead = next((n for n in report.get("notes", []) if n.startswith("the data disagree")), None)
+        if lead:
+            parts.append(f"<p class=\"bad\"><b>Inconsistent data:</b> {e(lead)}</p>")
     parts.append("<h2>Robot and frames</h2>" + _table(
         ["item", "value"],
         [["base frame (measurement frame)", frames.get("base_frame")],
@@ -361,6 +366,24 @@ def render_html(report: Mapping, text: str, images: Mapping[str, bytes] | None =
     parts.append("<h2>Accuracy</h2>" + _table(
         ["rows", "poses", "position mean / mm", "RMS / mm", "max / mm", "orientation mean / rad",
          "RMS / rad", "max / rad"], acc_rows))
+    pred_rows = []
+    for label, key, pos, rot in (("new rows, at the " + str((report.get("predicted_rms") or {}).get("where")),
+                                  "predicted_holdout_rms", "position_mm", "rotation_rad"),
+                                 ("new rows, at random configurations within the joint limits",
+                                  "predicted_workspace_rms", "position_mm", "rotation_rad"),
+                                 ("true poses (Cramer-Rao), at the " + str((report.get("predicted_rms") or {}).get("where")),
+                                  "predicted_rms", "position_mm", "rotation_rad"),
+                                 ("true poses, at random configurations within the joint limits",
+                                  "predicted_workspace_rms", "model_position_mm", "model_rotation_rad")):
+        d = report.get(key)
+        if d:
+            pred_rows.append([label, _num(d.get(pos)), _num(d.get(rot))])
+    if dc:
+        pred_rows.append(["held-out error of all calibration rows, flagged ones included",
+                          _num(dc["held_out_all_rows"]["position_mm"]), _num(dc["held_out_all_rows"]["rotation_rad"])])
+    if pred_rows:
+        parts.append("<h2>Predicted RMS error</h2>" + _table(["against", "position / mm", "orientation / rad"],
+                                                           pred_rows))
     parts.append("<h2>Parameters</h2>" + _table(
         ["parameter", "unit", "nominal", "identified", "deviation", "std"],
         [[p["name"], p["unit"], _num(p["nominal"], ".6f"), _num(p["identified"], ".6f"),

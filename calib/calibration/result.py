@@ -75,6 +75,15 @@ class CalibrationResult:
     the calibrated model's base frame is then the instrument's, its tool the measured point.
     targets : per target of a multi-target calibration, its accuracy (:class:`TargetAccuracy`;
     the overall figures are ``before``/``after``); () for one target.
+    predicted_workspace : the RMS error expected on new measured rows at random configurations
+    within the joint limits (position_rms m, rotation_rms rad; model_position_rms /
+    model_rotation_rms against the true poses; joint_coverage: the fraction of each joint's range
+    the calibration poses span; :func:`calib.calibration.workspace.predict_workspace`), None when
+    not computed. consistency : when more than a tenth of the calibration rows were flagged as
+    outliers, the held-out error of all rows (flagged ones included) beside the prediction for
+    rows like the kept ones, and the likely causes
+    (:func:`calib.calibration.consistency.data_consistency`; its note comes first in ``notes``);
+    None otherwise.
     estimator : how the parameters were estimated: ``{"kind": "least-squares", "param_set": ...}``
     or, for the regularised estimate (:mod:`calib.calibration.regularised`), ``{"kind": "eb-map",
     "prior_scales": {group: tau} (theta, twist rad; length mm), "effective_parameters",
@@ -114,6 +123,8 @@ class CalibrationResult:
     targets: tuple[TargetAccuracy, ...] = field(default=(), repr=False)
     after_without_outliers: AccuracyStats | None = field(default=None, repr=False)
     estimated_frames: tuple[str, ...] = ()
+    predicted_workspace: dict | None = field(default=None, repr=False)
+    consistency: dict | None = field(default=None, repr=False)
     estimator: dict | None = None
 
     @property
@@ -166,6 +177,7 @@ class CalibrationResult:
             "status": self.status,
             "success": self.success,
             "message": self.message,
+            "data_consistency": _consistency_dict(self.consistency),
             "method": self.method,
             "param_set": self.param_set,
             "estimator": self.estimator,
@@ -200,6 +212,7 @@ class CalibrationResult:
             "predicted_holdout_rms": None if ph is None else {
                 "position_mm": ph["position_rms"] * 1e3,
                 "rotation_rad": ph["rotation_rms"] if has_rot else None},
+            "predicted_workspace_rms": _workspace_dict(self.predicted_workspace),
             "cross_validation": None if self.cross_validation is None else self.cross_validation.to_dict(),
             "model_selection": None if self.selection is None else self.selection.to_dict(),
             "compliance": self.compliance_record(),
@@ -289,9 +302,45 @@ class CalibrationResult:
             rot_h = "" if pr.get("rotation_rms") is None else f", orientation {ph['rotation_rms']:.3g} rad"
             lines.append(f"predicted RMS error on new measured rows ({pr['where']}): position "
                          f"{ph['position_rms'] * 1e3:.4g} mm{rot_h}")
+        pw = self.predicted_workspace
+        if pw is not None:
+            rot_w = "" if pw.get("rotation_rms") is None else f", orientation {pw['rotation_rms']:.3g} rad"
+            lines.append(f"predicted RMS error on new measured rows ({pw['configurations']} {pw['where']}): "
+                         f"position {pw['position_rms'] * 1e3:.4g} mm{rot_w}")
         lines.append(f"predicted RMS error of the calibrated model against the true poses (Cramer-Rao, "
                      f"{pr['where']}): position {pr['position_rms'] * 1e3:.4g} mm{rot}")
         return "\n".join(lines)
+
+
+def _workspace_dict(pw: dict | None) -> dict | None:
+    """The JSON form of :func:`calib.calibration.workspace.predict_workspace`'s figures (mm, rad)."""
+    if pw is None:
+        return None
+    return {"position_mm": pw["position_rms"] * 1e3, "rotation_rad": pw.get("rotation_rms"),
+            "model_position_mm": pw["model_position_rms"] * 1e3, "model_rotation_rad": pw.get("model_rotation_rms"),
+            "configurations": pw["configurations"], "seed": pw["seed"], "where": pw["where"],
+            "joint_coverage": dict(pw.get("joint_coverage") or {})}
+
+
+def _consistency_dict(c: dict | None) -> dict | None:
+    """The JSON form of :func:`calib.calibration.consistency.data_consistency`'s record (mm, rad)."""
+    if c is None:
+        return None
+
+    def figures(d):
+        return {"position_mm": None if d["position_rms"] is None else d["position_rms"] * 1e3,
+                "rotation_rad": d["rotation_rms"]}
+    mv = c["moved_frame"]
+    return {"flagged": c["flagged"], "removed": c["removed"], "rows": c["rows"], "share": c["share"], "flagged_rows": c["flagged_rows"],
+            "runs": [list(r) for r in c["runs"]],
+            "held_out_all_rows": figures(c["held_out_all_rows"]), "held_out_kept_rows": figures(c["held_out_kept_rows"]),
+            "held_out_flagged_rows": figures(c["held_out_flagged_rows"]),
+            "predicted_holdout": figures(c["predicted_holdout"]),
+            "moved_frame": None if mv is None else {
+                "translation_mm": mv["translation_m"] * 1e3, "rotation_rad": mv["rotation_rad"],
+                "position_rms_before_mm": mv["position_rms_before"] * 1e3,
+                "position_rms_after_mm": mv["position_rms_after"] * 1e3, "explains": mv["explains"]},
+            "causes": list(c["causes"])}
 
 
 def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> tuple[ParameterEstimate, ...]:

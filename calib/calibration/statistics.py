@@ -5,18 +5,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
 from calib.calibration.accuracy import target_rows
+from calib.calibration.consistency import data_consistency
 from calib.calibration.fit import Fit
 from calib.calibration.prepare import Setup
 from calib.calibration.validation import _held_out_traces
-from calib.model.jacobian import pose_jacobian
-from calib.model.kinematics import ChainKinematics
-from calib.model.robot import RobotModel
-from calib.solvers.problem import CHUNK_POSES, Problem, normal_inverse
+from calib.calibration.workspace import predict_workspace, propagate_covariance, propagated, workspace_notes
+from calib.solvers.problem import Problem, normal_inverse
 
 
 @dataclass(frozen=True)
@@ -28,7 +26,11 @@ class Statistics:
     Jacobian. predicted : RMS error of the calibrated model against the true poses at ``where``
     (position_rms m, rotation_rms rad): the covariance propagated to the poses. predicted_holdout :
     RMS error against new measured rows: the covariance inflated by the measured misfit, plus the
-    measurement noise (inflated likewise).
+    measurement noise (inflated likewise). predicted_workspace : the same over random
+    configurations within the joint limits (:func:`calib.calibration.workspace.predict_workspace`;
+    None when not computed). consistency : when many calibration rows were flagged as outliers,
+    the held-out error of all of them beside the prediction for rows like the kept ones
+    (:func:`calib.calibration.consistency.data_consistency`; None otherwise).
     """
 
     covariance: np.ndarray = field(repr=False)
@@ -37,33 +39,14 @@ class Statistics:
     predicted: dict
     predicted_holdout: dict
     where: str
+    predicted_workspace: dict | None = None
+    consistency: dict | None = None
 
 
 # ---------------------------------------------------------------- statistics
-def _propagate(model: RobotModel, Q: np.ndarray, free: Sequence[str], C: np.ndarray,
-               kin: ChainKinematics | None = None, targets: np.ndarray | None = None) -> tuple[float, float]:
-    """(position, rotation) RMS over configurations Q of the pose error that a parameter error of
-    covariance C (free parameters, SI) causes: sqrt of the mean trace of J C J^T (m, rad);
-    targets: (N,) each row's target index for a multi-target model."""
-    kin = kin or ChainKinematics(model)
-    kin.set_values(model.values)
-    idx = model.indices(free)
-    jacobians = (pose_jacobian(kin, Q[s:s + CHUNK_POSES], idx,
-                               targets=None if targets is None else targets[s:s + CHUNK_POSES])[2]
-                 for s in range(0, len(Q), CHUNK_POSES))
-    return _propagated(jacobians, len(Q), C)
-
-
-def _propagated(jacobians, n: int, C: np.ndarray) -> tuple[float, float]:
-    """(position, rotation) RMS over n poses of J C J^T, from their pose Jacobians (chunks of
-    (k, 6, m))."""
-    tr_p = tr_r = 0.0
-    for Jf in jacobians:
-        JC = Jf @ C
-        tr_p += float(np.einsum("nij,nij->", JC[:, :3], Jf[:, :3]))
-        tr_r += float(np.einsum("nij,nij->", JC[:, 3:], Jf[:, 3:]))
-    n = max(n, 1)
-    return math.sqrt(max(tr_p, 0.0) / n), math.sqrt(max(tr_r, 0.0) / n)
+# (the propagation lives with the workspace prediction; these names are kept for their callers)
+_propagate = propagate_covariance
+_propagated = propagated
 
 
 def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
@@ -91,7 +74,7 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     infl_p = 1.0 if nz.estimated else max(1.0, nz.chi2_pos)
     infl_r = 1.0 if (nz.estimated or not has_rot) else max(1.0, nz.chi2_rot)
     if infl_p == 1.0 and infl_r == 1.0:
-        pos_e, rot_e = pos, rot
+        pos_e, rot_e, C_eff = pos, rot, C
     else:
         A_eff = ne.A_pos / infl_p + (ne.A_rot / infl_r if ne.A_rot is not None else 0.0)
         C_eff, _ = normal_inverse(A_eff)
@@ -110,12 +93,24 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
         holdout_r = math.sqrt(nz.rotation ** 2 * infl_r * t_r) if has_rot else None
     predicted = {"position_rms": pos, "rotation_rms": rot if has_rot else None, "where": where}
     holdout = {"position_rms": holdout_p, "rotation_rms": holdout_r, "where": where}
-    return Statistics(C, full_rank, rank, predicted, holdout, where)
+    # the same covariance and noise over the workspace: poses bunched in a corner of it predict
+    # themselves well and the rest badly
+    workspace = predict_workspace(fit.model, fit.free, C_eff, nz.position * math.sqrt(infl_p),
+                                  nz.rotation * math.sqrt(infl_r) if has_rot else None,
+                                  calibration_q=setup.cal.q[fit.keep], kin=kin)
+    # many flagged rows: what the prediction leaves out
+    consistency = data_consistency(
+        fit.all_rows.derived(sigma_pos=problem.sigma_pos, sigma_rot=problem.sigma_rot, loss="linear"), x,
+        fit.keep, C, holdout, rows=setup.cal.rows, flagged_rows=[o.row for o in fit.outliers + fit.unremoved])
+    return Statistics(C, full_rank, rank, predicted, holdout, where, workspace, consistency)
 
 
 def statistics_notes(stats: Statistics) -> list[str]:
-    """A note when the free parameters are not all identifiable."""
+    """A note when the free parameters are not all identifiable, and when the predicted error
+    over the workspace is far above the one at the calibration configurations
+    (:func:`calib.calibration.workspace.workspace_notes`)."""
+    notes = workspace_notes(stats.predicted_holdout, stats.predicted_workspace)
     if stats.full_rank:
-        return []
-    return ["the free parameters are not all identifiable (rank-deficient set): standard "
+        return notes
+    return notes + ["the free parameters are not all identifiable (rank-deficient set): standard "
             "deviations come from the pseudo-inverse and describe only the identifiable combinations"]

@@ -83,6 +83,22 @@ class ModelSelection:
         return "\n".join(lines)
 
 
+def _held_out_factors(Jw: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """(n, k, k): (I - H_ii)^-1 for each row's whitened Jacobian block Jw (n, k, m), H_ii = Jw_i C
+    Jw_i^T its block of the hat matrix: a kept row's held-out (leave-one-out) residual is this
+    times its residual. A leverage reaching 1 (the row alone determines a parameter) counts as 0.99."""
+    H = Jw @ C @ np.transpose(Jw, (0, 2, 1))                     # (n, k, k)
+    M = np.empty_like(H)                                         # (I - H)^-1
+    # H is positive semi-definite: a leverage can reach 0.99 only where its trace does
+    high = np.trace(H, axis1=1, axis2=2) >= 0.99
+    M[~high] = np.linalg.inv(np.eye(H.shape[1]) - H[~high])
+    if high.any():
+        w, V = np.linalg.eigh(H[high])
+        w = np.minimum(w, 0.99)
+        M[high] = (V / (1.0 - w)[:, None, :]) @ np.transpose(V, (0, 2, 1))
+    return M
+
+
 def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, float]:
     """Means over the rows of tr (I - H_ii)^-1 over the position and the rotation components
     (whitened units), H_ii = Jw_i C Jw_i^T the row's block of the hat matrix. A row whose
@@ -90,16 +106,7 @@ def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[fl
     t_p = t_r = 0.0
     n = 0
     for _, Jw, _ in problem.whitened_blocks(x, raw=True):
-        H = Jw @ C @ np.transpose(Jw, (0, 2, 1))                     # (n, k, k)
-        M = np.empty_like(H)                                         # (I - H)^-1
-        # H is positive semi-definite: a leverage can reach 0.99 only where its trace does
-        high = np.trace(H, axis1=1, axis2=2) >= 0.99
-        M[~high] = np.linalg.inv(np.eye(H.shape[1]) - H[~high])
-        if high.any():
-            w, V = np.linalg.eigh(H[high])
-            w = np.minimum(w, 0.99)
-            M[high] = (V / (1.0 - w)[:, None, :]) @ np.transpose(V, (0, 2, 1))
-        d = np.diagonal(M, axis1=1, axis2=2)
+        d = np.diagonal(_held_out_factors(Jw, C), axis1=1, axis2=2)
         t_p += float(d[:, :3].sum())
         t_r += float(d[:, 3:].sum())
         n += len(Jw)
@@ -248,7 +255,7 @@ def select_and_fit(setup: Setup, ident: Sequence[str], options: CalibrationOptio
         fit, problem = full, full_problem
     else:
         fit, problem = fit_with(setup, free, options, outlier_k=None, keep=full.keep, kin=kin)
-        fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes)
+        fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes, unremoved=full.unremoved)
     log.info("model selection: %s", selection.chosen)
     return selection, fit, problem
 
