@@ -16,6 +16,7 @@ Deviations: "general" (every parameter, 1 mm / 2 mrad standard deviation) and "o
 same on the joint offsets and frames, the rest x0.05: the case the small candidates are for).
 
     python scripts/bench_selection.py [--seeds 6] [--rows 15 25 40] [--robots bundled ur5 panda]
+                                      [--position-only] [--first-seed 0]
 """
 from __future__ import annotations
 
@@ -58,7 +59,7 @@ def _load(name: str) -> calib.RobotModel:
     return calib.load_robot(erd.load(name).urdf)
 
 
-def run(robot: calib.RobotModel, rows: int, kind: str, seed: int) -> dict:
+def run(robot: calib.RobotModel, rows: int, kind: str, seed: int, position_only: bool = False) -> dict:
     """The fresh-configuration error (m) of every candidate's fit and each rule's choice."""
     rng = np.random.default_rng(seed)
     dev = random_deviations(robot, 1e-3, rng)
@@ -67,7 +68,7 @@ def run(robot: calib.RobotModel, rows: int, kind: str, seed: int) -> dict:
         dev = {k: v if k in small else 0.05 * v for k, v in dev.items()}
     true = apply_deviations(robot, dev)
     meas = simulate_measurements(true, robot.random_configurations(rows, rng), sigma_pos=SIGMA_POS,
-                                 sigma_rot=SIGMA_ROT, rng=rng, unmodelled=UNMODELLED)
+                                 sigma_rot=SIGMA_ROT, rng=rng, unmodelled=UNMODELLED, position_only=position_only)
     Qf = robot.random_configurations(2000, rng)
     _, p_true = ChainKinematics(true).frame_poses(Qf)
     opts = resolve_options(robot, meas, params="auto")
@@ -91,10 +92,12 @@ def main(argv=None) -> None:
     ap.add_argument("--seeds", type=int, default=6)
     ap.add_argument("--rows", type=int, nargs="+", default=[15, 25, 40])
     ap.add_argument("--robots", nargs="+", default=["bundled", "ur5", "panda"])
+    ap.add_argument("--position-only", action="store_true", help="position-only rows (a marker, no orientation)")
+    ap.add_argument("--first-seed", type=int, default=0)
     args = ap.parse_args(argv)
     print(f"# bench_selection: {_bench.machine()}; {args.seeds} seeds x rows {args.rows} x deviations "
-          f"general/offsets; full poses, noise {SIGMA_POS * 1e3:g} mm / {SIGMA_ROT:g} rad; error at 2000 "
-          f"fresh configurations against the truth (mm)")
+          f"general/offsets; {'positions only' if args.position_only else 'full poses'}, noise "
+          f"{SIGMA_POS * 1e3:g} mm / {SIGMA_ROT:g} rad; error at 2000 fresh configurations against the truth (mm)")
     names = list(RULES)
     total = {"cases": 0, "differ": 0, "worse": dict.fromkeys(names, 0), "excess": {n: [] for n in names},
              "mean": {n: [] for n in names}, "oracle": []}
@@ -103,9 +106,9 @@ def main(argv=None) -> None:
         per = {n: [] for n in names}
         for rows in args.rows:
             for kind in ("general", "offsets"):
-                for seed in range(args.seeds):
+                for seed in range(args.first_seed, args.first_seed + args.seeds):
                     try:
-                        r = run(robot, rows, kind, 1000 * rows + seed)
+                        r = run(robot, rows, kind, 1000 * rows + seed, args.position_only)
                     except calib.CalibError as exc:
                         print(f"  {rname} {rows} rows {kind} seed {seed}: skipped ({exc})")
                         continue
@@ -130,12 +133,19 @@ def main(argv=None) -> None:
     print(f"mean error of the chosen fit over all cases (mm): "
           + ", ".join(f"{n} {np.mean(total['mean'][n]) * 1e3:.4f}" for n in names)
           + f"; best candidate in hindsight {np.mean(total['oracle']) * 1e3:.4f}")
-    for n in names:
-        ex = total["excess"][n]
-        if ex:
-            print(f"  {n}: worse on fresh configurations in {total['worse'][n]} of {total['differ']} "
-                  f"disagreements; error relative to the other rule's choice: mean {np.mean(ex) * 100:+.1f} %, "
-                  f"max {np.max(ex) * 100:+.1f} %")
+    a, b = (np.array(total["mean"][n]) for n in names)
+    d = a - b
+    print(f"paired difference ({names[0]} - {names[1]}) over all cases: {np.mean(d) * 1e3:+.4f} mm "
+          f"+- {np.std(d, ddof=1) / np.sqrt(len(d)) * 1e3:.4f} (standard error)")
+    k, m = total["worse"][names[0]], total["differ"]
+    if m:
+        from math import comb
+
+        tail = sum(comb(m, j) for j in range(min(k, m - k) + 1)) / 2 ** m
+        print(f"where they differ: {names[0]} worse in {k}, {names[1]} worse in {total['worse'][names[1]]} of {m} "
+              f"(two-sided sign test p = {min(1.0, 2 * tail):.2f}); geometric mean error ratio "
+              f"{names[0]} / {names[1]} {np.exp(np.mean(np.log(1 + np.array(total['excess'][names[0]])))):.3f}, "
+              f"range {np.min(total['excess'][names[0]]) * 100 + 100:.0f}-{np.max(total['excess'][names[0]]) * 100 + 100:.0f} %")
 
 
 if __name__ == "__main__":
