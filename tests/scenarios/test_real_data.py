@@ -294,7 +294,7 @@ def test_readme_real_measurements_example_runs_as_printed(tmp_path, monkeypatch,
         assert main(shlex.split(command)[1:]) == 0
     out = capsys.readouterr().out
     for quoted in ("noise estimated from the residuals (4 re-weighted fits): position 1.026 mm, "
-                   "orientation 0.00521 rad per axis", "offsets+frames                 12    32.04",
+                   "orientation 0.00521 rad per axis", "offsets+frames                 16    27.04",
                    "cross-validated (leave-one-out) held-out RMS error: position 2.078 mm",
                    "predicted RMS error on new measured rows (calibration configurations): position 2.116 mm"):
         assert quoted in section and quoted in out
