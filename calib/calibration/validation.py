@@ -182,9 +182,10 @@ def _standard_error(values: np.ndarray) -> float:
 
 
 def lowest_score(candidates: Sequence[Candidate]) -> Candidate:
-    """The candidate of lowest mean held-out score (the first, i.e. the smallest, of equal ones).
-    On fresh rows it did better than :func:`one_standard_error` in the cases where the two
-    differ (scripts/bench_selection.py)."""
+    """The candidate of lowest mean held-out score (the first, i.e. the smallest, of equal ones),
+    the default rule: on fresh configurations :func:`one_standard_error` did no better
+    (scripts/bench_selection.py, 1,440 simulated cases of 15-40 rows: where the rules disagree,
+    each choice was the worse one about half the time; mean errors within 0.6 %)."""
     return min(candidates, key=lambda c: c.cv.score)
 
 
