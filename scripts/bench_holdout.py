@@ -107,7 +107,7 @@ def run(s: Scenario, seed: int, hindsight: bool) -> dict:
     if hindsight:
         start = robot
         ident = identifiable_set(start, cal_only.q, "position" if s.position_only else "pose")
-        small = candidate_sets(robot, ident)[0][1]
+        small = candidate_sets(robot, ident, cal_only.q, "position" if s.position_only else "pose")[0][1]
         for key, params in (("offsets_pos", list(small)), ("full_pos", "base")):
             r = calib.calibrate(robot, meas, params=params, **kw)
             out[key] = r.validation_after.position["rms"]

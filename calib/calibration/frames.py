@@ -14,7 +14,10 @@ is solved without iteration:
   The translations follow from the linear least squares ``t_X + R_X R_i t_Y = p_meas_i - R_X p_i``.
 * position only: ``p_meas_i = A p_i + sum_jk R_i[j, k] C_jk + t_X`` is linear in A = R_X (9),
   C_jk = R_X[:, j] t_Y[k] (27) and t_X (3); R_X is A projected onto SO(3), then (t_X, t_Y) are
-  solved by linear least squares with R_X fixed. R_Y cannot be observed.
+  solved by linear least squares with R_X fixed. R_Y cannot be observed. With three or more
+  targets measured at the same configurations, when that system is not determined (it needs
+  13 configurations whatever the number of targets), each configuration's three points define
+  a frame on the tool, a full pose, and R_X follows as from full poses (three configurations).
 
 Several targets on the tool share X and each have their own Y (:func:`estimate_target_frames`).
 
@@ -110,6 +113,95 @@ def _flange_in_base(robot: RobotModel, Q: np.ndarray, kin: ChainKinematics | Non
     return Rb.T @ R_fl, (p_fl - pb) @ Rb
 
 
+def _rotations(R_f, R_meas, rows, K):
+    """(R_X (3, 3), R_Y (K, 3, 3)) from flange rotations R_f (N, 3, 3) in the base frame and
+    measured rotations R_meas (N, 3, 3) of the rows' targets (rows (N,) target index): the null
+    vector of the module docstring's homogeneous system, by the eigenvector of its normal matrix.
+    Raises :class:`DataError` when the rotations do not determine it."""
+    I3 = np.eye(3)
+    N = len(R_f)
+    # vec is column-major: vec(R_X R_i) = (R_i^T kron I) vec(R_X); vec(R_m Z) = (I kron R_m) vec(Z).
+    # The null vector of the blocks [-(R_i^T kron I), I kron R_m_i] is the eigenvector of their
+    # normal matrix, whose blocks are sums of 3x3 products, accumulated in chunks of poses:
+    # (sum R_i R_i^T) kron I, -sum R_i kron R_m_i and I kron (sum R_m_i^T R_m_i), per target
+    S_f, S_fm, S_m = np.zeros((3, 3)), np.zeros((K, 3, 3, 3, 3)), np.zeros((K, 3, 3))
+    for a in range(0, N, CHUNK):
+        Rf, Rm, r = R_f[a:a + CHUNK], R_meas[a:a + CHUNK], rows[a:a + CHUNK]
+        S_f += np.einsum("nab,ncb->ac", Rf, Rf)
+        for k in range(K):
+            on = r == k
+            S_fm[k] += np.einsum("nac,nbd->abcd", Rf[on], Rm[on])
+            S_m[k] += np.einsum("nab,nac->bc", Rm[on], Rm[on])
+    normal = np.zeros((9 + 9 * K, 9 + 9 * K))
+    normal[:9, :9] = np.einsum("ac,bd->abcd", S_f, I3).reshape(9, 9)
+    for k in range(K):
+        blk = slice(9 + 9 * k, 18 + 9 * k)
+        normal[:9, blk] = -S_fm[k].reshape(9, 9)
+        normal[blk, :9] = -S_fm[k].reshape(9, 9).T
+        normal[blk, blk] = np.einsum("ac,bd->abcd", I3, S_m[k]).reshape(9, 9)
+    w, V = np.linalg.eigh(normal)
+    if w[1] < 1e-10 * w[-1]:
+        raise DataError("the poses do not determine the measurement frame orientation "
+                        "(too few distinct orientations)")
+    v = V[:, 0]
+    RX = v[:9].reshape(3, 3, order="F")
+    scale = np.sign(np.linalg.det(RX)) * np.cbrt(abs(np.linalg.det(RX)))
+    R_Y = np.array([project_to_so3(v[9 + 9 * k:18 + 9 * k].reshape(3, 3, order="F") / scale).T
+                    for k in range(K)])
+    return project_to_so3(RX / scale), R_Y
+
+
+#: Three targets closer than this to a line (the distance of the third from the line through
+#: the other two, metres) do not define an orientation.
+TRIAD_MIN_M = 1e-3
+
+
+def _triad_rotation(R_f, p_f, p_meas, rows, K) -> np.ndarray:
+    """R_X (3, 3) from position-only rows of three or more targets measured at the same
+    configurations: at each configuration where the three targets measured together most often
+    were all measured (and are not collinear), their points define a frame rigidly attached to
+    the flange (origin the first, x toward the second, z normal to the three), a full pose of a
+    virtual tool; the rotations of those poses give R_X as full-pose data do (three such
+    configurations suffice, where the linear position-only system needs 12 + 27 K / 3 rows).
+    Raises :class:`DataError` when there are fewer than three such configurations."""
+    from itertools import combinations
+
+    N = len(R_f)
+    key = np.round(np.hstack([R_f.reshape(N, 9), p_f]) / 1e-9) + 0.0      # rows of one configuration
+    order = np.lexsort(key.T[::-1])
+    new = np.concatenate([[True], np.any(key[order][1:] != key[order][:-1], axis=1)])
+    group = np.empty(N, int)
+    group[order] = np.cumsum(new) - 1
+    G = int(group.max()) + 1
+    seen = np.zeros((G, K), bool)
+    seen[group, rows] = True
+    triads = list(combinations(range(K), 3))
+    if not triads:
+        raise DataError("the position-only poses do not determine the measurement frame "
+                        "(too few distinct configurations)")
+    best = max(triads, key=lambda t: int(seen[:, list(t)].all(axis=1).sum()))
+    at = np.flatnonzero(seen[:, list(best)].all(axis=1))
+    # each target's point at each of those configurations (the mean of repeated rows)
+    P = np.zeros((3, G, 3))
+    for j, k in enumerate(best):
+        on = rows == k
+        np.add.at(P[j], group[on], p_meas[on])
+        P[j] /= np.maximum(np.bincount(group[on], minlength=G), 1)[:, None]
+    P = P[:, at]
+    x = P[1] - P[0]
+    n = np.cross(x, P[2] - P[0])
+    ok = np.linalg.norm(n, axis=1) > TRIAD_MIN_M * np.linalg.norm(x, axis=1)
+    if ok.sum() < 3:
+        raise DataError("the position-only poses do not determine the measurement frame "
+                        "(too few distinct configurations)")
+    x = x[ok] / np.linalg.norm(x[ok], axis=1)[:, None]
+    z = n[ok] / np.linalg.norm(n[ok], axis=1)[:, None]
+    R_F = np.stack([x, np.cross(z, x), z], axis=2)                       # (M, 3, 3) columns x, y, z
+    first = np.array([np.flatnonzero(group == g)[0] for g in at[ok]])
+    R_X, _ = _rotations(R_f[first], R_F, np.zeros(len(first), int), 1)
+    return R_X
+
+
 def _estimate(robot: RobotModel, R_f, p_f, p_meas, R_meas, rows):
     K = robot.n_targets
     N = len(R_f)
@@ -119,52 +211,29 @@ def _estimate(robot: RobotModel, R_f, p_f, p_meas, R_meas, rows):
     if R_meas is not None:
         if N < 3:
             raise DataError(f"at least 3 poses are needed to estimate the frames, got {N}")
-        # vec is column-major: vec(R_X R_i) = (R_i^T kron I) vec(R_X); vec(R_m Z) = (I kron R_m) vec(Z).
-        # The null vector of the blocks [-(R_i^T kron I), I kron R_m_i] is the eigenvector of their
-        # normal matrix, whose blocks are sums of 3x3 products, accumulated in chunks of poses:
-        # (sum R_i R_i^T) kron I, -sum R_i kron R_m_i and I kron (sum R_m_i^T R_m_i), per target
-        S_f, S_fm, S_m = np.zeros((3, 3)), np.zeros((K, 3, 3, 3, 3)), np.zeros((K, 3, 3))
-        for a in range(0, N, CHUNK):
-            Rf, Rm, r = R_f[a:a + CHUNK], R_meas[a:a + CHUNK], rows[a:a + CHUNK]
-            S_f += np.einsum("nab,ncb->ac", Rf, Rf)
-            for k in range(K):
-                on = r == k
-                S_fm[k] += np.einsum("nac,nbd->abcd", Rf[on], Rm[on])
-                S_m[k] += np.einsum("nab,nac->bc", Rm[on], Rm[on])
-        normal = np.zeros((9 + 9 * K, 9 + 9 * K))
-        normal[:9, :9] = np.einsum("ac,bd->abcd", S_f, I3).reshape(9, 9)
-        for k in range(K):
-            blk = slice(9 + 9 * k, 18 + 9 * k)
-            normal[:9, blk] = -S_fm[k].reshape(9, 9)
-            normal[blk, :9] = -S_fm[k].reshape(9, 9).T
-            normal[blk, blk] = np.einsum("ac,bd->abcd", I3, S_m[k]).reshape(9, 9)
-        w, V = np.linalg.eigh(normal)
-        if w[1] < 1e-10 * w[-1]:
-            raise DataError("the poses do not determine the measurement frame orientation "
-                            "(too few distinct orientations)")
-        v = V[:, 0]
-        RX = v[:9].reshape(3, 3, order="F")
-        scale = np.sign(np.linalg.det(RX)) * np.cbrt(abs(np.linalg.det(RX)))
-        R_X = project_to_so3(RX / scale)
-        for k in range(K):
-            Y[k, :3, :3] = project_to_so3(v[9 + 9 * k:18 + 9 * k].reshape(3, 3, order="F") / scale).T
+        R_X, Y[:, :3, :3] = _rotations(R_f, R_meas, rows, K)
     else:
         n_unknown = 12 + 27 * K
-        if 3 * N < n_unknown:
+        rank = 0
+        if 3 * N >= n_unknown:
+            A = np.zeros((N, 3, n_unknown))
+            A[:, :, :9] = np.einsum("nj,ab->najb", p_f, I3).reshape(N, 3, 9)          # A p_i (A column-major)
+            C = np.einsum("nj,ab->najb", R_f.reshape(N, 9), I3).reshape(N, 3, 27)     # sum_jk R_i[j,k] C_jk
+            for k in range(K):
+                A[rows == k, :, 9 + 27 * k:36 + 27 * k] = C[rows == k]
+            A[:, :, -3:] = I3
+            sol, _, rank, _ = np.linalg.lstsq(A.reshape(3 * N, -1), p_meas.reshape(-1), rcond=None)
+        if rank == n_unknown:
+            # A = sol[:9] (column-major) estimates R_X; with R_X fixed, (t_X, t_Y) are linear again
+            R_X = project_to_so3(sol[:9].reshape(3, 3, order="F"))
+        elif K >= 3:
+            R_X = _triad_rotation(R_f, p_f, p_meas, rows, K)
+        elif 3 * N < n_unknown:
             raise DataError(f"at least {-(-n_unknown // 3)} position-only poses are needed to estimate "
                             f"the frames, got {N}")
-        A = np.zeros((N, 3, n_unknown))
-        A[:, :, :9] = np.einsum("nj,ab->najb", p_f, I3).reshape(N, 3, 9)          # A p_i (A column-major)
-        C = np.einsum("nj,ab->najb", R_f.reshape(N, 9), I3).reshape(N, 3, 27)     # sum_jk R_i[j,k] C_jk
-        for k in range(K):
-            A[rows == k, :, 9 + 27 * k:36 + 27 * k] = C[rows == k]
-        A[:, :, -3:] = I3
-        sol, _, rank, _ = np.linalg.lstsq(A.reshape(3 * N, -1), p_meas.reshape(-1), rcond=None)
-        if rank < n_unknown:
+        else:
             raise DataError("the position-only poses do not determine the measurement frame "
                             "(too few distinct configurations)")
-        # A = sol[:9] (column-major) estimates R_X; with R_X fixed, (t_X, t_Y) are linear again
-        R_X = project_to_so3(sol[:9].reshape(3, 3, order="F"))
     t_X, t_Y = _solve_translations(R_X, R_f, p_f, p_meas, rows, K)
     X[:3, :3], X[:3, 3] = R_X, t_X
     Y[:, :3, 3] = t_Y

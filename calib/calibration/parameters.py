@@ -100,11 +100,45 @@ def select_parameters(robot: RobotModel, params, Q: np.ndarray, measure: str, si
     return "list", tuple(n for n in robot.names if n in names)
 
 
-def candidate_sets(robot: RobotModel, identifiable: Sequence[str]) -> list[tuple[str, tuple[str, ...]]]:
-    """Nested parameter sets for ``params="auto"``, smallest first, each within the identifiable
-    set: joint offsets (theta, or d of a prismatic joint) with the measurement and tool frames;
-    + lengths (d, a); + twists (alpha, beta); the whole identifiable set. Duplicates dropped."""
-    ident = set(identifiable)
+def _maximal_subset(robot: RobotModel, names: Sequence[str], Q: np.ndarray, measure: str, sigma_pos: float,
+                    sigma_rot: float, targets: np.ndarray | None) -> tuple[str, ...]:
+    """A maximal identifiable subset of the parameters ``names`` at configurations Q: the
+    rank-revealing selection of :func:`calib.model.identifiability.analyze_identifiability` with
+    ``names`` first, frames first among them (the targets' v, then u, then the structural
+    parameters in the default order), so that a tied pair loses its structural partner, never
+    the frame parameter a smaller set needs to place the tool. The partners are picked on the
+    idealised model (:func:`_idealised`, as :func:`identifiable_set` does) and kept when they are
+    also a valid choice at ``robot``. Returns the kept names in ``robot.names`` order."""
+    group = {p.name: p.group for p in robot.parameters}
+    want = set(names)
+    order = ([n for n in robot.names if n in want and group[n] == "v"]
+             + [n for n in robot.names if n in want and group[n] == "u"]
+             + [n for n in robot.names if n in want and group[n] not in ("u", "v")])
+    ideal = set(analyze_identifiability(_idealised(robot), Q, measure=measure, sigma_pos=sigma_pos,
+                                        sigma_rot=sigma_rot, targets=targets, priority=order).identifiable)
+    first = [n for n in order if n in ideal]
+    kept = set(analyze_identifiability(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
+                                       targets=targets, priority=first + [n for n in order if n not in ideal]
+                                       ).identifiable)
+    return tuple(n for n in robot.names if n in want and n in kept)
+
+
+def candidate_sets(robot: RobotModel, identifiable: Sequence[str], Q: np.ndarray, measure: str,
+                   sigma_pos: float = SIGMA_POS_M, sigma_rot: float = SIGMA_ROT_RAD,
+                   targets: np.ndarray | None = None) -> list[tuple[str, tuple[str, ...]]]:
+    """Nested parameter sets for ``params="auto"``, smallest first: joint offsets (theta, or d of
+    a prismatic joint) with the measurement and tool frames; + lengths (d, a); + twists (alpha,
+    beta); the identifiable set ``identifiable``. Each is its own maximal identifiable subset at
+    the configurations Q (N, n) (:func:`_maximal_subset`, frames first; rows weighted by
+    sigma_pos m / sigma_rot rad, targets (N,) each row's target index for a multi-target
+    model), not the intersection with ``identifiable``: that would drop the frame parameters
+    whose tied structural partner the identifiable set kept (a 6-axis arm's offsets and frames:
+    12 free of 16 identifiable, and the tool could not be placed). Compliances take part only
+    when ``identifiable`` has them (:func:`_compliance_filter`). A set that spans no more than
+    the one before it (or as much as the identifiable set) is dropped: the columns of each are
+    within those of the next, so the same rank means the same model."""
+    ident = tuple(n for n in robot.names if n in set(identifiable))
+    held = set(robot.compliance_names) - set(ident)
 
     def offset(p) -> bool:
         if p.group != "joint":
@@ -117,11 +151,11 @@ def candidate_sets(robot: RobotModel, identifiable: Sequence[str]) -> list[tuple
              ("+twists", lambda p: p.kind in ("alpha", "beta"))]
     out, chosen = [], set()
     for label, pick in steps:
-        chosen |= {p.name for p in robot.parameters if pick(p)}
-        names = tuple(n for n in robot.names if n in chosen and n in ident)
-        if names and (not out or names != out[-1][1]) and set(names) != ident:
+        chosen |= {p.name for p in robot.parameters if pick(p) and p.name not in held}
+        names = _maximal_subset(robot, tuple(chosen), Q, measure, sigma_pos, sigma_rot, targets)
+        if names and (not out or len(names) > len(out[-1][1])) and len(names) < len(ident):
             out.append((label, names))
-    out.append(("identifiable set", tuple(n for n in robot.names if n in ident)))
+    out.append(("identifiable set", ident))
     return out
 
 

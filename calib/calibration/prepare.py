@@ -81,29 +81,80 @@ def prepare(robot: RobotModel, measurements: Measurements, validation: Measureme
     if val is not None and val.n_poses == 0:
         val = None
     measure = "pose" if cal.has_orientation else "position"
-    rows_per_pose = 6 if measure == "pose" else 3
     _check_plausible_positions(robot, measurements)
     if validation is not None:
         _check_plausible_positions(robot, validation)
-    distinct = distinct_configurations(cal.q)
-    needed = 0
-    if distinct * rows_per_pose < robot.n_params:
-        needed = analyze_identifiability(robot, robot.random_configurations(50, 0), measure=measure).rank
-    if distinct * rows_per_pose < needed:
-        where = f"{measurements.source}: " if measurements.source is not None else ""
-        what = (f"{cal.n_poses} calibration poses" if distinct == cal.n_poses else
-                f"{cal.n_poses} calibration rows at {distinct} distinct configuration(s)")
-        raise DataError(f"{where}{what} give {distinct * rows_per_pose} "
-                        f"{'' if distinct == cal.n_poses else 'independent '}equations, "
-                        f"fewer than the {needed} identifiable parameters need; measure at least "
-                        f"{-(-needed // rows_per_pose)} distinct poses (several times more for accuracy)")
     notes += _duplicate_row_notes(cal, val)
     start, rebased, suspect = robot, (), None
     kin = ChainKinematics(robot)
     if init_frames:
         start, rebased, suspect = _rebase_frames(robot, cal, notes, always=init_frames is True, kin=kin)
+    _check_enough_rows(start, cal, measure, measurements.source)
     return Setup(robot, start, cal, val, measure, rebased, suspect,
                  kin if start is robot else ChainKinematics(start)), notes
+
+
+def _check_enough_rows(start: RobotModel, cal: Measurements, measure: str, source) -> None:
+    """Refuse calibration rows that give fewer independent equations than the identifiable
+    parameters of ``start`` (the model after the closed-form frames: several targets then sit
+    where the data put them, not all at the nominal tool) need at random configurations. Each
+    distinct (configuration, target) pair counts: three reflectors measured at one configuration
+    give three points."""
+    rows_per_pose = 6 if measure == "pose" else 3
+    rows = target_rows(start, cal)
+    distinct = distinct_measured_points(cal.q, rows)
+    if distinct * rows_per_pose >= start.n_params:
+        return
+    spread = _distinct_targets(start)
+    needed = analyze_identifiability(spread, start.random_configurations(50, 0), measure=measure).rank
+    if distinct * rows_per_pose >= needed:
+        return
+    where = f"{source}: " if source is not None else ""
+    n_q = distinct_configurations(cal.q)
+    if rows is None:
+        what = (f"{cal.n_poses} calibration poses" if distinct == cal.n_poses else
+                f"{cal.n_poses} calibration rows at {distinct} distinct configuration(s)")
+        more = f"{-(-needed // rows_per_pose)} distinct poses"
+    else:
+        what = (f"{cal.n_poses} calibration rows at {n_q} distinct configuration(s) of "
+                f"{len(set(rows.tolist()))} of the {start.n_targets} targets ({distinct} distinct "
+                f"configuration-target pairs)")
+        # the targets on one rigid tool give fewer independent equations than 3 each per
+        # configuration (three points: the 6 of a pose, plus their 3 distances once): the
+        # fewest random configurations whose rows of every target reach the rank
+        n = -(-needed // (rows_per_pose * start.n_targets))
+        while n < 50 and analyze_identifiability(spread, start.random_configurations(n, 0),
+                                                 measure=measure).rank < needed:
+            n += 1
+        more = f"{n} distinct configurations with every target"
+    raise DataError(f"{where}{what} give {distinct * rows_per_pose} "
+                    f"{'' if distinct == cal.n_poses else 'independent '}equations, "
+                    f"fewer than the {needed} identifiable parameters need; measure at least "
+                    f"{more} (several times more for accuracy)")
+
+
+def _distinct_targets(robot: RobotModel) -> RobotModel:
+    """``robot``, or for several targets at one point (the nominal model's targets before the
+    closed-form frames placed them) the same with them at distinct points 0.1 m apart, for
+    counting what the targets identify: reflectors at one point identify only what one point
+    does, real ones are apart."""
+    if not robot.targets:
+        return robot
+    refs = robot.T_flange_target_refs.copy()
+    if np.min(np.linalg.norm(refs[:, None, :3, 3] - refs[None, :, :3, 3], axis=2)
+              + np.eye(len(refs))) > 1e-3:
+        return robot
+    refs[:, :3, 3] += 0.1 * np.random.default_rng(0).normal(size=(len(refs), 3))
+    return replace(robot, T_flange_tool_ref=refs[0], T_flange_target_refs=refs)
+
+
+def distinct_measured_points(Q: np.ndarray, targets: np.ndarray | None = None) -> int:
+    """The number of distinct (configuration, target) pairs of rows at configurations Q (N, n)
+    measuring targets (N,) (target indices; None: one target): distinct configurations for one
+    target."""
+    if targets is None:
+        return distinct_configurations(Q)
+    return distinct_configurations(np.column_stack([np.asarray(Q, float), np.asarray(targets, float)]))
 
 
 def _earliest_equal_rows(*ms: Measurements) -> np.ndarray:
@@ -221,16 +272,21 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
                     derived: bool, sigma_pos: float = SIGMA_POS_M, sigma_rot: float = SIGMA_ROT_RAD) -> None:
     """Refuse data whose own Jacobian identifies fewer parameter combinations than the model
     needs: the rank of the noise-weighted identification Jacobian at the rows' configurations
-    (at most 500, evenly spaced) against its rank at 50 random configurations within the joint
-    limits. ``free`` are the parameters to identify; ``derived`` (the set was chosen from these
+    and targets (at most 500 rows, evenly spaced) against its rank at 50 random configurations
+    within the joint limits, every target measured at each (several reflectors count by
+    configuration and target together: three points identify what the pose they define does).
+    ``free`` are the parameters to identify; ``derived`` (the set was chosen from these
     data: base, auto) compares all parameters, since a set chosen from degenerate data is
     degenerate too. A non-finite Jacobian is refused naming its parameters."""
     cols = list(range(robot.n_params)) if derived else list(robot.indices(free))
-    Q = m.q if len(m.q) <= 500 else m.q[np.linspace(0, len(m.q) - 1, 500).astype(int)]
+    rows = target_rows(robot, m)
+    pick = slice(None) if len(m.q) <= 500 else np.linspace(0, len(m.q) - 1, 500).astype(int)
+    Q = m.q[pick]
+    rows = None if rows is None else rows[pick]
     options = (measure, float(sigma_pos), float(sigma_rot), tuple(cols))
 
     def data_rank():
-        Jd = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot)[:, cols]
+        Jd = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot, rows)[:, cols]
         finite = np.isfinite(Jd).all(axis=0)
         if not finite.all():
             names = [robot.names[cols[k]] for k in np.flatnonzero(~finite)]
@@ -240,19 +296,28 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
 
     # both ranks are kept per model (and data): a calibration repeated on the same data, e.g.
     # with another method, does not redo them
-    digest = hashlib.blake2b(np.ascontiguousarray(Q, float).tobytes(), digest_size=20).hexdigest()
-    kept_d = _robot_memo("data rank", robot, options + (Q.shape, digest), data_rank)
+    h = hashlib.blake2b(np.ascontiguousarray(Q, float).tobytes(), digest_size=20)
+    if rows is not None:
+        h.update(np.ascontiguousarray(rows, np.int64).tobytes())
+    kept_d = _robot_memo("data rank", robot, options + (Q.shape, h.hexdigest()), data_rank)
 
     def random_rank():
-        Jr = weighted_jacobian(robot, robot.random_configurations(50, 0), measure, sigma_pos, sigma_rot)[:, cols]
+        Qr = robot.random_configurations(50, 0)
+        K = robot.n_targets
+        every = None if not robot.targets else np.tile(np.arange(K), len(Qr))
+        Jr = weighted_jacobian(robot, np.repeat(Qr, K, axis=0), measure, sigma_pos, sigma_rot, every)[:, cols]
         return tuple(select_identifiable(Jr, range(len(cols)))[0])
 
     kept_r = _robot_memo("random rank", robot, options, random_rank)
     if len(kept_d) < len(kept_r):
         lost = [robot.names[cols[k]] for k in kept_r if k not in set(kept_d)]
         n_q = distinct_configurations(m.q)
-        raise DataError(f"{m.source or '<measurements>'}: the {m.n_poses} calibration rows ({n_q} distinct "
-                        f"configurations) identify {len(kept_d)} parameter combinations, random poses "
+        where = (f"{n_q} distinct configurations" if rows is None else
+                 f"{n_q} distinct configurations, {distinct_measured_points(m.q, target_rows(robot, m))} "
+                 f"distinct configuration-target pairs of {robot.n_targets} targets")
+        random = "random poses" if rows is None else "random poses of every target"
+        raise DataError(f"{m.source or '<measurements>'}: the {m.n_poses} calibration rows ({where}) "
+                        f"identify {len(kept_d)} parameter combinations, {random} "
                         f"{len(kept_r)}: the rows cannot identify {', '.join(lost)} (measure poses that "
                         f"move every joint over its range"
                         + (", or name the parameters to identify with params / --params)" if derived else ")"))

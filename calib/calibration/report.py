@@ -389,6 +389,16 @@ def render_html(report: Mapping, text: str, images: Mapping[str, bytes] | None =
         [[p["name"], p["unit"], _num(p["nominal"], ".6f"), _num(p["identified"], ".6f"),
           _num(p["deviation"], ".6f"), _num(p["std"], ".3g") if p["free"] else "fixed"]
          for p in report.get("parameters", [])], left=2))
+    sel = report.get("model_selection")
+    if sel:
+        parts.append(f"<h2>Model selection</h2><p>Candidate parameter sets compared by cross-validation "
+                     f"(rule: {e(str(sel.get('rule')))}); chosen: <b>{e(str(sel.get('chosen')))}</b>, lowest "
+                     f"score: {e(str(sel.get('best')))}.</p>" + _table(
+                         ["candidate", "free parameters", "score", "score s.e.", "position RMS / mm",
+                          "rotation RMS / rad"],
+                         [[c["label"], c["n_free"], _num(c["score"]), _num(c["score_se"], ".3g"),
+                           _num(c["position_rms_mm"]), _num(c["rotation_rms_rad"])]
+                          for c in sel.get("candidates", [])]))
     for name, data in (images or {}).items():
         b64 = base64.b64encode(data).decode("ascii")
         parts.append(f"<h2>{e(name)}</h2><img alt=\"{e(name)}\" src=\"data:image/png;base64,{b64}\">")

@@ -37,8 +37,9 @@ cross-validated error (--cv K, when there are no validation rows) measures it.
 
 --params:
   auto   nested candidate sets (joint offsets + frames; + lengths; + twists; the identifiable
-         set) compared by K-fold cross-validation, the smallest within one standard error of the
-         best chosen (default when the data hold under 10 residuals per identifiable parameter)
+         set, each its own maximal identifiable subset) compared by K-fold cross-validation, the
+         lowest score chosen (default when the data hold under 10 residuals per identifiable
+         parameter)
   base   the identifiable set at these poses (the default otherwise): redundant partners held
          at nominal
   paper  all but u_z, u_alpha, v_x, v_z, v_alpha, v_gamma (the paper's Section 4.2)

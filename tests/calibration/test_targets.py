@@ -427,3 +427,79 @@ def test_cli_simulate_bad_targets_is_one_line(tmp_path, capsys, extra, message):
     err = capsys.readouterr().err
     assert code == 2 and err.splitlines()[-1] == f"calib: error: {message}"
     assert not out.exists()
+
+
+# ====================================================================== few configurations (issue 22, item 5)
+def test_closed_form_frames_of_three_targets_from_few_configurations(bundled_robot):
+    """Positions of three targets at 4 configurations: the linear position-only system needs 13
+    configurations whatever the number of targets; the frame the three points define at each
+    configuration is a full pose, and the frames follow as from full poses."""
+    truth = _with_targets(bundled_robot, rpy=(0.3, 0.2, -0.4))
+    T_meas_base = zyx_transform(1.5, -0.7, 0.3, 2.0, 0.3, -0.2)
+    truth = replace(truth, T_meas_base_ref=T_meas_base)
+    Q, ids = _every_target(bundled_robot.random_configurations(4, 5))
+    m = simulate_measurements(truth, Q, sigma_pos=0, position_only=True, targets=ids)
+    start = _with_targets(bundled_robot)
+    X, Y = estimate_target_frames(start, m.q, m.position, None, start.target_rows(m.target))
+    np.testing.assert_allclose(X, T_meas_base, atol=1e-9)        # noise-free, the true structure
+    for k in range(3):
+        np.testing.assert_allclose(Y[k][:3, 3], truth.T_flange_tool(k)[:3, 3], atol=1e-9)
+    with pytest.raises(DataError, match="too few distinct configurations"):   # two: no frame
+        estimate_target_frames(start, m.q[:6], m.position[:6], None, start.target_rows(m.target[:6]))
+
+
+@pytest.mark.parametrize("name", ["bundled", "ur5"])
+def test_three_reflectors_at_few_configurations_identify_what_their_pose_does(name):
+    """8 configurations x 3 reflectors, positions only (the closed-form frames used to need 13
+    configurations; without them the targets started at one point, which identifies only what
+    one point does: 29 parameters, not a4, alpha4, ...). The free set is the pose's robot part
+    plus the targets' points, and the truth is recovered."""
+    nominal = _nominal(name)
+    truth = _truth(nominal)
+    configs = nominal.random_configurations(8, 2)
+    Q, ids = _every_target(configs)
+    m = simulate_measurements(truth, Q, sigma_pos=0, position_only=True, targets=ids)
+    res = calibrate(nominal, m, params="base", sigma_pos=1e-5, cv=0)
+    pose = simulate_measurements(truth.for_target("A"), configs, sigma_pos=0, sigma_rot=0)
+    res_pose = calibrate(nominal, pose, params="base", sigma_pos=1e-5, sigma_rot=1e-5, cv=0)
+
+    def core(names):    # the robot and the measurement frame: everything but the tool / targets
+        return [n for n in names if not n.startswith("v_")]
+
+    assert res.status == res_pose.status == "converged"
+    # the same directions: the targets' points hold the last joint's parameters (a rigid motion of
+    # the flange that every target's v absorbs), and the 3 distances between the points are new
+    last = {p.name for p in nominal.parameters if p.joint == nominal.n_joints}
+    assert set(core(res_pose.free)) - set(core(res.free)) == last & set(res_pose.free)
+    assert set(core(res.free)) <= set(core(res_pose.free)) and {"a4", "alpha4"} <= set(res.free)
+    assert len(res.free) == len(res_pose.free) + 3
+    Qv = nominal.random_configurations(30, 9)
+    rows = np.arange(30) % 3
+    _, p_true = ChainKinematics(truth).frame_poses(Qv, targets=rows)
+    _, p_cal = ChainKinematics(res.robot).frame_poses(Qv, targets=rows)
+    assert np.abs(p_cal - p_true).max() < 1e-9        # metres: noise-free data
+
+
+def test_too_few_reflector_rows_are_counted_by_configuration_and_target():
+    """The counts of the refusal are those of three targets, not of the first (or of three
+    targets at one point), and the advice is the number of configurations that does suffice."""
+    nominal = _nominal("ur5")
+    truth = _truth(nominal)
+
+    def data(n):
+        Q, ids = _every_target(nominal.random_configurations(n, 2))
+        return simulate_measurements(truth, Q, sigma_pos=0, position_only=True, targets=ids)
+
+    with pytest.raises(DataError, match=r"^9 calibration rows at 3 distinct configuration\(s\) of 3 of the 3 "
+                                        r"targets \(9 distinct configuration-target pairs\) give 27 equations, fewer "
+                                        r"than the 33 identifiable parameters need; measure at least 5 "
+                                        r"distinct configurations with every target"):
+        calibrate(nominal, data(3), params="base", sigma_pos=1e-5, cv=0)
+    # 4 configurations: 36 equations, but three points on one tool give 6 per configuration and
+    # their 3 distances once
+    with pytest.raises(DataError, match=r"the 12 calibration rows \(4 distinct configurations, 12 distinct "
+                                        r"configuration-target pairs of 3 targets\) identify 27 parameter "
+                                        r"combinations, random poses of every target 33"):
+        calibrate(nominal, data(4), params="base", sigma_pos=1e-5, cv=0)
+    res = calibrate(nominal, data(5), params="base", sigma_pos=1e-5, cv=0)
+    assert res.status == "converged" and len(res.free) == 33 and res.after.position["max"] < 1e-9

@@ -280,7 +280,9 @@ def test_target_column_is_read_kept_by_subsets_and_written_back(tmp_path, robot)
     with pytest.raises(DataError) as info:
         calib.calibrate(robot, m, method="lm")
     # two targets are two flange->target transforms (49 parameters): 2 cal rows are far too few
-    assert str(info.value).startswith(f"{path}: 2 calibration poses give 6 equations, fewer than the")
+    assert str(info.value).startswith(f"{path}: 2 calibration rows at 2 distinct configuration(s) of 1 of the 2 "
+                                      f"targets (2 distinct configuration-target pairs) give 6 equations, "
+                                      f"fewer than the")
     with pytest.raises(DataError, match=r"target must be \(2,\) ids or None"):
         calib.Measurements.from_arrays(np.zeros((2, 6)), np.zeros((2, 3)), target=["a"])
 
