@@ -88,8 +88,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         beats is reported with status "local_minimum".
     params : "base": the identifiable set, each redundant partner held at its nominal value;
         "auto": nested candidate sets (joint offsets and frames; + lengths; + twists; the
-        identifiable set) compared by cross-validated held-out error, the smallest within one
-        standard error of the best chosen; "paper": all but u_z, u_alpha, v_x, v_z, v_alpha,
+        identifiable set; each its own maximal identifiable subset) compared by cross-validated
+        held-out error, the lowest chosen; "paper": all but u_z, u_alpha, v_x, v_z, v_alpha,
         v_gamma (Section 4.2); "all": every parameter (LM takes minimum-norm steps: combinations the data do not
         determine at the start stay there while the data barely see them, parameters without
         effect keep their values); or
