@@ -203,11 +203,15 @@ class GravityModel:
 
 class ComplianceTerm:
     """Scratch helper of :class:`calib.model.kinematics.ChainKinematics` for a model with compliance:
-    effective joint values and the compliance columns of the Jacobian (torques cached per Q)."""
+    effective joint values and the compliance columns of the Jacobian (torques cached per Q).
+
+    The joint-term interface (shared with :class:`calib.model.periodic.PeriodicTerm`): ``idx``
+    (k,) the parameters' indices, ``q_cols`` (k,) the theta_i (d_i) column each multiplies,
+    :meth:`offsets` the joint deviations, :meth:`factors` the multipliers (here tau_i(q))."""
 
     def __init__(self, robot: RobotModel):
         self.gravity_model: GravityModel = robot.gravity
-        self.c_idx = robot.indices(robot.compliance_names)
+        self.c_idx = self.idx = robot.indices(robot.compliance_names)
         self.q_cols = robot.indices([f"d{i}" if j.is_prismatic else f"theta{i}"
                                      for i, j in enumerate(robot.joints, start=1)])
         self._cache: dict = {}
@@ -225,7 +229,15 @@ class ComplianceTerm:
 
     def effective(self, Q: np.ndarray, values: np.ndarray) -> np.ndarray:
         """(N, n) q + C tau(q) for Q (N, n) at parameter ``values`` (full vector)."""
-        return Q + self.torques(Q) * values[self.c_idx]
+        return Q + self.offsets(Q, values)
+
+    def offsets(self, Q: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """(N, n) the deflection C tau(q) at Q (N, n), parameter ``values`` (full vector)."""
+        return self.torques(Q) * values[self.c_idx]
+
+    def factors(self, Q: np.ndarray) -> np.ndarray:
+        """(N, n) tau(q): the factor of each compliance's column."""
+        return self.torques(Q)
 
     def fill_columns(self, J: np.ndarray, Q: np.ndarray) -> None:
         """Set the compliance columns of J (N, rows, n_params), computed at the effective joint
