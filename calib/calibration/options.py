@@ -124,6 +124,7 @@ class CalibrationOptions:
     cv: int | None
     compliance: bool
     lm_variant: str
+    periodic: bool = False
 
     @property
     def folds(self) -> int:
@@ -140,7 +141,7 @@ class CalibrationOptions:
 def resolve_options(robot, measurements, validation=None, *, method="search-lm", params=None, sigma_pos=None,
                     sigma_rot=None, init_frames="auto", max_rounds=20, fixed_rounds=None, options=None,
                     loss="linear", loss_scale=3.0, outlier_k=5.0, cv=None, compliance=False,
-                    lm_variant="calib") -> CalibrationOptions:
+                    lm_variant="calib", periodic=False) -> CalibrationOptions:
     """Every option of :func:`calib.calibrate` and the types of its inputs checked before any work
     (as scipy's least_squares does), each error naming the option; the frozen options."""
     if not isinstance(method, str) or method.lower() not in METHODS:
@@ -179,5 +180,8 @@ def resolve_options(robot, measurements, validation=None, *, method="search-lm",
         raise ParameterError(f"validation must be a Measurements, got {type(validation).__name__}")
     if not isinstance(compliance, bool):
         raise ParameterError(f"compliance must be True or False, got {compliance!r}")
+    if not isinstance(periodic, bool):
+        raise ParameterError(f"periodic must be True or False, got {periodic!r}")
     return CalibrationOptions(method, params, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds,
-                              options or LMOptions(), loss, loss_scale, outlier_k, cv, compliance, lm_variant)
+                              options or LMOptions(), loss, loss_scale, outlier_k, cv, compliance, lm_variant,
+                              periodic=periodic)

@@ -46,6 +46,7 @@ from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.result import CalibrationResult, _parameter_table
 from calib.calibration.statistics import statistics_notes, statistics_stage
+from calib.calibration.terms import compliance_notes, resolve_terms
 from calib.calibration.validation import held_out_error, select_and_fit
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
@@ -63,7 +64,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
               validation: Measurements | None = None, loss: str = "linear", loss_scale: float = 3.0,
               outlier_k: float | None = 5.0, cv: int | None = None, compliance: bool = False,
               payload=None, gravity: Sequence[float] | None = None,
-              lm_variant: str = "calib") -> CalibrationResult:
+              lm_variant: str = "calib", periodic: bool = False, terms: str | None = None) -> CalibrationResult:
     """Identify the TM-MDH parameters of ``robot`` from ``measurements``.
 
     Parameters
@@ -115,6 +116,17 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         the measurements; gravity : (3,) m/s^2 in the URDF root frame (default -9.80665 along z).
         A ``robot`` that already has compliances (:meth:`RobotModel.with_compliance`) keeps them
         fixed unless ``compliance`` is True.
+    periodic : also identify periodic joint errors (:mod:`calib.model.periodic`: coefficients of
+        sin q_i, cos q_i, sin 2q_i, cos 2q_i added to each revolute joint's angle, rad): the
+        identifiable ones join the free set. A ``robot`` that already has them keeps them fixed
+        unless ``periodic`` is True.
+    terms : "auto": the joint terms (compliance when the URDF has real link masses, periodic
+        errors) chosen by cross-validated held-out error when the data hold many residual
+        components per parameter (:func:`calib.calibration.terms.choose_terms`; a note gives the
+        table), unless ``compliance`` or ``periodic`` is True or a payload or gravity is given;
+        None or "none" (default): only those asked for. ``result.robot`` carries every term it
+        was fitted with (its ``T_meas_tool(q)`` includes them; ``write_urdf`` writes them to the
+        sidecar beside the URDF).
     lm_variant : "calib" (default) or "paper": the LM of Eq. (27)-(28) as printed (mu I, mu reset
         to 0.001 lambda^+-1, unweighted residuals in mm and rad; :mod:`calib.solvers.paper_lm`), for
         methods "lm" and "c-lm" (not "search-lm").
@@ -126,8 +138,11 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     opts = resolve_options(robot, measurements, validation, method=method, params=params, sigma_pos=sigma_pos,
                            sigma_rot=sigma_rot, init_frames=init_frames, max_rounds=max_rounds,
                            fixed_rounds=fixed_rounds, options=options, loss=loss, loss_scale=loss_scale,
-                           outlier_k=outlier_k, cv=cv, compliance=compliance, lm_variant=lm_variant)
-    robot, notes = with_gravity_for(robot, opts.compliance, payload, gravity)
+                           outlier_k=outlier_k, cv=cv, compliance=compliance, lm_variant=lm_variant,
+                           periodic=periodic)
+    opts, notes = resolve_terms(robot, measurements, opts, terms, payload, gravity)
+    robot, gravity_notes = with_gravity_for(robot, opts.compliance, payload, gravity)
+    robot, notes = (robot.with_periodic() if opts.periodic else robot), notes + gravity_notes
     setup, prepare_notes = prepare(robot, measurements, validation, opts.init_frames)
     notes += prepare_notes + method_notes(setup, opts.method)
     robot, start, cal, val = setup.nominal, setup.start, setup.cal, setup.val     # (with the measured targets)
@@ -159,7 +174,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     stats = statistics_stage(setup, fit, problem)
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
              stats.predicted_holdout["position_rms"] * 1e3)
-    notes += statistics_notes(stats)
+    notes += statistics_notes(stats) + compliance_notes(fit.model, fit.free, stats.covariance)
     cross, cv_notes = held_out_error(setup, fit, problem, selection, opts.folds, opts.lm)
     notes += cv_notes
     accuracy = accuracy_after(accuracy, fit.model, fit.errors, val, robot.targets, kin)
