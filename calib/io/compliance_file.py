@@ -29,8 +29,9 @@ from calib.model.robot import RobotModel
 SIDECAR_FORMAT = "calib-compliance/1"
 SIDECAR_FORMAT_PERIODIC = "calib-compliance/2"
 _FORMATS = (SIDECAR_FORMAT, SIDECAR_FORMAT_PERIODIC)
-PERIODIC_NOTE = ("the calibrated URDF cannot hold the periodic joint errors either: they are in this "
-                 "record, which 'calib compensate --compliance' and 'calib evaluate --compliance' read")
+PERIODIC_NOTE = ("the calibrated URDF holds the geometry only (URDF cannot hold periodic joint errors); "
+                 "they are in this report and in the sidecar JSON written beside the URDF, which "
+                 "'calib compensate --compliance' and 'calib evaluate --compliance' read")
 
 
 def compliance_record(robot: RobotModel, std: dict[str, float] | None = None) -> dict:
@@ -55,7 +56,7 @@ def compliance_record(robot: RobotModel, std: dict[str, float] | None = None) ->
     if robot.has_periodic:
         rec["periodic"] = {n: float(v) for n, v in zip(robot.periodic_names, robot.periodic_values())}
         rec["periodic_std"] = sd(robot.periodic_names)
-        rec["note"] = (URDF_NOTE if comp else "the calibrated URDF holds the geometry only") + "; " + PERIODIC_NOTE
+        rec["note"] = (URDF_NOTE + "; the periodic joint errors likewise") if comp else PERIODIC_NOTE
     return rec
 
 
