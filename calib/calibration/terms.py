@@ -24,7 +24,7 @@ from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.validation import _standard_error, cross_validate
-from calib.errors import ParameterError
+from calib.errors import DataError, ParameterError
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 
@@ -168,14 +168,13 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     unusable input.
     """
     base = options or resolve_options(robot, measurements)
-    cands = [(lab, c, p) for lab, c, p in TERM_CANDIDATES if not c or _has_masses(robot)]
-    if any(j.is_prismatic for j in robot.joints) and all(j.is_prismatic for j in robot.joints):
-        cands = [x for x in cands if not x[2]]
+    n_rev = sum(not j.is_prismatic for j in robot.joints)
+    cands = [(lab, c, p) for lab, c, p in TERM_CANDIDATES if (not c or _has_masses(robot)) and (not p or n_rev)]
     if len(cands) == 1:
-        return TermsChoice(False, False, reason="no candidate term group (no link masses for compliance)")
+        return TermsChoice(False, False, reason="no candidate term group (no link masses for compliance, "
+                                                "no revolute joint for periodic errors)")
     cal = measurements.calibration()
     comp_per_pose = 6 if cal.has_orientation else 3
-    n_rev = sum(not j.is_prismatic for j in robot.joints)
     # the largest candidate's parameters, bounded by the geometric ones (6 per joint + 12 frames)
     n_max = 6 * robot.n_joints + 12 + (robot.n_joints if any(c for _, c, _ in cands) else 0) + 4 * n_rev
     per_param = cal.n_poses * comp_per_pose / n_max
@@ -205,7 +204,12 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
             fit, problem = fit_with(setup, choice.free, opts, outlier_k=None, keep=keep, kin=setup.kin)
         # the same rows, folds (seed) and whitening (the geometric fit's noise levels) for every
         # candidate: their row scores pair up
-        cv = cross_validate(setup, fit, problem, folds, options=base.lm, seed=seed)
+        try:
+            cv = cross_validate(setup, fit, problem, folds, options=base.lm, seed=seed)
+        except DataError:
+            if geo_scores is None:
+                raise
+            continue            # a fold's rows cannot identify this candidate: not a candidate
         if geo_scores is None:
             geo_scores = cv.row_scores
         rows[label] = cv.row_scores
@@ -250,7 +254,10 @@ def resolve_terms(robot: RobotModel, measurements: Measurements, options: Calibr
     # (a payload or gravity without compliance stays refused: compliance is a candidate with neither)
     if payload is not None or gravity is not None:
         return options, []
-    choice = choose_terms(robot, measurements, folds=options.folds, options=options)
+    try:
+        choice = choose_terms(robot, measurements, folds=options.folds, options=options)
+    except DataError as exc:
+        return options, [f"joint terms not judged: {exc}"]
     if not choice.table:
         return options, []
     summary = ", ".join(f"{t.label} {t.position_rms * 1e3:.4g} mm" for t in choice.table)
