@@ -31,8 +31,11 @@ compliance has no ``c<i>`` parameters and behaves exactly as before):
   :class:`GravityModel`; :meth:`calib.RobotModel.geometry` strips them again.
 * :class:`calib.model.kinematics.ChainKinematics` maps the joint values through
   :meth:`ComplianceTerm.effective` before forward kinematics (``ChainKinematics.effective``).
-* :func:`calib.model.jacobian.pose_jacobian` fills the compliance columns with
-  :meth:`ComplianceTerm.fill_columns`.
+* :func:`calib.model.jacobian.pose_jacobian` fills the compliance columns (theta_i's column times
+  :meth:`ComplianceTerm.factors`), as it does those of the periodic terms (:mod:`calib.model.periodic`).
+* :meth:`calib.RobotModel.T_meas_tool` (the public, reference kinematics) applies
+  :meth:`calib.RobotModel.joint_errors` (the deflection, and the periodic errors) to the
+  commanded joints: a calibrated model's public kinematics are the fitted ones.
 
 A calibrated URDF holds the geometry only; the compliances travel in a small JSON sidecar
 (:mod:`calib.io.compliance_file`, the same object as the ``"compliance"`` entry of the JSON
