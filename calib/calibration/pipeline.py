@@ -46,7 +46,7 @@ from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.result import CalibrationResult, _parameter_table
 from calib.calibration.statistics import statistics_notes, statistics_stage
-from calib.calibration.terms import compliance_notes, resolve_terms
+from calib.calibration.terms import compliance_notes, payload_note, resolve_terms
 from calib.calibration.validation import held_out_error, select_and_fit
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
@@ -174,7 +174,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     stats = statistics_stage(setup, fit, problem)
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
              stats.predicted_holdout["position_rms"] * 1e3)
-    notes += statistics_notes(stats) + compliance_notes(fit.model, fit.free, stats.covariance)
+    notes += statistics_notes(stats) + compliance_notes(fit.model, fit.free, stats.covariance) + \
+        payload_note(fit.model, problem)
     cross, cv_notes = held_out_error(setup, fit, problem, selection, opts.folds, opts.lm)
     notes += cv_notes
     accuracy = accuracy_after(accuracy, fit.model, fit.errors, val, robot.targets, kin)

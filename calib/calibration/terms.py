@@ -25,11 +25,16 @@ from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.validation import _standard_error, cross_validate
 from calib.errors import DataError, ParameterError
+from calib.model.compliance import GravityModel, Payload
+from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
+from calib.solvers.problem import Problem
 
 #: A compliance this many standard deviations below zero gets a note.
 NEGATIVE_COMPLIANCE_SIGMAS = 3.0
+#: The payload note: the relative change of the payload mass it reports the compliances' response to.
+PAYLOAD_STEP = 0.1
 #: choose_terms runs only when the calibration rows hold at least this many residual components
 #: per parameter of the largest candidate (geometry + both term groups): the term groups add
 #: 5 parameters per joint, and cross-validation needs many rows to judge them.
@@ -87,6 +92,50 @@ def compliance_notes(model: RobotModel, free, covariance: np.ndarray) -> list[st
                      f"compliances, are uncertain by as much as the masses, which their std does not include "
                      f"(give a URDF with the arm's real inertias)")
     return notes
+
+
+def payload_sensitivity(model: RobotModel, problem: Problem, step: float = PAYLOAD_STEP) -> dict[str, float]:
+    """How the fitted compliances answer a payload mass ``step`` (relative) heavier than the one
+    given: name -> relative change of each free compliance, to first order (one Gauss-Newton step
+    of the fit's problem with the torques of the heavier payload; the std of a compliance does not
+    include it). ``model`` : the fitted model (with compliance and a payload of nonzero mass);
+    ``problem`` : its fit's problem (kept rows, noise weights). {} without a payload."""
+    gm = model.gravity
+    if not model.has_compliance or gm.payload is None or gm.payload.mass <= 0:
+        return {}
+    heavier = GravityModel.from_chain(gm.chain, payload=Payload(gm.payload.mass * (1 + step), gm.payload.com_tool),
+                                      gravity=gm.gravity)
+    other = model.with_compliance(heavier, model.compliances())
+    x = model.values[problem.free]
+    R_meas = None if problem.R_meas_T is None else np.transpose(problem.R_meas_T, (0, 2, 1))
+    moved = Problem(ChainKinematics(other), problem.Q, problem.p_meas, R_meas, model.values, problem.free,
+                    problem.sigma_pos, problem.sigma_rot, targets=problem.targets)
+    base = problem.derived(values=model.values, loss="linear")
+    m = len(x)
+    A, g = np.zeros((m, m)), np.zeros(m)
+    for (r0, Jw), (r1, _) in zip(base.whitened_blocks(x), moved.whitened_blocks(x)):
+        J2 = Jw.reshape(-1, m)
+        A += J2.T @ J2
+        g += J2.T @ (r1 - r0).reshape(-1)
+    dx = -np.linalg.lstsq(A, g, rcond=1e-12)[0]
+    out = {}
+    names = [model.names[k] for k in problem.free]
+    for j, name in enumerate(names):
+        if name in model.compliance_names and model.value(name) != 0:
+            out[name] = float(dx[j] / model.value(name))
+    return out
+
+
+def payload_note(model: RobotModel, problem: Problem) -> list[str]:
+    """A note on how much the compliances depend on the payload mass given (see
+    :func:`payload_sensitivity`), or [] without a payload."""
+    sens = payload_sensitivity(model, problem)
+    if not sens:
+        return []
+    lo, hi = min(sens.values()), max(sens.values())
+    return [f"the compliances rest on the payload given ({model.gravity.payload.mass:g} kg): "
+            f"{PAYLOAD_STEP:.0%} more payload mass would change them by {lo:+.0%} to {hi:+.0%} "
+            f"({', '.join(f'{n} {v:+.0%}' for n, v in sens.items())}), which their std does not include"]
 
 
 @dataclass(frozen=True)

@@ -190,3 +190,27 @@ def test_cli_terms_auto_and_periodic(tmp_path, capsys):
     assert not sidecar_path(cal2).exists()
     assert main(["calibrate", "ur5", str(meas), "-o", str(cal2), "--cv", "0", "--periodic"]) == 0
     assert read_compliance(sidecar_path(cal2)).values is None
+
+
+def test_payload_note_predicts_the_refit():
+    """The note on the payload's mass: the first-order change of the compliances under a 10 %
+    heavier payload agrees with a calibration actually given the heavier payload."""
+    robot = calib.load_robot("ur10")
+    rng = np.random.default_rng(8)
+    payload = Payload(10.0, np.array([0.0, 0.05, 0.1]))
+    true = with_gravity(robot.with_changes(d2=3e-4), payload=payload, values=[0, 3e-6, 4e-6, 5e-6, 5e-6, 5e-6])
+    m = calib.simulate_measurements(true, robot.random_configurations(150, rng), sigma_pos=SIGMA_POS,
+                                    sigma_rot=SIGMA_ROT, rng=rng)
+    kw = dict(method="lm", params="base", cv=0, compliance=True)
+    a = calib.calibrate(robot, m, payload=payload, **kw)
+    b = calib.calibrate(robot, m, payload=Payload(11.0, payload.com_tool), **kw)
+    note = next(n for n in a.notes if n.startswith("the compliances rest on the payload given (10 kg)"))
+    predicted = {k: float(v) / 100 for k, v in re.findall(r"(c\d) ([+-]\d+)%", note)}
+    assert set(predicted) == {"c2", "c3", "c4", "c5", "c6"}
+    for name, rel in predicted.items():
+        actual = b.parameter(name).identified / a.parameter(name).identified - 1
+        # the note rounds to whole percent; first order in a 10 % step
+        assert abs(rel - actual) < 0.015 + 0.1 * abs(actual), (name, rel, actual)
+    assert max(abs(v) for v in predicted.values()) > 0.03        # the payload matters here
+    # no payload given: no such note
+    assert not any("rest on the payload" in n for n in calib.calibrate(robot, m, **kw).notes)
