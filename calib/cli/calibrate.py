@@ -121,7 +121,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     g = add_compliance(p, "calibrate")
     g.add_argument("--periodic", action="store_true",
                    help="periodic joint errors: coefficients of sin q, cos q, sin 2q, cos 2q added to each "
-                        "revolute joint's angle (urad), identified with the geometry (into the sidecar "
+                        "revolute joint's angle (rad), identified with the geometry (into the sidecar "
                         "CALIBRATED.compliance.json; evaluate and compensate --compliance read it)")
     g.add_argument("--terms", choices=("auto", "none"), default="none",
                    help="auto: compliance (when the URDF has real link masses) and periodic errors chosen "
