@@ -1,6 +1,7 @@
 """Accuracy on real measurements (issue 22): the 5-fold protocol of ../shared/realdata/README.md.
 
-Data sets:
+Data sets (a folder's ``NAME_inertial.urdf``, the same geometry with the link masses, is used
+for every method when present: the iiwa's):
 
 * ``rokae_cobot_lt50`` and ``iiwa7_optical`` from ``../shared/realdata`` (their ``folds/`` files:
   configuration i held out, ``set`` = ``val``, in fold i % 5); skipped with a note when the
@@ -22,6 +23,11 @@ calib's validation statistics do):
   measurement- and tool-frame parameter, by name (calib holds what they leave undetermined);
 * ``eb-map``: :func:`calib.calibration.eb_map.eb_map` with its defaults (the estimator alone,
   with its own outlier check; ``calibrate`` runs it behind its least-squares outlier stage);
+* the joint terms (issue 22, item 3): ``compliance`` (``compliance=True``: gravity compliance,
+  the torques from the URDF's masses), ``periodic`` (``periodic=True``: sin/cos of q_i and 2 q_i
+  added to each joint angle), ``both``, and ``terms-auto`` (``terms="auto"``: chosen by
+  cross-validation on the calibration rows, :func:`calib.calibration.terms.choose_terms`; the
+  chosen terms are printed);
 * diagnostics, only when named in ``--methods``: ``eb-map-all-rows`` and ``ls-ident-all-rows``,
   the same fits with the outlier check off (``outlier_k=None``).
 
@@ -64,7 +70,7 @@ TIAGO_CSV = ROOT / "examples" / "tiago_qualisys" / "measurements.csv"
 FOLDS = 5
 #: File rows of the TIAGo example's gross configuration (its tenth), left out of the benchmark.
 GROSS_TIAGO_ROWS = (31, 32, 33)
-METHODS = ("defaults", "ls-ident", "offsets", "eb-map")
+METHODS = ("defaults", "ls-ident", "offsets", "eb-map", "compliance", "periodic", "both", "terms-auto")
 #: Diagnostics, run only when named in --methods: EB-MAP and LS-ident with every row kept (no
 #: outlier check), to see what the outlier stage costs or gains on held-out rows.
 DIAGNOSTICS = ("eb-map-all-rows", "ls-ident-all-rows")
@@ -135,9 +141,19 @@ def fit(method: str, robot, m):
         val = m.validation()
         return res.robot, res.predicted_holdout(val.q, targets=None)["position_rms"]
     kwargs = {"ls-ident": {"params": "base"}, "offsets": {"params": offset_names(robot)},
-              "ls-ident-all-rows": {"params": "base", "outlier_k": None}}.get(method, {})
+              "ls-ident-all-rows": {"params": "base", "outlier_k": None},
+              "compliance": {"compliance": True}, "periodic": {"periodic": True},
+              "both": {"compliance": True, "periodic": True}, "terms-auto": {"terms": "auto"}}.get(method, {})
     res = calib.calibrate(robot, m, **kwargs)
+    if method == "terms-auto":
+        chosen = next((n.split(": ", 1)[1].split(" (")[0] for n in res.notes if n.startswith("joint terms chosen")),
+                      "not judged")
+        TERMS_CHOSEN.append(chosen)
     return res.robot, res.predicted_holdout["position_rms"]
+
+
+#: What terms-auto chose in each fold (printed after its row).
+TERMS_CHOSEN: list[str] = []
 
 
 def run(name: str, robot, folds, methods) -> dict[str, Score]:
@@ -162,6 +178,9 @@ def run(name: str, robot, folds, methods) -> dict[str, Score]:
                 f"{s.pos_mm:>10.4f}{(f'{s.rot_mrad:.4f}' if s.rot_mrad is not None else '-'):>11}"
                 f"{s.pred_ratio:>11.2f}{s.seconds:>9.2f}"))
         print(line, flush=True)
+        if method == "terms-auto" and TERMS_CHOSEN:
+            print(f"  {'':<18} chosen per fold: {', '.join(TERMS_CHOSEN)}", flush=True)
+            TERMS_CHOSEN.clear()
     return scores
 
 
@@ -174,7 +193,8 @@ def realdata_sets(data: Path):
         if not folder.is_dir():
             print(f"{name}: skipped ({folder} absent)")
             continue
-        robot = calib.load_robot(folder / f"{name}.urdf")
+        inertial = folder / f"{name}_inertial.urdf"
+        robot = calib.load_robot(inertial if inertial.is_file() else folder / f"{name}.urdf")
         folds = [calib.read_measurements(folder / "folds" / f"{name}_fold{k}.csv", robot) for k in range(FOLDS)]
         yield name, robot, folds
 

@@ -309,7 +309,7 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
     kin = setup.kin
     rows_t = target_rows(start, cal)
     mu_all = start.values.copy()
-    candidates = np.array([i for i, p in enumerate(start.parameters) if p.group != "compliance"], int)
+    candidates = np.array([i for i, p in enumerate(start.parameters) if p.group not in ("compliance", "periodic")], int)
     everything = Problem(kin, cal.q, cal.position, cal.rotation, mu_all, candidates, START_SIGMA_POS,
                          START_SIGMA_ROT, targets=rows_t)
     free, free_notes = _free_set(everything, start, candidates)

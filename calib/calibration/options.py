@@ -127,6 +127,7 @@ class CalibrationOptions:
     compliance: bool
     lm_variant: str
     estimator: str = "auto"
+    periodic: bool = False
 
     @property
     def folds(self) -> int:
@@ -143,7 +144,7 @@ class CalibrationOptions:
 def resolve_options(robot, measurements, validation=None, *, method="search-lm", params=None, sigma_pos=None,
                     sigma_rot=None, init_frames="auto", max_rounds=20, fixed_rounds=None, options=None,
                     loss="linear", loss_scale=3.0, outlier_k=5.0, cv=None, compliance=False,
-                    lm_variant="calib", estimator="auto") -> CalibrationOptions:
+                    lm_variant="calib", estimator="auto", periodic=False) -> CalibrationOptions:
     """Every option of :func:`calib.calibrate` and the types of its inputs checked before any work
     (as scipy's least_squares does), each error naming the option; the frozen options."""
     if not isinstance(method, str) or method.lower() not in METHODS:
@@ -190,9 +191,11 @@ def resolve_options(robot, measurements, validation=None, *, method="search-lm",
                  "parameter under its prior)" if params is not None else
                  f"loss {loss!r} (MAP is least squares with a prior)" if loss != "linear" else
                  "lm_variant 'paper'" if lm_variant == "paper" else
-                 "compliance (the compliances have no prior group yet)" if compliance else None)
+                 "compliance or periodic terms (they have no prior group yet)" if compliance or periodic else None)
         if clash:
             raise ParameterError(f"estimator 'map' cannot be combined with {clash}: use estimator 'ls'")
+    if not isinstance(periodic, bool):
+        raise ParameterError(f"periodic must be True or False, got {periodic!r}")
     return CalibrationOptions(method, params, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds,
                               options or LMOptions(), loss, loss_scale, outlier_k, cv, compliance, lm_variant,
-                              estimator)
+                              estimator, periodic)

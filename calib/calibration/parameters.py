@@ -146,7 +146,7 @@ def candidate_sets(robot: RobotModel, identifiable: Sequence[str], Q: np.ndarray
         prismatic = robot.joints[p.joint - 1].is_prismatic
         return p.kind == ("d" if prismatic else "theta")
 
-    steps = [("offsets+frames", lambda p: p.group in ("u", "v", "compliance") or offset(p)),
+    steps = [("offsets+frames", lambda p: p.group in ("u", "v", "compliance", "periodic") or offset(p)),
              ("+lengths", lambda p: p.kind in ("d", "a")),
              ("+twists", lambda p: p.kind in ("alpha", "beta"))]
     out, chosen = [], set()
@@ -159,21 +159,26 @@ def candidate_sets(robot: RobotModel, identifiable: Sequence[str], Q: np.ndarray
     return out
 
 
-def _compliance_filter(robot: RobotModel, free: Sequence[str], compliance: bool,
+def _compliance_filter(robot: RobotModel, free: Sequence[str], options: CalibrationOptions,
                        notes: list) -> tuple[str, ...]:
-    """``free`` without the compliance parameters unless ``compliance``; with it, a note naming
-    the compliances not in ``free`` (the identifiable set leaves out those the data cannot see)."""
-    comp = set(robot.compliance_names)
-    if not comp:
-        return tuple(free)
-    if not compliance:
-        return tuple(n for n in free if n not in comp)
-    unseen = [n for n in robot.compliance_names if n not in free]
-    note = (f"compliance not identifiable from these poses (no gravity torque, or tied to "
-            f"the geometry), held at its value: {', '.join(unseen)}")
-    if unseen and note not in notes:
-        notes.append(note)
-    return tuple(free)
+    """``free`` without the joint terms not asked for: the compliance parameters unless
+    ``options.compliance``, the periodic ones unless ``options.periodic``; for those asked for, a
+    note naming the ones not in ``free`` (the identifiable set leaves out what the data cannot see)."""
+    drop = set()
+    for names, wanted, what in (
+            (robot.compliance_names, options.compliance,
+             "compliance not identifiable from these poses (no gravity torque, or tied to the geometry)"),
+            (robot.periodic_names, options.periodic,
+             "periodic joint errors not identifiable from these poses (tied to the geometry or to "
+             "one another over the joint ranges)")):
+        if not wanted:
+            drop |= set(names)
+            continue
+        unseen = [n for n in names if n not in free]
+        note = f"{what}, held at its value: {', '.join(unseen)}"
+        if unseen and note not in notes:
+            notes.append(note)
+    return tuple(n for n in free if n not in drop)
 
 
 @dataclass(frozen=True)
@@ -209,7 +214,7 @@ def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) ->
     want, ident = params, None
     if params is None or (isinstance(params, str) and params.strip().lower() == "auto"):
         ident = _compliance_filter(start, identifiable_set(start, cal.q, setup.measure, *weights,
-                                                          target_rows(start, cal)), options.compliance, notes)
+                                                          target_rows(start, cal)), options, notes)
         per_param = cal.n_poses * setup.components_per_pose / max(len(ident), 1)
         if params is None and options.estimator == "map":
             want = "map"
@@ -217,7 +222,7 @@ def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) ->
             few = per_param < AUTO_BELOW_COMPONENTS_PER_PARAM
             no_cv = options.cv is not None and options.cv < 2
             regularise = (few and options.estimator == "auto" and options.loss == "linear"
-                          and options.lm_variant == "calib" and not options.compliance)
+                          and options.lm_variant == "calib" and not options.compliance and not options.periodic)
             want = "map" if regularise else "auto" if (few and not no_cv) else "base"
             what = {"map": "estimator 'map' (EB-MAP)", "auto": "parameter set 'auto'",
                     "base": "least squares on the identifiable set"}[want]
@@ -259,7 +264,7 @@ def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) ->
     if label == "auto" and options.folds < 2:
         raise ParameterError("params 'auto' compares candidate sets by cross-validation: cv must be >= 2")
     if label in PARAM_SETS and label != "auto":     # a named set; a list of names is honoured as given
-        filtered = _compliance_filter(start, free, options.compliance, notes)
+        filtered = _compliance_filter(start, free, options, notes)
         if not derived and filtered != tuple(free):
             deficit = _set_rank_deficit(setup, filtered, weights)
         free = filtered

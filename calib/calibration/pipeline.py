@@ -48,6 +48,7 @@ from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.regularised import map_fit_stage
 from calib.calibration.result import CalibrationResult, _parameter_table
 from calib.calibration.statistics import statistics_notes, statistics_stage
+from calib.calibration.terms import compliance_notes, payload_note, resolve_terms
 from calib.calibration.validation import held_out_error, select_and_fit
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
@@ -65,7 +66,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
               validation: Measurements | None = None, loss: str = "linear", loss_scale: float = 3.0,
               outlier_k: float | None = 5.0, cv: int | None = None, compliance: bool = False,
               payload=None, gravity: Sequence[float] | None = None,
-              lm_variant: str = "calib", estimator: str = "auto") -> CalibrationResult:
+              lm_variant: str = "calib", estimator: str = "auto", periodic: bool = False,
+              terms: str | None = "auto") -> CalibrationResult:
     """Identify the TM-MDH parameters of ``robot`` from ``measurements``.
 
     Parameters
@@ -118,6 +120,17 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         the measurements; gravity : (3,) m/s^2 in the URDF root frame (default -9.80665 along z).
         A ``robot`` that already has compliances (:meth:`RobotModel.with_compliance`) keeps them
         fixed unless ``compliance`` is True.
+    periodic : also identify periodic joint errors (:mod:`calib.model.periodic`: coefficients of
+        sin q_i, cos q_i, sin 2q_i, cos 2q_i added to each revolute joint's angle, rad): the
+        identifiable ones join the free set. A ``robot`` that already has them keeps them fixed
+        unless ``periodic`` is True.
+    terms : "auto" (default): the joint terms (compliance when the URDF has real link masses, periodic
+        errors) chosen by cross-validated held-out error when the data hold many residual
+        components per parameter (:func:`calib.calibration.terms.choose_terms`; a note gives the
+        table), unless ``compliance`` or ``periodic`` is True or a payload or gravity is given;
+        None or "none": only those asked for. ``result.robot`` carries every term it
+        was fitted with (its ``T_meas_tool(q)`` includes them; ``write_urdf`` writes them to the
+        sidecar beside the URDF).
     lm_variant : "calib" (default) or "paper": the LM of Eq. (27)-(28) as printed (mu I, mu reset
         to 0.001 lambda^+-1, unweighted residuals in mm and rad; :mod:`calib.solvers.paper_lm`), for
         methods "lm" and "c-lm" (not "search-lm").
@@ -138,8 +151,11 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                            sigma_rot=sigma_rot, init_frames=init_frames, max_rounds=max_rounds,
                            fixed_rounds=fixed_rounds, options=options, loss=loss, loss_scale=loss_scale,
                            outlier_k=outlier_k, cv=cv, compliance=compliance, lm_variant=lm_variant,
-                           estimator=estimator)
-    robot, notes = with_gravity_for(robot, opts.compliance, payload, gravity)
+                           estimator=estimator, periodic=periodic)
+    opts, notes = resolve_terms(robot, measurements, opts, terms, payload, gravity)
+    robot, gravity_notes = with_gravity_for(robot, opts.compliance, payload, gravity)
+    robot = robot.with_periodic() if opts.periodic else robot
+    notes += gravity_notes
     setup, prepare_notes = prepare(robot, measurements, validation, opts.init_frames)
     notes += prepare_notes + method_notes(setup, opts.method)
     robot, start, cal, val = setup.nominal, setup.start, setup.cal, setup.val     # (with the measured targets)
@@ -176,7 +192,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     stats = statistics_stage(setup, fit, problem)
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
              stats.predicted_holdout["position_rms"] * 1e3)
-    notes += statistics_notes(stats)
+    notes += statistics_notes(stats) + compliance_notes(fit.model, fit.free, stats.covariance) + \
+        payload_note(fit.model, problem)
     cross, cv_notes = held_out_error(setup, fit, problem, selection, opts.folds, opts.lm)
     notes += cv_notes
     accuracy = accuracy_after(accuracy, fit.model, fit.errors, val, robot.targets, kin)

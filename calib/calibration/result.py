@@ -15,7 +15,6 @@ from calib.units import display_unit, display_value
 from calib.calibration.fit import NoiseEstimate, Outlier
 from calib.calibration.validation import CrossValidation, ModelSelection
 from calib.errors import ParameterError
-from calib.model.compliance import URDF_NOTE
 from calib.model.robot import RobotModel
 from calib.model.spatial import zyx_parameters
 
@@ -149,21 +148,24 @@ class CalibrationResult:
     def write_urdf(self, path: str | Path) -> None:
         """Write the calibrated model as a URDF (see :func:`calib.io.urdf_writer.write_calibrated_urdf`).
 
-        The URDF holds the geometry; with compliance, the compliances go to the sidecar
-        :func:`calib.io.compliance_file.sidecar_path` beside it (:func:`calib.io.compliance_file.write_sidecar`)."""
+        The URDF holds the geometry; with joint terms (compliance, periodic errors) these go to the
+        sidecar :func:`calib.io.compliance_file.sidecar_path` beside it
+        (:func:`calib.io.compliance_file.write_sidecar`): the URDF read with the sidecar
+        (:func:`calib.io.compliance_file.apply_record`, torques from the nominal URDF) is
+        ``self.robot``."""
         from calib.io.urdf_writer import write_calibrated_urdf
 
         write_calibrated_urdf(self.robot.geometry(), path, nominal=self.nominal.geometry(),
                               estimated=self.estimated_frames)
-        if self.robot.has_compliance:
+        if self.robot.has_joint_terms:
             from calib.io.compliance_file import sidecar_path, write_sidecar
 
             write_sidecar(sidecar_path(path), self.compliance_record())
 
     def compliance_record(self) -> dict | None:
-        """The compliances with their std, payload and gravity (:func:`calib.io.compliance_file.compliance_record`),
-        None for a model without compliance."""
-        if not self.robot.has_compliance:
+        """The compliances and periodic terms with their std, payload and gravity
+        (:func:`calib.io.compliance_file.compliance_record`), None for a model without them."""
+        if not self.robot.has_joint_terms:
             return None
         from calib.io.compliance_file import compliance_record
 
@@ -265,8 +267,8 @@ class CalibrationResult:
             lines += ["", self.selection.format()]
         w = max([10] + [len(p.name) + 1 for p in self.parameters])
         lines += ["", f"{'parameter':<{w}}{'unit':>5}{'nominal':>14}{'identified':>14}{'deviation':>13}{'std':>11}"]
-        if self.robot.has_compliance:
-            lines.insert(-1, f"  note: {URDF_NOTE}")
+        if self.robot.has_joint_terms:
+            lines.insert(-1, f"  note: {self.compliance_record()['note']}")
         for p in self.parameters:
             unit = display_unit(p.unit)
             std = "fixed" if not p.free else f"{display_value(p.std, p.unit):.3g}"

@@ -124,7 +124,16 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "the plots embedded; no external links) for a person or a customer")
     add_file_format(p, tracker=True)
     add_frames(p)
-    add_compliance(p, "calibrate")
+    g = add_compliance(p, "calibrate")
+    g.add_argument("--periodic", action="store_true",
+                   help="periodic joint errors: coefficients of sin q, cos q, sin 2q, cos 2q added to each "
+                        "revolute joint's angle (rad), identified with the geometry (into the sidecar "
+                        "CALIBRATED.compliance.json; evaluate and compensate --compliance read it)")
+    g.add_argument("--terms", choices=("auto", "none"), default="auto",
+                   help="auto (default): compliance (when the URDF has real link masses) and periodic errors "
+                        "chosen by cross-validated held-out error on data with many rows per parameter "
+                        "(20 residual components or more per parameter of the largest candidate; a note "
+                        "gives the table); none: only --compliance / --periodic")
     add_verbose(p)
     p.set_defaults(func=run)
     return p
@@ -153,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
     if (payload is not None or gravity is not None) and not args.compliance:
         raise ParameterError("--payload-kg and --gravity only matter with --compliance")
     out_sidecar = None
-    if args.compliance:
+    if args.compliance or args.periodic or args.terms == "auto":
         from calib.io.compliance_file import sidecar_path
 
         out_sidecar = outputs.add(sidecar_path(out_urdf))
@@ -171,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
                                      sigma_rot=args.sigma_rot_rad, validation=validation, loss=args.loss,
                                      outlier_k=args.outlier_k, cv=args.cv, compliance=args.compliance,
                                      payload=payload, gravity=gravity, lm_variant=args.lm_variant,
-                                     estimator=args.estimator)
+                                     estimator=args.estimator, periodic=args.periodic, terms=args.terms)
     except DataError as exc:  # about the data as a whole (too few poses): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
@@ -184,8 +193,9 @@ def run(args: argparse.Namespace) -> int:
         write_calibrated_urdf(result.robot.geometry(), p, nominal=result.nominal.geometry(),
                               estimated=result.estimated_frames)))
     frames = written_frames[0]
-    if out_sidecar is not None:
+    if out_sidecar is not None and result.robot.has_joint_terms:
         outputs.stage(out_sidecar, json_text(result.compliance_record()))
+    out_sidecar = out_sidecar if result.robot.has_joint_terms else None
     text = result.format()
     images = {}
     if plot_paths or out_html is not None:

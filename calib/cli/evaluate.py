@@ -83,7 +83,11 @@ def _evaluate_compliance(robot, args):
                              f"the gravity torques")
     robot = with_compliance_file(robot, args, torques_from=nominal,
                                  hint=" (the report or the compliance sidecar of the calibration)")
-    if args.compliance is not None:
+    if args.compliance is not None and robot.has_periodic:
+        largest = max(abs(v) for v in robot.periodic_values()) * 1e6
+        sys.stderr.write(f"{PROG}: note: periodic joint errors of {args.compliance} applied "
+                         f"({len(robot.periodic_names)} coefficients, the largest {largest:.4g} urad)\n")
+    if args.compliance is not None and robot.has_compliance:
         from calib.units import DISPLAY_UNITS
 
         gm = robot.gravity

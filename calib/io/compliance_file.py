@@ -1,10 +1,14 @@
-"""The compliance sidecar file: joint compliances beside a calibrated URDF, as JSON.
+"""The compliance sidecar file: the joint terms of a calibrated model beside its URDF, as JSON.
 
-A URDF cannot hold joint compliance (:mod:`calib.model.compliance`), so ``calib calibrate
---compliance`` writes them to ``NAME.compliance.json`` beside ``NAME.urdf`` (:func:`sidecar_path`,
-:func:`write_sidecar`); the record (:func:`compliance_record`) is also the ``"compliance"`` entry
-of the JSON report. :func:`read_compliance` reads either back, :func:`apply_record` gives a model
-its compliances. Values in SI units (rad/(N m), m/N); the payload's centre of mass in mm.
+A URDF cannot hold joint compliance (:mod:`calib.model.compliance`) nor periodic joint errors
+(:mod:`calib.model.periodic`), so ``calib calibrate --compliance`` / ``--periodic`` writes them
+to ``NAME.compliance.json`` beside ``NAME.urdf`` (:func:`sidecar_path`, :func:`write_sidecar`);
+the record (:func:`compliance_record`) is also the ``"compliance"`` entry of the JSON report.
+:func:`read_compliance` reads either back, :func:`apply_record` gives a model its joint terms.
+Values in SI units (rad/(N m), m/N; periodic coefficients rad); the payload's centre of mass in
+mm. A record with periodic terms has the format ``calib-compliance/2`` (``"periodic"``: name ->
+rad; ``"compliance"`` null without compliance); one with compliance alone keeps
+``calib-compliance/1``, which earlier readers read.
 """
 from __future__ import annotations
 
@@ -21,25 +25,39 @@ from calib.io.fileio import atomic_write_text
 from calib.model.compliance import URDF_NOTE, GravityModel, Payload, _finite_vector
 from calib.model.robot import RobotModel
 
-#: Format tag of the compliance sidecar file.
+#: Format tag of the compliance sidecar file (compliance only), and of one with periodic terms.
 SIDECAR_FORMAT = "calib-compliance/1"
+SIDECAR_FORMAT_PERIODIC = "calib-compliance/2"
+_FORMATS = (SIDECAR_FORMAT, SIDECAR_FORMAT_PERIODIC)
+PERIODIC_NOTE = ("the calibrated URDF holds the geometry only (URDF cannot hold periodic joint errors); "
+                 "they are in this report and in the sidecar JSON written beside the URDF, which "
+                 "'calib compensate --compliance' and 'calib evaluate --compliance' read")
 
 
 def compliance_record(robot: RobotModel, std: dict[str, float] | None = None) -> dict:
-    """The JSON-ready compliance record of a model with compliance: values in SI units
-    (rad/(N m), m/N), their std (SI, None when fixed), the payload and gravity it was identified
-    with, and the note that the URDF holds the geometry only."""
-    gm: GravityModel = robot.gravity
+    """The JSON-ready record of a model's joint terms (compliance, periodic): values in SI units
+    (rad/(N m), m/N; rad), their std (SI, None when fixed), the payload and gravity the
+    compliances were identified with, and the note that the URDF holds the geometry only."""
+    gm: GravityModel | None = robot.gravity
     std = std or {}
-    return {"format": SIDECAR_FORMAT,
-            "joints": list(robot.joint_names),
-            "units": {n: robot.parameters[robot.index(n)].unit for n in robot.compliance_names},
-            "compliance": {n: float(v) for n, v in zip(robot.compliance_names, robot.compliances())},
-            "std": {n: (None if n not in std or not math.isfinite(std[n]) else float(std[n]))
-                    for n in robot.compliance_names},
-            "payload": None if gm.payload is None else gm.payload.to_dict(),
-            "gravity_m_s2": [float(x) for x in gm.gravity],
-            "note": URDF_NOTE}
+
+    def sd(names):
+        return {n: (None if n not in std or not math.isfinite(std[n]) else float(std[n])) for n in names}
+
+    comp = robot.compliance_names
+    rec = {"format": SIDECAR_FORMAT_PERIODIC if robot.has_periodic else SIDECAR_FORMAT,
+           "joints": list(robot.joint_names),
+           "units": {n: robot.parameters[robot.index(n)].unit for n in comp},
+           "compliance": {n: float(v) for n, v in zip(comp, robot.compliances())} if comp else None,
+           "std": sd(comp),
+           "payload": None if gm is None or gm.payload is None else gm.payload.to_dict(),
+           "gravity_m_s2": None if gm is None else [float(x) for x in gm.gravity],
+           "note": URDF_NOTE}
+    if robot.has_periodic:
+        rec["periodic"] = {n: float(v) for n, v in zip(robot.periodic_names, robot.periodic_values())}
+        rec["periodic_std"] = sd(robot.periodic_names)
+        rec["note"] = (URDF_NOTE + "; the periodic joint errors likewise") if comp else PERIODIC_NOTE
+    return rec
 
 
 def sidecar_path(urdf_path: str | Path) -> Path:
@@ -55,13 +73,16 @@ def write_sidecar(path: str | Path, record: dict) -> None:
 
 @dataclass(frozen=True)
 class ComplianceRecord:
-    """Compliances read from a sidecar or a JSON report: values (n,) SI, in joint order, the
-    joint names, and the payload and gravity of the calibration (None / (3,) m/s^2)."""
+    """Joint terms read from a sidecar or a JSON report: compliance ``values`` (n,) SI, in joint
+    order (None when the record has none), the joint names, the payload and gravity of the
+    calibration (None / (3,) m/s^2, None without compliance), and ``periodic``: the periodic
+    coefficients by name (rad; None without them)."""
 
     joints: tuple[str, ...]
-    values: np.ndarray
+    values: np.ndarray | None
     payload: Payload | None
-    gravity: np.ndarray
+    gravity: np.ndarray | None
+    periodic: dict[str, float] | None = None
 
 
 def read_compliance(path: str | Path) -> ComplianceRecord:
@@ -75,31 +96,40 @@ def read_compliance(path: str | Path) -> ComplianceRecord:
         raise ParameterError(f"{path}: file not found") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ParameterError(f"{path}: not a JSON file ({exc})") from None
-    rec = doc.get("compliance") if isinstance(doc, dict) and doc.get("format") != SIDECAR_FORMAT else doc
-    if not isinstance(rec, dict) or rec.get("format") != SIDECAR_FORMAT:
-        raise ParameterError(f"{path}: no compliance record (expected a {SIDECAR_FORMAT!r} sidecar or a "
-                             f"calibration report made with --compliance)")
+    rec = doc.get("compliance") if isinstance(doc, dict) and doc.get("format") not in _FORMATS else doc
+    if not isinstance(rec, dict) or rec.get("format") not in _FORMATS:
+        raise ParameterError(f"{path}: no compliance record (expected a {SIDECAR_FORMAT!r} or "
+                             f"{SIDECAR_FORMAT_PERIODIC!r} sidecar or a calibration report made with "
+                             f"--compliance or --periodic)")
     try:
         joints = tuple(str(j) for j in rec["joints"])
-        vals = [rec["compliance"][f"c{i}"] for i in range(1, len(joints) + 1)]
-        values = np.array([float(v) for v in vals])
-        pl = rec.get("payload")
-        payload = None if pl is None else Payload(pl["mass_kg"], np.asarray(pl["com_mm"], float) * 1e-3)
-        gravity = _finite_vector(rec["gravity_m_s2"], "gravity_m_s2")
-    except (KeyError, TypeError, ValueError) as exc:
+        values = payload = gravity = periodic = None
+        if rec["compliance"] is not None or rec["format"] == SIDECAR_FORMAT:
+            vals = [rec["compliance"][f"c{i}"] for i in range(1, len(joints) + 1)]
+            values = np.array([float(v) for v in vals])
+            pl = rec.get("payload")
+            payload = None if pl is None else Payload(pl["mass_kg"], np.asarray(pl["com_mm"], float) * 1e-3)
+            gravity = _finite_vector(rec["gravity_m_s2"], "gravity_m_s2")
+        if rec["format"] == SIDECAR_FORMAT_PERIODIC:
+            periodic = {str(k): float(v) for k, v in rec["periodic"].items()}
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ParameterError(f"{path}: malformed compliance record: {exc!r}") from None
     except ParameterError as exc:
         raise ParameterError(f"{path}: {exc}") from None
-    if not np.all(np.isfinite(values)):
-        raise ParameterError(f"{path}: compliance values must be finite numbers")
-    return ComplianceRecord(joints, values, payload, gravity)
+    if (values is not None and not np.all(np.isfinite(values))) or \
+            (periodic is not None and not all(math.isfinite(v) for v in periodic.values())):
+        raise ParameterError(f"{path}: compliance and periodic values must be finite numbers")
+    if values is None and periodic is None:
+        raise ParameterError(f"{path}: the record holds neither compliances nor periodic terms")
+    return ComplianceRecord(joints, values, payload, gravity, periodic)
 
 
 def apply_record(robot: RobotModel, record: ComplianceRecord, *, payload: Payload | None = None,
                  gravity: Sequence[float] | None = None, torques_from: RobotModel | None = None,
                  source: str | Path = "compliance") -> RobotModel:
-    """``robot`` (geometry) with the record's compliances, and the record's payload and gravity
-    unless others are given (the payload may differ between calibration and use).
+    """``robot`` (geometry) with the record's joint terms: its compliances, with the record's
+    payload and gravity unless others are given (the payload may differ between calibration and
+    use), and its periodic coefficients.
 
     torques_from : the model whose URDF gives the torques (default ``robot``). Calibration
     computes them on the nominal URDF; pass the nominal model to reproduce the calibrated model
@@ -108,7 +138,18 @@ def apply_record(robot: RobotModel, record: ComplianceRecord, *, payload: Payloa
     if tuple(record.joints) != robot.joint_names:
         raise ParameterError(f"{source}: the compliances are for joints {list(record.joints)}, the "
                              f"robot has {list(robot.joint_names)}")
-    src = robot if torques_from is None else torques_from
-    gm = GravityModel.for_robot(src, payload=record.payload if payload is None else payload,
-                                gravity=record.gravity if gravity is None else gravity)
-    return robot.with_compliance(gm, record.values)
+    if record.values is None:
+        if payload is not None or gravity is not None:
+            raise ParameterError(f"{source}: holds no compliances: a payload or gravity does not apply")
+    else:
+        src = robot if torques_from is None else torques_from
+        gm = GravityModel.for_robot(src, payload=record.payload if payload is None else payload,
+                                    gravity=record.gravity if gravity is None else gravity)
+        robot = robot.with_compliance(gm, record.values)
+    if record.periodic is not None:
+        names = robot.with_periodic().periodic_names
+        if set(names) != set(record.periodic):
+            raise ParameterError(f"{source}: periodic terms {sorted(record.periodic)} do not match the "
+                                 f"robot's revolute joints ({', '.join(names)})")
+        robot = robot.with_periodic([record.periodic[n] for n in names])
+    return robot

@@ -31,8 +31,11 @@ compliance has no ``c<i>`` parameters and behaves exactly as before):
   :class:`GravityModel`; :meth:`calib.RobotModel.geometry` strips them again.
 * :class:`calib.model.kinematics.ChainKinematics` maps the joint values through
   :meth:`ComplianceTerm.effective` before forward kinematics (``ChainKinematics.effective``).
-* :func:`calib.model.jacobian.pose_jacobian` fills the compliance columns with
-  :meth:`ComplianceTerm.fill_columns`.
+* :func:`calib.model.jacobian.pose_jacobian` fills the compliance columns (theta_i's column times
+  :meth:`ComplianceTerm.factors`), as it does those of the periodic terms (:mod:`calib.model.periodic`).
+* :meth:`calib.RobotModel.T_meas_tool` (the public, reference kinematics) applies
+  :meth:`calib.RobotModel.joint_errors` (the deflection, and the periodic errors) to the
+  commanded joints: a calibrated model's public kinematics are the fitted ones.
 
 A calibrated URDF holds the geometry only; the compliances travel in a small JSON sidecar
 (:mod:`calib.io.compliance_file`, the same object as the ``"compliance"`` entry of the JSON
@@ -203,11 +206,15 @@ class GravityModel:
 
 class ComplianceTerm:
     """Scratch helper of :class:`calib.model.kinematics.ChainKinematics` for a model with compliance:
-    effective joint values and the compliance columns of the Jacobian (torques cached per Q)."""
+    effective joint values and the compliance columns of the Jacobian (torques cached per Q).
+
+    The joint-term interface (shared with :class:`calib.model.periodic.PeriodicTerm`): ``idx``
+    (k,) the parameters' indices, ``q_cols`` (k,) the theta_i (d_i) column each multiplies,
+    :meth:`offsets` the joint deviations, :meth:`factors` the multipliers (here tau_i(q))."""
 
     def __init__(self, robot: RobotModel):
         self.gravity_model: GravityModel = robot.gravity
-        self.c_idx = robot.indices(robot.compliance_names)
+        self.c_idx = self.idx = robot.indices(robot.compliance_names)
         self.q_cols = robot.indices([f"d{i}" if j.is_prismatic else f"theta{i}"
                                      for i, j in enumerate(robot.joints, start=1)])
         self._cache: dict = {}
@@ -225,7 +232,15 @@ class ComplianceTerm:
 
     def effective(self, Q: np.ndarray, values: np.ndarray) -> np.ndarray:
         """(N, n) q + C tau(q) for Q (N, n) at parameter ``values`` (full vector)."""
-        return Q + self.torques(Q) * values[self.c_idx]
+        return Q + self.offsets(Q, values)
+
+    def offsets(self, Q: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """(N, n) the deflection C tau(q) at Q (N, n), parameter ``values`` (full vector)."""
+        return self.torques(Q) * values[self.c_idx]
+
+    def factors(self, Q: np.ndarray) -> np.ndarray:
+        """(N, n) tau(q): the factor of each compliance's column."""
+        return self.torques(Q)
 
     def fill_columns(self, J: np.ndarray, Q: np.ndarray) -> None:
         """Set the compliance columns of J (N, rows, n_params), computed at the effective joint

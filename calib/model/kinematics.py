@@ -40,6 +40,7 @@ import numpy as np
 import pinocchio as pin
 
 from calib.model.compliance import compliance_term
+from calib.model.periodic import periodic_term
 from calib.model.robot import RobotModel
 from calib.model.spatial import to_se3
 
@@ -199,8 +200,8 @@ def _structure(robot: RobotModel) -> _Structure:
     factors = placement_factors(robot)
     params_of = [np.array(sorted({f.param for f in fs if f.param is not None}), int) for fs in factors]
     placed = set(np.concatenate(params_of).tolist())
-    geometric = [k for k, p in enumerate(robot.parameters) if p.group != "compliance"]
-    if not set(geometric) <= placed:      # compliance parameters act through the joints instead
+    geometric = [k for k, p in enumerate(robot.parameters) if p.group not in ("compliance", "periodic")]
+    if not set(geometric) <= placed:      # joint terms (compliance, periodic) act through the joints instead
         raise ValueError("a parameter belongs to no placement")
     prismatic = robot.prismatic
     prismatic.setflags(write=False)
@@ -238,6 +239,8 @@ class ChainKinematics:
         self._plans: dict = {}
         self._last_joint_terms = None
         self.compliance = compliance_term(robot)   # None without compliance (calib.model.compliance)
+        # the joint terms: deviations of the joint values before the chain (compliance, periodic)
+        self.joint_terms = tuple(t for t in (self.compliance, periodic_term(robot)) if t is not None)
         self.n_targets = robot.n_targets
         self.set_values(robot.values)
 
@@ -367,10 +370,14 @@ class ChainKinematics:
                 p + np.dot(T[:3, 3], flat).reshape(3, N))
 
     def effective(self, Q: np.ndarray) -> np.ndarray:
-        """(N, n) joint values the chain takes at commanded Q (N, n): Q itself, or with
-        compliance q + C tau(q) at the current values (:mod:`calib.model.compliance`)."""
+        """(N, n) joint values the chain takes at commanded Q (N, n): Q itself, or with the joint
+        terms at the current values: compliance q + C tau(q) (:mod:`calib.model.compliance`),
+        periodic errors (:mod:`calib.model.periodic`)."""
         Q = np.atleast_2d(np.asarray(Q, float))
-        return Q if self.compliance is None else self.compliance.effective(Q, self.values)
+        out = Q
+        for term in self.joint_terms:
+            out = out + term.offsets(Q, self.values)
+        return out
 
     def frame_poses(self, Q: np.ndarray, frame: str = "tool",
                     targets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -408,24 +415,25 @@ class ChainKinematics:
 
     def poses_and_jacobian(self, Q: np.ndarray, columns: np.ndarray | None = None, *,
                            transposed: bool = False, targets: np.ndarray | None = None):
-        """See :meth:`_poses_and_jacobian`; with compliance (:mod:`calib.model.compliance`) at the
-        effective joint values, the column of c_i being that of theta_i (d_i) times tau_i(q)."""
+        """See :meth:`_poses_and_jacobian`; with joint terms (compliance, :mod:`calib.model.compliance`;
+        periodic errors, :mod:`calib.model.periodic`) at the effective joint values, the column of a
+        term's parameter being that of theta_i (d_i) times its factor (tau_i(q); sin q_i ...)."""
         Q = np.atleast_2d(np.asarray(Q, float))
-        if self.compliance is None:
+        if not self.joint_terms:
             return self._poses_and_jacobian(Q, columns, transposed=transposed, targets=targets)
         cols = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
-        c_pos = {int(c): j for j, c in enumerate(self.compliance.c_idx)}
-        wanted = [(k, c_pos[int(c)]) for k, c in enumerate(cols) if int(c) in c_pos]
+        of = {int(c): (t, j) for t, term in enumerate(self.joint_terms) for j, c in enumerate(term.idx)}
+        wanted = [(k, *of[int(c)]) for k, c in enumerate(cols) if int(c) in of]
         if not wanted:
             return self._poses_and_jacobian(self.effective(Q), cols, transposed=transposed, targets=targets)
         m = len(cols)
         ext = list(map(int, cols))            # each column once: add the missing theta_i / d_i
-        ext += [int(q) for q in self.compliance.q_cols if int(q) not in ext]
+        ext += sorted({int(self.joint_terms[t].q_cols[j]) for _, t, j in wanted} - set(ext))
         at = {c: k for k, c in enumerate(ext)}
         R, p, J = self._poses_and_jacobian(self.effective(Q), np.array(ext, int), targets=targets)
-        tau = self.compliance.torques(Q)
-        for k, j in wanted:
-            J[:, :, k] = J[:, :, at[int(self.compliance.q_cols[j])]] * tau[:, j, None]
+        factors = [term.factors(Q) for term in self.joint_terms]
+        for k, t, j in wanted:
+            J[:, :, k] = J[:, :, at[int(self.joint_terms[t].q_cols[j])]] * factors[t][:, j, None]
         J = J[:, :, :m]
         return R, p, (np.ascontiguousarray(J.transpose(2, 1, 0)) if transposed else np.ascontiguousarray(J))
 

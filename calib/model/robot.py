@@ -35,6 +35,7 @@ import numpy as np
 from calib.checks import check_instance
 from calib.errors import ParameterError
 from calib.model.mdh import PARALLEL_THRESHOLD_RAD, link_transform
+from calib.model.periodic import PERIODIC_GROUP, PERIODIC_KINDS, periodic_name, periodic_offsets
 from calib.model.spatial import zyx_parameters, zyx_transform
 
 log = logging.getLogger(__name__)
@@ -63,9 +64,11 @@ class Parameter:
     """One TM-MDH parameter.
 
     ``group`` is ``"joint"`` (structural, of joint ``joint``, 1-based), ``"u"`` (meas->base),
-    ``"v"`` (flange->tool) or ``"compliance"`` (``c<i>`` of joint ``joint``, only in a model made
-    by :meth:`RobotModel.with_compliance`); ``kind`` is theta, d, a, alpha, beta for joints, x, y,
-    z, alpha, beta, gamma for u and v, ``c`` for compliance; ``unit`` is ``"m"``, ``"rad"``, or
+    ``"v"`` (flange->tool), ``"compliance"`` (``c<i>`` of joint ``joint``, only in a model made
+    by :meth:`RobotModel.with_compliance`) or ``"periodic"`` (``q<i>_sin1`` ... ``q<i>_cos2``,
+    :meth:`RobotModel.with_periodic`); ``kind`` is theta, d, a, alpha, beta for joints, x, y,
+    z, alpha, beta, gamma for u and v, ``c`` for compliance, sin1, cos1, sin2, cos2 for periodic
+    terms; ``unit`` is ``"m"``, ``"rad"``, or
     ``"rad/(N m)"`` / ``"m/N"`` for the compliance of a revolute / prismatic joint; ``target`` the
     target id of a v parameter of a multi-target model (None otherwise).
     """
@@ -237,9 +240,8 @@ class RobotModel:
         targets = tuple(str(t) for t in targets)
         if targets == self.targets and T_flange_target_refs is None:
             return self
-        if self.has_compliance:     # the c<i> stay last: targets on the geometry, then them
-            return self.geometry().with_targets(targets, T_flange_target_refs).with_compliance(
-                self.gravity, self.compliances())
+        if self.has_joint_terms:    # the joint terms stay last: targets on the geometry, then them
+            return self._terms_onto(self.geometry().with_targets(targets, T_flange_target_refs))
         if len(targets) < 2:
             return self.for_target(targets[0] if targets and targets[0] in self.targets else None)
         vals = [x for x, p in zip(self.values, self.parameters) if p.group != "v"]
@@ -279,8 +281,8 @@ class RobotModel:
         ``v_x`` ...) and reference (the tool frame name stays that of the chain)."""
         if not self.targets:
             return self
-        if self.has_compliance:
-            return self.geometry().for_target(target).with_compliance(self.gravity, self.compliances())
+        if self.has_joint_terms:
+            return self._terms_onto(self.geometry().for_target(target))
         k = self.target_index(target)
         vals = np.concatenate([[x for x, p in zip(self.values, self.parameters) if p.group != "v"],
                                self.v(k)])
@@ -315,16 +317,73 @@ class RobotModel:
             raise ParameterError(f"expected {n} compliance values, got shape {vals.shape}")
         params = tuple(Parameter(f"c{i}", "compliance", "c", i, "m/N" if j.is_prismatic else "rad/(N m)")
                        for i, j in enumerate(self.joints, start=1))
-        return replace(geo, parameters=geo.parameters + params,
-                       values=np.concatenate([geo.values, vals]), gravity=gravity)
+        out = replace(geo, parameters=geo.parameters + params,
+                      values=np.concatenate([geo.values, vals]), gravity=gravity)
+        return out.with_periodic(self.periodic_values()) if self.has_periodic else out
+
+    def with_periodic(self, values: Sequence[float] | None = None) -> "RobotModel":
+        """A copy with the periodic joint-angle errors (:mod:`calib.model.periodic`): four
+        coefficients ``q<i>_sin1``, ``q<i>_cos1``, ``q<i>_sin2``, ``q<i>_cos2`` (rad) per
+        revolute joint i (group "periodic", last). ``values`` (4 n_revolute,) in that order
+        defaults to the model's current coefficients, else zeros. :class:`calib.ParameterError`
+        for a chain of prismatic joints only."""
+        rev = [i for i, j in enumerate(self.joints, start=1) if not j.is_prismatic]
+        if not rev:
+            raise ParameterError("periodic joint errors need a revolute joint: the chain has prismatic joints only")
+        old = self.periodic_values() if self.has_periodic else np.zeros(4 * len(rev))
+        vals = old if values is None else np.asarray(values, float).reshape(-1)
+        if vals.shape != (4 * len(rev),) or not np.all(np.isfinite(vals)):
+            raise ParameterError(f"expected {4 * len(rev)} finite periodic coefficients (rad; 4 per revolute "
+                                 f"joint), got {np.shape(values)}")
+        params = tuple(Parameter(periodic_name(i, k), PERIODIC_GROUP, k, i, "rad") for i in rev for k in PERIODIC_KINDS)
+        base = self._strip((PERIODIC_GROUP,))
+        return replace(base, parameters=base.parameters + params, values=np.concatenate([base.values, vals]))
 
     def geometry(self) -> "RobotModel":
-        """This model without compliance parameters (itself if it has none)."""
-        if not self.has_compliance:
+        """This model without its joint terms, compliance and periodic (itself if it has none)."""
+        if not self.has_joint_terms:
             return self
-        keep = [k for k, p in enumerate(self.parameters) if p.group != "compliance"]
-        return replace(self, parameters=tuple(self.parameters[k] for k in keep),
-                       values=self.values[keep], gravity=None)
+        return replace(self._strip(("compliance", PERIODIC_GROUP)), gravity=None)
+
+    def _strip(self, groups) -> "RobotModel":
+        keep = [k for k, p in enumerate(self.parameters) if p.group not in groups]
+        return replace(self, parameters=tuple(self.parameters[k] for k in keep), values=self.values[keep])
+
+    def _terms_onto(self, geo: "RobotModel") -> "RobotModel":
+        """``geo`` (a model of the same joints, no joint terms) with this model's joint terms."""
+        if self.has_compliance:
+            geo = geo.with_compliance(self.gravity, self.compliances())
+        return geo.with_periodic(self.periodic_values()) if self.has_periodic else geo
+
+    @property
+    def has_periodic(self) -> bool:
+        return any(p.group == PERIODIC_GROUP for p in self.parameters)
+
+    @property
+    def has_joint_terms(self) -> bool:
+        """Whether the model has compliance or periodic terms (joint errors before the chain)."""
+        return self.has_compliance or self.has_periodic
+
+    @property
+    def periodic_names(self) -> tuple[str, ...]:
+        """Names of the periodic coefficients (empty without them)."""
+        return tuple(p.name for p in self.parameters if p.group == PERIODIC_GROUP)
+
+    def periodic_values(self) -> np.ndarray:
+        """(4 n_revolute,) periodic coefficients, rad, in parameter order; empty without them."""
+        return self.values[self.indices(self.periodic_names)] if self.has_periodic else np.zeros(0)
+
+    def joint_errors(self, Q: np.ndarray) -> np.ndarray:
+        """(N, n) the joint terms' deviations q_eff - q at commanded Q (N, n) (rad / m): the
+        gravity deflection C tau(q) plus the periodic errors; zeros for a model without them."""
+        Q = np.atleast_2d(np.asarray(Q, float))
+        out = np.zeros(Q.shape)
+        if self.has_compliance:
+            out += self.gravity.torques(Q) * self.compliances()
+        if self.has_periodic:
+            joints = np.array([self.parameters[self.index(n)].joint - 1 for n in self.periodic_names])
+            out += periodic_offsets(Q, joints, self.periodic_values(), self.n_joints)
+        return out
 
     @property
     def has_compliance(self) -> bool:
@@ -347,17 +406,9 @@ class RobotModel:
         """The URDF the model was read from (``source.path``), or None for a model built in code."""
         return None if self.source is None else Path(self.source.path)
 
-    @property
-    def n_joints(self) -> int:
-        return len(self.joints)
-
-    @property
-    def n_params(self) -> int:
-        return len(self.parameters)
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(p.name for p in self.parameters)
+    n_joints = property(lambda self: len(self.joints))
+    n_params = property(lambda self: len(self.parameters))
+    names = property(lambda self: tuple(p.name for p in self.parameters), doc="The parameter names, in order.")
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -473,11 +524,16 @@ class RobotModel:
         return zyx_transform(*self.v(target)) @ self.T_flange_tool_ref_of(target)
 
     def T_base_flange(self, q: np.ndarray) -> np.ndarray:
-        """(4, 4) pose of the flange in the base frame at one configuration q (n,), rad / m.
+        """(4, 4) pose of the flange in the base frame at one commanded configuration q (n,),
+        rad / m, with the model's joint terms (gravity deflection, periodic errors:
+        :meth:`joint_errors`) applied to q first.
 
         A direct product of Eq. (1) matrices, kept simple on purpose: it is the reference that
         the Pinocchio-based batch kinematics (:mod:`calib.model.kinematics`) is tested against.
         """
+        q = np.asarray(q, float)
+        if self.has_joint_terms:
+            q = q + self.joint_errors(q[None])[0]
         t = self.mdh_table()
         T = np.eye(4)
         for i, joint in enumerate(self.joints):
@@ -490,7 +546,8 @@ class RobotModel:
 
     def T_meas_tool(self, q: np.ndarray, target: str | int | None = None) -> np.ndarray:
         """(4, 4) pose of the tool (of one target, default the first) in the meas frame at one
-        configuration q (n,)."""
+        commanded configuration q (n,), rad / m: the whole fitted model, joint terms included
+        (the gravity deflection of a model with compliance, the periodic joint errors)."""
         return self.T_meas_base() @ self.T_base_flange(q) @ self.T_flange_tool(target)
 
     def random_configurations(self, n: int, rng: np.random.Generator | int | None = None,
@@ -523,6 +580,9 @@ class RobotModel:
         if self.has_compliance:
             lines.append("compliance/(urad/(N m) or um/N): " + ", ".join(
                 f"{n} {v * 1e6:.4g}" for n, v in zip(self.compliance_names, self.compliances())))
+        if self.has_periodic:
+            lines.append("periodic joint errors/urad: " + ", ".join(
+                f"{n} {v * 1e6:.4g}" for n, v in zip(self.periodic_names, self.periodic_values())))
         return "\n".join(lines)
 
 

@@ -40,12 +40,12 @@ def apply_deviations(robot: RobotModel, deviations: Mapping[str, float]) -> Robo
 def random_deviations(robot: RobotModel, scale: float, rng=None) -> dict[str, float]:
     """Gaussian deviations of every parameter (SI units): lengths with standard deviation
     ``scale`` metres, angles ``scale / 0.5`` radians (an angle error then moves a point 0.5 m
-    away by about ``scale``). Compliance parameters are left out (give them by name)."""
+    away by about ``scale``). Joint terms (compliance, periodic) are left out (give them by name)."""
     check_robot(robot)
     check_number(scale, "scale", minimum=0.0)
     rng = check_rng(rng)
     return {p.name: float(rng.normal(0.0, scale if p.unit == "m" else scale / 0.5)) for p in robot.parameters
-            if p.group != "compliance"}
+            if p.group not in ("compliance", "periodic")}
 
 
 def unmodelled_joint_error(robot: RobotModel, Q: np.ndarray, amplitude: float, rng=None) -> np.ndarray:

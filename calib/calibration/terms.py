@@ -1,0 +1,315 @@
+"""Non-geometric terms (issue 22, item 3): the notes on fitted compliances, and the choice of the
+joint terms (gravity compliance, periodic joint errors) by cross-validated held-out error.
+
+* :func:`compliance_notes`: a note when a fitted compliance is significantly negative (a joint
+  does not stiffen under load: the gravity direction, the payload or the URDF's masses are likely
+  wrong, or the term absorbs another error), and when the torque model's masses look like
+  placeholders (the compliances then carry their error, which their std does not show).
+* :func:`choose_terms`: for data with many residual components per parameter, the geometric
+  model, + compliance (when the URDF has real link masses), + periodic, + both, each fitted at
+  the noise levels and kept rows of the geometric fit and scored by K-fold cross-validated
+  held-out error on the same rows and folds; a term group is kept only when its held-out score
+  beats the geometric model's by more than ``TERMS_MIN_SE`` standard errors of their paired
+  row-by-row difference. Returns the chosen groups and the table of scores
+  (:class:`TermsChoice`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from calib.calibration.fit import fit_with
+from calib.calibration.options import CalibrationOptions, resolve_options
+from calib.calibration.parameters import choose_parameters
+from calib.calibration.prepare import prepare, with_gravity_for
+from calib.calibration.validation import _standard_error, cross_validate
+from calib.errors import DataError, ParameterError
+from calib.model.compliance import GravityModel, Payload
+from calib.model.kinematics import ChainKinematics
+from calib.model.measurements import Measurements
+from calib.model.robot import RobotModel
+from calib.solvers.problem import Problem
+
+#: A compliance this many standard deviations below zero gets a note.
+NEGATIVE_COMPLIANCE_SIGMAS = 3.0
+#: The payload note: the relative change of the payload mass it reports the compliances' response to.
+PAYLOAD_STEP = 0.1
+#: choose_terms runs only when the calibration rows hold at least this many residual components
+#: per parameter of the largest candidate (geometry + both term groups): the term groups add
+#: 5 parameters per joint, and cross-validation needs many rows to judge them.
+TERMS_MIN_COMPONENTS_PER_PARAM = 20.0
+#: A term group is kept when it lowers the cross-validated score by more than this many
+#: standard errors of the paired row-by-row difference (one-sided: a chance win of two standard
+#: errors happens ~2 % of the time).
+TERMS_MIN_SE = 2.0
+#: The candidates of choose_terms, smallest first: (label, compliance, periodic).
+TERM_CANDIDATES = (("geometry", False, False), ("+compliance", True, False), ("+periodic", False, True),
+                   ("+compliance+periodic", True, True))
+
+
+def placeholder_masses(robot: RobotModel) -> str | None:
+    """Why the link masses of ``robot``'s URDF look like placeholders (every moving link the
+    same mass, or each a whole number of kg, or a total under 1 kg), else None. For a model read
+    from a URDF; None for one built in code."""
+    if robot.source is None:
+        return None
+    model = robot.source.model
+    m = np.array([model.inertias[j].mass for j in robot.source.joint_ids], float)
+    if m.sum() <= 0:
+        return None             # no inertias at all: GravityModel.note says so
+    if len(m) >= 3 and np.ptp(m) <= 1e-9 * m.max():
+        return f"every moving link weighs {m[0]:.6g} kg"
+    if len(m) >= 3 and np.all(np.abs(m - np.round(m)) < 1e-9):
+        return f"every moving link weighs a whole number of kg ({', '.join(f'{x:g}' for x in m)})"
+    if m.sum() < 1.0:
+        return f"the moving links weigh {m.sum():.3g} kg in all"
+    return None
+
+
+def compliance_notes(model: RobotModel, free, covariance: np.ndarray) -> list[str]:
+    """Notes on the fitted compliances of ``model`` (a model with compliance; [] without): each
+    free compliance more than NEGATIVE_COMPLIANCE_SIGMAS standard deviations below zero (free,
+    covariance: the fit's free parameter names and their covariance, SI), and placeholder masses
+    in the URDF that gives the gravity torques."""
+    if not model.has_compliance:
+        return []
+    notes = []
+    std = dict(zip(free, np.sqrt(np.maximum(np.diag(covariance), 0.0))))
+    neg = []
+    for name, c in zip(model.compliance_names, model.compliances()):
+        s = std.get(name)
+        if s is not None and s > 0 and c < -NEGATIVE_COMPLIANCE_SIGMAS * s:
+            neg.append(f"{name} = {c * 1e6:.4g} urad/(N m), {-c / s:.1f} std below zero")
+    if neg:
+        notes.append("negative joint compliance: " + "; ".join(neg) + ". A joint does not turn against the "
+                     "load it carries: the gravity direction or the payload (mass, centre of mass) is likely "
+                     "wrong, or the term absorbs another error (a small torque makes a compliance "
+                     "absorb anything correlated with it)")
+    why = placeholder_masses(model)
+    if why is not None:
+        notes.append(f"the URDF's link masses look like placeholders ({why}): the gravity torques, and so the "
+                     f"compliances, are uncertain by as much as the masses, which their std does not include "
+                     f"(give a URDF with the arm's real inertias)")
+    return notes
+
+
+def payload_sensitivity(model: RobotModel, problem: Problem, step: float = PAYLOAD_STEP) -> dict[str, float]:
+    """How the fitted compliances answer a payload mass ``step`` (relative) heavier than the one
+    given: name -> relative change of each free compliance, to first order (one Gauss-Newton step
+    of the fit's problem with the torques of the heavier payload; the std of a compliance does not
+    include it). ``model`` : the fitted model (with compliance and a payload of nonzero mass);
+    ``problem`` : its fit's problem (kept rows, noise weights). {} without a payload."""
+    gm = model.gravity
+    if not model.has_compliance or gm.payload is None or gm.payload.mass <= 0:
+        return {}
+    heavier = GravityModel.from_chain(gm.chain, payload=Payload(gm.payload.mass * (1 + step), gm.payload.com_tool),
+                                      gravity=gm.gravity)
+    other = model.with_compliance(heavier, model.compliances())
+    x = model.values[problem.free]
+    R_meas = None if problem.R_meas_T is None else np.transpose(problem.R_meas_T, (0, 2, 1))
+    moved = Problem(ChainKinematics(other), problem.Q, problem.p_meas, R_meas, model.values, problem.free,
+                    problem.sigma_pos, problem.sigma_rot, targets=problem.targets)
+    base = problem.derived(values=model.values, loss="linear")
+    m = len(x)
+    A, g = np.zeros((m, m)), np.zeros(m)
+    for (r0, Jw), (r1, _) in zip(base.whitened_blocks(x), moved.whitened_blocks(x)):
+        J2 = Jw.reshape(-1, m)
+        A += J2.T @ J2
+        g += J2.T @ (r1 - r0).reshape(-1)
+    dx = -np.linalg.lstsq(A, g, rcond=1e-12)[0]
+    out = {}
+    names = [model.names[k] for k in problem.free]
+    for j, name in enumerate(names):
+        if name in model.compliance_names and model.value(name) != 0:
+            out[name] = float(dx[j] / model.value(name))
+    return out
+
+
+def payload_note(model: RobotModel, problem: Problem) -> list[str]:
+    """A note on how much the compliances depend on the payload mass given (see
+    :func:`payload_sensitivity`), or [] without a payload."""
+    sens = payload_sensitivity(model, problem)
+    if not sens:
+        return []
+    lo, hi = min(sens.values()), max(sens.values())
+    return [f"the compliances rest on the payload given ({model.gravity.payload.mass:g} kg): "
+            f"{PAYLOAD_STEP:.0%} more payload mass would change them by {lo:+.0%} to {hi:+.0%} "
+            f"({', '.join(f'{n} {v:+.0%}' for n, v in sens.items())}), which their std does not include"]
+
+
+@dataclass(frozen=True)
+class TermScore:
+    """One candidate of :func:`choose_terms`: its label, term groups, number of free parameters,
+    cross-validated held-out position RMS (m) and rotation RMS (rad, None for position data),
+    mean whitened squared held-out error per row (``score``) and the standard error of its
+    paired difference from the geometric model's (``se_vs_geometry``)."""
+
+    label: str
+    compliance: bool
+    periodic: bool
+    n_free: int
+    position_rms: float
+    rotation_rms: float | None
+    score: float
+    se_vs_geometry: float
+
+
+@dataclass(frozen=True)
+class TermsChoice:
+    """What :func:`choose_terms` returns: the chosen groups (``compliance``, ``periodic``), the
+    candidates' scores (``table``, smallest first; () when the data were too few to judge),
+    ``folds``, and ``reason``: why (a sentence for the report)."""
+
+    compliance: bool
+    periodic: bool
+    table: tuple[TermScore, ...] = field(default=())
+    folds: int = 0
+    reason: str = ""
+
+    @property
+    def label(self) -> str:
+        return next((lab for lab, c, p in TERM_CANDIDATES if (c, p) == (self.compliance, self.periodic)),
+                    "geometry")
+
+    def format(self) -> str:
+        lines = [f"joint terms ({self.folds}-fold cross-validation on the same rows and folds; kept when the "
+                 f"score beats the geometry's by more than {TERMS_MIN_SE:g} paired standard errors): "
+                 f"{self.label}"] if self.table else [f"joint terms: {self.label} ({self.reason})"]
+        if self.table:
+            lines.append(f"  {'candidate':<24}{'params':>7}{'score':>10}{'se':>8}{'pos rms/mm':>12}{'rot rms/mrad':>14}")
+            for t in self.table:
+                rot = "-" if t.rotation_rms is None else f"{t.rotation_rms * 1e3:.4f}"
+                mark = "  <- chosen" if t.label == self.label else ""
+                lines.append(f"  {t.label:<24}{t.n_free:>7}{t.score:>10.3f}{t.se_vs_geometry:>8.3f}"
+                             f"{t.position_rms * 1e3:>12.4f}{rot:>14}{mark}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        return {"chosen": self.label, "compliance": self.compliance, "periodic": self.periodic,
+                "folds": self.folds, "reason": self.reason, "min_se": TERMS_MIN_SE,
+                "candidates": [{"label": t.label, "n_free": t.n_free, "score": t.score,
+                                "se_vs_geometry": t.se_vs_geometry, "position_rms_mm": t.position_rms * 1e3,
+                                "rotation_rms_rad": t.rotation_rms} for t in self.table]}
+
+
+def _has_masses(robot: RobotModel) -> bool:
+    """Whether the URDF gives real gravity torques: link masses that are not placeholders."""
+    if robot.source is None:
+        return False
+    model = robot.source.model
+    total = sum(model.inertias[j].mass for j in robot.source.joint_ids)
+    return total > 0 and placeholder_masses(robot) is None
+
+
+def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 5, payload=None,
+                 gravity=None, options: CalibrationOptions | None = None, seed: int = 0) -> TermsChoice:
+    """Choose the joint terms (compliance, periodic errors) by K-fold cross-validated held-out
+    error (module docstring).
+
+    robot : the nominal model (its URDF's masses decide whether compliance is a candidate);
+    measurements : the ``cal`` rows are used; folds : K (>= 2); payload, gravity : as for
+    :func:`calib.calibrate` with compliance; options : the calibration's options (default those
+    of ``calibrate(robot, measurements)``; the parameter set of every candidate is the
+    identifiable set of its model, the noise levels and kept rows those of the geometric fit).
+    Returns a :class:`TermsChoice` (geometry alone, with the reason, when the data are too few
+    per parameter or no term group is a candidate). Raises :class:`calib.CalibError` for
+    unusable input.
+    """
+    base = options or resolve_options(robot, measurements)
+    n_rev = sum(not j.is_prismatic for j in robot.joints)
+    cands = [(lab, c, p) for lab, c, p in TERM_CANDIDATES if (not c or _has_masses(robot)) and (not p or n_rev)]
+    if len(cands) == 1:
+        return TermsChoice(False, False, reason="no candidate term group (no link masses for compliance, "
+                                                "no revolute joint for periodic errors)")
+    cal = measurements.calibration()
+    comp_per_pose = 6 if cal.has_orientation else 3
+    # the largest candidate's parameters, bounded by the geometric ones (6 per joint + 12 frames)
+    n_max = 6 * robot.n_joints + 12 + (robot.n_joints if any(c for _, c, _ in cands) else 0) + 4 * n_rev
+    per_param = cal.n_poses * comp_per_pose / n_max
+    if per_param < TERMS_MIN_COMPONENTS_PER_PARAM:
+        return TermsChoice(False, False, reason=f"{per_param:.1f} residual components per parameter of the "
+                                                f"largest candidate, below {TERMS_MIN_COMPONENTS_PER_PARAM:g}: "
+                                                f"too few rows to judge the joint terms")
+    table, rows = [], {}
+    geo_scores = None
+    sp = sr = keep = None
+    for label, c, p in cands:
+        opts = resolve_options(robot, measurements, method=base.method, params="base", sigma_pos=base.sigma_pos,
+                               sigma_rot=base.sigma_rot, init_frames=base.init_frames, options=base.lm,
+                               outlier_k=base.outlier_k, cv=0, compliance=c, periodic=p)
+        model, _ = with_gravity_for(robot, c, payload if c else None, gravity if c else None)
+        if p:
+            model = model.with_periodic()
+        setup, _ = prepare(model, measurements, None, opts.init_frames)
+        choice = choose_parameters(setup, opts)
+        if sp is None:          # the geometric fit: noise estimate and outlier check
+            fit, problem = fit_with(setup, choice.free, opts, outlier_k=opts.outlier_k, kin=setup.kin)
+            sp, sr, keep = problem.sigma_pos, problem.sigma_rot, fit.keep
+        else:
+            opts = resolve_options(robot, measurements, method=base.method, params="base", sigma_pos=sp,
+                                   sigma_rot=sr if cal.has_orientation else None, init_frames=base.init_frames,
+                                   options=base.lm, cv=0, compliance=c, periodic=p)
+            fit, problem = fit_with(setup, choice.free, opts, outlier_k=None, keep=keep, kin=setup.kin)
+        # the same rows, folds (seed) and whitening (the geometric fit's noise levels) for every
+        # candidate: their row scores pair up
+        try:
+            cv = cross_validate(setup, fit, problem, folds, options=base.lm, seed=seed)
+        except DataError:
+            if geo_scores is None:
+                raise
+            continue            # a fold's rows cannot identify this candidate: not a candidate
+        if geo_scores is None:
+            geo_scores = cv.row_scores
+        rows[label] = cv.row_scores
+        table.append(TermScore(label, c, p, len(choice.free), cv.position_rms, cv.rotation_rms,
+                               cv.score, _standard_error(cv.row_scores - geo_scores)))
+    best = pick_terms(table, rows)
+    reason = (f"{best.label} beat the smaller candidates by more than {TERMS_MIN_SE:g} paired standard errors"
+              if best is not table[0] else "no term group beat the geometry by the margin")
+    return TermsChoice(best.compliance, best.periodic, tuple(table), folds, reason)
+
+
+def pick_terms(table, row_scores: dict) -> TermScore:
+    """The rule of :func:`choose_terms`: from the geometric model (``table[0]``), move to a larger
+    candidate (in order of size) when its mean row score is lower than the current choice's by more
+    than TERMS_MIN_SE standard errors of their paired row-by-row difference (``row_scores``: label ->
+    (n,) whitened squared held-out errors on the same rows)."""
+    best = table[0]
+    for t in sorted(table[1:], key=lambda t: t.n_free):
+        d = row_scores[best.label] - row_scores[t.label]
+        if np.mean(d) > TERMS_MIN_SE * _standard_error(d):
+            best = t
+    return best
+
+
+#: The values of calibrate's ``terms`` option.
+TERMS = ("auto", "none")
+
+
+def resolve_terms(robot: RobotModel, measurements: Measurements, options: CalibrationOptions, terms,
+                  payload=None, gravity=None) -> tuple[CalibrationOptions, list[str]]:
+    """The options of :func:`calib.calibrate` with the joint terms of ``terms`` ("auto":
+    :func:`choose_terms` decides, unless compliance or periodic terms were asked for by name;
+    None or "none": as given), and a note saying what was chosen and why."""
+    if terms is None or (isinstance(terms, str) and terms.lower() == "none"):
+        return options, []
+    if not isinstance(terms, str) or terms.lower() not in TERMS:
+        raise ParameterError(f"unknown terms {terms!r}: expected one of {', '.join(TERMS)} or None")
+    if options.compliance or options.periodic:
+        return options, []          # named: honoured as given
+    if options.folds < 2:
+        return options, ["joint terms not judged: they are chosen by cross-validation, which cv=0 turns off"]
+    # (a payload or gravity without compliance stays refused: compliance is a candidate with neither)
+    if payload is not None or gravity is not None:
+        return options, []
+    try:
+        choice = choose_terms(robot, measurements, folds=options.folds, options=options)
+    except DataError as exc:
+        return options, [f"joint terms not judged: {exc}"]
+    if not choice.table:
+        return options, []
+    summary = ", ".join(f"{t.label} {t.position_rms * 1e3:.4g} mm" for t in choice.table)
+    note = (f"joint terms chosen by {choice.folds}-fold cross-validation: {choice.label} ({choice.reason}; "
+            f"held-out position RMS {summary})")
+    return replace(options, compliance=choice.compliance, periodic=choice.periodic), [note]

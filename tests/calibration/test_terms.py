@@ -1,0 +1,216 @@
+"""Non-geometric terms (calib.calibration.terms; issue 22 item 3): periodic joint errors identified
+against known truth, the choice of the joint terms by cross-validation, the notes on compliances."""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+import calib
+from calib.calibration.terms import TERMS_MIN_COMPONENTS_PER_PARAM, choose_terms, placeholder_masses
+from calib.io.compliance_file import apply_record, read_compliance, sidecar_path
+from calib.model.compliance import Payload, with_gravity
+from calib.model.kinematics import ChainKinematics
+
+from conftest import BUNDLED_URDF, erd_urdf
+
+SIGMA_POS, SIGMA_ROT = 0.02e-3, 0.0002
+
+
+def _periodic_truth(robot, rng, amplitude=5e-4):
+    n_rev = int((~robot.prismatic).sum())
+    return robot.with_changes(d2=2e-4, a3=-3e-4, theta4=1e-3).with_periodic(rng.normal(0.0, amplitude, 4 * n_rev))
+
+
+@pytest.fixture(scope="module")
+def ur5_loop():
+    robot = calib.load_robot(erd_urdf("ur5"))
+    rng = np.random.default_rng(5)
+    true = _periodic_truth(robot, rng)
+    Q = robot.random_configurations(400, rng)
+    sets = np.array(["cal"] * 300 + ["val"] * 100)
+    m = calib.simulate_measurements(true, Q, sigma_pos=SIGMA_POS, sigma_rot=SIGMA_ROT, rng=rng, sets=sets)
+    geo = calib.calibrate(robot, m, method="lm", params="base", cv=0)
+    per = calib.calibrate(robot, m, method="lm", params="base", cv=0, periodic=True)
+    return robot, true, m, geo, per
+
+
+def test_periodic_errors_recovered_from_simulation(ur5_loop):
+    robot, true, m, geo, per = ur5_loop
+    floor = SIGMA_POS * np.sqrt(3)          # RMS length of the 3-axis noise: 0.035 mm
+    assert geo.validation_after.position["rms"] > 3 * floor
+    assert per.success and per.validation_after.position["rms"] < 1.3 * floor
+    free = [n for n in true.periodic_names if per.parameter(n).free]
+    assert len(free) >= 20                  # of 24: the identifiable ones
+    z = np.array([(per.parameter(n).identified - true.value(n)) / per.parameter(n).std for n in free])
+    assert np.abs(z).max() < 4.5 and 0.5 < np.sqrt(np.mean(z ** 2)) < 1.6, dict(zip(free, z))
+    # well determined: 0.5 mrad terms to a few urad
+    assert np.median([per.parameter(n).std for n in free]) < 20e-6
+    # the model the API hands out is the fitted one, periodic terms included
+    q = m.validation().q[:5]
+    _, p_true = ChainKinematics(true).frame_poses(q)
+    p_api = np.array([per.robot.T_meas_tool(x)[:3, 3] for x in q])
+    assert np.linalg.norm(p_api - p_true, axis=1).max() < 0.05e-3
+
+
+def test_periodic_urdf_and_sidecar_reproduce_the_fit(ur5_loop, tmp_path):
+    robot, _, m, _, per = ur5_loop
+    out = tmp_path / "cal.urdf"
+    per.write_urdf(out)
+    rec = read_compliance(sidecar_path(out))
+    model = apply_record(calib.load_robot(out, base_frame=robot.base_frame), rec)
+    Q = m.q[:30]
+    T0 = np.array([per.robot.T_meas_tool(q) for q in Q])
+    T1 = np.array([model.T_meas_tool(q) for q in Q])
+    assert np.abs(T1[:, :3, 3] - T0[:, :3, 3]).max() < 1e-9          # metres: URDF rounding
+    d = per.to_dict()["compliance"]
+    assert d["compliance"] is None and set(d["periodic"]) == set(per.robot.periodic_names)
+
+
+def test_choose_terms_finds_the_periodic_errors(ur5_loop):
+    robot, _, m, _, _ = ur5_loop
+    choice = choose_terms(robot, m)
+    labels = [t.label for t in choice.table]
+    assert labels[0] == "geometry" and "+periodic" in labels
+    assert choice.periodic and not choice.compliance
+    geo, per = choice.table[0], next(t for t in choice.table if t.label == "+periodic")
+    assert per.position_rms < 0.5 * geo.position_rms
+    assert "+periodic" in choice.format() and choice.to_dict()["chosen"] == choice.label
+
+
+def test_choose_terms_keeps_the_geometry_when_there_is_nothing_to_find():
+    """UR10 (real inertias): compliance and periodic are candidates; the truth has neither, and
+    the choice must not take them for noise it can fit."""
+    robot = calib.load_robot("ur10")
+    rng = np.random.default_rng(11)
+    true = robot.with_changes(d2=2e-4, a3=-3e-4, theta4=1e-3)
+    m = calib.simulate_measurements(true, robot.random_configurations(300, rng), sigma_pos=SIGMA_POS,
+                                    sigma_rot=SIGMA_ROT, rng=rng)
+    choice = choose_terms(robot, m)
+    assert [t.label for t in choice.table] == ["geometry", "+compliance", "+periodic", "+compliance+periodic"]
+    assert not choice.compliance and not choice.periodic
+    # with compliance in the truth, it is found
+    true_c = with_gravity(true, payload=Payload(5.0), values=[0, 4e-6, 5e-6, 5e-6, 4e-6, 4e-6])
+    mc = calib.simulate_measurements(true_c, robot.random_configurations(300, rng), sigma_pos=SIGMA_POS,
+                                     sigma_rot=SIGMA_ROT, rng=rng)
+    # (the payload is not given to the choice: compliance is judged with the links' torques alone)
+    assert choose_terms(robot, mc).compliance
+
+
+def test_terms_auto_leaves_small_data_as_they_were(bundled_robot):
+    """The bundled 100-pose example: too few rows per parameter to judge joint terms, so
+    terms='auto' gives today's estimates exactly."""
+    from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations
+
+    true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
+    m = calib.simulate_measurements(true, bundled_robot.random_configurations(100, 1), rng=2)
+    choice = choose_terms(bundled_robot, m)
+    # (no link masses: periodic is the one candidate; 600 components for 72 parameters)
+    assert not choice.table and not choice.periodic and "too few rows" in choice.reason
+    a = calib.calibrate(bundled_robot, m, method="lm")
+    b = calib.calibrate(bundled_robot, m, method="lm", terms="auto")
+    assert b.free == a.free and np.array_equal(b.x, a.x)
+    with pytest.raises(calib.ParameterError, match="unknown terms 'yes'"):
+        calib.calibrate(bundled_robot, m, terms="yes")
+    with pytest.raises(calib.ParameterError, match="periodic must be True or False"):
+        calib.calibrate(bundled_robot, m, periodic=1)
+
+
+def test_negative_compliance_gets_a_note():
+    robot = calib.load_robot("ur10")
+    rng = np.random.default_rng(2)
+    payload = Payload(8.0, np.array([0.0, 0.0, 0.1]))
+    true = with_gravity(robot, payload=payload, values=[0, 4e-6, -6e-6, 5e-6, 0, 0])
+    m = calib.simulate_measurements(true, robot.random_configurations(150, rng), sigma_pos=SIGMA_POS,
+                                    sigma_rot=SIGMA_ROT, rng=rng)
+    res = calib.calibrate(robot, m, method="lm", params="base", cv=0, compliance=True, payload=payload)
+    notes = [n for n in res.notes if n.startswith("negative joint compliance")]
+    assert len(notes) == 1 and "c3 = -6" in notes[0] and "c2" not in notes[0]
+    sig = float(re.search(r"c3 = \S+ urad/\(N m\), (\S+) std below zero", notes[0]).group(1))
+    assert sig > 10                     # 6 urad/(N m) at a std of ~0.05
+
+
+def test_placeholder_masses_get_a_note(tmp_path):
+    text = open(erd_urdf("ur10")).read()
+    path = tmp_path / "ur10_unit_masses.urdf"
+    path.write_text(re.sub(r'<mass value="[^"]*"', '<mass value="1.0"', text))
+    robot = calib.load_robot(path, tool_frame="tool0")
+    assert "whole number of kg (1, 1, 1, 1, 1, 3)" in placeholder_masses(robot)
+    assert placeholder_masses(calib.load_robot("ur10")) is None
+    assert placeholder_masses(calib.load_robot(BUNDLED_URDF)) is None       # no inertias: another note
+    rng = np.random.default_rng(1)
+    m = calib.simulate_measurements(robot, robot.random_configurations(60, rng), sigma_pos=SIGMA_POS,
+                                    sigma_rot=SIGMA_ROT, rng=rng)
+    res = calib.calibrate(robot, m, method="lm", params="base", cv=0, compliance=True)
+    assert any("look like placeholders" in n for n in res.notes)
+    # the choice does not offer compliance on placeholder masses
+    big = calib.simulate_measurements(robot, robot.random_configurations(300, rng), sigma_pos=SIGMA_POS,
+                                      sigma_rot=SIGMA_ROT, rng=rng)
+    assert [t.label for t in choose_terms(robot, big).table] == ["geometry", "+periodic"]
+
+
+def test_threshold_is_per_parameter():
+    # the rule of the module: 20 residual components per parameter of the largest candidate
+    assert TERMS_MIN_COMPONENTS_PER_PARAM == 20.0
+
+
+def test_cli_terms_auto_and_periodic(tmp_path, capsys):
+    """simulate with a once-per-turn joint error (--unmodelled-rad: a sin(q + phi), which the
+    first harmonic holds), calibrate --terms auto finds it and writes the sidecar; evaluate
+    --compliance SIDECAR applies it; without joint terms no sidecar is written."""
+    from calib.cli.main import main
+
+    meas, cal, rep = tmp_path / "m.csv", tmp_path / "cal.urdf", tmp_path / "r.json"
+    assert main(["simulate", "ur5", "-o", str(meas), "--poses", "300", "--val-poses", "100",
+                 "--unmodelled-rad", "0.001", "--sigma-rot-rad", "0.0002", "--seed", "3"]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", "ur5", str(meas), "-o", str(cal), "--terms", "auto", "--report", str(rep)]) == 0
+    out = capsys.readouterr().out
+    side = sidecar_path(cal)
+    assert "joint terms chosen by 5-fold cross-validation: +periodic" in out and str(side) in out
+    import json
+
+    assert set(json.loads(rep.read_text())["compliance"]["periodic"]) == set(
+        read_compliance(side).periodic)
+
+    def val_rms(extra):
+        assert main(["evaluate", str(cal), str(meas), "--json", *extra]) == 0
+        o = capsys.readouterr()
+        return json.loads(o.out)["val"]["position_mm"]["rms"], o.err
+
+    with_terms, err = val_rms(["--compliance", str(side)])
+    without, err0 = val_rms([])
+    floor = 0.02 * np.sqrt(3)            # mm: the RMS length of the 3-axis noise
+    assert with_terms < 1.3 * floor and without > 5 * floor
+    assert "periodic joint errors of" in err and "geometry alone" in err0
+    # --periodic by name; none asked: no sidecar
+    cal2 = tmp_path / "geo.urdf"
+    assert main(["calibrate", "ur5", str(meas), "-o", str(cal2), "--cv", "0"]) == 0
+    assert not sidecar_path(cal2).exists()
+    assert main(["calibrate", "ur5", str(meas), "-o", str(cal2), "--cv", "0", "--periodic"]) == 0
+    assert read_compliance(sidecar_path(cal2)).values is None
+
+
+def test_payload_note_predicts_the_refit():
+    """The note on the payload's mass: the first-order change of the compliances under a 10 %
+    heavier payload agrees with a calibration actually given the heavier payload."""
+    robot = calib.load_robot("ur10")
+    rng = np.random.default_rng(8)
+    payload = Payload(10.0, np.array([0.0, 0.05, 0.1]))
+    true = with_gravity(robot.with_changes(d2=3e-4), payload=payload, values=[0, 3e-6, 4e-6, 5e-6, 5e-6, 5e-6])
+    m = calib.simulate_measurements(true, robot.random_configurations(150, rng), sigma_pos=SIGMA_POS,
+                                    sigma_rot=SIGMA_ROT, rng=rng)
+    kw = dict(method="lm", params="base", cv=0, compliance=True)
+    a = calib.calibrate(robot, m, payload=payload, **kw)
+    b = calib.calibrate(robot, m, payload=Payload(11.0, payload.com_tool), **kw)
+    note = next(n for n in a.notes if n.startswith("the compliances rest on the payload given (10 kg)"))
+    predicted = {k: float(v) / 100 for k, v in re.findall(r"(c\d) ([+-]\d+)%", note)}
+    assert set(predicted) == {"c2", "c3", "c4", "c5", "c6"}
+    for name, rel in predicted.items():
+        actual = b.parameter(name).identified / a.parameter(name).identified - 1
+        # the note rounds to whole percent; first order in a 10 % step
+        assert abs(rel - actual) < 0.015 + 0.1 * abs(actual), (name, rel, actual)
+    assert max(abs(v) for v in predicted.values()) > 0.03        # the payload matters here
+    # no payload given: no such note
+    assert not any("rest on the payload" in n for n in calib.calibrate(robot, m, **kw).notes)
