@@ -1,0 +1,330 @@
+"""Calibration from touch data (issue 24): the tool point touching fixed points, planes and
+spheres of the cell, whose locations are identified with the robot's parameters.
+
+Stages, each callable on its own:
+
+* :func:`check_touch_design` refuses designs that cannot calibrate anything useful, in one line
+  naming what to add (a point touched from fewer than 4 configurations, a plane or a sphere
+  from fewer than 4, planes alone whose normals do not span space).
+* :func:`touch_identifiability` finds which parameters the rows determine, numerically, by the
+  rank-revealing selection of :mod:`calib.model.identifiability` on the combined noise-weighted
+  Jacobian of the robot's geometric parameters and the features' unknowns, in the priority:
+  features' unknowns first, then the robot's parameters in their order (Eq. 23) with the
+  longest link length last. What such data leave free then shows as relations: the meas frame's
+  u (a rigid motion of the whole cell moves the features with it), the joint-1 parameters tied
+  to it, a plane's offset against the parameters along its normal, and, with no sphere (no known
+  length), the scale, held by the longest length (its relative error, hence the scale's, is then
+  the smallest).
+* :func:`calibrate_touch` fits the identifiable robot parameters and the features by calib's LM
+  (:class:`calib.solvers.touch.TouchProblem`) from the nominal model and the features fitted to
+  its tool points, and returns a :class:`TouchResult`.
+* :func:`predicted_tool_error` is the Cramer-Rao prediction of the calibrated tool positions'
+  error at given configurations, after a best-fit rigid registration (the base frame stays
+  nominal: what a robot then located by touching its work sees).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+
+from calib.calibration.parameters import _idealised
+from calib.checks import check_configurations, check_instance, check_number
+from calib.errors import DataError, ParameterError
+from calib.model.identifiability import RANK_TOL, Relation, select_identifiable, no_effect
+from calib.model.jacobian import pose_jacobian
+from calib.model.kinematics import ChainKinematics
+from calib.model.robot import RobotModel, check_robot
+from calib.model.touch import (FeatureStart, TouchData, feature_parameter_names, initial_features,
+                               plane_normals)
+from calib.model.touch_simulate import reach_positions
+from calib.solvers.lm import LMOptions, SolverResult, levenberg_marquardt
+from calib.solvers.problem import normal_inverse
+from calib.solvers.touch import TouchProblem
+
+#: Default touch noise (metres per residual component): a good probe in a good nest.
+SIGMA_TOUCH_M = 0.02e-3
+#: Rows a feature needs at least (a point from 3 orientations, 3 points of a plane, locate the
+#: feature and leave almost nothing to calibrate the robot).
+MIN_ROWS = {"point": 4, "plane": 4, "sphere": 4}
+PARAM_CHOICES = ("auto", "tool")
+
+
+@dataclass(frozen=True)
+class TouchIdentifiability:
+    """Which parameters touch rows determine (:func:`touch_identifiability`).
+
+    robot_free : names of the identifiable robot parameters (in the robot's order);
+    features : names of the features' unknowns (all identifiable: else the design is refused);
+    unidentifiable : the robot parameters held at their nominal values, with the kept parameters
+    (robot or feature) each is tied to; scale_free : True when no known length fixes the scale
+    (no sphere rows), the scale then held by the longest length.
+    """
+
+    robot_free: tuple[str, ...]
+    features: tuple[str, ...]
+    unidentifiable: tuple[Relation, ...]
+    scale_free: bool
+
+    def format(self) -> str:
+        lines = [f"identifiable robot parameters ({len(self.robot_free)}): {', '.join(self.robot_free)}",
+                 f"feature unknowns ({len(self.features)}): {', '.join(self.features)}",
+                 f"held nominal ({len(self.unidentifiable)}):"]
+        lines += [f"  {r.describe()}" for r in self.unidentifiable]
+        if self.scale_free:
+            lines.append("no known length (no sphere rows): the scale is held by the longest link length")
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True, eq=False)
+class TouchResult:
+    """What :func:`calibrate_touch` returns.
+
+    robot : the calibrated model (the held parameters at their nominal values; u nominal).
+    identifiability : the parameter choice. free : names of the fitted robot parameters.
+    feature_names : (3 K,) names; feature_values, feature_std : (3 K,) SI (see
+    :mod:`calib.model.touch`); plane_normals : (K, 3) unit normals (zeros for other kinds);
+    plane_refs : (K, 3, 3). rms_before / rms_after : metres, RMS of the residual components at the
+    nominal model (features fitted to it) and at the solution. sigma : the noise assumed
+    (metres); sigma_estimated : from the residuals, sqrt(rss / (n_res - n_free)).
+    std : (n_free_robot,) standard deviations of the robot parameters (SI, at sigma_estimated);
+    covariance : (m, m) of all free unknowns (robot, then features) at ``sigma``.
+    solver : the LM's result. n_rows, n_residuals : the data used.
+    """
+
+    robot: RobotModel
+    identifiability: TouchIdentifiability
+    free: tuple[str, ...]
+    feature_names: tuple[str, ...]
+    feature_values: np.ndarray = field(repr=False)
+    feature_std: np.ndarray = field(repr=False)
+    plane_normals: np.ndarray = field(repr=False)
+    plane_refs: np.ndarray = field(repr=False)
+    rms_before: float
+    rms_after: float
+    sigma: float
+    sigma_estimated: float
+    std: np.ndarray = field(repr=False)
+    covariance: np.ndarray = field(repr=False)
+    solver: SolverResult = field(repr=False)
+    n_rows: int
+    n_residuals: int
+
+    def format(self) -> str:
+        lines = [f"touch calibration: {self.n_rows} rows, {self.n_residuals} residual components, "
+                 f"{len(self.free)} robot parameters and {len(self.feature_names)} feature unknowns fitted",
+                 f"residual RMS {self.rms_before * 1e3:.4f} mm before, {self.rms_after * 1e3:.4f} mm after "
+                 f"(noise estimated {self.sigma_estimated * 1e3:.4f} mm, assumed {self.sigma * 1e3:.4f} mm)"]
+        for name, v, s in zip(self.feature_names, self.feature_values, self.feature_std):
+            unit, f = ("rad", 1.0) if name[-2:] in ("_a", "_b") else ("mm", 1e3)
+            lines.append(f"  {name:<24} {v * f:12.4f} +- {s * f:.4f} {unit}")
+        return "\n".join(lines)
+
+
+# ---------------------------------------------------------------- checks
+def check_touch_design(data: TouchData, params: str = "auto") -> None:
+    """Raise DataError (one line, naming what to add) for designs that cannot calibrate anything
+    useful: a feature with fewer rows than MIN_ROWS; planes alone whose normals (estimated from
+    the rows' nominal tool points, given as ``data``'s feature order) are checked in
+    :func:`touch_identifiability`; ``params="tool"`` without a point touched from 4 or more
+    configurations."""
+    check_instance(data, "data", TouchData, "a calib.model.touch.TouchData")
+    for k, f in enumerate(data.features):
+        n = len(data.rows_of(k))
+        if n < MIN_ROWS[f.kind]:
+            what = {"point": "orientations", "plane": "points", "sphere": "points"}[f.kind]
+            raise DataError(f"{f.kind} {f.id!r} is touched in {n} rows: touch it from at least "
+                            f"{MIN_ROWS[f.kind]} {what} (more rows, or more features)")
+    if params == "tool" and not any(f.kind == "point" for f in data.features):
+        raise DataError("--params tool needs a point touched from 4 or more orientations; the rows "
+                        "touch no point")
+
+
+def _priority(robot: RobotModel, candidates: Sequence[int]) -> list[int]:
+    """The robot's candidate parameters in their order, the longest nominal length last."""
+    order = list(candidates)
+    lengths = [k for k in order if robot.parameters[k].unit == "m" and robot.parameters[k].group == "joint"]
+    if lengths:
+        longest = max(lengths, key=lambda k: abs(robot.values[k]))
+        order.remove(longest)
+        order.append(longest)
+    return order
+
+
+def touch_identifiability(robot: RobotModel, data: TouchData, *, params: str = "auto",
+                          sigma: float = SIGMA_TOUCH_M, tol: float = RANK_TOL) -> TouchIdentifiability:
+    """Which robot parameters ``data`` determine with the features (see the module docstring),
+    at ``robot``'s idealised values. params : "auto" (every geometric parameter a candidate) or
+    "tool" (the flange->tool offset v_x, v_y, v_z only, the robot held nominal). Raises DataError
+    naming what to add when a feature's unknowns or every robot parameter are undetermined, or
+    when planes alone have normals that do not span space."""
+    check_robot(robot)
+    check_touch_design(data, params)
+    if params not in PARAM_CHOICES:
+        raise ParameterError(f"params must be one of {', '.join(PARAM_CHOICES)} for touch data, got {params!r}")
+    model = _idealised(robot)
+    if params == "tool":
+        candidates = [model.index(n) for n in model.v_names()[:3]]
+    else:
+        candidates = [k for k, p in enumerate(model.parameters) if p.group != "compliance"]
+    kin = ChainKinematics(model)
+    start = initial_features(data, kin.frame_poses(data.q)[1])
+    _check_planes(data, start.plane_refs)
+    data = consistent_rows(model, data, start)
+    prob = TouchProblem(kin, data, model.values, candidates, start.plane_refs, sigma)
+    J = prob.jacobian(prob.x0(start.values))
+    mr = len(candidates)
+    n_feat = J.shape[1] - mr
+    order = list(range(mr, mr + n_feat)) + [candidates.index(k) for k in _priority(model, candidates)]
+    kept, dropped = select_identifiable(J, order, tol)
+    fnames = feature_parameter_names(data.features)
+    lost = [fnames[j - mr] for j in dropped if j >= mr]
+    if lost:
+        raise DataError(f"the rows cannot locate {', '.join(lost)}: touch each feature at configurations "
+                        f"further apart (a plane at points not on one line)")
+    robot_kept = sorted(j for j in kept if j < mr)
+    if not robot_kept:
+        raise DataError("the rows determine no robot parameter: add rows or features")
+    norms = np.linalg.norm(J, axis=0)
+    names = [model.names[k] for k in candidates] + list(fnames)
+    relations = []
+    for j in dropped:
+        if no_effect(norms, j):
+            relations.append(Relation(names[j], (), "no effect on the touched tool points"))
+            continue
+        coef = np.linalg.lstsq(J[:, kept], J[:, j], rcond=None)[0]
+        scale = norms[kept] / norms[j]
+        partners = tuple((names[k], float(c)) for k, c, s in zip(kept, coef, scale) if abs(c * s) > 1e-4)
+        relations.append(Relation(names[j], partners, "its effect equals that of the listed parameters"))
+    scale_free = not any(f.kind == "sphere" for f in data.features)
+    return TouchIdentifiability(tuple(names[j] for j in robot_kept), tuple(fnames), tuple(relations),
+                                scale_free)
+
+
+def consistent_rows(model: RobotModel, data: TouchData, start: FeatureStart) -> TouchData:
+    """``data`` with each row's configuration moved (by the robot's errors: a few mrad) so that
+    ``model``'s tool point satisfies its constraint exactly, the features at ``start``: the
+    projection of the tool point onto its feature, reached by damped least squares from the
+    row's configuration. The ties of such data are exact (a rigid motion of the cell, the scale):
+    at the rows as measured, whose tool points miss the features by the robot's errors, they
+    hold only to that relative size (1e-3), above the rank tolerance. Rows that do not converge
+    keep their configuration."""
+    prob = TouchProblem(ChainKinematics(model), data, model.values, np.zeros(0, int), start.plane_refs, 1.0)
+    p = prob.kin.frame_poses(data.q)[1]
+    F = start.values.reshape(-1, 3)
+    target = p.copy()
+    for k, f in enumerate(data.features):
+        rows = data.rows_of(k)
+        if f.kind == "point":
+            target[rows] = F[k]
+        elif f.kind == "plane":
+            n = start.plane_refs[k][:, 2]
+            target[rows] -= np.outer(p[rows] @ n - F[k, 2] - data.probe_radius, n)
+        else:
+            e = p[rows] - F[k]
+            target[rows] = F[k] + f.radius * e / np.linalg.norm(e, axis=1)[:, None]
+    Q, ok = reach_positions(model, target, starts=data.q)
+    return replace(data, q=np.where(ok[:, None], Q, data.q))
+
+
+def _check_planes(data: TouchData, plane_refs: np.ndarray) -> None:
+    """Planes alone must have normals spanning space: one plane (or parallel ones) leaves the
+    tool free along it, two leave the line where they meet."""
+    if any(f.kind != "plane" for f in data.features):
+        return
+    normals = plane_refs[:, :, 2]
+    s = np.linalg.svd(normals, compute_uv=False)
+    span = int(np.sum(s > 0.1 * s[0]))     # directions at more than ~6 degrees
+    if span < 3:
+        raise DataError(f"the planes' normals span {span} direction{'s' if span > 1 else ''}: add "
+                        f"{'two planes' if span == 1 else 'a plane'} not parallel to the touched ones "
+                        f"(three faces of a cube), or a point or a sphere")
+
+
+# ---------------------------------------------------------------- fit
+def calibrate_touch(robot: RobotModel, data: TouchData, *, params: str = "auto",
+                    sigma: float = SIGMA_TOUCH_M, options: LMOptions = LMOptions()) -> TouchResult:
+    """Calibrate ``robot`` from touch rows (see the module docstring).
+
+    robot : the nominal model (the start; u stays at it). data : the rows (q in ``robot``'s chain
+    order). params : "auto" (the identifiable geometric parameters) or "tool" (the flange->tool
+    offset only, the classic TCP calibration). sigma : metres, the touch noise per residual
+    component (weights and the predicted uncertainties). Returns a :class:`TouchResult`.
+    """
+    check_robot(robot)
+    check_number(sigma, "sigma", minimum=1e-9, maximum=1.0)
+    ident = touch_identifiability(robot, data, params=params, sigma=sigma)
+    if data.q.shape[1] != robot.n_joints:
+        raise DataError(f"touch rows have {data.q.shape[1]} joint values, the robot {robot.n_joints} joints")
+    free = robot.indices(ident.robot_free)
+    kin = ChainKinematics(robot)
+    start = initial_features(data, kin.frame_poses(data.q)[1])
+    prob = TouchProblem(kin, data, robot.values, free, start.plane_refs, sigma)
+    x0 = prob.x0(start.values)
+    prob.set_rank_deficit(0)
+    r0 = prob.evaluate(x0, jacobian=False)[0]
+    sol = levenberg_marquardt(prob, x0, options=options)
+    x = sol.x
+    ne = prob.normal_equations(x)
+    r = prob.evaluate(x, jacobian=False)[0]
+    cov = normal_inverse(ne.A)[0]
+    dof = max(len(r) - len(x), 1)
+    sigma_est = float(np.sqrt(r @ r / dof))
+    std_all = np.sqrt(np.maximum(np.diag(cov), 0.0)) * sigma_est / sigma
+    mr = len(free)
+    F = prob.feature_values(x)
+    normals = np.zeros((len(data.features), 3))
+    planes = [k for k, f in enumerate(data.features) if f.kind == "plane"]
+    if planes:
+        normals[planes] = plane_normals(start.plane_refs[planes], F[planes, 0], F[planes, 1])[0]
+    return TouchResult(
+        robot=robot.with_values(prob.full(x)), identifiability=ident, free=ident.robot_free,
+        feature_names=ident.features, feature_values=x[mr:].copy(), feature_std=std_all[mr:],
+        plane_normals=normals, plane_refs=start.plane_refs,
+        rms_before=float(np.sqrt(np.mean(r0 ** 2))), rms_after=float(np.sqrt(np.mean(r ** 2))),
+        sigma=float(sigma), sigma_estimated=sigma_est, std=std_all[:mr], covariance=cov, solver=sol,
+        n_rows=data.n_rows, n_residuals=len(r))
+
+
+# ---------------------------------------------------------------- accuracy
+def rigid_residuals(p: np.ndarray, p_ref: np.ndarray) -> np.ndarray:
+    """(N, 3) what is left of p - p_ref (both (N, 3) metres) after the best-fit rigid motion of
+    p onto p_ref (Kabsch)."""
+    mp, mr = p.mean(axis=0), p_ref.mean(axis=0)
+    U, _, Vt = np.linalg.svd((p - mp).T @ (p_ref - mr))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = (U @ D @ Vt).T
+    return (p - mp) @ R.T + mr - p_ref
+
+
+def registered_error(model: RobotModel, truth: RobotModel, Q: np.ndarray) -> float:
+    """RMS distance (metres) between ``model``'s and ``truth``'s tool positions at Q (N, n) after
+    one best-fit rigid registration of the former onto the latter."""
+    p = ChainKinematics(model).frame_poses(Q)[1]
+    p_ref = ChainKinematics(truth).frame_poses(Q)[1]
+    return float(np.sqrt(np.mean(np.sum(rigid_residuals(p, p_ref) ** 2, axis=1))))
+
+
+def predicted_tool_error(result: TouchResult, Q: np.ndarray) -> float:
+    """The Cramer-Rao prediction (at the assumed noise ``result.sigma``) of the RMS error of the
+    calibrated tool positions at Q (N, n) after a best-fit rigid registration: sqrt(trace(P Jt C
+    Jt^T P) / N), Jt the tool positions' Jacobian in the fitted robot parameters (3 N, m), C their
+    covariance, P the projection off the rigid motions of the N points (linearised)."""
+    robot = result.robot
+    Q = check_configurations(Q, robot.n_joints)
+    kin = ChainKinematics(robot)
+    free = robot.indices(result.free)
+    _, p, J = pose_jacobian(kin, Q, free)
+    Jt = J[:, :3].reshape(-1, len(free))
+    N = len(Q)
+    G = np.zeros((N, 3, 6))
+    G[:, :, :3] = np.eye(3)
+    c = p - p.mean(axis=0)
+    G[:, 0, 4], G[:, 0, 5] = c[:, 2], -c[:, 1]          # w x c: rows of -[c]x
+    G[:, 1, 3], G[:, 1, 5] = -c[:, 2], c[:, 0]
+    G[:, 2, 3], G[:, 2, 4] = c[:, 1], -c[:, 0]
+    Qg = np.linalg.qr(G.reshape(-1, 6))[0]
+    PJ = Jt - Qg @ (Qg.T @ Jt)
+    C = result.covariance[:len(free), :len(free)]
+    return float(np.sqrt(np.einsum("ij,jk,ik->", PJ, C, PJ) / N))
