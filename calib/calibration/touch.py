@@ -16,7 +16,7 @@ Stages, each callable on its own:
   length), the scale, held by the longest length (its relative error, hence the scale's, is then
   the smallest).
 * :func:`calibrate_touch` fits the identifiable robot parameters and the features by calib's LM
-  (:class:`calib.solvers.touch.TouchProblem`) from the nominal model and the features fitted to
+  (:class:`calib.solvers.touch_problem.TouchProblem`) from the nominal model and the features fitted to
   its tool points, and returns a :class:`TouchResult`.
 * :func:`predicted_tool_error` is the Cramer-Rao prediction of the calibrated tool positions'
   error at given configurations, after a best-fit rigid registration (the base frame stays
@@ -41,7 +41,7 @@ from calib.model.touch import (FeatureStart, TouchData, feature_parameter_names,
 from calib.model.touch_simulate import reach_positions
 from calib.solvers.lm import LMOptions, SolverResult, levenberg_marquardt
 from calib.solvers.problem import normal_inverse
-from calib.solvers.touch import TouchProblem
+from calib.solvers.touch_problem import TouchProblem
 
 #: Default touch noise (metres per residual component): a good probe in a good nest.
 SIGMA_TOUCH_M = 0.02e-3

@@ -10,7 +10,7 @@ from calib import load_robot
 from calib.model.kinematics import ChainKinematics
 from calib.model.spatial import elementary
 from calib.model.touch import Feature, TouchData, frame_with_normal
-from calib.solvers.touch import TouchProblem
+from calib.solvers.touch_problem import TouchProblem
 
 from conftest import erd_urdf
 
