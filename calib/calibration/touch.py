@@ -30,7 +30,7 @@ from typing import Sequence
 import numpy as np
 
 from calib.calibration.parameters import _idealised
-from calib.checks import check_configurations, check_instance, check_number
+from calib.checks import check_configurations, check_instance, check_int, check_number
 from calib.errors import DataError, ParameterError
 from calib.model.identifiability import RANK_TOL, Relation, select_identifiable, no_effect
 from calib.model.jacobian import pose_jacobian
@@ -67,6 +67,14 @@ class TouchIdentifiability:
     unidentifiable: tuple[Relation, ...]
     scale_free: bool
 
+    def to_dict(self) -> dict:
+        """A JSON-ready dict (robot_free, features, held_nominal with tied partners, scale_free)."""
+        return {"robot_free": list(self.robot_free), "features": list(self.features),
+                "held_nominal": [{"name": r.parameter, "tied_to": [{"name": n, "coefficient": c}
+                                                                   for n, c in r.partners],
+                                  "reason": r.reason} for r in self.unidentifiable],
+                "scale_free": self.scale_free}
+
     def format(self) -> str:
         lines = [f"identifiable robot parameters ({len(self.robot_free)}): {', '.join(self.robot_free)}",
                  f"feature unknowns ({len(self.features)}): {', '.join(self.features)}",
@@ -90,7 +98,8 @@ class TouchResult:
     (metres); sigma_estimated : from the residuals, sqrt(rss / (n_res - n_free)).
     std : (n_free_robot,) standard deviations of the robot parameters (SI, at sigma_estimated);
     covariance : (m, m) of all free unknowns (robot, then features) at ``sigma``.
-    solver : the LM's result. n_rows, n_residuals : the data used.
+    solver : the LM's result. n_rows, n_residuals : the data used. cv_rms : metres, the RMS of
+    the held-out residual components over ``cv_folds`` folds (None without).
     """
 
     robot: RobotModel
@@ -110,12 +119,16 @@ class TouchResult:
     solver: SolverResult = field(repr=False)
     n_rows: int
     n_residuals: int
+    cv_rms: float | None = None
+    cv_folds: int = 0
 
     def format(self) -> str:
         lines = [f"touch calibration: {self.n_rows} rows, {self.n_residuals} residual components, "
                  f"{len(self.free)} robot parameters and {len(self.feature_names)} feature unknowns fitted",
                  f"residual RMS {self.rms_before * 1e3:.4f} mm before, {self.rms_after * 1e3:.4f} mm after "
                  f"(noise estimated {self.sigma_estimated * 1e3:.4f} mm, assumed {self.sigma * 1e3:.4f} mm)"]
+        if self.cv_rms is not None:
+            lines.append(f"held-out residual RMS ({self.cv_folds}-fold cross-validation): {self.cv_rms * 1e3:.4f} mm")
         for name, v, s in zip(self.feature_names, self.feature_values, self.feature_std):
             unit, f = ("rad", 1.0) if name[-2:] in ("_a", "_b") else ("mm", 1e3)
             lines.append(f"  {name:<24} {v * f:12.4f} +- {s * f:.4f} {unit}")
@@ -163,6 +176,11 @@ def touch_identifiability(robot: RobotModel, data: TouchData, *, params: str = "
     check_touch_design(data, params)
     if params not in PARAM_CHOICES:
         raise ParameterError(f"params must be one of {', '.join(PARAM_CHOICES)} for touch data, got {params!r}")
+    if data.q.shape[1] != robot.n_joints:
+        raise DataError(f"touch rows have {data.q.shape[1]} joint values, the robot {robot.n_joints} joints")
+    if robot.targets:
+        raise ParameterError("touch data calibrate a robot with one tool point; this model has several "
+                             f"targets ({', '.join(robot.targets)})")
     model = _idealised(robot)
     if params == "tool":
         candidates = [model.index(n) for n in model.v_names()[:3]]
@@ -244,27 +262,23 @@ def _check_planes(data: TouchData, plane_refs: np.ndarray) -> None:
 
 # ---------------------------------------------------------------- fit
 def calibrate_touch(robot: RobotModel, data: TouchData, *, params: str = "auto",
-                    sigma: float = SIGMA_TOUCH_M, options: LMOptions = LMOptions()) -> TouchResult:
+                    sigma: float = SIGMA_TOUCH_M, cv: int = 5, seed: int = 0,
+                    options: LMOptions = LMOptions()) -> TouchResult:
     """Calibrate ``robot`` from touch rows (see the module docstring).
 
     robot : the nominal model (the start; u stays at it). data : the rows (q in ``robot``'s chain
     order). params : "auto" (the identifiable geometric parameters) or "tool" (the flange->tool
     offset only, the classic TCP calibration). sigma : metres, the touch noise per residual
-    component (weights and the predicted uncertainties). Returns a :class:`TouchResult`.
+    component (weights and the predicted uncertainties). cv : folds of the cross-validated
+    held-out residuals (:func:`cross_validate_touch`; 0 or 1: none), drawn with ``seed``.
+    Returns a :class:`TouchResult`.
     """
     check_robot(robot)
     check_number(sigma, "sigma", minimum=1e-9, maximum=1.0)
+    check_int(cv, "cv", minimum=0)
     ident = touch_identifiability(robot, data, params=params, sigma=sigma)
-    if data.q.shape[1] != robot.n_joints:
-        raise DataError(f"touch rows have {data.q.shape[1]} joint values, the robot {robot.n_joints} joints")
     free = robot.indices(ident.robot_free)
-    kin = ChainKinematics(robot)
-    start = initial_features(data, kin.frame_poses(data.q)[1])
-    prob = TouchProblem(kin, data, robot.values, free, start.plane_refs, sigma)
-    x0 = prob.x0(start.values)
-    prob.set_rank_deficit(0)
-    r0 = prob.evaluate(x0, jacobian=False)[0]
-    sol = levenberg_marquardt(prob, x0, options=options)
+    prob, start, sol, r0 = _fit(robot, data, free, sigma, options, declared=True)
     x = sol.x
     ne = prob.normal_equations(x)
     r = prob.evaluate(x, jacobian=False)[0]
@@ -278,13 +292,61 @@ def calibrate_touch(robot: RobotModel, data: TouchData, *, params: str = "auto",
     planes = [k for k, f in enumerate(data.features) if f.kind == "plane"]
     if planes:
         normals[planes] = plane_normals(start.plane_refs[planes], F[planes, 0], F[planes, 1])[0]
+    cv_rms = cross_validate_touch(robot, data, ident.robot_free, sigma=sigma, k=cv, seed=seed,
+                                  options=options) if cv > 1 else None
     return TouchResult(
         robot=robot.with_values(prob.full(x)), identifiability=ident, free=ident.robot_free,
         feature_names=ident.features, feature_values=x[mr:].copy(), feature_std=std_all[mr:],
         plane_normals=normals, plane_refs=start.plane_refs,
         rms_before=float(np.sqrt(np.mean(r0 ** 2))), rms_after=float(np.sqrt(np.mean(r ** 2))),
         sigma=float(sigma), sigma_estimated=sigma_est, std=std_all[:mr], covariance=cov, solver=sol,
-        n_rows=data.n_rows, n_residuals=len(r))
+        n_rows=data.n_rows, n_residuals=len(r), cv_rms=cv_rms, cv_folds=cv if cv > 1 else 0)
+
+
+def _fit(robot: RobotModel, data: TouchData, free: np.ndarray, sigma: float, options: LMOptions,
+         declared: bool):
+    """(problem, feature start, LM result, residuals at the start) of the fit of the robot
+    parameters ``free`` and the features, from ``robot`` and the features fitted to its tool
+    points; ``declared``: the free set is identifiable (no direction held, see Problem)."""
+    kin = ChainKinematics(robot)
+    start = initial_features(data, kin.frame_poses(data.q)[1])
+    prob = TouchProblem(kin, data, robot.values, free, start.plane_refs, sigma)
+    x0 = prob.x0(start.values)
+    if declared:
+        prob.set_rank_deficit(0)
+    r0 = prob.evaluate(x0, jacobian=False)[0]
+    return prob, start, levenberg_marquardt(prob, x0, options=options), r0
+
+
+def cross_validate_touch(robot: RobotModel, data: TouchData, free: Sequence[str], *,
+                         sigma: float = SIGMA_TOUCH_M, k: int = 5, seed: int = 0,
+                         options: LMOptions = LMOptions()) -> float:
+    """RMS (metres) of the held-out residual components over ``k`` folds: each fold's rows
+    (drawn feature by feature, so that every feature keeps rows in every fit) predicted by the
+    robot parameters ``free`` and the features fitted to the other rows."""
+    check_int(k, "k", minimum=2)
+    rng = np.random.default_rng(seed)
+    fold = np.empty(data.n_rows, int)
+    for f in range(len(data.features)):
+        rows = rng.permutation(data.rows_of(f))
+        fold[rows] = (np.arange(len(rows)) + rng.integers(k)) % k
+    free_idx = robot.indices(free)
+    sq, n = 0.0, 0
+    for j in range(k):
+        test = fold == j
+        train = ~test
+        if not test.any():
+            continue
+        if len(set(data.feature[train].tolist())) < len(data.features):
+            raise DataError(f"{k}-fold cross-validation leaves a feature without rows: fewer folds, or more rows")
+        prob, start, sol, _ = _fit(robot, data.subset(train), free_idx, sigma, options, declared=False)
+        used = sorted(set(data.feature[test].tolist()))
+        held = TouchProblem(ChainKinematics(robot), data.subset(test), prob.full(sol.x), free_idx,
+                            start.plane_refs[used], sigma)
+        x = np.concatenate([sol.x[:len(free_idx)], prob.feature_values(sol.x)[used].reshape(-1)])
+        r = held.evaluate(x, jacobian=False)[0]
+        sq, n = sq + float(r @ r), n + len(r)
+    return float(np.sqrt(sq / n))
 
 
 # ---------------------------------------------------------------- accuracy

@@ -65,7 +65,7 @@ def run_touch(args: argparse.Namespace) -> int:
     data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
     sigma = SIGMA_TOUCH_M if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3
     try:
-        result = calibrate_touch(robot, data, params=params, sigma=sigma)
+        result = calibrate_touch(robot, data, params=params, sigma=sigma, cv=getattr(args, "cv", 5))
     except CalibError as exc:       # about the data as a whole (a degenerate design): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
@@ -121,6 +121,8 @@ def _report(result, predicted: float, args) -> dict:
         "residual_components": result.n_residuals,
         "residual_rms_mm": {"before": result.rms_before * 1e3, "after": result.rms_after * 1e3},
         "noise_mm": {"assumed": result.sigma * 1e3, "estimated": result.sigma_estimated * 1e3},
+        "cross_validation": None if result.cv_rms is None else {"folds": result.cv_folds,
+                                                                 "held_out_rms_mm": result.cv_rms * 1e3},
         "parameters": [{"name": n, "value": float(result.robot.value(n)), "std": float(s)}
                        for n, s in zip(result.free, result.std)],
         "features": [{"name": n, "value": scaled(n, float(v)), "std": scaled(n, float(s)),

@@ -37,6 +37,13 @@ def test_simulate_then_calibrate_a_touch_file(urdf, tmp_path, capsys):
     assert code == 0, err
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["kind"] == "touch" and report["rows"] == 80
+    assert report["cross_validation"]["folds"] == 5
+    code, out, err = run(capsys, "identifiability", urdf, "--tool-frame", "tool0", "--touch", tmp_path / "touch.csv",
+                         "--json")
+    assert code == 0, err
+    ident = json.loads(out)
+    assert ident["robot_free"] == [p["name"] for p in report["parameters"]] and not ident["scale_free"]
+    assert {"u_x", "u_y", "u_z", "u_alpha", "u_beta", "u_gamma"} <= {r["name"] for r in ident["held_nominal"]}
     assert report["residual_rms_mm"]["after"] < 0.03 < 0.3 < report["residual_rms_mm"]["before"]
     # the URDF written and read back: within 1.5x the prediction and 10x better than nominal
     nominal = calib.load_robot(urdf, tool_frame="tool0")
