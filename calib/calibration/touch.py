@@ -187,7 +187,8 @@ def touch_identifiability(robot: RobotModel, data: TouchData, *, params: str = "
     else:
         candidates = [k for k, p in enumerate(model.parameters) if p.group != "compliance"]
     kin = ChainKinematics(model)
-    start = initial_features(data, kin.frame_poses(data.q)[1])
+    R, p = kin.frame_poses(data.q)
+    start = initial_features(data, p, R[:, :, 2])
     _check_planes(data, start.plane_refs)
     data = consistent_rows(model, data, start)
     prob = TouchProblem(kin, data, model.values, candidates, start.plane_refs, sigma)
@@ -309,7 +310,8 @@ def _fit(robot: RobotModel, data: TouchData, free: np.ndarray, sigma: float, opt
     parameters ``free`` and the features, from ``robot`` and the features fitted to its tool
     points; ``declared``: the free set is identifiable (no direction held, see Problem)."""
     kin = ChainKinematics(robot)
-    start = initial_features(data, kin.frame_poses(data.q)[1])
+    R, p = kin.frame_poses(data.q)
+    start = initial_features(data, p, R[:, :, 2])
     prob = TouchProblem(kin, data, robot.values, free, start.plane_refs, sigma)
     x0 = prob.x0(start.values)
     if declared:

@@ -181,9 +181,12 @@ class FeatureStart:
     plane_refs: np.ndarray
 
 
-def initial_features(data: TouchData, p_tool: np.ndarray) -> FeatureStart:
+def initial_features(data: TouchData, p_tool: np.ndarray, z_tool: np.ndarray | None = None) -> FeatureStart:
     """Start values fitted to tool points ``p_tool`` (N, 3) metres (those of the nominal model):
-    a point's mean; a plane by total least squares (its normal the reference, a = b = 0); a
+    a point's mean; a plane by total least squares (its normal the reference, a = b = 0, turned
+    against the tool's z axes ``z_tool`` (N, 3): the probe points along its tool frame's z, out of
+    the flange as URDF tool frames such as tool0 do, so it comes from the side the normal points
+    to, a ball tip's centre lies at +probe_radius and d is the touched surface's offset); a
     sphere's centre by the algebraic fit ``|p|^2 = 2 p . c + k``, else from the centroid along
     the fitted cap's normal when the rows are too few or coplanar."""
     K = len(data.features)
@@ -195,6 +198,8 @@ def initial_features(data: TouchData, p_tool: np.ndarray) -> FeatureStart:
             values[k] = m
         elif f.kind == "plane":
             n = np.linalg.svd(P - m)[2][-1] if len(P) >= 3 else np.array([0.0, 0.0, 1.0])
+            if z_tool is not None and np.sum(z_tool[data.rows_of(k)] @ n) > 0:
+                n = -n
             refs[k] = frame_with_normal(n)
             values[k] = (0.0, 0.0, float(n @ m) - data.probe_radius)
         else:

@@ -8,7 +8,9 @@ of a design are perpendicular faces of a cube through one corner (their normals 
 random rotation, in turn); a sphere's centre is such a point too. A row is found by inverse
 kinematics of the position only (damped least squares on the true model, from a random start
 within the limits, clamped to them at every step): targets are the point itself; a point of the
-plane within ``spread`` of the corner; a point of the sphere in a random direction. The target is
+plane within ``spread`` of the corner, the tool's z axis (the probe's direction) pointing into
+the plane's front side, that of its normal, at least PROBE_MIN_SIN of it (a probe cannot touch
+a plate from behind, nor along it); a point of the sphere in a random direction. The target is
 moved by Gaussian noise of ``sigma`` per axis first (the touch's error: the recorded joint
 values are where the arm really was). Random starts make the configurations, and so the tool
 orientations, differ from row to row.
@@ -32,6 +34,8 @@ IK_DAMPING = 1e-3
 IK_TOL = 1e-10
 #: Random starts tried per wanted row before a feature is moved elsewhere.
 STARTS_PER_ROW = 12
+#: A probe touching a plane: the sine of its angle to the plane, at least (about 17 degrees).
+PROBE_MIN_SIN = 0.3
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,6 +137,8 @@ def simulate_touch(true_robot: RobotModel, features: Sequence[Feature], rows: Se
                 truth[k] = c
             noisy = targets + (rng.normal(0.0, sigma, targets.shape) if sigma > 0 else 0.0)
             Q, ok = reach_positions(true_robot, noisy, rng)
+            if f.kind == "plane":       # the probe (along the tool's z) comes from the front (+n) side
+                ok &= ChainKinematics(true_robot).frame_poses(Q)[0][:, :, 2] @ normals[k] < -PROBE_MIN_SIN
             if ok.sum() >= n_rows:
                 Qs.append(Q[np.flatnonzero(ok)[:n_rows]])
                 feat += [k] * n_rows

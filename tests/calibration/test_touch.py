@@ -142,3 +142,24 @@ def test_tool_offset_from_one_point_and_six_orientations():
     assert np.all(np.abs(err) <= 4 * res.std), (err, res.std)
     assert np.all(res.std < 0.05e-3)
     np.testing.assert_allclose(res.feature_values, sim.truth, atol=0.2e-3)
+
+
+def test_a_ball_tip_moves_the_planes_not_the_robot():
+    """--probe-radius: the ball's centre lies at R in front of the touched surface (the side the
+    probe, along the tool's z, comes from); the planes' offsets are the surfaces', the robot fit
+    is the same."""
+    from dataclasses import replace
+
+    robot = _robot("panda")
+    rng = np.random.default_rng(11)
+    true = apply_deviations(robot, random_deviations(robot, 0.5e-3, rng))
+    sim = simulate_touch(true, *PLANES, rng=rng, probe_radius=0.005)
+    ball = calibrate_touch(robot, sim.data, cv=0)
+    point = calibrate_touch(robot, replace(sim.data, probe_radius=0.0), cv=0)
+    np.testing.assert_allclose(ball.robot.values, point.robot.values, rtol=0, atol=1e-9)
+    d = [i for i, n in enumerate(ball.feature_names) if n.startswith("plane_") and n.endswith("_d")]
+    np.testing.assert_allclose(point.feature_values[d] - ball.feature_values[d], 0.005, rtol=0, atol=1e-9)
+    # the normals found point to the probe's side: the same as the simulated ones, to the
+    # robot's errors (about a milliradian)
+    cos = np.einsum("ki,ki->k", ball.plane_normals[:3], sim.normals[:3])
+    assert np.all(cos > 0.999)
