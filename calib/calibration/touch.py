@@ -29,6 +29,7 @@ from typing import Sequence
 
 import numpy as np
 
+from calib.calibration.fit import _implausible_length_notes
 from calib.calibration.parameters import _idealised
 from calib.checks import check_configurations, check_instance, check_int, check_number
 from calib.errors import DataError, ParameterError
@@ -40,7 +41,7 @@ from calib.model.touch import (FeatureStart, TouchData, feature_parameter_names,
                                plane_normals)
 from calib.model.touch_simulate import reach_positions
 from calib.solvers.lm import LMOptions, SolverResult, levenberg_marquardt
-from calib.solvers.problem import normal_inverse
+from calib.solvers.problem import CHI2_ESCAPE, normal_inverse
 from calib.solvers.touch_problem import TouchProblem
 
 #: Default touch noise (metres per residual component): a good probe in a good nest.
@@ -94,10 +95,13 @@ class TouchResult:
     feature_names : (3 K,) names; feature_values, feature_std : (3 K,) SI (see
     :mod:`calib.model.touch`); plane_normals : (K, 3) unit normals (zeros for other kinds);
     plane_refs : (K, 3, 3). rms_before / rms_after : metres, RMS of the residual components at the
-    nominal model (features fitted to it) and at the solution. sigma : the noise assumed
-    (metres); sigma_estimated : from the residuals, sqrt(rss / (n_res - n_free)).
-    std : (n_free_robot,) standard deviations of the robot parameters (SI, at sigma_estimated);
+    nominal model (features fitted to it) and at the solution. sigma : metres, the noise the
+    uncertainties are at (the given one, else sigma_estimated); sigma_given : whether it was
+    given; sigma_estimated : from the residuals, sqrt(rss / (n_res - n_free)).
+    std : (n_free_robot,) standard deviations of the robot parameters (SI, at ``sigma``);
     covariance : (m, m) of all free unknowns (robot, then features) at ``sigma``.
+    status : the LM's status, or "implausible" (converged to a result that cannot be trusted:
+    residuals far above a given noise, link lengths far from the nominal), message : why.
     solver : the LM's result. n_rows, n_residuals : the data used. cv_rms : metres, the RMS of
     the held-out residual components over ``cv_folds`` folds (None without).
     """
@@ -113,6 +117,7 @@ class TouchResult:
     rms_before: float
     rms_after: float
     sigma: float
+    sigma_given: bool
     sigma_estimated: float
     std: np.ndarray = field(repr=False)
     covariance: np.ndarray = field(repr=False)
@@ -121,12 +126,19 @@ class TouchResult:
     n_residuals: int
     cv_rms: float | None = None
     cv_folds: int = 0
+    status: str = "converged"
+    message: str = ""
+
+    @property
+    def success(self) -> bool:
+        return self.status == "converged"
 
     def format(self) -> str:
         lines = [f"touch calibration: {self.n_rows} rows, {self.n_residuals} residual components, "
                  f"{len(self.free)} robot parameters and {len(self.feature_names)} feature unknowns fitted",
                  f"residual RMS {self.rms_before * 1e3:.4f} mm before, {self.rms_after * 1e3:.4f} mm after "
-                 f"(noise estimated {self.sigma_estimated * 1e3:.4f} mm, assumed {self.sigma * 1e3:.4f} mm)"]
+                 f"(noise estimated {self.sigma_estimated * 1e3:.4f} mm"
+                 + (f", given {self.sigma * 1e3:.4f} mm)" if self.sigma_given else ")")]
         if self.cv_rms is not None:
             lines.append(f"held-out residual RMS ({self.cv_folds}-fold cross-validation): {self.cv_rms * 1e3:.4f} mm")
         for name, v, s in zip(self.feature_names, self.feature_values, self.feature_std):
@@ -263,45 +275,60 @@ def _check_planes(data: TouchData, plane_refs: np.ndarray) -> None:
 
 # ---------------------------------------------------------------- fit
 def calibrate_touch(robot: RobotModel, data: TouchData, *, params: str = "auto",
-                    sigma: float = SIGMA_TOUCH_M, cv: int = 5, seed: int = 0,
+                    sigma: float | None = None, cv: int = 5, seed: int = 0,
                     options: LMOptions = LMOptions()) -> TouchResult:
     """Calibrate ``robot`` from touch rows (see the module docstring).
 
     robot : the nominal model (the start; u stays at it). data : the rows (q in ``robot``'s chain
     order). params : "auto" (the identifiable geometric parameters) or "tool" (the flange->tool
     offset only, the classic TCP calibration). sigma : metres, the touch noise per residual
-    component (weights and the predicted uncertainties). cv : folds of the cross-validated
-    held-out residuals (:func:`cross_validate_touch`; 0 or 1: none), drawn with ``seed``.
-    Returns a :class:`TouchResult`.
+    component, or None to estimate it from the residuals; the uncertainties and the prediction
+    are at it, and a given one is checked against the residuals (reduced chi-square above
+    CHI2_ESCAPE: status "implausible"). cv : folds of the cross-validated held-out residuals
+    (:func:`cross_validate_touch`; 0 or 1: none), drawn with ``seed``. Returns a
+    :class:`TouchResult`.
     """
     check_robot(robot)
-    check_number(sigma, "sigma", minimum=1e-9, maximum=1.0)
+    if sigma is not None:
+        check_number(sigma, "sigma", minimum=1e-9, maximum=1.0)
     check_int(cv, "cv", minimum=0)
-    ident = touch_identifiability(robot, data, params=params, sigma=sigma)
+    weight = SIGMA_TOUCH_M if sigma is None else float(sigma)
+    ident = touch_identifiability(robot, data, params=params, sigma=weight)
     free = robot.indices(ident.robot_free)
-    prob, start, sol, r0 = _fit(robot, data, free, sigma, options, declared=True)
+    prob, start, sol, r0 = _fit(robot, data, free, weight, options, declared=True)
     x = sol.x
     ne = prob.normal_equations(x)
     r = prob.evaluate(x, jacobian=False)[0]
-    cov = normal_inverse(ne.A)[0]
     dof = max(len(r) - len(x), 1)
     sigma_est = float(np.sqrt(r @ r / dof))
-    std_all = np.sqrt(np.maximum(np.diag(cov), 0.0)) * sigma_est / sigma
+    noise = weight if sigma is not None else sigma_est
+    cov = normal_inverse(ne.A)[0] * (noise / weight) ** 2
+    std_all = np.sqrt(np.maximum(np.diag(cov), 0.0))
     mr = len(free)
     F = prob.feature_values(x)
     normals = np.zeros((len(data.features), 3))
     planes = [k for k, f in enumerate(data.features) if f.kind == "plane"]
     if planes:
         normals[planes] = plane_normals(start.plane_refs[planes], F[planes, 0], F[planes, 1])[0]
-    cv_rms = cross_validate_touch(robot, data, ident.robot_free, sigma=sigma, k=cv, seed=seed,
+    calibrated = robot.with_values(prob.full(x))
+    status, message = sol.status, sol.message
+    notes = _implausible_length_notes(robot, calibrated)
+    if sigma is not None and (sigma_est / sigma) ** 2 > CHI2_ESCAPE:
+        notes.insert(0, f"the fit converged but its residuals are {sigma_est / sigma:.1f} times the given noise "
+                        f"(reduced chi^2 {(sigma_est / sigma) ** 2:.3g}): a wrong sigma, rows naming the wrong "
+                        f"feature, or errors the model does not describe; omit the noise to estimate it")
+    if notes and status == "converged":
+        status, message = "implausible", notes[0]
+    cv_rms = cross_validate_touch(robot, data, ident.robot_free, sigma=weight, k=cv, seed=seed,
                                   options=options) if cv > 1 else None
     return TouchResult(
-        robot=robot.with_values(prob.full(x)), identifiability=ident, free=ident.robot_free,
+        robot=calibrated, identifiability=ident, free=ident.robot_free,
         feature_names=ident.features, feature_values=x[mr:].copy(), feature_std=std_all[mr:],
         plane_normals=normals, plane_refs=start.plane_refs,
         rms_before=float(np.sqrt(np.mean(r0 ** 2))), rms_after=float(np.sqrt(np.mean(r ** 2))),
-        sigma=float(sigma), sigma_estimated=sigma_est, std=std_all[:mr], covariance=cov, solver=sol,
-        n_rows=data.n_rows, n_residuals=len(r), cv_rms=cv_rms, cv_folds=cv if cv > 1 else 0)
+        sigma=float(noise), sigma_given=sigma is not None, sigma_estimated=sigma_est, std=std_all[:mr],
+        covariance=cov, solver=sol, n_rows=data.n_rows, n_residuals=len(r), cv_rms=cv_rms,
+        cv_folds=cv if cv > 1 else 0, status=status, message=message)
 
 
 def _fit(robot: RobotModel, data: TouchData, free: np.ndarray, sigma: float, options: LMOptions,
@@ -378,7 +405,7 @@ def registered_error(model: RobotModel, truth: RobotModel, Q: np.ndarray, regist
 
 
 def predicted_tool_error(result: TouchResult, Q: np.ndarray, registration: str = "rigid") -> float:
-    """The Cramer-Rao prediction (at the assumed noise ``result.sigma``) of the RMS error of the
+    """The Cramer-Rao prediction (at the noise ``result.sigma``) of the RMS error of the
     calibrated tool positions at Q (N, n) after a best-fit rigid (or similarity) registration:
     sqrt(trace(P Jt C Jt^T P) / N), Jt the tool positions' Jacobian in the fitted robot
     parameters (3 N, m), C their covariance, P the projection off the rigid motions (and the

@@ -44,7 +44,7 @@ def run_touch(args: argparse.Namespace) -> int:
     calibrated URDF (u nominal), the printed report (and --report JSON)."""
     import numpy as np
 
-    from calib.calibration.touch import PARAM_CHOICES, SIGMA_TOUCH_M, calibrate_touch, predicted_tool_error
+    from calib.calibration.touch import PARAM_CHOICES, calibrate_touch, predicted_tool_error
     from calib.io.touch_file import read_touch
     from calib.io.urdf_reader import robot_path
     from calib.io.urdf_writer import check_writable, write_calibrated_urdf
@@ -63,7 +63,7 @@ def run_touch(args: argparse.Namespace) -> int:
     check_writable(robot)
     probe = (getattr(args, "probe_radius_mm", None) or 0.0) * 1e-3
     data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
-    sigma = SIGMA_TOUCH_M if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3
+    sigma = None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3
     try:
         result = calibrate_touch(robot, data, params=params, sigma=sigma, cv=getattr(args, "cv", 5))
     except CalibError as exc:       # about the data as a whole (a degenerate design): name the file
@@ -89,9 +89,14 @@ def run_touch(args: argparse.Namespace) -> int:
     sys.stdout.write(text + f"\n\nwrote {out_urdf}" + (f", {out_report}" if out_report else "")
                      + f"\n{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in base "
                        f"frame {frames.base_frame!r}\n")
-    if not result.solver.success:
-        sys.stderr.write(f"calib: warning: the calibration did NOT converge ({result.solver.message}); the "
-                         f"outputs were written for inspection\n")
+    if result.status == "implausible":
+        sys.stderr.write(f"calib: warning: the calibration converged to a result that cannot be trusted "
+                         f"({result.message}); the outputs were written for inspection, do not use them as a "
+                         f"calibrated model\n")
+        return EXIT_NOT_CONVERGED
+    if not result.success:
+        sys.stderr.write(f"calib: warning: the calibration did NOT converge (status {result.status}: "
+                         f"{result.message}); the outputs were written for inspection\n")
         return EXIT_NOT_CONVERGED
     return EXIT_OK
 
@@ -114,13 +119,14 @@ def _report(result, predicted: float, args) -> dict:
 
     return {
         "kind": "touch",
-        "status": result.solver.status,
-        "message": result.solver.message,
+        "status": result.status,
+        "message": result.message,
         "command_line": ["calib", *getattr(args, "argv", [])],
         "rows": result.n_rows,
         "residual_components": result.n_residuals,
         "residual_rms_mm": {"before": result.rms_before * 1e3, "after": result.rms_after * 1e3},
-        "noise_mm": {"assumed": result.sigma * 1e3, "estimated": result.sigma_estimated * 1e3},
+        "noise_mm": {"used": result.sigma * 1e3, "given": result.sigma_given,
+                     "estimated": result.sigma_estimated * 1e3},
         "cross_validation": None if result.cv_rms is None else {"folds": result.cv_folds,
                                                                  "held_out_rms_mm": result.cv_rms * 1e3},
         "parameters": [{"name": n, "value": float(result.robot.value(n)), "std": float(s)}

@@ -163,3 +163,18 @@ def test_a_ball_tip_moves_the_planes_not_the_robot():
     # robot's errors (about a milliradian)
     cos = np.einsum("ki,ki->k", ball.plane_normals[:3], sim.normals[:3])
     assert np.all(cos > 0.999)
+
+
+def test_noise_given_or_estimated_and_an_implausible_given_noise():
+    robot, _, sim, _ = _case("ur10", PLANES, 2)
+    est = calibrate_touch(robot, sim.data, cv=0)
+    assert not est.sigma_given and est.sigma == est.sigma_estimated and est.success
+    given = calibrate_touch(robot, sim.data, sigma=0.02e-3, cv=0)
+    assert given.success and given.sigma == 0.02e-3
+    # the same fit, its uncertainties at the noise they are said to be at
+    np.testing.assert_allclose(given.robot.values, est.robot.values, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(given.std / est.std, 0.02e-3 / est.sigma_estimated, rtol=1e-9)
+    # a noise ten times too small: the residuals are ten times it, the result is not trusted
+    small = calibrate_touch(robot, sim.data, sigma=0.002e-3, cv=0)
+    assert small.status == "implausible" and not small.success
+    assert "times the given noise" in small.message

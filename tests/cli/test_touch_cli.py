@@ -92,3 +92,13 @@ def test_tool_calibration_from_the_cli(urdf, tmp_path, capsys):
     for k, v in zip("xyz", (0.002, -0.001, 0.150)):
         p = params[f"v_{k}"]
         assert abs(p["value"] - v) <= 4 * p["std"] and p["std"] < 0.05e-3
+
+
+def test_a_given_noise_far_below_the_residuals_exits_3_with_the_outputs(urdf, tmp_path, capsys):
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "t.csv",
+                       "--constraint", "plane:3,sphere:80", "--poses", 15, "--seed", 2, "--deviations", "random:0.5")
+    assert code == 0, err
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf", "--sigma-pos-mm", 0.002, "--cv", 0)
+    assert code == 3 and "cannot be trusted" in err and "times the given noise" in err
+    assert (tmp_path / "cal.urdf").is_file()
