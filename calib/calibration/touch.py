@@ -240,7 +240,7 @@ def consistent_rows(model: RobotModel, data: TouchData, start: FeatureStart) -> 
     row's configuration. The ties of such data are exact (a rigid motion of the cell, the scale):
     at the rows as measured, whose tool points miss the features by the robot's errors, they
     hold only to that relative size (1e-3), above the rank tolerance. Rows that do not converge
-    keep their configuration."""
+    are left out (all of them kept when that would leave a feature without rows)."""
     prob = TouchProblem(ChainKinematics(model), data, model.values, np.zeros(0, int), start.plane_refs, 1.0)
     p = prob.kin.frame_poses(data.q)[1]
     F = start.values.reshape(-1, 3)
@@ -256,7 +256,10 @@ def consistent_rows(model: RobotModel, data: TouchData, start: FeatureStart) -> 
             e = p[rows] - F[k]
             target[rows] = F[k] + f.radius * e / np.linalg.norm(e, axis=1)[:, None]
     Q, ok = reach_positions(model, target, starts=data.q)
-    return replace(data, q=np.where(ok[:, None], Q, data.q))
+    moved = replace(data, q=np.where(ok[:, None], Q, data.q))
+    if ok.all() or len(set(data.feature[ok].tolist())) < len(data.features):
+        return moved
+    return moved.subset(ok)
 
 
 def _check_planes(data: TouchData, plane_refs: np.ndarray) -> None:
