@@ -178,3 +178,21 @@ def test_noise_given_or_estimated_and_an_implausible_given_noise():
     small = calibrate_touch(robot, sim.data, sigma=0.002e-3, cv=0)
     assert small.status == "implausible" and not small.success
     assert "times the given noise" in small.message
+
+
+def test_large_errors_free_what_the_idealised_model_ties():
+    """Errors of 5 mm / 10 mrad put the tool point millimetres off the last axis: its offset
+    theta6 then moves the tool point, and a5, alpha5 untie. The set decided at the idealised
+    nominal holds them (residuals 3 times the noise, the tool 2-5 times the prediction); the
+    second pass, decided at the first fit, frees them."""
+    robot = _robot("ur10")
+    rng = np.random.default_rng(0)
+    true = apply_deviations(robot, random_deviations(robot, 5e-3, rng))
+    sim = simulate_touch(true, *PLANES, sigma=0.02e-3, rng=rng)
+    res = calibrate_touch(robot, sim.data, sigma=0.02e-3, cv=0)
+    at_nominal = set(touch_identifiability(robot, sim.data).robot_free)
+    assert at_nominal < set(res.free) and res.success
+    assert set(res.free) - at_nominal <= {"theta6", "a5", "alpha5"}
+    assert res.sigma_estimated < 1.3 * 0.02e-3
+    Qt = robot.random_configurations(500, rng)
+    assert registered_error(res.robot, true, Qt) <= 1.5 * predicted_tool_error(res, Qt)
