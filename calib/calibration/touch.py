@@ -50,6 +50,9 @@ SIGMA_TOUCH_M = 0.02e-3
 #: feature and leave almost nothing to calibrate the robot).
 MIN_ROWS = {"point": 4, "plane": 4, "sphere": 4}
 PARAM_CHOICES = ("auto", "tool")
+#: Rows whose residual exceeds this many robust standard deviations are dropped (as calibrate's
+#: --outlier-k).
+OUTLIER_K = 5.0
 
 
 @dataclass(frozen=True)
@@ -128,6 +131,7 @@ class TouchResult:
     cv_folds: int = 0
     status: str = "converged"
     message: str = ""
+    outliers: tuple[tuple[int, float], ...] = ()
 
     @property
     def success(self) -> bool:
@@ -139,6 +143,9 @@ class TouchResult:
                  f"residual RMS {self.rms_before * 1e3:.4f} mm before, {self.rms_after * 1e3:.4f} mm after "
                  f"(noise estimated {self.sigma_estimated * 1e3:.4f} mm"
                  + (f", given {self.sigma * 1e3:.4f} mm)" if self.sigma_given else ")")]
+        if self.outliers:
+            lines.append(f"dropped {len(self.outliers)} outlier row(s): " + ", ".join(
+                f"row {row} ({e * 1e3:.3f} mm)" for row, e in self.outliers))
         if self.cv_rms is not None:
             lines.append(f"held-out residual RMS ({self.cv_folds}-fold cross-validation): {self.cv_rms * 1e3:.4f} mm")
         for name, v, s in zip(self.feature_names, self.feature_values, self.feature_std):
@@ -284,7 +291,7 @@ def _check_planes(data: TouchData, plane_refs: np.ndarray) -> None:
 # ---------------------------------------------------------------- fit
 def calibrate_touch(robot: RobotModel, data: TouchData, *, params: str = "auto",
                     sigma: float | None = None, cv: int = 5, seed: int = 0,
-                    options: LMOptions = LMOptions()) -> TouchResult:
+                    outlier_k: float | None = OUTLIER_K, options: LMOptions = LMOptions()) -> TouchResult:
     """Calibrate ``robot`` from touch rows (see the module docstring).
 
     robot : the nominal model (the start; u stays at it). data : the rows (q in ``robot``'s chain
@@ -293,21 +300,55 @@ def calibrate_touch(robot: RobotModel, data: TouchData, *, params: str = "auto",
     component, or None to estimate it from the residuals; the uncertainties and the prediction
     are at it, and a given one is checked against the residuals (reduced chi-square above
     CHI2_ESCAPE: status "implausible"). cv : folds of the cross-validated held-out residuals
-    (:func:`cross_validate_touch`; 0 or 1: none), drawn with ``seed``. Returns a
-    :class:`TouchResult`.
+    (:func:`cross_validate_touch`; 0 or 1: none), drawn with ``seed``. outlier_k : after the
+    fit, rows whose RMS residual per component exceeds outlier_k times the residuals' robust
+    standard deviation (1.4826 times their median absolute value) are dropped and the rest fitted
+    again, once (a row naming the wrong feature, a slipped probe); None: none dropped.
+    Returns a :class:`TouchResult`.
     """
     check_robot(robot)
     if sigma is not None:
         check_number(sigma, "sigma", minimum=1e-9, maximum=1.0)
     check_int(cv, "cv", minimum=0)
+    if outlier_k is not None:
+        check_number(outlier_k, "outlier_k", minimum=1.0)
     weight = SIGMA_TOUCH_M if sigma is None else float(sigma)
+    fit = _calibrate(robot, data, params, weight, sigma, options)
+    outliers = ()
+    if outlier_k is not None:
+        rows = fit[1].row_residuals(fit[3].x)
+        r = fit[1].evaluate(fit[3].x, jacobian=False)[0]
+        bad = rows > outlier_k * 1.4826 * np.median(np.abs(r))
+        if bad.any():
+            outliers = tuple((int(row), float(e)) for row, e in zip(data.rows[bad], rows[bad]))
+            try:
+                data = data.subset(~bad)
+                fit = _calibrate(robot, data, params, weight, sigma, options)
+            except DataError as exc:
+                shown = ", ".join(str(row) for row, _ in outliers)
+                raise DataError(f"after dropping the outlier rows {shown} (residuals above {outlier_k:g} "
+                                f"robust standard deviations; outlier_k=None keeps them): {exc}") from None
+    ident, prob, start, sol, r0 = fit
+    result = _result(robot, data, weight, sigma, ident, prob, start, sol, r0)
+    cv_rms = cross_validate_touch(robot, data, ident.robot_free, sigma=weight, k=cv, seed=seed,
+                                  options=options) if cv > 1 else None
+    return replace(result, cv_rms=cv_rms, cv_folds=cv if cv > 1 else 0, outliers=outliers)
+
+
+def _calibrate(robot, data, params, weight, sigma, options):
+    """(identifiability, problem, feature start, LM result, residuals at the start) of the fit
+    (with its second pass, :func:`_second_pass`)."""
     ident = touch_identifiability(robot, data, params=params, sigma=weight)
-    free = robot.indices(ident.robot_free)
-    prob, start, sol, r0 = _fit(robot, data, free, weight, options, declared=True)
+    prob, start, sol, r0 = _fit(robot, data, robot.indices(ident.robot_free), weight, options, declared=True)
     second = _second_pass(robot, data, params, weight, sigma, options, ident, prob, sol)
     if second is not None:
         ident, prob, start, sol = second
-        free = robot.indices(ident.robot_free)
+    return ident, prob, start, sol, r0
+
+
+def _result(robot, data, weight, sigma, ident, prob, start, sol, r0) -> TouchResult:
+    """The :class:`TouchResult` of a fit (without cross-validation and outliers)."""
+    free = robot.indices(ident.robot_free)
     x = sol.x
     ne = prob.normal_equations(x)
     r = prob.evaluate(x, jacobian=False)[0]
@@ -331,16 +372,14 @@ def calibrate_touch(robot: RobotModel, data: TouchData, *, params: str = "auto",
                         f"feature, or errors the model does not describe; omit the noise to estimate it")
     if notes and status == "converged":
         status, message = "implausible", notes[0]
-    cv_rms = cross_validate_touch(robot, data, ident.robot_free, sigma=weight, k=cv, seed=seed,
-                                  options=options) if cv > 1 else None
     return TouchResult(
         robot=calibrated, identifiability=ident, free=ident.robot_free,
         feature_names=ident.features, feature_values=x[mr:].copy(), feature_std=std_all[mr:],
         plane_normals=normals, plane_refs=start.plane_refs,
         rms_before=float(np.sqrt(np.mean(r0 ** 2))), rms_after=float(np.sqrt(np.mean(r ** 2))),
         sigma=float(noise), sigma_given=sigma is not None, sigma_estimated=sigma_est, std=std_all[:mr],
-        covariance=cov, solver=sol, n_rows=data.n_rows, n_residuals=len(r), cv_rms=cv_rms,
-        cv_folds=cv if cv > 1 else 0, status=status, message=message)
+        covariance=cov, solver=sol, n_rows=data.n_rows, n_residuals=len(r), status=status,
+        message=message)
 
 
 def _second_pass(robot, data, params, weight, sigma, options, ident, prob, sol):

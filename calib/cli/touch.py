@@ -65,7 +65,8 @@ def run_touch(args: argparse.Namespace) -> int:
     data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
     sigma = None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3
     try:
-        result = calibrate_touch(robot, data, params=params, sigma=sigma, cv=getattr(args, "cv", 5))
+        result = calibrate_touch(robot, data, params=params, sigma=sigma, cv=getattr(args, "cv", 5),
+                                 outlier_k=getattr(args, "outlier_k", 5.0))
     except CalibError as exc:       # about the data as a whole (a degenerate design): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
@@ -138,6 +139,7 @@ def _report(result, predicted: float, args) -> dict:
                           for n, row in zip(result.feature_names[::3], result.plane_normals)
                           if n.startswith("plane_")},
         "held_nominal": [r.describe() for r in result.identifiability.unidentifiable],
+        "outliers": [{"row": row, "residual_mm": e * 1e3} for row, e in result.outliers],
         "scale_free": result.identifiability.scale_free,
         "predicted_tool_error_mm": predicted * 1e3,
     }

@@ -158,6 +158,17 @@ class TouchProblem:
             return r, None
         return r, (np.concatenate(jac) if jac else np.zeros((0, m)))
 
+    def row_residuals(self, x: np.ndarray) -> np.ndarray:
+        """(N,) metres: each row's RMS residual per component at x (a point row's
+        ``|p - c| / sqrt(3)``, a plane or sphere row's ``|r|``), in the order of the rows."""
+        r = self.evaluate(x, jacobian=False)[0]
+        out = np.empty(self.n_poses)
+        n_p, n_l = len(self._point_rows), len(self._plane_rows)
+        out[self._point_rows] = np.sqrt(np.mean(r[:3 * n_p].reshape(-1, 3) ** 2, axis=1))
+        out[self._plane_rows] = np.abs(r[3 * n_p:3 * n_p + n_l])
+        out[self._sphere_rows] = np.abs(r[3 * n_p + n_l:])
+        return out
+
     def residuals(self, x: np.ndarray, parts: str = "pose") -> np.ndarray:
         """Weighted residual vector (n_res,) at x (``parts`` is accepted for the solvers'
         interface: touch rows have one kind of residual)."""

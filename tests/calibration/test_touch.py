@@ -62,7 +62,7 @@ def test_simulated_rows_touch_their_features_within_limits():
 def test_planes_and_sphere_recover_the_truth_to_the_cramer_rao_prediction(name):
     robot, true, sim, Qt = _case(name, PLANES, 1)
     res = calibrate_touch(robot, sim.data, sigma=0.02e-3)
-    assert res.solver.success
+    assert res.solver.success and not res.outliers
     e_cal = registered_error(res.robot, true, Qt)
     e_nom = registered_error(robot, true, Qt)
     pred = predicted_tool_error(res, Qt)
@@ -196,3 +196,20 @@ def test_large_errors_free_what_the_idealised_model_ties():
     assert res.sigma_estimated < 1.3 * 0.02e-3
     Qt = robot.random_configurations(500, rng)
     assert registered_error(res.robot, true, Qt) <= 1.5 * predicted_tool_error(res, Qt)
+
+
+def test_a_row_naming_the_wrong_feature_is_dropped():
+    from dataclasses import replace
+
+    robot, true, sim, Qt = _case("ur10", PLANES, 1)
+    feature = sim.data.feature.copy()
+    wrong = sim.data.rows_of(0)[3]
+    feature[wrong] = 1                      # touched plane A, written as B
+    data = replace(sim.data, feature=feature)
+    res = calibrate_touch(robot, data, sigma=0.02e-3, cv=0)
+    assert [row for row, _ in res.outliers] == [int(sim.data.rows[wrong])]
+    assert res.outliers[0][1] > 1e-3         # millimetres off plane B
+    assert res.n_rows == sim.data.n_rows - 1 and res.success
+    assert registered_error(res.robot, true, Qt) <= 1.5 * predicted_tool_error(res, Qt)
+    kept = calibrate_touch(robot, data, sigma=0.02e-3, cv=0, outlier_k=None)
+    assert not kept.outliers and kept.status == "implausible"
