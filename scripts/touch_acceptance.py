@@ -39,7 +39,8 @@ def main() -> None:
     import example_robot_data as erd
 
     import calib
-    from calib.calibration.touch import calibrate_touch, predicted_tool_error, registered_error
+    from calib.calibration.touch import calibrate_touch
+    from calib.calibration.touch_accuracy import predicted_tool_error, registered_error
     from calib.model.simulate import apply_deviations, random_deviations
     from calib.model.touch import Feature
     from calib.model.touch_simulate import simulate_touch

@@ -44,7 +44,8 @@ def run_touch(args: argparse.Namespace) -> int:
     calibrated URDF (u nominal), the printed report (and --report JSON)."""
     import numpy as np
 
-    from calib.calibration.touch import PARAM_CHOICES, calibrate_touch, predicted_tool_error
+    from calib.calibration.touch import PARAM_CHOICES, calibrate_touch
+    from calib.calibration.touch_accuracy import predicted_tool_error
     from calib.io.touch_file import read_touch
     from calib.io.urdf_reader import robot_path
     from calib.io.urdf_writer import check_writable, write_calibrated_urdf

@@ -156,8 +156,8 @@ def plane_normals(R_ref: np.ndarray, a: np.ndarray, b: np.ndarray):
     local = np.stack([sb, -sa * cb, ca * cb], axis=1)
     d_a = np.stack([np.zeros_like(a), -ca * cb, -sa * cb], axis=1)
     d_b = np.stack([cb, sa * sb, -ca * sb], axis=1)
-    rot = lambda v: np.einsum("kij,kj->ki", R_ref, v)  # noqa: E731
-    return rot(local), rot(d_a), rot(d_b)
+    n, dn_a, dn_b = (np.einsum("kij,kj->ki", R_ref, v) for v in (local, d_a, d_b))
+    return n, dn_a, dn_b
 
 
 def frame_with_normal(n: np.ndarray) -> np.ndarray:

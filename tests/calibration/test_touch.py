@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from calib import load_robot
-from calib.calibration.touch import (calibrate_touch, predicted_tool_error, registered_error,
-                                     touch_identifiability)
+from calib.calibration.touch import calibrate_touch, touch_identifiability
+from calib.calibration.touch_accuracy import predicted_tool_error, registered_error
 from calib.errors import DataError
 from calib.model.kinematics import ChainKinematics
 from calib.model.simulate import apply_deviations, random_deviations
-from calib.model.touch import Feature, TouchData
+from calib.model.touch import Feature
 from calib.model.touch_simulate import simulate_touch
 
 from conftest import erd_urdf
