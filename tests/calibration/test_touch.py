@@ -213,3 +213,22 @@ def test_a_row_naming_the_wrong_feature_is_dropped():
     assert registered_error(res.robot, true, Qt) <= 1.5 * predicted_tool_error(res, Qt)
     kept = calibrate_touch(robot, data, sigma=0.02e-3, cv=0, outlier_k=None)
     assert not kept.outliers and kept.status == "implausible"
+
+
+def test_cross_validation_predicts_held_out_rows_exactly_on_noise_free_data():
+    """Each fold's rows are predicted with the features fitted to the other rows: on noise-free
+    data every fit is exact to a micrometre (the parameters held at the idealised nominal's ties
+    leave ~1e-6 m with 0.5 mm / 1 mrad errors), and so is every prediction (a feature mixed up
+    between the folds would leave millimetres)."""
+    from calib.calibration.touch import cross_validate_touch
+
+    robot = _robot("panda")
+    rng = np.random.default_rng(4)
+    true = apply_deviations(robot, random_deviations(robot, 0.5e-3, rng))
+    feats = [Feature("point", "P"), Feature("plane", "A"), Feature("plane", "B"), Feature("plane", "C"),
+             Feature("sphere", "S", radius=0.08)]
+    # the point's 4 rows miss 2 of the 6 folds: those folds' held-out rows touch features 1-4 only
+    sim = simulate_touch(true, feats, [4, 15, 15, 15, 12], sigma=0.0, rng=rng)
+    res = calibrate_touch(robot, sim.data, cv=0)
+    assert res.rms_after < 2e-6
+    assert cross_validate_touch(robot, sim.data, res.free, k=6) < 1e-5
