@@ -122,6 +122,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--html", metavar="REPORT.html", default=None,
                    help="write one self-contained HTML report (tables, the printed report and "
                         "the plots embedded; no external links) for a person or a customer")
+    p.add_argument("--probe-radius-mm", type=positive, default=None, metavar="R",
+                   help="touch files (rows naming point, plane or sphere, README.md): the ball tip's "
+                        "radius for plane rows")
     add_file_format(p, tracker=True)
     add_frames(p)
     g = add_compliance(p, "calibrate")
@@ -145,7 +148,12 @@ def run(args: argparse.Namespace) -> int:
     from calib.calibration.report import build_report
     from calib.io.urdf_reader import robot_path
     from calib.io.urdf_writer import check_writable, write_calibrated_urdf
+    from calib.cli.touch import is_touch_input, run_touch
 
+    if is_touch_input(args):        # rows naming the point, plane or sphere touched (issue 24)
+        return run_touch(args)
+    if args.probe_radius_mm is not None:
+        raise ParameterError("--probe-radius-mm applies to touch files (rows naming point, plane or sphere)")
     outputs = Outputs([robot_path(args.robot), args.measurements, args.validate, args.tracker])
     out_urdf = outputs.add(args.output)
     out_report = outputs.add(args.report) if args.report else None

@@ -42,6 +42,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object (n_params, rank, identifiable, unidentifiable with "
                         "tied partners, condition_number, observability, ...)")
+    p.add_argument("--touch", metavar="TOUCH.csv", default=None,
+                   help="analyse these touch rows (points, planes, spheres touched, README.md) instead of "
+                        "random measured poses: the robot parameters they determine with the features, "
+                        "those held nominal and what they are tied to")
+    p.add_argument("--params", choices=("auto", "tool"), default="auto",
+                   help="with --touch: every geometric parameter a candidate, or the tool offset only")
     add_frames(p)
     add_compliance(p, "calibrate")
     add_targets(p)
@@ -55,6 +61,14 @@ def run(args: argparse.Namespace) -> int:
     from calib.units import DISPLAY_UNITS
     from calib.model.identifiability import analyze_identifiability
 
+    if args.touch is not None:
+        from calib.calibration.touch import touch_identifiability
+        from calib.io.touch_file import read_touch
+
+        robot = load(args)
+        ident = touch_identifiability(robot, read_touch(args.touch, robot), params=args.params)
+        sys.stdout.write((json_text(ident.to_dict()) if args.json else ident.format() + "\n"))
+        return EXIT_OK
     robot = with_targets(load(args), args)
     payload, gravity = compliance_options(args)
     if args.compliance:

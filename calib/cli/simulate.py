@@ -72,6 +72,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "by q + a sin(q + phi), a in [A/2, A] rad, random phase (default 0)")
     p.add_argument("--position-only", action="store_true",
                    help="write positions only (no orientation columns)")
+    p.add_argument("--constraint", default=None, metavar="point:N,plane:N,sphere:RADIUS_MM",
+                   help="write a touch file instead (README.md): N point ids, N planes (faces of a "
+                        "cube, perpendicular in threes), a sphere of each radius; --poses rows per "
+                        "feature, reached by the true model within the joint limits, --sigma-pos-mm "
+                        "the touch noise per axis")
     p.add_argument("--truth-urdf", metavar="TRUE.urdf", default=None,
                    help="also write the true model as a URDF (a copy of ROBOT.urdf with its joint "
                         "origins changed)")
@@ -164,6 +169,18 @@ def run(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(args.seed)
     deviations, described = _deviations(args.deviations, robot, rng)
     true_robot = apply_deviations(robot, deviations)
+    if args.constraint is not None:     # a touch file (issue 24)
+        from calib.cli.touch import simulate_touch_file
+
+        text = simulate_touch_file(args, robot, true_robot, rng, outputs, out_csv, described, out_truth)
+        if out_truth is not None:
+            from calib.io.urdf_writer import write_calibrated_urdf
+
+            outputs.stage_from_file(out_truth, lambda p: write_calibrated_urdf(
+                true_robot.geometry(), p, nominal=robot.geometry()))
+        outputs.commit()
+        sys.stdout.write(text + "\n")
+        return EXIT_OK
     n_cal, n_val = args.poses, args.val_poses
     Q = robot.random_configurations(n_cal + n_val, rng)
     sets = np.array(["cal"] * n_cal + ["val"] * n_val) if n_val else None

@@ -84,6 +84,8 @@ class Header:
                     (suffixed if units else plain)[c] = (c, units, "")
         for label in spec.labels:
             plain[label] = (label, None, "")
+        for k in spec.lengths:
+            suffixed[k] = (k, LENGTH_UNITS, "")
         self.key = None
         if spec.keyed:
             self.key = str(options.key).strip()
@@ -163,6 +165,8 @@ class Header:
                          "rvx, rvy, rvz (these with _rad or _deg); or r11 ... r33")
         if spec.labels:
             parts.append("optionally " + ", ".join(spec.labels))
+        if spec.lengths:
+            parts.append("optionally " + ", ".join(f"{k} with _m or _mm" for k in spec.lengths))
         if self.key:
             parts.append(f"the key column {self.key}")
         return f"{spec.kind} file columns: " + "; ".join(parts)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import csv
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
@@ -127,6 +127,10 @@ class Spec:
     orientation : whether orientation columns are read (optional in every kind that has them).
     labels : text columns read as strings (``set``, ``target``).
     keyed : the key column of :attr:`ReadOptions.key` is required.
+    lengths : optional length columns (``radius``), each with ``_m`` or ``_mm``, whose cells may
+        be empty (NaN).
+    sparse : the labels whose cells may be empty ("", touch files' ``point``, ``plane``,
+        ``sphere``: one of them per row).
     """
 
     kind: str
@@ -135,6 +139,8 @@ class Spec:
     orientation: bool = False
     labels: tuple[str, ...] = ()
     keyed: bool = False
+    lengths: tuple[str, ...] = ()
+    sparse: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -145,6 +151,7 @@ class Table:
     position : (N, 3) metres, or None. rotation : (N, 3, 3), or None.
     orientation : "none" or a key of :data:`ORIENTATIONS`.
     labels : label name (``set``, ``target``, the key) -> N stripped strings.
+    lengths : length column name (``radius``) -> (N,) metres, NaN where the cell is empty.
     names : quantity ("x", "qw", "set", joint index, ...) -> header name as written.
     ignored_columns : header names (as written) of columns calib does not know or that were
         dropped by a rename. notes : one-line remarks (ignored columns, readings kept just past a
@@ -163,6 +170,7 @@ class Table:
     ignored_columns: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     renamed: tuple[str, ...] = ()
+    lengths: dict = field(default_factory=dict)
 
 
 # ====================================================================== text
@@ -351,6 +359,9 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
             raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
                                                f"{ncols} (one per header column)", row=row)
         for key, c in numeric.items():
+            if key in spec.lengths and not fields[c.index].strip():
+                values[key][k] = np.nan
+                continue
             values[key][k] = parse_number(path, row, c.name, fields[c.index], decimal_comma) * c.scale
         for key in labels:
             c = cols[key]
@@ -360,7 +371,7 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
                     raise MeasurementFormatError(path, f"{text!r} is not a set; expected cal or val",
                                                  row=row, column=c.name)
                 text = text.lower()
-            elif not text:
+            elif not text and key not in spec.sparse:
                 raise MeasurementFormatError(path, f"empty {'key' if key == header.key else key}, "
                                                    f"expected an id", row=row, column=c.name)
             labels[key].append(text)
@@ -388,7 +399,8 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
                  labels={k: tuple(v) for k, v in labels.items()},
                  names={k: c.name for k, c in cols.items()},
                  ignored_columns=tuple(header.ignored), notes=tuple(notes),
-                 renamed=tuple(header.renamed))
+                 renamed=tuple(header.renamed),
+                 lengths={k: values[k] for k in spec.lengths if k in cols})
 
 
 def _rotation(path: Path, header: Header, values: np.ndarray, rows: np.ndarray,

@@ -1,0 +1,207 @@
+"""Touch files in the CLI (issue 24): ``calib calibrate ROBOT.urdf TOUCH.csv -o OUT.urdf`` on a
+file whose rows name the point, plane or sphere the tool touched (:mod:`calib.io.touch_file`),
+and ``calib simulate ... --constraint point:N,plane:N,sphere:RADIUS_MM``.
+
+:func:`run_touch` is what ``calibrate`` runs for such a file (it routes there when the header
+has a ``point``, ``plane`` or ``sphere`` column, :func:`is_touch_input`).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from calib.cli.args import load, read_options
+from calib.cli.output import EXIT_NOT_CONVERGED, EXIT_OK, Outputs, command_line, json_text
+from calib.errors import CalibError, ParameterError
+
+log = logging.getLogger(__name__)
+
+#: Configurations over which the predicted tool accuracy is printed.
+ACCURACY_CONFIGURATIONS = 500
+#: calibrate's options that do not apply to touch files (yet), with their default.
+_NOT_FOR_TOUCH = (("tracker", None), ("validate", None), ("compliance", False), ("plots", None),
+                  ("html", None))
+
+
+def is_touch_input(args: argparse.Namespace) -> bool:
+    """Whether ``calibrate``'s measurement file is a touch file (its header names point, plane or
+    sphere); False for a file that cannot be read (the measurement reader then says why)."""
+    from pathlib import Path
+
+    from calib.io.touch_file import is_touch_file
+
+    if getattr(args, "tracker", None) is not None or not Path(args.measurements).is_file():
+        return False
+    try:
+        return is_touch_file(args.measurements)
+    except CalibError:
+        return False
+
+
+def run_touch(args: argparse.Namespace) -> int:
+    """``calib calibrate`` on a touch file: the identifiable parameters and the features, the
+    calibrated URDF (u nominal), the printed report (and --report JSON)."""
+    import numpy as np
+
+    from calib.calibration.touch import PARAM_CHOICES, calibrate_touch
+    from calib.calibration.touch_accuracy import predicted_tool_error
+    from calib.io.touch_file import read_touch
+    from calib.io.urdf_reader import robot_path
+    from calib.io.urdf_writer import check_writable, write_calibrated_urdf
+
+    for name, default in _NOT_FOR_TOUCH:
+        if getattr(args, name, default) not in (default, None):
+            raise ParameterError(f"--{name.replace('_', '-')} does not apply to touch files "
+                                 f"(rows naming point, plane or sphere)")
+    params = args.params or "auto"
+    if params not in PARAM_CHOICES:
+        raise ParameterError(f"--params for touch files: one of {', '.join(PARAM_CHOICES)}, got {params!r}")
+    outputs = Outputs([robot_path(args.robot), args.measurements])
+    out_urdf = outputs.add(args.output)
+    out_report = outputs.add(args.report) if args.report else None
+    robot = load(args)
+    check_writable(robot)
+    probe = (getattr(args, "probe_radius_mm", None) or 0.0) * 1e-3
+    data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
+    sigma = None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3
+    try:
+        result = calibrate_touch(robot, data, params=params, sigma=sigma, cv=getattr(args, "cv", 5),
+                                 outlier_k=getattr(args, "outlier_k", 5.0))
+    except CalibError as exc:       # about the data as a whole (a degenerate design): name the file
+        if str(exc).startswith(str(args.measurements)):
+            raise
+        raise type(exc)(f"{args.measurements}: {exc}") from None
+    Q = robot.random_configurations(ACCURACY_CONFIGURATIONS, np.random.default_rng(0))
+    predicted = predicted_tool_error(result, Q)
+    estimated = ("flange->tool",) if any(n.startswith("v_") for n in result.free) else ()
+    written = []
+    outputs.stage_from_file(out_urdf, lambda p: written.append(write_calibrated_urdf(
+        result.robot.geometry(), p, nominal=robot.geometry(), estimated=estimated)))
+    text = "\n".join([result.format(), result.identifiability.format(), _parameter_table(robot, result),
+                      f"predicted tool position error over the workspace ({ACCURACY_CONFIGURATIONS} random "
+                      f"configurations, relative to the nominal base frame, after a best-fit rigid "
+                      f"registration): {predicted * 1e3:.4f} mm RMS (noise only"
+                      + ("; no known length: the scale adds the longest link's error over its length)"
+                         if result.identifiability.scale_free else ")")])
+    if out_report is not None:
+        outputs.stage(out_report, json_text(_report(result, predicted, args)))
+    outputs.commit()
+    frames = written[0]
+    sys.stdout.write(text + f"\n\nwrote {out_urdf}" + (f", {out_report}" if out_report else "")
+                     + f"\n{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in base "
+                       f"frame {frames.base_frame!r}\n")
+    if result.status == "implausible":
+        sys.stderr.write(f"calib: warning: the calibration converged to a result that cannot be trusted "
+                         f"({result.message}); the outputs were written for inspection, do not use them as a "
+                         f"calibrated model\n")
+        return EXIT_NOT_CONVERGED
+    if not result.success:
+        sys.stderr.write(f"calib: warning: the calibration did NOT converge (status {result.status}: "
+                         f"{result.message}); the outputs were written for inspection\n")
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
+
+
+def _parameter_table(robot, result) -> str:
+    from calib.units import DISPLAY_UNITS
+
+    lines = [f"{'parameter':<12}{'unit':>6}{'nominal':>14}{'identified':>14}{'deviation':>12}{'std':>10}"]
+    for name, s in zip(result.free, result.std):
+        p = robot.parameters[robot.index(name)]
+        unit, f = DISPLAY_UNITS[p.unit]
+        v0, v = robot.value(name), result.robot.value(name)
+        lines.append(f"{name:<12}{unit:>6}{v0 * f:>14.6f}{v * f:>14.6f}{(v - v0) * f:>12.4g}{s * f:>10.3g}")
+    return "\n".join(lines)
+
+
+def _report(result, predicted: float, args) -> dict:
+    def scaled(name, v):
+        return v if name.endswith(("_a", "_b")) else v * 1e3
+
+    return {
+        "kind": "touch",
+        "status": result.status,
+        "message": result.message,
+        "command_line": ["calib", *getattr(args, "argv", [])],
+        "rows": result.n_rows,
+        "residual_components": result.n_residuals,
+        "residual_rms_mm": {"before": result.rms_before * 1e3, "after": result.rms_after * 1e3},
+        "noise_mm": {"used": result.sigma * 1e3, "given": result.sigma_given,
+                     "estimated": result.sigma_estimated * 1e3},
+        "cross_validation": None if result.cv_rms is None else {"folds": result.cv_folds,
+                                                                 "held_out_rms_mm": result.cv_rms * 1e3},
+        "parameters": [{"name": n, "value": float(result.robot.value(n)), "std": float(s)}
+                       for n, s in zip(result.free, result.std)],
+        "features": [{"name": n, "value": scaled(n, float(v)), "std": scaled(n, float(s)),
+                      "unit": "rad" if n.endswith(("_a", "_b")) else "mm"}
+                     for n, v, s in zip(result.feature_names, result.feature_values, result.feature_std)],
+        "plane_normals": {f"plane_{n.split('_', 2)[1]}": [float(x) for x in row]
+                          for n, row in zip(result.feature_names[::3], result.plane_normals)
+                          if n.startswith("plane_")},
+        "held_nominal": [r.describe() for r in result.identifiability.unidentifiable],
+        "outliers": [{"row": row, "residual_mm": e * 1e3} for row, e in result.outliers],
+        "scale_free": result.identifiability.scale_free,
+        "predicted_tool_error_mm": predicted * 1e3,
+    }
+
+
+# ---------------------------------------------------------------- simulate
+def parse_constraints(text: str):
+    """``point:N,plane:N,sphere:RADIUS_MM`` -> features (N point ids P1.., N planes A.. (faces of
+    one cube, perpendicular in threes), a sphere S1.. of each radius)."""
+    from calib.model.touch import Feature
+
+    features = []
+    counts = {"point": 0, "plane": 0, "sphere": 0}
+    for part in str(text).split(","):
+        kind, sep, value = part.strip().partition(":")
+        kind = kind.strip().lower()
+        try:
+            number = float(value)
+        except ValueError:
+            number = float("nan")
+        if not sep or kind not in counts or not number > 0 or (kind != "sphere" and number != int(number)):
+            raise ParameterError(f"--constraint: {part.strip()!r} is not point:N, plane:N or sphere:RADIUS_MM "
+                                 f"(N a positive count, RADIUS_MM a positive radius in mm)")
+        if kind == "sphere":
+            counts["sphere"] += 1
+            features.append(Feature("sphere", f"S{counts['sphere']}", radius=number * 1e-3))
+            continue
+        for _ in range(int(number)):
+            counts[kind] += 1
+            k = counts[kind]
+            fid = f"P{k}" if kind == "point" else (chr(ord("A") + k - 1) if k <= 26 else f"F{k}")
+            features.append(Feature(kind, fid))
+    return features
+
+
+def simulate_touch_file(args, robot, true_robot, rng, outputs, out_csv, described: str, out_truth=None) -> str:
+    """``calib simulate --constraint``: stage the touch file of ``true_robot`` (``args.poses`` rows
+    per feature) in ``outputs``; returns the lines to print."""
+    from calib.io.touch_file import write_touch
+    from calib.model.touch_simulate import simulate_touch
+
+    features = parse_constraints(args.constraint)
+    sim = simulate_touch(true_robot, features, [args.poses] * len(features),
+                         sigma=args.sigma_pos_mm * 1e-3, rng=rng)
+    comment = (f"Simulated by: {command_line(args)}\nTrue model: {args.robot} with deviations from "
+               f"{described}; touch noise {args.sigma_pos_mm:g} mm per axis; {args.poses} rows per feature")
+    outputs.stage_from_file(out_csv, lambda p: write_touch(p, sim.data, robot, comment=comment))
+    lines = [f"Simulated {sim.data.n_rows} touch rows of {args.robot} -> {out_csv}",
+             f"  {len(features)} features ({', '.join(f'{f.kind} {f.id}' for f in features)}), {args.poses} rows "
+             f"each, reached by the true model within the joint limits; seed {args.seed}; touch noise "
+             f"{args.sigma_pos_mm:g} mm per axis", f"  true model: deviations from {described}"
+             + (f", written to {out_truth}" if out_truth else "")]
+    F = sim.truth.reshape(-1, 3)
+    for k, f in enumerate(features):
+        if f.kind == "plane":
+            n = sim.normals[k]
+            lines.append(f"  plane {f.id}: normal ({n[0]:.6f}, {n[1]:.6f}, {n[2]:.6f}), offset {F[k, 2] * 1e3:.4f} mm")
+        else:
+            lines.append(f"  {f.kind} {f.id}: {'centre' if f.kind == 'sphere' else 'at'} "
+                         f"({', '.join(f'{x * 1e3:.4f}' for x in F[k])}) mm")
+    return "\n".join(lines)
+
+
+__all__ = ["is_touch_input", "run_touch", "parse_constraints", "simulate_touch_file"]

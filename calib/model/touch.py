@@ -1,0 +1,219 @@
+"""Touch data: the tool point touching fixed points, planes and spheres (issue 24).
+
+Without a measuring instrument, a row records the joint values at which the tool point touched a
+fixed feature of the cell, whose location is unknown:
+
+* ``point`` (id): the tool point was at the feature's fixed point c (a tip in a nest or cone).
+  Unknowns: c = (x, y, z), metres, in the meas frame. Residual (3 components): p - c.
+* ``plane`` (id): the tool point lay on the feature's plane (a datum plate, a face of a cube);
+  with a ball tip of radius r (``probe_radius``) its centre lies at r from the plane. Unknowns:
+  the unit normal by two angles (a, b) about a reference normal and the offset d (metres):
+  ``n(a, b) = R_ref Rx(a) Ry(b) e_z``; residual (1 component): ``n . p - d - r``. The reference
+  ``R_ref`` (its third column the reference normal) is chosen by whoever starts a fit (the plane
+  fitted to the nominal tool points), so that (a, b) stay far from the singularity at 90 degrees.
+* ``sphere`` (id, radius R, metres): the tool point was at R from the feature's fixed centre c
+  (a ball bar of known length pivoting on a fixed ball, or a sphere of radius R touched by the
+  tip). Unknowns: c; residual (1 component): ``|p - c| - R``.
+
+The tool point p is that of the chain in the meas frame (``T_meas_tool``); the meas frame's
+parameters u are not identifiable from such data (a rigid motion of the cell moves the features
+with it) and stay nominal, so a calibration from touch data is relative to the nominal base frame.
+Values are SI; feature parameters are named ``point_<id>_x``, ``plane_<id>_a``, ``plane_<id>_d``,
+``sphere_<id>_z`` ... (:func:`feature_parameter_names`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib.errors import DataError
+
+FEATURE_KINDS = ("point", "plane", "sphere")
+#: The three unknowns of each kind, as suffixes of the parameter names.
+FEATURE_UNKNOWNS = {"point": ("x", "y", "z"), "plane": ("a", "b", "d"), "sphere": ("x", "y", "z")}
+#: The unit of each unknown.
+FEATURE_UNITS = {"x": "m", "y": "m", "z": "m", "a": "rad", "b": "rad", "d": "m"}
+#: Residual components per row of each kind.
+RESIDUAL_SIZE = {"point": 3, "plane": 1, "sphere": 1}
+
+
+@dataclass(frozen=True)
+class Feature:
+    """A feature of the cell the tool point touched: ``kind`` in FEATURE_KINDS, ``id`` its name,
+    ``radius`` the sphere's known radius in metres (None for points and planes)."""
+
+    kind: str
+    id: str
+    radius: float | None = None
+
+    def __post_init__(self):
+        if self.kind not in FEATURE_KINDS:
+            raise DataError(f"feature kind must be one of {', '.join(FEATURE_KINDS)}, got {self.kind!r}")
+        if not isinstance(self.id, str) or not self.id:
+            raise DataError(f"a {self.kind} id must be a non-empty string, got {self.id!r}")
+        if self.kind == "sphere":
+            if self.radius is None or not np.isfinite(self.radius) or self.radius <= 0:
+                raise DataError(f"sphere {self.id!r}: expected a positive finite radius in metres, "
+                                f"got {self.radius!r}")
+        elif self.radius is not None:
+            raise DataError(f"{self.kind} {self.id!r}: only a sphere has a radius")
+
+    @property
+    def parameter_names(self) -> tuple[str, str, str]:
+        return tuple(f"{self.kind}_{self.id}_{k}" for k in FEATURE_UNKNOWNS[self.kind])
+
+
+def feature_parameter_names(features) -> tuple[str, ...]:
+    """The 3 K names of the unknowns of K features, feature by feature."""
+    return tuple(n for f in features for n in f.parameter_names)
+
+
+@dataclass(frozen=True, eq=False)
+class TouchData:
+    """Rows of joint values at which the tool point touched features (immutable, SI units).
+
+    q : (N, n) joint values, radians / metres, chain order. feature : (N,) int, each row's index
+    into ``features``. features : the touched features (each touched by at least one row).
+    probe_radius : metres, the ball tip's radius for plane rows (0: a pointed tip).
+    rows : (N,) 1-based line numbers in the source file (1 ... N without a file).
+    joint_names : (n,) names in chain order, or None.
+    """
+
+    q: np.ndarray
+    feature: np.ndarray
+    features: tuple[Feature, ...]
+    probe_radius: float = 0.0
+    rows: np.ndarray | None = None
+    joint_names: tuple[str, ...] | None = None
+    source: object | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        q = np.array(self.q, float)
+        if q.ndim != 2 or not np.all(np.isfinite(q)):
+            raise DataError(f"q must be an (N, n) array of finite joint values, got shape {q.shape}")
+        feature = np.array(self.feature)
+        if feature.shape != (len(q),) or (feature.size and feature.dtype.kind not in "iu"):
+            raise DataError(f"feature must be ({len(q)},) integer indices into features")
+        feature = feature.astype(int)
+        features = tuple(self.features)
+        if not all(isinstance(f, Feature) for f in features):
+            raise DataError("features must be Feature values")
+        if len({(f.kind, f.id) for f in features}) != len(features):
+            raise DataError("features must not repeat a (kind, id)")
+        if feature.size and (feature.min() < 0 or feature.max() >= len(features)):
+            raise DataError(f"feature indices must lie in 0 .. {len(features) - 1}")
+        if set(feature.tolist()) != set(range(len(features))):
+            unused = [f"{features[k].kind} {features[k].id!r}" for k in range(len(features))
+                      if k not in set(feature.tolist())]
+            raise DataError(f"no row touches {', '.join(unused)}")
+        if not np.isfinite(self.probe_radius) or self.probe_radius < 0:
+            raise DataError(f"probe_radius must be a finite non-negative length in metres, got {self.probe_radius!r}")
+        rows = np.arange(1, len(q) + 1) if self.rows is None else np.array(self.rows, int)
+        for name, a in (("q", q), ("feature", feature), ("rows", rows)):
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+        object.__setattr__(self, "features", features)
+        object.__setattr__(self, "probe_radius", float(self.probe_radius))
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.q)
+
+    @property
+    def kinds(self) -> np.ndarray:
+        """(N,) str: each row's feature kind."""
+        return np.array([self.features[k].kind for k in self.feature], dtype=object)
+
+    def rows_of(self, k: int) -> np.ndarray:
+        """Indices of the rows touching feature k."""
+        return np.flatnonzero(self.feature == k)
+
+    @property
+    def n_residuals(self) -> int:
+        """Residual components of all rows (3 per point row, 1 per plane or sphere row)."""
+        return int(sum(RESIDUAL_SIZE[self.features[k].kind] for k in self.feature))
+
+    def subset(self, keep) -> "TouchData":
+        """The rows ``keep`` (a mask or indices); every feature must keep a row."""
+        keep = np.asarray(keep)
+        idx = np.flatnonzero(keep) if keep.dtype == bool else keep.astype(int)
+        used = sorted(set(self.feature[idx].tolist()))
+        remap = {k: i for i, k in enumerate(used)}
+        return TouchData(self.q[idx], np.array([remap[k] for k in self.feature[idx]], int),
+                         tuple(self.features[k] for k in used), self.probe_radius, self.rows[idx],
+                         self.joint_names, self.source)
+
+
+# ====================================================================== plane geometry
+def plane_normals(R_ref: np.ndarray, a: np.ndarray, b: np.ndarray):
+    """Unit normals of planes and their derivatives: ``n = R_ref Rx(a) Ry(b) e_z``.
+
+    R_ref : (K, 3, 3) reference rotations; a, b : (K,) radians. Returns (n, dn_da, dn_db), each
+    (K, 3), in the frame of R_ref's columns (the meas frame).
+    """
+    ca, sa, cb, sb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)
+    local = np.stack([sb, -sa * cb, ca * cb], axis=1)
+    d_a = np.stack([np.zeros_like(a), -ca * cb, -sa * cb], axis=1)
+    d_b = np.stack([cb, sa * sb, -ca * sb], axis=1)
+    n, dn_a, dn_b = (np.einsum("kij,kj->ki", R_ref, v) for v in (local, d_a, d_b))
+    return n, dn_a, dn_b
+
+
+def frame_with_normal(n: np.ndarray) -> np.ndarray:
+    """(3, 3) a rotation whose third column is the unit vector n (3,)."""
+    n = np.asarray(n, float) / np.linalg.norm(n)
+    helper = np.eye(3)[int(np.argmin(np.abs(n)))]
+    x = np.cross(helper, n)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(n, x), n])
+
+
+@dataclass(frozen=True, eq=False)
+class FeatureStart:
+    """Start values of the features' unknowns and the planes' reference rotations.
+
+    values : (3 K,) SI, feature by feature (see the module docstring); plane_refs : (K, 3, 3),
+    the reference rotation of each plane (identity for points and spheres).
+    """
+
+    values: np.ndarray
+    plane_refs: np.ndarray
+
+
+def initial_features(data: TouchData, p_tool: np.ndarray, z_tool: np.ndarray | None = None) -> FeatureStart:
+    """Start values fitted to tool points ``p_tool`` (N, 3) metres (those of the nominal model):
+    a point's mean; a plane by total least squares (its normal the reference, a = b = 0, turned
+    against the tool's z axes ``z_tool`` (N, 3): the probe points along its tool frame's z, out of
+    the flange as URDF tool frames such as tool0 do, so it comes from the side the normal points
+    to, a ball tip's centre lies at +probe_radius and d is the touched surface's offset); a
+    sphere's centre by the algebraic fit ``|p|^2 = 2 p . c + k``, else from the centroid along
+    the fitted cap's normal when the rows are too few or coplanar."""
+    K = len(data.features)
+    values, refs = np.zeros((K, 3)), np.tile(np.eye(3), (K, 1, 1))
+    for k, f in enumerate(data.features):
+        P = p_tool[data.rows_of(k)]
+        m = P.mean(axis=0)
+        if f.kind == "point":
+            values[k] = m
+        elif f.kind == "plane":
+            n = np.linalg.svd(P - m)[2][-1] if len(P) >= 3 else np.array([0.0, 0.0, 1.0])
+            if z_tool is not None and np.sum(z_tool[data.rows_of(k)] @ n) > 0:
+                n = -n
+            refs[k] = frame_with_normal(n)
+            values[k] = (0.0, 0.0, float(n @ m) - data.probe_radius)
+        else:
+            values[k] = _sphere_centre(P, f.radius)
+    return FeatureStart(values.reshape(-1), refs)
+
+
+def _sphere_centre(P: np.ndarray, radius: float) -> np.ndarray:
+    m = P.mean(axis=0)
+    if len(P) >= 4:
+        A = np.column_stack([2 * P, np.ones(len(P))])
+        sol, _, rank, _ = np.linalg.lstsq(A, np.sum(P ** 2, axis=1), rcond=None)
+        if rank == 4 and abs(np.linalg.norm(P - sol[:3], axis=1).mean() - radius) < 0.5 * radius:
+            return sol[:3]
+    n = np.linalg.svd(P - m)[2][-1] if len(P) >= 3 else np.array([0.0, 0.0, 1.0])
+    spread = np.sqrt(max(radius ** 2 - np.mean(np.sum((P - m) ** 2, axis=1)), 0.0))
+    return m - n * spread

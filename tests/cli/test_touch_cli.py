@@ -1,0 +1,104 @@
+"""``calib simulate --constraint`` then ``calib calibrate`` on the touch file (UR10): the written
+URDF recovers the truth to the predicted accuracy; degenerate designs and bad input exit 2 and
+write nothing."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import calib
+from calib.calibration.touch_accuracy import registered_error
+from calib.cli.main import main
+
+from conftest import erd_urdf
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def urdf():
+    return erd_urdf("ur10")
+
+
+def test_simulate_then_calibrate_a_touch_file(urdf, tmp_path, capsys):
+    code, out, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "touch.csv",
+                         "--constraint", "plane:3,sphere:100", "--poses", 20, "--seed", 3,
+                         "--deviations", "random:0.5", "--truth-urdf", tmp_path / "true.urdf")
+    assert code == 0, err
+    assert "80 touch rows" in out
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "touch.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf", "--report", tmp_path / "report.json")
+    assert code == 0, err
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["kind"] == "touch" and report["rows"] == 80
+    assert report["cross_validation"]["folds"] == 5
+    code, out, err = run(capsys, "identifiability", urdf, "--tool-frame", "tool0", "--touch", tmp_path / "touch.csv",
+                         "--json")
+    assert code == 0, err
+    ident = json.loads(out)
+    assert ident["robot_free"] == [p["name"] for p in report["parameters"]] and not ident["scale_free"]
+    assert {"u_x", "u_y", "u_z", "u_alpha", "u_beta", "u_gamma"} <= {r["name"] for r in ident["held_nominal"]}
+    assert report["residual_rms_mm"]["after"] < 0.03 and report["residual_rms_mm"]["before"] > 0.3
+    # the URDF written and read back: within 1.5x the prediction and 10x better than nominal
+    nominal = calib.load_robot(urdf, tool_frame="tool0")
+    cal = calib.load_robot(tmp_path / "cal.urdf")
+    true = calib.load_robot(tmp_path / "true.urdf")
+    Q = nominal.random_configurations(500, np.random.default_rng(9))
+    e_cal, e_nom = registered_error(cal, true, Q), registered_error(nominal, true, Q)
+    predicted = report["predicted_tool_error_mm"] * 1e-3
+    assert e_cal <= 1.5 * predicted and e_nom >= 10 * e_cal, (e_cal, predicted, e_nom)
+
+
+def test_degenerate_design_and_bad_input_exit_2_writing_nothing(urdf, tmp_path, capsys):
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "one.csv",
+                       "--constraint", "plane:1", "--poses", 30, "--seed", 1)
+    assert code == 0, err
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "one.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf")
+    assert code == 2 and out == ""
+    assert "one.csv" in err and "normals span 1 direction: add two planes" in err
+    assert len(err.strip().splitlines()) == 1
+    bad = tmp_path / "bad.csv"
+    bad.write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,point\n0,0,0,0,0,0,1,2,3,P1\n")
+    code, _, err = run(capsys, "calibrate", urdf, bad, "--tool-frame", "tool0", "-o", tmp_path / "cal.urdf")
+    assert code == 2 and "row 1" in err and "'x_mm'" in err
+    code, _, err = run(capsys, "simulate", urdf, "-o", tmp_path / "x.csv", "--constraint", "cube:3")
+    assert code == 2 and "--constraint: 'cube:3'" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(before + ["bad.csv"])
+
+
+def test_tool_calibration_from_the_cli(urdf, tmp_path, capsys):
+    """--params tool: one point from 6 orientations, the robot nominal (no deviations)."""
+    from calib.io.touch_file import write_touch
+    from calib.model.touch import Feature
+    from calib.model.touch_simulate import simulate_touch
+
+    nominal = calib.load_robot(urdf, tool_frame="tool0")
+    true = nominal.with_changes(v_x=0.002, v_y=-0.001, v_z=0.150)
+    sim = simulate_touch(true, [Feature("point", "TCP")], [6], rng=4)
+    write_touch(tmp_path / "tcp.csv", sim.data, nominal)
+    code, _, err = run(capsys, "calibrate", urdf, tmp_path / "tcp.csv", "--tool-frame", "tool0",
+                       "-o", tmp_path / "tool.urdf", "--params", "tool", "--report", tmp_path / "r.json")
+    assert code == 0, err
+    params = {p["name"]: p for p in json.loads((tmp_path / "r.json").read_text())["parameters"]}
+    assert set(params) == {"v_x", "v_y", "v_z"}
+    for k, v in zip("xyz", (0.002, -0.001, 0.150)):
+        p = params[f"v_{k}"]
+        assert abs(p["value"] - v) <= 4 * p["std"] and p["std"] < 0.05e-3
+
+
+def test_a_given_noise_far_below_the_residuals_exits_3_with_the_outputs(urdf, tmp_path, capsys):
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "t.csv",
+                       "--constraint", "plane:3,sphere:80", "--poses", 15, "--seed", 2, "--deviations", "random:0.5")
+    assert code == 0, err
+    code, _, err = run(capsys, "calibrate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0",
+                       "-o", tmp_path / "cal.urdf", "--sigma-pos-mm", 0.002, "--cv", 0)
+    assert code == 3 and "cannot be trusted" in err and "times the given noise" in err
+    assert (tmp_path / "cal.urdf").is_file()

@@ -1,0 +1,63 @@
+"""Touch files: written then read gives the same rows; bad input names file, row and column."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib import load_robot
+from calib.errors import MeasurementFormatError
+from calib.io.touch_file import is_touch_file, read_touch, write_touch
+from calib.model.touch import Feature, TouchData
+
+from conftest import erd_urdf
+
+JOINTS = "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg"
+
+
+@pytest.fixture(scope="module")
+def ur10():
+    return load_robot(erd_urdf("ur10"), tool_frame="tool0")
+
+
+def test_round_trip(ur10, tmp_path):
+    rng = np.random.default_rng(0)
+    feats = (Feature("point", "P1"), Feature("plane", "top"), Feature("sphere", "ball", radius=0.0254))
+    feature = np.array([0, 1, 2, 1, 0, 2, 2])
+    data = TouchData(ur10.random_configurations(7, rng), feature, feats)
+    path = tmp_path / "touch.csv"
+    write_touch(path, data, ur10, comment="a test")
+    assert is_touch_file(path)
+    back = read_touch(path, ur10, probe_radius=0.003)
+    np.testing.assert_allclose(back.q, data.q, rtol=0, atol=1e-13)     # rad: deg conversion rounding
+    assert back.features == feats and back.feature.tolist() == feature.tolist()
+    assert back.features[2].radius == pytest.approx(0.0254, abs=1e-15)
+    assert back.probe_radius == 0.003
+    assert back.rows.tolist() == list(range(3, 10))       # comment line, header, then data
+
+
+@pytest.mark.parametrize("header,line,row,column,reason", [
+    ("point,plane", "P1,A", 2, "plane", "more than one of point, plane, sphere"),
+    ("point,plane", ",", 2, None, "none of point, plane, sphere"),
+    ("sphere,radius_mm", "S,-5", 2, "radius_mm", "needs a positive radius"),
+    ("sphere,radius_mm", "S,", 2, "radius_mm", "needs a positive radius, got none"),
+    ("sphere,radius_cm", "S,5", 1, "radius_cm", "wrong unit suffix _cm: radius takes _m or _mm"),
+    ("sphere", "S", 1, "sphere", "give a column radius_mm or radius_m"),
+    ("point,radius_mm", "P,5", 2, "radius_mm", "only sphere rows take a radius"),
+    ("x_mm,y_mm,z_mm,point", "1,2,3,P", 1, "x_mm", "in one file are not supported"),
+])
+def test_bad_input_names_file_row_column(ur10, tmp_path, header, line, row, column, reason):
+    path = tmp_path / "bad.csv"
+    path.write_text(f"{JOINTS},{header}\n0,0,0,0,0,0,{line}\n")
+    with pytest.raises(MeasurementFormatError, match=reason) as info:
+        read_touch(path, ur10)
+    e = info.value
+    assert (e.path, e.row, e.column) == (path, row, column)
+    assert "\n" not in str(e)
+
+
+def test_one_sphere_one_radius(ur10, tmp_path):
+    path = tmp_path / "bad.csv"
+    path.write_text(f"{JOINTS},sphere,radius_mm\n0,0,0,0,0,0,S,50\n0,0,0,0,0,10,S,50.5\n")
+    with pytest.raises(MeasurementFormatError, match=r"radius 50.5 here but 50.0 in row 2") as info:
+        read_touch(path, ur10)
+    assert (info.value.row, info.value.column) == (3, "radius_mm")
