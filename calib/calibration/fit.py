@@ -25,7 +25,7 @@ from calib.calibration.options import (
     CalibrationOptions,
 )
 from calib.calibration.prepare import Setup, _reach, _robot_memo
-from calib.calibration.robust import Outlier, flag_outliers, judge_rows, robust_sigmas
+from calib.calibration.robust import Outlier, flag_outliers, judge_rows, leftover_gross, robust_sigmas
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -343,6 +343,9 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
         sol = replace(sol, status=stuck.status, message=stuck.message)
     lin = linearised(problem, x)
     noise = _noise_estimate(problem, lin, estimate, vce_total)
+    if estimate and outlier_k is not None and loss == "linear" and not refusals:
+        refusals.append(leftover_gross(everything, x, keep, (lin.red_pos, lin.red_rot), (sp, sr),
+                                       (sigma_pos, sigma_rot)))
     model = start.with_values(problem.full(x))
     if outliers:
         notes.append(f"{len(outliers)} outlier rows removed and the fit repeated without them: rows "
@@ -351,7 +354,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     cost = lin.ne.cost if problem.loss == "linear" else 0.5 * float(np.sum(problem.residuals(x) ** 2))
     fit = Fit(model, free, replace(sol, cost=cost), keep, tuple(outliers), noise, trace.iterations,
               covariance=lin.inverse, full_rank=lin.full_rank, all_rows=everything, notes=tuple(notes),
-              refusals=tuple(dict.fromkeys(refusals)))
+              refusals=tuple(r for r in dict.fromkeys(refusals) if r))
     return fit, problem
 
 
