@@ -47,8 +47,9 @@ from typing import Sequence
 import numpy as np
 import pinocchio as pin
 
+from calib.checks import check_configurations
 from calib.errors import CalibError, ParameterError
-from calib.model.robot import RobotModel, UrdfSource
+from calib.model.robot import RobotModel, UrdfSource, check_robot
 
 #: Standard gravity, m/s^2, along -z of the URDF root frame by default.
 STANDARD_GRAVITY = 9.80665
@@ -171,6 +172,7 @@ class GravityModel:
                   gravity: Sequence[float] | None = None) -> "GravityModel":
         """The gravity model of ``robot``'s chain in the URDF it was read from (the parse it
         carries, ``robot.source``: the file is not read again)."""
+        check_robot(robot)
         if robot.source is None:
             raise ParameterError("compliance needs the robot's URDF (its inertias and tool frame): "
                                  "load the robot with calib.load_robot")
@@ -192,7 +194,7 @@ class GravityModel:
     def torques(self, Q: np.ndarray) -> np.ndarray:
         """(N, n) torque of gravity on each chain joint (N m; N for prismatic), at joint values
         Q (N, n) rad / m: minus Pinocchio's generalized gravity."""
-        Q = np.atleast_2d(np.asarray(Q, float))
+        Q = check_configurations(Q, len(self.chain.joint_ids))
         data = self.model.createData()
         idx_v = [self.model.joints[j].idx_v for j in self.chain.joint_ids]
         out = np.empty(Q.shape)

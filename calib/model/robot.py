@@ -26,13 +26,13 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, Iterable, Protocol, Sequence, runtime_checkable
+from typing import Any, Iterable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from calib.checks import check_instance
+from calib.checks import check_array, check_instance, check_int, check_names, check_number, check_rng
 from calib.errors import ParameterError
 from calib.model.mdh import PARALLEL_THRESHOLD_RAD, link_transform
 from calib.model.spatial import zyx_parameters, zyx_transform
@@ -40,6 +40,9 @@ from calib.model.spatial import zyx_parameters, zyx_transform
 log = logging.getLogger(__name__)
 
 JOINT_KINDS = ("revolute", "continuous", "prismatic")
+#: The most configurations :meth:`RobotModel.random_configurations` draws at once (800 MB for six
+#: joints): a count beyond is a mistake, not a study.
+MAX_CONFIGURATIONS = 100_000_000
 _STRUCTURAL_KINDS = ("theta", "d", "a", "alpha", "beta")
 _FRAME_KINDS = ("x", "y", "z", "alpha", "beta", "gamma")
 
@@ -184,9 +187,12 @@ class RobotModel:
         object.__setattr__(self, "targets", targets)
         refs = None
         if targets:
-            refs = np.array(np.broadcast_to(self.T_flange_tool_ref, (len(targets), 4, 4))
-                            if self.T_flange_target_refs is None else self.T_flange_target_refs, float)
-            if refs.shape != (len(targets), 4, 4):
+            try:
+                refs = np.array(np.broadcast_to(self.T_flange_tool_ref, (len(targets), 4, 4))
+                                if self.T_flange_target_refs is None else self.T_flange_target_refs, float)
+            except (TypeError, ValueError, OverflowError):
+                raise ParameterError(f"T_flange_target_refs must be ({len(targets)}, 4, 4) transforms") from None
+            if refs.shape != (len(targets), 4, 4) or not np.isfinite(refs).all():
                 raise ParameterError(f"T_flange_target_refs must be ({len(targets)}, 4, 4), got {refs.shape}")
             if not np.array_equal(np.asarray(self.T_flange_tool_ref, float), refs[0]) and \
                     not np.array_equal(np.asarray(self.T_flange_tool_ref, float), np.eye(4)):
@@ -197,13 +203,21 @@ class RobotModel:
         elif self.T_flange_target_refs is not None:
             raise ParameterError("T_flange_target_refs needs targets")
         object.__setattr__(self, "T_flange_target_refs", refs)
-        vals = np.array(self.values, dtype=float)
+        try:
+            vals = np.array(self.values, dtype=float)
+        except (TypeError, ValueError, OverflowError):
+            raise ParameterError(f"values must be {len(self.parameters)} numbers (SI units), got "
+                                 f"{self.values!r:.60}") from None
         if vals.shape != (len(self.parameters),):
             raise ParameterError(f"expected {len(self.parameters)} parameter values, got {vals.shape}")
+        if not np.isfinite(vals).all():
+            bad = [p.name for p, x in zip(self.parameters, vals) if not math.isfinite(x)]
+            raise ParameterError(f"parameter values must be finite (SI units); {', '.join(bad)} "
+                                 f"{'is' if len(bad) == 1 else 'are'} not")
         vals.setflags(write=False)
         object.__setattr__(self, "values", vals)
         for name in ("T_meas_base_ref", "T_flange_tool_ref"):
-            T = np.array(getattr(self, name), dtype=float)
+            T = _transform(getattr(self, name), name)
             T.setflags(write=False)
             object.__setattr__(self, name, T)
         object.__setattr__(self, "_index", {p.name: k for k, p in enumerate(self.parameters)})
@@ -214,12 +228,28 @@ class RobotModel:
                  T_meas_base_ref=None, T_flange_tool_ref=None, **kwargs) -> "RobotModel":
         """A model from MDH tables (arrays of length n; ``beta`` may hold NaN where a joint has no
         beta parameter, or be None for none), and optional u, v (6 each, Eq. 3 order)."""
+        if not isinstance(joints, (list, tuple)) or not joints or \
+                not all(isinstance(j, ChainJoint) for j in joints):
+            raise ParameterError(f"joints must be a non-empty list of ChainJoint, got {joints!r:.60}")
         n = len(joints)
-        beta = np.full(n, np.nan) if beta is None else np.asarray(beta, float)
+        theta, d, a, alpha = (check_array(x, k, (n,), unit=unit) for x, k, unit in
+                              ((theta, "theta", "rad"), (d, "d", "m"), (a, "a", "m"), (alpha, "alpha", "rad")))
+        if beta is None:
+            beta = np.full(n, np.nan)
+        else:
+            try:
+                beta = np.asarray(beta, float)
+            except (TypeError, ValueError, OverflowError):
+                beta = None
+            if beta is None or beta.shape != (n,) or np.isinf(beta).any():
+                raise ParameterError(f"beta must be ({n},) radians, NaN where a joint has none")
+        unknown = set(kwargs) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ParameterError(f"unknown RobotModel fields {', '.join(sorted(unknown))}")
+        u, v = (np.zeros(6) if x is None else check_array(x, k, (6,), unit="m and rad") for x, k in ((u, "u"), (v, "v")))
         beta_joints = [i + 1 for i in range(n) if not np.isnan(beta[i])]
         params = make_parameters(n, beta_joints)
-        vals = np.concatenate([theta, d, a, alpha, beta[~np.isnan(beta)],
-                               np.zeros(6) if u is None else u, np.zeros(6) if v is None else v])
+        vals = np.concatenate([theta, d, a, alpha, beta[~np.isnan(beta)], u, v])
         return cls(joints=tuple(joints), parameters=params, values=vals,
                    T_meas_base_ref=np.eye(4) if T_meas_base_ref is None else T_meas_base_ref,
                    T_flange_tool_ref=np.eye(4) if T_flange_tool_ref is None else T_flange_tool_ref,
@@ -234,7 +264,10 @@ class RobotModel:
         this model of the same id, else of the first target; ``T_flange_target_refs`` (K, 4, 4)
         replaces the references.
         """
-        targets = tuple(str(t) for t in targets)
+        targets = check_names(targets, "targets")
+        if T_flange_target_refs is not None:
+            T_flange_target_refs = check_array(T_flange_target_refs, "T_flange_target_refs",
+                                               (len(targets), 4, 4), unit="flange->target transforms")
         if targets == self.targets and T_flange_target_refs is None:
             return self
         if self.has_compliance:     # the c<i> stay last: targets on the geometry, then them
@@ -259,6 +292,9 @@ class RobotModel:
         """This model with targets at known points of the tool: ``offsets`` maps each id to its
         position (3,) in metres in the tool frame (of the first target, for a multi-target model);
         each target's frame is the tool frame moved there. Two or more targets."""
+        if not isinstance(offsets, Mapping):
+            raise ParameterError(f"offsets must map each target id to its position (x, y, z) in metres, "
+                                 f"got {type(offsets).__name__}")
         ids = tuple(str(t) for t in offsets)
         if len(ids) < 2:
             raise ParameterError(f"with_target_offsets: give two or more targets (got {len(ids)}); one "
@@ -266,9 +302,13 @@ class RobotModel:
                                  f"link or with_changes(v_x=...))")
         refs = []
         for t in ids:
-            p = np.asarray(offsets[t], float)
-            if p.shape != (3,) or not np.isfinite(p).all():
-                raise ParameterError(f"target {t!r}: expected a finite position (x, y, z) in metres, got {p!r}")
+            try:
+                p = np.asarray(offsets[t], float)
+            except (TypeError, ValueError, OverflowError):
+                p = None
+            if p is None or p.shape != (3,) or not np.isfinite(p).all():
+                raise ParameterError(f"target {t!r}: expected a finite position (x, y, z) in metres, "
+                                     f"got {offsets[t]!r:.60}")
             T = np.eye(4)
             T[:3, 3] = p
             refs.append(self.T_flange_tool_ref_of(0) @ T)
@@ -290,14 +330,15 @@ class RobotModel:
                        T_flange_tool_ref=np.array(self.T_flange_target_refs[k]))
 
     def with_values(self, values: np.ndarray) -> "RobotModel":
-        """A copy of this model with other parameter values (full vector, same order)."""
-        return replace(self, values=np.asarray(values, float))
+        """A copy of this model with other parameter values (full vector, same order, finite)."""
+        return replace(self, values=values)
 
     def with_changes(self, **deltas: float) -> "RobotModel":
-        """A copy with parameter values changed by the given amounts: ``with_changes(d2=1e-4)``."""
+        """A copy with parameter values changed by the given amounts: ``with_changes(d2=1e-4)``
+        (finite numbers, SI units)."""
         vals = self.values.copy()
         for name, delta in deltas.items():
-            vals[self.index(name)] += delta
+            vals[self.index(name)] += check_number(delta, name)
         return self.with_values(vals)
 
     def with_compliance(self, gravity, values: Sequence[float] | None = None) -> "RobotModel":
@@ -305,14 +346,13 @@ class RobotModel:
         geometric parameters; rad/(N m), or m/N for a prismatic joint) and the gravity model
         (:class:`calib.model.compliance.GravityModel`) that gives the joint torques. ``values`` (n,)
         defaults to the model's current compliances, else zeros. See :mod:`calib.model.compliance`."""
-        if gravity is None:
-            raise ParameterError("a model with compliance needs a gravity model (calib.model.compliance.GravityModel)")
+        if gravity is None or not callable(getattr(gravity, "torques", None)):
+            raise ParameterError("a model with compliance needs a gravity model (calib.model.compliance.GravityModel), "
+                                 f"got {type(gravity).__name__}")
         geo = self.geometry()
         n = self.n_joints
         old = self.compliances() if self.has_compliance else np.zeros(n)
-        vals = old if values is None else np.asarray(values, float)
-        if vals.shape != (n,):
-            raise ParameterError(f"expected {n} compliance values, got shape {vals.shape}")
+        vals = old if values is None else check_array(values, "values", (n,), unit="rad/(N m) or m/N")
         params = tuple(Parameter(f"c{i}", "compliance", "c", i, "m/N" if j.is_prismatic else "rad/(N m)")
                        for i, j in enumerate(self.joints, start=1))
         return replace(geo, parameters=geo.parameters + params,
@@ -382,10 +422,13 @@ class RobotModel:
         """Position of the parameter ``name`` in :attr:`values`."""
         try:
             return self._index[name]
-        except KeyError:
+        except (KeyError, TypeError):
             raise ParameterError(f"unknown parameter {name!r}; known: {', '.join(self.names)}") from None
 
     def indices(self, names: Iterable[str]) -> np.ndarray:
+        """Positions of the parameters ``names`` (a list of names) in :attr:`values`."""
+        if isinstance(names, (str, bytes)) or not isinstance(names, Iterable):
+            raise ParameterError(f"names must be a list of parameter names, got {names!r:.60}")
         return np.array([self.index(n) for n in names], dtype=int)
 
     def value(self, name: str) -> float:
@@ -478,6 +521,7 @@ class RobotModel:
         A direct product of Eq. (1) matrices, kept simple on purpose: it is the reference that
         the Pinocchio-based batch kinematics (:mod:`calib.model.kinematics`) is tested against.
         """
+        q = check_array(q, "q", (self.n_joints,), unit="one configuration, rad / m")
         t = self.mdh_table()
         T = np.eye(4)
         for i, joint in enumerate(self.joints):
@@ -497,9 +541,12 @@ class RobotModel:
                               unlimited_range: float = math.pi) -> np.ndarray:
         """(n, n_joints) configurations uniform within the joint limits (radians / metres).
 
-        Unlimited (continuous) joints are drawn in [-unlimited_range, unlimited_range].
+        Unlimited (continuous) joints are drawn in [-unlimited_range, unlimited_range] (radians,
+        or metres for an unlimited prismatic joint). n : at most MAX_CONFIGURATIONS.
         """
-        rng = np.random.default_rng(rng)
+        n = check_int(n, "n", maximum=MAX_CONFIGURATIONS)
+        rng = check_rng(rng)
+        unlimited_range = check_number(unlimited_range, "unlimited_range", minimum=0.0)
         lo = np.where(np.isfinite(self.lower), self.lower, -unlimited_range)
         hi = np.where(np.isfinite(self.upper), self.upper, unlimited_range)
         return rng.uniform(lo, hi, size=(n, self.n_joints))
@@ -524,6 +571,17 @@ class RobotModel:
             lines.append("compliance/(urad/(N m) or um/N): " + ", ".join(
                 f"{n} {v * 1e6:.4g}" for n, v in zip(self.compliance_names, self.compliances())))
         return "\n".join(lines)
+
+
+def _transform(value: Any, name: str) -> np.ndarray:
+    """``value`` as a finite (4, 4) float array, else :class:`calib.ParameterError` naming ``name``."""
+    try:
+        T = np.array(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        T = None
+    if T is None or T.shape != (4, 4) or not np.isfinite(T).all():
+        raise ParameterError(f"{name} must be a finite (4, 4) homogeneous transform, got {value!r:.60}")
+    return T
 
 
 def check_robot(value: Any, name: str = "robot") -> RobotModel:
