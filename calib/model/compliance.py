@@ -151,6 +151,9 @@ class GravityModel:
         payload : carried at the chain's tool frame; gravity : (3,) m/s^2 in the URDF root frame
         (default (0, 0, -9.80665)). Raises :class:`calib.CalibError` subclasses.
         """
+        if not isinstance(chain, UrdfSource):
+            raise ParameterError(f"chain must be a parsed URDF chain (a model's source, from calib.load_robot), "
+                                 f"got {type(chain).__name__}")
         if payload is not None and not isinstance(payload, Payload):
             raise ParameterError(f"payload must be a calib.model.compliance.Payload, got {type(payload).__name__}")
         g = np.array([0.0, 0.0, -STANDARD_GRAVITY]) if gravity is None else _finite_vector(gravity, "gravity")

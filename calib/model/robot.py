@@ -179,6 +179,13 @@ class RobotModel:
     T_flange_target_refs: np.ndarray | None = None
 
     def __post_init__(self):
+        for name, cls in (("joints", ChainJoint), ("parameters", Parameter)):
+            value = getattr(self, name)
+            if not isinstance(value, (list, tuple)) or not all(isinstance(x, cls) for x in value):
+                raise ParameterError(f"{name} must be a tuple of {cls.__name__}, got {value!r:.60}")
+            object.__setattr__(self, name, tuple(value))
+        if not isinstance(self.targets, (list, tuple)):
+            raise ParameterError(f"targets must be a tuple of ids (strings), got {self.targets!r:.60}")
         targets = tuple(self.targets)
         if len(targets) == 1 or len(set(targets)) != len(targets) or \
                 not all(isinstance(t, str) and t for t in targets):
