@@ -22,7 +22,8 @@ from calib.errors import (CalibError, ChainError, DataError, FrameNotFound, Meas
 #: calib`` - and the ``calib`` command, which must handle Ctrl-C from its first instant - does
 #: not load numpy, scipy and Pinocchio before they are needed.
 _HOME = {
-    "model.robot": ("ChainJoint", "Parameter", "RobotModel"),
+    "model.chain": ("ChainJoint", "Parameter"),
+    "model.robot": ("RobotModel",),
     "io.urdf_reader": ("load_robot", "robot_path"),
     "model.jacobian": ("identification_jacobian",),
     "model.identifiability": ("IdentifiabilityReport", "analyze_identifiability"),

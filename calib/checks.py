@@ -79,6 +79,31 @@ def check_instance(value: Any, name: str, cls: type, how: str, *, allow_none: bo
     return value
 
 
+def check_names(value: Any, name: str, *, allow_none: bool = False) -> tuple[str, ...] | None:
+    """``value`` (a list, tuple or array of strings; not one string) as a tuple of str."""
+    if value is None and allow_none:
+        return None
+    if isinstance(value, (list, tuple, np.ndarray)) and all(isinstance(s, str) for s in value):
+        return tuple(str(s) for s in value)
+    raise ParameterError(f"{name} must be a list of strings, got {value!r:.60}")
+
+
+def check_array(value: Any, name: str, shape: tuple, *, unit: str = "") -> np.ndarray:
+    """``value`` as a finite float array of ``shape`` (None in it: any length), else a
+    :class:`calib.DataError` naming ``name``, the shape and the unit expected."""
+    want = "(" + ", ".join("N" if d is None else str(d) for d in shape) + ("," if len(shape) == 1 else "") + ")"
+    what = f"{name} must be a finite numeric array of shape {want}{', ' + unit if unit else ''}"
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise DataError(f"{what}, got {type(value).__name__}") from None
+    if arr.ndim != len(shape) or any(d is not None and d != k for d, k in zip(shape, arr.shape)):
+        raise DataError(f"{what}, got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise DataError(f"{what}: it holds NaN or infinite values")
+    return arr
+
+
 def check_configurations(Q: Any, n_joints: int, name: str = "Q") -> np.ndarray:
     """Q as a finite (N, n_joints) float array (a single (n_joints,) configuration is refused:
     pass [q])."""

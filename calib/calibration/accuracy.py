@@ -11,7 +11,8 @@ import numpy as np
 from calib.calibration.options import _check_compatible
 from calib.model.measurements import check_measurements
 from calib.model.robot import check_robot
-from calib.errors import DataError
+from calib.checks import check_array
+from calib.errors import DataError, ParameterError
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
@@ -34,6 +35,8 @@ class AccuracyStats:
     def from_residuals(dp: np.ndarray, dr: np.ndarray | None) -> "AccuracyStats":
         """The errors of position residuals dp (N, 3) metres and rotation residuals dr (N, 3)
         radians, the rotation vectors of R_model R_measured^T (None for position-only data)."""
+        dp = check_array(dp, "dp", (None, 3), unit="metres")
+        dr = None if dr is None else check_array(dr, "dr", (len(dp), 3), unit="radians")
         return AccuracyStats(np.linalg.norm(dp, axis=1), None if dr is None else np.linalg.norm(dr, axis=1))
 
     @property
@@ -42,6 +45,13 @@ class AccuracyStats:
 
     def subset(self, mask: np.ndarray) -> "AccuracyStats":
         """The errors of the rows selected by ``mask`` ((N,) bool or indices)."""
+        n = len(self.position_errors)
+        sel = np.asarray(mask) if isinstance(mask, (list, tuple, np.ndarray)) else None
+        if sel is None or sel.ndim != 1 or not (sel.dtype == bool and len(sel) == n or sel.size == 0 or
+                                                np.issubdtype(sel.dtype, np.integer) and
+                                                ((sel >= -n) & (sel < n)).all()):
+            raise ParameterError(f"mask must be ({n},) booleans or row indices in [0, {n}), got {mask!r:.60}")
+        mask = sel.astype(int) if sel.size == 0 else sel
         return AccuracyStats(self.position_errors[mask],
                              None if self.rotation_errors is None else self.rotation_errors[mask])
 

@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from calib.checks import check_rng
+from calib.checks import check_int, check_rng
 from calib.choices import SINGULAR_THRESHOLD
 from calib.model.robot import check_robot
 from calib.errors import CalibError, DataError, ParameterError
@@ -153,6 +153,7 @@ class CompensationResult:
     def describe(self, k: int) -> str:
         """Why target k (0-based) is not ok, in one line ("ok" if it is); joint excesses in
         degrees (mm for prismatic joints), residuals in mm and rad."""
+        k = check_int(k, "k", maximum=self.n_targets - 1)
         parts = []
         if self.min_singular_value[k] < self.singular_threshold:
             parts.append(f"near a singularity: smallest singular value of the joint Jacobian "
@@ -377,7 +378,7 @@ def _check_models(calibrated: RobotModel, nominal: RobotModel) -> None:
 
 
 def _check_options(measure, singular_threshold, tol_pos, tol_rot, max_iterations) -> None:
-    if measure not in MEASURES:
+    if not isinstance(measure, str) or measure not in MEASURES:
         raise ParameterError(f"unknown measure {measure!r}: expected one of {', '.join(MEASURES)}")
     for name, value in (("singular_threshold", singular_threshold), ("tol_pos", tol_pos),
                         ("tol_rot", tol_rot)):

@@ -12,17 +12,12 @@ from typing import Sequence
 import numpy as np
 
 from calib.calibration.accuracy import AccuracyStats, target_rows
-from calib.calibration.frames import median
 from calib.calibration.options import (
     IMPLAUSIBLE_LENGTH_FRACTION,
     IMPLAUSIBLE_REACH_FRACTION,
     IMPLAUSIBLE_ROT_RAD,
     LOCAL_MINIMUM_RATIO,
     ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM,
-    ROBUST_CHECK_INFLATION,
-    ROBUST_CHECK_ITERATIONS,
-    TRIMMED_FIT_STEPS,
-    TRIMMED_MAX_OUTLIER_SHARE,
     VCE_FIRST_FTOL,
     VCE_MAX_ITERATIONS,
     VCE_RTOL,
@@ -30,29 +25,19 @@ from calib.calibration.options import (
     CalibrationOptions,
 )
 from calib.calibration.prepare import Setup, _reach, _robot_memo
+from calib.calibration.robust import Outlier, flag_outliers, judge_rows, leftover_gross, robust_sigmas
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
 from calib.solvers import dispatch
 from calib.solvers.angles import RotationChain
-from calib.solvers.lm import LMOptions, LMTrace, SolverResult, levenberg_marquardt
+from calib.solvers.lm import LMOptions, LMTrace, SolverResult
 from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem, normal_inverse
 
 log = logging.getLogger(__name__)
 
 
 # ====================================================================== stage objects
-@dataclass(frozen=True)
-class Outlier:
-    """A calibration row left out of the fit: its line in the file, its errors after the fit
-    (metres, radians; rotation NaN for position-only data) and its residual RMS in sigma."""
-
-    row: int
-    position_error: float
-    rotation_error: float
-    sigmas: float
-
-
 @dataclass(frozen=True)
 class NoiseEstimate:
     """Measurement noise per axis used to weight the fit, and how well the residuals agree.
@@ -103,7 +88,9 @@ class Fit:
     weights, from the least-squares normal equations at the solution; full_rank : False when it
     is a pseudo-inverse (for a regularised fit: the posterior covariance); all_rows : the problem
     of every calibration row, kept or not; unremoved : rows whose residuals exceeded the outlier
-    threshold but were kept, being too many to be outliers (the fit's note says so).
+    threshold but were kept, being too many to be outliers (the fit's note says so); refusals :
+    why the fit stage found the data inconsistent (gross rows beyond the outlier check's
+    breakdown point), which :func:`implausibility` reports first.
     """
 
     model: RobotModel
@@ -118,6 +105,7 @@ class Fit:
     all_rows: Problem = field(repr=False, compare=False)
     notes: tuple[str, ...] = ()
     unremoved: tuple[Outlier, ...] = ()
+    refusals: tuple[str, ...] = ()
     #: A regularised fit's Gaussian prior on the free parameters (:mod:`calib.calibration.
     #: regularised`): precision (n_free,) in the weighted problem's units (1 / unit^2; 0: flat)
     #: and mean (n_free,); None for least squares. Refits (cross-validation) keep it.
@@ -173,66 +161,6 @@ def _noise_estimate(problem: Problem, lin: _Linearised, estimated: bool, iterati
     return NoiseEstimate(problem.sigma_pos, problem.sigma_rot if has_rot else None, estimated,
                          red_p, red_r, ne.rss_pos / max(red_p, 1e-300),
                          ne.rss_rot / max(red_r, 1e-300) if has_rot else None, chi2, dof, p_value, iterations)
-
-
-def _row_rms(problem: Problem, x: np.ndarray, sigma_pos: float, sigma_rot: float):
-    """Each row's whitened residual RMS per component, its position residuals and the norm of
-    its rotation residual (NaN without orientation data)."""
-    dp, dr = problem.pose_residuals(x)
-    blocks = [dp / sigma_pos]
-    rot = np.full(len(dp), np.nan)
-    if dr is not None:
-        blocks.append(dr / sigma_rot)
-        rot = np.linalg.norm(dr, axis=1)
-    w = np.concatenate(blocks, axis=1)
-    return np.sqrt(np.mean(w ** 2, axis=1)), dp, rot
-
-
-def _flag_outliers(problem: Problem, x: np.ndarray, rows: np.ndarray, keep: np.ndarray, k: float,
-                   sigma_pos: float, sigma_rot: float,
-                   max_share: float = 0.25) -> tuple[list[Outlier], bool]:
-    """Rows still kept whose whitened residual RMS per component exceeds k (with the given noise
-    levels), and whether they are too many (more than ``max_share`` of the kept rows) to be
-    outliers. ``problem`` holds all calibration rows; rows : their line numbers."""
-    rms, dp, rot = _row_rms(problem, x, sigma_pos, sigma_rot)
-    bad = np.flatnonzero(keep & (rms > k))
-    found = [Outlier(int(rows[i]), float(np.linalg.norm(dp[i])), float(rot[i]), float(rms[i])) for i in bad]
-    return found, len(bad) > max_share * keep.sum()
-
-
-def _trimmed_fit(problem: Problem, x: np.ndarray, keep: np.ndarray, sigma_pos: float, sigma_rot: float,
-                 options: LMOptions, trace: LMTrace) -> np.ndarray:
-    """A high-breakdown fit of ``problem``'s kept rows from x (least trimmed squares by
-    concentration steps): the least-squares fit of the half of the kept rows with the smallest
-    whitened residuals (at the robust noise levels given), repeated until that half stops
-    changing. ``problem`` holds all calibration rows (its weights: the robust noise levels)."""
-    n = int(keep.sum())
-    h = (n + 1) // 2
-    chosen = None
-    for _ in range(TRIMMED_FIT_STEPS):
-        rms = _row_rms(problem, x, sigma_pos, sigma_rot)[0]
-        rms = np.where(keep, rms, np.inf)
-        half = np.zeros(len(rms), bool)
-        half[np.argsort(rms, kind="stable")[:h]] = True
-        if chosen is not None and np.array_equal(half, chosen):
-            break
-        chosen = half
-        x = levenberg_marquardt(problem.derived(keep=chosen), x, "pose", options, trace).x
-    return x
-
-
-def _robust_sigmas(problem: Problem, x: np.ndarray, keep: np.ndarray, red_p: float, red_r: float):
-    """Noise levels from the median absolute residual component of each group (1.4826 MAD,
-    corrected for the fit's share of the degrees of freedom): what outliers cannot inflate."""
-    dp, dr = problem.pose_residuals(x)
-    n = keep.sum()
-    f_p = max(red_p / (3 * n), 1e-3)
-    sp = 1.4826 * median(np.abs(dp[keep])) / math.sqrt(f_p)
-    sr = problem.sigma_rot
-    if dr is not None:
-        f_r = max(red_r / (3 * n), 1e-3)
-        sr = 1.4826 * median(np.abs(dr[keep])) / math.sqrt(f_r)
-    return max(sp, 1e-12), max(sr, 1e-12)
 
 
 @dataclass(frozen=True)
@@ -333,6 +261,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     x = start.values[idx]
     outliers: list[Outlier] = []
     notes: list[str] = []
+    refusals: list[str] = []
     first = True
     stuck = None
     unjudged = False
@@ -374,7 +303,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
                 est_p = sp * math.sqrt(ne.rss_pos / red_p) if red_p > 0.5 else sp
                 est_r = sr * math.sqrt(ne.rss_rot / red_r) if (two_groups and red_r > 0.5) else sr
             else:   # a robust fit: a noise level that the outliers it resists cannot inflate
-                est_p, est_r = _robust_sigmas(problem, x, np.ones(problem.n_poses, bool), red_p, red_r)
+                est_p, est_r = robust_sigmas(problem, x, np.ones(problem.n_poses, bool), red_p, red_r)
             new_sp = est_p if sigma_pos is None else sp
             new_sr = est_r if (sigma_rot is None and two_groups) else sr
             new_sp, new_sr = max(new_sp, 1e-12), max(new_sr, 1e-12)
@@ -385,60 +314,24 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
         if outlier_k is None or outlier_pass == 3 or sol.status == "diverged":
             break
         problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
-        fsp, fsr = sp, sr
-        if estimate:
-            lin = linearised(problem, x)
-            rsp, rsr = _robust_sigmas(everything, x, keep, lin.red_pos, lin.red_rot)
-            fsp = rsp if sigma_pos is None else sp
-            fsr = rsr if sigma_rot is None else sr
-        new, too_many = _flag_outliers(everything, x, cal.rows, keep, outlier_k, fsp, fsr)
+        lin = linearised(problem, x)
         few = everything.n_poses * (6 if two_groups else 3) < ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM * len(x)
-        # a least-squares noise level far above the robust one: many gross rows, which a
-        # least-squares (or Huber) fit spreads until none stands out
-        inflated = estimate and not few and max(sp / fsp, sr / fsr) > ROBUST_CHECK_INFLATION
-        if loss == "linear" and inflated:
-            # judge the rows against a trimmed fit (the rows it explains best), with the noise
-            # levels of its residuals, then refit by least squares without those flagged
-            x_robust = _trimmed_fit(everything.derived(sigma_pos=fsp, sigma_rot=fsr), x, keep, fsp, fsr,
-                                    solve.options, trace)
-            rsp, rsr = _robust_sigmas(everything, x_robust, keep, lin.red_pos, lin.red_rot)
-            fsp, fsr = (rsp if sigma_pos is None else sp), (rsr if sigma_rot is None else sr)
-            new, too_many = _flag_outliers(everything, x_robust, cal.rows, keep, outlier_k, fsp, fsr,
-                                           TRIMMED_MAX_OUTLIER_SHARE)
-            if new and not too_many:
-                x = x_robust
-        elif loss == "linear" and (new or few):
-            # a least-squares fit spreads a gross error over its neighbours: judge the rows
-            # against a robust (Huber) fit instead, then refit by least squares without them;
-            # on few rows always (there the spread can hide the gross rows altogether)
-            x_robust = x
-            for _ in range(ROBUST_CHECK_ITERATIONS):
-                robust = problem.derived(loss="huber", sigma_pos=fsp, sigma_rot=fsr)
-                x_robust = levenberg_marquardt(robust, x_robust, "pose", solve.options, trace).x
-                if not estimate:
-                    break
-                # the noise levels from the robust fit's residuals (a least-squares fit's are
-                # smeared by the gross rows), and the robust fit again with them: with several
-                # gross rows the first threshold sits near them (5 rows 1-1.5 mm off among 40
-                # UR5 rows of 0.05 mm noise: sigma 0.27 mm, none flagged)
-                rsp, rsr = _robust_sigmas(everything, x_robust, keep, lin.red_pos, lin.red_rot)
-                rsp, rsr = (rsp if sigma_pos is None else sp), (rsr if sigma_rot is None else sr)
-                settled = max(abs(rsp / fsp - 1.0), abs(rsr / fsr - 1.0)) < 0.1
-                fsp, fsr = rsp, rsr
-                if settled:
-                    break
-            new, too_many = _flag_outliers(everything, x_robust, cal.rows, keep, outlier_k, fsp, fsr)
-            if new and not too_many:
-                x = x_robust
-        if too_many:
+        judged = judge_rows(everything, problem, x, keep, cal.rows, outlier_k, given=(sigma_pos, sigma_rot),
+                            red=(lin.red_pos, lin.red_rot), few=few, options=solve.options, trace=trace)
+        x, fsp, fsr, new, too_many = judged.x, judged.sigma_pos, judged.sigma_rot, list(judged.outliers), \
+            judged.too_many
+        if judged.breakdown:
+            refusals.append(judged.breakdown)
+        elif too_many:
             notes.append(f"{len(new)} of {int(keep.sum())} rows have residuals above {outlier_k:g} sigma: "
                          f"the noise is larger than the noise levels (or the model cannot describe the "
                          f"data), so no row was removed as an outlier")
-            unremoved, new = tuple(new), []
+            unremoved = tuple(new)
+        new = [] if too_many else new
         if suspect is not None and not new:
             # the suspect rows against the fit of the others: those within outlier_k are taken
             # back (and the fit repeated), the others are outliers
-            still, _ = _flag_outliers(everything, x, cal.rows, suspect, outlier_k, fsp, fsr)
+            still, _ = flag_outliers(everything, x, cal.rows, suspect, outlier_k, fsp, fsr)
             gross = {o.row for o in still}
             back = suspect & ~np.isin(cal.rows, list(gross))
             outliers += still
@@ -451,7 +344,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
         outliers += new
         keep &= ~np.isin(cal.rows, [o.row for o in new])
     if suspect is not None:   # never judged (the fit diverged or ran out of passes): outliers
-        outliers += _flag_outliers(everything, x, cal.rows, suspect, -1.0, sp, sr)[0]
+        outliers += flag_outliers(everything, x, cal.rows, suspect, -1.0, sp, sr)[0]
     problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
     if sol.x is not x:   # the last change of x was not solved at these weights (robust start)
         sol = _solve_logged(solve, problem, x, trace, False)
@@ -460,6 +353,9 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
         sol = replace(sol, status=stuck.status, message=stuck.message)
     lin = linearised(problem, x)
     noise = _noise_estimate(problem, lin, estimate, vce_total)
+    if estimate and outlier_k is not None and loss == "linear" and not refusals:
+        refusals.append(leftover_gross(everything, x, keep, (lin.red_pos, lin.red_rot), (sp, sr),
+                                       (sigma_pos, sigma_rot)))
     model = start.with_values(problem.full(x))
     if outliers:
         notes.append(f"{len(outliers)} outlier rows removed and the fit repeated without them: rows "
@@ -468,7 +364,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     cost = lin.ne.cost if problem.loss == "linear" else 0.5 * float(np.sum(problem.residuals(x) ** 2))
     fit = Fit(model, free, replace(sol, cost=cost), keep, tuple(outliers), noise, trace.iterations,
               covariance=lin.inverse, full_rank=lin.full_rank, all_rows=everything, notes=tuple(notes),
-              unremoved=unremoved)
+              unremoved=unremoved, refusals=tuple(r for r in dict.fromkeys(refusals) if r))
     return fit, problem
 
 
@@ -517,7 +413,7 @@ def implausibility(nominal: RobotModel, fit: Fit, *, sigma_pos_given: bool,
     errors no robot and instrument give. A calibration with any of these is not called converged
     (status "implausible"). sigma_pos_given / sigma_rot_given: which noise levels the user gave
     (each group is judged against its own)."""
-    notes = []
+    notes = list(fit.refusals)
     nz = fit.noise
     given = [("position", nz.chi2_pos)] if sigma_pos_given else []
     if sigma_rot_given and nz.chi2_rot is not None:

@@ -154,18 +154,18 @@ def resolve_options(robot, measurements, validation=None, *, method="search-lm",
     for value, name in ((sigma_pos, "sigma_pos"), (sigma_rot, "sigma_rot")):
         if value is not None and not 1e-12 <= value <= 1.0:
             raise ParameterError(f"{name} must be between 1e-12 and 1 (metres / radians), got {value!r}")
-    if init_frames not in (True, False, "auto"):
+    if not isinstance(init_frames, (bool, str)) or init_frames not in (True, False, "auto"):
         raise ParameterError(f"init_frames must be True, False or 'auto', got {init_frames!r}")
     check_int(max_rounds, "max_rounds", minimum=1)
     check_int(fixed_rounds, "fixed_rounds", minimum=1, allow_none=True)
-    if loss not in LOSSES:
+    if not isinstance(loss, str) or loss not in LOSSES:
         raise ParameterError(f"unknown loss {loss!r}: expected one of {', '.join(LOSSES)}")
     check_number(loss_scale, "loss_scale", minimum=0.0, strict=True)
     check_number(outlier_k, "outlier_k", minimum=0.0, strict=True, allow_none=True)
     if cv is not None and (isinstance(cv, bool) or not isinstance(cv, (int, np.integer)) or cv < 0 or cv == 1):
         raise ParameterError(f"cv must be 0 (off) or a number of folds >= 2, got {cv!r}")
     method = method.lower()
-    if lm_variant not in LM_VARIANTS:
+    if not isinstance(lm_variant, str) or lm_variant not in LM_VARIANTS:
         raise ParameterError(f"unknown lm_variant {lm_variant!r}: expected one of {', '.join(LM_VARIANTS)}")
     if lm_variant == "paper" and method == "search-lm":
         raise ParameterError("lm_variant 'paper' is the paper's LM for methods 'lm' and 'c-lm'; "

@@ -210,6 +210,10 @@ def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) ->
     in the errors. Raises :class:`DataError` for too few rows, :class:`ParameterError` for an
     unusable choice."""
     start, cal, params, notes = setup.start, setup.cal, options.params, []
+    if params is not None and not isinstance(params, str) and not (
+            isinstance(params, (list, tuple)) and all(isinstance(n, str) for n in params)):
+        raise ParameterError(f"params must be a set name ({', '.join(PARAM_SETS)}) or a list of parameter "
+                             f"names, got {params!r:.60}")
     weights = options.weights
     want, ident = params, None
     if params is None or (isinstance(params, str) and params.strip().lower() == "auto"):

@@ -77,7 +77,7 @@ from typing import Mapping
 
 import numpy as np
 
-from calib.checks import check_number, check_rng
+from calib.checks import check_configurations, check_number, check_rng
 from calib.choices import POSE_CRITERIA
 from calib.model.robot import check_robot
 from calib.errors import DataError, ParameterError
@@ -90,6 +90,9 @@ __all__ = ["CRITERIA", "PoseDesign", "design_poses", "select_poses"]
 
 #: Selection criteria of :func:`select_poses` (see the module docstring).
 CRITERIA = POSE_CRITERIA
+#: The largest candidate pool (each candidate holds a Jacobian block: 1,000,000 six-joint poses
+#: take about 1.5 GB).
+MAX_CANDIDATES = 1_000_000
 #: Regularisation of the information matrix, relative to the per-pose information of the pool.
 _EPS = 1e-6
 #: Relative improvement below which an exchange is not made.
@@ -149,7 +152,7 @@ class PoseDesign:
         """The criteria (keys D, O1, O3, O4, condition_number) of configurations Q (N, n_joints),
         rad / m, on the same parameters and column scale as the selection: values comparable
         with :attr:`criteria`."""
-        Q = np.atleast_2d(np.asarray(Q, float))
+        Q = check_configurations(Q, self.robot.n_joints)
         A, _ = _scaled_blocks(self.robot, Q, self.measure, self.sigma_pos, self.sigma_rot,
                               self.robot.indices(self.parameters), self.column_scale)
         return _criteria(A.reshape(-1, A.shape[2]))
@@ -248,10 +251,10 @@ def design_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion
 
 
 def _check_options(n, candidates, criterion, measure, sigma_pos, sigma_rot, passes) -> str:
-    crit = str(criterion).upper()
+    crit = criterion.upper() if isinstance(criterion, str) else None
     if crit not in CRITERIA:
         raise ParameterError(f"unknown criterion {criterion!r}: expected one of {', '.join(CRITERIA)}")
-    if measure not in MEASURES:
+    if not isinstance(measure, str) or measure not in MEASURES:
         raise ParameterError(f"unknown measure {measure!r}: expected one of {', '.join(MEASURES)}")
     for name, value in (("n", n), ("candidates", candidates), ("exchange_passes", passes)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
@@ -263,6 +266,8 @@ def _check_options(n, candidates, criterion, measure, sigma_pos, sigma_rot, pass
                              f"number of poses to select ({n})")
     if passes < 0:
         raise ParameterError(f"exchange_passes must not be negative, got {passes}")
+    if candidates > MAX_CANDIDATES:
+        raise ParameterError(f"candidates must be at most {MAX_CANDIDATES}, got {candidates}")
     check_number(sigma_pos, "sigma_pos", minimum=1e-12, maximum=1.0)
     check_number(sigma_rot, "sigma_rot", minimum=1e-12, maximum=1.0)
     return crit

@@ -28,6 +28,7 @@ import datetime
 import hashlib
 import io
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -35,8 +36,10 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from calib.calibration.result import CalibrationResult
+from calib.checks import check_instance
+from calib.errors import ParameterError
 from calib.model.kinematics import ChainKinematics
-from calib.model.measurements import Measurements
+from calib.model.measurements import Measurements, check_measurements
 from calib.model.robot import RobotModel
 from calib.model.spatial import log3_batch
 
@@ -279,10 +282,22 @@ def build_report(result: CalibrationResult, measurements: Measurements,
 
     ``measurements`` and ``validation`` are the arguments :func:`calib.calibrate` was given.
     """
+    check_instance(result, "result", CalibrationResult, "from calib.calibrate")
+    check_measurements(measurements)
+    check_measurements(validation, "validation", allow_none=True)
+    if not isinstance(command_line, (list, tuple)) or \
+            not all(isinstance(a, (str, os.PathLike)) for a in command_line):
+        raise ParameterError(f"command_line must be a list of arguments (strings), got {command_line!r:.60}")
+    for name, paths in (("inputs", inputs), ("outputs", outputs)):
+        if paths is not None and not (isinstance(paths, Mapping) and all(
+                isinstance(role, str) and (p is None or isinstance(p, (str, os.PathLike))) for role, p in paths.items())):
+            raise ParameterError(f"{name} must map each role (a string) to a file path, got {paths!r:.60}")
+    if frames is not None and not (isinstance(frames, Mapping) and all(isinstance(k, str) for k in frames)):
+        raise ParameterError(f"frames must be a mapping of names to values, got {frames!r:.60}")
     report = {"schema_version": SCHEMA_VERSION}
     report["provenance"] = {
         "calib_version": _calib_version(),
-        "command_line": list(command_line),
+        "command_line": [os.fspath(a) for a in command_line],
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "inputs": {role: file_provenance(path) for role, path in (inputs or {}).items()
                    if path is not None},
@@ -331,6 +346,23 @@ def render_html(report: Mapping, text: str, images: Mapping[str, bytes] | None =
     """One self-contained HTML page (no external links; plots embedded as PNG data) of a report
     from :func:`build_report`, with ``text`` (what the terminal printed) and ``images`` (file
     name -> PNG bytes, e.g. from :func:`render_plots`)."""
+    if not isinstance(report, Mapping):
+        raise ParameterError(f"report must be a report from calib.build_report, got {type(report).__name__}")
+    for name, value in (("text", text), ("title", title)):
+        if not isinstance(value, str):
+            raise ParameterError(f"{name} must be a string, got {type(value).__name__}")
+    if images is not None and not (isinstance(images, Mapping) and all(
+            isinstance(k, str) and isinstance(v, (bytes, bytearray)) for k, v in images.items())):
+        raise ParameterError(f"images must map file names to PNG bytes, got {images!r:.60}")
+    try:
+        return _html(report, text, images, title)
+    except (AttributeError, KeyError, TypeError, ValueError, IndexError) as exc:
+        raise ParameterError(f"report is not a report from calib.build_report ({type(exc).__name__}: "
+                             f"{exc})") from None
+
+
+def _html(report: Mapping, text: str, images: Mapping[str, bytes] | None, title: str) -> str:
+    """:func:`render_html` of checked arguments."""
     e = _escape
     prov, frames = report.get("provenance", {}), report.get("frames", {})
     parts = [f"<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{e(title)}</title>"

@@ -140,6 +140,9 @@ class CalibrationResult:
         return np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
 
     def parameter(self, name: str) -> ParameterEstimate:
+        """The estimate of the parameter ``name``."""
+        if not isinstance(name, str):
+            raise ParameterError(f"name must be a parameter name (a string), got {name!r:.60}")
         for p in self.parameters:
             if p.name == name:
                 return p

@@ -299,7 +299,8 @@ def select_and_fit(setup: Setup, ident: Sequence[str], options: CalibrationOptio
         fit, problem = full, full_problem
     else:
         fit, problem = fit_with(setup, free, options, outlier_k=None, keep=full.keep, kin=kin)
-        fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes, unremoved=full.unremoved)
+        fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes, unremoved=full.unremoved,
+                      refusals=full.refusals)
     log.info("model selection: %s", selection.chosen)
     return selection, fit, problem
 

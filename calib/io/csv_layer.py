@@ -104,17 +104,21 @@ class ReadOptions:
         if isinstance(self.rename, str):
             object.__setattr__(self, "rename", parse_rename(self.rename))
         else:
-            object.__setattr__(self, "rename", tuple((str(o).strip(), str(n).strip())
-                                                     for o, n in self.rename))
+            pairs = self.rename if isinstance(self.rename, (list, tuple)) else None
+            if pairs is None or not all(isinstance(p, (list, tuple)) and len(p) == 2 and
+                                        all(isinstance(x, str) for x in p) for p in pairs):
+                raise ParameterError(f"rename must be pairs (old, new) of column names, or 'old=new,...', "
+                                     f"got {self.rename!r:.60}")
+            object.__setattr__(self, "rename", tuple((o.strip(), n.strip()) for o, n in pairs))
         if self.euler is not None:
             check_euler_sequence(self.euler)
         tol = self.limit_tolerance
-        if not (isinstance(tol, (int, float)) and math.isfinite(tol) and 0 <= tol <= 1):
+        if isinstance(tol, bool) or not (isinstance(tol, (int, float)) and math.isfinite(tol) and 0 <= tol <= 1):
             raise ParameterError(f"limit_tolerance must be a fraction of the joint range in "
                                  f"[0, 1], got {tol!r}")
         if self.key is not None:
-            if not str(self.key).strip():
-                raise ParameterError("key must be a column name, got an empty string")
+            if not isinstance(self.key, str) or not self.key.strip():
+                raise ParameterError(f"key must be a column name, got {self.key!r:.60}")
             object.__setattr__(self, "key", str(self.key).strip())
 
 
@@ -501,9 +505,9 @@ def joint_columns(joint_names: Sequence[str], prismatic, q, angle_unit: str, len
     """(header names, values in the column units) of the joint columns of q (N, n) rad / m."""
     from calib.errors import DataError
 
-    if angle_unit not in ANGLE_UNITS:
+    if not isinstance(angle_unit, str) or angle_unit not in ANGLE_UNITS:
         raise ParameterError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
-    if length_unit not in LENGTH_UNITS:
+    if not isinstance(length_unit, str) or length_unit not in LENGTH_UNITS:
         raise ParameterError(f"length_unit must be 'mm' or 'm', got {length_unit!r}")
     q = np.atleast_2d(np.asarray(q, float))
     n = len(joint_names)

@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import CalibError, MeasurementFormatError, ParameterError
+from calib.errors import MeasurementFormatError, ParameterError
 from calib.io.fileio import atomic_write_text, check_not_input
 from calib.model.measurements import Measurements
 from calib.io.csv_layer import (ANGLE_UNITS, LENGTH_UNITS, POSITION_COLUMNS, ORIENTATIONS, ReadOptions, Spec,
@@ -211,8 +211,8 @@ def write_measurements(path: str | Path, measurements: Measurements, *, angle_un
         raise ParameterError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
     if not isinstance(length_unit, str) or length_unit not in LENGTH_UNITS:
         raise ParameterError(f"length_unit must be 'mm' or 'm', got {length_unit!r}")
-    if orientation not in ("quaternion", "zyx", "none"):
-        raise CalibError(f"orientation must be 'quaternion', 'zyx' or 'none', got {orientation!r}")
+    if not isinstance(orientation, str) or orientation not in ("quaternion", "zyx", "none"):
+        raise ParameterError(f"orientation must be 'quaternion', 'zyx' or 'none', got {orientation!r}")
     check_not_input(path, [measurements.source])
     m = measurements
     if m.rotation is None:
@@ -275,7 +275,10 @@ def read_poses(path: str | Path, robot, *, options: ReadOptions | None = None) -
     other than the joints are ignored. Raises :class:`calib.MeasurementFormatError` naming file,
     row and column on any departure from the format, including values beyond the joint limits.
     """
-    options = options or ReadOptions()
+    from calib.checks import check_instance
+
+    options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
+        or ReadOptions()
     return read_table(path, POSES, robot, options).q
 
 
@@ -336,7 +339,10 @@ def read_targets(path: str | Path, nominal, *, options: ReadOptions | None = Non
 
     Raises :class:`calib.MeasurementFormatError` naming the file, row and column.
     """
-    options = options or ReadOptions()
+    from calib.checks import check_instance
+
+    options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
+        or ReadOptions()
     t = read_table(path, TARGETS, nominal, options)
     return CompensationTargets(q=t.q, position=t.position, rotation=t.rotation, rows=t.rows,
                                source=t.path, ignored_columns=t.ignored_columns,
@@ -358,6 +364,13 @@ def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
 
     The file reads back as a poses file (:func:`read_poses`): the status columns are ignored.
     """
+    from calib.checks import check_path
+
+    check_path(path, "path")
+    if not all(hasattr(result, a) for a in ("joint_names", "prismatic", "q", "status", "position_error",
+                                             "rotation_error", "n_targets", "describe")):
+        raise ParameterError(f"result must be a CompensationResult (calib.compensate, calib.compensate_poses), "
+                             f"got {type(result).__name__}")
     header, values = joint_columns(result.joint_names, result.prismatic, result.q, angle_unit,
                                    length_unit)
     header += ["status", "residual_mm"] + (["residual_rad"] if result.rotation_error is not None else [])

@@ -21,7 +21,8 @@ from calib.errors import ChainError, FrameNotFound, ParameterError, URDFError
 from calib.io.fileio import captured_c_output
 from calib.model.mdh import PARALLEL_THRESHOLD_RAD, derive_mdh
 from calib.io.urdf import UrdfDocument, UrdfJoint
-from calib.model.robot import ChainJoint, JOINT_KINDS, RobotModel
+from calib.model.chain import JOINT_KINDS, ChainJoint
+from calib.model.robot import RobotModel
 
 log = logging.getLogger(__name__)
 

@@ -116,10 +116,13 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
 
     Raises :class:`~calib.errors.CalibError` (or a subclass): output = input, ``nominal`` incompatible with ``robot`` or not describing the URDF.
     """
-    from calib.checks import check_path
+    from calib.checks import check_names, check_path
     from calib.model.robot import check_robot
 
     check_robot(robot)
+    if nominal is not None:
+        check_robot(nominal, "nominal")
+    estimated = check_names(estimated, "estimated")
     check_not_input(check_path(path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
     if robot.source is None:      # a model built in code: a minimal URDF of its kinematics
         if nominal is not None:

@@ -50,8 +50,10 @@ from typing import Sequence
 import numpy as np
 import pinocchio as pin
 
+from calib.checks import check_configurations
 from calib.errors import CalibError, ParameterError
-from calib.model.robot import RobotModel, UrdfSource
+from calib.model.chain import UrdfSource
+from calib.model.robot import RobotModel, check_robot
 
 #: Standard gravity, m/s^2, along -z of the URDF root frame by default.
 STANDARD_GRAVITY = 9.80665
@@ -153,6 +155,9 @@ class GravityModel:
         payload : carried at the chain's tool frame; gravity : (3,) m/s^2 in the URDF root frame
         (default (0, 0, -9.80665)). Raises :class:`calib.CalibError` subclasses.
         """
+        if not isinstance(chain, UrdfSource):
+            raise ParameterError(f"chain must be a parsed URDF chain (a model's source, from calib.load_robot), "
+                                 f"got {type(chain).__name__}")
         if payload is not None and not isinstance(payload, Payload):
             raise ParameterError(f"payload must be a calib.model.compliance.Payload, got {type(payload).__name__}")
         g = np.array([0.0, 0.0, -STANDARD_GRAVITY]) if gravity is None else _finite_vector(gravity, "gravity")
@@ -174,6 +179,7 @@ class GravityModel:
                   gravity: Sequence[float] | None = None) -> "GravityModel":
         """The gravity model of ``robot``'s chain in the URDF it was read from (the parse it
         carries, ``robot.source``: the file is not read again)."""
+        check_robot(robot)
         if robot.source is None:
             raise ParameterError("compliance needs the robot's URDF (its inertias and tool frame): "
                                  "load the robot with calib.load_robot")
@@ -195,7 +201,7 @@ class GravityModel:
     def torques(self, Q: np.ndarray) -> np.ndarray:
         """(N, n) torque of gravity on each chain joint (N m; N for prismatic), at joint values
         Q (N, n) rad / m: minus Pinocchio's generalized gravity."""
-        Q = np.atleast_2d(np.asarray(Q, float))
+        Q = check_configurations(Q, len(self.chain.joint_ids))
         data = self.model.createData()
         idx_v = [self.model.joints[j].idx_v for j in self.chain.joint_ids]
         out = np.empty(Q.shape)

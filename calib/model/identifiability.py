@@ -37,7 +37,7 @@ from typing import Sequence
 import numpy as np
 
 from calib.checks import check_configurations, check_int, check_number, check_rng, check_target_indices
-from calib.model.robot import check_robot
+from calib.model.robot import MAX_CONFIGURATIONS, check_robot
 from calib.errors import DataError, ParameterError
 from calib.model.jacobian import MEASURES, identification_jacobian
 from calib.model.robot import RobotModel
@@ -214,7 +214,7 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
     returns the same report without recomputing it.
     """
     check_robot(robot)
-    if measure not in MEASURES:
+    if not isinstance(measure, str) or measure not in MEASURES:
         raise ParameterError(f"measure must be one of {', '.join(MEASURES)}, got {measure!r}")
     check_number(tol, "tol", minimum=0.0, maximum=1.0, strict=True)
     check_number(sigma_pos, "sigma_pos", minimum=1e-12, maximum=1.0)
@@ -224,7 +224,7 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
                                  or not all(isinstance(n, str) for n in priority)):
         raise ParameterError(f"priority must be a list of parameter names, got {priority!r}")
     if Q is None:
-        check_int(n_poses, "n_poses", minimum=1)
+        check_int(n_poses, "n_poses", minimum=1, maximum=MAX_CONFIGURATIONS)
         Q = robot.random_configurations(n_poses, check_rng(seed, "seed"))
     Q = check_configurations(Q, robot.n_joints)
     if len(Q) == 0:

@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from calib.checks import check_instance
+from calib.checks import check_instance, check_names, check_path
 from calib.errors import DataError
 
 __all__ = ["Measurements"]  # read_measurements, write_measurements: see __getattr__ below
@@ -100,7 +100,7 @@ class Measurements:
                 raise DataError(f"sets holds {bad[0]!r}; each entry must be 'cal' or 'val'")
             sets = sets.astype("<U3")
         names = tuple(f"q{i}" for i in range(1, n + 1)) if self.joint_names is None \
-            else tuple(str(s) for s in self.joint_names)
+            else check_names(self.joint_names, "joint_names")
         if len(names) != n:
             raise DataError(f"joint_names has {len(names)} names for {n} joint columns of q")
         if len(set(names)) != n:
@@ -114,15 +114,16 @@ class Measurements:
             if np.shape(self.target) != (N,):
                 raise DataError(f"target must be ({N},) ids or None, got shape "
                                 f"{np.shape(self.target)}")
+        source = None if self.source is None else check_path(self.source, "source")
         for arr in (q, position, rotation, rows, sets, prismatic):
             if arr is not None:
                 arr.setflags(write=False)
         for name, value in (("q", q), ("position", position), ("rotation", rotation),
                             ("rows", rows), ("sets", sets), ("joint_names", names),
-                            ("source", None if self.source is None else Path(self.source)),
+                            ("source", source),
                             ("prismatic", prismatic), ("target", target),
-                            ("ignored_columns", tuple(str(c) for c in self.ignored_columns)),
-                            ("notes", tuple(str(c) for c in self.notes))):
+                            ("ignored_columns", check_names(self.ignored_columns, "ignored_columns")),
+                            ("notes", check_names(self.notes, "notes"))):
             object.__setattr__(self, name, value)
 
     @classmethod

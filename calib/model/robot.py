@@ -26,121 +26,26 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, Iterable, Protocol, Sequence, runtime_checkable
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from calib.checks import check_instance
+from calib.checks import (check_array, check_configurations, check_instance, check_int, check_names, check_number,
+                          check_rng)
 from calib.errors import ParameterError
+from calib.model.chain import (_FRAME_KINDS, ChainJoint, Parameter, UrdfSource,
+                               make_parameters, v_names)
 from calib.model.mdh import PARALLEL_THRESHOLD_RAD, link_transform
 from calib.model.periodic import PERIODIC_GROUP, PERIODIC_KINDS, periodic_name, periodic_offsets
 from calib.model.spatial import zyx_parameters, zyx_transform
 
 log = logging.getLogger(__name__)
 
-JOINT_KINDS = ("revolute", "continuous", "prismatic")
-_STRUCTURAL_KINDS = ("theta", "d", "a", "alpha", "beta")
-_FRAME_KINDS = ("x", "y", "z", "alpha", "beta", "gamma")
-
-
-@dataclass(frozen=True)
-class ChainJoint:
-    """One moving joint of the chain: URDF name, kind, limits (rad or m; +-inf if unlimited)."""
-
-    name: str
-    kind: str
-    lower: float
-    upper: float
-
-    @property
-    def is_prismatic(self) -> bool:
-        return self.kind == "prismatic"
-
-
-@dataclass(frozen=True)
-class Parameter:
-    """One TM-MDH parameter.
-
-    ``group`` is ``"joint"`` (structural, of joint ``joint``, 1-based), ``"u"`` (meas->base),
-    ``"v"`` (flange->tool), ``"compliance"`` (``c<i>`` of joint ``joint``, only in a model made
-    by :meth:`RobotModel.with_compliance`) or ``"periodic"`` (``q<i>_sin1`` ... ``q<i>_cos2``,
-    :meth:`RobotModel.with_periodic`); ``kind`` is theta, d, a, alpha, beta for joints, x, y,
-    z, alpha, beta, gamma for u and v, ``c`` for compliance, sin1, cos1, sin2, cos2 for periodic
-    terms; ``unit`` is ``"m"``, ``"rad"``, or
-    ``"rad/(N m)"`` / ``"m/N"`` for the compliance of a revolute / prismatic joint; ``target`` the
-    target id of a v parameter of a multi-target model (None otherwise).
-    """
-
-    name: str
-    group: str
-    kind: str
-    joint: int | None
-    unit: str
-    target: str | None = None
-
-    @property
-    def is_angular(self) -> bool:
-        return self.unit == "rad"
-
-    @property
-    def symbol(self) -> str:
-        """The paper's symbol: theta1, d2, x, alpha, x', gamma' ..."""
-        if self.group == "joint":
-            return self.name
-        return self.kind + ("'" if self.group == "v" else "") + \
-            ("" if self.target is None else f"@{self.target}")
-
-
-def v_names(target: str | None = None) -> tuple[str, ...]:
-    """Names of the six flange->tool parameters: ``v_x`` ... or ``v_x@<target>`` ..."""
-    suffix = "" if target is None else f"@{target}"
-    return tuple(f"v_{k}{suffix}" for k in _FRAME_KINDS)
-
-
-def make_parameters(n_joints: int, beta_joints: Iterable[int],
-                    targets: Sequence[str] = ()) -> tuple[Parameter, ...]:
-    """The parameter list in the order of Eq. (23): theta, d, a, alpha, beta, u, v.
-
-    ``beta_joints`` are the 1-based joints that carry a beta parameter. ``targets``: two or more
-    target ids give one v block per target (``v_x@<id>`` ...), in that order; () one block ``v_x``.
-    """
-    params: list[Parameter] = []
-    for kind in ("theta", "d", "a", "alpha"):
-        unit = "m" if kind in ("d", "a") else "rad"
-        params += [Parameter(f"{kind}{i}", "joint", kind, i, unit) for i in range(1, n_joints + 1)]
-    params += [Parameter(f"beta{i}", "joint", "beta", i, "rad") for i in sorted(beta_joints)]
-    for kind in _FRAME_KINDS:
-        params.append(Parameter(f"u_{kind}", "u", kind, None, "m" if kind in "xyz" else "rad"))
-    for target in (tuple(targets) or (None,)):
-        for kind, name in zip(_FRAME_KINDS, v_names(target)):
-            params.append(Parameter(name, "v", kind, None, "m" if kind in "xyz" else "rad", target))
-    return tuple(params)
-
-
-@runtime_checkable
-class UrdfSource(Protocol):
-    """What a model read from a URDF carries: the parse (:class:`calib.io.urdf_reader.UrdfChain`).
-
-    ``path`` the URDF file; ``document`` its XML document (:class:`calib.io.urdf.UrdfDocument`);
-    ``model`` Pinocchio's model of the whole file (built once, never modified: copy it);
-    ``joints`` the chain's :class:`ChainJoint`; ``joint_ids`` their Pinocchio joint ids;
-    ``base_frame`` / ``tool_frame`` the frame names and ``base_frame_id`` / ``tool_frame_id``
-    their Pinocchio frame ids. Declared here so that the model needs no import of the reader.
-    """
-
-    path: Path
-    document: Any
-    model: Any
-    joints: tuple
-    joint_ids: tuple
-    base_frame: str
-    tool_frame: str
-    base_frame_id: int
-    tool_frame_id: int
-
-    def configuration(self, q: np.ndarray) -> np.ndarray: ...
+#: The most configurations :meth:`RobotModel.random_configurations` draws at once (800 MB for six
+#: joints): a count beyond is a mistake, not a study.
+MAX_CONFIGURATIONS = 100_000_000
 
 
 @dataclass(frozen=True, eq=False)
@@ -179,6 +84,13 @@ class RobotModel:
     T_flange_target_refs: np.ndarray | None = None
 
     def __post_init__(self):
+        for name, cls in (("joints", ChainJoint), ("parameters", Parameter)):
+            value = getattr(self, name)
+            if not isinstance(value, (list, tuple)) or not all(isinstance(x, cls) for x in value):
+                raise ParameterError(f"{name} must be a tuple of {cls.__name__}, got {value!r:.60}")
+            object.__setattr__(self, name, tuple(value))
+        if not isinstance(self.targets, (list, tuple)):
+            raise ParameterError(f"targets must be a tuple of ids (strings), got {self.targets!r:.60}")
         targets = tuple(self.targets)
         if len(targets) == 1 or len(set(targets)) != len(targets) or \
                 not all(isinstance(t, str) and t for t in targets):
@@ -187,9 +99,12 @@ class RobotModel:
         object.__setattr__(self, "targets", targets)
         refs = None
         if targets:
-            refs = np.array(np.broadcast_to(self.T_flange_tool_ref, (len(targets), 4, 4))
-                            if self.T_flange_target_refs is None else self.T_flange_target_refs, float)
-            if refs.shape != (len(targets), 4, 4):
+            try:
+                refs = np.array(np.broadcast_to(self.T_flange_tool_ref, (len(targets), 4, 4))
+                                if self.T_flange_target_refs is None else self.T_flange_target_refs, float)
+            except (TypeError, ValueError, OverflowError):
+                raise ParameterError(f"T_flange_target_refs must be ({len(targets)}, 4, 4) transforms") from None
+            if refs.shape != (len(targets), 4, 4) or not np.isfinite(refs).all():
                 raise ParameterError(f"T_flange_target_refs must be ({len(targets)}, 4, 4), got {refs.shape}")
             if not np.array_equal(np.asarray(self.T_flange_tool_ref, float), refs[0]) and \
                     not np.array_equal(np.asarray(self.T_flange_tool_ref, float), np.eye(4)):
@@ -200,13 +115,21 @@ class RobotModel:
         elif self.T_flange_target_refs is not None:
             raise ParameterError("T_flange_target_refs needs targets")
         object.__setattr__(self, "T_flange_target_refs", refs)
-        vals = np.array(self.values, dtype=float)
+        try:
+            vals = np.array(self.values, dtype=float)
+        except (TypeError, ValueError, OverflowError):
+            raise ParameterError(f"values must be {len(self.parameters)} numbers (SI units), got "
+                                 f"{self.values!r:.60}") from None
         if vals.shape != (len(self.parameters),):
             raise ParameterError(f"expected {len(self.parameters)} parameter values, got {vals.shape}")
+        if not np.isfinite(vals).all():
+            bad = [p.name for p, x in zip(self.parameters, vals) if not math.isfinite(x)]
+            raise ParameterError(f"parameter values must be finite (SI units); {', '.join(bad)} "
+                                 f"{'is' if len(bad) == 1 else 'are'} not")
         vals.setflags(write=False)
         object.__setattr__(self, "values", vals)
         for name in ("T_meas_base_ref", "T_flange_tool_ref"):
-            T = np.array(getattr(self, name), dtype=float)
+            T = _transform(getattr(self, name), name)
             T.setflags(write=False)
             object.__setattr__(self, name, T)
         object.__setattr__(self, "_index", {p.name: k for k, p in enumerate(self.parameters)})
@@ -217,12 +140,28 @@ class RobotModel:
                  T_meas_base_ref=None, T_flange_tool_ref=None, **kwargs) -> "RobotModel":
         """A model from MDH tables (arrays of length n; ``beta`` may hold NaN where a joint has no
         beta parameter, or be None for none), and optional u, v (6 each, Eq. 3 order)."""
+        if not isinstance(joints, (list, tuple)) or not joints or \
+                not all(isinstance(j, ChainJoint) for j in joints):
+            raise ParameterError(f"joints must be a non-empty list of ChainJoint, got {joints!r:.60}")
         n = len(joints)
-        beta = np.full(n, np.nan) if beta is None else np.asarray(beta, float)
+        theta, d, a, alpha = (check_array(x, k, (n,), unit=unit) for x, k, unit in
+                              ((theta, "theta", "rad"), (d, "d", "m"), (a, "a", "m"), (alpha, "alpha", "rad")))
+        if beta is None:
+            beta = np.full(n, np.nan)
+        else:
+            try:
+                beta = np.asarray(beta, float)
+            except (TypeError, ValueError, OverflowError):
+                beta = None
+            if beta is None or beta.shape != (n,) or np.isinf(beta).any():
+                raise ParameterError(f"beta must be ({n},) radians, NaN where a joint has none")
+        unknown = set(kwargs) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ParameterError(f"unknown RobotModel fields {', '.join(sorted(unknown))}")
+        u, v = (np.zeros(6) if x is None else check_array(x, k, (6,), unit="m and rad") for x, k in ((u, "u"), (v, "v")))
         beta_joints = [i + 1 for i in range(n) if not np.isnan(beta[i])]
         params = make_parameters(n, beta_joints)
-        vals = np.concatenate([theta, d, a, alpha, beta[~np.isnan(beta)],
-                               np.zeros(6) if u is None else u, np.zeros(6) if v is None else v])
+        vals = np.concatenate([theta, d, a, alpha, beta[~np.isnan(beta)], u, v])
         return cls(joints=tuple(joints), parameters=params, values=vals,
                    T_meas_base_ref=np.eye(4) if T_meas_base_ref is None else T_meas_base_ref,
                    T_flange_tool_ref=np.eye(4) if T_flange_tool_ref is None else T_flange_tool_ref,
@@ -237,7 +176,10 @@ class RobotModel:
         this model of the same id, else of the first target; ``T_flange_target_refs`` (K, 4, 4)
         replaces the references.
         """
-        targets = tuple(str(t) for t in targets)
+        targets = check_names(targets, "targets")
+        if T_flange_target_refs is not None:
+            T_flange_target_refs = check_array(T_flange_target_refs, "T_flange_target_refs",
+                                               (len(targets), 4, 4), unit="flange->target transforms")
         if targets == self.targets and T_flange_target_refs is None:
             return self
         if self.has_joint_terms:    # the joint terms stay last: targets on the geometry, then them
@@ -261,6 +203,9 @@ class RobotModel:
         """This model with targets at known points of the tool: ``offsets`` maps each id to its
         position (3,) in metres in the tool frame (of the first target, for a multi-target model);
         each target's frame is the tool frame moved there. Two or more targets."""
+        if not isinstance(offsets, Mapping):
+            raise ParameterError(f"offsets must map each target id to its position (x, y, z) in metres, "
+                                 f"got {type(offsets).__name__}")
         ids = tuple(str(t) for t in offsets)
         if len(ids) < 2:
             raise ParameterError(f"with_target_offsets: give two or more targets (got {len(ids)}); one "
@@ -268,9 +213,13 @@ class RobotModel:
                                  f"link or with_changes(v_x=...))")
         refs = []
         for t in ids:
-            p = np.asarray(offsets[t], float)
-            if p.shape != (3,) or not np.isfinite(p).all():
-                raise ParameterError(f"target {t!r}: expected a finite position (x, y, z) in metres, got {p!r}")
+            try:
+                p = np.asarray(offsets[t], float)
+            except (TypeError, ValueError, OverflowError):
+                p = None
+            if p is None or p.shape != (3,) or not np.isfinite(p).all():
+                raise ParameterError(f"target {t!r}: expected a finite position (x, y, z) in metres, "
+                                     f"got {offsets[t]!r:.60}")
             T = np.eye(4)
             T[:3, 3] = p
             refs.append(self.T_flange_tool_ref_of(0) @ T)
@@ -292,14 +241,15 @@ class RobotModel:
                        T_flange_tool_ref=np.array(self.T_flange_target_refs[k]))
 
     def with_values(self, values: np.ndarray) -> "RobotModel":
-        """A copy of this model with other parameter values (full vector, same order)."""
-        return replace(self, values=np.asarray(values, float))
+        """A copy of this model with other parameter values (full vector, same order, finite)."""
+        return replace(self, values=values)
 
     def with_changes(self, **deltas: float) -> "RobotModel":
-        """A copy with parameter values changed by the given amounts: ``with_changes(d2=1e-4)``."""
+        """A copy with parameter values changed by the given amounts: ``with_changes(d2=1e-4)``
+        (finite numbers, SI units)."""
         vals = self.values.copy()
         for name, delta in deltas.items():
-            vals[self.index(name)] += delta
+            vals[self.index(name)] += check_number(delta, name)
         return self.with_values(vals)
 
     def with_compliance(self, gravity, values: Sequence[float] | None = None) -> "RobotModel":
@@ -307,14 +257,13 @@ class RobotModel:
         geometric parameters; rad/(N m), or m/N for a prismatic joint) and the gravity model
         (:class:`calib.model.compliance.GravityModel`) that gives the joint torques. ``values`` (n,)
         defaults to the model's current compliances, else zeros. See :mod:`calib.model.compliance`."""
-        if gravity is None:
-            raise ParameterError("a model with compliance needs a gravity model (calib.model.compliance.GravityModel)")
+        if gravity is None or not callable(getattr(gravity, "torques", None)):
+            raise ParameterError("a model with compliance needs a gravity model (calib.model.compliance.GravityModel), "
+                                 f"got {type(gravity).__name__}")
         geo = self.geometry()
         n = self.n_joints
         old = self.compliances() if self.has_compliance else np.zeros(n)
-        vals = old if values is None else np.asarray(values, float)
-        if vals.shape != (n,):
-            raise ParameterError(f"expected {n} compliance values, got shape {vals.shape}")
+        vals = old if values is None else check_array(values, "values", (n,), unit="rad/(N m) or m/N")
         params = tuple(Parameter(f"c{i}", "compliance", "c", i, "m/N" if j.is_prismatic else "rad/(N m)")
                        for i, j in enumerate(self.joints, start=1))
         out = replace(geo, parameters=geo.parameters + params,
@@ -331,10 +280,8 @@ class RobotModel:
         if not rev:
             raise ParameterError("periodic joint errors need a revolute joint: the chain has prismatic joints only")
         old = self.periodic_values() if self.has_periodic else np.zeros(4 * len(rev))
-        vals = old if values is None else np.asarray(values, float).reshape(-1)
-        if vals.shape != (4 * len(rev),) or not np.all(np.isfinite(vals)):
-            raise ParameterError(f"expected {4 * len(rev)} finite periodic coefficients (rad; 4 per revolute "
-                                 f"joint), got {np.shape(values)}")
+        vals = old if values is None else check_array(values, "values", (4 * len(rev),),
+                                                      unit="periodic coefficients, rad, 4 per revolute joint")
         params = tuple(Parameter(periodic_name(i, k), PERIODIC_GROUP, k, i, "rad") for i in rev for k in PERIODIC_KINDS)
         base = self._strip((PERIODIC_GROUP,))
         return replace(base, parameters=base.parameters + params, values=np.concatenate([base.values, vals]))
@@ -376,7 +323,7 @@ class RobotModel:
     def joint_errors(self, Q: np.ndarray) -> np.ndarray:
         """(N, n) the joint terms' deviations q_eff - q at commanded Q (N, n) (rad / m): the
         gravity deflection C tau(q) plus the periodic errors; zeros for a model without them."""
-        Q = np.atleast_2d(np.asarray(Q, float))
+        Q = check_configurations(Q, self.n_joints)
         out = np.zeros(Q.shape)
         if self.has_compliance:
             out += self.gravity.torques(Q) * self.compliances()
@@ -433,10 +380,13 @@ class RobotModel:
         """Position of the parameter ``name`` in :attr:`values`."""
         try:
             return self._index[name]
-        except KeyError:
+        except (KeyError, TypeError):
             raise ParameterError(f"unknown parameter {name!r}; known: {', '.join(self.names)}") from None
 
     def indices(self, names: Iterable[str]) -> np.ndarray:
+        """Positions of the parameters ``names`` (a list of names) in :attr:`values`."""
+        if isinstance(names, (str, bytes)) or not isinstance(names, Iterable):
+            raise ParameterError(f"names must be a list of parameter names, got {names!r:.60}")
         return np.array([self.index(n) for n in names], dtype=int)
 
     def value(self, name: str) -> float:
@@ -531,7 +481,7 @@ class RobotModel:
         A direct product of Eq. (1) matrices, kept simple on purpose: it is the reference that
         the Pinocchio-based batch kinematics (:mod:`calib.model.kinematics`) is tested against.
         """
-        q = np.asarray(q, float)
+        q = check_array(q, "q", (self.n_joints,), unit="one configuration, rad / m")
         if self.has_joint_terms:
             q = q + self.joint_errors(q[None])[0]
         t = self.mdh_table()
@@ -554,9 +504,12 @@ class RobotModel:
                               unlimited_range: float = math.pi) -> np.ndarray:
         """(n, n_joints) configurations uniform within the joint limits (radians / metres).
 
-        Unlimited (continuous) joints are drawn in [-unlimited_range, unlimited_range].
+        Unlimited (continuous) joints are drawn in [-unlimited_range, unlimited_range] (radians,
+        or metres for an unlimited prismatic joint). n : at most MAX_CONFIGURATIONS.
         """
-        rng = np.random.default_rng(rng)
+        n = check_int(n, "n", maximum=MAX_CONFIGURATIONS)
+        rng = check_rng(rng)
+        unlimited_range = check_number(unlimited_range, "unlimited_range", minimum=0.0)
         lo = np.where(np.isfinite(self.lower), self.lower, -unlimited_range)
         hi = np.where(np.isfinite(self.upper), self.upper, unlimited_range)
         return rng.uniform(lo, hi, size=(n, self.n_joints))
@@ -584,6 +537,17 @@ class RobotModel:
             lines.append("periodic joint errors/urad: " + ", ".join(
                 f"{n} {v * 1e6:.4g}" for n, v in zip(self.periodic_names, self.periodic_values())))
         return "\n".join(lines)
+
+
+def _transform(value: Any, name: str) -> np.ndarray:
+    """``value`` as a finite (4, 4) float array, else :class:`calib.ParameterError` naming ``name``."""
+    try:
+        T = np.array(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        T = None
+    if T is None or T.shape != (4, 4) or not np.isfinite(T).all():
+        raise ParameterError(f"{name} must be a finite (4, 4) homogeneous transform, got {value!r:.60}")
+    return T
 
 
 def check_robot(value: Any, name: str = "robot") -> RobotModel:

@@ -12,6 +12,7 @@ from typing import Mapping
 
 import numpy as np
 
+from calib.errors import ParameterError
 from calib.checks import check_configurations, check_deviations, check_number, check_rng, check_target_ids
 from calib.model.robot import check_robot
 from calib.model.kinematics import ChainKinematics
@@ -79,6 +80,8 @@ def simulate_measurements(true_robot: RobotModel, Q: np.ndarray, *, sigma_pos: f
     targets = check_target_ids(targets, len(Q))
     check_number(unmodelled, "unmodelled", minimum=0.0, maximum=math.pi)   # radians: at most half a turn
     rng = check_rng(rng)
+    if not isinstance(position_only, (bool, np.bool_)):
+        raise ParameterError(f"position_only must be True or False, got {position_only!r:.60}")
     Q_moved = unmodelled_joint_error(true_robot, Q, unmodelled, rng) if unmodelled > 0 else Q
     R, p = ChainKinematics(true_robot).frame_poses(Q_moved, targets=true_robot.target_rows(targets))
     p = p + rng.normal(0.0, sigma_pos, p.shape) if sigma_pos > 0 else p

@@ -61,6 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib.checks import check_instance, check_int, check_number
 from calib.errors import ParameterError
 from calib.model.jacobian import pose_jacobian
 from calib.solvers.problem import Problem
@@ -69,6 +70,8 @@ from calib.solvers.problem import Problem
 MM_PER_M = 1e3
 #: Translation rows of Delta P: "differential" (Eq. 22's d) or "position" (Delta p, C-LM Step 2).
 TRANSLATIONS = ("differential", "position")
+#: The most C-LM rounds a call runs (the paper needs 2-20).
+MAX_ROUNDS = 10_000
 #: Row groups of Delta P: translation and rotation ("pose") or one of them.
 PARTS = ("pose", "position", "rotation")
 
@@ -90,12 +93,11 @@ class PaperLMOptions:
     ftol: float = 1e-12
 
     def __post_init__(self):
-        if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
-            raise ParameterError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
+        m = self.max_iterations
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
+            raise ParameterError(f"max_iterations must be a positive integer, got {m!r}")
         for name in ("mu0", "lam", "xtol", "ftol"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise ParameterError(f"{name} must be a finite non-negative number, got {v!r}")
+            check_number(getattr(self, name), name, minimum=0.0)
         if self.mu0 <= 0 or self.lam < 1:
             raise ParameterError(f"mu0 must be positive and lam at least 1, got mu0={self.mu0!r}, lam={self.lam!r}")
 
@@ -222,14 +224,24 @@ def _run(f: _PaperResiduals, x_full: np.ndarray, options: PaperLMOptions):
             f"stopped at the iteration limit ({options.max_iterations})", options.max_iterations)
 
 
-def _check(problem: Problem, x0, angular) -> tuple[np.ndarray, np.ndarray]:
+def _check(problem: Problem, x0, angular, options) -> tuple[np.ndarray, np.ndarray]:
+    check_instance(problem, "problem", Problem, "calib.solvers.problem.Problem")
+    check_instance(options, "options", PaperLMOptions, "calib.PaperLMOptions")
     if problem.loss != "linear":
         raise ParameterError(f"the paper's LM is plain least squares: loss must be 'linear', got {problem.loss!r}")
-    x0 = np.array(x0, float)
+    try:
+        x0 = np.array(x0, float)
+    except (TypeError, ValueError, OverflowError):
+        raise ParameterError(f"x0 must be the free parameters' start values (SI units), got {x0!r:.60}") from None
+    if not isinstance(angular, (list, tuple, np.ndarray)) or \
+            not all(isinstance(a, (bool, np.bool_)) for a in np.ravel(np.asarray(angular, dtype=object))):
+        raise ParameterError(f"angular must be ({len(problem.free)},) booleans, got {angular!r:.60}")
     angular = np.asarray(angular, bool)
     if x0.shape != (len(problem.free),) or angular.shape != (len(problem.free),):
         raise ParameterError(f"x0 and angular must have one entry per free parameter ({len(problem.free)}), "
                              f"got shapes {x0.shape} and {angular.shape}")
+    if not np.isfinite(x0).all():
+        raise ParameterError("x0 holds NaN or infinite values")
     return x0, angular
 
 
@@ -251,9 +263,9 @@ def paper_lm(problem: Problem, x0: np.ndarray, angular: np.ndarray, *,
 
     Returns a :class:`PaperLMResult` (rounds = 0).
     """
-    if translation not in TRANSLATIONS:
+    if not isinstance(translation, str) or translation not in TRANSLATIONS:
         raise ParameterError(f"translation must be one of {', '.join(TRANSLATIONS)}, got {translation!r}")
-    x0, angular = _check(problem, x0, angular)
+    x0, angular = _check(problem, x0, angular, options)
     parts = "pose" if problem.has_orientation else "position"
     if not problem.has_orientation:
         translation = "position"
@@ -276,12 +288,12 @@ def paper_cross_lm(problem: Problem, x0: np.ndarray, angular: np.ndarray, *,
     :class:`PaperLMResult` whose cost is Step 2's at the end and ``iterations`` counts the steps
     of both LM runs of every round.
     """
-    x0, angular = _check(problem, x0, angular)
+    x0, angular = _check(problem, x0, angular, options)
     if not problem.has_orientation:
         raise ParameterError("C-LM needs measured orientations for its rotation step (Section 3.2.2); "
                              "these measurements are position-only")
-    if fixed_rounds is not None and fixed_rounds < 1 or max_rounds < 1:
-        raise ParameterError(f"max_rounds and fixed_rounds must be positive, got {max_rounds!r}, {fixed_rounds!r}")
+    check_int(max_rounds, "max_rounds", minimum=1, maximum=MAX_ROUNDS)
+    check_int(fixed_rounds, "fixed_rounds", minimum=1, maximum=MAX_ROUNDS, allow_none=True)
     step1 = _PaperResiduals(problem, angular, np.flatnonzero(angular), "rotation", "position")
     step2 = _PaperResiduals(problem, angular, np.arange(len(x0)), "pose", "position")
     x, total = x0, 0

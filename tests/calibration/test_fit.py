@@ -155,11 +155,11 @@ def test_many_gross_rows_are_found(bundled_robot, share, seed):
 def test_clean_rows_skip_the_trimmed_fit(bundled_robot, monkeypatch):
     """Clean data (20 seeds of 100 full poses): no row flagged and the trimmed fit never run
     (the least-squares and robust noise levels agree: it would cost the speed budget)."""
-    import calib.calibration.fit as fit
+    import calib.calibration.robust as robust
 
     calls = []
-    trimmed = fit._trimmed_fit
-    monkeypatch.setattr(fit, "_trimmed_fit", lambda *a, **k: calls.append(1) or trimmed(*a, **k))
+    trimmed = robust.trimmed_fit
+    monkeypatch.setattr(robust, "trimmed_fit", lambda *a, **k: calls.append(1) or trimmed(*a, **k))
     true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
     for seed in range(20):
         meas, _ = _gross_rows(bundled_robot, true, 0.0, seed)

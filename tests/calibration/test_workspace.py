@@ -22,7 +22,8 @@ from calib.calibration.workspace import (
 )
 from calib.errors import CalibError, DataError
 from calib.model.kinematics import ChainKinematics
-from calib.model.robot import ChainJoint, RobotModel
+from calib.model.chain import ChainJoint
+from calib.model.robot import RobotModel
 from calib.model.simulate import apply_deviations, random_deviations, simulate_measurements
 
 from conftest import erd_urdf

@@ -12,7 +12,8 @@ from calib import CalibError, DataError, MeasurementFormatError
 from calib.io.specs import ReadOptions
 from calib.model.measurements import Measurements
 from calib.io.specs import read_measurements, write_measurements
-from calib.model.robot import ChainJoint, RobotModel
+from calib.model.chain import ChainJoint
+from calib.model.robot import RobotModel
 
 import calib.io.specs as measurements_module
 
