@@ -20,8 +20,11 @@ log = logging.getLogger(__name__)
 #: Configurations over which the predicted tool accuracy is printed.
 ACCURACY_CONFIGURATIONS = 500
 #: calibrate's options that do not apply to touch files (yet), with their default.
+#: calibrate's options that touch files do not take, with their defaults (a value other than the
+#: default is refused: the touch fit is least squares by LM, geometry only).
 _NOT_FOR_TOUCH = (("tracker", None), ("validate", None), ("compliance", False), ("plots", None),
-                  ("html", None))
+                  ("html", None), ("method", "search-lm"), ("estimator", "auto"), ("loss", "linear"),
+                  ("lm_variant", "calib"), ("periodic", False))
 
 
 def is_touch_input(args: argparse.Namespace) -> bool:

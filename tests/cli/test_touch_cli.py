@@ -71,6 +71,11 @@ def test_degenerate_design_and_bad_input_exit_2_writing_nothing(urdf, tmp_path, 
     assert code == 2 and "row 1" in err and "'x_mm'" in err
     code, _, err = run(capsys, "simulate", urdf, "-o", tmp_path / "x.csv", "--constraint", "cube:3")
     assert code == 2 and "--constraint: 'cube:3'" in err
+    # options of the pose fit that a touch fit does not take are refused, not ignored
+    for option in (["--method", "lm"], ["--estimator", "map"], ["--loss", "huber"], ["--periodic"]):
+        code, _, err = run(capsys, "calibrate", urdf, tmp_path / "one.csv", "--tool-frame", "tool0",
+                           "-o", tmp_path / "cal.urdf", *option)
+        assert code == 2 and f"{option[0]} does not apply to touch files" in err, option
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(before + ["bad.csv"])
 
 
