@@ -21,7 +21,7 @@ from dataclasses import replace
 import numpy as np
 
 from calib.calibration.accuracy import pose_errors, target_rows
-from calib.calibration.fit import Fit, fit_with, implausibility
+from calib.calibration.fit import Fit, fit_with, implausibility, length_notes
 from calib.calibration.frames import median
 from calib.calibration.options import CalibrationOptions
 from calib.calibration.prepare import Setup, prepare
@@ -68,9 +68,10 @@ def _quaternion_alternatives(m: Measurements):
 
 
 def alternatives(m: Measurements):
-    """(sentence, measurements) for each common misreading of ``m`` undone: the orientation
-    (by how it was read: :attr:`Measurements.orientation`), two joint columns of the same kind
-    swapped, revolute joint units (degrees <-> radians), position units (metres <-> mm)."""
+    """(sentence, measurements, length scale) for each common misreading of ``m`` undone: the
+    orientation (by how it was read: :attr:`Measurements.orientation`), two joint columns of the
+    same kind swapped, revolute joint units (degrees <-> radians), position units (metres <->
+    mm; the length scale is the factor the positions were multiplied by, else 1)."""
     if m.rotation is not None and m.orientation is not None:
         rot = []
         if m.orientation.startswith("euler:"):
@@ -78,7 +79,7 @@ def alternatives(m: Measurements):
         elif m.orientation == "quaternion":
             rot = _quaternion_alternatives(m)
         for sentence, R in rot:
-            yield sentence, replace(m, rotation=R)
+            yield sentence, replace(m, rotation=R), 1.0
     names, pr = m.joint_names, m.prismatic
     for i in range(m.n_joints):
         for j in range(i + 1, m.n_joints):
@@ -86,18 +87,18 @@ def alternatives(m: Measurements):
                 q = m.q.copy()
                 q[:, [i, j]] = q[:, [j, i]]
                 yield (f"the joint columns {names[i]!r} and {names[j]!r} look swapped: check the joint "
-                       f"order of the file against the URDF's chain", replace(m, q=q))
+                       f"order of the file against the URDF's chain", replace(m, q=q), 1.0)
     if not pr.all():
         for factor, sentence in ((math.pi / 180, "the revolute joint values look in degrees but were read as "
                                   "radians: name the columns <joint>_deg"),
                                  (180 / math.pi, "the revolute joint values look in radians but were read as "
                                   "degrees: name the columns <joint>_rad")):
-            yield sentence, replace(m, q=np.where(pr, m.q, m.q * factor))
+            yield sentence, replace(m, q=np.where(pr, m.q, m.q * factor)), 1.0
     for factor, sentence in ((1e3, "the positions look in metres but were read as millimetres: name the "
                               "columns x_m, y_m, z_m"),
                              (1e-3, "the positions look in millimetres but were read as metres: name the "
                               "columns x_mm, y_mm, z_mm")):
-        yield sentence, replace(m, position=m.position * factor)
+        yield sentence, replace(m, position=m.position * factor), factor
 
 
 def _noise(fit: Fit) -> tuple[float, float]:
@@ -128,34 +129,45 @@ def misreadings(setup: Setup, fit: Fit, options: CalibrationOptions, *, implausi
 
     Each misreading undone is screened by the nominal model's error with frames estimated in
     closed form (:data:`MISREADING_GAIN` times smaller than the rows as read in position or
-    rotation, neither larger); the survivors (at most :data:`MAX_FITS`, best first) are fitted."""
+    rotation, neither larger; positions compared in the units of the rows as read); the
+    survivors (at most :data:`MAX_FITS`, best first) are fitted. A fit of the rows as read that
+    moved link lengths far from the URDF's (positions in metres named _mm shrink the robot and
+    fit to the noise) is also checked; there a misreading is named when its fit keeps the
+    lengths near the URDF's at no larger noise."""
     pos, rot = _noise(fit)
-    if not (implausible or pos > SUSPECT_POS_M or rot > SUSPECT_ROT_RAD):
+    far = bool(length_notes(setup.nominal, fit))
+    if not (implausible or far or pos > SUSPECT_POS_M or rot > SUSPECT_ROT_RAD):
         return []
     opts = replace(options, cv=0, sigma_pos=None, sigma_rot=None)
     _, (p0, r0) = _screen(setup, setup.cal)
     screened = []
-    for sentence, alt in alternatives(setup.cal):
+    for sentence, alt, scale in alternatives(setup.cal):
         try:
             alt_setup, (p1, r1) = _screen(setup, alt)
         except CalibError:
             continue        # (the undone reading is no reading at all)
+        p1 /= scale
         gain = max(p0 / max(p1, 1e-300), r0 / max(r1, 1e-300) if r1 else 1.0)
         if gain >= MISREADING_GAIN and p1 <= 1.2 * p0 and r1 <= 1.2 * r0:
-            screened.append((gain, sentence, alt_setup))
+            screened.append((gain, sentence, alt_setup, scale))
     found = []
-    for _, sentence, alt_setup in sorted(screened, key=lambda g: -g[0])[:MAX_FITS]:
+    for _, sentence, alt_setup, scale in sorted(screened, key=lambda g: -g[0])[:MAX_FITS]:
         try:
             alt_fit, _ = fit_with(alt_setup, fit.free, opts, outlier_k=opts.outlier_k)
         except (CalibError, np.linalg.LinAlgError):
             continue
         a_pos, a_rot = _noise(alt_fit)
-        gain = max(pos / max(a_pos, 1e-300), rot / max(a_rot, 1e-300) if a_rot else 1.0)
-        worse = a_pos > 1.2 * pos or a_rot > 1.2 * rot
-        if gain < MISREADING_GAIN or worse or alt_fit.solver.status != "converged" or \
+        gain = max(pos * scale / max(a_pos, 1e-300), rot / max(a_rot, 1e-300) if a_rot else 1.0)
+        better = gain >= MISREADING_GAIN or (far and not length_notes(setup.nominal, alt_fit))
+        worse = a_pos > 1.2 * pos * scale or a_rot > 1.2 * rot
+        if not better or worse or alt_fit.solver.status != "converged" or \
                 implausibility(setup.nominal, alt_fit, sigma_pos_given=False, sigma_rot_given=False):
             continue
         shown = f"{a_pos * 1e3:.3g} mm" + (f", {a_rot:.3g} rad" if a_rot else "")
         was = f"{pos * 1e3:.3g} mm" + (f", {rot:.3g} rad" if a_rot else "")
+        if far and not length_notes(setup.nominal, alt_fit):
+            shown += " with the link lengths near the URDF's"
+        if scale != 1.0:
+            was += " in the units as read, with link lengths far from the URDF's" if far else " in the units as read"
         found.append((gain, f"likely cause: {sentence} (the data then fit to {shown} instead of {was})"))
     return [s for _, s in sorted(found, key=lambda g: -g[0])]
