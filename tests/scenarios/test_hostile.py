@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import json
+import signal
 from dataclasses import replace
 
 import numpy as np
@@ -182,3 +183,51 @@ def test_a_target_absent_from_a_separate_validation_file_and_one_with_one_row(th
                                   "--params", "base", "--cv", "0"])
     assert code == 0, err
     assert (tmp_path / "c1.urdf").read_text().startswith("<?xml")
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_the_moment_the_outputs_are_replaced_keeps_the_exit_code(signum, bundled, tmp_path, capfd,
+                                                                         monkeypatch):
+    """A signal delivered the moment the outputs were renamed into place (sent while they are
+    renamed, signals held back, so that it lands as they are released): the command exited 143
+    / 130 saying it was interrupted -- "nothing changed", which was false. Now the command ends
+    as it would have (exit 0, its summary printed) and says the outputs are complete."""
+    import os
+
+    from calib.io import fileio
+
+    robot, true = bundled
+    meas = calib.simulate_measurements(true, robot.random_configurations(40, 3), rng=4)
+    calib.write_measurements(tmp_path / "m.csv", meas)
+    (tmp_path / "c.urdf").write_text("old")
+    rename_all = fileio._rename_all
+
+    def with_a_signal(temps, on_renamed=None):
+        if on_renamed is None:      # (a file written to a temporary folder on the way)
+            return rename_all(temps, on_renamed)
+
+        def renamed(paths):
+            on_renamed(paths)
+            os.kill(os.getpid(), signum)        # (pending until the renames release the signals)
+        return rename_all(temps, renamed)
+
+    monkeypatch.setattr(fileio, "_rename_all", with_a_signal)
+    code, out, err = _cli(capfd, ["calibrate", URDF, tmp_path / "m.csv", "-o", tmp_path / "c.urdf",
+                                  "--params", "base", "--cv", "0"])
+    assert code == 0, err
+    assert err == (f"calib: {signal.Signals(signum).name} received after the outputs were written "
+                   f"({tmp_path / 'c.urdf'}): they are complete\n")
+    assert "wrote " in out and (tmp_path / "c.urdf").read_text().startswith("<?xml")
+    # a signal before the renames still stops the command with 128 + signal, nothing replaced
+    (tmp_path / "c.urdf").write_text("old")
+
+    def signal_first(temps, on_renamed=None):
+        if on_renamed is not None:
+            os.kill(os.getpid(), signum)
+        return rename_all(temps, on_renamed)
+
+    monkeypatch.setattr(fileio, "_rename_all", signal_first)
+    code, _, err = _cli(capfd, ["calibrate", URDF, tmp_path / "m.csv", "-o", tmp_path / "c.urdf",
+                                "--params", "base", "--cv", "0"])
+    assert code == 128 + signum and err == f"calib: interrupted by {signal.Signals(signum).name}\n"
+    assert (tmp_path / "c.urdf").read_text() == "old"
