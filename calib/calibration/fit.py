@@ -31,7 +31,7 @@ from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
 from calib.solvers import dispatch
 from calib.solvers.angles import RotationChain
-from calib.solvers.lm import LMOptions, LMTrace, SolverResult, levenberg_marquardt
+from calib.solvers.lm import LMOptions, LMTrace, SolverResult
 from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem, normal_inverse
 
 log = logging.getLogger(__name__)
