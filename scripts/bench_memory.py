@@ -39,8 +39,8 @@ def rss():
         pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 import calib
+robot = calib.load_robot(sys.argv[1])     # (numpy and Pinocchio loaded: not per row)
 r0 = rss()
-robot = calib.load_robot(sys.argv[1])
 t = time.perf_counter()
 m = calib.read_measurements(sys.argv[2], robot)
 t_read = time.perf_counter() - t

@@ -142,6 +142,9 @@ def format_accuracy_table(rows: Sequence[tuple[str, AccuracyStats]]) -> str:
     lines = [head]
     for label, s in rows:
         p = s.position
+        if p is None:       # (no rows: a target measured only in the other set)
+            lines.append(f"{label:<28}{0:>6} | {'(no rows)':>40}")
+            continue
         line = f"{label:<28}{s.n_poses:>6} | " + "".join(f"{p[k] * 1e3:>10.4f}" for k in ("mean", "rms", "max", "min"))
         r = s.rotation
         line += "  | " + ("".join(f"{r[k]:>11.3e}" for k in ("mean", "rms", "max", "min")) if r else f"{'(position only)':>44}")

@@ -18,6 +18,7 @@ from calib.calibration.options import (
     IMPLAUSIBLE_ROT_RAD,
     LOCAL_MINIMUM_RATIO,
     ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM,
+    TRIMMED_MAX_OUTLIER_SHARE,
     VCE_FIRST_FTOL,
     VCE_MAX_ITERATIONS,
     VCE_RTOL,
@@ -25,7 +26,8 @@ from calib.calibration.options import (
     CalibrationOptions,
 )
 from calib.calibration.prepare import Setup, _reach, _robot_memo
-from calib.calibration.robust import Outlier, flag_outliers, judge_rows, leftover_gross, robust_sigmas
+from calib.calibration.robust import (Outlier, flag_outliers, judge_rows, leftover_gross, robust_sigmas,
+                                      too_many_gross)
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -317,7 +319,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
         lin = linearised(problem, x)
         few = everything.n_poses * (6 if two_groups else 3) < ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM * len(x)
         judged = judge_rows(everything, problem, x, keep, cal.rows, outlier_k, given=(sigma_pos, sigma_rot),
-                            red=(lin.red_pos, lin.red_rot), few=few, options=solve.options, trace=trace)
+                            red=(lin.red_pos, lin.red_rot), few=few, first=not outliers, options=solve.options,
+                            trace=trace)
         x, fsp, fsr, new, too_many = judged.x, judged.sigma_pos, judged.sigma_rot, list(judged.outliers), \
             judged.too_many
         if judged.breakdown:
@@ -328,6 +331,9 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
                          f"data), so no row was removed as an outlier")
             unremoved = tuple(new)
         new = [] if too_many else new
+        if new and len(outliers) + len(new) > TRIMMED_MAX_OUTLIER_SHARE * cal.n_poses:
+            refusals.append(too_many_gross(len(outliers) + len(new), cal.n_poses))
+            new = []
         if suspect is not None and not new:
             # the suspect rows against the fit of the others: those within outlier_k are taken
             # back (and the fit repeated), the others are outliers

@@ -41,6 +41,7 @@ from typing import Sequence
 
 from calib.calibration.accuracy import accuracy_after, accuracy_before
 from calib.calibration.consistency import consistency_notes
+from calib.calibration.diagnose import misreadings
 from calib.calibration.fit import fit_with, implausibility, length_notes, method_notes
 from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
@@ -184,9 +185,11 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                                 rank_deficit=choice.deficit)
     implausible = implausibility(robot, fit, sigma_pos_given=opts.sigma_pos is not None,
                                  sigma_rot_given=opts.sigma_rot is not None)
+    causes = misreadings(setup, fit, opts, implausible=bool(implausible) or fit.solver.status != "converged")
+    implausible = causes + implausible
     notes += list(fit.notes) + implausible + length_notes(robot, fit)
     status, message = fit.solver.status, fit.solver.message
-    if implausible and status == "converged":
+    if implausible and (status == "converged" or causes):
         status, message = "implausible", implausible[0]
 
     stats = statistics_stage(setup, fit, problem)

@@ -301,14 +301,18 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
         h.update(np.ascontiguousarray(rows, np.int64).tobytes())
     kept_d = _robot_memo("data rank", robot, options + (Q.shape, h.hexdigest()), data_rank)
 
+    # the targets these rows measure (a target measured only in validation rows is not calibrated:
+    # its frame is not asked of the calibration rows)
+    present = None if rows is None else tuple(sorted(set(int(t) for t in rows)))
+
     def random_rank():
         Qr = robot.random_configurations(50, 0)
-        K = robot.n_targets
-        every = None if not robot.targets else np.tile(np.arange(K), len(Qr))
+        K = 1 if present is None else len(present)
+        every = None if present is None else np.tile(np.array(present), len(Qr))
         Jr = weighted_jacobian(robot, np.repeat(Qr, K, axis=0), measure, sigma_pos, sigma_rot, every)[:, cols]
         return tuple(select_identifiable(Jr, range(len(cols)))[0])
 
-    kept_r = _robot_memo("random rank", robot, options, random_rank)
+    kept_r = _robot_memo("random rank", robot, options + (present,), random_rank)
     if len(kept_d) < len(kept_r):
         lost = [robot.names[cols[k]] for k in kept_r if k not in set(kept_d)]
         n_q = distinct_configurations(m.q)

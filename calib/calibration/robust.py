@@ -152,14 +152,17 @@ def can_trim(problem: Problem, keep: np.ndarray, n_params: int) -> bool:
 
 def judge_rows(everything: Problem, problem: Problem, x: np.ndarray, keep: np.ndarray, rows: np.ndarray,
                k: float, *, given: tuple[float | None, float | None], red: tuple[float, float],
-               few: bool, options: LMOptions, trace: LMTrace) -> Judgement:
+               few: bool, first: bool = True, options: LMOptions, trace: LMTrace) -> Judgement:
     """The outlier check of the fit at x (see the module docstring).
 
     everything : the problem of all calibration rows; problem : the fit's (the kept rows, its
     noise levels and loss); keep : (N,) bool, rows kept; rows : (N,) their line numbers; k : the
     threshold on a row's whitened residual RMS per component; given : the noise levels the user
     gave (m, rad; None: estimated); red : the fit's redundancy (position, rotation); few : the
-    rows hold few residual components per parameter.
+    rows hold few residual components per parameter; first : no row was flagged yet (few rows
+    go to the high-breakdown fit on the first judgement only: once the gross rows are out, a
+    trimmed fit of what is left, a third of a few rows, scatters its predictions for the others
+    and flagged 12 good rows of 24).
     """
     sp, sr = problem.sigma_pos, problem.sigma_rot
     estimate = given[0] is None or given[1] is None
@@ -171,7 +174,8 @@ def judge_rows(everything: Problem, problem: Problem, x: np.ndarray, keep: np.nd
     # residual swells with them: 12 of 40 position-only rows 5 mm off, 1.5 mm noise estimated
     # against 0.02 mm), or a least-squares noise level far above the robust one (many gross
     # rows): judged against the high-breakdown fit
-    if can_trim(everything, keep, len(x)) and (few or (estimate and max(sp / fsp, sr / fsr) > ROBUST_CHECK_INFLATION)):
+    if can_trim(everything, keep, len(x)) and ((few and first)
+                                               or (estimate and max(sp / fsp, sr / fsr) > ROBUST_CHECK_INFLATION)):
         return _judge_trimmed(everything, problem, x, keep, rows, k, (fsp, fsr), given, red, options, trace)
     if not new:
         return Judgement(tuple(new), too_many, x, fsp, fsr)
@@ -253,6 +257,16 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
                f"orientation columns and that the URDF is this robot's")
         return Judgement((), True, x, fsp, fsr, trimmed=True, breakdown=why)
     return Judgement(tuple(new), too_many, x_t if (new and not too_many) else x, fsp, fsr, trimmed=True)
+
+
+def too_many_gross(flagged: int, rows: int) -> str:
+    """Why the data are refused when the outlier passes together flag more than
+    TRIMMED_MAX_OUTLIER_SHARE of the calibration rows (each pass judges only the rows kept by
+    the last: 16 gross of 40 position-only rows, then 18 good ones, left 6 rows fitted
+    exactly)."""
+    return (f"the data are inconsistent: the outlier check would leave out {flagged} of {rows} rows, more "
+            f"than the half that gross rows can be among consistent data; check the joint columns "
+            f"(order, units), the orientation columns and that the URDF is this robot's")
 
 
 def leftover_gross(everything: Problem, x: np.ndarray, keep: np.ndarray, red: tuple[float, float],

@@ -36,7 +36,7 @@ from typing import Sequence
 
 from calib.cli import calibrate, compensate, evaluate, identifiability, select_poses, simulate
 from calib.cli.args import ArgumentParser, HelpFormatter, add_verbose
-from calib.cli.output import EXIT_INPUT, PROG
+from calib.cli.output import EXIT_INPUT, PROG, forget_written, written
 from calib.errors import CalibError
 
 __all__ = ["main", "main_entry", "build_parser", "COMMANDS"]
@@ -87,7 +87,19 @@ class Interrupted(BaseException):
         self.signum = signum
 
 
+#: Signals received after the running command's outputs were put in place (recorded, not
+#: raised: the work they would stop is done; main reports them and keeps the command's code).
+_LATE: list[int] = []
+
+
 def _raise_interrupted(signum, frame):
+    """SIGTERM / SIGINT handler while a command runs: stop it (Interrupted, KeyboardInterrupt),
+    unless its outputs are already in place."""
+    if written():
+        _LATE.append(signum)
+        return
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
     raise Interrupted(signum)
 
 
@@ -116,9 +128,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     root_log = logging.getLogger("calib")     # every module logs as calib.<module>
     handler = None
-    previous_term = None
+    previous = {}
+    forget_written()
+    _LATE.clear()
     if threading.current_thread() is threading.main_thread():
-        previous_term = signal.signal(signal.SIGTERM, _raise_interrupted)
+        previous = {s: signal.signal(s, _raise_interrupted) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         # the parser's choices and defaults come from the library: building it imports numpy
         # and Pinocchio, so a signal may land here too
@@ -153,8 +167,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         sys.stderr.write(f"{PROG}: interrupted by {name}\n")
         return 128 + exc.signum
     finally:
-        if previous_term is not None:
-            signal.signal(signal.SIGTERM, previous_term)
+        for s, h in previous.items():
+            signal.signal(s, h)
+        if _LATE:
+            sys.stderr.write(f"{PROG}: {signal.Signals(_LATE[0]).name} received after the outputs were written "
+                             f"({', '.join(str(p) for p in written())}): they are complete\n")
         if handler is not None:
             root_log.removeHandler(handler)
             root_log.setLevel(logging.NOTSET)
@@ -166,6 +183,18 @@ def main_entry() -> None:
     contention (a 70 ms calibration was seen taking 2 s with them)."""
     from threadpoolctl import threadpool_limits
 
-    with threadpool_limits(limits=1, user_api="blas"):
-        code = main()
+    # (main's handlers on both sides of main: a signal before it stops with the one line, one
+    # after it is recorded when the outputs are in place; then ignored while Python exits, so
+    # that the exit code stays the command's)
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, _raise_interrupted)
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            code = main()
+    except (Interrupted, KeyboardInterrupt) as exc:     # (outside main's run: nothing written)
+        signum = getattr(exc, "signum", signal.SIGINT)
+        sys.stderr.write(f"{PROG}: interrupted by {signal.Signals(signum).name}\n")
+        code = 128 + signum
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, signal.SIG_IGN)
     sys.exit(code)

@@ -29,6 +29,21 @@ EXIT_INPUT = 2
 #: (the outputs are written all the same, for inspection).
 EXIT_NOT_CONVERGED = 3
 
+#: The outputs the running command has put in place (set while the signals are held back, the
+#: moment the last one is renamed): a signal after that no longer means "nothing changed"
+#: (:func:`calib.cli.main.main` reads it; :func:`forget_written` starts a command).
+_WRITTEN: list[Path] = []
+
+
+def written() -> list[Path]:
+    """The outputs the running command has put in place (empty before its commit)."""
+    return list(_WRITTEN)
+
+
+def forget_written() -> None:
+    """Start a command: no output of it is in place yet."""
+    _WRITTEN.clear()
+
 
 class Outputs:
     """Output files staged in memory and written together at the end.
@@ -85,7 +100,7 @@ class Outputs:
         for path in self.paths:
             if path in self.data:
                 out.stage(path, self.data[path])
-        for path in out.commit():
+        for path in out.commit(on_renamed=_WRITTEN.extend):
             log.info("wrote %s", path)
 
 

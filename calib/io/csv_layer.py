@@ -263,7 +263,10 @@ def read_lines(path: Path) -> list[str]:
         row = data[:exc.start].count(b"\n") + 1
         raise MeasurementFormatError(path, f"not UTF-8 text (byte 0x{data[exc.start]:02x})",
                                      row=row) from None
-    return text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    del data        # (a million rows: each copy of the file held at once costs 250 MB)
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    return text.split("\n")
 
 
 def split_fields(path: Path, row: int, line: str, delimiter: str = ",") -> list[str]:
@@ -312,22 +315,24 @@ def _looks_numeric(fields: list[str]) -> bool:
     return True
 
 
-def _records(path: Path) -> tuple[int, list[str], str, list[tuple[int, str]]]:
-    """(header line number, header names as written, delimiter, [(line number, line), ...])."""
+def _records(path: Path) -> tuple[int, list[str], str, list[str], np.ndarray]:
+    """(header line number, header names as written, delimiter, the file's lines, (N,) index of
+    each data line among them): an index array, not (line number, line) pairs, which cost a
+    million-row file 100 MB more."""
     lines = read_lines(path)
-    records = [(k + 1, line) for k, line in enumerate(lines)
-               if line.strip() and not line.lstrip().startswith("#")]
-    if not records:
+    records = np.fromiter((k for k, line in enumerate(lines)
+                           if line.strip() and not line.lstrip().startswith("#")), dtype=np.int64)
+    if not len(records):
         raise MeasurementFormatError(path, "no header row: the file holds only comments and blank "
                                            "lines")
-    header_row, header_line = records[0]
+    header_row, header_line = int(records[0]) + 1, lines[records[0]]
     best = max(_DELIMITERS, key=lambda d: _field_count(path, header_row, header_line, d))
     names = split_fields(path, header_row, header_line, best)
     if _looks_numeric(names):
         raise MeasurementFormatError(path, "this line looks like data, expected the header row "
                                            "(column names such as joint1_deg, x_mm; a line starting "
                                            "with # is a comment)", row=header_row)
-    return header_row, names, best, records[1:]
+    return header_row, names, best, lines, records[1:]
 
 
 # ====================================================================== reading
@@ -345,9 +350,9 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     check_robot(robot)
     options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
         or ReadOptions()
-    header_row, names, delimiter, data = _records(path)
+    header_row, names, delimiter, lines, data = _records(path)
     header = Header(path, header_row, names, spec, robot, options)
-    if not data:
+    if not len(data):
         raise MeasurementFormatError(path, "header but no data rows", row=header_row)
     decimal_comma = delimiter != ","
     cols = header.columns
@@ -356,8 +361,9 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     numeric = {k: c for k, c in cols.items() if k not in label_names}
     values = {k: np.empty(N) for k in numeric}
     labels = {k: [] for k in cols if k not in numeric}
-    rows = np.array([r for r, _ in data], dtype=int)
-    for k, (row, line) in enumerate(data):
+    rows = (data + 1).astype(int)
+    for k, i in enumerate(data.tolist()):
+        row, line = i + 1, lines[i]
         fields = split_fields(path, row, line, delimiter)
         if len(fields) != ncols:
             raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
@@ -380,6 +386,7 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
                                                    f"expected an id", row=row, column=c.name)
             labels[key].append(text)
 
+    del lines, data     # (the text of a million rows: 300 MB, before the rotations are built)
     q = None
     notes: list[str] = []
     if any(isinstance(k, int) for k in cols):
@@ -407,6 +414,40 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
                  lengths={k: values[k] for k in spec.lengths if k in cols})
 
 
+def _quaternion_matrices(wxyz: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices of unit quaternions (N, 4) (w, x, y, z), as Eigen's
+    toRotationMatrix computes them, vectorised (a million rows: no per-row objects)."""
+    w, x, y, z = wxyz.T
+    R = np.empty((len(wxyz), 3, 3))
+    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    R[:, 0, 1] = 2 * (x * y - w * z)
+    R[:, 0, 2] = 2 * (x * z + w * y)
+    R[:, 1, 0] = 2 * (x * y + w * z)
+    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    R[:, 1, 2] = 2 * (y * z - w * x)
+    R[:, 2, 0] = 2 * (x * z - w * y)
+    R[:, 2, 1] = 2 * (y * z + w * x)
+    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+def _zyx_matrices(rz_ry_rx: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) R = Rz(rz) Ry(ry) Rx(rx) of angles (N, 3) (rz, ry, rx) radians, vectorised."""
+    cz, cy, cx = np.cos(rz_ry_rx).T
+    sz, sy, sx = np.sin(rz_ry_rx).T
+    R = np.empty((len(rz_ry_rx), 3, 3))
+    R[:, 0, 0] = cz * cy
+    R[:, 0, 1] = cz * sy * sx - sz * cx
+    R[:, 0, 2] = cz * sy * cx + sz * sx
+    R[:, 1, 0] = sz * cy
+    R[:, 1, 1] = sz * sy * sx + cz * cx
+    R[:, 1, 2] = sz * sy * cx - cz * sx
+    R[:, 2, 0] = -sy
+    R[:, 2, 1] = cy * sx
+    R[:, 2, 2] = cy * cx
+    return R
+
+
 def _rotation(path: Path, header: Header, values: np.ndarray, rows: np.ndarray,
               euler: str | None) -> np.ndarray:
     """(N, 3, 3) rotation matrices from the orientation columns (SI values), by libraries:
@@ -424,10 +465,9 @@ def _rotation(path: Path, header: Header, values: np.ndarray, rows: np.ndarray,
             raise MeasurementFormatError(
                 path, f"quaternion (qw, qx, qy, qz) has norm {norm[bad[0]]:.6g}, expected 1 "
                       f"(within {QUATERNION_NORM_TOLERANCE:g})", row=int(rows[bad[0]]), column=first)
-        return np.array([pin.Quaternion(w, x, y, z).toRotationMatrix()
-                         for w, x, y, z in values / norm[:, None]]).reshape(-1, 3, 3)
+        return _quaternion_matrices(values / norm[:, None])
     if kind == "zyx":   # R = Rz(rz) Ry(ry) Rx(rx) = Pinocchio's rpy (roll rx, pitch ry, yaw rz)
-        return np.array([pin.rpy.rpyToMatrix(rx, ry, rz) for rz, ry, rx in values]).reshape(-1, 3, 3)
+        return _zyx_matrices(values)
     if kind == "euler":
         from scipy.spatial.transform import Rotation
 

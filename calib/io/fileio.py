@@ -11,7 +11,7 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
-from typing import Iterable
+from typing import Callable, Iterable
 
 from calib.errors import CalibError, OutputError
 
@@ -96,8 +96,12 @@ class OutputSet:
         if folder not in self.folders:
             self.folders.append(folder)
 
-    def commit(self) -> list[Path]:
-        """Write every staged file (see the class docstring); returns the paths written."""
+    def commit(self, on_renamed: Callable[[list[Path]], None] | None = None) -> list[Path]:
+        """Write every staged file (see the class docstring); returns the paths written.
+
+        on_renamed : called with the paths once every file is in place, while the signals are
+        still held back: a caller records there that its outputs changed, so that a signal
+        delivered the moment they are released is not taken for one that stopped the work."""
         made: list[Path] = []
         temps: list[tuple[str, Path]] = []
         try:
@@ -110,7 +114,7 @@ class OutputSet:
                     made.append(folder)
             for path, data in self.data.items():
                 temps.append((_write_temporary(path, data), path))
-            _rename_all(temps)
+            _rename_all(temps, on_renamed)
         except BaseException:
             for tmp, _ in temps:
                 _unlink(tmp)
@@ -154,9 +158,10 @@ def _write_temporary(path: Path, data: bytes) -> str:
     return tmp
 
 
-def _rename_all(temps: list[tuple[str, Path]]) -> None:
+def _rename_all(temps: list[tuple[str, Path]], on_renamed=None) -> None:
     """Rename each temporary file onto its target, signals held back; on a failure put back the
-    targets already replaced (from hard-linked copies) and raise OutputError."""
+    targets already replaced (from hard-linked copies) and raise OutputError. ``on_renamed``
+    (paths) is called after the last rename, before the signals are released."""
     held = {signal.SIGINT, signal.SIGTERM}
     blocked = threading.current_thread() is threading.main_thread() and hasattr(signal, "pthread_sigmask")
     if blocked:
@@ -184,6 +189,8 @@ def _rename_all(temps: list[tuple[str, Path]]) -> None:
                 backups.clear()
                 raise OutputError(path, f"cannot be replaced: {_reason(exc)}") from None
             backups.append((path, backup))
+        if on_renamed is not None:
+            on_renamed([path for _, path in temps])
     finally:
         for _, saved in backups:
             if saved is not None:

@@ -136,7 +136,8 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
                         joint_names=robot.joint_names, source=Path(csv_path),
                         prismatic=robot.prismatic,
                         ignored_columns=tuple(c for t in tables for c in t.ignored_columns),
-                        notes=tuple(n for t in tables for n in t.notes) + _rename_notes(options, tables))
+                        notes=tuple(n for t in tables for n in t.notes) + _rename_notes(options, tables),
+                        orientation=f"euler:{options.euler}" if pose.orientation == "euler" else pose.orientation)
 
 
 def _join(j: Table, t: Table, key: str) -> np.ndarray:

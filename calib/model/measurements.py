@@ -45,6 +45,9 @@ class Measurements:
     ignored_columns : header names of the source file's columns that calib ignored.
     notes : one-line remarks of the reading (ignored columns, readings kept just past a joint
         limit), for the caller to show; the library does not print them.
+    orientation : how the file gave the orientation (``"quaternion"``, ``"zyx"``, ``"rotvec"``,
+        ``"matrix"``, or ``"euler:<sequence>"`` with the sequence it was read with), or None
+        (data not read from a file, position only): what a check of a misreading tries.
 
     All arrays are read-only copies. The constructor checks shapes, finiteness, the set labels
     and that each rotation is orthonormal with determinant +1 (to 1e-6), and raises
@@ -62,6 +65,7 @@ class Measurements:
     target: tuple[str, ...] | None = None
     ignored_columns: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    orientation: str | None = None
 
     def __post_init__(self):
         q = finite_array(self.q, "q")
@@ -123,7 +127,9 @@ class Measurements:
                             ("source", source),
                             ("prismatic", prismatic), ("target", target),
                             ("ignored_columns", check_names(self.ignored_columns, "ignored_columns")),
-                            ("notes", check_names(self.notes, "notes"))):
+                            ("notes", check_names(self.notes, "notes")),
+                            ("orientation", None if self.orientation is None or rotation is None
+                             else str(self.orientation))):
             object.__setattr__(self, name, value)
 
     @classmethod
