@@ -111,6 +111,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--outlier-k", type=_outlier_k, default=5.0, metavar="K|off",
                    help="after the fit, drop calibration rows whose residual exceeds K sigma and "
                         "fit again (listed in the report); off disables")
+    p.add_argument("--accept-implausible", action="store_true",
+                   help="write the outputs of a calibration whose checks find it implausible (errors no "
+                        "robot and instrument give, residuals far beyond given noise levels, inconsistent "
+                        "data), for inspection; without it such a calibration writes nothing (exit 3)")
     p.add_argument("--validate", metavar="VAL.csv", default=None,
                    help="more validation measurements (all rows held out), same format")
     p.add_argument("--report", metavar="REPORT.json", default=None,
@@ -195,6 +199,12 @@ def run(args: argparse.Namespace) -> int:
         raise DataError(f"{args.measurements}: {exc}") from None
     log.info("calibration: %s after %d iterations, %.3f s", result.status, result.iterations,
              result.wall_time)
+    if result.status == "implausible" and not args.accept_implausible:
+        # nonsense is refused, not written: the report shows why, nothing is replaced
+        sys.stdout.write(result.format() + "\n")
+        sys.stderr.write(f"{PROG}: error: the calibration cannot be trusted: {result.message}; nothing "
+                         f"written (--accept-implausible writes the outputs for inspection)\n")
+        return EXIT_NOT_CONVERGED
 
     written_frames = []
     outputs.stage_from_file(out_urdf, lambda p: written_frames.append(
@@ -238,8 +248,8 @@ def run(args: argparse.Namespace) -> int:
                        f"use them by default)\n")
     if result.status == "implausible":
         sys.stderr.write(f"{PROG}: warning: the calibration converged to a result that cannot be trusted "
-                         f"({result.message}); the outputs were written for inspection, do not use them "
-                         f"as a calibrated model\n")
+                         f"({result.message}); the outputs were written for inspection (--accept-implausible), "
+                         f"do not use them as a calibrated model\n")
         return EXIT_NOT_CONVERGED
     if not result.success:
         sys.stderr.write(f"{PROG}: warning: the calibration did NOT converge (status "

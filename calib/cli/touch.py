@@ -75,6 +75,11 @@ def run_touch(args: argparse.Namespace) -> int:
         if str(exc).startswith(str(args.measurements)):
             raise
         raise type(exc)(f"{args.measurements}: {exc}") from None
+    if result.status == "implausible" and not getattr(args, "accept_implausible", False):
+        sys.stdout.write(result.format() + "\n")
+        sys.stderr.write(f"calib: error: the calibration cannot be trusted: {result.message}; nothing written "
+                         f"(--accept-implausible writes the outputs for inspection)\n")
+        return EXIT_NOT_CONVERGED
     Q = robot.random_configurations(ACCURACY_CONFIGURATIONS, np.random.default_rng(0))
     predicted = predicted_tool_error(result, Q)
     estimated = ("flange->tool",) if any(n.startswith("v_") for n in result.free) else ()

@@ -191,7 +191,14 @@ def test_an_implausible_fit_is_not_called_converged_and_the_cli_exits_3(tmp_path
     calib.write_measurements(path, wrong)
     code = main(["calibrate", str(BUNDLED_URDF), str(path), "-o", str(tmp_path / "c.urdf"), "--cv", "0"])
     err = capsys.readouterr().err
-    assert code == 3 and "cannot be trusted" in err and "do not use them" in err
+    # refused: one line naming why, nothing written
+    assert code == 3 and err.startswith("calib: error: the calibration cannot be trusted") and "nothing written" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "c.urdf").exists()
+    # written for inspection only when asked
+    code = main(["calibrate", str(BUNDLED_URDF), str(path), "-o", str(tmp_path / "c.urdf"), "--cv", "0",
+                 "--accept-implausible"])
+    err = capsys.readouterr().err
+    assert code == 3 and "cannot be trusted" in err and "do not use them" in err and (tmp_path / "c.urdf").exists()
 
 
 def test_given_position_noise_is_judged_on_position_only_data():

@@ -99,11 +99,15 @@ def test_tool_calibration_from_the_cli(urdf, tmp_path, capsys):
         assert abs(p["value"] - v) <= 4 * p["std"] and p["std"] < 0.05e-3
 
 
-def test_a_given_noise_far_below_the_residuals_exits_3_with_the_outputs(urdf, tmp_path, capsys):
+def test_a_given_noise_far_below_the_residuals_exits_3(urdf, tmp_path, capsys):
     code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "t.csv",
                        "--constraint", "plane:3,sphere:80", "--poses", 15, "--seed", 2, "--deviations", "random:0.5")
     assert code == 0, err
     code, _, err = run(capsys, "calibrate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0",
                        "-o", tmp_path / "cal.urdf", "--sigma-pos-mm", 0.002, "--cv", 0)
-    assert code == 3 and "cannot be trusted" in err and "times the given noise" in err
+    assert code == 3 and "cannot be trusted" in err and "times the given noise" in err and "nothing written" in err
+    assert not (tmp_path / "cal.urdf").exists()
+    code, _, err = run(capsys, "calibrate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0",
+                       "-o", tmp_path / "cal.urdf", "--sigma-pos-mm", 0.002, "--cv", 0, "--accept-implausible")
+    assert code == 3 and "written for inspection" in err
     assert (tmp_path / "cal.urdf").is_file()
