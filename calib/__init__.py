@@ -42,6 +42,10 @@ _HOME = {
     "calibration.compensation": ("CompensationResult", "compensate", "compensate_poses"),
     "model.compliance": ("GravityModel", "Payload"),
     "solvers.paper_lm": ("PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm"),
+    "model.touch": ("Feature", "TouchData"),
+    "model.touch_simulate": ("simulate_touch",),
+    "io.touch_file": ("read_touch", "write_touch"),
+    "calibration.touch": ("TouchResult", "calibrate_touch"),
 }
 _MODULE_OF = {name: module for module, names in _HOME.items() for name in names}
 
@@ -76,4 +80,5 @@ __all__ = [
     "CompensationResult", "compensate", "compensate_poses",
     "GravityModel", "Payload",
     "PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm",
+    "Feature", "TouchData", "TouchResult", "calibrate_touch", "read_touch", "simulate_touch", "write_touch",
 ]

@@ -34,7 +34,7 @@ import numpy as np
 
 from calib.calibration.fit import _implausible_length_notes
 from calib.calibration.parameters import _idealised
-from calib.checks import check_instance, check_int, check_number
+from calib.checks import check_choice, check_instance, check_int, check_number
 from calib.errors import DataError, ParameterError
 from calib.model.identifiability import RANK_TOL, Relation, select_identifiable, no_effect
 from calib.model.kinematics import ChainKinematics
@@ -309,9 +309,13 @@ def calibrate_touch(robot: RobotModel, data: TouchData, *, params: str = "auto",
     Returns a :class:`TouchResult`.
     """
     check_robot(robot)
+    check_instance(data, "data", TouchData, "calib.read_touch or calib.simulate_touch")
+    check_choice(params, "params", PARAM_CHOICES)
+    check_instance(options, "options", LMOptions, "calib.solvers.lm.LMOptions")
     if sigma is not None:
         check_number(sigma, "sigma", minimum=1e-9, maximum=1.0)
-    check_int(cv, "cv", minimum=0)
+    check_int(cv, "cv", minimum=0, maximum=10_000)
+    check_int(seed, "seed", minimum=0)
     if outlier_k is not None:
         check_number(outlier_k, "outlier_k", minimum=1.0)
     weight = SIGMA_TOUCH_M if sigma is None else float(sigma)

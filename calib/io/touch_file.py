@@ -61,7 +61,7 @@ def read_touch(csv_path: str | Path, robot, *, probe_radius: float = 0.0,
     from calib.checks import check_number, check_path
 
     path = check_path(csv_path, "csv_path")
-    check_number(probe_radius, "probe_radius", minimum=0.0)
+    check_number(probe_radius, "probe_radius (m)", minimum=0.0, maximum=1.0)
     t = read_table(path, TOUCH, robot, options)
     if t.position is not None:
         raise MeasurementFormatError(path, "measured positions (x, y, z) and touch rows (point, plane, "
@@ -120,9 +120,12 @@ def write_touch(path: str | Path, data: TouchData, robot, *, angle_unit: str = "
     named after ``robot``'s joints (``angle_unit`` "deg" or "rad"; prismatic joints in mm), the
     kind columns present in ``data``, and ``radius_mm`` when there are spheres. Numbers are
     written with ``repr``: reading the file back gives the data to the unit conversion's rounding."""
-    from calib.checks import check_path
+    from calib.checks import check_instance, check_path
+    from calib.model.robot import check_robot
 
     check_path(path, "path")
+    check_instance(data, "data", TouchData, "calib.read_touch or calib.simulate_touch")
+    check_robot(robot)
     check_not_input(path, [data.source])
     header, qv = joint_columns(robot.joint_names, robot.prismatic, data.q, angle_unit, "mm")
     kinds = [k for k in FEATURE_KINDS if any(f.kind == k for f in data.features)]

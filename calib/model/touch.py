@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib.checks import check_array, check_int, check_number
 from calib.errors import DataError
 
 FEATURE_KINDS = ("point", "plane", "sphere")
@@ -48,12 +49,13 @@ class Feature:
     radius: float | None = None
 
     def __post_init__(self):
-        if self.kind not in FEATURE_KINDS:
+        if not isinstance(self.kind, str) or self.kind not in FEATURE_KINDS:
             raise DataError(f"feature kind must be one of {', '.join(FEATURE_KINDS)}, got {self.kind!r}")
         if not isinstance(self.id, str) or not self.id:
             raise DataError(f"a {self.kind} id must be a non-empty string, got {self.id!r}")
         if self.kind == "sphere":
-            if self.radius is None or not np.isfinite(self.radius) or self.radius <= 0:
+            if (self.radius is None or isinstance(self.radius, bool) or not isinstance(self.radius, (int, float, np.number))
+                    or not np.isfinite(self.radius) or self.radius <= 0):
                 raise DataError(f"sphere {self.id!r}: expected a positive finite radius in metres, "
                                 f"got {self.radius!r}")
         elif self.radius is not None:
@@ -89,13 +91,13 @@ class TouchData:
     source: object | None = field(default=None, repr=False)
 
     def __post_init__(self):
-        q = np.array(self.q, float)
-        if q.ndim != 2 or not np.all(np.isfinite(q)):
-            raise DataError(f"q must be an (N, n) array of finite joint values, got shape {q.shape}")
+        q = check_array(self.q, "q", (None, None), unit="joint values, rad / m").copy()
         feature = np.array(self.feature)
         if feature.shape != (len(q),) or (feature.size and feature.dtype.kind not in "iu"):
             raise DataError(f"feature must be ({len(q)},) integer indices into features")
         feature = feature.astype(int)
+        if not isinstance(self.features, (list, tuple)):
+            raise DataError(f"features must be a list of Feature values, got {type(self.features).__name__}")
         features = tuple(self.features)
         if not all(isinstance(f, Feature) for f in features):
             raise DataError("features must be Feature values")
@@ -107,9 +109,14 @@ class TouchData:
             unused = [f"{features[k].kind} {features[k].id!r}" for k in range(len(features))
                       if k not in set(feature.tolist())]
             raise DataError(f"no row touches {', '.join(unused)}")
-        if not np.isfinite(self.probe_radius) or self.probe_radius < 0:
-            raise DataError(f"probe_radius must be a finite non-negative length in metres, got {self.probe_radius!r}")
-        rows = np.arange(1, len(q) + 1) if self.rows is None else np.array(self.rows, int)
+        check_number(self.probe_radius, "probe_radius (m)", minimum=0.0)
+        if self.rows is None:
+            rows = np.arange(1, len(q) + 1)
+        else:
+            rows = np.asarray(self.rows)
+            if rows.shape != (len(q),) or (rows.size and rows.dtype.kind not in "iu"):
+                raise DataError(f"rows must be ({len(q)},) integer line numbers")
+            rows = rows.astype(int)
         for name, a in (("q", q), ("feature", feature), ("rows", rows)):
             a.setflags(write=False)
             object.__setattr__(self, name, a)
@@ -127,6 +134,7 @@ class TouchData:
 
     def rows_of(self, k: int) -> np.ndarray:
         """Indices of the rows touching feature k."""
+        check_int(k, "k", maximum=len(self.features) - 1)
         return np.flatnonzero(self.feature == k)
 
     @property
@@ -136,7 +144,11 @@ class TouchData:
 
     def subset(self, keep) -> "TouchData":
         """The rows ``keep`` (a mask or indices); every feature must keep a row."""
-        keep = np.asarray(keep)
+        keep = np.asarray(keep) if isinstance(keep, (list, tuple, np.ndarray)) else None
+        if keep is None or keep.ndim != 1 or (keep.size and keep.dtype.kind not in "biu") \
+                or (keep.dtype == bool and len(keep) != self.n_rows) \
+                or (keep.dtype != bool and keep.size and (keep.min() < 0 or keep.max() >= self.n_rows)):
+            raise DataError(f"keep must be a ({self.n_rows},) boolean mask or row indices in 0 .. {self.n_rows - 1}")
         idx = np.flatnonzero(keep) if keep.dtype == bool else keep.astype(int)
         used = sorted(set(self.feature[idx].tolist()))
         remap = {k: i for i, k in enumerate(used)}

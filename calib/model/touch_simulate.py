@@ -22,7 +22,7 @@ from typing import Sequence
 
 import numpy as np
 
-from calib.checks import check_number, check_rng
+from calib.checks import check_int, check_number, check_rng
 from calib.errors import DataError
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel, check_robot
@@ -105,12 +105,17 @@ def simulate_touch(true_robot: RobotModel, features: Sequence[Feature], rows: Se
     """
     check_robot(true_robot, "true_robot")
     check_number(sigma, "sigma", minimum=0.0)
-    check_number(probe_radius, "probe_radius", minimum=0.0)
+    check_number(probe_radius, "probe_radius (m)", minimum=0.0, maximum=1.0)
     check_number(spread, "spread", minimum=0.0, strict=True)
     rng = check_rng(rng)
+    check_int(max_tries, "max_tries", minimum=1, maximum=10_000)
+    if not isinstance(features, (list, tuple)) or not features or not all(isinstance(f, Feature) for f in features):
+        raise DataError("features must be a non-empty list of Feature values (calib.Feature)")
     features = tuple(features)
-    if len(rows) != len(features) or any(int(r) < 1 for r in rows):
-        raise DataError("rows must give a positive number of rows for each feature")
+    if (not isinstance(rows, (list, tuple, np.ndarray)) or len(rows) != len(features)
+            or not all(isinstance(r, (int, np.integer)) and not isinstance(r, bool) and 1 <= r <= 100_000
+                       for r in rows)):
+        raise DataError(f"rows must give a number of rows (1 to 100,000) for each of the {len(features)} features")
     cand = _candidate_points(true_robot, rng)
     K = len(features)
     truth, refs, normals = np.zeros((K, 3)), np.tile(np.eye(3), (K, 1, 1)), np.zeros((K, 3))

@@ -55,6 +55,10 @@ def table(tmp_path_factory):
     angular = np.array([robot.parameters[k].is_angular for k in idx])
     gm = calib.GravityModel.for_robot(robot)
     mdh = robot.mdh_table()
+    point = calib.Feature("point", "P1")
+    touch = calib.simulate_touch(robot, [point], [6], rng=0).data
+    calib.write_touch(d / "t.csv", touch, robot)
+    touch_res = calib.calibrate_touch(robot, touch, params="tool", cv=0)
     t = {
         "load_robot": (calib.load_robot, dict(urdf_path=BUNDLED_URDF)),
         "robot_path": (calib.robot_path, dict(robot=BUNDLED_URDF)),
@@ -88,7 +92,16 @@ def table(tmp_path_factory):
         "PaperLMOptions": (calib.PaperLMOptions, {}),
         "paper_lm": (calib.paper_lm, dict(problem=prob, x0=robot.values[idx], angular=angular)),
         "paper_cross_lm": (calib.paper_cross_lm, dict(problem=prob, x0=robot.values[idx], angular=angular)),
+        "Feature": (calib.Feature, dict(kind="point", id="P1")),
+        "TouchData": (calib.TouchData, dict(q=touch.q, feature=touch.feature, features=touch.features)),
+        "simulate_touch": (calib.simulate_touch, dict(true_robot=robot, features=[point], rows=[6], rng=0)),
+        "read_touch": (calib.read_touch, dict(csv_path=d / "t.csv", robot=robot)),
+        "write_touch": (calib.write_touch, dict(path=d / "t2.csv", data=touch, robot=robot)),
+        "calibrate_touch": (calib.calibrate_touch, dict(robot=robot, data=touch, params="tool", cv=0)),
         # methods of the values the API returns
+        "TouchData.subset": (touch.subset, dict(keep=np.ones(touch.n_rows, bool))),
+        "TouchData.rows_of": (touch.rows_of, dict(k=0)),
+        "TouchResult.format": (touch_res.format, {}),
         "Measurements.from_arrays": (calib.Measurements.from_arrays, dict(q=meas.q, position=meas.position)),
         "Measurements.subset": (meas.subset, dict(index_or_mask=[0, 1])),
         "Measurements.calibration": (meas.calibration, {}),
