@@ -96,3 +96,24 @@ def test_the_outlier_passes_together_never_leave_out_more_than_half(acc, world):
     run = acc.judge(robot, true, truth[False], 40, False, 0.4, 1022, {"params": "base", "cv": 0})
     assert run.outcome == "found" and run.error < 1.01 * run.clean_error
     assert too_many_gross(28, 40).startswith("the data are inconsistent: the outlier check would leave out 28 of 40")
+
+
+def test_real_marker_rows_of_few_per_parameter_are_not_flagged():
+    """The real TIAGo marker M1 (the project's example, its gross tenth configuration left
+    out), 27 of its 34 configurations: 81 position components for 33 parameters. A trimmed fit
+    of 14 rows (42 components) passed so near them that it flagged 13 of the 27 as gross (the
+    held-out error of the benchmark's folds rose from 3.81 to 4.27 mm); half of the rows now must
+    hold 1.5 components per parameter for the trimmed fit, and none is flagged."""
+    from dataclasses import replace
+
+    root = Path(__file__).resolve().parents[2]
+    robot = calib.load_robot(calib.robot_path("tiago"))
+    m = calib.read_measurements(root / "examples" / "tiago_qualisys" / "measurements.csv", robot)
+    m1 = m.subset(np.array([t == "M1" for t in m.target]))
+    m1 = replace(m1, target=None)
+    m1 = m1.subset(~np.isin(m1.rows, (31, 32, 33)))
+    i = np.arange(m1.n_poses)
+    fold = replace(m1, sets=np.where(i % 5 == 0, "val", "cal"))
+    res = calib.calibrate(robot, fold)
+    assert res.outliers == () and res.status == "converged"
+    assert calib.evaluate(res.robot, fold.validation()).position["rms"] < 3.5e-3
