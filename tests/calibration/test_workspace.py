@@ -121,14 +121,19 @@ def test_prediction_adds_the_noise_of_a_new_row_and_takes_every_target(bundled_r
     C = np.diag([1e-6, 1e-8, 1e-8, 4e-8])
     w = predict_workspace(robot, free, C, sigma_pos=1e-4, sigma_rot=None)
     assert w["configurations"] == WORKSPACE_CONFIGURATIONS and w["rotation_rms"] is None
-    # row k takes target k mod 3: the mean over the rows is the mean of the three targets' means
+    # row k takes target k mod 3: the mean over the rows is the three targets' means weighted by
+    # their rows
     Q = workspace_configurations(robot)
     parts = [propagate_covariance(robot, Q[k::3], free, C, targets=np.full(len(Q[k::3]), k))[0] ** 2
              for k in range(3)]
-    assert w["model_position_rms"] == pytest.approx(math.sqrt(np.mean(parts)), rel=1e-12)
+    counts = [len(Q[k::3]) for k in range(3)]
+    assert w["model_position_rms"] == pytest.approx(math.sqrt(np.average(parts, weights=counts)), rel=1e-12)
     assert w["position_rms"] == pytest.approx(math.sqrt(w["model_position_rms"] ** 2 + 3e-8), rel=1e-12)
-    # v_x@B moves target B's rows only: without the targets the figure differs
-    assert parts[1] > parts[0]
+    # v_x@B moves target B's rows only
+    only_b = np.diag([0.0, 0.0, 1e-8, 0.0])
+    by_target = [propagate_covariance(robot, Q[k::3], free, only_b, targets=np.full(len(Q[k::3]), k))[0]
+                 for k in range(3)]
+    assert by_target[0] == by_target[2] == 0.0 and by_target[1] == pytest.approx(1e-4, rel=1e-9)
 
 
 # ------------------------------------------------------------------ simulation
