@@ -228,12 +228,18 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
     starts = (x, everything.values[everything.free])    # (the fit's solution, the nominal values)
     x_t = trimmed_fit(everything.derived(sigma_pos=fsp, sigma_rot=fsr), starts, keep, fsp, fsr, options, trace)
     inliers, n = keep, keep.sum()
-    for _ in range(ROBUST_CHECK_ITERATIONS + 1):
-        # (the fit's share of each group's degrees of freedom kept as on all the kept rows)
+
+    def judged(x_t, inliers, fsp, fsr):
+        """Noise levels from the inliers' residuals at x_t (the fit's share of each group's
+        degrees of freedom kept as on all the kept rows), the rows flagged against them, the
+        rows not flagged."""
         share = inliers.sum() / n
         fsp, fsr = _levels(everything, x_t, inliers, (red[0] * share, red[1] * share), given, fsp, fsr)
         new, too_many = flag_outliers(everything, x_t, rows, keep, k, fsp, fsr, TRIMMED_MAX_OUTLIER_SHARE)
-        now = keep & ~np.isin(rows, [o.row for o in new])
+        return fsp, fsr, new, too_many, keep & ~np.isin(rows, [o.row for o in new])
+
+    for _ in range(ROBUST_CHECK_ITERATIONS + 1):
+        fsp, fsr, new, too_many, now = judged(x_t, inliers, fsp, fsr)
         if too_many or np.array_equal(now, inliers):
             break
         inliers = now
@@ -244,10 +250,7 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
         # trimmed solution is dragged away by 40 % gross rows)
         x_t = levenberg_marquardt(everything.derived(keep=inliers, sigma_pos=fsp, sigma_rot=fsr), x_t, "pose",
                                   options, trace).x
-        share = inliers.sum() / n
-        fsp, fsr = _levels(everything, x_t, inliers, (red[0] * share, red[1] * share), given, fsp, fsr)
-        new, too_many = flag_outliers(everything, x_t, rows, keep, k, fsp, fsr, TRIMMED_MAX_OUTLIER_SHARE)
-        now = keep & ~np.isin(rows, [o.row for o in new])
+        fsp, fsr, new, too_many, now = judged(x_t, inliers, fsp, fsr)
         if too_many or np.array_equal(now, inliers):
             break
         inliers = now

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_robot, add_verbose,
                             compliance_options, count, load, positive, read)
-from calib.cli.output import EXIT_NOT_CONVERGED, EXIT_OK, PROG, Outputs, json_text
+from calib.cli.output import Outputs, json_text, refuse_implausible, status_exit
 from calib.cli.progress import working
 from calib.errors import DataError, ParameterError
 
@@ -200,11 +200,7 @@ def run(args: argparse.Namespace) -> int:
     log.info("calibration: %s after %d iterations, %.3f s", result.status, result.iterations,
              result.wall_time)
     if result.status == "implausible" and not args.accept_implausible:
-        # nonsense is refused, not written: the report shows why, nothing is replaced
-        sys.stdout.write(result.format() + "\n")
-        sys.stderr.write(f"{PROG}: error: the calibration cannot be trusted: {result.message}; nothing "
-                         f"written (--accept-implausible writes the outputs for inspection)\n")
-        return EXIT_NOT_CONVERGED
+        return refuse_implausible(result.format(), result.message)   # nonsense is not written
 
     written_frames = []
     outputs.stage_from_file(out_urdf, lambda p: written_frames.append(
@@ -246,15 +242,5 @@ def run(args: argparse.Namespace) -> int:
                        f"base frame {frames.base_frame!r} (standing for {frames.nominal_tool_frame!r} "
                        f"and {frames.nominal_base_frame!r} of {args.robot}; evaluate and compensate "
                        f"use them by default)\n")
-    if result.status == "implausible":
-        sys.stderr.write(f"{PROG}: warning: the calibration converged to a result that cannot be trusted "
-                         f"({result.message}); the outputs were written for inspection (--accept-implausible), "
-                         f"do not use them as a calibrated model\n")
-        return EXIT_NOT_CONVERGED
-    if not result.success:
-        sys.stderr.write(f"{PROG}: warning: the calibration did NOT converge (status "
-                         f"{result.status}: {result.message}); the outputs were written for "
-                         f"inspection, do not use them as a calibrated model\n")
-        return EXIT_NOT_CONVERGED
-    return EXIT_OK
+    return status_exit(result.status, result.message)
 

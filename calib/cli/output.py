@@ -11,6 +11,7 @@ import json
 import logging
 import math
 import shlex
+import sys
 import tempfile
 from pathlib import Path
 from typing import Callable, Sequence
@@ -127,3 +128,27 @@ def command_line(args) -> str:
     if argv is None:
         return f"{PROG} " + args.command if getattr(args, "command", None) else PROG
     return " ".join(shlex.quote(a) for a in [PROG, *argv])
+
+
+def refuse_implausible(report_text: str, message: str) -> int:
+    """An implausible calibration refused (nothing written): its report on stdout, one line on
+    stderr naming why, exit 3."""
+    sys.stdout.write(report_text + "\n")
+    sys.stderr.write(f"{PROG}: error: the calibration cannot be trusted: {message}; nothing written "
+                     f"(--accept-implausible writes the outputs for inspection)\n")
+    return EXIT_NOT_CONVERGED
+
+
+def status_exit(status: str, message: str) -> int:
+    """The exit code of a calibration whose outputs were written, and the warning of a status
+    other than "converged" on stderr (the outputs are for inspection then)."""
+    if status == "implausible":
+        sys.stderr.write(f"{PROG}: warning: the calibration converged to a result that cannot be trusted "
+                         f"({message}); the outputs were written for inspection (--accept-implausible), "
+                         f"do not use them as a calibrated model\n")
+        return EXIT_NOT_CONVERGED
+    if status != "converged":
+        sys.stderr.write(f"{PROG}: warning: the calibration did NOT converge (status {status}: {message}); "
+                         f"the outputs were written for inspection, do not use them as a calibrated model\n")
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK

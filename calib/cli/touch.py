@@ -12,7 +12,7 @@ import logging
 import sys
 
 from calib.cli.args import load, read_options
-from calib.cli.output import EXIT_NOT_CONVERGED, EXIT_OK, Outputs, command_line, json_text
+from calib.cli.output import Outputs, command_line, json_text, refuse_implausible, status_exit
 from calib.errors import CalibError, ParameterError
 
 log = logging.getLogger(__name__)
@@ -76,10 +76,7 @@ def run_touch(args: argparse.Namespace) -> int:
             raise
         raise type(exc)(f"{args.measurements}: {exc}") from None
     if result.status == "implausible" and not getattr(args, "accept_implausible", False):
-        sys.stdout.write(result.format() + "\n")
-        sys.stderr.write(f"calib: error: the calibration cannot be trusted: {result.message}; nothing written "
-                         f"(--accept-implausible writes the outputs for inspection)\n")
-        return EXIT_NOT_CONVERGED
+        return refuse_implausible(result.format(), result.message)   # nonsense is not written
     Q = robot.random_configurations(ACCURACY_CONFIGURATIONS, np.random.default_rng(0))
     predicted = predicted_tool_error(result, Q)
     estimated = ("flange->tool",) if any(n.startswith("v_") for n in result.free) else ()
@@ -99,16 +96,7 @@ def run_touch(args: argparse.Namespace) -> int:
     sys.stdout.write(text + f"\n\nwrote {out_urdf}" + (f", {out_report}" if out_report else "")
                      + f"\n{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in base "
                        f"frame {frames.base_frame!r}\n")
-    if result.status == "implausible":
-        sys.stderr.write(f"calib: warning: the calibration converged to a result that cannot be trusted "
-                         f"({result.message}); the outputs were written for inspection, do not use them as a "
-                         f"calibrated model\n")
-        return EXIT_NOT_CONVERGED
-    if not result.success:
-        sys.stderr.write(f"calib: warning: the calibration did NOT converge (status {result.status}: "
-                         f"{result.message}); the outputs were written for inspection\n")
-        return EXIT_NOT_CONVERGED
-    return EXIT_OK
+    return status_exit(result.status, result.message)
 
 
 def _parameter_table(robot, result) -> str:
