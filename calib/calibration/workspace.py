@@ -108,11 +108,20 @@ def workspace_configurations(robot: RobotModel, n: int = WORKSPACE_CONFIGURATION
 _ARC_BINS = 1 << 16
 
 
+#: Below this many angles the covered arc is computed by sorting them (exact), above by binning.
+_ARC_SORT_BELOW = 20_000
+
+
 def _arc_covered(q: np.ndarray) -> float:
     """The fraction of the circle that angles q (rad) span: a full turn less the largest gap
     between neighbouring angles, to 2 / _ARC_BINS of a turn."""
     if len(q) == 0:
         return 0.0
+    if len(q) < _ARC_SORT_BELOW:
+        # few angles: sorted, exact (the bins cost 0.45 ms of a 100-row calibration)
+        a = np.sort(np.mod(q, _FULL_TURN))
+        gaps = np.diff(np.concatenate([a, a[:1] + _FULL_TURN]))
+        return float(1.0 - gaps.max() / _FULL_TURN) if len(a) > 1 else 0.0
     k = np.minimum((np.mod(q, _FULL_TURN) * (_ARC_BINS / _FULL_TURN)).astype(np.int64), _ARC_BINS - 1)
     occupied = np.flatnonzero(np.bincount(k, minlength=_ARC_BINS))
     # gaps between occupied bins, the wrap-around one included, counted in empty bins between them

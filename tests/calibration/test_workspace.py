@@ -299,3 +299,21 @@ def test_workspace_prediction_of_three_targets(bundled_robot):
     _, p1 = ChainKinematics(res.robot).frame_poses(Qr, targets=rows)
     obs = math.sqrt(float(np.mean(np.sum((p1 - p0) ** 2, axis=1))))
     assert 1 / 1.5 < w["model_position_rms"] / obs < 1.5
+
+
+def test_covered_arc_by_sorting_equals_the_binned_one():
+    """Few angles are sorted (exact), many binned (to 2 bins of a turn): the two agree."""
+    import calib.calibration.workspace as W
+
+    rng = np.random.default_rng(3)
+    for q in (rng.uniform(-1.0, 2.0, 50), rng.uniform(-7.0, 7.0, 200), np.array([3.1, -3.1]), np.array([0.5])):
+        exact = W._arc_covered(q)
+        limit = W._ARC_SORT_BELOW
+        try:
+            W._ARC_SORT_BELOW = 0
+            binned = W._arc_covered(q)
+        finally:
+            W._ARC_SORT_BELOW = limit
+        assert abs(exact - binned) <= 2.0 / W._ARC_BINS, (q[:3], exact, binned)
+    # two angles either side of +-pi cover the short arc between them
+    assert W._arc_covered(np.array([3.1, -3.1])) == pytest.approx((2 * math.pi - 6.2) / (2 * math.pi), rel=1e-12)
