@@ -298,6 +298,11 @@ def resolve_terms(robot: RobotModel, measurements: Measurements, options: Calibr
         raise ParameterError(f"unknown terms {terms!r}: expected one of {', '.join(TERMS)} or None")
     if options.compliance or options.periodic:
         return options, []          # named: honoured as given
+    if options.estimator == "map":
+        # the MAP estimate has no prior group for the joint terms: choosing them here would fit
+        # them held at zero (and write them so) while the note says they were chosen
+        return options, ["joint terms not judged: estimator 'map' fits the geometry only (estimator 'ls' "
+                         "chooses them)"]
     if options.folds < 2:
         return options, ["joint terms not judged: they are chosen by cross-validation, which cv=0 turns off"]
     # (a payload or gravity without compliance stays refused: compliance is a candidate with neither)

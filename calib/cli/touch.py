@@ -24,7 +24,8 @@ ACCURACY_CONFIGURATIONS = 500
 #: default is refused: the touch fit is least squares by LM, geometry only).
 _NOT_FOR_TOUCH = (("tracker", None), ("validate", None), ("compliance", False), ("plots", None),
                   ("html", None), ("method", "search-lm"), ("estimator", "auto"), ("loss", "linear"),
-                  ("lm_variant", "calib"), ("periodic", False))
+                  ("lm_variant", "calib"), ("periodic", False), ("payload_kg", None), ("payload_com_mm", None),
+                  ("gravity", None))
 
 
 def is_touch_input(args: argparse.Namespace) -> bool:

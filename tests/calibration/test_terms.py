@@ -79,6 +79,20 @@ def test_choose_terms_finds_the_periodic_errors(ur5_loop):
     assert "+periodic" in choice.format() and choice.to_dict()["chosen"] == choice.label
 
 
+def test_terms_auto_leaves_the_map_estimate_geometric(ur5_loop):
+    """estimator 'map' has no prior group for the joint terms: terms='auto' chose +periodic on
+    these rows and the MAP fit held all 24 terms at zero (geometry-only error, a note saying
+    periodic terms were chosen, a sidecar of zeros written)."""
+    from calib.calibration.options import resolve_options
+    from calib.calibration.terms import resolve_terms
+
+    robot, _, m, _, _ = ur5_loop
+    opts = resolve_options(robot, m, estimator="map")
+    resolved, notes = resolve_terms(robot, m, opts, "auto")
+    assert not resolved.periodic and not resolved.compliance
+    assert notes and "estimator 'map'" in notes[0]
+
+
 def test_choose_terms_keeps_the_geometry_when_there_is_nothing_to_find():
     """UR10 (real inertias): compliance and periodic are candidates; the truth has neither, and
     the choice must not take them for noise it can fit."""
