@@ -139,6 +139,10 @@ def trimmed_fit(problem: Problem, starts: Sequence[np.ndarray], keep: np.ndarray
     return best
 
 
+#: The trimmed route's flags stand only when the least-squares refit of the rows it keeps has at
+#: least this share of their position components as redundancy (the noise it judges by comes
+#: from them).
+TRIM_MIN_REDUNDANCY_SHARE = 0.25
 #: Residual components per parameter that half of the rows must hold for the trimmed fit.
 TRIM_MIN_RATIO = 1.5
 
@@ -253,6 +257,7 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
     starts = (x, everything.values[everything.free])    # (the fit's solution, the nominal values)
     x_t = trimmed_fit(everything.derived(sigma_pos=fsp, sigma_rot=fsr), starts, keep, fsp, fsr, options, trace)
     inliers, n = keep, keep.sum()
+    last_red = [None]       # the position redundancy of the last least-squares refit of the inliers
 
     def judged(x_t, inliers, fsp, fsr, fitted=None):
         """Noise levels from the inliers' residuals at x_t, the rows flagged against them, the
@@ -268,6 +273,7 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
             spread = None
         else:
             _, red_fit = _prediction_spread(everything, x_t, fitted, fsp, fsr)
+            last_red[0] = red_fit[0]
             fsp, fsr = _levels(everything, x_t, fitted, red_fit, given, fsp, fsr)
             spread, _ = _prediction_spread(everything, x_t, fitted, fsp, fsr)
         new, too_many = flag_outliers(everything, x_t, rows, keep, k, fsp, fsr, TRIMMED_MAX_OUTLIER_SHARE,
@@ -290,6 +296,14 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
         if too_many or np.array_equal(now, inliers):
             break
         inliers = now
+    if new and not too_many and last_red[0] is not None \
+            and last_red[0] < TRIM_MIN_REDUNDANCY_SHARE * 3 * int(inliers.sum()):
+        # the rows the trimmed route keeps leave too little position redundancy to say what the
+        # noise is (15 full-pose UR5 rows, 30 parameters: 8 rows kept, interpolated to a noise a
+        # tenth of the truth, and the 7 clean others flagged): its flags are not trusted, the
+        # rows are judged against the fit of them all
+        new0, too_many0 = flag_outliers(everything, x, rows, keep, k, *levels)
+        return Judgement(tuple(new0), too_many0, x, *levels)
     if too_many and given[0] is None and (given[1] is None or not everything.has_orientation):
         n_pos = f"{fsp * 1e3:.3g} mm" + (f", {fsr:.3g} rad" if everything.has_orientation else "")
         why = (f"the data are inconsistent: {len(new)} of {int(n)} rows lie more than {k:g} sigma "
