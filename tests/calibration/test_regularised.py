@@ -131,3 +131,23 @@ def test_option_clashes_and_cli(ur5, tmp_path, capsys):
     # few rows but a robust loss: least squares ('auto' selection), said in a note
     res = calib.calibrate(ur5, m, loss="huber", cv=0)
     assert res.estimator["kind"] == "least-squares"
+
+
+def test_given_noise_crossing_the_residuals_moves_the_prediction_smoothly(bundled_robot):
+    """A regularised fit under given noise levels that the residuals slightly exceed: the
+    inflated covariance keeps the prior. Without it the prediction jumped 15 % as the reduced
+    chi-square crossed 1 (to the least-squares figure of every parameter; found in review)."""
+    from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+
+    rng = np.random.default_rng(3)
+    true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
+    m = simulate_measurements(true, bundled_robot.random_configurations(12, rng), sigma_pos=2e-5,
+                              position_only=True, rng=rng)
+    probe = calib.calibrate(bundled_robot, m, estimator="map", sigma_pos=2e-5, outlier_k=None, cv=0)
+    s_star = 2e-5 * np.sqrt(probe.noise.chi2_pos)         # where the reduced chi-square is 1
+    below = calib.calibrate(bundled_robot, m, estimator="map", sigma_pos=s_star * 1.01, outlier_k=None, cv=0)
+    above = calib.calibrate(bundled_robot, m, estimator="map", sigma_pos=s_star * 0.99, outlier_k=None, cv=0)
+    assert below.noise.chi2_pos < 1 < above.noise.chi2_pos
+    for key in ("predicted_holdout", "predicted_workspace"):
+        a, b = getattr(below, key)["position_rms"], getattr(above, key)["position_rms"]
+        assert abs(b / a - 1) < 0.03, (key, a, b)
