@@ -173,11 +173,10 @@ def run(args: argparse.Namespace) -> int:
     payload, gravity = compliance_options(args)
     if (payload is not None or gravity is not None) and not args.compliance:
         raise ParameterError("--payload-kg and --gravity only matter with --compliance")
-    out_sidecar = None
-    if args.compliance or args.periodic or args.terms == "auto":
-        from calib.io.compliance_file import sidecar_path
+    from calib.io.compliance_file import sidecar_path
 
-        out_sidecar = outputs.add(sidecar_path(out_urdf))
+    # (reserved always: written when the model has joint terms, an earlier one removed otherwise)
+    out_sidecar = outputs.add(sidecar_path(out_urdf))
     frames = check_writable(robot)     # what cannot be written is refused before the fit
     log.info("the calibrated URDF will hold tool frame %r in base frame %r", frames.tool_frame,
              frames.base_frame)
@@ -209,6 +208,12 @@ def run(args: argparse.Namespace) -> int:
     frames = written_frames[0]
     if out_sidecar is not None and result.robot.has_joint_terms:
         outputs.stage(out_sidecar, json_text(result.compliance_record()))
+    stale = None
+    if not result.robot.has_joint_terms and out_sidecar.exists():
+        # an earlier calibration's joint terms beside the new geometry-only URDF would be read
+        # with it (evaluate's note, compensate --compliance): it goes with the new outputs
+        outputs.remove(out_sidecar)
+        stale = out_sidecar
     out_sidecar = out_sidecar if result.robot.has_joint_terms else None
     text = result.format()
     images = {}
@@ -242,5 +247,8 @@ def run(args: argparse.Namespace) -> int:
                        f"base frame {frames.base_frame!r} (standing for {frames.nominal_tool_frame!r} "
                        f"and {frames.nominal_base_frame!r} of {args.robot}; evaluate and compensate "
                        f"use them by default)\n")
+    if stale is not None:
+        sys.stdout.write(f"removed {stale}: an earlier calibration's joint terms, which this geometry-only "
+                         f"calibration does not have\n")
     return status_exit(result.status, result.message)
 

@@ -59,6 +59,7 @@ class Outputs:
         self.paths: list[Path] = []
         self.data: dict[Path, bytes] = {}
         self.folders: list[Path] = []
+        self.removals: list[Path] = []
 
     def add(self, path: str | Path, *, make_folder: bool = False) -> Path:
         """Reserve ``path`` as an output; with ``make_folder`` its folder may not exist yet (it
@@ -86,6 +87,13 @@ class Outputs:
             raise ValueError(f"{path} was not reserved with Outputs.add")
         self.data[path] = data.encode("utf-8") if isinstance(data, str) else data
 
+    def remove(self, path: Path) -> None:
+        """Remove the reserved ``path`` with the commit (a stale file of an earlier run that the
+        new outputs have no use for); nothing happens if the commit does not."""
+        if path not in self.paths:
+            raise ValueError(f"{path} was not reserved with Outputs.add")
+        self.removals.append(path)
+
     def stage_from_file(self, path: Path, write: Callable[[Path], None]) -> None:
         """Stage what ``write(temporary_path)`` writes (for API writers that take a path)."""
         with tempfile.TemporaryDirectory(prefix="calib-") as tmp:
@@ -101,6 +109,8 @@ class Outputs:
         for path in self.paths:
             if path in self.data:
                 out.stage(path, self.data[path])
+            elif path in self.removals:
+                out.remove(path)
         for path in out.commit(on_renamed=_WRITTEN.extend):
             log.info("wrote %s", path)
 

@@ -84,11 +84,18 @@ class OutputSet:
     def __init__(self) -> None:
         self.data: dict[Path, bytes] = {}
         self.folders: list[Path] = []
+        self.removals: list[Path] = []
 
     def stage(self, path: str | Path, data: bytes | str) -> None:
         """Keep ``data`` (str: UTF-8) to be written to ``path`` by :meth:`commit` (through a
         symbolic link: into the file it names; see :func:`output_target`)."""
         self.data[output_target(path)] = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+
+    def remove(self, path: str | Path) -> None:
+        """Remove ``path`` (if it exists then) with the renames of :meth:`commit`, as part of the
+        set: a stale file that belongs with the outputs (a sidecar the new output has no use
+        for) goes with them, or stays if the commit fails."""
+        self.removals.append(Path(path))
 
     def make_folder(self, folder: str | Path) -> None:
         """Create ``folder`` (its parent must exist) at commit time, if it does not exist then."""
@@ -114,7 +121,7 @@ class OutputSet:
                     made.append(folder)
             for path, data in self.data.items():
                 temps.append((_write_temporary(path, data), path))
-            _rename_all(temps, on_renamed)
+            _rename_all(temps, on_renamed, self.removals)
         except BaseException:
             for tmp, _ in temps:
                 _unlink(tmp)
@@ -158,10 +165,11 @@ def _write_temporary(path: Path, data: bytes) -> str:
     return tmp
 
 
-def _rename_all(temps: list[tuple[str, Path]], on_renamed=None) -> None:
-    """Rename each temporary file onto its target, signals held back; on a failure put back the
-    targets already replaced (from hard-linked copies) and raise OutputError. ``on_renamed``
-    (paths) is called after the last rename, before the signals are released."""
+def _rename_all(temps: list[tuple[str, Path]], on_renamed=None, removals=()) -> None:
+    """Rename each temporary file onto its target, then move each of ``removals`` that exists
+    aside, signals held back; on a failure put back the targets already replaced or moved (from
+    hard-linked copies) and raise OutputError. ``on_renamed`` (paths) is called after the last
+    rename, before the signals are released; the files moved aside are deleted at the end."""
     held = {signal.SIGINT, signal.SIGTERM}
     blocked = threading.current_thread() is threading.main_thread() and hasattr(signal, "pthread_sigmask")
     if blocked:
@@ -189,6 +197,21 @@ def _rename_all(temps: list[tuple[str, Path]], on_renamed=None) -> None:
                 backups.clear()
                 raise OutputError(path, f"cannot be replaced: {_reason(exc)}") from None
             backups.append((path, backup))
+        for path in removals:
+            if not os.path.lexists(path):
+                continue
+            aside = str(path.parent / f".{path.name}.removed.tmp")
+            try:
+                os.replace(path, aside)
+            except OSError as exc:
+                for done, saved in reversed(backups):
+                    if saved is not None:
+                        os.replace(saved, done)
+                    else:
+                        _unlink(done)
+                backups.clear()
+                raise OutputError(path, f"cannot be removed: {_reason(exc)}") from None
+            backups.append((path, aside))
         if on_renamed is not None:
             on_renamed([path for _, path in temps])
     finally:

@@ -30,3 +30,40 @@ def test_cli_refuses_a_link_loop_output_and_writes_nothing(tmp_path, capsys):
     assert code == 2
     assert len(err) == 1 and "symbolic link loop" in err[0]
     assert sorted(os.listdir(tmp_path)) == before
+
+
+def test_a_removal_goes_with_the_outputs_or_not_at_all(tmp_path):
+    """OutputSet.remove: the file is gone when the set is written, and still there when the
+    commit fails before the renames (an output's folder vanished)."""
+    from calib.io.fileio import OutputSet
+
+    stale, out = tmp_path / "a.compliance.json", tmp_path / "a.urdf"
+    stale.write_text("old")
+    s = OutputSet()
+    s.stage(out, "new")
+    s.remove(stale)
+    s.remove(tmp_path / "absent.json")           # nothing to remove: no error
+    assert s.commit() == [out]
+    assert out.read_text() == "new" and not stale.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]     # no temporary left
+    stale.write_text("old")
+    s = OutputSet()
+    s.stage(tmp_path / "gone" / "b.urdf", "new")
+    s.remove(stale)
+    with pytest.raises(OutputError):
+        s.commit()
+    assert stale.read_text() == "old"
+
+
+def test_a_geometry_only_calibration_removes_an_earlier_sidecar(tmp_path, capsys):
+    """An earlier calibration with joint terms left CALIBRATED.compliance.json; a calibration
+    without them into the same URDF removes it (it would be read with the new URDF), and says so."""
+    from calib.cli.main import main
+
+    out = tmp_path / "cal.urdf"
+    sidecar = tmp_path / "cal.compliance.json"
+    sidecar.write_text('{"format": "calib-compliance/1"}')
+    meas = ROOT / "examples" / "brtirus0707a" / "measurements.csv"
+    assert main(["calibrate", str(BUNDLED_URDF), str(meas), "-o", str(out), "--cv", "0"]) == 0
+    assert out.exists() and not sidecar.exists()
+    assert f"removed {sidecar}" in capsys.readouterr().out

@@ -202,14 +202,14 @@ def test_a_signal_the_moment_the_outputs_are_replaced_keeps_the_exit_code(signum
     (tmp_path / "c.urdf").write_text("old")
     rename_all = fileio._rename_all
 
-    def with_a_signal(temps, on_renamed=None):
+    def with_a_signal(temps, on_renamed=None, removals=()):
         if on_renamed is None:      # (a file written to a temporary folder on the way)
-            return rename_all(temps, on_renamed)
+            return rename_all(temps, on_renamed, removals)
 
         def renamed(paths):
             on_renamed(paths)
             os.kill(os.getpid(), signum)        # (pending until the renames release the signals)
-        return rename_all(temps, renamed)
+        return rename_all(temps, renamed, removals)
 
     monkeypatch.setattr(fileio, "_rename_all", with_a_signal)
     code, out, err = _cli(capfd, ["calibrate", URDF, tmp_path / "m.csv", "-o", tmp_path / "c.urdf",
@@ -221,10 +221,10 @@ def test_a_signal_the_moment_the_outputs_are_replaced_keeps_the_exit_code(signum
     # a signal before the renames still stops the command with 128 + signal, nothing replaced
     (tmp_path / "c.urdf").write_text("old")
 
-    def signal_first(temps, on_renamed=None):
+    def signal_first(temps, on_renamed=None, removals=()):
         if on_renamed is not None:
             os.kill(os.getpid(), signum)
-        return rename_all(temps, on_renamed)
+        return rename_all(temps, on_renamed, removals)
 
     monkeypatch.setattr(fileio, "_rename_all", signal_first)
     code, _, err = _cli(capfd, ["calibrate", URDF, tmp_path / "m.csv", "-o", tmp_path / "c.urdf",
