@@ -165,6 +165,17 @@ def _write_temporary(path: Path, data: bytes) -> str:
     return tmp
 
 
+def _put_back(backups: list[tuple[Path, str | None]]) -> None:
+    """Undo the renames done so far: each target back from its copy (``saved``), or removed
+    when there was none before; the list emptied."""
+    for done, saved in reversed(backups):
+        if saved is not None:
+            os.replace(saved, done)
+        else:
+            _unlink(done)
+    backups.clear()
+
+
 def _rename_all(temps: list[tuple[str, Path]], on_renamed=None, removals=()) -> None:
     """Rename each temporary file onto its target, then move each of ``removals`` that exists
     aside, signals held back; on a failure put back the targets already replaced or moved (from
@@ -189,12 +200,7 @@ def _rename_all(temps: list[tuple[str, Path]], on_renamed=None, removals=()) -> 
             except OSError as exc:
                 if backup:
                     _unlink(backup)
-                for done, saved in reversed(backups):
-                    if saved is not None:
-                        os.replace(saved, done)
-                    else:
-                        _unlink(done)
-                backups.clear()
+                _put_back(backups)
                 raise OutputError(path, f"cannot be replaced: {_reason(exc)}") from None
             backups.append((path, backup))
         for path in removals:
@@ -204,12 +210,7 @@ def _rename_all(temps: list[tuple[str, Path]], on_renamed=None, removals=()) -> 
             try:
                 os.replace(path, aside)
             except OSError as exc:
-                for done, saved in reversed(backups):
-                    if saved is not None:
-                        os.replace(saved, done)
-                    else:
-                        _unlink(done)
-                backups.clear()
+                _put_back(backups)
                 raise OutputError(path, f"cannot be removed: {_reason(exc)}") from None
             backups.append((path, aside))
         if on_renamed is not None:
