@@ -32,7 +32,7 @@ from calib.calibration.accuracy import target_rows
 from calib.calibration.evidence import (SIGMA_POS_BOUNDS, SIGMA_ROT_BOUNDS, TAU_BOUNDS, Evidence, evidence,
                                         linearise, maximise_evidence)
 from calib.calibration.prepare import Setup, prepare
-from calib.calibration.statistics import _propagate
+from calib.calibration.workspace import propagate_covariance
 from calib.checks import check_instance, check_int, check_number
 from calib.errors import DataError, ParameterError
 from calib.model.measurements import Measurements
@@ -110,7 +110,7 @@ class EBMapResult:
         for position-only data) likewise; targets : (N,) target index per row of a multi-target
         model."""
         Q = np.asarray(Q, float)
-        pos, rot = _propagate(self.robot, Q, self.names, self.covariance, targets=targets)
+        pos, rot = propagate_covariance(self.robot, Q, self.names, self.covariance, targets=targets)
         out = {"position_rms": math.sqrt(pos ** 2 + 3.0 * self.sigma_pos ** 2), "rotation_rms": None}
         if self.sigma_rot is not None:
             out["rotation_rms"] = math.sqrt(rot ** 2 + 3.0 * self.sigma_rot ** 2)

@@ -44,11 +44,6 @@ class Statistics:
 
 
 # ---------------------------------------------------------------- statistics
-# (the propagation lives with the workspace prediction; these names are kept for their callers)
-_propagate = propagate_covariance
-_propagated = propagated
-
-
 def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     """Covariance and predictions (see :class:`Statistics`)."""
     x = fit.model.values[fit.model.indices(fit.free)]
@@ -62,9 +57,9 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
 
     def propagate(cov):
         if setup.val is not None:
-            return _propagate(fit.model, Q, fit.free, cov, kin, rows)
+            return propagate_covariance(fit.model, Q, fit.free, cov, kin, rows)
         # at the calibration rows: the Jacobian of the fit's rows at its solution, computed once
-        return _propagated((J for _, _, J in problem.derived(loss="linear").whitened_blocks(x, raw=True)), len(Q), cov)
+        return propagated((J for _, _, J in problem.derived(loss="linear").whitened_blocks(x, raw=True)), len(Q), cov)
 
     pos, rot = propagate(C)
     nz = fit.noise
