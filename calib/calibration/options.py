@@ -130,6 +130,22 @@ class CalibrationOptions:
     periodic: bool = False
 
     @property
+    def map_clash(self) -> str | None:
+        """The option that keeps the regularised estimator (EB-MAP) from these options, as the
+        error message names it; None when it applies (estimator "auto" then chooses it on few
+        rows, "map" always)."""
+        if self.params is not None:
+            return ("params (a least-squares parameter set; the MAP estimate frees every structural "
+                    "parameter under its prior)")
+        if self.loss != "linear":
+            return f"loss {self.loss!r} (MAP is least squares with a prior)"
+        if self.lm_variant == "paper":
+            return "lm_variant 'paper'"
+        if self.compliance or self.periodic:
+            return "compliance or periodic terms (they have no prior group yet)"
+        return None
+
+    @property
     def folds(self) -> int:
         """Cross-validation folds (0: off)."""
         return CV_FOLDS if self.cv is None else self.cv
@@ -186,16 +202,11 @@ def resolve_options(robot, measurements, validation=None, *, method="search-lm",
     if not isinstance(estimator, str) or estimator.lower() not in ESTIMATORS:
         raise ParameterError(f"unknown estimator {estimator!r}: expected one of {', '.join(ESTIMATORS)}")
     estimator = estimator.lower()
-    if estimator == "map":
-        clash = ("params (a least-squares parameter set; the MAP estimate frees every structural "
-                 "parameter under its prior)" if params is not None else
-                 f"loss {loss!r} (MAP is least squares with a prior)" if loss != "linear" else
-                 "lm_variant 'paper'" if lm_variant == "paper" else
-                 "compliance or periodic terms (they have no prior group yet)" if compliance or periodic else None)
-        if clash:
-            raise ParameterError(f"estimator 'map' cannot be combined with {clash}: use estimator 'ls'")
     if not isinstance(periodic, bool):
         raise ParameterError(f"periodic must be True or False, got {periodic!r}")
-    return CalibrationOptions(method, params, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds,
+    opts = CalibrationOptions(method, params, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds,
                               options or LMOptions(), loss, loss_scale, outlier_k, cv, compliance, lm_variant,
                               estimator, periodic)
+    if estimator == "map" and opts.map_clash:
+        raise ParameterError(f"estimator 'map' cannot be combined with {opts.map_clash}: use estimator 'ls'")
+    return opts

@@ -225,8 +225,7 @@ def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) ->
         elif params is None:
             few = per_param < AUTO_BELOW_COMPONENTS_PER_PARAM
             no_cv = options.cv is not None and options.cv < 2
-            regularise = (few and options.estimator == "auto" and options.loss == "linear"
-                          and options.lm_variant == "calib" and not options.compliance and not options.periodic)
+            regularise = few and options.estimator == "auto" and options.map_clash is None
             want = "map" if regularise else "auto" if (few and not no_cv) else "base"
             what = {"map": "estimator 'map' (EB-MAP)", "auto": "parameter set 'auto'",
                     "base": "least squares on the identifiable set"}[want]
