@@ -36,3 +36,21 @@ def bundled_robot():
     from calib import load_robot
 
     return load_robot(BUNDLED_URDF)
+
+
+def fd_pose_column(robot, Q, k: int, h: float = 1e-6):
+    """(N, 6) central differences of the exact forward model (RobotModel.T_meas_tool: Eq. 1
+    products, no batch kinematics) in parameter k at configurations Q: position (m) and the
+    rotation's SO(3) log (rad) per unit of the parameter, as the identification Jacobian's
+    rows."""
+    import numpy as np
+
+    from calib.model.spatial import log3_batch
+
+    e = np.zeros(robot.n_params)
+    e[k] = h
+    Tp = np.array([robot.with_values(robot.values + e).T_meas_tool(q) for q in Q])
+    Tm = np.array([robot.with_values(robot.values - e).T_meas_tool(q) for q in Q])
+    dp = (Tp[:, :3, 3] - Tm[:, :3, 3]) / (2 * h)
+    dw = log3_batch(Tp[:, :3, :3] @ np.transpose(Tm[:, :3, :3], (0, 2, 1))) / (2 * h)
+    return np.concatenate([dp, dw], axis=1)

@@ -13,23 +13,14 @@ def _product_and_twists(factors, values, n_params):
     M, _, tw = _FactorTable([factors], n_params).products(values)
     return M[0], tw
 from calib.model.mdh import link_transform
-from calib.model.spatial import inverse, log3_batch, skew, zyx_transform
+from calib.model.spatial import inverse, skew, zyx_transform
 
-from conftest import BUNDLED_URDF, erd_urdf
+from conftest import BUNDLED_URDF, erd_urdf, fd_pose_column
 
 
 def _fd_jacobian(robot, Q, h=1e-6):
     """Central differences of the exact forward model (Eq. 1 products, no Pinocchio)."""
-    cols = []
-    for k in range(robot.n_params):
-        e = np.zeros(robot.n_params)
-        e[k] = h
-        Tp = np.array([robot.with_values(robot.values + e).T_meas_tool(q) for q in Q])
-        Tm = np.array([robot.with_values(robot.values - e).T_meas_tool(q) for q in Q])
-        dp = (Tp[:, :3, 3] - Tm[:, :3, 3]) / (2 * h)
-        dw = log3_batch(Tp[:, :3, :3] @ np.transpose(Tm[:, :3, :3], (0, 2, 1))) / (2 * h)
-        cols.append(np.concatenate([dp, dw], axis=1).reshape(-1))
-    return np.array(cols).T
+    return np.array([fd_pose_column(robot, Q, k, h).reshape(-1) for k in range(robot.n_params)]).T
 
 
 @pytest.mark.parametrize("name,tool", [("bundled", None), ("ur5", "tool0"), ("panda", None),

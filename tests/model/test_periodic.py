@@ -12,9 +12,8 @@ from calib.io.compliance_file import (SIDECAR_FORMAT, SIDECAR_FORMAT_PERIODIC, a
 from calib.model.compliance import Payload, with_gravity
 from calib.model.kinematics import ChainKinematics
 from calib.model.periodic import harmonic_basis
-from calib.model.spatial import log3_batch
 
-from conftest import BUNDLED_URDF, erd_urdf
+from conftest import BUNDLED_URDF, erd_urdf, fd_pose_column
 
 
 def _robot(name):
@@ -81,17 +80,7 @@ def test_periodic_errors_are_the_harmonics():
 
 def _fd_columns(robot, Q, names, h=1e-6):
     """Central differences of RobotModel.T_meas_tool (Eq. 1 products, no batch kinematics)."""
-    out = {}
-    for name in names:
-        k = robot.index(name)
-        e = np.zeros(robot.n_params)
-        e[k] = h
-        Tp = np.array([robot.with_values(robot.values + e).T_meas_tool(q) for q in Q])
-        Tm = np.array([robot.with_values(robot.values - e).T_meas_tool(q) for q in Q])
-        dp = (Tp[:, :3, 3] - Tm[:, :3, 3]) / (2 * h)
-        dw = log3_batch(Tp[:, :3, :3] @ np.transpose(Tm[:, :3, :3], (0, 2, 1))) / (2 * h)
-        out[name] = np.concatenate([dp, dw], axis=1)
-    return out
+    return {name: fd_pose_column(robot, Q, robot.index(name), h) for name in names}
 
 
 @pytest.mark.parametrize("name", ["ur5", "panda", "kinova"])
