@@ -72,8 +72,8 @@ def map_fit_stage(setup: Setup, ident: Sequence[str], options: CalibrationOption
                           f"EB-MAP: {est.passes} linearisation(s), effective parameters "
                           f"{est.effective_parameters:.1f} of {len(x)}", pre.iterations, pre.solver.rounds)
     fit = Fit(est.robot, est.names, solver, est.keep, pre.outliers, noise, pre.iterations, C, True, all_rows,
-              notes=pre.notes + est.notes, unremoved=pre.unremoved, prior_precision=est.prior_precision,
-              prior_mean=est.prior_mean)
+              notes=pre.notes + est.notes, unremoved=pre.unremoved, refusals=pre.refusals,
+              prior_precision=est.prior_precision, prior_mean=est.prior_mean)
     if pre.solver.status != "converged":
         fit = replace(fit, solver=replace(solver, status=pre.solver.status, message=pre.solver.message))
     return MapFit(fit, problem, est, pre)
