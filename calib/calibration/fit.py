@@ -26,8 +26,8 @@ from calib.calibration.options import (
     CalibrationOptions,
 )
 from calib.calibration.prepare import Setup, _reach, _robot_memo
-from calib.calibration.robust import (Outlier, flag_outliers, judge_rows, leftover_gross, robust_sigmas,
-                                      too_many_gross)
+from calib.calibration.robust import (Outlier, can_trim, flag_outliers, judge_rows, leftover_gross,
+                                      robust_sigmas, too_many_gross)
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -359,7 +359,10 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
         sol = replace(sol, status=stuck.status, message=stuck.message)
     lin = linearised(problem, x)
     noise = _noise_estimate(problem, lin, estimate, vce_total)
-    if estimate and outlier_k is not None and loss == "linear" and not refusals:
+    if estimate and outlier_k is not None and loss == "linear" and not refusals and can_trim(everything, keep, len(x)):
+        # (where half of the rows cannot determine the parameters, the median residual cannot say
+        # what the noise is either: the real TIAGo marker rows, 27 for 33 parameters, were
+        # refused as inconsistent, the least-squares noise 2.2x the median residual's)
         refusals.append(leftover_gross(everything, x, keep, (lin.red_pos, lin.red_rot), (sp, sr),
                                        (sigma_pos, sigma_rot)))
     model = start.with_values(problem.full(x))

@@ -117,6 +117,9 @@ def test_real_marker_rows_of_few_per_parameter_are_not_flagged():
     res = calib.calibrate(robot, fold)
     assert res.outliers == () and res.status == "converged"
     assert calib.evaluate(res.robot, fold.validation()).position["rms"] < 3.5e-3
+    # nor are they refused as inconsistent by least squares (its noise 2.2x the median residual's,
+    # a figure few rows cannot give reliably)
+    assert calib.calibrate(robot, fold, params="base").status == "converged"
 
 
 @pytest.mark.parametrize("seed", [6, 7])
