@@ -6,8 +6,12 @@ angles), the instrument 1.7 m from the base, random configurations within the jo
 noise 1 mm and 5 mrad per axis. Fits: least squares on the identifiable set
 (``params="base"``), ``calib.calibrate`` defaults, :func:`calib.calibration.eb_map.eb_map`. Printed per
 case: the mean over seeds of the RMS tool-position distance to the truth over 300 new random
-configurations (mm), EB-MAP over LS, the share of seeds where EB-MAP is closer, and EB-MAP's
-predicted over observed held-out RMS on 300 new measured rows.
+configurations (mm), EB-MAP over LS, the share of seeds where EB-MAP is closer, EB-MAP's
+predicted over observed held-out RMS on 300 new measured rows, and the oracle over LS: the same
+MAP estimate with the simulation's true prior scales and noise levels held
+(``eb_map(..., prior_scales=TRUE_SCALES, sigma_pos, sigma_rot)``), the best an estimator of this
+kind can do on these rows (the Bayes estimate of the linearised model); the gap between EB-MAP
+and the oracle is the cost of choosing the scales and noise from the rows themselves.
 
 Run: PYTHONPATH=. python scripts/bench_ebmap_sim.py [--seeds 50]
 """
@@ -36,8 +40,16 @@ def load(name: str):
     return calib.load_robot(erd.load(name).urdf)
 
 
-def one(robot, n: int, position_only: bool, seed: int) -> tuple[float, float, float, float]:
-    """(LS error, defaults error, EB-MAP error (m), EB-MAP predicted / observed) of one seed."""
+#: The simulation's parameter deviations (random_deviations(robot, 1e-3)) and noise, as prior
+#: scales and noise levels for the oracle.
+DEVIATION = 1e-3
+TRUE_SCALES = {"theta": DEVIATION / 0.5, "length": DEVIATION, "twist": DEVIATION / 0.5}
+SIGMA_POS, SIGMA_ROT = 1e-3, 5e-3
+
+
+def one(robot, n: int, position_only: bool, seed: int) -> tuple[float, ...]:
+    """(LS error, defaults error, EB-MAP error (m), EB-MAP predicted / observed, oracle error (m))
+    of one seed."""
     import calib
     from calib.calibration.eb_map import eb_map
     from calib.model.kinematics import ChainKinematics
@@ -45,9 +57,9 @@ def one(robot, n: int, position_only: bool, seed: int) -> tuple[float, float, fl
     from calib.model.spatial import zyx_transform
 
     rng = np.random.default_rng(1000 + seed)
-    true = apply_deviations(robot, random_deviations(robot, 1e-3, rng))
+    true = apply_deviations(robot, random_deviations(robot, DEVIATION, rng))
     true = replace(true, T_meas_base_ref=zyx_transform(1.5, -0.8, 0.3, 0.5, 0.05, -0.03) @ true.T_meas_base_ref)
-    m = simulate_measurements(true, robot.random_configurations(n, rng), sigma_pos=1e-3, sigma_rot=5e-3, rng=rng,
+    m = simulate_measurements(true, robot.random_configurations(n, rng), sigma_pos=SIGMA_POS, sigma_rot=SIGMA_ROT, rng=rng,
                               position_only=position_only)
     Qt = robot.random_configurations(300, rng)
     _, p_true = ChainKinematics(true).frame_poses(Qt)
@@ -67,9 +79,12 @@ def one(robot, n: int, position_only: bool, seed: int) -> tuple[float, float, fl
         except calib.CalibError:
             de = np.nan
         eb = eb_map(robot, m)
-    fresh = simulate_measurements(true, Qt, sigma_pos=1e-3, sigma_rot=5e-3, rng=rng, position_only=position_only)
+        oracle = eb_map(robot, m, sigma_pos=SIGMA_POS, sigma_rot=None if position_only else SIGMA_ROT,
+                        prior_scales=TRUE_SCALES)
+    fresh = simulate_measurements(true, Qt, sigma_pos=SIGMA_POS, sigma_rot=SIGMA_ROT, rng=rng,
+                                  position_only=position_only)
     ratio = eb.predicted_holdout(Qt)["position_rms"] / calib.evaluate(eb.robot, fresh).position["rms"]
-    return ls, de, err(eb.robot), ratio
+    return ls, de, err(eb.robot), ratio, err(oracle.robot)
 
 
 def main(argv=None) -> int:
@@ -77,7 +92,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=50)
     args = ap.parse_args(argv)
     print(f"{args.seeds} seeds; mean RMS distance to the truth over 300 new configurations (mm)")
-    print(f"{'case':<24}{'LS ident':>10}{'defaults':>10}{'EB-MAP':>10}{'EB/LS':>8}{'EB closer':>11}{'pred/obs':>10}")
+    print(f"{'case':<24}{'LS ident':>10}{'defaults':>10}{'EB-MAP':>10}{'EB/LS':>8}{'EB closer':>11}{'pred/obs':>10}{'oracle/LS':>11}")
     robots = {}
     for name, n, pos in CASES:
         robot = robots.setdefault(name, load(name))
@@ -85,7 +100,8 @@ def main(argv=None) -> int:
         ls, de, eb = (np.nanmean(r[:, k]) * 1e3 for k in range(3))
         closer = np.mean(r[:, 2] < r[:, 0])
         label = f"{name} {n} {'position' if pos else 'pose'}"
-        print(f"{label:<24}{ls:>10.3f}{de:>10.3f}{eb:>10.3f}{eb / ls:>8.3f}{closer:>10.0%}{np.mean(r[:, 3]):>10.3f}",
+        print(f"{label:<24}{ls:>10.3f}{de:>10.3f}{eb:>10.3f}{eb / ls:>8.3f}{closer:>10.0%}{np.mean(r[:, 3]):>10.3f}"
+              f"{np.nanmean(r[:, 4]) * 1e3 / ls:>11.3f}",
               flush=True)
     return 0
 

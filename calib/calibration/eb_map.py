@@ -257,9 +257,26 @@ def _check_options(passes, tol, outlier_k, init_frames, max_iterations) -> None:
     check_int(max_iterations, "max_iterations", minimum=1)
 
 
+def check_prior_scales(prior_scales) -> dict[str, float] | None:
+    """``prior_scales`` checked: None, or a mapping of prior group names (PRIOR_GROUPS) to
+    standard deviations (m for "length", rad for "theta" and "twist") within TAU_BOUNDS."""
+    if prior_scales is None:
+        return None
+    if not hasattr(prior_scales, "items"):
+        raise ParameterError(f"prior_scales must be a mapping of {', '.join(PRIOR_GROUPS)} to standard "
+                             f"deviations, got {type(prior_scales).__name__}")
+    out = {}
+    for g, v in prior_scales.items():
+        if g not in PRIOR_GROUPS:
+            raise ParameterError(f"prior_scales: unknown group {g!r}: expected one of {', '.join(PRIOR_GROUPS)}")
+        out[g] = check_number(v, f"prior_scales[{g!r}]", minimum=TAU_BOUNDS[0], maximum=TAU_BOUNDS[1])
+    return out
+
+
 def eb_map(robot: RobotModel, measurements: Measurements, *, passes: int = 3, tol: float = 1e-7,
            outlier_k: float | None = 5.0, init_frames: bool | str = "auto",
-           max_iterations: int = 100) -> EBMapResult:
+           max_iterations: int = 100, sigma_pos: float | None = None, sigma_rot: float | None = None,
+           prior_scales=None) -> EBMapResult:
     """Regularised identification by empirical Bayes (module docstring; design eb-map.md).
 
     Parameters
@@ -278,6 +295,12 @@ def eb_map(robot: RobotModel, measurements: Measurements, *, passes: int = 3, to
     init_frames : calib's closed-form frame estimate ("auto": used when the frames are far from
         the nominal ones; True: always; False: never).
     max_iterations : LM iterations per MAP fit.
+    sigma_pos, sigma_rot : given noise levels (m per axis, rad per axis), held instead of chosen
+        by the evidence (None: chosen).
+    prior_scales : given prior standard deviations of some or all groups ({"theta": rad,
+        "length": m, "twist": rad}), held instead of chosen by the evidence (a manufacturer's
+        tolerances, or the truth in a simulation: the estimator's oracle, as
+        scripts/bench_ebmap_sim.py uses it).
 
     Returns an :class:`EBMapResult`. Raises :class:`calib.CalibError` (ParameterError,
     DataError) for unusable input. ``calib.calibrate`` runs the same estimator
@@ -286,21 +309,25 @@ def eb_map(robot: RobotModel, measurements: Measurements, *, passes: int = 3, to
     check_instance(robot, "robot", RobotModel, "calib.load_robot")
     check_instance(measurements, "measurements", Measurements, "calib.read_measurements")
     _check_options(passes, tol, outlier_k, init_frames, max_iterations)
+    check_number(sigma_pos, "sigma_pos", minimum=SIGMA_POS_BOUNDS[0], maximum=SIGMA_POS_BOUNDS[1], allow_none=True)
+    check_number(sigma_rot, "sigma_rot", minimum=SIGMA_ROT_BOUNDS[0], maximum=SIGMA_ROT_BOUNDS[1], allow_none=True)
+    scales = check_prior_scales(prior_scales)
     setup, notes = prepare(robot, measurements, None, init_frames)
     res = eb_map_stage(setup, passes=passes, tol=tol, outlier_k=outlier_k, max_iterations=max_iterations,
-                       source=measurements.source)
+                       source=measurements.source, sigma_pos=sigma_pos, sigma_rot=sigma_rot, prior_scales=scales)
     return replace(res, notes=tuple(notes) + res.notes)
 
 
 def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: float | None = None,
                  sigma_rot: float | None = None, x_start: np.ndarray | None = None, passes: int = 3,
                  tol: float = 1e-7, outlier_k: float | None = None, max_iterations: int = 100,
-                 source=None) -> EBMapResult:
+                 source=None, prior_scales: dict[str, float] | None = None) -> EBMapResult:
     """The EB-MAP estimate on the calibration rows of a prepared ``setup`` (:func:`calib.calibration.
     prepare.prepare`): its start model is the prior mean. keep : (N_cal,) bool, the rows to fit
     (default: all but the prepare stage's suspects when ``outlier_k`` is set); sigma_pos (m) /
     sigma_rot (rad): given noise levels, held while the prior scales are chosen (None: from the
-    evidence); x_start : (n_params,) values of the first linearisation point (default: the start
+    evidence); prior_scales : given prior standard deviations by group (checked by
+    :func:`check_prior_scales`), held (None: all from the evidence); x_start : (n_params,) values of the first linearisation point (default: the start
     model with its frame parameters fitted); outlier_k : see :func:`eb_map` (None: off); source :
     the measurements' file, named in errors."""
     start, cal = setup.start, setup.cal
@@ -338,6 +365,9 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
     fixed[0] = sigma_pos is not None
     if rot:
         fixed[1] = sigma_rot is not None
+    given_tau = {g: t for g, t in (prior_scales or {}).items() if g in present}
+    for g in given_tau:
+        fixed[k + present.index(g)] = True
 
     def estimate(keep):
         problem = base.derived(keep=keep)
@@ -361,7 +391,7 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
                 if rot:
                     sr = sigma_rot or math.sqrt(max(lin.yyr, 1e-30) / max(lin.n_r, 1))
                     h0.append(-2 * math.log(max(sr, SIGMA_ROT_BOUNDS[0])))
-                log_h = np.array(h0 + [-2 * math.log(1e-3)] * len(present))
+                log_h = np.array(h0 + [-2 * math.log(given_tau.get(g, 1e-3)) for g in present])
                 if sigma_pos is not None:
                     log_h[0] = -2 * math.log(sigma_pos)
                 if rot and sigma_rot is not None:

@@ -194,6 +194,38 @@ def test_bad_arguments(bundled_robot):
         eb_map(bundled_robot, m, init_frames="yes")
     with pytest.raises(calib.CalibError):
         eb_map(bundled_robot, m.subset(slice(0, 2)))     # 12 components for 12 frame parameters
+    with pytest.raises(calib.ParameterError, match="unknown group 'lengths'"):
+        eb_map(bundled_robot, m, prior_scales={"lengths": 1e-3})
+    with pytest.raises(calib.ParameterError, match="prior_scales\\['theta'\\]"):
+        eb_map(bundled_robot, m, prior_scales={"theta": 0.0})
+    with pytest.raises(calib.ParameterError, match="mapping"):
+        eb_map(bundled_robot, m, prior_scales=[1e-3])
+    with pytest.raises(calib.ParameterError, match="sigma_pos"):
+        eb_map(bundled_robot, m, sigma_pos=-1e-3)
+
+
+def test_given_prior_scales_and_noise_are_held(ur5):
+    """Given scales and noise levels are held (the oracle of scripts/bench_ebmap_sim.py); a group
+    given a scale at the lower bound stays at the nominal model while the others move; the true
+    scales give an estimate at least as close to the truth as the evidence's own on average."""
+    scales = {"theta": 2e-3, "length": 1e-3, "twist": 2e-3}
+    true, m = _small_case(ur5, 20, 5)
+    res = eb_map(ur5, m, sigma_pos=1e-3, sigma_rot=5e-3, prior_scales=scales)
+    assert res.prior_scales == pytest.approx(scales, rel=1e-12)
+    assert (res.sigma_pos, res.sigma_rot) == pytest.approx((1e-3, 5e-3), rel=1e-12)
+    pinned = eb_map(ur5, m, prior_scales={"length": 1e-7})
+    assert pinned.pinned == ("length",)
+    moved = dict(zip(pinned.names, pinned.estimate - pinned.prior_mean))
+    lengths = [abs(v) for k, v in moved.items() if pinned.groups[pinned.names.index(k)] == "length"]
+    thetas = [abs(v) for k, v in moved.items() if pinned.groups[pinned.names.index(k)] == "theta"]
+    assert max(lengths) < 1e-6 < max(thetas)
+    oracle, own = [], []
+    for seed in range(6):
+        true, m = _small_case(ur5, 20, seed)
+        Qt = ur5.random_configurations(300, np.random.default_rng(seed))
+        oracle.append(_truth_rms(eb_map(ur5, m, sigma_pos=1e-3, sigma_rot=5e-3, prior_scales=scales).robot, true, Qt))
+        own.append(_truth_rms(eb_map(ur5, m).robot, true, Qt))
+    assert np.mean(oracle) <= np.mean(own)
 
 
 def test_pivoted_rank_matches_pivoted_qr():
