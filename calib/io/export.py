@@ -44,6 +44,9 @@ __all__ = ["ExportResult", "export_calibration", "READ_BACK_TOL"]
 #: Largest difference (metres, radians) between the kinematics an export describes, read back,
 #: and the URDF's; an export that misses it is an error (a bug), never written.
 READ_BACK_TOL = 1e-9
+#: ur-yaml: a base frame farther than this (m, rad) from the parent link of the first joint is
+#: a mounting (a pedestal, a work cell), beyond any calibration's base correction: a note says so.
+MOUNT_NOTE_M, MOUNT_NOTE_RAD = 0.01, 0.01
 
 
 @dataclass(frozen=True)
@@ -178,6 +181,16 @@ def _ur_yaml(urdf_path, kinematics_hash, flange_frame, base_frame, tool_frame):
     dp, dr = _difference(template_tool0(origins, Q) @ T_t, chain.T_meas_tool(Q))
     _check_read_back("ur-yaml", dp, dr)
     notes = []
+    rec = chain.document.frames if chain.document is not None else None
+    if rec is not None and rec.measurement_estimated and chain.base_frame == rec.base_frame:
+        notes.append(f"{urdf_path} records that its calibration estimated the measurement frame: base_link of the "
+                     f"export is its base frame {chain.base_frame!r}; check that it is the robot's base, not the "
+                     f"instrument's")
+    link, t_m, r_m = ur.mount
+    if link and link != chain.base_frame and (t_m > MOUNT_NOTE_M or r_m > MOUNT_NOTE_RAD):
+        notes.append(f"base_link of the export is {chain.base_frame!r}, {t_m * 1e3:.4g} mm / {r_m:.4g} rad from "
+                     f"{link!r} (the parent link of the first joint): the shoulder entry includes that offset; if "
+                     f"your xacro mounts the robot there, export with --base-frame {link}")
     t_off, r_off = ur.flange_offset
     if t_off > 1e-9 or r_off > 1e-9:
         notes.append(f"flange frame {ur.flange_frame!r} is {t_off * 1e3:.4g} mm / {r_off:.4g} rad off axis 6: "

@@ -97,6 +97,9 @@ class UrKinematics:
     T_tool0_tool : (4, 4) the tool frame in the template's tool0 (identity when they coincide).
     flange_offset : (translation m, rotation rad) of the flange frame from its projection onto
         axis 6 (0, 0 for a flange on the axis).
+    mount : (link, translation m, rotation rad): the parent link of the first joint and its
+        pose's distance from the base frame (a pedestal or work-cell offset that the shoulder
+        entry then includes).
     """
 
     origins: np.ndarray
@@ -106,6 +109,7 @@ class UrKinematics:
     tool_frame: str
     T_tool0_tool: np.ndarray
     flange_offset: tuple[float, float]
+    mount: tuple[str, float, float] = ("", 0.0, 0.0)
 
 
 def _rotation_z_to(axis: np.ndarray) -> np.ndarray:
@@ -210,7 +214,12 @@ def ur_kinematics(chain: UrdfChain, flange_frame: str | None = None) -> UrKinema
         origins[k, :3] = O[:3, 3]
         origins[k, 3:] = rpy_nearest(O[:3, :3])
     T_tool = oMb.actInv(data.oMf[chain.tool_frame_id]).homogeneous
-    return UrKinematics(origins=origins, joints=tuple(j.name for j in chain.joints),
+    mount = ("", 0.0, 0.0)
+    doc_joint = chain.document.joints.get(chain.joints[0].name) if chain.document is not None else None
+    if doc_joint is not None and model.existFrame(doc_joint.parent):
+        M = oMb.actInv(data.oMf[model.getFrameId(doc_joint.parent)])
+        mount = (doc_joint.parent, float(np.linalg.norm(M.translation)), float(np.linalg.norm(pin.log3(M.rotation))))
+    return UrKinematics(mount=mount, origins=origins, joints=tuple(j.name for j in chain.joints),
                         base_frame=chain.base_frame, flange_frame=model.frames[fid].name,
                         tool_frame=chain.tool_frame, T_tool0_tool=inverse(Phi) @ T_tool,
                         flange_offset=flange_offset)

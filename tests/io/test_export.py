@@ -15,7 +15,7 @@ import json
 import math
 import re
 import subprocess
-import sys
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -30,7 +30,7 @@ from calib.io.urdf_reader import read_urdf_chain
 from calib.io.urdf_writer import write_calibrated_urdf
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations
 
-from conftest import BUNDLED_URDF, ROOT, erd_urdf
+from conftest import BUNDLED_URDF, erd_urdf
 
 #: Tolerance of every round trip: the files hold full double precision (repr), so only the
 #: rounding of the products separates the kinematics (observed ~1e-15; the URDF writer's 12
@@ -85,6 +85,30 @@ def _ur_template_urdf(kinematics: dict) -> str:
     return "".join(xml + ["</robot>"])
 
 
+def _template_difference(cal, doc, n=30) -> np.ndarray:
+    """Largest (m, rad) differences over n random configurations between the template URDF made
+    from ``doc`` (the YAML) and the URDF ``cal``: of tool0 (the template's) against the URDF's
+    tool0, and of tool0 . tool_in_tool0 against the URDF's tool frame; both in the base frames."""
+    tmpl = pin.buildModelFromXML(_ur_template_urdf(doc["kinematics"]))
+    tdata = tmpl.createData()
+    tids = {n: tmpl.getFrameId(n) for n in ("base_link", "tool0")}
+    chain = read_urdf_chain(cal)
+    cm, cdata = chain.model, chain.model.createData()
+    cids = {"base": chain.base_frame_id, "tool0": cm.getFrameId("tool0"), "tool": chain.tool_frame_id}
+    tb = doc["calib"]["tool_in_tool0"]
+    T_tool0_tool = np.eye(4)
+    T_tool0_tool[:3, :3] = pin.rpy.rpyToMatrix(tb["roll"], tb["pitch"], tb["yaw"])
+    T_tool0_tool[:3, 3] = (tb["x"], tb["y"], tb["z"])
+    worst = np.zeros(4)
+    for q in np.random.default_rng(3).uniform(-np.pi, np.pi, (n, 6)):
+        t = _fk(tmpl, tdata, tids, q)        # the template's joints are the chain's, in order
+        c = _fk(cm, cdata, cids, chain.configuration(q))
+        T_tmpl = np.linalg.inv(t["base_link"]) @ t["tool0"]
+        worst[:2] = np.maximum(worst[:2], _compare(T_tmpl, np.linalg.inv(c["base"]) @ c["tool0"]))
+        worst[2:] = np.maximum(worst[2:], _compare(T_tmpl @ T_tool0_tool, np.linalg.inv(c["base"]) @ c["tool"]))
+    return worst
+
+
 @pytest.mark.parametrize("arm", ["ur5", "ur10"])
 def test_ur_yaml_through_the_ur_description_template_gives_the_calibrated_kinematics(tmp_path, arm):
     """ur5 / ur10 of example-robot-data (joints about y and z, fixed tool0 past wrist_3_link),
@@ -98,31 +122,41 @@ def test_ur_yaml_through_the_ur_description_template_gives_the_calibrated_kinema
     assert list(doc["kinematics"]) == list(UR_SEGMENTS) + ["hash"]
     assert doc["kinematics"]["hash"].startswith("calib_") and doc["calib"]["flange_frame"] == "tool0"
     assert res.read_back[0] < TOL and res.read_back[1] < TOL
-
-    tmpl = pin.buildModelFromXML(_ur_template_urdf(doc["kinematics"]))
-    tdata = tmpl.createData()
-    tids = {n: tmpl.getFrameId(n) for n in ("base_link", "tool0")}
-    chain = read_urdf_chain(cal)
-    cm, cdata = chain.model, chain.model.createData()
-    cids = {"base": chain.base_frame_id, "tool0": cm.getFrameId("tool0"), "tool": chain.tool_frame_id}
-    tb = doc["calib"]["tool_in_tool0"]
-    T_tool0_tool = np.eye(4)
-    T_tool0_tool[:3, :3] = pin.rpy.rpyToMatrix(tb["roll"], tb["pitch"], tb["yaw"])
-    T_tool0_tool[:3, 3] = (tb["x"], tb["y"], tb["z"])
-    Q = np.random.default_rng(3).uniform(-np.pi, np.pi, (30, 6))
-    worst = np.zeros(4)
-    for q in Q:
-        t = _fk(tmpl, tdata, tids, q)        # the template's joints are the chain's, in order
-        c = _fk(cm, cdata, cids, chain.configuration(q))
-        T_tmpl = np.linalg.inv(t["base_link"]) @ t["tool0"]
-        worst[:2] = np.maximum(worst[:2], _compare(T_tmpl, np.linalg.inv(c["base"]) @ c["tool0"]))
-        worst[2:] = np.maximum(worst[2:], _compare(T_tmpl @ T_tool0_tool, np.linalg.inv(c["base"]) @ c["tool"]))
+    worst = _template_difference(cal, doc)
     assert worst.max() < TOL, worst
     # the perturbation is in the file: the nominal arm's template misses the calibrated flange by mm
     nominal_doc = yaml.safe_load(calib.export_calibration(erd_urdf(arm), "ur-yaml").text)
-    dp = np.linalg.norm(np.array([doc["kinematics"]["forearm"][k] - nominal_doc["kinematics"]["forearm"][k]
-                                  for k in "xyz"]))
-    assert dp > 1e-4
+    assert _template_difference(cal, nominal_doc, n=5)[0] > 1e-3
+
+
+def test_ur_yaml_of_a_calibration_of_simulated_data(tmp_path):
+    """The whole path: a UR5 calibrated from 60 simulated poses (calib.calibrate, then its
+    URDF writer, which adds the tool link), exported: the template gives the calibrated tool0 and
+    tool to 1e-9 m / rad, and follows the true robot's tool to the calibration's accuracy."""
+    nominal = calib.load_robot(erd_urdf("ur5"))
+    true = apply_deviations(nominal, random_deviations(nominal, 1e-3, rng=7))
+    meas = calib.simulate_measurements(true, nominal.random_configurations(60, 8), rng=9)
+    res = calib.calibrate(nominal, meas, cv=0)
+    assert res.status == "converged"
+    res.write_urdf(tmp_path / "cal.urdf")
+    doc = yaml.safe_load(calib.export_calibration(tmp_path / "cal.urdf", "ur-yaml").text)
+    worst = _template_difference(tmp_path / "cal.urdf", doc)
+    assert worst.max() < TOL, worst
+
+
+def test_ur_yaml_notes_a_base_frame_away_from_the_robots_mount(tmp_path):
+    """A UR5 on a 0.8 m pedestal (world -> base_link): exported from world, the shoulder entry
+    holds the pedestal and a note says so; from --base-frame base_link it does not."""
+    text = Path(erd_urdf("ur5")).read_text()
+    joint = text[text.index('<joint name="world_joint"'):]
+    joint = joint[:joint.index("</joint>")]
+    (tmp_path / "ped.urdf").write_text(text.replace(joint, joint.replace('xyz="0.0 0.0 0.0"', 'xyz="0.0 0.0 0.8"')))
+    res = calib.export_calibration(tmp_path / "ped.urdf", "ur-yaml")
+    assert any("800 mm" in n and "--base-frame base_link" in n for n in res.notes)
+    assert yaml.safe_load(res.text)["kinematics"]["shoulder"]["z"] == pytest.approx(0.889159, abs=1e-12)
+    res = calib.export_calibration(tmp_path / "ped.urdf", "ur-yaml", base_frame="base_link")
+    assert not any("parent link of the first joint" in n for n in res.notes)
+    assert yaml.safe_load(res.text)["kinematics"]["shoulder"]["z"] == pytest.approx(0.089159, abs=1e-12)
 
 
 def test_ur_yaml_hash_is_the_users_or_a_content_hash(tmp_path):
@@ -330,18 +364,21 @@ def test_read_mdh_csv_names_row_and_column_of_a_bad_cell(tmp_path):
 
 
 # ====================================================================== the command
-def _run(*argv, cwd):
-    return subprocess.run([sys.executable, "-m", "calib", "export", *map(str, argv)], capture_output=True, text=True,
-                          cwd=cwd, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}, timeout=120)
-
-
-def test_export_command_writes_and_refuses_bad_input_with_one_line(tmp_path):
+def test_export_command_writes_and_refuses_bad_input_with_one_line(tmp_path, capsys):
     """One run that writes, then each kind of bad input: exit 2, one line on stderr, no file
     written and the input untouched."""
+    from calib.cli.main import main
+
+    def _run(*argv):
+        code = main(["export", *map(str, argv)])
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(argv, code, out, err)
+
     cal, _ = _calibrated(tmp_path, erd_urdf("ur5"))
     before = cal.read_bytes()
-    ok = _run(cal, "--format", "ur-yaml", "-o", tmp_path / "k.yaml", "--hash", "calib_1", cwd=tmp_path)
+    ok = _run(cal, "--format", "ur-yaml", "-o", tmp_path / "k.yaml", "--hash", "calib_1")
     assert ok.returncode == 0, ok.stderr
+    assert ok.stdout.startswith(f"wrote {tmp_path / 'k.yaml'} (ur-yaml; read back")
     assert yaml.safe_load((tmp_path / "k.yaml").read_text())["kinematics"]["hash"] == "calib_1"
     (tmp_path / "not.urdf").write_text("x,y\n1,2\n")
     cases = [
@@ -352,7 +389,7 @@ def test_export_command_writes_and_refuses_bad_input_with_one_line(tmp_path):
         ((cal, "--format", "mdh-csv", "-o", tmp_path / "d.csv", "--hash", "x"), "--hash applies to --format ur-yaml"),
     ]
     for argv, message in cases:
-        out = _run(*argv, cwd=tmp_path)
+        out = _run(*argv)
         assert out.returncode == 2, (argv, out.stderr)
         assert message in out.stderr.splitlines()[-1], out.stderr
         assert len([l for l in out.stderr.splitlines() if l.startswith("calib: error")]) == 1
