@@ -395,3 +395,28 @@ def test_export_command_writes_and_refuses_bad_input_with_one_line(tmp_path, cap
         assert len([l for l in out.stderr.splitlines() if l.startswith("calib: error")]) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["calibrated.urdf", "k.yaml", "not.urdf"]
     assert cal.read_bytes() == before
+
+
+def test_mdh_csv_of_a_calibration_of_several_targets(tmp_path):
+    """Three reflectors (targets A, B, C): one tool row per target, named by its id, with the
+    report's std; read back, a model of the three targets with the calibrated URDF's kinematics
+    (each target's link) to 1e-9 m / rad."""
+    from calib.io.mdh_file import kinematics_difference
+
+    robot = calib.load_robot(BUNDLED_URDF).with_target_offsets({"A": [0, 0, 0], "B": [0.05, 0, 0.02],
+                                                                "C": [0, 0.05, 0]})
+    true = apply_deviations(robot, random_deviations(robot, 5e-4, rng=3))
+    meas = calib.simulate_measurements(true, robot.random_configurations(60, 1), rng=2,
+                                       targets=[("A", "B", "C")[k % 3] for k in range(60)])
+    res = calib.calibrate(robot, meas, cv=0)
+    res.write_urdf(tmp_path / "cal.urdf")
+    (tmp_path / "r.json").write_text(json.dumps(calib.build_report(res, meas)))
+    calib.export_calibration(tmp_path / "cal.urdf", "mdh-csv", tmp_path / "mdh.csv", report=tmp_path / "r.json")
+    rows = [l.split(",") for l in (tmp_path / "mdh.csv").read_text().splitlines() if l.startswith("tool,")]
+    assert [r[1] for r in rows] == ["A", "B", "C"]
+    header = next(l for l in (tmp_path / "mdh.csv").read_text().splitlines() if l.startswith("item,")).split(",")
+    assert float(rows[1][header.index("x_std_mm")]) == pytest.approx(res.parameter("v_x@B").std * 1e3, rel=1e-12)
+    back = calib.read_mdh_csv(tmp_path / "mdh.csv")
+    assert back.targets == ("A", "B", "C")
+    dp, dr = kinematics_difference(back, calib.load_robot(tmp_path / "cal.urdf"), n=10)
+    assert dp < TOL and dr < TOL
