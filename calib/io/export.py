@@ -36,8 +36,8 @@ import numpy as np
 
 from calib.checks import check_choice, check_path
 from calib.choices import EXPORT_FORMATS
-from calib.errors import CalibError, ParameterError
-from calib.io.fileio import atomic_write_text, check_not_input
+from calib.errors import CalibError, OutputError, ParameterError
+from calib.io.fileio import atomic_write_text, check_not_input, output_target
 
 __all__ = ["ExportResult", "export_calibration", "READ_BACK_TOL"]
 
@@ -121,6 +121,10 @@ def export_calibration(urdf_path: str | Path, format: str, output: str | Path | 
                                                                       (base_frame, "base_frame"), (tool_frame, "tool_frame")))
     if output is not None:
         check_not_input(output, [urdf_path, report])
+        output_target(output)                    # a device, FIFO or socket: refused before any work
+        if output.is_dir() or not output.parent.is_dir():
+            raise OutputError(output, "is a folder, expected a file name" if output.is_dir() else
+                              f"folder {output.parent} does not exist")
     if format == "ur-yaml":
         text, notes, back = _ur_yaml(urdf_path, kinematics_hash, flange_frame, base_frame, tool_frame)
     elif format == "joint-origins-yaml":
