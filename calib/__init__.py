@@ -46,6 +46,8 @@ _HOME = {
     "model.touch_simulate": ("simulate_touch",),
     "io.touch_file": ("read_touch", "write_touch"),
     "calibration.touch": ("TouchResult", "calibrate_touch"),
+    "io.export": ("ExportResult", "export_calibration"),
+    "io.mdh_file": ("read_mdh_csv",),
 }
 _MODULE_OF = {name: module for module, names in _HOME.items() for name in names}
 
@@ -81,4 +83,5 @@ __all__ = [
     "GravityModel", "Payload",
     "PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm",
     "Feature", "TouchData", "TouchResult", "calibrate_touch", "read_touch", "simulate_touch", "write_touch",
+    "ExportResult", "export_calibration", "read_mdh_csv",
 ]

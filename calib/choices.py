@@ -15,3 +15,5 @@ POSE_CRITERIA = ("D", "O1", "O4")
 #: Compensation: a configuration whose smallest singular value of the scaled pose Jacobian is
 #: below this is singular (:mod:`calib.calibration.compensation`).
 SINGULAR_THRESHOLD = 1e-2
+#: Formats of ``calib export`` (:func:`calib.io.export.export_calibration`).
+EXPORT_FORMATS = ("ur-yaml", "joint-origins-yaml", "mdh-csv")

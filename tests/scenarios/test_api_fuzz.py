@@ -29,7 +29,7 @@ HOSTILE = [None, "x", "", float("nan"), float("inf"), -1, 0, 10 ** 30, [], {}, (
 #: are not fuzzed (they take what calib computed), their public methods are.
 BUILT_BY_CALIB = {"IdentifiabilityReport", "CalibrationResult", "ParameterEstimate", "TargetAccuracy",
                   "RecordedFrames", "PoseDesign", "CompensationResult", "PaperLMResult", "GravityModel",
-                  "CompensationTargets", "AccuracyStats"}
+                  "CompensationTargets", "AccuracyStats", "ExportResult"}
 #: Per call: a result slower than this is a failure (10**30 poses, rounds, candidates...).
 CALL_LIMIT_S = 10
 
@@ -58,6 +58,7 @@ def table(tmp_path_factory):
     point = calib.Feature("point", "P1")
     touch = calib.simulate_touch(robot, [point], [6], rng=0).data
     calib.write_touch(d / "t.csv", touch, robot)
+    calib.export_calibration(BUNDLED_URDF, "mdh-csv", d / "mdh.csv")
     touch_res = calib.calibrate_touch(robot, touch, params="tool", cv=0)
     t = {
         "load_robot": (calib.load_robot, dict(urdf_path=BUNDLED_URDF)),
@@ -98,6 +99,8 @@ def table(tmp_path_factory):
         "read_touch": (calib.read_touch, dict(csv_path=d / "t.csv", robot=robot)),
         "write_touch": (calib.write_touch, dict(path=d / "t2.csv", data=touch, robot=robot)),
         "calibrate_touch": (calib.calibrate_touch, dict(robot=robot, data=touch, params="tool", cv=0)),
+        "export_calibration": (calib.export_calibration, dict(urdf_path=BUNDLED_URDF, format="mdh-csv", output=d / "e.csv")),
+        "read_mdh_csv": (calib.read_mdh_csv, dict(path=d / "mdh.csv")),
         # methods of the values the API returns
         "TouchData.subset": (touch.subset, dict(keep=np.ones(touch.n_rows, bool))),
         "TouchData.rows_of": (touch.rows_of, dict(k=0)),
