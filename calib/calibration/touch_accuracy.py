@@ -63,6 +63,9 @@ def predicted_tool_error(result: TouchResult, Q: np.ndarray, registration: str =
     nominal values (a gauge such as the scale of point-only data) add their own errors."""
     if registration not in REGISTRATIONS:
         raise ParameterError(f"registration must be one of {', '.join(REGISTRATIONS)}, got {registration!r}")
+    if registration == "none" and not result.n_measured:
+        raise ParameterError("registration 'none' needs a fit whose measured rows identified the meas frame; "
+                             "touch rows alone leave it nominal")
     robot = result.robot
     Q = check_configurations(Q, robot.n_joints)
     kin = ChainKinematics(robot)

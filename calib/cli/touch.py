@@ -68,10 +68,11 @@ def run_touch(args: argparse.Namespace) -> int:
     check_writable(robot)
     probe = (getattr(args, "probe_radius_mm", None) or 0.0) * 1e-3
     data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
-    sigma = None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3
+    noise = _noise_arguments(args, data)
     try:
-        result = calibrate_touch(robot, data, params=params, sigma=sigma, cv=getattr(args, "cv", 5),
-                                 outlier_k=getattr(args, "outlier_k", 5.0))
+        result = calibrate_touch(robot, data, params=params, cv=getattr(args, "cv", 5),
+                                 outlier_k=getattr(args, "outlier_k", 5.0),
+                                 nominal_scale=bool(getattr(args, "nominal_scale", False)), **noise)
     except CalibError as exc:       # about the data as a whole (a degenerate design): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
@@ -79,19 +80,24 @@ def run_touch(args: argparse.Namespace) -> int:
     if result.status == "implausible" and not getattr(args, "accept_implausible", False):
         return refuse_implausible(result.format(), result.message)   # nonsense is not written
     Q = robot.random_configurations(ACCURACY_CONFIGURATIONS, np.random.default_rng(0))
-    predicted = predicted_tool_error(result, Q)
+    registration = "similarity" if result.nominal_scale else "rigid"
+    predicted = predicted_tool_error(result, Q, registration)
+    absolute = predicted_tool_error(result, Q, "none") if result.n_measured else None
     estimated = ("flange->tool",) if any(n.startswith("v_") for n in result.free) else ()
     written = []
     outputs.stage_from_file(out_urdf, lambda p: written.append(write_calibrated_urdf(
         result.robot.geometry(), p, nominal=robot.geometry(), estimated=estimated)))
     text = "\n".join([result.format(), result.identifiability.format(), _parameter_table(robot, result),
                       f"predicted tool position error over the workspace ({ACCURACY_CONFIGURATIONS} random "
-                      f"configurations, relative to the nominal base frame, after a best-fit rigid "
-                      f"registration): {predicted * 1e3:.4f} mm RMS (noise only"
-                      + ("; no known length: the scale adds the longest link's error over its length)"
-                         if result.identifiability.scale_free else ")")])
+                      f"configurations, " + ("relative to the nominal base frame, " if not result.n_measured else "")
+                      + f"after a best-fit {registration} registration): {predicted * 1e3:.4f} mm RMS (noise only"
+                      + ("; the scale held nominal adds the longest link's error over its length)"
+                         if result.nominal_scale else ")")]
+                     + ([f"predicted tool position error in the meas frame (identified by the {result.n_measured} "
+                         f"measured rows, no registration): {absolute * 1e3:.4f} mm RMS (noise only)"]
+                        if absolute is not None else []))
     if out_report is not None:
-        outputs.stage(out_report, json_text(_report(result, predicted, args)))
+        outputs.stage(out_report, json_text(_report(result, predicted, args, registration, absolute)))
     outputs.commit()
     frames = written[0]
     sys.stdout.write(text + f"\n\nwrote {out_urdf}" + (f", {out_report}" if out_report else "")
@@ -112,7 +118,24 @@ def _parameter_table(robot, result) -> str:
     return "\n".join(lines)
 
 
-def _report(result, predicted: float, args) -> dict:
+def _noise_arguments(args, data) -> dict:
+    """calibrate_touch's noise levels from the flags: --sigma-touch-mm (or, in a file without
+    measured rows, --sigma-pos-mm) the touch rows', --sigma-pos-mm / --sigma-rot-rad the measured
+    rows'; a flag for a group the file does not have is refused."""
+    touch = getattr(args, "sigma_touch_mm", None)
+    pos, rot = args.sigma_pos_mm, getattr(args, "sigma_rot_rad", None)
+    if not data.n_measured:
+        if touch is not None and pos is not None:
+            raise ParameterError("--sigma-touch-mm and --sigma-pos-mm both give the touch noise of a file without "
+                                 "measured rows: give one")
+        touch, pos = (touch if touch is not None else pos), None
+    if rot is not None and (data.measured is None or data.measured.rotation is None):
+        raise ParameterError("--sigma-rot-rad weights measured orientations; this touch file has none")
+    mm = (lambda v: None if v is None else v * 1e-3)
+    return {"sigma": mm(touch), "sigma_pos": mm(pos), "sigma_rot": rot}
+
+
+def _report(result, predicted: float, args, registration: str = "rigid", absolute: float | None = None) -> dict:
     def scaled(name, v):
         return v if name.endswith(("_a", "_b")) else v * 1e3
 
@@ -139,7 +162,12 @@ def _report(result, predicted: float, args) -> dict:
         "held_nominal": [r.describe() for r in result.identifiability.unidentifiable],
         "outliers": [{"row": row, "residual_mm": e * 1e3} for row, e in result.outliers],
         "scale_free": result.identifiability.scale_free,
+        "nominal_scale": result.nominal_scale,
+        "measured_rows": result.n_measured,
+        "groups": [g.to_dict() for g in result.groups],
         "predicted_tool_error_mm": predicted * 1e3,
+        "predicted_tool_error_registration": registration,
+        "predicted_tool_error_meas_frame_mm": None if absolute is None else absolute * 1e3,
     }
 
 
