@@ -16,22 +16,11 @@ from calib.errors import ParameterError
 from calib.model.jacobian import pose_jacobian
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
+from calib.model.spatial import best_fit_motion
 
 #: "none": the tool positions as they are, in the meas frame (meaningful when measured rows
 #: identified the meas frame).
 REGISTRATIONS = ("rigid", "similarity", "none")
-
-
-def best_fit_motion(p: np.ndarray, p_ref: np.ndarray, registration: str = "rigid"):
-    """(R (3, 3), t (3,), scale) of the best-fit rigid motion (``"similarity"``: and scale) of
-    points p onto p_ref (both (N, 3) metres; Kabsch / Umeyama): ``scale R p + t ~ p_ref``."""
-    mp, mr = p.mean(axis=0), p_ref.mean(axis=0)
-    a, b = p - mp, p_ref - mr
-    U, s, Vt = np.linalg.svd(a.T @ b)
-    D = np.array([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = (U * D @ Vt).T
-    scale = float(s @ D / np.sum(a * a)) if registration == "similarity" else 1.0
-    return R, mr - scale * R @ mp, scale
 
 
 def registered_residuals(p: np.ndarray, p_ref: np.ndarray, registration: str = "rigid") -> np.ndarray:
