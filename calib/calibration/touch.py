@@ -29,7 +29,7 @@ import numpy as np
 
 from calib.calibration.fit import _implausible_length_notes
 from calib.calibration.options import VCE_MAX_ITERATIONS, VCE_RTOL
-from calib.calibration.touch_design import (MIN_ROWS, PARAM_CHOICES, SCALE_ADVICE, SIGMA_TOUCH_M,  # noqa: F401
+from calib.calibration.touch_design import (MEAS_FRAME_MIN_ROWS, MIN_ROWS, PARAM_CHOICES, SCALE_ADVICE, SIGMA_TOUCH_M,  # noqa: F401
                                             TouchIdentifiability, check_touch_design, consistent_rows,
                                             touch_identifiability)
 from calib.checks import check_choice, check_instance, check_int, check_number
@@ -177,8 +177,8 @@ class TouchResult:
                 f"row {row} ({e * 1e3:.3f} mm)" for row, e in self.outliers))
         if self.cv_rms is not None:
             lines.append(f"held-out residual RMS ({self.cv_folds}-fold cross-validation): {self.cv_rms * 1e3:.4f} mm"
-                         + "".join(f", measured {g.name}s {g.cv_rms * (1e3 if g.unit == 'm' else 1):.4f} "
-                                   f"{'mm' if g.unit == 'm' else 'rad'}" for g in self.groups
+                         + "".join(f", measured positions {g.cv_rms * 1e3:.4f} mm" if g.unit == "m" else
+                                   f", measured rotations {g.cv_rms:.3g} rad" for g in self.groups
                                    if g.name != "touch" and g.cv_rms is not None))
         for name, v, s in zip(self.feature_names, self.feature_values, self.feature_std):
             unit, f = ("rad", 1.0) if name[-2:] in ("_a", "_b") else ("mm", 1e3)
@@ -265,7 +265,8 @@ def calibrate_touch(robot: RobotModel, data: TouchData, *, params: str = "auto",
     result = _result(robot, data, given, ident, fitted, nominal_scale)
     if cv > 1:
         noise = {g.name: g.sigma for g in result.groups}
-        held = _cross_validate(robot, data, ident.robot_free, noise, cv, seed, options)
+        # (the folds start at the full fit's start: a fold's few measured rows may not place the meas frame)
+        held = _cross_validate(fitted.start_robot, data, ident.robot_free, noise, cv, seed, options)
         result = replace(result, cv_rms=held.get("touch"), cv_folds=cv,
                          groups=tuple(replace(g, cv_rms=held.get(g.name)) for g in result.groups))
     return replace(result, outliers=outliers)
@@ -436,16 +437,12 @@ def _fit(robot: RobotModel, data: TouchData, free: np.ndarray, given: dict, opti
     return _Fitted(robot, prob, start, sol, r0)
 
 
-#: Measured rows needed for the closed-form start of the meas frame (a rigid registration).
-MEAS_FRAME_MIN_ROWS = 3
-
-
 def _meas_frame_start(robot: RobotModel, data: TouchData) -> RobotModel:
     """``robot`` with its meas frame moved by the best-fit rigid motion of its tool positions at
     the measured rows onto the measured positions (the instrument stands anywhere: a fit started
     at the nominal meas frame would not converge), when there are MEAS_FRAME_MIN_ROWS or more
-    measured rows not on one line; else ``robot``. The reference transform moves, u keeps its
-    value, as the measured pipeline's closed-form start does."""
+    measured rows not on one line (:func:`check_touch_design`); else ``robot``. The reference
+    transform moves, u keeps its value, as the measured pipeline's closed-form start does."""
     m = data.measured
     if m is None or m.n_poses < MEAS_FRAME_MIN_ROWS:
         return robot

@@ -39,6 +39,9 @@ SIGMA_TOUCH_M = 0.02e-3
 #: feature and leave almost nothing to calibrate the robot).
 MIN_ROWS = {"point": 4, "plane": 4, "sphere": 4}
 PARAM_CHOICES = ("auto", "tool")
+#: Measured rows mixed with touch rows: at least this many, not on one line, to locate the
+#: instrument's frame (the fit starts it at their rigid registration).
+MEAS_FRAME_MIN_ROWS = 3
 #: What no length fixes the scale of, and what to add (the refusal and the identifiability output).
 SCALE_ADVICE = ("add a sphere of known radius (a ball bar), rows measured by an instrument, or calibrate "
                 "the tool only (params='tool'); or accept the nominal scale (nominal_scale=True, "
@@ -93,8 +96,16 @@ def check_touch_design(data: TouchData, params: str = "auto") -> None:
     useful: a feature with fewer rows than MIN_ROWS; planes alone whose normals (estimated from
     the rows' nominal tool points, given as ``data``'s feature order) are checked in
     :func:`touch_identifiability`; ``params="tool"`` without a point touched from 4 or more
-    configurations."""
+    configurations; measured rows (``data.measured``) fewer than MEAS_FRAME_MIN_ROWS or on one
+    line (they cannot locate the instrument's frame)."""
     check_instance(data, "data", TouchData, "a calib.model.touch.TouchData")
+    if data.n_measured:
+        m = data.measured
+        s = np.linalg.svd(m.position - m.position.mean(axis=0), compute_uv=False) if m.n_poses > 1 else [0.0, 0.0]
+        if m.n_poses < MEAS_FRAME_MIN_ROWS or s[1] <= 1e-6 * max(s[0], 1e-300):
+            raise DataError(f"the {m.n_poses} measured rows {'lie on one line and ' if m.n_poses >= MEAS_FRAME_MIN_ROWS else ''}"
+                            f"cannot locate the instrument's frame: give at least {MEAS_FRAME_MIN_ROWS} "
+                            f"measured rows not on one line, or none")
     for k, f in enumerate(data.features):
         n = len(data.rows_of(k))
         if n < MIN_ROWS[f.kind]:
@@ -175,7 +186,7 @@ def touch_identifiability(robot: RobotModel, data: TouchData, *, params: str = "
     relations = []
     for j in dropped:
         if no_effect(norms, j):
-            relations.append(Relation(names[j], (), "no effect on the touched tool points"))
+            relations.append(Relation(names[j], (), "no effect on the rows' tool points"))
             continue
         coef = np.linalg.lstsq(J[:, kept], J[:, j], rcond=None)[0]
         scale = norms[kept] / norms[j]

@@ -173,12 +173,13 @@ def _report(result, predicted: float, args, registration: str = "rigid", absolut
 
 # ---------------------------------------------------------------- simulate
 def parse_constraints(text: str):
-    """``point:N,plane:N,sphere:RADIUS_MM`` -> features (N point ids P1.., N planes A.. (faces of
-    one cube, perpendicular in threes), a sphere S1.. of each radius)."""
+    """``point:N,plane:N,sphere:RADIUS_MM,measured:N`` -> (features (N point ids P1.., N planes
+    A.. (faces of one cube, perpendicular in threes), a sphere S1.. of each radius), the number of
+    rows measured by an instrument)."""
     from calib.model.touch import Feature
 
     features = []
-    counts = {"point": 0, "plane": 0, "sphere": 0}
+    counts = {"point": 0, "plane": 0, "sphere": 0, "measured": 0}
     for part in str(text).split(","):
         kind, sep, value = part.strip().partition(":")
         kind = kind.strip().lower()
@@ -187,8 +188,11 @@ def parse_constraints(text: str):
         except ValueError:
             number = float("nan")
         if not sep or kind not in counts or not number > 0 or (kind != "sphere" and number != int(number)):
-            raise ParameterError(f"--constraint: {part.strip()!r} is not point:N, plane:N or sphere:RADIUS_MM "
-                                 f"(N a positive count, RADIUS_MM a positive radius in mm)")
+            raise ParameterError(f"--constraint: {part.strip()!r} is not point:N, plane:N, sphere:RADIUS_MM "
+                                 f"or measured:N (N a positive count, RADIUS_MM a positive radius in mm)")
+        if kind == "measured":
+            counts["measured"] += int(number)
+            continue
         if kind == "sphere":
             counts["sphere"] += 1
             features.append(Feature("sphere", f"S{counts['sphere']}", radius=number * 1e-3))
@@ -198,22 +202,39 @@ def parse_constraints(text: str):
             k = counts[kind]
             fid = f"P{k}" if kind == "point" else (chr(ord("A") + k - 1) if k <= 26 else f"F{k}")
             features.append(Feature(kind, fid))
-    return features
+    if not features:
+        raise ParameterError(f"--constraint {text!r}: name a point, plane or sphere touched (measured:N "
+                             f"rows only mix with touch rows)")
+    return features, counts["measured"]
 
 
 def simulate_touch_file(args, robot, true_robot, rng, outputs, out_csv, described: str, out_truth=None) -> str:
     """``calib simulate --constraint``: stage the touch file of ``true_robot`` (``args.poses`` rows
     per feature) in ``outputs``; returns the lines to print."""
+    from dataclasses import replace
+
     from calib.io.touch_file import write_touch
+    from calib.model.simulate import simulate_measurements
     from calib.model.touch_simulate import simulate_touch
 
-    features = parse_constraints(args.constraint)
+    features, n_measured = parse_constraints(args.constraint)
     sim = simulate_touch(true_robot, features, [args.poses] * len(features),
                          sigma=args.sigma_pos_mm * 1e-3, rng=rng)
+    data = sim.data
+    measured_text = ""
+    if n_measured:
+        meas = simulate_measurements(true_robot, robot.random_configurations(n_measured, rng),
+                                     sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,
+                                     position_only=args.position_only, rng=rng)
+        data = replace(data, measured=meas)
+        measured_text = (f" and {n_measured} rows measured by an instrument ("
+                         + ("positions" if args.position_only else f"poses, orientation noise {args.sigma_rot_rad:g} rad")
+                         + f", noise {args.sigma_pos_mm:g} mm per axis)")
     comment = (f"Simulated by: {command_line(args)}\nTrue model: {args.robot} with deviations from "
-               f"{described}; touch noise {args.sigma_pos_mm:g} mm per axis; {args.poses} rows per feature")
-    outputs.stage_from_file(out_csv, lambda p: write_touch(p, sim.data, robot, comment=comment))
-    lines = [f"Simulated {sim.data.n_rows} touch rows of {args.robot} -> {out_csv}",
+               f"{described}; touch noise {args.sigma_pos_mm:g} mm per axis; {args.poses} rows per feature"
+               + measured_text)
+    outputs.stage_from_file(out_csv, lambda p: write_touch(p, data, robot, comment=comment))
+    lines = [f"Simulated {sim.data.n_rows} touch rows{measured_text} of {args.robot} -> {out_csv}",
              f"  {len(features)} features ({', '.join(f'{f.kind} {f.id}' for f in features)}), {args.poses} rows "
              f"each, reached by the true model within the joint limits; seed {args.seed}; touch noise "
              f"{args.sigma_pos_mm:g} mm per axis", f"  true model: deviations from {described}"

@@ -327,3 +327,9 @@ def replace_measured_positions(m, position):
     from dataclasses import replace
 
     return replace(m, position=position)
+
+
+def test_too_few_measured_rows_to_locate_the_instrument_are_refused(tmp_path):
+    robot, _, _, data, _ = _mixed_case("ur10", 2, tmp_path)
+    with pytest.raises(DataError, match="the 2 measured rows cannot locate the instrument's frame: give at least 3"):
+        calibrate_touch(robot, data.measured_subset([0, 1]), cv=0)

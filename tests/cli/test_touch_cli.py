@@ -171,3 +171,16 @@ def test_points_alone_refused_for_the_full_model_unless_the_nominal_scale_is_acc
                          "-o", tmp_path / "cal.urdf", "--nominal-scale", "--cv", 0)
     assert code == 0, err
     assert "after a best-fit similarity registration" in out and "the scale held nominal" in out
+
+
+def test_simulate_measured_rows_into_a_touch_file(urdf, tmp_path, capsys):
+    from calib.io.touch_file import read_touch
+
+    code, out, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "m.csv",
+                         "--constraint", "point:2,measured:7", "--poses", 5, "--seed", 2, "--position-only")
+    assert code == 0, err
+    assert "10 touch rows and 7 rows measured by an instrument (positions" in out
+    data = read_touch(tmp_path / "m.csv", calib.load_robot(urdf, tool_frame="tool0"))
+    assert (data.n_rows, data.n_measured) == (10, 7) and data.measured.rotation is None
+    code, _, err = run(capsys, "simulate", urdf, "-o", tmp_path / "x.csv", "--constraint", "measured:5")
+    assert code == 2 and "name a point, plane or sphere touched" in err and not (tmp_path / "x.csv").exists()
