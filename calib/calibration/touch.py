@@ -120,6 +120,7 @@ class TouchResult:
     rotation); n_measured : the measured rows used (their outliers, as the touch rows', in
     ``outliers`` by line number). nominal_scale : the scale was left undetermined (no known
     length) and held at the nominal on request.
+    notes : one-line remarks (the meas frame's closed-form start).
     rms_before, rms_after, sigma, sigma_given, sigma_estimated are those of the touch group.
     """
 
@@ -149,6 +150,7 @@ class TouchResult:
     groups: tuple[GroupFit, ...] = ()
     n_measured: int = 0
     nominal_scale: bool = False
+    notes: tuple[str, ...] = ()
 
     @property
     def success(self) -> bool:
@@ -172,6 +174,7 @@ class TouchResult:
         if self.nominal_scale:
             lines.append("no known length: the scale is held at the nominal (nominal_scale); the model "
                          "is right up to scale")
+        lines += list(self.notes)
         if self.outliers:
             lines.append(f"dropped {len(self.outliers)} outlier row(s): " + ", ".join(
                 f"row {row} ({e * 1e3:.3f} mm)" for row, e in self.outliers))
@@ -365,7 +368,21 @@ def _result(robot, data, given, ident, fitted: _Fitted, nominal_scale: bool) -> 
         sigma=touch.sigma, sigma_given=touch.given, sigma_estimated=touch.estimated, std=std_all[:mr],
         covariance=cov, solver=sol, n_rows=data.n_rows, n_residuals=len(r), status=status,
         message=message, groups=groups, n_measured=data.n_measured, nominal_scale=bool(ident.scale_free
-                                                                                      and nominal_scale))
+                                                                                      and nominal_scale),
+        notes=_frame_note(robot, fitted.start_robot))
+
+
+def _frame_note(robot: RobotModel, start: RobotModel) -> tuple[str, ...]:
+    """The note of a meas frame started at the measured rows' registration (its u are then
+    relative to that start), or ()."""
+    from calib.model.spatial import inverse, log3_batch
+
+    dT = inverse(robot.T_meas_base_ref) @ start.T_meas_base_ref
+    if np.array_equal(dT, np.eye(4)):
+        return ()
+    return (f"measurement->base initialised by a rigid registration onto the measured rows: "
+            f"{np.linalg.norm(dT[:3, 3]) * 1e3:.1f} mm and {np.linalg.norm(log3_batch(dT[None, :3, :3])[0]):.3g} rad "
+            f"from the nominal transform (u are relative to it)",)
 
 
 def _second_pass(robot, data, params, given, options, ident, fitted: _Fitted):

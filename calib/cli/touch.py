@@ -164,6 +164,7 @@ def _report(result, predicted: float, args, registration: str = "rigid", absolut
         "scale_free": result.identifiability.scale_free,
         "nominal_scale": result.nominal_scale,
         "measured_rows": result.n_measured,
+        "notes": list(result.notes),
         "groups": [g.to_dict() for g in result.groups],
         "predicted_tool_error_mm": predicted * 1e3,
         "predicted_tool_error_registration": registration,

@@ -405,6 +405,13 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
         group = ORIENTATIONS[header.orientation][0]
         given = np.column_stack([values[k] for k in group])
         full = np.isfinite(given).all(axis=1)
+        part = np.flatnonzero(~full & np.isfinite(given).any(axis=1))
+        if len(part):       # (sparse_pose: an orientation is given whole or not at all)
+            k = int(part[0])
+            empty = cols[group[int(np.argmin(np.isfinite(given[k])))]].name
+            raise MeasurementFormatError(path, f"empty value: an orientation gives all of "
+                                               f"{', '.join(cols[c].name for c in group)} or none",
+                                         row=int(rows[k]), column=empty)
         if full.all():
             rotation = _rotation(path, header, given, rows, options.euler)
         else:       # (sparse_pose: the rows without an orientation stay NaN)

@@ -300,6 +300,10 @@ def test_touch_rows_mixed_with_measured_rows_recover_the_truth(name, tmp_path):
     assert registered_error(res.robot, true, Qt) < 0.8 * registered_error(touch_only.robot, true, Qt)
     text = res.format()
     assert "20 touch rows and 15 measured rows" in text and "measured positions (15 rows, 45 components)" in text
+    # the instrument's frame started at the registration, 1.6 m from the nominal meas frame
+    assert len(res.notes) == 1 and "measurement->base initialised by a rigid registration" in res.notes[0]
+    moved = float(res.notes[0].split("rows: ")[1].split(" mm")[0])
+    assert abs(moved - 1.6e3) < 0.1e3, res.notes
 
 
 def replace_measured(data, measured):

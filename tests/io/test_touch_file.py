@@ -77,6 +77,7 @@ def test_round_trip_with_measured_rows(ur10, tmp_path):
     ("x_mm,y_mm,z_mm,point", "1,,3,", 2, "y_mm", "a measured row gives all of x_mm, y_mm, z_mm"),
     ("x_mm,y_mm,z_mm,qw,qx,qy,qz,point", "1,2,3,,,,,", 2, "qw", "a measured row gives all of x_mm"),
     ("x_mm,y_mm,z_mm,point", ",,,", 2, None, "none of point, plane, sphere or a measured x, y, z"),
+    ("x_mm,y_mm,z_mm,qw,qx,qy,qz,point", ",,,1,,,,P", 2, "qx", "an orientation gives all of qw, qx, qy, qz or none"),
     ("x_mm,y_mm,z_mm,sphere,radius_mm", "1,2,3,,5", 2, "radius_mm", "only sphere rows take a radius"),
     ("x_mm,y_mm,z_mm,point", "1,2,3,", 1, None, "every row is measured"),
     ("x_m,y_m,z_m,point", "1,x,3,", 2, "y_m", "'x' is not a number"),
