@@ -16,22 +16,22 @@ from calib.errors import ParameterError
 from calib.model.jacobian import pose_jacobian
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
+from calib.model.spatial import best_fit_motion
 
-REGISTRATIONS = ("rigid", "similarity")
+#: "none": the tool positions as they are, in the meas frame (meaningful when measured rows
+#: identified the meas frame).
+REGISTRATIONS = ("rigid", "similarity", "none")
 
 
 def registered_residuals(p: np.ndarray, p_ref: np.ndarray, registration: str = "rigid") -> np.ndarray:
     """(N, 3) what is left of p - p_ref (both (N, 3) metres) after the best-fit rigid motion
-    (``"similarity"``: and scale) of p onto p_ref (Kabsch / Umeyama)."""
+    (``"similarity"``: and scale; ``"none"``: nothing) of p onto p_ref (Kabsch / Umeyama)."""
     if registration not in REGISTRATIONS:
         raise ParameterError(f"registration must be one of {', '.join(REGISTRATIONS)}, got {registration!r}")
-    mp, mr = p.mean(axis=0), p_ref.mean(axis=0)
-    a, b = p - mp, p_ref - mr
-    U, s, Vt = np.linalg.svd(a.T @ b)
-    D = np.array([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = (U * D @ Vt).T
-    scale = float(s @ D / np.sum(a * a)) if registration == "similarity" else 1.0
-    return scale * a @ R.T + mr - p_ref
+    if registration == "none":
+        return p - p_ref
+    R, t, scale = best_fit_motion(p, p_ref, registration)
+    return scale * p @ R.T + t - p_ref
 
 
 def registered_error(model: RobotModel, truth: RobotModel, Q: np.ndarray, registration: str = "rigid") -> float:
@@ -43,14 +43,18 @@ def registered_error(model: RobotModel, truth: RobotModel, Q: np.ndarray, regist
 
 
 def predicted_tool_error(result: TouchResult, Q: np.ndarray, registration: str = "rigid") -> float:
-    """The Cramer-Rao prediction (at the noise ``result.sigma``) of the RMS error of the
-    calibrated tool positions at Q (N, n) after a best-fit rigid (or similarity) registration:
+    """The Cramer-Rao prediction (at the noise levels of ``result``) of the RMS error of the
+    calibrated tool positions at Q (N, n) after a best-fit rigid (or similarity) registration
+    (``"none"``: in the meas frame, for a fit whose measured rows identified it):
     sqrt(trace(P Jt C Jt^T P) / N), Jt the tool positions' Jacobian in the fitted robot
     parameters (3 N, m), C their covariance, P the projection off the rigid motions (and the
     scaling) of the N points, linearised. It covers the noise only: the parameters held at their
     nominal values (a gauge such as the scale of point-only data) add their own errors."""
     if registration not in REGISTRATIONS:
         raise ParameterError(f"registration must be one of {', '.join(REGISTRATIONS)}, got {registration!r}")
+    if registration == "none" and not result.n_measured:
+        raise ParameterError("registration 'none' needs a fit whose measured rows identified the meas frame; "
+                             "touch rows alone leave it nominal")
     robot = result.robot
     Q = check_configurations(Q, robot.n_joints)
     kin = ChainKinematics(robot)
@@ -65,7 +69,10 @@ def predicted_tool_error(result: TouchResult, Q: np.ndarray, registration: str =
     G[:, 1, 3], G[:, 1, 5] = -c[:, 2], c[:, 0]
     G[:, 2, 3], G[:, 2, 4] = c[:, 1], -c[:, 0]
     G[:, :, 6] = c                                     # a scaling about the centroid
-    Qg = np.linalg.qr(G[:, :, :7 if registration == "similarity" else 6].reshape(3 * N, -1))[0]
-    PJ = Jt - Qg @ (Qg.T @ Jt)
+    if registration == "none":
+        PJ = Jt
+    else:
+        Qg = np.linalg.qr(G[:, :, :7 if registration == "similarity" else 6].reshape(3 * N, -1))[0]
+        PJ = Jt - Qg @ (Qg.T @ Jt)
     C = result.covariance[:len(free), :len(free)]
     return float(np.sqrt(np.einsum("ij,jk,ik->", PJ, C, PJ) / N))

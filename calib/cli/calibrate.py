@@ -129,6 +129,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--probe-radius-mm", type=positive, default=None, metavar="R",
                    help="touch files (rows naming point, plane or sphere, README.md): the ball tip's "
                         "radius for plane rows")
+    p.add_argument("--sigma-touch-mm", type=positive, default=None, metavar="S",
+                   help="touch files: the touch noise per residual component, mm (default: estimated; "
+                        "in a file without measured rows --sigma-pos-mm gives it too)")
+    p.add_argument("--nominal-scale", action="store_true",
+                   help="touch files with no known length (points and planes, no sphere, no measured "
+                        "row): hold the robot's scale at the nominal instead of refusing the full model "
+                        "(the accuracy then holds up to scale)")
     add_file_format(p, tracker=True)
     add_frames(p)
     g = add_compliance(p, "calibrate")
@@ -156,8 +163,10 @@ def run(args: argparse.Namespace) -> int:
 
     if is_touch_input(args):        # rows naming the point, plane or sphere touched (issue 24)
         return run_touch(args)
-    if args.probe_radius_mm is not None:
-        raise ParameterError("--probe-radius-mm applies to touch files (rows naming point, plane or sphere)")
+    for flag, value in (("--probe-radius-mm", args.probe_radius_mm), ("--sigma-touch-mm", args.sigma_touch_mm),
+                        ("--nominal-scale", args.nominal_scale or None)):
+        if value is not None:
+            raise ParameterError(f"{flag} applies to touch files (rows naming point, plane or sphere)")
     outputs = Outputs([robot_path(args.robot), args.measurements, args.validate, args.tracker])
     out_urdf = outputs.add(args.output)
     out_report = outputs.add(args.report) if args.report else None

@@ -72,11 +72,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "by q + a sin(q + phi), a in [A/2, A] rad, random phase (default 0)")
     p.add_argument("--position-only", action="store_true",
                    help="write positions only (no orientation columns)")
-    p.add_argument("--constraint", default=None, metavar="point:N,plane:N,sphere:RADIUS_MM",
+    p.add_argument("--constraint", default=None, metavar="point:N,plane:N,sphere:RADIUS_MM,measured:N",
                    help="write a touch file instead (README.md): N point ids, N planes (faces of a "
                         "cube, perpendicular in threes), a sphere of each radius; --poses rows per "
                         "feature, reached by the true model within the joint limits, --sigma-pos-mm "
-                        "the touch noise per axis")
+                        "the touch noise per axis; measured:N adds N rows measured by an instrument "
+                        "(random configurations, noise --sigma-pos-mm / --sigma-rot-rad, --position-only)")
     p.add_argument("--truth-urdf", metavar="TRUE.urdf", default=None,
                    help="also write the true model as a URDF (a copy of ROBOT.urdf with its joint "
                         "origins changed)")

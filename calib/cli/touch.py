@@ -68,10 +68,11 @@ def run_touch(args: argparse.Namespace) -> int:
     check_writable(robot)
     probe = (getattr(args, "probe_radius_mm", None) or 0.0) * 1e-3
     data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
-    sigma = None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3
+    noise = _noise_arguments(args, data)
     try:
-        result = calibrate_touch(robot, data, params=params, sigma=sigma, cv=getattr(args, "cv", 5),
-                                 outlier_k=getattr(args, "outlier_k", 5.0))
+        result = calibrate_touch(robot, data, params=params, cv=getattr(args, "cv", 5),
+                                 outlier_k=getattr(args, "outlier_k", 5.0),
+                                 nominal_scale=bool(getattr(args, "nominal_scale", False)), **noise)
     except CalibError as exc:       # about the data as a whole (a degenerate design): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
@@ -79,19 +80,24 @@ def run_touch(args: argparse.Namespace) -> int:
     if result.status == "implausible" and not getattr(args, "accept_implausible", False):
         return refuse_implausible(result.format(), result.message)   # nonsense is not written
     Q = robot.random_configurations(ACCURACY_CONFIGURATIONS, np.random.default_rng(0))
-    predicted = predicted_tool_error(result, Q)
+    registration = "similarity" if result.nominal_scale else "rigid"
+    predicted = predicted_tool_error(result, Q, registration)
+    absolute = predicted_tool_error(result, Q, "none") if result.n_measured else None
     estimated = ("flange->tool",) if any(n.startswith("v_") for n in result.free) else ()
     written = []
     outputs.stage_from_file(out_urdf, lambda p: written.append(write_calibrated_urdf(
         result.robot.geometry(), p, nominal=robot.geometry(), estimated=estimated)))
     text = "\n".join([result.format(), result.identifiability.format(), _parameter_table(robot, result),
                       f"predicted tool position error over the workspace ({ACCURACY_CONFIGURATIONS} random "
-                      f"configurations, relative to the nominal base frame, after a best-fit rigid "
-                      f"registration): {predicted * 1e3:.4f} mm RMS (noise only"
-                      + ("; no known length: the scale adds the longest link's error over its length)"
-                         if result.identifiability.scale_free else ")")])
+                      f"configurations, " + ("relative to the nominal base frame, " if not result.n_measured else "")
+                      + f"after a best-fit {registration} registration): {predicted * 1e3:.4f} mm RMS (noise only"
+                      + ("; the scale held nominal adds the longest link's error over its length)"
+                         if result.nominal_scale else ")")]
+                     + ([f"predicted tool position error in the meas frame (identified by the {result.n_measured} "
+                         f"measured rows, no registration): {absolute * 1e3:.4f} mm RMS (noise only)"]
+                        if absolute is not None else []))
     if out_report is not None:
-        outputs.stage(out_report, json_text(_report(result, predicted, args)))
+        outputs.stage(out_report, json_text(_report(result, predicted, args, registration, absolute)))
     outputs.commit()
     frames = written[0]
     sys.stdout.write(text + f"\n\nwrote {out_urdf}" + (f", {out_report}" if out_report else "")
@@ -112,7 +118,24 @@ def _parameter_table(robot, result) -> str:
     return "\n".join(lines)
 
 
-def _report(result, predicted: float, args) -> dict:
+def _noise_arguments(args, data) -> dict:
+    """calibrate_touch's noise levels from the flags: --sigma-touch-mm (or, in a file without
+    measured rows, --sigma-pos-mm) the touch rows', --sigma-pos-mm / --sigma-rot-rad the measured
+    rows'; a flag for a group the file does not have is refused."""
+    touch = getattr(args, "sigma_touch_mm", None)
+    pos, rot = args.sigma_pos_mm, getattr(args, "sigma_rot_rad", None)
+    if not data.n_measured:
+        if touch is not None and pos is not None:
+            raise ParameterError("--sigma-touch-mm and --sigma-pos-mm both give the touch noise of a file without "
+                                 "measured rows: give one")
+        touch, pos = (touch if touch is not None else pos), None
+    if rot is not None and (data.measured is None or data.measured.rotation is None):
+        raise ParameterError("--sigma-rot-rad weights measured orientations; this touch file has none")
+    mm = (lambda v: None if v is None else v * 1e-3)
+    return {"sigma": mm(touch), "sigma_pos": mm(pos), "sigma_rot": rot}
+
+
+def _report(result, predicted: float, args, registration: str = "rigid", absolute: float | None = None) -> dict:
     def scaled(name, v):
         return v if name.endswith(("_a", "_b")) else v * 1e3
 
@@ -139,18 +162,25 @@ def _report(result, predicted: float, args) -> dict:
         "held_nominal": [r.describe() for r in result.identifiability.unidentifiable],
         "outliers": [{"row": row, "residual_mm": e * 1e3} for row, e in result.outliers],
         "scale_free": result.identifiability.scale_free,
+        "nominal_scale": result.nominal_scale,
+        "measured_rows": result.n_measured,
+        "notes": list(result.notes),
+        "groups": [g.to_dict() for g in result.groups],
         "predicted_tool_error_mm": predicted * 1e3,
+        "predicted_tool_error_registration": registration,
+        "predicted_tool_error_meas_frame_mm": None if absolute is None else absolute * 1e3,
     }
 
 
 # ---------------------------------------------------------------- simulate
 def parse_constraints(text: str):
-    """``point:N,plane:N,sphere:RADIUS_MM`` -> features (N point ids P1.., N planes A.. (faces of
-    one cube, perpendicular in threes), a sphere S1.. of each radius)."""
+    """``point:N,plane:N,sphere:RADIUS_MM,measured:N`` -> (features (N point ids P1.., N planes
+    A.. (faces of one cube, perpendicular in threes), a sphere S1.. of each radius), the number of
+    rows measured by an instrument)."""
     from calib.model.touch import Feature
 
     features = []
-    counts = {"point": 0, "plane": 0, "sphere": 0}
+    counts = {"point": 0, "plane": 0, "sphere": 0, "measured": 0}
     for part in str(text).split(","):
         kind, sep, value = part.strip().partition(":")
         kind = kind.strip().lower()
@@ -159,8 +189,11 @@ def parse_constraints(text: str):
         except ValueError:
             number = float("nan")
         if not sep or kind not in counts or not number > 0 or (kind != "sphere" and number != int(number)):
-            raise ParameterError(f"--constraint: {part.strip()!r} is not point:N, plane:N or sphere:RADIUS_MM "
-                                 f"(N a positive count, RADIUS_MM a positive radius in mm)")
+            raise ParameterError(f"--constraint: {part.strip()!r} is not point:N, plane:N, sphere:RADIUS_MM "
+                                 f"or measured:N (N a positive count, RADIUS_MM a positive radius in mm)")
+        if kind == "measured":
+            counts["measured"] += int(number)
+            continue
         if kind == "sphere":
             counts["sphere"] += 1
             features.append(Feature("sphere", f"S{counts['sphere']}", radius=number * 1e-3))
@@ -170,22 +203,39 @@ def parse_constraints(text: str):
             k = counts[kind]
             fid = f"P{k}" if kind == "point" else (chr(ord("A") + k - 1) if k <= 26 else f"F{k}")
             features.append(Feature(kind, fid))
-    return features
+    if not features:
+        raise ParameterError(f"--constraint {text!r}: name a point, plane or sphere touched (measured:N "
+                             f"rows only mix with touch rows)")
+    return features, counts["measured"]
 
 
 def simulate_touch_file(args, robot, true_robot, rng, outputs, out_csv, described: str, out_truth=None) -> str:
     """``calib simulate --constraint``: stage the touch file of ``true_robot`` (``args.poses`` rows
     per feature) in ``outputs``; returns the lines to print."""
+    from dataclasses import replace
+
     from calib.io.touch_file import write_touch
+    from calib.model.simulate import simulate_measurements
     from calib.model.touch_simulate import simulate_touch
 
-    features = parse_constraints(args.constraint)
+    features, n_measured = parse_constraints(args.constraint)
     sim = simulate_touch(true_robot, features, [args.poses] * len(features),
                          sigma=args.sigma_pos_mm * 1e-3, rng=rng)
+    data = sim.data
+    measured_text = ""
+    if n_measured:
+        meas = simulate_measurements(true_robot, robot.random_configurations(n_measured, rng),
+                                     sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,
+                                     position_only=args.position_only, rng=rng)
+        data = replace(data, measured=meas)
+        measured_text = (f" and {n_measured} rows measured by an instrument ("
+                         + ("positions" if args.position_only else f"poses, orientation noise {args.sigma_rot_rad:g} rad")
+                         + f", noise {args.sigma_pos_mm:g} mm per axis)")
     comment = (f"Simulated by: {command_line(args)}\nTrue model: {args.robot} with deviations from "
-               f"{described}; touch noise {args.sigma_pos_mm:g} mm per axis; {args.poses} rows per feature")
-    outputs.stage_from_file(out_csv, lambda p: write_touch(p, sim.data, robot, comment=comment))
-    lines = [f"Simulated {sim.data.n_rows} touch rows of {args.robot} -> {out_csv}",
+               f"{described}; touch noise {args.sigma_pos_mm:g} mm per axis; {args.poses} rows per feature"
+               + measured_text)
+    outputs.stage_from_file(out_csv, lambda p: write_touch(p, data, robot, comment=comment))
+    lines = [f"Simulated {sim.data.n_rows} touch rows{measured_text} of {args.robot} -> {out_csv}",
              f"  {len(features)} features ({', '.join(f'{f.kind} {f.id}' for f in features)}), {args.poses} rows "
              f"each, reached by the true model within the joint limits; seed {args.seed}; touch noise "
              f"{args.sigma_pos_mm:g} mm per axis", f"  true model: deviations from {described}"

@@ -135,6 +135,8 @@ class Spec:
         be empty (NaN).
     sparse : the labels whose cells may be empty ("", touch files' ``point``, ``plane``,
         ``sphere``: one of them per row).
+    sparse_pose : the position and orientation cells may be empty (NaN; touch files: a row
+        measured by an instrument, or one naming the feature touched).
     """
 
     kind: str
@@ -145,6 +147,7 @@ class Spec:
     keyed: bool = False
     lengths: tuple[str, ...] = ()
     sparse: tuple[str, ...] = ()
+    sparse_pose: bool = False
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,7 +155,8 @@ class Table:
     """A file read by :func:`read_table`, SI units, one entry per data row.
 
     rows : (N,) int, line numbers. q : (N, n) rad / m in chain order, or None.
-    position : (N, 3) metres, or None. rotation : (N, 3, 3), or None.
+    position : (N, 3) metres, or None. rotation : (N, 3, 3), or None (with
+    ``Spec.sparse_pose``: NaN in the rows whose cells are empty).
     orientation : "none" or a key of :data:`ORIENTATIONS`.
     labels : label name (``set``, ``target``, the key) -> N stripped strings.
     lengths : length column name (``radius``) -> (N,) metres, NaN where the cell is empty.
@@ -369,7 +373,8 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
             raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
                                                f"{ncols} (one per header column)", row=row)
         for key, c in numeric.items():
-            if key in spec.lengths and not fields[c.index].strip():
+            if (key in spec.lengths or (spec.sparse_pose and not isinstance(key, int))) \
+                    and not fields[c.index].strip():
                 values[key][k] = np.nan
                 continue
             values[key][k] = parse_number(path, row, c.name, fields[c.index], decimal_comma) * c.scale
@@ -398,8 +403,21 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     rotation = None
     if header.orientation != "none":
         group = ORIENTATIONS[header.orientation][0]
-        rotation = _rotation(path, header, np.column_stack([values[k] for k in group]), rows,
-                             options.euler)
+        given = np.column_stack([values[k] for k in group])
+        full = np.isfinite(given).all(axis=1)
+        part = np.flatnonzero(~full & np.isfinite(given).any(axis=1))
+        if len(part):       # (sparse_pose: an orientation is given whole or not at all)
+            k = int(part[0])
+            empty = cols[group[int(np.argmin(np.isfinite(given[k])))]].name
+            raise MeasurementFormatError(path, f"empty value: an orientation gives all of "
+                                               f"{', '.join(cols[c].name for c in group)} or none",
+                                         row=int(rows[k]), column=empty)
+        if full.all():
+            rotation = _rotation(path, header, given, rows, options.euler)
+        else:       # (sparse_pose: the rows without an orientation stay NaN)
+            rotation = np.full((N, 3, 3), np.nan)
+            if full.any():
+                rotation[full] = _rotation(path, header, given[full], rows[full], options.euler)
     if header.ignored:
         notes.insert(0, f"{path}: ignored columns (not calib's): {', '.join(header.ignored)}")
     for arr in (q, position, rotation, rows):

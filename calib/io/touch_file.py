@@ -20,8 +20,10 @@ Joint columns as in measurement files (:mod:`calib.io.specs`). Example::
     ...
     5.0,-60.0,70.0,-100.0,-80.0,0.0,,,S,100
 
-Rows measured by an instrument (``x, y, z``) are not mixed with touch rows in one file (yet):
-such a file is refused, naming the column.
+Rows measured by an instrument may be mixed in: a row with ``x, y, z`` (units as in measurement
+files; optionally an orientation, every measured row then giving it) and no feature is a
+measured pose of the tool frame in the meas frame (:attr:`calib.model.touch.TouchData.measured`).
+A row that names a feature and gives a measured pose is refused, naming the column.
 """
 from __future__ import annotations
 
@@ -36,8 +38,8 @@ from calib.model.touch import FEATURE_KINDS, Feature, TouchData
 
 __all__ = ["TOUCH", "is_touch_file", "read_touch", "write_touch"]
 
-TOUCH = Spec("touch", joints="required", position="optional", labels=FEATURE_KINDS,
-             lengths=("radius",), sparse=FEATURE_KINDS)
+TOUCH = Spec("touch", joints="required", position="optional", orientation=True, labels=FEATURE_KINDS,
+             lengths=("radius",), sparse=FEATURE_KINDS, sparse_pose=True)
 #: Spheres of one id: radii equal to this (metres) are the same.
 RADIUS_TOL = 1e-9
 
@@ -63,10 +65,6 @@ def read_touch(csv_path: str | Path, robot, *, probe_radius: float = 0.0,
     path = check_path(csv_path, "csv_path")
     check_number(probe_radius, "probe_radius (m)", minimum=0.0, maximum=1.0)
     t = read_table(path, TOUCH, robot, options)
-    if t.position is not None:
-        raise MeasurementFormatError(path, "measured positions (x, y, z) and touch rows (point, plane, "
-                                           "sphere) in one file are not supported: give them in two files",
-                                     row=t.header_row, column=t.names["x"])
     kinds = [k for k in FEATURE_KINDS if k in t.labels]
     if not kinds:
         raise MeasurementFormatError(path, "a touch file names the feature each row touched: give a "
@@ -78,13 +76,37 @@ def read_touch(csv_path: str | Path, robot, *, probe_radius: float = 0.0,
     features: dict[tuple[str, str], int] = {}
     radii: dict[tuple[str, str], tuple[float, int]] = {}
     feature = np.empty(len(t.rows), int)
+    pose_cols = _pose_columns(t)
+    present = (np.column_stack([np.isfinite(t.position)] + ([] if t.rotation is None else
+                                                             [np.isfinite(t.rotation).all(axis=(1, 2))]))
+               if t.position is not None else np.zeros((len(t.rows), 0), bool))
+    measured = np.zeros(len(t.rows), bool)
     for k, row in enumerate(t.rows):
         given = [kind for kind in kinds if t.labels[kind][k]]
-        if len(given) != 1:
-            what = "none of" if not given else f"{' and '.join(given)}: more than one of"
-            raise MeasurementFormatError(path, f"{what} point, plane, sphere: a row names exactly one "
-                                               f"feature touched", row=int(row),
-                                         column=t.names[given[1]] if len(given) > 1 else None)
+        if len(given) > 1:
+            raise MeasurementFormatError(path, f"{' and '.join(given)}: more than one of point, plane, "
+                                               f"sphere: a row names exactly one feature touched",
+                                         row=int(row), column=t.names[given[1]])
+        if present.shape[1] and present[k].any():
+            if given:
+                raise MeasurementFormatError(path, f"a row touching {given[0]} {t.labels[given[0]][k]!r} "
+                                                   f"takes no measured pose: a row is either touched "
+                                                   f"(point, plane, sphere) or measured (x, y, z)",
+                                             row=int(row), column=pose_cols[int(np.argmax(present[k]))])
+            if not present[k].all():
+                lack = pose_cols[int(np.argmin(present[k]))]
+                raise MeasurementFormatError(path, f"empty value: a measured row gives all of "
+                                                   f"{', '.join(pose_cols)}", row=int(row), column=lack)
+            if radius is not None and np.isfinite(radius[k]):
+                raise MeasurementFormatError(path, "only sphere rows take a radius; this row is measured "
+                                                   "(x, y, z)", row=int(row), column=t.names["radius"])
+            measured[k] = True
+            continue
+        if not given:
+            what = "point, plane, sphere" + (" or a measured x, y, z" if t.position is not None else "")
+            raise MeasurementFormatError(path, f"none of {what}: a row names exactly one feature touched"
+                                               + (" or is measured" if t.position is not None else ""),
+                                         row=int(row))
         kind = given[0]
         key = (kind, t.labels[kind][k])
         r = np.nan if radius is None else float(radius[k])
@@ -102,10 +124,38 @@ def read_touch(csv_path: str | Path, robot, *, probe_radius: float = 0.0,
             raise MeasurementFormatError(path, f"only sphere rows take a radius; this row touches {kind} "
                                                f"{key[1]!r}", row=int(row), column=t.names["radius"])
         feature[k] = features.setdefault(key, len(features))
+    if not features:
+        raise MeasurementFormatError(path, "every row is measured (x, y, z): a touch file names the feature "
+                                           "each touch row touched; without touch rows drop the columns "
+                                           f"{', '.join(t.names[k] for k in kinds)}", row=t.header_row)
+    meas = None
+    if measured.any():
+        from calib.model.measurements import Measurements
+
+        meas = Measurements(q=t.q[measured], position=t.position[measured],
+                            rotation=None if t.rotation is None else t.rotation[measured],
+                            rows=t.rows[measured], joint_names=robot.joint_names, source=path,
+                            prismatic=robot.prismatic, ignored_columns=t.ignored_columns, notes=t.notes,
+                            orientation=(None if t.orientation == "none" else f"euler:{options.euler}"
+                                         if t.orientation == "euler" else t.orientation))
+    touch = ~measured
     feats = tuple(Feature(kind, fid, radii[(kind, fid)][0] if kind == "sphere" else None)
                   for (kind, fid) in features)
-    return TouchData(t.q, feature, feats, probe_radius, rows=t.rows, joint_names=robot.joint_names,
-                     source=path)
+    return TouchData(t.q[touch], feature[touch], feats, probe_radius, rows=t.rows[touch],
+                     joint_names=robot.joint_names, source=path, measured=meas)
+
+
+def _pose_columns(t) -> list[str]:
+    """The header names of the measured pose's cells: x, y, z, then the orientation's (one name
+    for all of an orientation's columns, in the order of :func:`read_touch`'s check)."""
+    from calib.io.csv_header import ORIENTATIONS, POSITION_COLUMNS
+
+    if t.position is None:
+        return []
+    cols = [t.names[k] for k in POSITION_COLUMNS]
+    if t.rotation is not None:
+        cols.append(t.names[ORIENTATIONS[t.orientation][0][0]])
+    return cols
 
 
 def _shown(t, r: float) -> float:
@@ -118,7 +168,8 @@ def write_touch(path: str | Path, data: TouchData, robot, *, angle_unit: str = "
                 comment: str | None = None) -> None:
     """Write touch rows as a touch file (format: module docstring), atomically: joint columns
     named after ``robot``'s joints (``angle_unit`` "deg" or "rad"; prismatic joints in mm), the
-    kind columns present in ``data``, and ``radius_mm`` when there are spheres. Numbers are
+    kind columns present in ``data``, and ``radius_mm`` when there are spheres; ``data``'s
+    measured rows after the touch rows, with x_mm, y_mm, z_mm (and qw, qx, qy, qz, qw >= 0). Numbers are
     written with ``repr``: reading the file back gives the data to the unit conversion's rounding."""
     from calib.checks import check_instance, check_path
     from calib.model.robot import check_robot
@@ -129,12 +180,29 @@ def write_touch(path: str | Path, data: TouchData, robot, *, angle_unit: str = "
     check_not_input(path, [data.source])
     header, qv = joint_columns(robot.joint_names, robot.prismatic, data.q, angle_unit, "mm")
     kinds = [k for k in FEATURE_KINDS if any(f.kind == k for f in data.features)]
-    header += kinds + (["radius_mm"] if "sphere" in kinds else [])
+    m = data.measured
+    pose_header, pose = [], None
+    if m is not None:       # measured rows: x, y, z in mm and a quaternion (qw >= 0), after the touch rows
+        pose_header = ["x_mm", "y_mm", "z_mm"]
+        mq = joint_columns(robot.joint_names, robot.prismatic, m.q, angle_unit, "mm")[1]
+        pose = [m.position * 1e3]
+        if m.rotation is not None:
+            from scipy.spatial.transform import Rotation
+
+            wxyz = Rotation.from_matrix(m.rotation).as_quat(scalar_first=True)
+            pose.append(wxyz * np.where(wxyz[:, :1] < 0, -1.0, 1.0))
+            pose_header += ["qw", "qx", "qy", "qz"]
+        pose = np.hstack(pose)
+    header += pose_header + kinds + (["radius_mm"] if "sphere" in kinds else [])
     rows = []
     for k in range(data.n_rows):
         f = data.features[data.feature[k]]
-        row = [repr(float(v)) for v in qv[k]] + [f.id if f.kind == kind else "" for kind in kinds]
+        row = [repr(float(v)) for v in qv[k]] + [""] * len(pose_header) \
+            + [f.id if f.kind == kind else "" for kind in kinds]
         if "sphere" in kinds:
             row.append(repr(f.radius * 1e3) if f.kind == "sphere" else "")
         rows.append(row)
+    for k in range(data.n_measured):
+        rows.append([repr(float(v)) for v in mq[k]] + [repr(float(v)) for v in pose[k]]
+                    + [""] * (len(kinds) + ("sphere" in kinds)))
     atomic_write_text(path, csv_text(header, rows, comment))

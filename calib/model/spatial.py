@@ -213,3 +213,15 @@ def left_jacobian_inverse_batch(r: np.ndarray) -> np.ndarray:
         c2 = 1.0 / ths**2 - (1.0 + np.cos(ths)) / (2.0 * ths * np.sin(ths))
     c2 = np.where(small, 1.0 / 12.0 + th**2 / 720.0, c2)
     return np.eye(3) - 0.5 * S + c2[..., None, None] * S2
+
+
+def best_fit_motion(p: np.ndarray, p_ref: np.ndarray, registration: str = "rigid"):
+    """(R (3, 3), t (3,), scale) of the best-fit rigid motion (``"similarity"``: and scale) of
+    points p onto p_ref (both (N, 3) metres; Kabsch / Umeyama): ``scale R p + t ~ p_ref``."""
+    mp, mr = p.mean(axis=0), p_ref.mean(axis=0)
+    a, b = p - mp, p_ref - mr
+    U, s, Vt = np.linalg.svd(a.T @ b)
+    D = np.array([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = (U * D @ Vt).T
+    scale = float(s @ D / np.sum(a * a)) if registration == "similarity" else 1.0
+    return R, mr - scale * R @ mp, scale

@@ -23,7 +23,7 @@ Values are SI; feature parameters are named ``point_<id>_x``, ``plane_<id>_a``, 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -80,6 +80,9 @@ class TouchData:
     probe_radius : metres, the ball tip's radius for plane rows (0: a pointed tip).
     rows : (N,) 1-based line numbers in the source file (1 ... N without a file).
     joint_names : (n,) names in chain order, or None.
+    measured : rows of the same file measured by an instrument (their tool position, optionally
+    orientation, in the meas frame: :class:`calib.model.measurements.Measurements`, one tool
+    frame, no sets), identified together with the touch rows; None for touch rows alone.
     """
 
     q: np.ndarray
@@ -89,6 +92,7 @@ class TouchData:
     rows: np.ndarray | None = None
     joint_names: tuple[str, ...] | None = None
     source: object | None = field(default=None, repr=False)
+    measured: object | None = field(default=None, repr=False)
 
     def __post_init__(self):
         q = check_array(self.q, "q", (None, None), unit="joint values, rad / m").copy()
@@ -117,6 +121,16 @@ class TouchData:
             if rows.shape != (len(q),) or (rows.size and rows.dtype.kind not in "iu"):
                 raise DataError(f"rows must be ({len(q)},) integer line numbers")
             rows = rows.astype(int)
+        if self.measured is not None:
+            from calib.model.measurements import Measurements
+
+            m = self.measured
+            if not isinstance(m, Measurements):
+                raise DataError(f"measured must be calib.Measurements or None, got {type(m).__name__}")
+            if m.q.shape[1] != q.shape[1]:
+                raise DataError(f"measured rows have {m.q.shape[1]} joint values, the touch rows {q.shape[1]}")
+            if m.target is not None or m.sets is not None:
+                raise DataError("measured rows mixed with touch rows take no target or set column")
         for name, a in (("q", q), ("feature", feature), ("rows", rows)):
             a.setflags(write=False)
             object.__setattr__(self, name, a)
@@ -126,6 +140,11 @@ class TouchData:
     @property
     def n_rows(self) -> int:
         return len(self.q)
+
+    @property
+    def n_measured(self) -> int:
+        """Rows measured by an instrument (0 without)."""
+        return 0 if self.measured is None else self.measured.n_poses
 
     @property
     def kinds(self) -> np.ndarray:
@@ -142,8 +161,15 @@ class TouchData:
         """Residual components of all rows (3 per point row, 1 per plane or sphere row)."""
         return int(sum(RESIDUAL_SIZE[self.features[k].kind] for k in self.feature))
 
+    def measured_subset(self, keep) -> "TouchData":
+        """The touch rows and the measured rows ``keep`` (a mask or indices into them)."""
+        if self.measured is None:
+            raise DataError("these touch data have no measured rows")
+        return replace(self, measured=self.measured.subset(keep))
+
     def subset(self, keep) -> "TouchData":
-        """The rows ``keep`` (a mask or indices); every feature must keep a row."""
+        """The touch rows ``keep`` (a mask or indices; the measured rows all kept); every
+        feature must keep a row."""
         keep = np.asarray(keep) if isinstance(keep, (list, tuple, np.ndarray)) else None
         if keep is None or keep.ndim != 1 or (keep.size and keep.dtype.kind not in "biu") \
                 or (keep.dtype == bool and len(keep) != self.n_rows) \
@@ -154,7 +180,7 @@ class TouchData:
         remap = {k: i for i, k in enumerate(used)}
         return TouchData(self.q[idx], np.array([remap[k] for k in self.feature[idx]], int),
                          tuple(self.features[k] for k in used), self.probe_radius, self.rows[idx],
-                         self.joint_names, self.source)
+                         self.joint_names, self.source, self.measured)
 
 
 # ====================================================================== plane geometry

@@ -78,11 +78,16 @@ def test_planes_and_sphere_recover_the_truth_to_the_cramer_rao_prediction(name):
 
 
 def test_points_recover_the_truth_up_to_the_scale():
-    """Points alone know no length: the fit is the truth up to a rigid motion and a scale (held
-    by the longest length, whose own error then scales everything)."""
+    """Points alone know no length: the full model is refused by default, naming what to add
+    (after a rigid registration the scale's error is a median 20 times the noise-based prediction:
+    scripts/touch_acceptance.py); with nominal_scale the fit is the truth up to a rigid motion and
+    a scale (held by the longest length, whose own error then scales everything)."""
     robot, true, sim, Qt = _case("panda", POINTS, 1)
-    res = calibrate_touch(robot, sim.data)
-    assert res.identifiability.scale_free
+    with pytest.raises(DataError, match="the rows fix no length .* add a sphere of known radius"):
+        calibrate_touch(robot, sim.data)
+    res = calibrate_touch(robot, sim.data, nominal_scale=True)
+    assert res.identifiability.scale_free and res.nominal_scale
+    assert "held at the nominal (nominal_scale)" in res.format()
     e_sim = registered_error(res.robot, true, Qt, "similarity")
     pred = predicted_tool_error(res, Qt, "similarity")
     e_nom = registered_error(robot, true, Qt, "similarity")
@@ -232,3 +237,103 @@ def test_cross_validation_predicts_held_out_rows_exactly_on_noise_free_data():
     res = calibrate_touch(robot, sim.data, cv=0)
     assert res.rms_after < 2e-6
     assert cross_validate_touch(robot, sim.data, res.free, k=6) < 1e-5
+
+
+def _mixed_case(name, seed, tmp_path):
+    """Issue 24's mixed file: 2 points x 10 touch rows and 15 position rows measured by an
+    instrument standing 1.6 m away (its frame turned 34 degrees), written and read back."""
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    from calib.io.touch_file import read_touch, write_touch
+    from calib.model.simulate import simulate_measurements
+
+    robot = _robot(name)
+    rng = np.random.default_rng(seed)
+    true = apply_deviations(robot, random_deviations(robot, 0.5e-3, rng))
+    X = np.eye(4)
+    X[:3, :3], X[:3, 3] = Rotation.from_rotvec([0.1, -0.3, 0.5]).as_matrix(), [1.5, -0.4, 0.2]
+    true = replace(true, T_meas_base_ref=X @ true.T_meas_base_ref)
+    sim = simulate_touch(true, [Feature("point", "P1"), Feature("point", "P2")], [10, 10], sigma=0.02e-3, rng=rng)
+    meas = simulate_measurements(true, robot.random_configurations(15, rng), sigma_pos=0.05e-3,
+                                 position_only=True, rng=rng)
+    write_touch(tmp_path / "mixed.csv", replace(sim.data, measured=meas), robot)
+    data = read_touch(tmp_path / "mixed.csv", robot)
+    assert (data.n_rows, data.n_measured) == (20, 15)
+    return robot, true, sim, data, robot.random_configurations(500, rng)
+
+
+@pytest.mark.parametrize("name", ["ur10", "panda"])
+def test_touch_rows_mixed_with_measured_rows_recover_the_truth(name, tmp_path):
+    """One identification of both: the measured rows identify the meas frame (an instrument
+    1.6 m away) and the scale, the touch rows add their constraints; each group's noise is
+    estimated; the tool positions in the meas frame err as the Cramer-Rao prediction says, and
+    less than from either part alone (the measured rows by calib's least squares, the touch rows
+    with the scale held nominal)."""
+    from calib import calibrate
+
+    robot, true, sim, data, Qt = _mixed_case(name, 0, tmp_path)
+    res = calibrate_touch(robot, data, cv=0)
+    assert res.success and not res.outliers and res.n_measured == 15
+    assert not res.identifiability.scale_free and res.identifiability.measured == 15
+    # the meas frame identified (its z offset and turn about z with the joint-1 ones they equal)
+    assert {"u_x", "u_y", "u_beta", "u_gamma", "theta1", "d1"} <= set(res.free)
+    touch, pos = res.group("touch"), res.group("position")
+    assert [g.name for g in res.groups] == ["touch", "position"] and res.group("rotation") is None
+    assert (touch.components, pos.components) == (60, 45)
+    # each group's noise from its own residuals (0.02 and 0.05 mm; 60 and 45 components, a
+    # redundancy of about 30 and 20: within 40 %)
+    assert 0.6 < touch.estimated / 0.02e-3 < 1.4 and 0.6 < pos.estimated / 0.05e-3 < 1.4
+    assert abs(touch.redundancy + pos.redundancy - (105 - len(res.free) - 6)) < 1e-6
+    # the instrument 1.6 m away: before the fit the measured rows miss by millimetres (the robot's
+    # errors after the closed-form meas frame), after it by the noise
+    assert pos.rms_before > 10 * pos.rms_after
+    e_abs = registered_error(res.robot, true, Qt, "none")
+    pred = predicted_tool_error(res, Qt, "none")
+    assert e_abs <= 1.5 * pred, (e_abs, pred)
+    assert registered_error(robot, true, Qt) >= 10 * registered_error(res.robot, true, Qt)
+    # better than either part alone
+    measured_only = calibrate(robot, data.measured, estimator="ls", cv=0)
+    assert e_abs < 0.8 * registered_error(measured_only.robot, true, Qt, "none")
+    touch_only = calibrate_touch(robot, replace_measured(data, None), cv=0, nominal_scale=True)
+    assert registered_error(res.robot, true, Qt) < 0.8 * registered_error(touch_only.robot, true, Qt)
+    text = res.format()
+    assert "20 touch rows and 15 measured rows" in text and "measured positions (15 rows, 45 components)" in text
+    # the instrument's frame started at the registration, 1.6 m from the nominal meas frame
+    assert len(res.notes) == 1 and "measurement->base initialised by a rigid registration" in res.notes[0]
+    moved = float(res.notes[0].split("rows: ")[1].split(" mm")[0])
+    assert abs(moved - 1.6e3) < 0.1e3, res.notes
+
+
+def replace_measured(data, measured):
+    from dataclasses import replace
+
+    return replace(data, measured=measured)
+
+
+def test_mixed_rows_cross_validated_and_a_gross_measured_row_dropped(tmp_path):
+    robot, true, sim, data, Qt = _mixed_case("ur10", 1, tmp_path)
+    pos = data.measured.position.copy()
+    pos[4, 1] += 2e-3                                  # a measured row 2 mm off
+    bad = replace_measured(data, replace_measured_positions(data.measured, pos))
+    res = calibrate_touch(robot, bad, cv=4)
+    assert [row for row, _ in res.outliers] == [int(data.measured.rows[4])] and res.n_measured == 14
+    assert res.success
+    # held out: each group's rows predicted by the fit of the others, a little above the noise
+    t, p = res.group("touch"), res.group("position")
+    assert res.cv_rms == t.cv_rms and t.rms_after < t.cv_rms < 3 * 0.02e-3
+    assert p.rms_after < p.cv_rms < 3 * 0.05e-3
+    assert registered_error(res.robot, true, Qt, "none") <= 1.5 * predicted_tool_error(res, Qt, "none")
+
+
+def replace_measured_positions(m, position):
+    from dataclasses import replace
+
+    return replace(m, position=position)
+
+
+def test_too_few_measured_rows_to_locate_the_instrument_are_refused(tmp_path):
+    robot, _, _, data, _ = _mixed_case("ur10", 2, tmp_path)
+    with pytest.raises(DataError, match="the 2 measured rows cannot locate the instrument's frame: give at least 3"):
+        calibrate_touch(robot, data.measured_subset([0, 1]), cv=0)

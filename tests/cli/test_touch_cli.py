@@ -68,7 +68,8 @@ def test_degenerate_design_and_bad_input_exit_2_writing_nothing(urdf, tmp_path, 
     bad = tmp_path / "bad.csv"
     bad.write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,point\n0,0,0,0,0,0,1,2,3,P1\n")
     code, _, err = run(capsys, "calibrate", urdf, bad, "--tool-frame", "tool0", "-o", tmp_path / "cal.urdf")
-    assert code == 2 and "row 1" in err and "'x_mm'" in err
+    assert code == 2 and "row 2" in err and "'x_mm'" in err and "a row touching point 'P1' takes no measured pose" in err
+    assert len(err.strip().splitlines()) == 1
     code, _, err = run(capsys, "simulate", urdf, "-o", tmp_path / "x.csv", "--constraint", "cube:3")
     assert code == 2 and "--constraint: 'cube:3'" in err
     # options of the pose fit that a touch fit does not take are refused, not ignored
@@ -112,3 +113,74 @@ def test_a_given_noise_far_below_the_residuals_exits_3(urdf, tmp_path, capsys):
                        "-o", tmp_path / "cal.urdf", "--sigma-pos-mm", 0.002, "--cv", 0, "--accept-implausible")
     assert code == 3 and "written for inspection" in err
     assert (tmp_path / "cal.urdf").is_file()
+
+
+def test_a_file_mixing_touch_and_measured_rows(urdf, tmp_path, capsys):
+    """2 points x 10 touch rows and 15 measured positions of an instrument 1.6 m away, in one
+    file: one fit of both, each group in the report, the URDF's meas frame identified (its tool
+    positions in the meas frame within 1.5x the prediction)."""
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    from calib.io.touch_file import write_touch
+    from calib.model.simulate import apply_deviations, random_deviations, simulate_measurements
+    from calib.model.touch import Feature
+    from calib.model.touch_simulate import simulate_touch
+
+    nominal = calib.load_robot(urdf, tool_frame="tool0")
+    rng = np.random.default_rng(0)
+    true = apply_deviations(nominal, random_deviations(nominal, 0.5e-3, rng))
+    X = np.eye(4)
+    X[:3, :3], X[:3, 3] = Rotation.from_rotvec([0.1, -0.3, 0.5]).as_matrix(), [1.5, -0.4, 0.2]
+    true = replace(true, T_meas_base_ref=X @ true.T_meas_base_ref)
+    sim = simulate_touch(true, [Feature("point", "P1"), Feature("point", "P2")], [10, 10], sigma=0.02e-3, rng=rng)
+    meas = simulate_measurements(true, nominal.random_configurations(15, rng), sigma_pos=0.05e-3,
+                                 position_only=True, rng=rng)
+    write_touch(tmp_path / "mixed.csv", replace(sim.data, measured=meas), nominal)
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "mixed.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf", "--report", tmp_path / "report.json", "--cv", 0)
+    assert code == 0, err
+    assert "20 touch rows and 15 measured rows" in out and "measured positions (15 rows, 45 components)" in out
+    assert "predicted tool position error in the meas frame" in out
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert [g["name"] for g in report["groups"]] == ["touch", "position"] and report["measured_rows"] == 15
+    assert 0.6 < report["groups"][1]["noise_estimated_mm"] / 0.05 < 1.4
+    cal = calib.load_robot(tmp_path / "cal.urdf")
+    Q = nominal.random_configurations(500, np.random.default_rng(9))
+    e_cal = registered_error(cal, true, Q, "none")
+    assert e_cal <= 1.5 * report["predicted_tool_error_meas_frame_mm"] * 1e-3, e_cal
+    # the measured rows' noise given: a flag for a group the file lacks is refused
+    code, _, err = run(capsys, "calibrate", urdf, tmp_path / "mixed.csv", "--tool-frame", "tool0",
+                       "-o", tmp_path / "cal2.urdf", "--sigma-rot-rad", 0.001)
+    assert code == 2 and "this touch file has none" in err and not (tmp_path / "cal2.urdf").exists()
+
+
+def test_points_alone_refused_for_the_full_model_unless_the_nominal_scale_is_accepted(urdf, tmp_path, capsys):
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "p.csv",
+                       "--constraint", "point:4", "--poses", 15, "--seed", 1, "--deviations", "random:0.5")
+    assert code == 0, err
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "p.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf")
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
+    assert "p.csv" in err and "the robot's scale is not determined; add a sphere of known radius" in err
+    assert not (tmp_path / "cal.urdf").exists()
+    code, out, err = run(capsys, "identifiability", urdf, "--tool-frame", "tool0", "--touch", tmp_path / "p.csv")
+    assert code == 0 and "the scale is not determined" in out and "calibrate refuses the full model" in out
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "p.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf", "--nominal-scale", "--cv", 0)
+    assert code == 0, err
+    assert "after a best-fit similarity registration" in out and "the scale held nominal" in out
+
+
+def test_simulate_measured_rows_into_a_touch_file(urdf, tmp_path, capsys):
+    from calib.io.touch_file import read_touch
+
+    code, out, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "m.csv",
+                         "--constraint", "point:2,measured:7", "--poses", 5, "--seed", 2, "--position-only")
+    assert code == 0, err
+    assert "10 touch rows and 7 rows measured by an instrument (positions" in out
+    data = read_touch(tmp_path / "m.csv", calib.load_robot(urdf, tool_frame="tool0"))
+    assert (data.n_rows, data.n_measured) == (10, 7) and data.measured.rotation is None
+    code, _, err = run(capsys, "simulate", urdf, "-o", tmp_path / "x.csv", "--constraint", "measured:5")
+    assert code == 2 and "name a point, plane or sphere touched" in err and not (tmp_path / "x.csv").exists()

@@ -35,6 +35,33 @@ def test_round_trip(ur10, tmp_path):
     assert back.rows.tolist() == list(range(3, 10))       # comment line, header, then data
 
 
+def test_round_trip_with_measured_rows(ur10, tmp_path):
+    """Rows measured by an instrument mixed with touch rows: written after them, read back
+    as ``measured`` with their line numbers, positions and orientations."""
+    import pinocchio as pin
+
+    from calib import Measurements
+
+    rng = np.random.default_rng(1)
+    Qm = ur10.random_configurations(4, rng)
+    meas = Measurements(Qm, rng.normal(0, 0.5, (4, 3)), np.array([pin.exp3(rng.normal(size=3)) for _ in Qm]))
+    data = TouchData(ur10.random_configurations(5, rng), np.array([0, 0, 1, 1, 0]),
+                     (Feature("point", "P1"), Feature("sphere", "S", radius=0.05)), measured=meas)
+    path = tmp_path / "mixed.csv"
+    write_touch(path, data, ur10)
+    back = read_touch(path, ur10)
+    assert back.n_rows == 5 and back.n_measured == 4
+    assert back.rows.tolist() == [2, 3, 4, 5, 6] and back.measured.rows.tolist() == [7, 8, 9, 10]
+    np.testing.assert_allclose(back.q, data.q, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(back.measured.q, Qm, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(back.measured.position, meas.position, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(back.measured.rotation, meas.rotation, rtol=0, atol=1e-14)
+    # position only: no orientation columns
+    data = TouchData(data.q, data.feature, data.features, measured=Measurements(Qm, meas.position))
+    write_touch(path, data, ur10)
+    assert read_touch(path, ur10).measured.rotation is None
+
+
 @pytest.mark.parametrize("header,line,row,column,reason", [
     ("point,plane", "P1,A", 2, "plane", "more than one of point, plane, sphere"),
     ("point,plane", ",", 2, None, "none of point, plane, sphere"),
@@ -43,7 +70,17 @@ def test_round_trip(ur10, tmp_path):
     ("sphere,radius_cm", "S,5", 1, "radius_cm", "wrong unit suffix _cm: radius takes _m or _mm"),
     ("sphere", "S", 1, "sphere", "give a column radius_mm or radius_m"),
     ("point,radius_mm", "P,5", 2, "radius_mm", "only sphere rows take a radius"),
-    ("x_mm,y_mm,z_mm,point", "1,2,3,P", 1, "x_mm", "in one file are not supported"),
+    # measured rows mixed in: a row is touched or measured, never both; a measured row is whole
+    ("x_mm,y_mm,z_mm,point", "1,2,3,P", 2, "x_mm", "a row touching point 'P' takes no measured pose"),
+    ("x_mm,y_mm,z_mm,point", ",,3,P", 2, "z_mm", "a row touching point 'P' takes no measured pose"),
+    ("x_mm,y_mm,z_mm,qw,qx,qy,qz,plane", ",,,1,0,0,0,A", 2, "qw", "a row touching plane 'A' takes no"),
+    ("x_mm,y_mm,z_mm,point", "1,,3,", 2, "y_mm", "a measured row gives all of x_mm, y_mm, z_mm"),
+    ("x_mm,y_mm,z_mm,qw,qx,qy,qz,point", "1,2,3,,,,,", 2, "qw", "a measured row gives all of x_mm"),
+    ("x_mm,y_mm,z_mm,point", ",,,", 2, None, "none of point, plane, sphere or a measured x, y, z"),
+    ("x_mm,y_mm,z_mm,qw,qx,qy,qz,point", ",,,1,,,,P", 2, "qx", "an orientation gives all of qw, qx, qy, qz or none"),
+    ("x_mm,y_mm,z_mm,sphere,radius_mm", "1,2,3,,5", 2, "radius_mm", "only sphere rows take a radius"),
+    ("x_mm,y_mm,z_mm,point", "1,2,3,", 1, None, "every row is measured"),
+    ("x_m,y_m,z_m,point", "1,x,3,", 2, "y_m", "'x' is not a number"),
 ])
 def test_bad_input_names_file_row_column(ur10, tmp_path, header, line, row, column, reason):
     path = tmp_path / "bad.csv"

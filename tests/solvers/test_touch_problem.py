@@ -76,6 +76,68 @@ def test_touch_jacobian_matches_finite_differences(name, tool):
     assert err.max() <= 1e-6, dict(zip(robot.names + tuple(f"f{k}" for k in range(3 * K)), err))
     # the weighted normal equations are those of the stacked Jacobian
     ne = prob.normal_equations(x)
-    np.testing.assert_allclose(ne.A, J.T @ J / 2e-5 ** 2, rtol=1e-12)
-    np.testing.assert_allclose(ne.g, J.T @ r / 2e-5 ** 2, rtol=1e-12)
+    A = J.T @ J / 2e-5 ** 2     # (entries near zero: to rounding of the largest)
+    np.testing.assert_allclose(ne.A, A, rtol=1e-12, atol=1e-13 * np.abs(A).max())
+    np.testing.assert_allclose(ne.g, J.T @ r / 2e-5 ** 2, rtol=1e-12, atol=1e-13 * np.abs(J.T @ r).max() / 2e-5 ** 2)
     np.testing.assert_allclose(prob.residuals(x), r / 2e-5, rtol=1e-12)
+
+
+@pytest.mark.parametrize("name,tool", ROBOTS)
+def test_mixed_rows_jacobian_matches_finite_differences(name, tool):
+    """Touch rows with rows measured by an instrument (position and orientation): their pose
+    residuals follow the touch rows', the features do not enter them, each group is weighted by
+    its own noise."""
+    from dataclasses import replace
+
+    import pinocchio as pin
+
+    from calib import Measurements
+
+    robot = load_robot(erd_urdf(name), tool_frame=tool)
+    rng = np.random.default_rng(8)
+    robot = robot.with_values(robot.values + rng.normal(0.0, 0.01, robot.n_params))
+    Qm = robot.random_configurations(5, rng)
+    Rm = np.array([pin.exp3(rng.normal(size=3)) for _ in Qm])
+    meas = Measurements(Qm, rng.normal(0.0, 0.5, (5, 3)), Rm)
+    data = replace(_mixed_data(robot, rng), measured=meas)
+    K = len(data.features)
+    refs = np.array([frame_with_normal(rng.normal(size=3)) for _ in range(K)])
+    xf = rng.normal(0.0, 0.3, 3 * K)
+    prob = TouchProblem(ChainKinematics(robot), data, robot.values, np.arange(robot.n_params), refs,
+                        sigma=2e-5, sigma_pos=5e-5, sigma_rot=1e-4)
+    assert list(prob.slices) == ["touch", "position", "rotation"]
+    x = prob.x0(xf)
+    r, J = prob.evaluate(x)
+    assert J.shape == (data.n_residuals + 30, robot.n_params + 3 * K)
+
+    def exact(v, f):
+        model = robot.with_values(v)
+        T = [model.T_meas_tool(q) for q in Qm]
+        dp = [t[:3, 3] - p for t, p in zip(T, meas.position)]
+        dr = [pin.log3(t[:3, :3] @ R.T) for t, R in zip(T, Rm)]
+        return np.concatenate([_exact_residuals(robot, data, refs, v, f), np.ravel(dp), np.ravel(dr)])
+
+    np.testing.assert_allclose(r, exact(robot.values, xf), atol=1e-12)
+    h = 1e-6
+    fd = np.empty_like(J)
+    for j in range(len(x)):
+        e = np.zeros(len(x))
+        e[j] = h
+        fd[:, j] = (exact(prob.full(x + e), (x + e)[robot.n_params:])
+                    - exact(prob.full(x - e), (x - e)[robot.n_params:])) / (2 * h)
+    scale = np.maximum(np.abs(fd).max(axis=0), 1e-9 * np.abs(fd).max())
+    err = np.abs(J - fd).max(axis=0) / scale
+    assert err.max() <= 1e-6, dict(zip(robot.names + tuple(f"f{k}" for k in range(3 * K)), err))
+    # the features do not move the measured rows
+    assert not J[data.n_residuals:, robot.n_params:].any()
+    # each group weighted by its noise; the shares add up to the normal equations
+    w = np.concatenate([np.full(data.n_residuals, 1 / 2e-5), np.full(15, 1 / 5e-5), np.full(15, 1 / 1e-4)])
+    ne = prob.normal_equations(x)
+    A, g = (J * w[:, None]).T @ (J * w[:, None]), (J * w[:, None]).T @ (r * w)
+    tol = 1e-13 * np.abs(A).max()       # (entries near zero: to rounding of the largest)
+    np.testing.assert_allclose(ne.A, A, rtol=1e-12, atol=tol)
+    np.testing.assert_allclose(ne.g, g, rtol=1e-12, atol=1e-13 * np.abs(g).max())
+    shares = prob.group_shares(x)
+    np.testing.assert_allclose(sum(a for a, _, _ in shares.values()), ne.A, rtol=1e-12, atol=tol)
+    assert [n for _, _, n in shares.values()] == [data.n_residuals, 15, 15]
+    np.testing.assert_allclose(sum(s for _, s, _ in shares.values()), np.sum((r * w) ** 2), rtol=1e-12)
