@@ -436,7 +436,8 @@ def test_cli_key_and_tracker_go_together(tmp_path, capsys):
                                  "too (--tracker POSES.csv)\n")
     code, _, err = _run(capsys, "evaluate", BUNDLED_URDF, j, "--tracker", t)
     assert code == 2 and err == ("calib: error: a tracker file is joined to the joint file by a key "
-                                 "column: give it (--key COLUMN)\n")
+                                 "column: give it (--key COLUMN), or join by the nearest time "
+                                 "(--join nearest-time)\n")
     code, out, err = _run(capsys, "evaluate", BUNDLED_URDF, j, "--tracker", t, "--key", "point")
     assert code == 0 and err == "" and "Accuracy of" in out
 
