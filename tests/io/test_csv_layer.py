@@ -377,7 +377,7 @@ def test_readme_examples_read_and_match_nominal_kinematics(tmp_path, robot):
     text = (BUNDLED_URDF.parents[2] / "README.md").read_text()
     section = text[text.index("## Measurement file format"):text.index("## Commands")]
     blocks = re.findall(r"```\n(.*?)```", section, flags=re.S)
-    assert len(blocks) == 8
+    assert len(blocks) == 12      # 8 to 11: the joins of tests/io/test_join.py
     options = {3: ReadOptions(rename="X=x_mm,Y=y_mm,Z=z_mm,A=e1_deg,B=e2_deg,C=e3_deg",
                               euler="ZYZ")}
     for k, block in enumerate(blocks[:5]):

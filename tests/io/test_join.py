@@ -312,8 +312,32 @@ def test_cli_join_errors_exit_2_with_one_line_and_nothing_written(tmp_path, smr,
         assert err.count("\n") == (1 if err.startswith("calib: error") else 2)   # usage line first
 
 
-def test_readme_documents_the_join_flags_with_a_worked_example(tmp_path, robot):
+def test_readme_join_examples_read_as_the_several_targets_example(tmp_path, robot):
+    """README's worked examples of the joins: each command (as printed) reads its two files into
+    the rows of the "several targets" example (tracker export) or two of them (by time)."""
+    import re
+    import shlex
+
+    from calib.cli.args import read
+    from calib.cli.main import build_parser
+
     text = (BUNDLED_URDF.parents[2] / "README.md").read_text()
-    for flag in ("--target-column", "--target-from", "--join nearest-time", "--time", "--time-unit",
-                 "--max-gap"):
-        assert flag in text
+    section = text[text.index("## Measurement file format"):text.index("## Commands")]
+    blocks = re.findall(r"```\n(.*?)```", section, flags=re.S)
+    names = [b.splitlines()[0].split()[1].rstrip(",") for b in blocks[8:12]]
+    assert names == ["JOINTS.csv", "TRACKER.csv", "LOG.csv", "TIMED.csv"]
+    for name, block in zip(names, blocks[8:12]):
+        (tmp_path / name).write_text(block)
+    (tmp_path / "own.csv").write_text(blocks[7])
+    own = calib.read_measurements(tmp_path / "own.csv", robot)
+    commands = [" ".join(c.split()) for c in re.findall(r"`(calib calibrate ROBOT\.urdf [^`]*)`", section)]
+    assert len(commands) == 3
+    parser = build_parser()
+    for command, take in zip(commands[1:], (slice(None), [0, 4])):
+        argv = [str(tmp_path / a) if a.endswith(".csv") else a for a in shlex.split(command)[1:]]
+        args = parser.parse_args([str(BUNDLED_URDF) if a == "ROBOT.urdf" else a for a in argv])
+        m = read(args.measurements, robot, args, args.tracker)
+        ref = own.subset(take)
+        np.testing.assert_allclose(m.q, ref.q, rtol=0, atol=1e-15)
+        np.testing.assert_array_equal(m.position, ref.position)
+        assert m.target == ref.target
