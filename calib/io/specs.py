@@ -19,9 +19,11 @@ Measurement file (:func:`read_measurements`): one row per robot pose.
   ``r11`` ... ``r33`` (``rij`` is row i, column j). Angles with ``_rad`` or ``_deg``.
 - ``set`` (optional): ``cal`` or ``val``. ``target`` (optional): any id of the reflector or
   target measured on the tool.
-- Or two files joined by a key column (:attr:`ReadOptions.key`): the joints (with ``set`` and
-  ``target`` if wanted) in one, the position and orientation in the other (``tracker=``), rows
-  matched by key in any order.
+- Or two files joined (:mod:`calib.io.join`): the joints (with ``set`` and ``target`` if wanted)
+  in one, the position and orientation in the other (``tracker=``), rows matched by a key column
+  (:attr:`ReadOptions.key`) in any order, one joint row to one measured row or to several, each
+  with its target id (``target_column``, ``target_from``); or each measured row to the joint row
+  of the nearest timestamp (``join="nearest-time"``, ``time``, ``max_gap``).
 
 Example (the bundled BRTIRUS0707A; ``set`` may be left out, and so may ``qw`` ... ``qz``)::
 
@@ -90,14 +92,18 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
     csv_path : the measurement file; with ``tracker``, the file of joint values.
     robot : the robot whose joints the file names; its joint limits are checked.
     tracker : a second file with the measured poses (x, y, z and an orientation), joined to
-        ``csv_path`` row by row through the key column ``options.key``; None for one file.
-    options : :class:`ReadOptions` (rename, Euler sequence, limit tolerance, key).
+        ``csv_path`` through the key column ``options.key`` (one joint row to one or several
+        measured rows, each with its target id: ``options.target_column``,
+        ``options.target_from``) or by the nearest time (``options.join == "nearest-time"``,
+        ``options.time``, ``options.max_gap``): see :mod:`calib.io.join`; None for one file.
+    options : :class:`ReadOptions` (rename, Euler sequence, limit tolerance, the join).
 
     Returns
     -------
     Measurements in SI units: ``q`` (N, n) rad / m in chain order, ``position`` (N, 3) m and
     ``rotation`` (N, 3, 3) (or None) of the tool frame in the meas frame, ``rows`` the line
-    numbers (of ``csv_path``), ``sets``, ``target``, ``source`` = ``csv_path``, and the
+    numbers of ``source``: ``csv_path`` (one file, or a join of one measured row per joint row),
+    else ``tracker`` (one result row per measured row); ``sets``, ``target``, and the
     ``ignored_columns`` and ``notes`` of the reading (the caller decides whether to print them).
 
     Raises
