@@ -175,7 +175,7 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
         g.add_argument("--time", metavar="COLUMN", default=None,
                        help="with --join nearest-time: the timestamp column of both files, numbers "
                             "with the unit in the name (time_s, time_ms, time_us, time_ns) or "
-                            "--time-unit, or ISO 8601 dates and times")
+                            "--time-unit, or times of day (10:00:07.125), or ISO 8601 dates and times")
         g.add_argument("--time-unit", choices=TIME_UNITS, default=None,
                        help="unit of the --time column's numbers when its name does not say it")
         g.add_argument("--max-gap", metavar="S", type=nonnegative, default=None,

@@ -17,7 +17,8 @@ rows as :attr:`calib.ReadOptions.join` says (options checked by :func:`check_joi
   ``time`` (of both files) is nearest, at most ``max_gap`` seconds away: a joint log recorded at
   100 Hz and a tracker measuring at its own times. Timestamps are numbers in the unit of
   ``time_unit`` or of the column name's suffix (``time_s``, ``time_ms``, ``time_us``,
-  ``time_ns``), or ISO 8601 dates and times (``2026-11-25T10:00:07.125``); the search is
+  ``time_ns``), times of day (``10:00:07.125``, within one day) or ISO 8601 dates and times
+  (``2026-11-25T10:00:07.125``, a time zone read as UTC), the same in both files; the search is
   vectorised (``np.searchsorted`` over the sorted joint times). Refused: a measured row with no
   joint row within ``max_gap``; a measured row with two joint rows of different joint values
   equally near (to :data:`TIME_RESOLUTION`), which includes two joint rows with the same
@@ -54,6 +55,7 @@ TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: still within it (the rounding of decimal timestamps; epoch seconds in float64 resolve 0.24 us).
 TIME_RESOLUTION = 1e-6
 TARGET_FROM_EXAMPLE = r"(?P<key>P\d+)_(?P<target>SMR\d+)"
+_CLOCK = re.compile(r"(\d{1,2}):(\d{2}):(\d{2}(?:\.\d*)?)")
 _UNIT_IN_BRACKETS = re.compile(r"^(.*?)\s*[\(\[]\s*([A-Za-z]+)\s*[\)\]]$")
 
 
@@ -90,6 +92,9 @@ def check_join_options(options: ReadOptions) -> None:
                              f"{gap!r:.60}")
     if o.target_from is not None:
         _check_target_from(o.target_from)
+        if o.join == "key" and o.key is None:
+            raise ParameterError("--target-from splits the point names of the key column: give it too "
+                                 "(--key COLUMN)")
         if o.target_column is not None:
             raise ParameterError("the target id comes from one place: a target column (--target-column) "
                                  "or the compound point names of the key column (--target-from), not both")
@@ -362,19 +367,25 @@ def _by_time(j: Table, t: Table, options: ReadOptions):
 
 
 def _seconds(table: Table, label: str, options: ReadOptions) -> tuple[np.ndarray, str]:
-    """(N,) seconds of the time column of ``table``, and "numbers" or "dates and times"."""
+    """(N,) seconds of the time column of ``table``, and "numbers", "times of day" or "dates and
+    times"."""
     texts = list(table.labels[label])
     col = table.names[label]
     if "" in texts:
         k = texts.index("")
-        raise MeasurementFormatError(table.path, "empty timestamp, expected a number or an ISO 8601 "
-                                                 "date and time", row=int(table.rows[k]), column=col)
+        raise MeasurementFormatError(table.path, "empty timestamp, expected a number, a time of day or "
+                                                 "an ISO 8601 date and time", row=int(table.rows[k]),
+                                     column=col)
     if any("," in s for s in texts):          # a decimal comma (files separated by ; or tabs)
         texts = [s.replace(",", ".") if s.count(",") == 1 and "." not in s else s for s in texts]
     try:
         values = np.array(texts, dtype=float)
         kind = "numbers"
     except ValueError:
+        clock = [_CLOCK.fullmatch(s) for s in texts]
+        if all(clock):
+            return np.array([int(m[1]) * 3600 + int(m[2]) * 60 + float(m[3]) for m in clock]), \
+                "times of day"
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")       # a time zone: read as UTC
@@ -416,12 +427,16 @@ def _first_bad(table: Table, texts: list[str], col: str, label: str):
         except ValueError:
             return False
 
-    if number(texts[0]) or date(texts[0]):
-        kind = number if number(texts[0]) else date
+    def clock(s):
+        return _CLOCK.fullmatch(s) is not None
+
+    kinds = {number: "a number", clock: "a time of day", date: "an ISO 8601 date and time"}
+    kind = next((f for f in kinds if f(texts[0])), None)
+    if kind is not None:
         k = next((k for k, s in enumerate(texts) if not kind(s)), 0)
-        expected = (f"a number like row {table.rows[0]}'s" if kind is number else
-                    f"an ISO 8601 date and time like row {table.rows[0]}'s")
+        expected = f"{kinds[kind]} like row {table.rows[0]}'s"
     else:
-        k, expected = 0, "a number or an ISO 8601 date and time (2026-11-25T10:00:07.125)"
+        k, expected = 0, ("a number, a time of day (10:00:07.125) or an ISO 8601 date and time "
+                          "(2026-11-25T10:00:07.125)")
     raise MeasurementFormatError(table.path, f"{table.labels[label][k]!r} is not a timestamp, expected "
                                              f"{expected}", row=int(table.rows[k]), column=col)

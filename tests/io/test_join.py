@@ -133,6 +133,8 @@ def _timed_pair(d, Q, meas, *, iso=False, rng=5):
     stamp = (lambda x: np.datetime_as_string(np.datetime64("2026-11-25T10:00:00") +
                                              np.timedelta64(int(round(x * 1e6)), "us"), unit="ms")) \
         if iso else (lambda x: f"{x:.3f}")
+    if iso == "clock":              # hh:mm:ss.fff, and hh:mm:ss,fff as a European tracker writes it
+        stamp = lambda x: f"10:{int(x // 60):02d}:{x % 60:06.3f}"  # noqa: E731
     col = "time" if iso else "time_s"
     (d / "log.csv").write_text(
         f"{col}," + ",".join(JOINT_HEADER) + "\n"
@@ -143,13 +145,13 @@ def _timed_pair(d, Q, meas, *, iso=False, rng=5):
                      + np.sort(rng.uniform(0, 1.6, (n, 3)), axis=1).ravel(), 3)
     (d / "timed.csv").write_text(
         f"{col};Reflector;X [mm];Y [mm];Z [mm]\n"
-        + "".join(f"{stamp(times[k])};{meas.target[k]};"
+        + "".join(f"{stamp(times[k]).replace('.', ',')};{meas.target[k]};"
                   + ";".join(_r(v).replace(".", ",") for v in meas.position[k] * 1e3) + "\n"
                   for k in range(3 * n)))
     return d / "log.csv", d / "timed.csv", col
 
 
-@pytest.mark.parametrize("iso", [False, True], ids=["seconds", "iso-8601"])
+@pytest.mark.parametrize("iso", [False, True, "clock"], ids=["seconds", "iso-8601", "time-of-day"])
 def test_nearest_time_join_gives_the_rows_of_an_exact_join(tmp_path, robot, smr, iso):
     Q, meas = smr
     log, tracker, col = _timed_pair(tmp_path, Q, meas, iso=iso)
@@ -229,6 +231,7 @@ def test_several_rows_per_key_without_target_ids_are_refused_with_the_way_to_giv
     (dict(join="nearest-time", time="time_s", max_gap=0.01, time_unit="ms"), "says its unit is s"),
     (dict(join="nearest-time", time="t", max_gap=0.01, target_from=REGEX), "splits the key column (--key)"),
     (dict(time="time_s", max_gap=0.01), "--time, --max-gap join by time: give --join nearest-time"),
+    (dict(target_from=REGEX), "give it too (--key COLUMN)"),
     (dict(join="closest"), "join must be one of key, nearest-time"),
     (dict(join="nearest-time", time="t", max_gap=0.01, time_unit="min"), "time_unit must be one of"),
 ])
@@ -258,6 +261,10 @@ def _log(d, times, joints, tracker_times, col="time_s"):
     (["0.00", "0.01", "0.02"], [0, 1, 2], ["-0,01"], 2, "the nearest is row 2 of {j}, 0.01 s away"),
     (["0.00", "", "0.02"], [0, 1, 2], ["0,01"], 3, "empty timestamp"),
     (["0.00", "0.01", "0.02"], [0, 1, 2], ["0,01", "x"], 3, "'x' is not a timestamp, expected a number like row 2's"),
+    (["0.00", "0.01", "0.02"], [0, 1, 2], ["10:00:00", "10:00:0x"], 3,
+     "'10:00:0x' is not a timestamp, expected a time of day like row 2's"),
+    (["0.00", "0.01", "0.02"], [0, 1, 2], ["10:00:00,013"], 2,
+     "timestamps are times of day here but numbers in {j}"),
     (["0.00", "0.01", "0.02"], [0, 1, 2], ["2026-11-25T10:00:00"], 2,
      "timestamps are dates and times here but numbers in {j}"),
 ])
