@@ -384,20 +384,27 @@ def _seconds(table: Table, label: str, options: ReadOptions) -> tuple[np.ndarray
     except ValueError:
         clock = [_CLOCK.fullmatch(s) for s in texts]
         if all(clock):
-            return np.array([int(m[1]) * 3600 + int(m[2]) * 60 + float(m[3]) for m in clock]), \
-                "times of day"
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")       # a time zone: read as UTC
-                stamps = np.array(texts, dtype="datetime64[ns]")
-        except ValueError:
-            _first_bad(table, texts, col, label)
-        if np.isnat(stamps).any():
-            k = int(np.flatnonzero(np.isnat(stamps))[0])
-            raise MeasurementFormatError(table.path, f"{table.labels[label][k]!r} is not a timestamp, "
-                                                     f"expected a date and time", row=int(table.rows[k]),
-                                         column=col)
-        return stamps.astype(np.int64) * 1e-9, "dates and times"
+            values = np.array([int(m[1]) * 3600 + int(m[2]) * 60 + float(m[3]) for m in clock])
+            kind = "times of day"
+        else:
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")       # a time zone: read as UTC
+                    stamps = np.array(texts, dtype="datetime64[ns]")
+            except ValueError:
+                _first_bad(table, texts, col, label)
+            if np.isnat(stamps).any():
+                k = int(np.flatnonzero(np.isnat(stamps))[0])
+                raise MeasurementFormatError(table.path, f"{table.labels[label][k]!r} is not a timestamp, "
+                                                         f"expected a date and time", row=int(table.rows[k]),
+                                             column=col)
+            values, kind = stamps.astype(np.int64) * 1e-9, "dates and times"
+        if options.time_unit is not None:
+            raise MeasurementFormatError(table.path, f"--time-unit {options.time_unit} is the unit of "
+                                                     f"timestamps that are numbers; these are {kind} "
+                                                     f"({table.labels[label][0]!r}): leave it out",
+                                         row=int(table.rows[0]), column=col)
+        return values, kind
     bad = np.flatnonzero(~np.isfinite(values))
     if len(bad):
         k = int(bad[0])

@@ -294,6 +294,14 @@ def test_nearest_time_ties_of_equal_joints_and_an_unsorted_log_are_joined(tmp_pa
     e = _err(lambda: calib.read_measurements(j, robot, tracker=t, options=ReadOptions(
         join="nearest-time", time="time_s", max_gap=0.005)))
     assert str(e) == f"{j}, row 1: no time column 'time_s' (given by --time)"
+    j, t = _log(tmp_path, ["10:00:00", "10:00:01"], [0, 1], ["10:00:00,5"], col="t")
+    e = _err(lambda: calib.read_measurements(j, robot, tracker=t, options=ReadOptions(
+        join="nearest-time", time="t", time_unit="s", max_gap=1)))
+    assert str(e) == (f"{j}, row 2, column 't': --time-unit s is the unit of timestamps that are "
+                      f"numbers; these are times of day ('10:00:00'): leave it out")
+    e = _err(lambda: calib.read_measurements(j, robot, tracker=t, options=ReadOptions(
+        join="nearest-time", time="t", max_gap=1)))       # 10:00:00.5 is as near 10:00:00 as 10:00:01
+    assert (e.path, e.row) == (t, 2) and "are equally near '10:00:00,5'" in str(e)
 
 
 # ====================================================================== CLI
