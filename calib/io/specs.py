@@ -125,8 +125,12 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
                                        ("--target-column", options.target_column is not None),
                                        ("--target-from", options.target_from is not None)) if on]
         if given:
-            what = "a key column joins" if given == ["--key"] else f"{', '.join(given)} join"
-            raise ParameterError(f"{what} two files: give the tracker file too (--tracker POSES.csv)")
+            if given == ["--key"]:
+                raise ParameterError("a key column joins two files: give the tracker file too "
+                                     "(--tracker POSES.csv)")
+            raise ParameterError(f"{' and '.join(given)} {'is' if len(given) == 1 else 'are'} for a "
+                                 f"tracker file joined to the joint file: give it too (--tracker "
+                                 f"POSES.csv)")
         t = read_table(csv_path, MEASUREMENT, robot, options)
         q, pose, rows, labels, tables = t.q, t, t.rows, t.labels, [t]
         source, joined_notes = Path(csv_path), ()

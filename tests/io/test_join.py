@@ -294,6 +294,10 @@ def test_nearest_time_ties_of_equal_joints_and_an_unsorted_log_are_joined(tmp_pa
     e = _err(lambda: calib.read_measurements(j, robot, tracker=t, options=ReadOptions(
         join="nearest-time", time="time_s", max_gap=0.005)))
     assert str(e) == f"{j}, row 1: no time column 'time_s' (given by --time)"
+    with pytest.raises(ParameterError) as info:
+        calib.read_measurements(j, robot, options=ReadOptions(join="nearest-time", time="t", max_gap=1))
+    assert str(info.value) == ("--join nearest-time is for a tracker file joined to the joint file: "
+                               "give it too (--tracker POSES.csv)")
     j, t = _log(tmp_path, ["10:00:00", "10:00:01"], [0, 1], ["10:00:00,5"], col="t")
     e = _err(lambda: calib.read_measurements(j, robot, tracker=t, options=ReadOptions(
         join="nearest-time", time="t", time_unit="s", max_gap=1)))
