@@ -98,6 +98,26 @@ def test_tracker_export_with_compound_point_names_calibrates_as_calibs_own_forma
     assert m.source == tracker and m.n_poses == 3 * N_POSES
 
 
+def test_leica_export_with_preamble_joined_to_a_kuka_log_by_point_name(tmp_path, robot, smr):
+    """Issue 25's acceptance file pair as written: a tracker export with a 3-line preamble, ``;``
+    and decimal commas, unsuffixed X, Y, Z, P001_SMR1..3; a KUKA joint log with A1..A6 (deg):
+    read with --convention kuka and the join flags alone (no --rename), the rows of calib's own
+    multi-target file. Needs the reader's vendor conventions and preambles (issue 25, items 1
+    and 3: the vendor branch); skipped without them."""
+    if "convention" not in ReadOptions.__dataclass_fields__:
+        pytest.skip("needs ReadOptions(convention=...) and preambles (the vendor side of issue 25)")
+    Q, meas = smr
+    joints, tracker, own = _write_pair(tmp_path, Q, meas)
+    joints.write_text(joints.read_text().replace("_deg", ""))
+    lines = tracker.read_text().splitlines()
+    tracker.write_text("Leica Absolute Tracker AT960 export\nJob: cell 3;Operator: A. N.\nUnits: mm\n"
+                       + "\n".join([lines[0].replace(" [mm]", "")] + lines[1:]) + "\n")
+    m = calib.read_measurements(joints, robot, tracker=tracker, options=ReadOptions(
+        convention="kuka", key="Point", target_from=REGEX))
+    _same_rows(m, calib.read_measurements(own, robot))
+    np.testing.assert_array_equal(m.rows, np.arange(5, 3 * N_POSES + 5))   # after the preamble
+
+
 def test_target_column_and_any_order_give_the_same_rows(tmp_path, robot, smr):
     """The reflector id in its own column (--target-column), the tracker rows shuffled: the rows
     come out in the joint file's order, the SMRs of one pose in the tracker file's order."""
