@@ -186,6 +186,30 @@ def test_nearest_time_join_gives_the_rows_of_an_exact_join(tmp_path, robot, smr,
     assert m.source == tracker and m.n_poses == 3 * N_POSES
 
 
+def test_nearest_time_join_picks_the_nearest_row_as_a_brute_force_search(tmp_path, robot):
+    """A log of 1,000 rows at random times (written out of order), each with its own joints
+    (joint1 = 0.01 deg times its index), and 300 measured rows at random times: each joined to
+    the joint row of the smallest |t_joint - t_measured| (np.argmin over all rows)."""
+    rng = np.random.default_rng(8)
+    tj = np.round(rng.uniform(0, 100, 1000), 6)
+    tt = np.round(rng.uniform(-0.5, 100.5, 300), 6)
+    order = rng.permutation(1000)
+    (tmp_path / "log.csv").write_text(
+        "t_s," + ",".join(JOINT_HEADER) + "\n"
+        + "".join(f"{tj[i]:.6f},{0.01 * i:.2f},0,0,0,0,0\n" for i in order))
+    (tmp_path / "trk.csv").write_text("t_s,x_mm,y_mm,z_mm\n" + "".join(f"{t:.6f},441,0,-36.5\n" for t in tt))
+    m = calib.read_measurements(tmp_path / "log.csv", robot, tracker=tmp_path / "trk.csv",
+                                options=ReadOptions(join="nearest-time", time="t_s", max_gap=1.0))
+    nearest = np.argmin(np.abs(tj[None, :] - tt[:, None]), axis=1)
+    k = m.rows - 2                                              # the measured rows, by line
+    assert m.n_poses == 300 and sorted(k) == list(range(300))
+    np.testing.assert_allclose(np.degrees(m.q[:, 0]), 0.01 * nearest[k], rtol=0, atol=1e-9)
+    # in the order of the joint file's rows
+    line = np.argsort(order)[nearest[k]]
+    assert (np.diff(line) >= 0).all()
+    assert len(m.notes) == 1 and "timestamps not in time order" in m.notes[0]
+
+
 # ====================================================================== refusals
 def _err(call):
     with pytest.raises(MeasurementFormatError) as info:
