@@ -8,6 +8,10 @@ METHODS = ("search-lm", "c-lm", "lm")
 LM_VARIANTS = ("calib", "paper")
 #: Losses on each pose's whitened residual (:class:`calib.solvers.problem.Problem`).
 LOSSES = ("linear", "huber", "soft_l1")
+#: How a joint file and a tracker file are joined (:mod:`calib.io.join`), and the units of a
+#: time column (``--time-unit``).
+JOINS = ("key", "nearest-time")
+TIME_UNITS = ("s", "ms", "us", "ns")
 #: Estimators of :func:`calib.calibrate` (:mod:`calib.calibration.options`).
 ESTIMATORS = ("auto", "map", "ls")
 #: Pose-selection criteria (:mod:`calib.calibration.poses`).

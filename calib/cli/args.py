@@ -150,12 +150,38 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
                    help="keep joint readings at most this fraction of the joint range past a "
                         "limit (with a note); 0.01 or 1%%")
     if tracker:
+        from calib.choices import JOINS, TIME_UNITS
+
         g.add_argument("--tracker", metavar="POSES.csv", default=None,
                        help="the measured poses (x, y, z and an orientation) in a second file, "
                             "joined to the joint file row by row by --key")
         g.add_argument("--key", metavar="COLUMN", default=None,
                        help="column present in both files whose values pair their rows (e.g. a "
-                            "point name), in any order")
+                            "point name), in any order; one joint row may go with several "
+                            "measured rows, each with its target id (--target-column, "
+                            "--target-from, or a target column)")
+        g.add_argument("--target-column", metavar="COLUMN", default=None,
+                       help="column of the tracker file holding the id of the target (reflector) "
+                            "measured in each row (default: a column named target)")
+        g.add_argument("--target-from", metavar="REGEX", default=None,
+                       help="take key and target id from compound point names in the tracker "
+                            "file's --key column: a Python regular expression that must match "
+                            "the whole name, with the named groups key (matched to the joint "
+                            "file's key) and target, e.g. '(?P<key>P\\d+)_(?P<target>SMR\\d+)' "
+                            "splits P001_SMR2 into P001 and SMR2")
+        g.add_argument("--join", choices=JOINS, default="key",
+                       help="how the files' rows are paired: by --key, or each measured "
+                            "row with the joint row of the nearest timestamp (--time, --max-gap)")
+        g.add_argument("--time", metavar="COLUMN", default=None,
+                       help="with --join nearest-time: the timestamp column of both files, numbers "
+                            "with the unit in the name (time_s, time_ms, time_us, time_ns) or "
+                            "--time-unit, or times of day (10:00:07.125), or ISO 8601 dates and times")
+        g.add_argument("--time-unit", choices=TIME_UNITS, default=None,
+                       help="unit of the --time column's numbers when its name does not say it")
+        g.add_argument("--max-gap", metavar="S", type=nonnegative, default=None,
+                       help="with --join nearest-time: the largest time in seconds between a "
+                            "measured row and its joint row (a farther row is an error; so are "
+                            "two joint rows of different joint values equally near)")
 
 
 def read_options(args: argparse.Namespace, *, joined: bool = True):
@@ -163,8 +189,13 @@ def read_options(args: argparse.Namespace, *, joined: bool = True):
     without the key, for a file read on its own)."""
     from calib.io.specs import ReadOptions
 
+    join = {}
+    if joined:
+        join = {k: getattr(args, k, None) for k in ("key", "target_column", "target_from", "time",
+                                                    "time_unit", "max_gap")}
+        join["join"] = getattr(args, "join", None) or "key"
     return ReadOptions(rename=args.rename or (), euler=args.euler, limit_tolerance=args.limit_tolerance,
-                       key=getattr(args, "key", None) if joined else None)
+                       **join)
 
 
 def print_notes(notes, prog: str = "calib") -> None:

@@ -55,6 +55,13 @@ examples:
       -o calibrated.urdf --report report.json --plots plots
   calib calibrate robot.urdf meas.csv -o calibrated.urdf --method lm --params paper \\
       --sigma-pos-mm 0.05 --validate val.csv
+  calib calibrate robot.urdf joints.csv --tracker export.csv --key Point \\
+      --target-from '(?P<key>P\\d+)_(?P<target>SMR\\d+)' -o calibrated.urdf
+      (a tracker export of 3 reflectors per pose, points P001_SMR1 ..., joined to the
+      controller's joints.csv by its Point column P001 ...)
+  calib calibrate robot.urdf log.csv --tracker timed.csv --join nearest-time --time time_s \\
+      --max-gap 0.005 -o calibrated.urdf
+      (a 100 Hz joint log and the tracker's timed measurements, by the nearest time)
 
 Units: the measurement CSV carries its units in its column names (joint1_deg, x_mm, ...); the
 noise sigmas weight position against orientation residuals (mm and rad per axis)."""

@@ -25,7 +25,8 @@ ACCURACY_CONFIGURATIONS = 500
 _NOT_FOR_TOUCH = (("tracker", None), ("validate", None), ("compliance", False), ("plots", None),
                   ("html", None), ("method", "search-lm"), ("estimator", "auto"), ("loss", "linear"),
                   ("lm_variant", "calib"), ("periodic", False), ("payload_kg", None), ("payload_com_mm", None),
-                  ("gravity", None))
+                  ("gravity", None), ("key", None), ("target_column", None), ("target_from", None),
+                  ("join", "key"), ("time", None), ("time_unit", None), ("max_gap", None))
 
 
 def is_touch_input(args: argparse.Namespace) -> bool:

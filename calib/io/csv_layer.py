@@ -93,12 +93,21 @@ class ReadOptions:
     limit_tolerance : joint values beyond a limit by at most this fraction of the joint range
         (upper - lower) are kept with a note (default 0.01, 1 %).
     key : name of the column that joins a joint file and a tracker file, or None.
+    target_column, target_from, join, time, time_unit, max_gap : how a joint file and a tracker
+        file are joined (one joint row to several measured rows, by nearest time): see
+        :mod:`calib.io.join`, which checks them.
     """
 
     rename: tuple[tuple[str, str], ...] = ()
     euler: str | None = None
     limit_tolerance: float = LIMIT_TOLERANCE
     key: str | None = None
+    target_column: str | None = None
+    target_from: str | None = None
+    join: str = "key"
+    time: str | None = None
+    time_unit: str | None = None
+    max_gap: float | None = None
 
     def __post_init__(self):
         if isinstance(self.rename, str):
@@ -120,6 +129,9 @@ class ReadOptions:
             if not isinstance(self.key, str) or not self.key.strip():
                 raise ParameterError(f"key must be a column name, got {self.key!r:.60}")
             object.__setattr__(self, "key", str(self.key).strip())
+        from calib.io.join import check_join_options
+
+        check_join_options(self)
 
 
 @dataclass(frozen=True)

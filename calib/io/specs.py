@@ -19,9 +19,11 @@ Measurement file (:func:`read_measurements`): one row per robot pose.
   ``r11`` ... ``r33`` (``rij`` is row i, column j). Angles with ``_rad`` or ``_deg``.
 - ``set`` (optional): ``cal`` or ``val``. ``target`` (optional): any id of the reflector or
   target measured on the tool.
-- Or two files joined by a key column (:attr:`ReadOptions.key`): the joints (with ``set`` and
-  ``target`` if wanted) in one, the position and orientation in the other (``tracker=``), rows
-  matched by key in any order.
+- Or two files joined (:mod:`calib.io.join`): the joints (with ``set`` and ``target`` if wanted)
+  in one, the position and orientation in the other (``tracker=``), rows matched by a key column
+  (:attr:`ReadOptions.key`) in any order, one joint row to one measured row or to several, each
+  with its target id (``target_column``, ``target_from``); or each measured row to the joint row
+  of the nearest timestamp (``join="nearest-time"``, ``time``, ``max_gap``).
 
 Example (the bundled BRTIRUS0707A; ``set`` may be left out, and so may ``qw`` ... ``qz``)::
 
@@ -53,6 +55,7 @@ import numpy as np
 
 from calib.errors import MeasurementFormatError, ParameterError
 from calib.io.fileio import atomic_write_text, check_not_input
+from calib.io.join import join_tables, sides
 from calib.model.measurements import Measurements
 from calib.io.csv_layer import (ANGLE_UNITS, LENGTH_UNITS, POSITION_COLUMNS, ORIENTATIONS, ReadOptions, Spec,
                                 Table, csv_text, joint_columns, read_table)
@@ -89,14 +92,18 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
     csv_path : the measurement file; with ``tracker``, the file of joint values.
     robot : the robot whose joints the file names; its joint limits are checked.
     tracker : a second file with the measured poses (x, y, z and an orientation), joined to
-        ``csv_path`` row by row through the key column ``options.key``; None for one file.
-    options : :class:`ReadOptions` (rename, Euler sequence, limit tolerance, key).
+        ``csv_path`` through the key column ``options.key`` (one joint row to one or several
+        measured rows, each with its target id: ``options.target_column``,
+        ``options.target_from``) or by the nearest time (``options.join == "nearest-time"``,
+        ``options.time``, ``options.max_gap``): see :mod:`calib.io.join`; None for one file.
+    options : :class:`ReadOptions` (rename, Euler sequence, limit tolerance, the join).
 
     Returns
     -------
     Measurements in SI units: ``q`` (N, n) rad / m in chain order, ``position`` (N, 3) m and
     ``rotation`` (N, 3, 3) (or None) of the tool frame in the meas frame, ``rows`` the line
-    numbers (of ``csv_path``), ``sets``, ``target``, ``source`` = ``csv_path``, and the
+    numbers of ``source``: ``csv_path`` (one file, or a join of one measured row per joint row),
+    else ``tracker`` (one result row per measured row); ``sets``, ``target``, and the
     ``ignored_columns`` and ``notes`` of the reading (the caller decides whether to print them).
 
     Raises
@@ -113,69 +120,47 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
     options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
         or ReadOptions()
     if tracker is None:
-        if options.key is not None:
-            raise ParameterError("a key column joins two files: give the tracker file too "
-                                 "(--tracker POSES.csv)")
+        given = [flag for flag, on in (("--key", options.key is not None),
+                                       ("--join nearest-time", options.join != "key"),
+                                       ("--target-column", options.target_column is not None),
+                                       ("--target-from", options.target_from is not None)) if on]
+        if given:
+            if given == ["--key"]:
+                raise ParameterError("a key column joins two files: give the tracker file too "
+                                     "(--tracker POSES.csv)")
+            raise ParameterError(f"{' and '.join(given)} {'is' if len(given) == 1 else 'are'} for a "
+                                 f"tracker file joined to the joint file: give it too (--tracker "
+                                 f"POSES.csv)")
         t = read_table(csv_path, MEASUREMENT, robot, options)
         q, pose, rows, labels, tables = t.q, t, t.rows, t.labels, [t]
+        source, joined_notes = Path(csv_path), ()
         order = np.arange(len(rows))
     else:
-        if options.key is None:
+        if options.join == "key" and options.key is None:
             raise ParameterError("a tracker file is joined to the joint file by a key column: "
-                                 "give it (--key COLUMN)")
-        j = read_table(csv_path, JOINT_SIDE, robot, options)
-        pose = read_table(tracker, TRACKER_SIDE, robot, options)
+                                 "give it (--key COLUMN), or join by the nearest time (--join "
+                                 "nearest-time)")
+        joint_spec, tracker_spec = sides(JOINT_SIDE, TRACKER_SIDE, options)
+        j = read_table(csv_path, joint_spec, robot, options)
+        pose = read_table(tracker, tracker_spec, robot, options)
         tables = [j, pose]
-        order = _join(j, pose, options.key)
-        q, rows = j.q, j.rows
-        labels = _joined_labels(j, pose, order)
+        joined = join_tables(j, pose, options)
+        order, labels, joined_notes = joined.tracker, joined.labels, joined.notes
+        q = j.q[joined.joint]
+        # one result row per measured row: the joint file's row numbers while they stay unique
+        # (outliers are told by row), else the tracker file's
+        rows, source = (j.rows[joined.joint], Path(csv_path)) if joined.one_to_one \
+            else (pose.rows[joined.tracker], Path(tracker))
     position = pose.position[order]
     rotation = None if pose.rotation is None else pose.rotation[order]
     return Measurements(q=q, position=position, rotation=rotation, rows=rows,
                         sets=labels.get("set"), target=labels.get("target"),
-                        joint_names=robot.joint_names, source=Path(csv_path),
+                        joint_names=robot.joint_names, source=source,
                         prismatic=robot.prismatic,
                         ignored_columns=tuple(c for t in tables for c in t.ignored_columns),
-                        notes=tuple(n for t in tables for n in t.notes) + _rename_notes(options, tables),
+                        notes=tuple(n for t in tables for n in t.notes) + joined_notes
+                        + _rename_notes(options, tables),
                         orientation=f"euler:{options.euler}" if pose.orientation == "euler" else pose.orientation)
-
-
-def _join(j: Table, t: Table, key: str) -> np.ndarray:
-    """Index into ``t`` of each row of ``j`` with the same key (errors name file, row, key)."""
-    first = {}
-    for table in (j, t):
-        seen: dict[str, int] = {}
-        for k, value in enumerate(table.labels[key]):
-            if value in seen:
-                raise MeasurementFormatError(table.path, f"duplicated key {value!r} (also in row "
-                                                         f"{table.rows[seen[value]]})",
-                                             row=int(table.rows[k]), column=table.names[key])
-            seen[value] = k
-        first[table.path] = seen
-    in_t, in_j = first[t.path], first[j.path]
-    for a, b, index in ((j, t, in_t), (t, j, in_j)):
-        for k, value in enumerate(a.labels[key]):
-            if value not in index:
-                raise MeasurementFormatError(a.path, f"key {value!r} is not in {b.path}",
-                                             row=int(a.rows[k]), column=a.names[key])
-    return np.array([in_t[v] for v in j.labels[key]], dtype=int)
-
-
-def _joined_labels(j: Table, t: Table, order: np.ndarray) -> dict:
-    """set and target from either file; a label in both must agree row by row."""
-    out = {}
-    for label in ("set", "target"):
-        a = j.labels.get(label)
-        b = None if label not in t.labels else tuple(t.labels[label][i] for i in order)
-        if a is not None and b is not None:
-            for k, (x, y) in enumerate(zip(a, b)):
-                if x != y:
-                    raise MeasurementFormatError(
-                        t.path, f"{label} {y!r} differs from {x!r} in row {j.rows[k]} of {j.path} "
-                                f"(same key); give {label} in one file or the same in both",
-                        row=int(t.rows[order[k]]), column=t.names[label])
-        out[label] = a if a is not None else b
-    return out
 
 
 def write_measurements(path: str | Path, measurements: Measurements, *, angle_unit: str = "deg",

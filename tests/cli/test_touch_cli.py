@@ -74,7 +74,8 @@ def test_degenerate_design_and_bad_input_exit_2_writing_nothing(urdf, tmp_path, 
     assert code == 2 and "--constraint: 'cube:3'" in err
     # options of the pose fit that a touch fit does not take are refused, not ignored
     for option in (["--method", "lm"], ["--estimator", "map"], ["--loss", "huber"], ["--periodic"],
-                   ["--payload-kg", "5"], ["--gravity", "0,0,-9.8"]):
+                   ["--payload-kg", "5"], ["--gravity", "0,0,-9.8"], ["--key", "point"],
+                   ["--join", "nearest-time"], ["--max-gap", "0.01"], ["--target-from", "(?P<key>.)"]):
         code, _, err = run(capsys, "calibrate", urdf, tmp_path / "one.csv", "--tool-frame", "tool0",
                            "-o", tmp_path / "cal.urdf", *option)
         assert code == 2 and f"{option[0]} does not apply to touch files" in err, option

@@ -377,7 +377,7 @@ def test_readme_examples_read_and_match_nominal_kinematics(tmp_path, robot):
     text = (BUNDLED_URDF.parents[2] / "README.md").read_text()
     section = text[text.index("## Measurement file format"):text.index("## Commands")]
     blocks = re.findall(r"```\n(.*?)```", section, flags=re.S)
-    assert len(blocks) == 8
+    assert len(blocks) == 12      # 8 to 11: the joins of tests/io/test_join.py
     options = {3: ReadOptions(rename="X=x_mm,Y=y_mm,Z=z_mm,A=e1_deg,B=e2_deg,C=e3_deg",
                               euler="ZYZ")}
     for k, block in enumerate(blocks[:5]):
@@ -436,7 +436,8 @@ def test_cli_key_and_tracker_go_together(tmp_path, capsys):
                                  "too (--tracker POSES.csv)\n")
     code, _, err = _run(capsys, "evaluate", BUNDLED_URDF, j, "--tracker", t)
     assert code == 2 and err == ("calib: error: a tracker file is joined to the joint file by a key "
-                                 "column: give it (--key COLUMN)\n")
+                                 "column: give it (--key COLUMN), or join by the nearest time "
+                                 "(--join nearest-time)\n")
     code, out, err = _run(capsys, "evaluate", BUNDLED_URDF, j, "--tracker", t, "--key", "point")
     assert code == 0 and err == "" and "Accuracy of" in out
 

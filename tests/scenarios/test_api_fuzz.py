@@ -60,6 +60,9 @@ def table(tmp_path_factory):
     calib.write_touch(d / "t.csv", touch, robot)
     calib.export_calibration(BUNDLED_URDF, "mdh-csv", d / "mdh.csv")
     touch_res = calib.calibrate_touch(robot, touch, params="tool", cv=0)
+    (d / "log.csv").write_text("time_s,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n0,0,0,0,0,0,0\n0.01,1,0,0,0,0,0\n")
+    (d / "trk.csv").write_text("time_s,point,target,x_mm,y_mm,z_mm\n0.002,P1_A,A,441,0,-36.5\n")
+    timed = calib.ReadOptions(join="nearest-time", time="time_s", max_gap=0.005)
     t = {
         "load_robot": (calib.load_robot, dict(urdf_path=BUNDLED_URDF)),
         "robot_path": (calib.robot_path, dict(robot=BUNDLED_URDF)),
@@ -72,6 +75,10 @@ def table(tmp_path_factory):
         "read_measurements": (calib.read_measurements, dict(csv_path=d / "m.csv", robot=robot)),
         "write_measurements": (calib.write_measurements, dict(path=d / "w.csv", measurements=meas)),
         "ReadOptions": (calib.ReadOptions, {}),
+        "ReadOptions.nearest_time": (calib.ReadOptions, dict(join="nearest-time", time="time_s", max_gap=0.01)),
+        "ReadOptions.target_from": (calib.ReadOptions, dict(key="point", target_from=r"(?P<key>P\d+)_(?P<target>\w+)")),
+        "read_measurements.nearest_time": (calib.read_measurements, dict(csv_path=d / "log.csv", robot=robot,
+                                                                         tracker=d / "trk.csv", options=timed)),
         "read_targets": (calib.read_targets, dict(path=d / "p.csv", nominal=robot)),
         "write_compensation": (calib.write_compensation, dict(path=d / "c.csv", result=comp)),
         "calibrate": (calib.calibrate, dict(robot=robot, measurements=meas, params="base", cv=0)),
