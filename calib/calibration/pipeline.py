@@ -202,9 +202,18 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     accuracy = accuracy_after(accuracy, fit.model, fit.errors, val, robot.targets, kin)
 
     nz = fit.noise
+    # a measurement frame estimated from the data is the instrument's: the robot's base frame in
+    # it is reported apart (calib.calibration.base_frame), the URDF stays rooted at the robot
+    mframe, in_base = None, fit.model
+    if "measurement->base" in setup.rebased:
+        from calib.calibration.base_frame import in_base_frame, robot_base_frame
+
+        mframe = robot_base_frame(fit.model, robot, covariance=stats.covariance, free=fit.free,
+                                  position_only=setup.measure == "position")
+        in_base = in_base_frame(fit.model, mframe)
     return CalibrationResult(
         robot=fit.model, nominal=robot, method=opts.method, param_set=label,
-        parameters=_parameter_table(robot, fit.model, fit.free, stats.covariance), free=fit.free,
+        parameters=_parameter_table(robot, in_base, fit.free, stats.covariance), free=fit.free,
         status=status, message=message, iterations=fit.iterations,
         rounds=fit.solver.rounds, wall_time=time.perf_counter() - t0, cost=float(fit.solver.cost),
         reduced_chi2=nz.reduced_chi2, covariance=stats.covariance, before=accuracy.before, after=accuracy.after,
@@ -217,4 +226,5 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         validation_before_registered=accuracy.validation_before_registered, targets=accuracy.targets,
         after_without_outliers=fit.errors.subset(fit.keep) if fit.outliers else None,
         estimated_frames=setup.rebased, predicted_workspace=stats.predicted_workspace,
-        consistency=stats.consistency, estimator=estimator or {"kind": "least-squares", "param_set": label})
+        consistency=stats.consistency, estimator=estimator or {"kind": "least-squares", "param_set": label},
+        measurement_frame=mframe)

@@ -69,6 +69,10 @@ class CalibrationResult:
     new measured rows (:class:`Statistics`). cross_validation, selection : see
     :class:`CrossValidation`, :class:`ModelSelection` (None when not run).
     covariance : (n_free, n_free) covariance of the free parameters (SI units).
+    measurement_frame : when the calibration estimated the measurement frame, the robot's base
+    frame in it with its covariance (:class:`calib.calibration.base_frame.MeasurementFrame`):
+    ``robot`` predicts tool poses in the meas frame; :meth:`base_robot` in the robot's base frame,
+    which is what the calibrated URDF holds; None otherwise (meas frame = base frame).
     estimated_frames : the frames estimated in closed form because the data put them far from the
     nominal ones ("measurement->base", "flange->tool" or "flange-><id>" per target; () if none):
     the calibrated model's base frame is then the instrument's, its tool the measured point.
@@ -125,6 +129,18 @@ class CalibrationResult:
     predicted_workspace: dict | None = field(default=None, repr=False)
     consistency: dict | None = field(default=None, repr=False)
     estimator: dict | None = None
+    measurement_frame: "MeasurementFrame | None" = field(default=None, repr=False)
+
+    def base_robot(self) -> RobotModel:
+        """The calibrated model with its tool poses in the robot's base frame: ``robot`` itself,
+        or, when the calibration estimated the measurement frame (:attr:`measurement_frame`),
+        ``T_base_tool(q) = T_meas_base^-1 T_meas_tool(q)`` (what the calibrated URDF holds;
+        :mod:`calib.calibration.base_frame`)."""
+        if self.measurement_frame is None:
+            return self.robot
+        from calib.calibration.base_frame import in_base_frame
+
+        return in_base_frame(self.robot, self.measurement_frame)
 
     @property
     def success(self) -> bool:
@@ -148,22 +164,36 @@ class CalibrationResult:
                 return p
         raise ParameterError(f"unknown parameter {name!r}")
 
-    def write_urdf(self, path: str | Path) -> None:
-        """Write the calibrated model as a URDF (see :func:`calib.io.urdf_writer.write_calibrated_urdf`).
+    def write_urdf(self, path: str | Path, *, measurement_link: str | None = None):
+        """Write the calibrated model as a URDF (see :func:`calib.io.urdf_writer.write_calibrated_urdf`),
+        rooted where the input was: :meth:`base_robot`, with the measurement->base transform
+        recorded (and, with ``measurement_link``, added as a fixed link above the root).
+        Returns the frames written (:class:`calib.io.urdf.RecordedFrames`).
 
         The URDF holds the geometry; with joint terms (compliance, periodic errors) these go to the
         sidecar :func:`calib.io.compliance_file.sidecar_path` beside it
         (:func:`calib.io.compliance_file.write_sidecar`): the URDF read with the sidecar
         (:func:`calib.io.compliance_file.apply_record`, torques from the nominal URDF) is
         ``self.robot``."""
-        from calib.io.urdf_writer import write_calibrated_urdf
-
-        write_calibrated_urdf(self.robot.geometry(), path, nominal=self.nominal.geometry(),
-                              estimated=self.estimated_frames)
+        frames = self.write_urdf_only(path, measurement_link=measurement_link)
         if self.robot.has_joint_terms:
             from calib.io.compliance_file import sidecar_path, write_sidecar
 
             write_sidecar(sidecar_path(path), self.compliance_record())
+        return frames
+
+    def write_urdf_only(self, path: str | Path, *, measurement_link: str | None = None):
+        """The URDF of :meth:`write_urdf` without the compliance sidecar; returns its frames."""
+        from calib.io.urdf_writer import write_calibrated_urdf
+
+        mf = self.measurement_frame
+        if mf is None and measurement_link is not None:
+            raise ParameterError("measurement_link: this calibration did not estimate a measurement frame "
+                                 "(its measurements are in the robot's base frame)")
+        return write_calibrated_urdf(
+            self.base_robot().geometry(), path, nominal=self.nominal.geometry(), estimated=self.estimated_frames,
+            T_meas_base=None if mf is None else mf.T_meas_base,
+            meas_covariance=None if mf is None else mf.covariance, measurement_link=measurement_link)
 
     def compliance_record(self) -> dict | None:
         """The compliances and periodic terms with their std, payload and gravity
@@ -202,6 +232,8 @@ class CalibrationResult:
             "before": self.before.to_dict(),
             "after": self.after.to_dict(),
             "estimated_frames": list(self.estimated_frames),
+            "measurement_frame": None if self.measurement_frame is None else self.measurement_frame.to_dict(),
+            "frames": _frames_table(self),
             "after_without_outliers": None if self.after_without_outliers is None
             else self.after_without_outliers.to_dict(),
             "before_registered": None if self.before_registered is None else {
@@ -273,10 +305,20 @@ class CalibrationResult:
         if self.robot.has_joint_terms:
             lines.insert(-1, f"  note: {self.compliance_record()['note']}")
         for p in self.parameters:
+            if _frame_of(p.name) is not None:      # frames: as transforms, below
+                continue
             unit = display_unit(p.unit)
             std = "fixed" if not p.free else f"{display_value(p.std, p.unit):.3g}"
             lines.append(f"{p.name:<{w}}{unit:>5}{display_value(p.nominal, p.unit):>14.6f}"
                          f"{display_value(p.identified, p.unit):>14.6f}{display_value(p.deviation, p.unit):>13.6f}{std:>11}")
+        lines += ["", "frame transforms (x, y, z / mm; roll, pitch, yaw / deg; std 1 sigma, of the "
+                      "parameters u / v, rotations about the axes of the frame's parent for meas->base):"]
+        for f in _frames_table(self):
+            ide, std = f["identified"], f["std"]
+            nom = "" if f["nominal"] is None else ("  nominal " + _xyz_rpy_text(f["nominal"]))
+            lines.append(f"  {f['frame']:<24} {_xyz_rpy_text(ide)}{nom}")
+            lines.append(f"  {'':<24} std {_xyz_rpy_text(std, '.3g')}"
+                         + (f"; {f['note']}" if f.get("note") else ""))
         rows = [("calibration rows, before", self.before)]
         if self.before_registered is not None:
             rows.append(("  before, frame registered", self.before_registered))
@@ -315,6 +357,73 @@ class CalibrationResult:
         lines.append(f"predicted RMS error of the calibrated model against the true poses (Cramer-Rao, "
                      f"{pr['where']}): position {pr['position_rms'] * 1e3:.4g} mm{rot}")
         return "\n".join(lines)
+
+
+#: The parameter groups that are frame transforms, and their kinds in Eq. (3) order.
+_FRAME_GROUPS = ("u", "v")
+_ZYX_KINDS = ("x", "y", "z", "alpha", "beta", "gamma")
+
+
+def _frame_of(name: str) -> tuple[str, str | None, str] | None:
+    """(group, target or None, kind) of a u / v parameter name (``u_x``, ``v_gamma@A``), else None."""
+    head, _, target = name.partition("@")
+    group, _, kind = head.partition("_")
+    if group in _FRAME_GROUPS and kind in _ZYX_KINDS:
+        return group, (target or None), kind
+    return None
+
+
+def _xyz_rpy_text(d: dict, fmt: str = ".4f") -> str:
+    def num(x, f):
+        return "fixed" if x is None else format(x, f)
+    f_ang = ".6f" if fmt == ".4f" else fmt
+    return (", ".join(num(x, fmt) for x in d["xyz_mm"]) + " mm; "
+            + ", ".join(num(x, f_ang) for x in d["rpy_deg"]) + " deg")
+
+
+def _frames_table(result: "CalibrationResult") -> list[dict]:
+    """The frame transforms of a result as transforms (x, y, z mm; roll, pitch, yaw deg): the
+    measurement->base transform (when estimated), the robot base (MDH frame 0) in the URDF base
+    frame, and flange->tool (or flange->target per target), with nominal, identified and std."""
+    out = []
+    mf = result.measurement_frame
+    if mf is not None:
+        d = mf.to_dict()
+        out.append({"frame": f"measurement->{mf.base_frame}", "nominal": None,
+                    "identified": {"xyz_mm": d["xyz_mm"], "rpy_deg": d["rpy_deg"]},
+                    "std": {"xyz_mm": d["std_xyz_mm"], "rpy_deg": d["std_rotation_deg"]},
+                    "note": "estimated from the data (the instrument's pose, not an error of the robot)"})
+    groups: dict = {}
+    for p in result.parameters:
+        f = _frame_of(p.name)
+        if f is not None:
+            groups.setdefault(f[:2], {})[f[2]] = p
+    for (group, target), rows in groups.items():
+        if group == "u":
+            label = ("base (MDH frame 0) in " + (mf.base_frame if mf is not None else "the meas frame"))
+        else:
+            label = f"flange->{target or 'tool'}"
+
+        def pick(attr, rows=rows):
+            v = [getattr(rows[k], attr) if k in rows else math.nan for k in _ZYX_KINDS]
+            return v
+        nom, ide, std = pick("nominal"), pick("identified"), pick("std")
+        free = [k in rows and rows[k].free for k in _ZYX_KINDS]
+
+        def as_transform(v, is_std=False):
+            xyz = [v[i] * 1e3 for i in range(3)]
+            rpy = [math.degrees(v[i]) for i in (5, 4, 3)]     # roll = gamma, pitch = beta, yaw = alpha
+            if is_std:
+                xyz = [x if free[i] else None for i, x in enumerate(xyz)]
+                rpy = [x if free[i] else None for i, x in zip((5, 4, 3), rpy)]
+            return {"xyz_mm": xyz, "rpy_deg": rpy}
+        estimated = (group == "u" and mf is not None) or (
+            group == "v" and any(e.startswith("flange->") for e in result.estimated_frames))
+        out.append({"frame": label, "nominal": as_transform(nom), "identified": as_transform(ide),
+                    "std": as_transform(std, True),
+                    "note": ("the tool frame was estimated from the data (the measured point)"
+                             if group == "v" and estimated else "")})
+    return out
 
 
 def _workspace_dict(pw: dict | None) -> dict | None:

@@ -143,6 +143,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="touch files with no known length (points and planes, no sphere, no measured "
                         "row): hold the robot's scale at the nominal instead of refusing the full model "
                         "(the accuracy then holds up to scale)")
+    p.add_argument("--measurement-link", default=None, metavar="NAME",
+                   help="when the calibration estimates the measurement frame (a tracker's), also write "
+                        "it into CALIBRATED.urdf as a new root link NAME with a fixed joint "
+                        "NAME_to_<root> whose child is the URDF's root link (the robot's base frame "
+                        "stays where it was; README, Frames and units)")
     add_file_format(p, tracker=True)
     add_frames(p)
     g = add_compliance(p, "calibrate")
@@ -160,12 +165,26 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+def _check_measurement_link(name, robot) -> None:
+    """Refuse a --measurement-link name that is empty, has spaces or is a link of the URDF."""
+    if name is None:
+        return
+    if not name.strip() or any(c.isspace() for c in name):
+        raise ParameterError(f"--measurement-link: expected a link name without spaces, got {name!r}")
+    links = () if robot.source is None else robot.source.document.links
+    if robot.source is None:
+        raise ParameterError("--measurement-link needs a robot read from a URDF")
+    if name in links:
+        raise ParameterError(f"--measurement-link {name}: {robot.urdf_path} has a link of that name already; "
+                             f"choose a new name")
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``calib calibrate`` with parsed arguments; returns the exit code."""
     import calib
     from calib.calibration.report import build_report
     from calib.io.urdf_reader import robot_path
-    from calib.io.urdf_writer import check_writable, write_calibrated_urdf
+    from calib.io.urdf_writer import check_writable
     from calib.cli.touch import is_touch_input, run_touch
 
     if is_touch_input(args):        # rows naming the point, plane or sphere touched (issue 24)
@@ -194,6 +213,7 @@ def run(args: argparse.Namespace) -> int:
     # (reserved always: written when the model has joint terms, an earlier one removed otherwise)
     out_sidecar = outputs.add(sidecar_path(out_urdf))
     frames = check_writable(robot)     # what cannot be written is refused before the fit
+    _check_measurement_link(args.measurement_link, robot)
     log.info("the calibrated URDF will hold tool frame %r in base frame %r", frames.tool_frame,
              frames.base_frame)
     meas = read(args.measurements, robot, args, args.tracker)
@@ -218,9 +238,12 @@ def run(args: argparse.Namespace) -> int:
         return refuse_implausible(result.format(), result.message)   # nonsense is not written
 
     written_frames = []
+    if args.measurement_link is not None and result.measurement_frame is None:
+        raise ParameterError(f"--measurement-link {args.measurement_link}: the calibration did not estimate "
+                             f"a measurement frame (the measurements are taken as given in the robot's base "
+                             f"frame {robot.base_frame!r}); nothing written")
     outputs.stage_from_file(out_urdf, lambda p: written_frames.append(
-        write_calibrated_urdf(result.robot.geometry(), p, nominal=result.nominal.geometry(),
-                              estimated=result.estimated_frames)))
+        result.write_urdf_only(p, measurement_link=args.measurement_link)))
     frames = written_frames[0]
     if out_sidecar is not None and result.robot.has_joint_terms:
         outputs.stage(out_sidecar, json_text(result.compliance_record()))

@@ -52,6 +52,7 @@ __all__ = ["FRAMES_NAMESPACE", "RecordedFrames", "UrdfDocument", "UrdfJoint"]
 FRAMES_NAMESPACE = "urn:calib:frames:1"
 FRAMES_TAG = f"{{{FRAMES_NAMESPACE}}}frames"
 TARGET_TAG = f"{{{FRAMES_NAMESPACE}}}target"
+MEASUREMENT_TAG = f"{{{FRAMES_NAMESPACE}}}measurement"
 
 
 @dataclass(frozen=True)
@@ -86,6 +87,24 @@ class RecordedFrames:
     targets: tuple[tuple[str, str], ...] = ()
     measurement_estimated: bool = False
     tool_estimated: bool = False
+    #: The measurement->base transform of a calibration that estimated the measurement frame
+    #: and kept the URDF rooted at the robot's base: ``T_meas_base`` (4, 4) pose of ``base_frame``
+    #: in the measurement frame as a 16-tuple (row-major, metres), its (6, 6) covariance as a
+    #: 36-tuple (x, y, z m; rotation vector rad; in the meas frame), and the link added for the
+    #: measurement frame (``--measurement-link``), or None / () / "" without.
+    T_meas_base: tuple = ()
+    meas_covariance: tuple = ()
+    measurement_link: str = ""
+
+    @property
+    def measurement_transform(self):
+        """(4, 4) T_meas_base recorded (see the attributes), or None."""
+        return np.array(self.T_meas_base, float).reshape(4, 4) if self.T_meas_base else None
+
+    @property
+    def measurement_covariance(self):
+        """(6, 6) covariance of the recorded T_meas_base, or None."""
+        return np.array(self.meas_covariance, float).reshape(6, 6) if self.meas_covariance else None
 
     def _attributes(self) -> dict:
         out = {"base_frame": self.base_frame, "tool_frame": self.tool_frame,
@@ -100,6 +119,11 @@ class RecordedFrames:
         out = self._attributes()
         if self.targets:
             out["targets"] = {t: link for t, link in self.targets}
+        if self.T_meas_base:
+            T = self.measurement_transform
+            out["measurement"] = {"xyz": [float(x) for x in T[:3, 3]],
+                                  "rpy": [float(x) for x in rpy_nearest(T[:3, :3])],
+                                  "link": self.measurement_link or None}
         return out
 
     def element(self) -> etree._Element:
@@ -109,7 +133,24 @@ class RecordedFrames:
             el.set(key, value)
         for target, link in self.targets:
             etree.SubElement(el, TARGET_TAG, {"id": target, "link": link})
+        if self.T_meas_base:
+            T = self.measurement_transform
+            attrib = {"xyz": " ".join(format_number(x) for x in T[:3, 3]),
+                      "rpy": " ".join(format_number(x) for x in rpy_nearest(T[:3, :3])),
+                      "covariance": " ".join(repr(float(x)) for x in self.meas_covariance)}
+            if self.measurement_link:
+                attrib["link"] = self.measurement_link
+            etree.SubElement(el, MEASUREMENT_TAG, attrib)
         return el
+
+
+def _floats(text, count: int):
+    """``count`` finite numbers from a space-separated attribute, else None."""
+    try:
+        v = [float(t) for t in (text or "").split()]
+    except ValueError:
+        return None
+    return v if len(v) == count and all(math.isfinite(x) for x in v) else None
 
 
 class UrdfDocument:
@@ -224,6 +265,17 @@ class UrdfDocument:
             if el.get(k, "false") not in ("true", "false"):
                 raise URDFError(self.path, f"<calib:frames> {k}={el.get(k)!r}: expected true or false")
             flags[k] = el.get(k) == "true"
+        meas = el.find(MEASUREMENT_TAG)
+        if meas is not None:
+            xyz, rpy = (_floats(meas.get(a), 3) for a in ("xyz", "rpy"))
+            cov = _floats(meas.get("covariance"), 36)
+            link = meas.get("link", "")
+            if xyz is None or rpy is None or cov is None or (link and link not in self.links):
+                raise URDFError(self.path, "<calib:measurement>: expected xyz (3 numbers, m), rpy (3, rad), "
+                                           "covariance (36 numbers) and an optional link of this file")
+            T = pin.SE3(pin.rpy.rpyToMatrix(*rpy), np.array(xyz)).homogeneous
+            flags.update(T_meas_base=tuple(T.reshape(-1)), meas_covariance=tuple(cov),
+                         measurement_link=link)
         return RecordedFrames(*(el.get(k) for k in keys), source=el.get("source", ""), targets=targets,
                               **flags)
 

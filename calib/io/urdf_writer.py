@@ -86,7 +86,10 @@ _UNCHANGED_TOL = 1e-13
 # ====================================================================== public API
 def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
                           nominal: RobotModel | None = None,
-                          estimated: Sequence[str] = ()) -> RecordedFrames:
+                          estimated: Sequence[str] = (),
+                          T_meas_base: np.ndarray | None = None,
+                          meas_covariance: np.ndarray | None = None,
+                          measurement_link: str | None = None) -> RecordedFrames:
     """Write a copy of the URDF ``robot`` was read from whose kinematics are exactly ``robot``'s.
 
     Parameters
@@ -101,6 +104,15 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
         (:attr:`calib.CalibrationResult.estimated_frames`: "measurement->base", "flange->tool",
         "flange-><id>"), recorded as ``measurement_estimated`` / ``tool_estimated``; a calibrated
         input's record of its frames (same base / tool frame) is kept.
+    T_meas_base : (4, 4) the measurement->base transform when ``robot`` holds the robot's base
+        frame and the measurement frame is reported apart
+        (:func:`calib.calibration.base_frame.robot_base_frame`): recorded in ``<calib:frames>``
+        (``<calib:measurement>``, with ``meas_covariance`` (6, 6)); the base frame is then the
+        robot's, not the instrument's (``measurement_estimated`` stays false).
+    measurement_link : with ``T_meas_base``, the name of a link to add for the measurement frame:
+        a new root link with a fixed joint ``<name>_to_<root>`` whose child is the URDF's root
+        link (ROS: one tree, one root; robot_state_publisher then publishes the tracker frame
+        as the parent of the robot). Must not be a link of the URDF already.
 
     Returns the frames the output records (:class:`calib.io.urdf.RecordedFrames`): in the output,
     Pinocchio's pose of ``tool_frame`` in ``base_frame`` is ``robot.T_meas_tool(q)`` (4x4,
@@ -124,20 +136,103 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
         check_robot(nominal, "nominal")
     estimated = check_names(estimated, "estimated")
     check_not_input(check_path(path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
+    measurement = _check_measurement(T_meas_base, meas_covariance, measurement_link)
     if robot.source is None:      # a model built in code: a minimal URDF of its kinematics
         if nominal is not None:
             _check_compatible(robot, nominal)
-        text, frames = minimal_urdf(robot, estimated=tuple(estimated))
+        if measurement_link:
+            raise CalibError("measurement_link needs a model read from a URDF (this one was built in code)")
+        text, frames = minimal_urdf(robot, estimated=tuple(e for e in estimated if measurement is None
+                                                           or e != "measurement->base"))
+        if measurement is not None:
+            frames = replace(frames, **measurement)
+            text = _minimal_with_record(text, frames)
         atomic_write_text(path, text)
         return frames
     doc, plan = _prepare(robot, nominal)
     estimated = tuple(estimated)
     f = plan.frames     # (a calibrated input's record kept: see _prepare)
+    meas_estimated = f.measurement_estimated or "measurement->base" in estimated
+    if measurement is not None:      # the base frame is the robot's; the instrument's is recorded
+        meas_estimated = False
     plan = replace(plan, frames=replace(
-        f, measurement_estimated=f.measurement_estimated or "measurement->base" in estimated,
-        tool_estimated=f.tool_estimated or any(e.startswith("flange->") for e in estimated)))
+        f, measurement_estimated=meas_estimated,
+        tool_estimated=f.tool_estimated or any(e.startswith("flange->") for e in estimated),
+        **(measurement or {"T_meas_base": (), "meas_covariance": (), "measurement_link": ""})))
+    if measurement_link:
+        plan = _plan_measurement_link(doc, plan, robot.base_frame, measurement_link)
     atomic_write_text(path, doc.render(plan))
     return plan.frames
+
+
+def _check_measurement(T, cov, link) -> dict | None:
+    """The RecordedFrames fields of a measurement->base transform (or None without one)."""
+    if T is None:
+        if cov is not None or link is not None:
+            raise CalibError("meas_covariance and measurement_link need T_meas_base")
+        return None
+    try:
+        T = np.array(T, float)
+        cov = np.zeros((6, 6)) if cov is None else np.array(cov, float)
+    except (TypeError, ValueError):
+        raise CalibError("T_meas_base must be a (4, 4) transform and meas_covariance (6, 6)") from None
+    if T.shape != (4, 4) or cov.shape != (6, 6) or not (np.isfinite(T).all() and np.isfinite(cov).all()) \
+            or np.abs(T[:3, :3] @ T[:3, :3].T - np.eye(3)).max() > 1e-9:
+        raise CalibError("T_meas_base must be a finite (4, 4) rigid transform and meas_covariance (6, 6)")
+    if link is not None and (not isinstance(link, str) or not link.strip() or any(c.isspace() for c in link)):
+        raise CalibError(f"measurement link name must be a non-empty name without spaces, got {link!r}")
+    return {"T_meas_base": tuple(T.reshape(-1).tolist()), "meas_covariance": tuple(cov.reshape(-1).tolist()),
+            "measurement_link": link or ""}
+
+
+def _minimal_with_record(text: str, frames: RecordedFrames) -> str:
+    """A minimal URDF's text with its ``<calib:frames>`` element replaced by ``frames``'."""
+    tree = etree.ElementTree(etree.fromstring(text.encode()))
+    root = tree.getroot()
+    old = root.find(FRAMES_TAG)
+    new = frames.element()
+    new.tail = old.tail
+    root.replace(old, new)
+    return _serialize(tree)
+
+
+def _plan_measurement_link(doc: "_UrdfDocument", plan: "_Plan", base_frame: str, link: str) -> "_Plan":
+    """``plan`` with a new root link ``link`` (the measurement frame) and a fixed joint to the
+    URDF's root link at T_meas_root = T_meas_base . T_base_root (the base frame must sit on the
+    root through fixed joints, whose origins the plan keeps)."""
+    if link in doc.links:
+        raise CalibError(f"{doc.path}: --measurement-link {link!r} is a link of the URDF already; "
+                         f"choose a new name")
+    root = doc.root_link
+    base_link = doc.link_of(base_frame)
+    T_root_base = np.eye(4)
+    if base_link != root:
+        path = doc.fixed_path(root, base_link)
+        if not path:
+            raise CalibError(f"{doc.path}: the base frame {base_link!r} is not fixed to the root link "
+                             f"{root!r}: a measurement link above the root would move with joints")
+        for j, down in path:
+            O = _joint_origin(doc, j.name, plan)
+            T_root_base = T_root_base @ (O if down else inverse(O))
+    T = plan.frames.measurement_transform @ inverse(T_root_base)
+    joint = _unique_name(f"{link}_to_{root}", set(doc.joints))
+    return replace(plan, new_root=(link, joint, root, T))
+
+
+def _joint_origin(doc, name: str, plan) -> np.ndarray:
+    """(4, 4) origin of joint ``name`` in the output: the plan's, else the input's."""
+    if name in plan.origins:
+        return plan.origins[name]
+    el = next(e for e in doc.tree.getroot().findall("joint") if e.get("name") == name)
+    o = el.find("origin")
+    xyz = _parse_triple(o.get("xyz")) if o is not None else None
+    rpy = _parse_triple(o.get("rpy")) if o is not None else None
+    T = np.eye(4)
+    if xyz is not None:
+        T[:3, 3] = xyz
+    if rpy is not None:
+        T[:3, :3] = pin.rpy.rpyToMatrix(*rpy)
+    return T
 
 
 def check_writable(robot: RobotModel) -> RecordedFrames:
@@ -236,10 +331,14 @@ class _UrdfDocument(UrdfDocument):
         by_name = {el.get("name"): el for el in root.findall("joint")}
         for name, T in plan.origins.items():
             _set_origin(by_name[name], T, indent + unit)
-        for link, joint, parent, T in plan.new_links:
+        new = [(link, joint, parent, link, T) for link, joint, parent, T in plan.new_links]
+        if plan.new_root is not None:      # (link, joint, child, T): the measurement frame's link
+            link, joint, child, T = plan.new_root
+            new.append((link, joint, link, child, T))
+        for link, joint, parent, child, T in new:
             closing = root[-1].tail
             root[-1].tail = indent
-            els = _new_fixed_link(link, joint, parent=parent, child=link, T=T, indent=indent, unit=unit)
+            els = _new_fixed_link(link, joint, parent=parent, child=child, T=T, indent=indent, unit=unit)
             for el in els:
                 root.append(el)
             els[-1].tail = closing
@@ -351,6 +450,7 @@ class _Plan:
     frames: RecordedFrames
     new_tool: tuple | None = None      # (link, joint, parent link, T_parent_link)
     new_targets: tuple = ()            # the same for each new target link
+    new_root: tuple | None = None      # (link, joint, child = the old root, T_link_child)
 
     @property
     def new_links(self) -> tuple:
@@ -361,6 +461,9 @@ class _Plan:
                  "Recomputed joint origins: " + (", ".join(self.origins) or "none") + "."]
         if self.new_tool is not None:
             parts.append(f"Added tool link {self.new_tool[0]!r} with fixed joint {self.new_tool[1]!r}.")
+        if self.new_root is not None:
+            parts.append(f"Added measurement-frame link {self.new_root[0]!r} (the new root) with fixed "
+                         f"joint {self.new_root[1]!r} to {self.new_root[2]!r}.")
         if self.frames.targets:
             parts.append("Target links: " + ", ".join(f"{link!r} (target {t!r})" for t, link in self.frames.targets)
                          + ".")
