@@ -52,13 +52,13 @@ Status of each target (never silently clipped: the joint values are returned as 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from calib.checks import check_int, check_rng
+from calib.checks import check_instance, check_int, check_rng
 from calib.choices import SINGULAR_THRESHOLD
 from calib.model.robot import check_robot
 from calib.errors import CalibError, DataError, ParameterError
@@ -71,7 +71,8 @@ from calib.io.urdf import UrdfDocument
 from calib.model.spatial import log3_batch
 
 __all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "compensate",
-           "compensate_poses", "load_compensation_models", "check_joint_targets"]
+           "compensate_poses", "load_compensation_models", "check_joint_targets",
+           "with_frame_uncertainty", "pose_targets_in_base", "flange_link"]
 
 #: Statuses of a target, from the most to the least severe (see the module docstring).
 STATUSES = ("singular", "not_converged", "limit", "ok")
@@ -86,8 +87,14 @@ LIMIT_SLACK = 1e-12
 NULL_SPACE_PASSES = 30
 NULL_SPACE_TOL = 1e-12
 #: Number of random starts (besides the middle of the joint ranges) of
-#: :func:`compensate_poses` without ``q_start``.
+#: :func:`compensate_poses` without ``q_start``: for the targets not reached from the middle.
 RANDOM_STARTS = 16
+#: Largest joint change of one solver step (rad, or m for prismatic joints): a start far from the
+#: solution (another branch) moves there in steps the linearisation holds for; corrections of a
+#: calibration (milliradians) are never cut.
+MAX_STEP = 0.5
+#: Configurations per batch of the vectorised joint Jacobian (memory bounded per target).
+JOINT_CHUNK = 4096
 
 
 # ====================================================================== result
@@ -107,12 +114,18 @@ class CompensationResult:
     limit_excess : (N, n) float, rad / m: how far each joint is beyond its limits (positive above
         the upper limit, negative below the lower one, 0 within).
     min_singular_value : (N,) float: smallest singular value of the joint Jacobian, the smaller of
-        the start and the result (see the module docstring for its units).
+        the start and the result (the result only for pose targets without starting joints, whose
+        starts the solver chose; see the module docstring for its units).
     iterations : (N,) int: solver iterations per target.
     measure : "pose" or "position".
     target_position : (N, 3) metres; target_rotation : (N, 3, 3) or None; both in the meas frame.
     joint_names : (n,) the joint names; prismatic : (n,) bool, which joints are prismatic.
     singular_threshold, tol_pos, tol_rot : the thresholds used.
+    frame_position_std (N,) metres, frame_rotation_std (N,) radians : for targets in the robot's
+        base frame after a calibration that estimated the measurement frame, the 1-sigma error of
+        the reached pose that the uncertainty of the base frame's definition (the recorded
+        measurement->base covariance) causes: the correction cannot be better
+        (:func:`with_frame_uncertainty`); None otherwise.
     """
 
     q: np.ndarray
@@ -131,6 +144,8 @@ class CompensationResult:
     singular_threshold: float = SINGULAR_THRESHOLD
     tol_pos: float = TOL_POS_M
     tol_rot: float = TOL_ROT_RAD
+    frame_position_std: np.ndarray | None = field(default=None, repr=False)
+    frame_rotation_std: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def n_targets(self) -> int:
@@ -167,6 +182,11 @@ class CompensationResult:
             unit, scale = ("mm", 1e3) if self.prismatic[i] else ("deg", 180.0 / math.pi)
             side = "upper" if x > 0 else "lower"
             parts.append(f"{self.joint_names[i]} beyond its {side} limit by {abs(x) * scale:.6g} {unit}")
+        if self.frame_position_std is not None:
+            parts.append(f"{'reached' if not parts else 'and'} only to the base frame's uncertainty "
+                         f"{self.frame_position_std[k] * 1e3:.3g} mm, "
+                         f"{math.degrees(self.frame_rotation_std[k]):.3g} deg (1 sigma, the measurement->base "
+                         f"transform of the calibration)")
         return "; ".join(parts) if parts else "ok"
 
     def format(self) -> str:
@@ -185,6 +205,11 @@ class CompensationResult:
                          f"mm{rot}; largest joint change "
                          + ", ".join(f"{n} {v:.4g} {'mm' if p else 'deg'}" for n, v, p in
                                      zip(self.joint_names, (change * scale).max(axis=0), self.prismatic)))
+        if self.frame_position_std is not None:
+            lines.append(f"  the base frame's uncertainty (the calibration's measurement->base transform) limits "
+                         f"the correction: {self.frame_position_std.max() * 1e3:.3g} mm at most (median "
+                         f"{np.median(self.frame_position_std) * 1e3:.3g} mm), orientation "
+                         f"{math.degrees(self.frame_rotation_std.max()):.3g} deg (1 sigma)")
         for k in np.flatnonzero(~ok)[:10]:
             lines.append(f"  target {k + 1}: {self.status[k]}: {self.describe(int(k))}")
         if (~ok).sum() > 10:
@@ -237,11 +262,13 @@ def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None =
     p_meas_tool : (N, 3) float, metres: target tool positions in the meas frame (position-only
         targets). Give exactly one.
     q_start : (N, n) float, rad / m: the starting joint values, which choose the solution
-        branch (e.g. the nominal controller's joints for the pose). Default: every target is
-        solved from the middle of the joint ranges and from 16 random configurations (drawn with
-        ``seed``); the result is the ``"ok"`` solution closest to the middle of the joint
-        ranges (largest joint distance, scaled by the ranges), or, if none is ok, the one with the
-        least severe status.
+        branch (e.g. the nominal controller's joints for the pose). Default: each target is
+        solved from the seed configuration (of 512 drawn within the joint limits with ``seed``,
+        and the middle of the ranges) whose calibrated tool pose is nearest the target (seeds
+        near the middle of the ranges preferred); the targets not ok from there are solved again
+        from their next nearest seeds (17 in all; a singular one from 4), and keep the least
+        severe status met, then the solution closest to the middle of the joint ranges. Which
+        branch a target ends on is the one its seed leads to: give ``q_start`` to choose it.
     Other parameters as :func:`compensate`.
     """
     check_robot(calibrated, "calibrated")
@@ -275,20 +302,142 @@ def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None =
             raise DataError(f"q_start has {len(q0)} rows for {N} targets")
         return _solve(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
 
-    lo, hi = _finite_limits(calibrated)
+    return _solve_from_seeds(calibrated, p_t, R_t, seed, singular_threshold, tol_pos, tol_rot,
+                             max_iterations)
+
+
+def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol_pos, tol_rot,
+                      max_iterations) -> CompensationResult:
+    """Pose targets without starting joints: each target from the seed configuration whose
+    calibrated tool pose is nearest (of ``SEED_CONFIGURATIONS`` drawn within the joint limits with
+    ``seed``, and the middle of the ranges); the targets not ok from there again from their next
+    nearest seeds, in the stages of ``SEED_STAGES`` (one batch each, only the targets still not
+    ok; singular ones only in the second stage: a target reached near a singularity is mostly
+    singular on every branch), until none is left. A target keeps the least severe status met
+    (then the smallest joint distance from the middle of the ranges). Revolute joints of a
+    solution beyond a limit are moved by whole turns inside it when they fit (the same pose)."""
+    N = len(p_t)
+    lo, hi = _finite_limits(robot)
     mid, half = (lo + hi) / 2, np.where(hi > lo, (hi - lo) / 2, 1.0)
-    starts = np.vstack([mid[None], calibrated.random_configurations(RANDOM_STARTS, seed)])
-    S = len(starts)
-    q0 = np.tile(starts, (N, 1))                       # target k, start s at row k S + s
-    res = _solve(calibrated, q0, np.repeat(p_t, S, axis=0),
-                 None if R_t is None else np.repeat(R_t, S, axis=0), singular_threshold, tol_pos,
-                 tol_rot, max_iterations)
-    severity = np.array([STATUSES.index(s) for s in res.status]).reshape(N, S)
-    distance = (np.abs(res.q - mid) / half).max(axis=1).reshape(N, S)
-    # per target: the least severe status first, then the smallest distance from the middle
-    choice = np.lexsort((distance, -severity), axis=-1)[:, 0]
-    pick = np.arange(N) * S + choice
-    return _take(res, pick)
+    seeds = np.vstack([mid[None], robot.random_configurations(SEED_CONFIGURATIONS, seed)])
+    kin = ChainKinematics(robot)
+    R_s, p_s = kin.frame_poses(seeds)
+    # nearest in pose, preferring seeds near the middle of the joint ranges (the branch sought)
+    prefer = SEED_MIDDLE_M * np.sqrt(np.mean(((seeds - mid) / half) ** 2, axis=1))
+    order = _nearest(R_s, p_s, R_t, p_t, SEED_STAGES[-1], prefer)    # (N, tries) seed indices
+    best = None
+    todo = np.arange(N)
+    for stage, (a, b) in enumerate(zip(SEED_STAGES[:-1], SEED_STAGES[1:])):
+        S = b - a
+        rows = np.repeat(todo, S)                                    # target k, seeds a..b-1
+        sub = _solve(robot, seeds[order[todo, a:b].reshape(-1)], p_t[rows],
+                     None if R_t is None else R_t[rows], singular_threshold, tol_pos, tol_rot,
+                     max_iterations, start_counts=False, wrap=True, kin=kin)
+        cand = sub if best is None else _concat(_take(best, todo), sub)
+        at = np.arange(len(todo) * S).reshape(len(todo), S)
+        if best is not None:
+            at = np.hstack([np.arange(len(todo))[:, None], len(todo) + at])
+        severity = np.array([STATUSES.index(x) for x in cand.status])[at]
+        distance = (np.abs(cand.q - mid) / half).max(axis=1)[at]
+        choice = at[np.arange(len(todo)), np.lexsort((distance, -severity), axis=-1)[:, 0]]
+        if best is None:
+            best = _take(cand, choice)
+        else:
+            pick = np.arange(N)
+            pick[todo] = N + np.arange(len(todo))
+            best = _take(_concat(best, _take(cand, choice)), pick)
+        retry = (best.status == "not_converged") | (best.status == "limit")
+        if stage == 0:
+            retry |= best.status == "singular"
+        todo = np.flatnonzero(retry)
+        if not len(todo):
+            break
+    return best
+
+
+#: Seed configurations of pose targets without starting joints (see :func:`compensate_poses`),
+#: and the weight (metres per unit of the rotation matrices' distance) of orientation in the choice
+#: of the nearest.
+SEED_CONFIGURATIONS = 512
+SEED_ROTATION_M = 0.2
+#: Penalty (metres at the RMS joint distance of one half-range from the middle) of a seed far
+#: from the middle of the joint ranges in the choice of the nearest.
+SEED_MIDDLE_M = 0.1
+#: The stages of the seeds tried (nearest first): [0, 1) for every target, then [1, 4), then
+#: [4, 1 + RANDOM_STARTS) for the targets still not ok.
+SEED_STAGES = (0, 1, 4, 1 + RANDOM_STARTS)
+
+
+def _nearest(R_s, p_s, R_t, p_t, k: int, prefer: np.ndarray | None = None) -> np.ndarray:
+    """(N, k) indices of the k seeds nearest each target: |dp|^2 + w^2 |R_t - R_s|_F^2 (position
+    only without R_t) + prefer^2 (a penalty (S,) metres per seed), computed in chunks of targets
+    (memory bounded per target)."""
+    N, S = len(p_t), len(p_s)
+    k = min(k, S)
+    out = np.empty((N, k), int)
+    fs = np.hstack([p_s, SEED_ROTATION_M * R_s.reshape(S, 9)]) if R_t is not None else p_s
+    norm_s = np.einsum("ij,ij->i", fs, fs) + (0.0 if prefer is None else prefer ** 2)
+    for a in range(0, N, JOINT_CHUNK):
+        ft = p_t[a:a + JOINT_CHUNK]
+        if R_t is not None:
+            ft = np.hstack([ft, SEED_ROTATION_M * R_t[a:a + JOINT_CHUNK].reshape(len(ft), 9)])
+        d = norm_s[None] - 2.0 * ft @ fs.T           # + |ft|^2, the same for every seed
+        part = np.argpartition(d, k - 1, axis=1)[:, :k]
+        rows = np.arange(len(ft))[:, None]
+        out[a:a + JOINT_CHUNK] = part[rows, np.argsort(d[rows, part], axis=1)]
+    return out
+
+
+def with_frame_uncertainty(result: CompensationResult, *, T_meas_base: np.ndarray,
+                           covariance: np.ndarray) -> CompensationResult:
+    """``result`` (targets in the robot's base frame) with the error of each reached pose that
+    the uncertainty of the base frame causes (:attr:`CompensationResult.frame_position_std`).
+
+    T_meas_base : (4, 4) the robot's base frame in the measurement frame; covariance : (6, 6) of
+    its error (x, y, z metres, rotation vector radians, in the meas frame), as a calibration
+    records it (:class:`calib.calibration.base_frame.MeasurementFrame`). An error ``d`` moves a
+    target point p (base frame) by ``d_t + d_w x (T_meas_base p)`` in the meas frame and turns it
+    by ``d_w``: position std sqrt(trace(A C A^T)), ``A = [I, -[T p]x]``; rotation std
+    sqrt(trace(C_ww)).
+    """
+    from calib.model.spatial import skew
+
+    check_instance(result, "result", CompensationResult, "from calib.compensate or calib.compensate_poses")
+    T = finite_array(T_meas_base, "T_meas_base")
+    C = finite_array(covariance, "covariance")
+    if T.shape != (4, 4) or C.shape != (6, 6):
+        raise ParameterError(f"T_meas_base must be (4, 4) and covariance (6, 6), got {T.shape} and {C.shape}")
+    p = result.target_position @ T[:3, :3].T + T[:3, 3]
+    A = np.zeros((len(p), 3, 6))
+    A[:, :, :3] = np.eye(3)
+    A[:, :, 3:] = -skew(p)
+    pos = np.sqrt(np.maximum(np.einsum("nij,jk,nik->n", A, C, A), 0.0))
+    rot = np.full(len(p), math.sqrt(max(float(np.trace(C[3:, 3:])), 0.0)))
+    pos.setflags(write=False)
+    rot.setflags(write=False)
+    return replace(result, frame_position_std=pos, frame_rotation_std=rot)
+
+
+def pose_targets_in_base(*, T_meas_base: np.ndarray, T_meas_tool: np.ndarray | None = None,
+                         p_meas_tool: np.ndarray | None = None) -> np.ndarray:
+    """Pose targets (N, 4, 4) or positions (N, 3) given in the measurement frame, in the robot's
+    base frame: ``T_base_tool = T_meas_base^-1 T_meas_tool`` (metres). Give exactly one."""
+    T = finite_array(T_meas_base, "T_meas_base")
+    if T.shape != (4, 4):
+        raise ParameterError(f"T_meas_base must be (4, 4), got {T.shape}")
+    if (T_meas_tool is None) == (p_meas_tool is None):
+        raise ParameterError("give exactly one of T_meas_tool (N, 4, 4) and p_meas_tool (N, 3)")
+    Ti = np.eye(4)
+    Ti[:3, :3], Ti[:3, 3] = T[:3, :3].T, -T[:3, :3].T @ T[:3, 3]
+    if T_meas_tool is not None:
+        X = finite_array(T_meas_tool, "T_meas_tool")
+        if X.ndim != 3 or X.shape[1:] != (4, 4):
+            raise DataError(f"T_meas_tool must be (N, 4, 4), got shape {X.shape}")
+        return Ti @ X
+    P = finite_array(p_meas_tool, "p_meas_tool")
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise DataError(f"p_meas_tool must be (N, 3), got shape {P.shape}")
+    return P @ Ti[:3, :3].T + Ti[:3, 3]
 
 
 # ====================================================================== models and checks
@@ -339,26 +488,34 @@ def nominal_frames(calibrated_urdf: str | Path | UrdfDocument | RobotModel, *, b
 
 
 def check_joint_targets(calibrated_urdf: str | Path | UrdfDocument | RobotModel) -> None:
-    """Refuse joint targets for a calibrated URDF whose measurement or tool frame the calibration
-    estimated from the data (its ``<calib:frames>`` record): a joint target stands for the nominal
-    tool's pose in the nominal base frame, and that model's base frame is the instrument's, its
-    tool the measured point (compensating the nominal tool with it moves the measured point onto
-    the tool's poses: joint changes of tens of degrees, each one "ok"). Pose targets, given in
-    the measurement frame for the measured point, apply."""
+    """Refuse joint targets for a calibrated URDF whose base frame is a measuring instrument's:
+    one an earlier calib wrote with the estimated measurement frame in joint 1
+    (``measurement_estimated`` in its ``<calib:frames>`` record). A joint target stands for the
+    nominal tool's pose in the nominal base frame, which that model does not hold. Calibrated
+    URDFs written now stay rooted at the robot's base (:mod:`calib.calibration.base_frame`) and
+    take joint targets; when their tool frame was estimated (a measured point, not the nominal
+    tool) joint targets are compensated for the last link's pose (:func:`flange_link`)."""
     document = _calibrated_document(calibrated_urdf)
     rec = None if document is None else document.frames
     path = None if document is None else document.path
-    if rec is None or not (rec.measurement_estimated or rec.tool_estimated):
+    if rec is None or not rec.measurement_estimated:
         return
-    what = [w for w, flag in (("the measurement frame (the instrument's, not the robot's base)",
-                               rec.measurement_estimated),
-                              ("the tool frame (the measured point, not the nominal tool)", rec.tool_estimated))
-            if flag]
-    raise CalibError(f"{path}: the calibration estimated {' and '.join(what)} from the data: joint targets "
-                     f"stand for poses of the nominal tool in the nominal base frame, which this model does "
-                     f"not hold; give pose targets of the measured point in the measurement frame, or give "
-                     f"the URDF the frames that were measured (the instrument, the measured point) and "
-                     f"calibrate with --base-frame / --tool-frame naming them")
+    raise CalibError(f"{path}: the calibration estimated the measurement frame (the instrument's, not the "
+                     f"robot's base) from the data and this URDF holds it in its base: joint targets stand "
+                     f"for poses of the nominal tool in the nominal base frame; calibrate again with this "
+                     f"version of calib (its URDF stays rooted at the robot's base), or give pose targets "
+                     f"in the measurement frame")
+
+
+def flange_link(robot: RobotModel) -> str:
+    """The child link of the last joint of ``robot``'s chain (a model read from a URDF): the
+    link every tool rides on. Compensating its pose moves any tool fixed to it onto the tool's
+    nominal pose, which is how joint targets are compensated after a calibration that measured a
+    point other than the nominal tool (the tool's own error is then not corrected)."""
+    check_robot(robot)
+    if robot.source is None:
+        raise CalibError("the robot model was not read from a URDF: it has no last link")
+    return robot.source.document.joints[robot.joints[-1].name].child
 
 
 def _check_models(calibrated: RobotModel, nominal: RobotModel) -> None:
@@ -412,20 +569,33 @@ def tool_poses_and_joint_jacobians(kin: ChainKinematics, Q: np.ndarray):
 
     Returns (R (N, 3, 3), p (N, 3) metres, J (N, 6, n)): rows of J are the derivative of the
     tool position (metres per rad or m) then the tool's angular velocity (radians per rad or m),
-    both in the meas frame (Pinocchio's LOCAL_WORLD_ALIGNED frame Jacobian).
+    both in the meas frame (Pinocchio's LOCAL_WORLD_ALIGNED frame Jacobian; the tests compare
+    with it). Vectorised over the configurations (the batch walk of
+    :class:`calib.model.kinematics.ChainKinematics`, in chunks of ``JOINT_CHUNK``): a revolute
+    joint k with axis z_k through o_k gives (z_k x (p - o_k), z_k), a prismatic one (z_k, 0).
+    With compliance the joints are the deflected ones (J neglects d tau / d q).
     """
-    model, data, fid = kin.model, kin.data, kin.tool_frame_id
     Q = kin.effective(Q)    # with compliance: the deflected joints (J neglects d tau / d q)
     N, n = Q.shape
-    H = np.empty((N, 4, 4))
-    J = np.empty((N, 6, n))
-    qp = np.zeros(model.nq)
-    for k in range(N):
-        qp[:n] = Q[k]
-        pin.computeJointJacobians(model, data, qp)
-        H[k] = pin.updateFramePlacement(model, data, fid).homogeneous
-        J[k] = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:, :n]
-    return H[:, :3, :3], H[:, :3, 3], J
+    R, p, J = np.empty((N, 3, 3)), np.empty((N, 3)), np.empty((N, 6, n))
+    mount = kin.placements[n]           # the (first) tool mount
+    for a in range(0, N, JOINT_CHUNK):
+        Qc = Q[a:a + JOINT_CHUNK]
+        m = len(Qc)
+        frames = (np.empty((n + 1, 3, 3, m)), np.empty((n + 1, 3, m)))
+        Rt, pc = kin._attach(*kin._walk(Qc, frames), mount)
+        z = frames[0][:n, 2]                                     # (n, 3, m): joint axes
+        arm = pc[None] - frames[1][:n]                           # (n, 3, m): tool point - axis point
+        lin = np.cross(z, arm, axis=1)
+        pris = kin.prismatic
+        lin[pris] = z[pris]
+        ang = z.copy()
+        ang[pris] = 0.0
+        J[a:a + m, :3] = lin.transpose(2, 1, 0)
+        J[a:a + m, 3:] = ang.transpose(2, 1, 0)
+        R[a:a + m] = Rt.transpose(2, 1, 0)
+        p[a:a + m] = pc.T
+    return R, p, J
 
 
 def _errors(R, p, R_t, p_t) -> np.ndarray:
@@ -471,6 +641,8 @@ class _Newton:
             Ja, ea = self.J[idx], self.e[idx]
             A = Ja @ np.transpose(Ja, (0, 2, 1)) + self.mu[idx, None, None] * np.eye(m)
             dq = np.einsum("nmk,nm->nk", Ja, np.linalg.solve(A, ea[..., None])[..., 0])
+            big = np.abs(dq).max(axis=1)           # far from the solution: steps of MAX_STEP at most
+            dq *= np.minimum(1.0, MAX_STEP / np.maximum(big, 1e-300))[:, None]
             qn = self.q[idx] + dq
             Jn, en = self.evaluate(qn, idx)
             cn = np.sum(en ** 2, axis=1)
@@ -496,11 +668,13 @@ class _Newton:
 
 
 def _solve(robot: RobotModel, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot,
-           max_iterations) -> CompensationResult:
-    kin = ChainKinematics(robot)
+           max_iterations, start_counts: bool = True, wrap: bool = False,
+           kin: ChainKinematics | None = None) -> CompensationResult:
+    kin = kin or ChainKinematics(robot)
     kin.set_values(robot.values, twists=False)
     newton = _Newton(kin, q0, p_t, R_t, tol_pos, tol_rot)
-    sv_start = _min_singular_values(newton.J)
+    # (a start the solver chose, not the target's own joints, is no reason to call a target singular)
+    sv_start = _min_singular_values(newton.J) if start_counts else np.inf
     everyone = np.arange(len(q0))
     newton.run(everyone, max_iterations)
     if robot.n_joints > newton.m:
@@ -530,6 +704,13 @@ def _solve(robot: RobotModel, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot
     e_rot = None if R_t is None else np.linalg.norm(e[:, 3:], axis=1)
     reached = _reached(e, tol_pos, tol_rot)
     lo, hi = robot.lower, robot.upper
+    if wrap:     # revolute joints beyond a limit by whole turns: the same pose inside the limits
+        turn = 2 * math.pi
+        rev = ~robot.prismatic
+        shifted = q - turn * np.floor((q - lo) / turn)            # in [lo, lo + 2 pi)
+        fits = rev & np.isfinite(lo) & (shifted <= hi) & ((q < lo) | (q > hi))
+        if fits.any():
+            q = np.where(fits, shifted, q)
     excess = np.where(q > hi + LIMIT_SLACK, q - hi, 0.0) + np.where(q < lo - LIMIT_SLACK, q - lo, 0.0)
     status = np.where(sv < singular_threshold, "singular",
                       np.where(~reached, "not_converged",
@@ -556,6 +737,22 @@ def _reached(e: np.ndarray, tol_pos: float, tol_rot: float) -> np.ndarray:
 def _min_singular_values(J: np.ndarray) -> np.ndarray:
     """Smallest of the min(rows, n) singular values of each Jacobian (N, rows, n)."""
     return np.linalg.svd(J, compute_uv=False)[:, -1]
+
+
+def _concat(a: CompensationResult, b: CompensationResult) -> CompensationResult:
+    """The targets of ``a`` then those of ``b`` (same models and options)."""
+    def cat(x, y):
+        return None if x is None else np.concatenate([x, y])
+    return CompensationResult(
+        q=cat(a.q, b.q), q_start=cat(a.q_start, b.q_start), status=cat(a.status, b.status),
+        position_error=cat(a.position_error, b.position_error),
+        rotation_error=cat(a.rotation_error, b.rotation_error),
+        limit_excess=cat(a.limit_excess, b.limit_excess),
+        min_singular_value=cat(a.min_singular_value, b.min_singular_value),
+        iterations=cat(a.iterations, b.iterations), measure=a.measure,
+        target_position=cat(a.target_position, b.target_position),
+        target_rotation=cat(a.target_rotation, b.target_rotation), joint_names=a.joint_names,
+        prismatic=a.prismatic, singular_threshold=a.singular_threshold, tol_pos=a.tol_pos, tol_rot=a.tol_rot)
 
 
 def _take(res: CompensationResult, pick: np.ndarray) -> CompensationResult:

@@ -337,6 +337,24 @@ def _table(header: Sequence[str], rows: Sequence[Sequence], left: int = 1) -> st
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
+def _frame_transforms_html(rows) -> str:
+    """The frame transforms (measurement->base, base, flange->tool) as transforms: x, y, z / mm
+    and roll, pitch, yaw / deg, nominal, identified and 1-sigma std."""
+    if not rows:
+        return ""
+
+    def six(d, fmt):
+        return [_num(v, fmt) if v is not None else "fixed" for v in (*d["xyz_mm"], *d["rpy_deg"])]
+    body = []
+    for f in rows:
+        if f.get("nominal") is not None:
+            body.append([f["frame"], "nominal", *six(f["nominal"], ".4f")])
+        body.append([f["frame"], "identified", *six(f["identified"], ".4f")])
+        body.append([f["frame"], "std (1 sigma)", *six(f["std"], ".3g")])
+    return ("<h2>Frame transforms</h2>" + _table(
+        ["frame", "", "x / mm", "y / mm", "z / mm", "roll / deg", "pitch / deg", "yaw / deg"], body, left=2))
+
+
 def _num(v, fmt=".4g") -> str:
     return "" if v is None else format(v, fmt)
 
@@ -420,7 +438,8 @@ def _html(report: Mapping, text: str, images: Mapping[str, bytes] | None, title:
         ["parameter", "unit", "nominal", "identified", "deviation", "std"],
         [[p["name"], p["unit"], _num(p["nominal"], ".6f"), _num(p["identified"], ".6f"),
           _num(p["deviation"], ".6f"), _num(p["std"], ".3g") if p["free"] else "fixed"]
-         for p in report.get("parameters", [])], left=2))
+         for p in report.get("parameters", []) if not p["name"].startswith(("u_", "v_"))], left=2))
+    parts.append(_frame_transforms_html(report.get("frame_transforms") or []))
     sel = report.get("model_selection")
     if sel:
         parts.append(f"<h2>Model selection</h2><p>Candidate parameter sets compared by cross-validation "

@@ -233,7 +233,7 @@ class CalibrationResult:
             "after": self.after.to_dict(),
             "estimated_frames": list(self.estimated_frames),
             "measurement_frame": None if self.measurement_frame is None else self.measurement_frame.to_dict(),
-            "frames": _frames_table(self),
+            "frame_transforms": _frames_table(self),
             "after_without_outliers": None if self.after_without_outliers is None
             else self.after_without_outliers.to_dict(),
             "before_registered": None if self.before_registered is None else {

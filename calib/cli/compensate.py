@@ -11,6 +11,7 @@ import sys
 from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_verbose, nonnegative,
                             print_notes, read_options, with_compliance_file)
 from calib.cli.output import EXIT_NOT_CONVERGED, EXIT_OK, PROG, Outputs, command_line
+from calib.errors import ParameterError
 
 __all__ = ["add_parser", "run"]
 
@@ -33,7 +34,8 @@ TARGETS.csv (comments with #, one header row, units in the column names as in me
                          rx_deg, R = Rz Ry Rx; or e1..e3 with --euler, rvx..rvz, r11..r33 as in
                          measurement files); joint columns, if also given, are the start of the
                          solver and choose the solution branch (without them, the solution
-                         closest to the middle of the joint ranges from several starts)
+                         reached from the nearest of 512 seed configurations, others tried
+                         for the targets not ok)
 
 Other columns are ignored (listed on stderr). Semicolon or tab separators with decimal commas,
 --rename and --limit-tolerance work as for measurement files (README, Measurement file format).
@@ -85,6 +87,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    metavar="S",
                    help="smallest singular value of the joint Jacobian (position rows in m/rad, "
                         "rotation rows in rad/rad) below which a target is reported singular")
+    p.add_argument("--targets-frame", choices=("base", "meas"), default="base",
+                   help="frame of pose targets: base (default), the robot's base frame (the calibrated "
+                        "URDF's, what a robot program holds); meas, the measurement frame of the "
+                        "calibration (the tracker's), taken from CALIBRATED.urdf's record")
     add_file_format(p)
     add_frames(p, base_help="link (or joint) of NOMINAL.urdf that plays the meas frame, in which "
                             "pose targets are given (default: the root link)",
@@ -117,19 +123,44 @@ def run(args: argparse.Namespace) -> int:
     targets = read_targets(args.targets, nominal, options=read_options(args))
     print_notes(targets.notes)
     log.info("read %d %s targets from %s", targets.n_targets, targets.kind, args.targets)
+    rec = calibrated.source.document.frames if calibrated.source is not None else None
+    T_meas_base = None if rec is None else rec.measurement_transform
     opts = dict(singular_threshold=args.singular_threshold)
     if targets.kind == "joints":
+        if args.targets_frame != "base":
+            raise ParameterError(f"--targets-frame {args.targets_frame}: {args.targets} holds joint targets, "
+                                 f"which have no frame (their poses are the nominal model's)")
         check_joint_targets(calibrated)
+        if rec is not None and rec.tool_estimated:
+            calibrated, nominal = _last_link_models(args, calibrated, nominal)
         result = compensate(calibrated, nominal, targets.q, measure=args.measure, **opts)
-    elif targets.kind == "pose":
-        T = _homogeneous(targets.rotation, targets.position)
-        result = compensate_poses(calibrated, T_meas_tool=T, q_start=targets.q, **opts)
     else:
-        result = compensate_poses(calibrated, p_meas_tool=targets.position, q_start=targets.q,
-                                  **opts)
+        T = _homogeneous(targets.rotation, targets.position) if targets.kind == "pose" else None
+        p = targets.position if targets.kind != "pose" else None
+        if args.targets_frame == "meas":
+            if T_meas_base is None:
+                sys.stderr.write(f"{PROG}: note: {args.calibrated} records no measurement frame (the calibration's "
+                                 f"measurements were in the robot's base frame): meas = base\n")
+            else:
+                from calib.calibration.compensation import pose_targets_in_base
+
+                if T is not None:
+                    T = pose_targets_in_base(T_meas_base=T_meas_base, T_meas_tool=T)
+                else:
+                    p = pose_targets_in_base(T_meas_base=T_meas_base, p_meas_tool=p)
+        if T is not None:
+            result = compensate_poses(calibrated, T_meas_tool=T, q_start=targets.q, **opts)
+        else:
+            result = compensate_poses(calibrated, p_meas_tool=p, q_start=targets.q, **opts)
+    if T_meas_base is not None and (targets.kind == "joints" or args.targets_frame == "base"):
+        from calib.calibration.compensation import with_frame_uncertainty
+
+        result = with_frame_uncertainty(result, T_meas_base=T_meas_base, covariance=rec.measurement_covariance)
+    frame = (f"the measurement frame of {args.calibrated}" if args.targets_frame == "meas" and
+             T_meas_base is not None else f"base frame {nominal.base_frame}")
     comment = (f"Corrected joint values, computed by: {command_line(args)}\n"
                f"Targets: {targets.kind} targets of {args.targets} (tool frame {nominal.tool_frame} "
-               f"in base frame {nominal.base_frame}); status ok: the calibrated model reaches the "
+               f"in {frame}); status ok: the calibrated model reaches the "
                f"target; other rows must not be sent to the robot as they are")
     outputs.stage_from_file(out, lambda p: write_compensation(p, result, comment=comment))
     outputs.commit()
@@ -140,6 +171,28 @@ def run(args: argparse.Namespace) -> int:
                          f"status and detail columns of {out})\n")
         return EXIT_NOT_CONVERGED
     return EXIT_OK
+
+
+def _last_link_models(args, calibrated, nominal):
+    """The models with the last joint's child link as tool frame, for joint targets after a
+    calibration whose tool frame was estimated (a measured point, not the nominal tool): the
+    link's pose is compensated, so any tool on it reaches its nominal pose (note on stderr)."""
+    from calib.calibration.compensation import flange_link, load_compensation_models
+
+    if args.measure == "position":
+        raise ParameterError(f"--measure position: {args.calibrated}'s tool frame is the point the calibration "
+                             f"measured, not the nominal tool, so joint targets are compensated for the pose of "
+                             f"the last link (every tool on it then reaches its nominal pose): use --measure pose")
+    link = flange_link(nominal)
+    sys.stderr.write(f"{PROG}: note: {args.calibrated}'s tool frame is the point the calibration measured, "
+                     f"not the nominal tool: joint targets are compensated for the pose of the last link "
+                     f"{link!r} (every tool fixed to it reaches its nominal pose; the tool's own error was "
+                     f"not calibrated)\n")
+    cal, nom = load_compensation_models(args.calibrated, args.nominal, base_frame=args.base_frame,
+                                        tool_frame=link)
+    cal = with_compliance_file(cal, args, torques_from=nom,
+                               hint=" (the report or the compliance sidecar of the calibration)")
+    return cal, nom
 
 
 def _homogeneous(R, p):

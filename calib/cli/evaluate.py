@@ -111,6 +111,23 @@ def _evaluate_compliance(robot, args):
 
 
 
+def _in_measurement_frame(robot, args):
+    """``robot`` with its tool poses in the measurement frame its calibrated URDF records
+    (``<calib:measurement>``: a calibration that estimated a tracker's frame), when no
+    --base-frame is given, with a note on stderr; ``robot`` itself otherwise."""
+    doc = None if robot.source is None else robot.source.document
+    rec = None if doc is None else doc.frames
+    if args.base_frame is not None or rec is None or rec.measurement_transform is None \
+            or robot.base_frame != rec.base_frame:
+        return robot
+    from dataclasses import replace
+
+    sys.stderr.write(f"{PROG}: note: poses compared in the measurement frame {args.robot} records (the "
+                     f"tracker's, estimated by the calibration); --base-frame {rec.base_frame} compares "
+                     f"them in the robot's base frame\n")
+    return replace(robot, T_meas_base_ref=rec.measurement_transform @ robot.T_meas_base_ref)
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``calib evaluate`` with parsed arguments; returns the exit code."""
     import numpy as np
@@ -118,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     import calib
     from calib.calibration.accuracy import format_accuracy_table
 
-    robot = _evaluate_compliance(load(args), args)
+    robot = _evaluate_compliance(_in_measurement_frame(load(args), args), args)
     meas = read(args.measurements, robot, args, args.tracker)
     rows = [("all rows", calib.evaluate(robot, meas))]
     if meas.sets is not None:

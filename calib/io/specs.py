@@ -48,6 +48,7 @@ there), or a position ``x, y, z`` with an optional orientation as in measurement
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -344,7 +345,8 @@ def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
     the corrected joint values to send to the controller, in the order of the targets; then
     ``status`` (ok, limit, singular, not_converged), ``residual_mm`` (distance of the calibrated
     tool position from the target), ``residual_rad`` (angle of the orientation residual; pose
-    targets only) and ``detail`` (why a target is not ok: the joint beyond its limit and by how
+    targets only), ``frame_std_mm`` and ``frame_std_deg`` (when the result carries the base
+    frame's uncertainty: the 1-sigma error of the reached pose it causes) and ``detail`` (why a target is not ok: the joint beyond its limit and by how
     much, the singular value, the residual). Joint values are written as computed, never clipped:
     a row whose status is not ``ok`` must not be sent to the robot as it is.
 
@@ -360,6 +362,9 @@ def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
     header, values = joint_columns(result.joint_names, result.prismatic, result.q, angle_unit,
                                    length_unit)
     header += ["status", "residual_mm"] + (["residual_rad"] if result.rotation_error is not None else [])
+    framed = getattr(result, "frame_position_std", None) is not None
+    if framed:        # the base frame's uncertainty (targets in the robot's base frame)
+        header += ["frame_std_mm", "frame_std_deg"]
     header.append("detail")
     rows = []
     for k in range(result.n_targets):
@@ -367,6 +372,9 @@ def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
         row += [str(result.status[k]), f"{result.position_error[k] * 1e3:.6g}"]
         if result.rotation_error is not None:
             row.append(f"{result.rotation_error[k]:.6g}")
-        row.append("" if result.status[k] == "ok" else result.describe(k))
+        if framed:
+            row += [f"{result.frame_position_std[k] * 1e3:.4g}",
+                    f"{math.degrees(result.frame_rotation_std[k]):.4g}"]
+        row.append("" if result.status[k] == "ok" and not framed else result.describe(k))
         rows.append(row)
     atomic_write_text(path, csv_text(header, rows, comment))

@@ -373,7 +373,11 @@ def test_joint_targets_refused_when_the_calibration_estimated_the_tool(tmp_path,
     assert _run(["compensate", cal_urdf, BUNDLED_URDF, tmp_path / "poses.csv", "-o", tmp_path / "c2.csv"]) == 0
     rows = [l.split(",") for l in (tmp_path / "c2.csv").read_text().splitlines() if not l.startswith("#")][1:]
     q = np.radians(np.array([[float(v) for v in r[:6]] for r in rows]))
-    assert np.abs(q - targets).max() < 2e-3          # the calibrated model, not the truth: close to it
+    # the calibrated model, not the truth: the true robot at q is close to the targets (the solver
+    # may take another branch, e.g. the wrist flipped, than the joints the poses were made at)
+    R_q, p_q = ChainKinematics(true).frame_poses(q)
+    assert np.linalg.norm(p_q - p_t, axis=1).max() < 0.2e-3
+    assert np.linalg.norm(log3_batch(R_q @ np.transpose(R_t, (0, 2, 1))), axis=1).max() < 2e-3
     plain = calibrate(bundled, simulate_measurements(apply_deviations(bundled, {"theta2": 0.002}), Q, rng=4), cv=0)
     assert plain.estimated_frames == ()
     plain.write_urdf(tmp_path / "plain.urdf")

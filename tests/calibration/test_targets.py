@@ -157,7 +157,7 @@ def test_calibration_from_positions_of_three_targets_recovers_truth(name):
     d = res.to_dict()
     assert set(d["targets"]) == set(IDS) and d["targets"]["B"]["after"]["n_poses"] == 30
     text = res.format()
-    assert "target C, after" in text and "v_gamma@C" in text
+    assert "target C, after" in text and "flange->C" in text
 
 
 def test_noisy_calibration_of_three_targets_is_within_its_statistics(bundled_robot):
