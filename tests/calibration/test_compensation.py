@@ -342,12 +342,15 @@ def test_help_teaches(command, capsys):
     assert len(text) > 1500
 
 
-def test_joint_targets_refused_when_the_calibration_estimated_the_tool(tmp_path, bundled):
+def test_joint_targets_after_an_estimated_tool_compensate_the_last_link(tmp_path, bundled):
     """A measured point 70 mm off the nominal tool: calibrate estimates the tool frame and the
-    URDF records it; joint targets (poses of the nominal tool) are then refused with one line
-    and nothing written (they came out "ok" with joint changes up to 40 degrees), pose targets
-    of the measured point are compensated; an ordinary calibration records nothing."""
+    URDF records it. Joint targets (poses of the nominal tool) were refused, and before that came
+    out "ok" with joint changes up to 40 degrees; now they are compensated for the pose of the last
+    link, on which any tool rides: the true robot's last link reaches the nominal one's pose to the
+    calibration's accuracy, with a note; --measure position is refused (one line, nothing written).
+    Pose targets of the measured point are compensated; an ordinary calibration records nothing."""
     from calib import calibrate, simulate_measurements
+    from calib.calibration.compensation import flange_link
     from calib.io.urdf import UrdfDocument
 
     true = apply_deviations(bundled, {"v_x": 0.03, "v_y": -0.02, "v_z": 0.06, "theta2": 0.002})
@@ -360,10 +363,21 @@ def test_joint_targets_refused_when_the_calibration_estimated_the_tool(tmp_path,
     assert rec.tool_estimated and not rec.measurement_estimated
     targets = np.array([[0.1, 0.3, 0.2, 0.4, 0.6, 0.5], [-0.7, -0.2, 0.9, -1.0, -0.9, 2.0]])
     write_poses(tmp_path / "joints.csv", bundled, targets)
-    with pytest.raises(CalibError, match=r"estimated the tool frame \(the measured point, not the nominal "
-                                         r"tool\) from the data: joint targets stand for poses"):
-        _run(["compensate", cal_urdf, BUNDLED_URDF, tmp_path / "joints.csv", "-o", tmp_path / "c.csv"])
+    with pytest.raises(CalibError, match=r"--measure position: .*use --measure pose"):
+        _run(["compensate", cal_urdf, BUNDLED_URDF, tmp_path / "joints.csv", "-o", tmp_path / "c.csv",
+              "--measure", "position"])
     assert not (tmp_path / "c.csv").exists()
+    assert _run(["compensate", cal_urdf, BUNDLED_URDF, tmp_path / "joints.csv", "-o", tmp_path / "c.csv"]) == 0
+    rows = [l.split(",") for l in (tmp_path / "c.csv").read_text().splitlines() if not l.startswith("#")][1:]
+    q = np.radians(np.array([[float(v) for v in r[:6]] for r in rows]))
+    link = flange_link(bundled)
+    nominal_link = load_robot(BUNDLED_URDF, tool_frame=link)
+    true_link = apply_deviations(nominal_link, {"theta2": 0.002})
+    R_n, p_n = ChainKinematics(nominal_link).frame_poses(targets)
+    R_q, p_q = ChainKinematics(true_link).frame_poses(q)
+    assert np.abs(q - targets).max() > 1e-3                  # corrected (theta2 alone moves 1 mm)
+    assert np.linalg.norm(p_q - p_n, axis=1).max() < 0.05e-3  # the calibration's accuracy (noise 0.02 mm)
+    assert np.linalg.norm(log3_batch(R_q @ np.transpose(R_n, (0, 2, 1))), axis=1).max() < 2e-4
     # pose targets of the measured point (where the true robot puts it at the targets)
     R_t, p_t = ChainKinematics(true).frame_poses(targets)
     from scipy.spatial.transform import Rotation
@@ -388,8 +402,8 @@ def test_a_recalibration_keeps_the_record_of_frames_estimated_before(tmp_path, b
     """A calibrated URDF whose tool frame the calibration estimated (the measured point, 70 mm
     off the nominal tool) recalibrated with new data of the same setup: its tool frame is still
     the measured point, though the second calibration estimates no frame (its start is close);
-    the output keeps the record, and joint targets stay refused (the record was lost: joint
-    targets were compensated as poses of the nominal tool)."""
+    the output keeps the record (it was lost: joint targets were compensated as poses of the
+    nominal tool; now they are compensated for the last link's pose)."""
     from calib import calibrate, load_robot, simulate_measurements
     from calib.calibration.compensation import check_joint_targets
     from calib.io.urdf import UrdfDocument
@@ -403,8 +417,7 @@ def test_a_recalibration_keeps_the_record_of_frames_estimated_before(tmp_path, b
     again.write_urdf(tmp_path / "cal2.urdf")
     rec = UrdfDocument.read(tmp_path / "cal2.urdf").frames
     assert (rec.tool_estimated, rec.measurement_estimated) == (True, False)
-    with pytest.raises(CalibError, match=r"cal2\.urdf: the calibration estimated the tool frame"):
-        check_joint_targets(tmp_path / "cal2.urdf")
+    check_joint_targets(tmp_path / "cal2.urdf")      # (taken: compensated for the last link's pose)
     # an ordinary calibration of an ordinary calibrated URDF still records nothing
     plain = calibrate(bundled, simulate_measurements(apply_deviations(bundled, {"theta2": 0.002}),
                                                      bundled.random_configurations(30, 4), rng=4), cv=0)
