@@ -198,21 +198,12 @@ def _residual_jacobian(B, Y, R_f, p_f, S, n_y):
     pts = fl @ B[:3, :3].T + B[:3, 3]
     A = np.zeros((N, P, 3, 6 + n_y))
     A[..., :3] = np.eye(3)
-    A[..., 3:6] = -skew_batch(pts)
+    A[..., 3:6] = -skew(pts)
     M = np.einsum("ij,njk->nik", B[:3, :3], R_f) @ Y[:3, :3]             # (N, 3, 3) meas <- tool
     A[..., 6:9] = M[:, None]
     if n_y == 6:
-        A[..., 9:12] = -np.einsum("nij,sjk->nsik", M, skew_batch(S))
+        A[..., 9:12] = -np.einsum("nij,sjk->nsik", M, skew(S))
     return pts, A.reshape(N * P * 3, 6 + n_y)
-
-
-def skew_batch(v: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) cross-product matrices of vectors v (..., 3)."""
-    out = np.zeros(v.shape + (3,))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
 
 
 def _propagate(calibrated, cal, kin_c, Q, R_c, S, A, covariance, free):
@@ -231,7 +222,7 @@ def _propagate(calibrated, cal, kin_c, Q, R_c, S, A, covariance, free):
     cols = cal.indices([rename.get(names[k], names[k]) for k in keep])
     _, _, J = kin_c.poses_and_jacobian(Q, cols)                          # (N, 6, m)
     arm = np.einsum("nij,sj->nsi", R_c, S)                               # (N, P, 3)
-    G = J[:, None, :3] - np.einsum("nsij,njm->nsim", skew_batch(arm), J[:, 3:])
+    G = J[:, None, :3] - np.einsum("nsij,njm->nsim", skew(arm), J[:, 3:])
     G = G.reshape(-1, len(cols))                                         # d points / d params
     M = np.linalg.lstsq(A, G, rcond=None)[0][:6]                         # d (B pert.) / d params
     C = cov[np.ix_(keep, keep)]

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.calibration.accuracy import AccuracyStats, TargetAccuracy, format_accuracy_table
+from calib.calibration.base_frame import MeasurementFrame
 from calib.units import display_unit, display_value
 from calib.calibration.fit import NoiseEstimate, Outlier
 from calib.calibration.validation import CrossValidation, ModelSelection
@@ -129,7 +130,7 @@ class CalibrationResult:
     predicted_workspace: dict | None = field(default=None, repr=False)
     consistency: dict | None = field(default=None, repr=False)
     estimator: dict | None = None
-    measurement_frame: "MeasurementFrame | None" = field(default=None, repr=False)
+    measurement_frame: MeasurementFrame | None = field(default=None, repr=False)
 
     def base_robot(self) -> RobotModel:
         """The calibrated model with its tool poses in the robot's base frame: ``robot`` itself,
