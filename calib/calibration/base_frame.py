@@ -35,6 +35,7 @@ from typing import Sequence
 
 import numpy as np
 
+from calib.checks import check_array, check_names
 from calib.errors import ParameterError
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel, check_robot
@@ -114,9 +115,10 @@ def in_base_frame(robot: RobotModel, frame: MeasurementFrame | np.ndarray) -> Ro
     ``T_base_tool(q) = T_meas_base^-1 . T_meas_tool(q)`` (a new model; ``frame`` a
     :class:`MeasurementFrame` or the (4, 4) T_meas_base)."""
     check_robot(robot)
-    T = frame.T_meas_base if isinstance(frame, MeasurementFrame) else np.asarray(frame, float)
-    if T.shape != (4, 4) or not np.isfinite(T).all():
-        raise ParameterError("frame must be a MeasurementFrame or a finite (4, 4) T_meas_base")
+    T = frame.T_meas_base if isinstance(frame, MeasurementFrame) else \
+        check_array(frame, "frame (T_meas_base)", (4, 4), unit="metres")
+    if np.abs(T[:3, :3] @ T[:3, :3].T - np.eye(3)).max() > 1e-9 or np.abs(T[3] - [0, 0, 0, 1]).max() > 0:
+        raise ParameterError("frame must be a MeasurementFrame or a rigid (4, 4) T_meas_base")
     return replace(robot, T_meas_base_ref=inverse(T) @ robot.T_meas_base_ref)
 
 
@@ -131,6 +133,11 @@ def robot_base_frame(calibrated: RobotModel, nominal: RobotModel, *, covariance:
     """
     check_robot(calibrated, "calibrated")
     check_robot(nominal, "nominal")
+    free = check_names(free, "free")
+    if covariance is not None:
+        covariance = check_array(covariance, "covariance", (len(free), len(free)), unit="SI units")
+    if not isinstance(position_only, (bool, np.bool_)):
+        raise ParameterError(f"position_only must be True or False, got {position_only!r:.60}")
     if calibrated.joint_names != nominal.joint_names:
         raise ParameterError("calibrated and nominal models must have the same joints")
     cal = calibrated.geometry().for_target(0)

@@ -53,13 +53,18 @@ def _pose_errors(robot, Q, R_t, p_t):
 
 
 # ---------------------------------------------------------------------- joint Jacobian
-@pytest.mark.parametrize("name,tool", [("bundled", None), ("ur5", "tool0"), ("panda", None)])
+@pytest.mark.parametrize("name,tool", [("bundled", None), ("ur5", "tool0"), ("panda", None),
+                                       ("tiago", "hand_palm_link")])
 def test_joint_jacobian_matches_finite_differences(name, tool):
-    robot = load_robot(BUNDLED_URDF if name == "bundled" else erd_urdf(name), tool_frame=tool)
+    """The vectorised joint Jacobian (tiago: a prismatic torso joint) against central differences."""
+    path = BUNDLED_URDF if name == "bundled" else ("tiago" if name == "tiago" else erd_urdf(name))
+    robot = load_robot(path, tool_frame=tool)
     robot = robot.with_values(robot.values + 1e-3 * np.random.default_rng(1).normal(size=robot.n_params))
     kin = ChainKinematics(robot)
     Q = robot.random_configurations(5, 2)
     R, p, J = tool_poses_and_joint_jacobians(kin, Q)
+    R_f, p_f = kin.frame_poses(Q)
+    assert np.abs(R - R_f).max() < 1e-12 and np.abs(p - p_f).max() < 1e-12
     h = 1e-6
     for i in range(robot.n_joints):
         dq = np.zeros(robot.n_joints)

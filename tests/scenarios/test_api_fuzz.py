@@ -29,7 +29,7 @@ HOSTILE = [None, "x", "", float("nan"), float("inf"), -1, 0, 10 ** 30, [], {}, (
 #: are not fuzzed (they take what calib computed), their public methods are.
 BUILT_BY_CALIB = {"IdentifiabilityReport", "CalibrationResult", "ParameterEstimate", "TargetAccuracy",
                   "RecordedFrames", "PoseDesign", "CompensationResult", "PaperLMResult", "GravityModel",
-                  "CompensationTargets", "AccuracyStats", "ExportResult"}
+                  "CompensationTargets", "AccuracyStats", "ExportResult", "MeasurementFrame"}
 #: Per call: a result slower than this is a failure (10**30 poses, rounds, candidates...).
 CALL_LIMIT_S = 10
 
@@ -49,6 +49,7 @@ def table(tmp_path_factory):
     T = np.stack([robot.T_meas_tool(x) for x in meas.q[:2]])
     design = calib.design_poses(robot, 30, candidates=60, seed=0)
     comp = calib.compensate(res.robot, robot, meas.q[:2])
+    mframe = calib.robot_base_frame(res.robot, robot, covariance=res.covariance, free=res.free)
     ident = calib.analyze_identifiability(robot, n_poses=20)
     idx = robot.indices(res.free)
     prob = Problem(ChainKinematics(robot), meas.q, meas.position, meas.rotation, robot.values, idx, 2e-5, 2e-3)
@@ -96,6 +97,17 @@ def table(tmp_path_factory):
         "write_poses": (calib.write_poses, dict(path=d / "w2.csv", robot=robot, q=q)),
         "compensate": (calib.compensate, dict(calibrated=res.robot, nominal=robot, q_nominal=q)),
         "compensate_poses": (calib.compensate_poses, dict(calibrated=res.robot, T_meas_tool=T)),
+        "with_frame_uncertainty": (calib.with_frame_uncertainty, dict(result=comp, T_meas_base=np.eye(4),
+                                                                      covariance=np.eye(6) * 1e-10)),
+        "pose_targets_in_base": (calib.pose_targets_in_base, dict(T_meas_base=np.eye(4), T_meas_tool=T)),
+        "robot_base_frame": (calib.robot_base_frame, dict(calibrated=res.robot, nominal=robot,
+                                                          covariance=res.covariance, free=res.free)),
+        "in_base_frame": (calib.in_base_frame, dict(robot=res.robot, frame=np.eye(4))),
+        "MeasurementFrame.format": (mframe.format, {}),
+        "MeasurementFrame.to_dict": (mframe.to_dict, {}),
+        "MeasurementFrame.xyz_rpy": (mframe.xyz_rpy, {}),
+        "CalibrationResult.base_robot": (res.base_robot, {}),
+        "CalibrationResult.write_urdf_only": (res.write_urdf_only, dict(path=d / "r2.urdf")),
         "Payload": (calib.Payload, dict(mass=1.0)),
         "PaperLMOptions": (calib.PaperLMOptions, {}),
         "paper_lm": (calib.paper_lm, dict(problem=prob, x0=robot.values[idx], angular=angular)),
