@@ -29,7 +29,8 @@ TARGETS.csv (comments with #, one header row, units in the column names as in me
   joint columns only     joint1_deg, ..., joint6_deg (or q1_deg ..., _rad; _mm or _m for
                          prismatic joints): the joints the controller would use; the target is
                          the nominal tool pose there
-  x_mm, y_mm, z_mm       a target tool position in the nominal base frame (the meas frame),
+  x_mm, y_mm, z_mm       a target tool position in the robot's base frame (--targets-frame base,
+                         the default; meas: in the calibration's measurement frame),
     [+ qw, qx, qy, qz]   with an orientation (unit quaternion, scalar first; or rz_deg, ry_deg,
                          rx_deg, R = Rz Ry Rx; or e1..e3 with --euler, rvx..rvz, r11..r33 as in
                          measurement files); joint columns, if also given, are the start of the
@@ -41,8 +42,10 @@ Other columns are ignored (listed on stderr). Semicolon or tab separators with d
 --rename and --limit-tolerance work as for measurement files (README, Measurement file format).
 
 Output CSV, one row per target in the same order: the corrected joint columns (degrees;
-millimetres for prismatic joints), then status, residual_mm, residual_rad (pose targets) and
-detail. status is
+millimetres for prismatic joints), then status, residual_mm, residual_rad (pose targets),
+frame_std_mm and frame_std_deg (after a calibration that estimated the measurement frame, for
+targets in the robot's base frame: the 1-sigma error of the reached pose that the uncertainty
+of the measurement->base transform causes) and detail. status is
   ok             the calibrated model reaches the target within the joint limits
   limit          reached, but a joint is beyond its limit (detail: which and by how much);
                  the joint values are written as computed, never clipped
@@ -50,6 +53,9 @@ detail. status is
                  (near a singularity: a tiny pose error needs a large joint motion)
   not_converged  the target was not reached
 Rows that are not ok must not be sent to the robot as they are.
+
+Joint targets after a calibration that estimated the tool frame (a reflector, not the nominal
+tool) are compensated for the pose of the last link: every tool on it reaches its nominal pose.
 
 Frames: --base-frame and --tool-frame name frames of NOMINAL.urdf; the calibrated URDF's matching
 frames are found as calib's URDF writer made them (its root link plays the meas frame when the
@@ -59,6 +65,7 @@ _COMP_EPILOG = """\
 examples:
   calib compensate calibrated.urdf robot.urdf program_joints.csv -o corrected.csv
   calib compensate calibrated.urdf robot.urdf cad_poses.csv -o corrected.csv --tool-frame tool0
+  calib compensate calibrated.urdf robot.urdf tracker_poses.csv -o corrected.csv --targets-frame meas
   (CALIBRATED.urdf comes from: calib calibrate robot.urdf meas.csv -o calibrated.urdf)
 
 Exit codes: 0 every target ok; 3 some targets are not ok (the output is written, see the status
@@ -92,8 +99,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "URDF's, what a robot program holds); meas, the measurement frame of the "
                         "calibration (the tracker's), taken from CALIBRATED.urdf's record")
     add_file_format(p)
-    add_frames(p, base_help="link (or joint) of NOMINAL.urdf that plays the meas frame, in which "
-                            "pose targets are given (default: the root link)",
+    add_frames(p, base_help="link (or joint) of NOMINAL.urdf that is the robot's base frame, in which "
+                            "pose targets are given with --targets-frame base (default: the root link)",
                tool_help="link (or joint) of NOMINAL.urdf whose pose is targeted (default: the "
                          "last link before the tree branches)")
     add_compliance(p, "compensate")
