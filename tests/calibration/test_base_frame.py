@@ -276,3 +276,31 @@ def test_cli_measurement_link_bad_input(tmp_path, capsys):
         code, _, err = _cli(capsys, "calibrate", BUNDLED_URDF, meas, "-o", out, "--cv", "0", "--measurement-link", link)
         assert code == 2 and pattern in err and len(err.strip().splitlines()) == 1, err
         assert not out.exists()
+
+
+def test_cli_calibrate_then_evaluate_a_tracker_calibration(tmp_path, capsys):
+    """calib calibrate on tracker data writes a URDF rooted at the robot and prints the tracker
+    pose; calib evaluate of it against the same tracker rows compares in the recorded measurement
+    frame (a note says so) and gives calibrate's "after" RMS; with --base-frame it compares in the
+    robot's frame (metres off: the rows are the tracker's)."""
+    import json
+
+    from calib.io.specs import write_measurements
+
+    nominal = load_robot(BUNDLED_URDF)
+    devs = {k: v for k, v in random_deviations(nominal, 5e-4, 1).items() if not k.startswith("u_")}
+    true = replace(apply_deviations(nominal, devs), T_meas_base_ref=T_TRACKER @ nominal.T_meas_base_ref)
+    meas = tmp_path / "m.csv"
+    write_measurements(meas, simulate_measurements(true, nominal.random_configurations(50, 2), rng=3))
+    out, rep = tmp_path / "cal.urdf", tmp_path / "r.json"
+    code, text, err = _cli(capsys, "calibrate", BUNDLED_URDF, meas, "-o", out, "--cv", "0", "--report", rep,
+                           "--measurement-link", "tracker")
+    assert code == 0, err
+    assert "measurement->" in text and UrdfDocument.read(out).root_link == "tracker"
+    after = json.loads(rep.read_text())["after"]["position_mm"]["rms"]
+    code, text, err = _cli(capsys, "evaluate", out, meas, "--json")
+    assert code == 0 and "measurement frame" in err
+    assert abs(json.loads(text)["all"]["position_mm"]["rms"] - after) < 1e-6      # mm
+    base = UrdfDocument.read(out).frames.base_frame
+    code, text, _ = _cli(capsys, "evaluate", out, meas, "--json", "--base-frame", base)
+    assert code == 0 and json.loads(text)["all"]["position_mm"]["rms"] > 1000.0
