@@ -350,7 +350,7 @@ def _frame_transforms_html(rows) -> str:
         if f.get("nominal") is not None:
             body.append([f["frame"], "nominal", *six(f["nominal"], ".4f")])
         body.append([f["frame"], "identified", *six(f["identified"], ".4f")])
-        body.append([f["frame"], "std (1 sigma)", *six(f["std"], ".3g")])
+        body.append([f["frame"], f.get("std_label", "std") + " (1 sigma)", *six(f["std"], ".3g")])
     return ("<h2>Frame transforms</h2>" + _table(
         ["frame", "", "x / mm", "y / mm", "z / mm", "roll / deg", "pitch / deg", "yaw / deg"], body, left=2))
 

@@ -312,14 +312,7 @@ class CalibrationResult:
             std = "fixed" if not p.free else f"{display_value(p.std, p.unit):.3g}"
             lines.append(f"{p.name:<{w}}{unit:>5}{display_value(p.nominal, p.unit):>14.6f}"
                          f"{display_value(p.identified, p.unit):>14.6f}{display_value(p.deviation, p.unit):>13.6f}{std:>11}")
-        lines += ["", "frame transforms (x, y, z / mm; roll, pitch, yaw / deg; std 1 sigma, of the "
-                      "parameters u / v, rotations about the axes of the frame's parent for meas->base):"]
-        for f in _frames_table(self):
-            ide, std = f["identified"], f["std"]
-            nom = "" if f["nominal"] is None else ("  nominal " + _xyz_rpy_text(f["nominal"]))
-            lines.append(f"  {f['frame']:<24} {_xyz_rpy_text(ide)}{nom}")
-            lines.append(f"  {'':<24} std {_xyz_rpy_text(std, '.3g')}"
-                         + (f"; {f['note']}" if f.get("note") else ""))
+        lines += ["", _frames_text(_frames_table(self))]
         rows = [("calibration rows, before", self.before)]
         if self.before_registered is not None:
             rows.append(("  before, frame registered", self.before_registered))
@@ -374,12 +367,21 @@ def _frame_of(name: str) -> tuple[str, str | None, str] | None:
     return None
 
 
-def _xyz_rpy_text(d: dict, fmt: str = ".4f") -> str:
-    def num(x, f):
-        return "fixed" if x is None else format(x, f)
-    f_ang = ".6f" if fmt == ".4f" else fmt
-    return (", ".join(num(x, fmt) for x in d["xyz_mm"]) + " mm; "
-            + ", ".join(num(x, f_ang) for x in d["rpy_deg"]) + " deg")
+def _frames_text(rows: list[dict]) -> str:
+    """The frame transforms as a table for a person: a row per value (nominal, identified, std)."""
+    w = max([24] + [len(f["frame"]) + 2 for f in rows])
+    out = [f"{'frame transform':<{w}}{'':<16}{'x/mm':>12}{'y/mm':>12}{'z/mm':>12}{'roll/deg':>12}"
+           f"{'pitch/deg':>12}{'yaw/deg':>12}"]
+    for f in rows:
+        parts = ([("nominal", f["nominal"], ".4f", ".6f")] if f["nominal"] is not None else []) + \
+            [("identified", f["identified"], ".4f", ".6f"), (f["std_label"], f["std"], ".3g", ".3g")]
+        for k, (label, d, fl, fa) in enumerate(parts):
+            vals = [("fixed" if x is None else format(x, fl)) for x in d["xyz_mm"]] + \
+                   [("fixed" if x is None else format(x, fa)) for x in d["rpy_deg"]]
+            out.append(f"{f['frame'] if k == 0 else '':<{w}}{label:<16}" + "".join(f"{v:>12}" for v in vals))
+        if f.get("note"):
+            out.append(f"{'':<{w}}({f['note']})")
+    return "\n".join(out)
 
 
 def _frames_table(result: "CalibrationResult") -> list[dict]:
@@ -393,7 +395,9 @@ def _frames_table(result: "CalibrationResult") -> list[dict]:
         out.append({"frame": f"measurement->{mf.base_frame}", "nominal": None,
                     "identified": {"xyz_mm": d["xyz_mm"], "rpy_deg": d["rpy_deg"]},
                     "std": {"xyz_mm": d["std_xyz_mm"], "rpy_deg": d["std_rotation_deg"]},
-                    "note": "estimated from the data (the instrument's pose, not an error of the robot)"})
+                    "std_label": "std (rot x,y,z)",
+                    "note": "estimated from the data: the instrument's pose, not an error of the robot; "
+                            "rotation std about the meas axes x, y, z"})
     groups: dict = {}
     for p in result.parameters:
         f = _frame_of(p.name)
@@ -421,8 +425,8 @@ def _frames_table(result: "CalibrationResult") -> list[dict]:
         estimated = (group == "u" and mf is not None) or (
             group == "v" and any(e.startswith("flange->") for e in result.estimated_frames))
         out.append({"frame": label, "nominal": as_transform(nom), "identified": as_transform(ide),
-                    "std": as_transform(std, True),
-                    "note": ("the tool frame was estimated from the data (the measured point)"
+                    "std": as_transform(std, True), "std_label": "std",
+                    "note": ("the tool frame was estimated from the data: the measured point"
                              if group == "v" and estimated else "")})
     return out
 

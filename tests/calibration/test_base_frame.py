@@ -132,7 +132,7 @@ def test_reports_show_the_tracker_pose_and_frames_as_transforms(bundled_case):
     kinds = [f["frame"] for f in d["frame_transforms"]]
     assert kinds[0].startswith("measurement->") and "flange->tool" in kinds
     text = res.format()
-    assert "frame transforms" in text and "measurement->" in text and "\nu_x " not in text
+    assert "frame transform " in text and "measurement->" in text and "\nu_x " not in text
 
 
 def test_base_frame_covariance_matches_finite_differences(bundled_case):
