@@ -81,6 +81,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--truth-urdf", metavar="TRUE.urdf", default=None,
                    help="also write the true model as a URDF (a copy of ROBOT.urdf with its joint "
                         "origins changed)")
+    p.add_argument("--meas-frame", metavar="X,Y,Z,ROLL,PITCH,YAW", default=None,
+                   help="measure in an instrument's frame (a laser tracker's): the pose of the URDF's base "
+                        "frame in it, mm and degrees (URDF roll-pitch-yaw), e.g. 2400,-1500,800,-17,11,40; "
+                        "default: the base frame itself")
     add_frames(p)
     add_compliance(p, "simulate")
     add_targets(p)
@@ -146,6 +150,26 @@ def _deviations(spec: str, robot, rng) -> tuple[dict[str, float], str]:
 
 
 
+def _meas_frame(text):
+    """(4, 4) T_meas_base of --meas-frame X,Y,Z,ROLL,PITCH,YAW (mm, deg), or None."""
+    if text is None:
+        return None
+    import numpy as np
+    import pinocchio as pin
+
+    try:
+        v = [float(t) for t in str(text).split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 6 or not all(math.isfinite(x) for x in v):
+        raise ParameterError(f"--meas-frame {text!r}: expected six finite numbers X,Y,Z,ROLL,PITCH,YAW "
+                             f"(mm, degrees)")
+    T = np.eye(4)
+    T[:3, :3] = pin.rpy.rpyToMatrix(*np.radians(v[3:]))
+    T[:3, 3] = np.array(v[:3]) * 1e-3
+    return T
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``calib simulate`` with parsed arguments; returns the exit code."""
     import numpy as np
@@ -170,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(args.seed)
     deviations, described = _deviations(args.deviations, robot, rng)
     true_robot = apply_deviations(robot, deviations)
+    T_meas_base = _meas_frame(args.meas_frame)
     if args.constraint is not None:     # a touch file (issue 24)
         from calib.cli.touch import simulate_touch_file
 
@@ -190,7 +215,12 @@ def run(args: argparse.Namespace) -> int:
         k = robot.n_targets
         Q, ids = np.repeat(Q, k, axis=0), list(robot.targets) * (n_cal + n_val)
         sets = None if sets is None else np.repeat(sets, k)
-    meas = simulate_measurements(true_robot, Q, sigma_pos=args.sigma_pos_mm * 1e-3,
+    measured = true_robot
+    if T_meas_base is not None:     # the instrument's frame (the truth URDF stays the robot's)
+        from dataclasses import replace
+
+        measured = replace(true_robot, T_meas_base_ref=T_meas_base @ true_robot.T_meas_base_ref)
+    meas = simulate_measurements(measured, Q, sigma_pos=args.sigma_pos_mm * 1e-3,
                                  sigma_rot=args.sigma_rot_rad, position_only=args.position_only,
                                  rng=rng, sets=sets, unmodelled=args.unmodelled_rad, targets=ids)
     kind = "positions only" if args.position_only else "positions and orientations"
@@ -203,6 +233,8 @@ def run(args: argparse.Namespace) -> int:
     if robot.has_compliance and payload is not None:
         noise_text += (f"; payload {payload.mass:g} kg at ({', '.join(f'{x * 1e3:g}' for x in payload.com_tool)}) "
                        f"mm in the tool frame")
+    if T_meas_base is not None:
+        noise_text += f"; measured in a frame where the base frame is at {args.meas_frame} (mm, deg)"
     per_pose = ""
     if robot.targets:
         per_pose = (f", each measured at targets {', '.join(robot.targets)} (one row per target, "

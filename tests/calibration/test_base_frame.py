@@ -304,3 +304,25 @@ def test_cli_calibrate_then_evaluate_a_tracker_calibration(tmp_path, capsys):
     base = UrdfDocument.read(out).frames.base_frame
     code, text, _ = _cli(capsys, "evaluate", out, meas, "--json", "--base-frame", base)
     assert code == 0 and json.loads(text)["all"]["position_mm"]["rms"] > 1000.0
+
+
+def test_cli_simulate_meas_frame(tmp_path, capsys):
+    """calib simulate --meas-frame puts the rows in a tracker's frame (the calibration then finds
+    the tracker within 2 mm and 0.5 deg: the robot's base errors of random:0.5 are absorbed by the
+    best fit); a malformed value: one line, exit 2, nothing written."""
+    import json
+
+    out = tmp_path / "m.csv"
+    code, _, err = _cli(capsys, "simulate", BUNDLED_URDF, "-o", out, "--poses", 50, "--deviations", "random:0.5",
+                        "--meas-frame", "2400,-1500,800,-17,11,40")
+    assert code == 0, err
+    code, _, err = _cli(capsys, "calibrate", BUNDLED_URDF, out, "-o", tmp_path / "c.urdf", "--cv", 0,
+                        "--report", tmp_path / "r.json")
+    assert code == 0, err
+    mf = json.loads((tmp_path / "r.json").read_text())["measurement_frame"]
+    assert np.abs(np.array(mf["xyz_mm"]) - [2400, -1500, 800]).max() < 2
+    assert np.abs(np.array(mf["rpy_deg"]) - [-17, 11, 40]).max() < 0.5
+    for bad in ("1,2,3", "1,2,3,4,5,x", "1,2,3,4,5,inf"):
+        code, _, err = _cli(capsys, "simulate", BUNDLED_URDF, "-o", tmp_path / "bad.csv", "--meas-frame", bad)
+        assert code == 2 and "--meas-frame" in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "bad.csv").exists()
