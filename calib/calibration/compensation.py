@@ -29,8 +29,13 @@ frame Jacobian of :class:`calib.model.kinematics.ChainKinematics`). For position
 ``mu`` starts at 1e-12 (plain Gauss-Newton: the start is close) and is raised tenfold whenever a
 step does not reduce ``|e|``, lowered tenfold after each step that does; the iterations stop when
 ``|e_pos| < 1e-3 tol_pos`` and ``|e_rot| < 1e-3 tol_rot``, when a step no longer reduces the
-error (rounding floor), when mu exceeds 1e6, or after ``max_iterations``. A start at the nominal
-joints is millimetres away from the solution, and 3 to 5 iterations reach 1e-13 m.
+error (rounding floor), when mu exceeds 1e6, or after ``max_iterations``. A step moves no joint by
+more than 0.5 rad (m) (a start on another branch; a calibration's corrections are far smaller). A
+start at the nominal joints is millimetres away from the solution, and 3 to 5 iterations reach
+1e-13 m. Tool poses and joint Jacobians are computed for the whole batch at once in numpy
+(:func:`calib.calibration.compensation_solver.tool_poses_and_joint_jacobians`), and pose targets
+without starting joints start from the nearest of a set of seed configurations
+(:func:`compensate_poses`).
 
 Status of each target (never silently clipped: the joint values are returned as computed)
 -------------------------------------------------------------------------------------------

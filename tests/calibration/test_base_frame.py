@@ -172,15 +172,16 @@ def test_position_only_tracker_calibration():
     assert np.abs(truth[:3, 3] - mf.T_meas_base[:3, 3]).max() < 4 * mf.std[:3].max() + 1e-6
 
 
-def test_base_frame_targets_move_the_true_robot_within_three_predicted_errors(bundled_case, tmp_path):
+@pytest.mark.parametrize("name", ["bundled", "ur5"])
+def test_base_frame_targets_move_the_true_robot_within_three_predicted_errors(name, bundled_case, tmp_path):
     """Pose targets in the robot's base frame (a program's) compensated with the calibrated URDF:
     the simulated true robot, in its own base frame (the same convention), reaches each ok target
     within 3x the predicted error (the calibration's covariance through the model at the reached
     joints, and the base frame's uncertainty); in the meas frame the same targets give the same
     joints (1e-9 rad)."""
-    _, nominal, true_meas, res = bundled_case
-    res.write_urdf(tmp_path / "cal.urdf")
-    cal = load_robot(tmp_path / "cal.urdf")
+    _, nominal, true_meas, res = bundled_case if name == "bundled" else _tracker_case(name)
+    frames = res.write_urdf(tmp_path / "cal.urdf")
+    cal = load_robot(tmp_path / "cal.urdf", tool_frame=frames.tool_frame)
     Q = nominal.random_configurations(25, 5)
     R, p = ChainKinematics(nominal).frame_poses(Q)
     T = np.zeros((25, 4, 4))
