@@ -167,7 +167,9 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
     ``seed``, and the middle of the ranges); the targets not ok from there again from their next
     nearest seeds, in the stages of ``SEED_STAGES`` (one batch each, only the targets still not
     ok; singular ones only in the second stage: a target reached near a singularity is mostly
-    singular on every branch), until none is left. A target keeps the least severe status met
+    singular on every branch), until none is left; each solve at most ``EARLY_ITERATIONS``
+    iterations, the targets then still not reached continuing from where they got with the rest of
+    ``max_iterations``. A target keeps the least severe status met
     (then the smallest joint distance from the middle of the ranges). Revolute joints of a
     solution beyond a limit are moved by whole turns inside it when they fit (the same pose)."""
     N = len(p_t)
@@ -186,13 +188,15 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
         rows = np.repeat(todo, S)                                    # target k, seeds a..b-1
         sub = _solve(robot, seeds[order[todo, a:b].reshape(-1)], p_t[rows],
                      None if R_t is None else R_t[rows], singular_threshold, tol_pos, tol_rot,
-                     max_iterations, start_counts=False, wrap=True, kin=kin)
+                     min(max_iterations, EARLY_ITERATIONS), start_counts=False, wrap=True, kin=kin)
         cand = sub if best is None else _concat(_take(best, todo), sub)
         at = np.arange(len(todo) * S).reshape(len(todo), S)
         if best is not None:
             at = np.hstack([np.arange(len(todo))[:, None], len(todo) + at])
         severity = np.array([STATUSES.index(x) for x in cand.status])[at]
-        distance = (np.abs(cand.q - mid) / half).max(axis=1)[at]
+        # then the nearest the middle of the ranges; among targets not reached, the nearest the target
+        residual = cand.position_error + (0.0 if cand.rotation_error is None else SEED_ROTATION_M * cand.rotation_error)
+        distance = np.where(cand.status == "not_converged", residual, (np.abs(cand.q - mid) / half).max(axis=1))[at]
         choice = at[np.arange(len(todo)), np.lexsort((distance, -severity), axis=-1)[:, 0]]
         if best is None:
             best = _take(cand, choice)
@@ -206,6 +210,18 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
         todo = np.flatnonzero(retry)
         if not len(todo):
             break
+    # the targets still not reached continue from where they got, with the rest of the budget
+    todo = np.flatnonzero(best.status == "not_converged")
+    if len(todo) and max_iterations > EARLY_ITERATIONS:
+        more = _solve(robot, np.array(best.q[todo]), p_t[todo], None if R_t is None else R_t[todo],
+                      singular_threshold, tol_pos, tol_rot, max_iterations - EARLY_ITERATIONS,
+                      start_counts=False, wrap=True, kin=kin)
+        better = np.array([STATUSES.index(x) for x in more.status]) > \
+            np.array([STATUSES.index(x) for x in best.status[todo]])
+        if better.any():
+            pick = np.arange(N)
+            pick[todo[better]] = N + np.flatnonzero(better)
+            best = _take(_concat(best, more), pick)
     return best
 
 
@@ -220,6 +236,10 @@ SEED_MIDDLE_M = 0.1
 #: The stages of the seeds tried (nearest first): [0, 1) for every target, then [1, 4), then
 #: [4, 1 + RANDOM_STARTS) for the targets still not ok.
 SEED_STAGES = (0, 1, 4, 1 + RANDOM_STARTS)
+#: Iterations at most of a target from one seed: one not reached by then is tried from the next
+#: seeds, and, not reached from any, continues from where it got with the rest of
+#: ``max_iterations`` (the batch does not run on for the few targets that converge slowly).
+EARLY_ITERATIONS = 30
 
 
 def _nearest(R_s, p_s, R_t, p_t, k: int, prefer: np.ndarray | None = None) -> np.ndarray:
