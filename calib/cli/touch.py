@@ -25,7 +25,7 @@ ACCURACY_CONFIGURATIONS = 500
 _NOT_FOR_TOUCH = (("tracker", None), ("validate", None), ("compliance", False), ("plots", None),
                   ("html", None), ("method", "search-lm"), ("estimator", "auto"), ("loss", "linear"),
                   ("lm_variant", "calib"), ("periodic", False), ("payload_kg", None), ("payload_com_mm", None),
-                  ("gravity", None))
+                  ("gravity", None), ("meta", None), ("tolerance_mm", None), ("residuals", "auto"))
 
 
 def is_touch_input(args: argparse.Namespace) -> bool:

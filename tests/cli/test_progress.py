@@ -68,7 +68,8 @@ def test_every_imported_package_is_declared():
             elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
                 imported.add(node.module.split(".")[0])
     third_party = sorted(m for m in imported if m not in sys.stdlib_module_names and m != "calib")
-    assert third_party == ["example_robot_data", "lxml", "matplotlib", "numpy", "pinocchio", "scipy", "threadpoolctl"]
+    assert third_party == ["example_robot_data", "jinja2", "lxml", "matplotlib", "numpy", "pinocchio", "scipy",
+                           "threadpoolctl", "yaml"]
     # cmeel wheels (Pinocchio, example-robot-data) install their modules under cmeel.prefix,
     # which packages_distributions() does not map
     cmeel = {"pinocchio": ["pin"], "example_robot_data": ["example-robot-data"]}
