@@ -9,10 +9,11 @@ and outliers are always drawn one by one.
   and after calibration, mm; calibration and validation rows in two colours, outliers marked with
   a red cross, the tolerance as a dashed line.
 - ``orientation_errors.png``: the same for the orientation error, degrees (pose data only).
-- ``error_histograms.png``: histograms of the position (and orientation) errors before and
-  after, outliers left out of "after" (their count in the legend).
+- ``error_histograms.png``: histograms of the position (and orientation) errors after
+  calibration, outliers left out (their count in the legend).
 - ``error_map.png``: the error after calibration against the reach (distance of the measured point
-  from the base frame's origin) and as a 3-D scatter over the workspace (base frame).
+  from the base frame's origin) and over the workspace seen from above (x, y in the base frame,
+  coloured by the error).
 - ``drift.png``: the error after calibration against time and temperature, when the rows have them.
 """
 from __future__ import annotations
@@ -34,7 +35,7 @@ PLOT_FILES = ("position_errors.png", "orientation_errors.png", "error_histograms
 THIN_ABOVE = 3000
 #: Number of bins of the envelopes; points of the thinned workspace scatter.
 BINS, SCATTER_POINTS = 400, 3000
-DPI = 100
+DPI = 90
 _DEG = 180.0 / math.pi
 _CAL, _VAL, _OUT = "tab:blue", "tab:orange", "red"
 
@@ -44,7 +45,7 @@ def _png(fig) -> bytes:
 
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
+    fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": 1})   # (level 6: +40 ms a plot)
     return buf.getvalue()
 
 
@@ -70,6 +71,23 @@ def _envelope(ax, x: np.ndarray, e: np.ndarray, color: str, label: str) -> None:
     med = np.array([np.median(e[a:b]) for a, b in zip(edges[:-1], edges[1:])])
     ax.fill_between(xm, lo, hi, color=color, alpha=0.25, lw=0, label=f"{label}: range per bin")
     ax.plot(xm, med, color=color, lw=1.0, label=f"{label}: median per bin")
+
+
+def _groups(rows: ReportRows, extra=None) -> list[tuple[str, np.ndarray, str]]:
+    """The colour groups of the rows (outliers apart): calibration and validation rows of a
+    calibration; cal and val rows (or all rows) of one model's evaluation."""
+    kept = ~rows.outlier if extra is None else ~rows.outlier & extra
+    if rows.before is None:                   # one model's evaluation
+        parts = [("cal rows", rows.sets == "cal"), ("val rows", rows.sets == "val")]
+        if not all(m.any() for _, m in parts):
+            parts = [("rows", np.ones(rows.n_rows, bool))]
+    else:
+        parts = [("calibration rows", ~rows.validation), ("validation rows", rows.validation)]
+    return [(name, m & kept, color) for (name, m), color in zip(parts, (_CAL, _VAL)) if (m & kept).any()]
+
+
+def _after(rows: ReportRows) -> str:
+    return "after calibration" if rows.before is not None else "of the model"
 
 
 def _clip_outliers(ax, x: np.ndarray, e: np.ndarray, mask: np.ndarray, unit: str, kept_max: float,
@@ -99,16 +117,13 @@ def _per_row(rows: ReportRows, attr: str, scale: float, unit: str, name: str, to
     axes = fig.subplots(2, 1)
     thin = rows.n_rows > THIN_ABOVE
     x = rows.row.astype(float)
-    groups = [("calibration rows", ~rows.validation & ~rows.outlier, _CAL),
-              ("validation rows", rows.validation, _VAL)]
-    panels = [("after calibration", rows.after)]
+    groups = _groups(rows)
+    panels = [(_after(rows), rows.after)]
     if rows.before is not None:
         panels.insert(0, (f"before calibration ({rows.before_label})", rows.before))
     for ax, (label, dev) in zip(np.atleast_1d(axes), panels):
         e = getattr(dev, attr) * scale
         for gname, mask, color in groups:
-            if not mask.any():
-                continue
             marker = np.where(rows.file[mask] == "validation", "^", ".")
             if thin:
                 _envelope(ax, x[mask], e[mask], color, gname)
@@ -124,9 +139,9 @@ def _per_row(rows: ReportRows, attr: str, scale: float, unit: str, name: str, to
         _clip_outliers(ax, x, e, rows.outlier, unit, float(e[kept].max()) if kept.any() else 0.0, tol)
         # the figures of the accuracy table: all calibration rows before, without the outliers after
         judged = rows.calibration & (kept if dev is rows.after else True)
-        if not judged.any():
+        if rows.before is None or not judged.any():
             judged = kept
-        what = "calibration rows" if rows.calibration.any() else "rows"
+        what = "calibration rows" if rows.before is not None else "rows"
         ax.set_title(f"{name}, {label}: {what} RMS {np.sqrt(np.mean(e[judged] ** 2)):.4g} {unit}, max "
                      f"{e[judged].max():.4g} {unit} ({int(judged.sum())} rows"
                      + (", without the outliers)" if dev is rows.after and rows.outlier.any() else ")"),
@@ -139,35 +154,28 @@ def _per_row(rows: ReportRows, attr: str, scale: float, unit: str, name: str, to
 
 
 def _histograms(rows: ReportRows) -> bytes:
-    quantities = [("position_errors", 1e3, "position error / mm")]
+    """Histograms of the errors after calibration (position, and orientation for pose data),
+    calibration and validation rows apart, outliers left out (counted in the legend)."""
+    quantities = [("position_errors", 1e3, f"position error {_after(rows)} / mm")]
     if rows.has_rotation:
-        quantities.append(("rotation_errors", _DEG, "orientation error / deg"))
-    fig = _figure(11, 3.4 * len(quantities), top=0.86 if len(quantities) == 2 else 0.8,
-                  bottom=0.09 if len(quantities) == 2 else 0.16)
-    axes = np.atleast_2d(fig.subplots(len(quantities), 2))
-    panels = [("after calibration", rows.after)]
-    if rows.before is not None:
-        panels.insert(0, (f"before ({rows.before_label})", rows.before))
-    for r, (attr, scale, xlabel) in enumerate(quantities):
-        for c, (label, dev) in enumerate(panels):
-            ax = axes[r, c]
-            e = getattr(dev, attr) * scale
-            data = [(name, e[mask]) for name, mask in (("calibration rows", ~rows.validation & ~rows.outlier),
-                                                        ("validation rows", rows.validation)) if mask.any()]
-            hi = max(float(v.max()) for _, v in data)
-            bins = np.linspace(0.0, hi * 1.0001 if hi > 0 else 1.0, 41)
-            for (name, v), color in zip(data, (_CAL, _VAL)):
-                counts, _ = np.histogram(v, bins=bins)
-                ax.stairs(counts, bins, fill=True, alpha=0.55, color=color, label=f"{name} ({len(v)})")
-            if rows.outlier.any():
-                ax.plot([], [], ls="none", marker="x", color=_OUT,
-                        label=f"{int(rows.outlier.sum())} outliers not shown")
-            ax.set_xlabel(xlabel, fontsize=9)
-            ax.set_ylabel("rows", fontsize=9)
-            ax.set_title(label, fontsize=9.5)
-            ax.legend(fontsize=7.5)
-            ax.grid(alpha=0.3)
-    fig.suptitle("Distribution of the tool pose errors")
+        quantities.append(("rotation_errors", _DEG, f"orientation error {_after(rows)} / deg"))
+    fig = _figure(11, 3.4, top=0.86, bottom=0.16)
+    axes = np.atleast_1d(fig.subplots(1, len(quantities)))
+    for ax, (attr, scale, xlabel) in zip(axes, quantities):
+        e = getattr(rows.after, attr) * scale
+        data = [(name, e[mask], color) for name, mask, color in _groups(rows)]
+        hi = max(float(v.max()) for _, v, _ in data)
+        bins = np.linspace(0.0, hi * 1.0001 if hi > 0 else 1.0, 41)
+        for name, v, color in data:
+            counts, _ = np.histogram(v, bins=bins)
+            ax.stairs(counts, bins, fill=True, alpha=0.55, color=color, label=f"{name} ({len(v)})")
+        if rows.outlier.any():
+            ax.plot([], [], ls="none", marker="x", color=_OUT, label=f"{int(rows.outlier.sum())} outliers not shown")
+        ax.set_xlabel(xlabel, fontsize=9)
+        ax.set_ylabel("rows", fontsize=9)
+        ax.legend(fontsize=7.5)
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"Distribution of the tool pose errors {_after(rows)}")
     return _png(fig)
 
 
@@ -189,36 +197,36 @@ def _error_map(rows: ReportRows, tolerance=None) -> bytes:
     if rows.n_rows > THIN_ABOVE:
         _envelope(ax, reach[kept], e[kept], _CAL, "rows")
     else:
-        for name, mask, color in (("calibration rows", ~rows.validation & kept, _CAL),
-                                  ("validation rows", rows.validation, _VAL)):
-            if mask.any():
-                ax.plot(reach[mask], e[mask], ls="none", marker=".", ms=4, color=color, label=name)
+        for name, mask, color in _groups(rows):
+            ax.plot(reach[mask], e[mask], ls="none", marker=".", ms=4, color=color, label=name)
     if tolerance is not None:
         ax.axhline(tolerance * 1e3, color="black", ls="--", lw=0.8, label="tolerance")
     _clip_outliers(ax, reach, e, rows.outlier, "mm", float(e[kept].max()) if kept.any() else 0.0,
                    None if tolerance is None else tolerance * 1e3)
     ax.set_xlabel("reach: distance of the measured point from the base frame origin / mm", fontsize=9)
-    ax.set_ylabel("position error after calibration / mm", fontsize=9)
+    ax.set_ylabel(f"position error {_after(rows)} / mm", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7.5)
     ax.set_title("error against reach", fontsize=9.5)
-    ax3 = fig.add_subplot(1, 2, 2, projection="3d")
+    ax2 = fig.add_subplot(1, 2, 2)
     idx = _thin_index(np.where(kept, e, -1.0), SCATTER_POINTS)
     idx = idx[kept[idx]]
+    idx = idx[np.argsort(e[idx], kind="stable")]          # the largest errors drawn last, on top
     p = rows.point_base[idx] * 1e3
-    sc = ax3.scatter(p[:, 0], p[:, 1], p[:, 2], c=e[idx], cmap="viridis", s=8, depthshade=False)
+    sc = ax2.scatter(p[:, 0], p[:, 1], c=e[idx], cmap="viridis", s=10, lw=0)
     if rows.outlier.any():
         po = rows.point_base[rows.outlier] * 1e3
-        ax3.scatter(po[:, 0], po[:, 1], po[:, 2], marker="x", color=_OUT, s=40, linewidths=1.5)
-    cb = fig.colorbar(sc, ax=ax3, shrink=0.7, pad=0.12)
+        ax2.plot(po[:, 0], po[:, 1], ls="none", marker="x", ms=7, mew=1.5, color=_OUT, label="outliers")
+        ax2.legend(fontsize=7.5)
+    ax2.set_aspect("equal", adjustable="datalim")
+    cb = fig.colorbar(sc, ax=ax2, shrink=0.9, pad=0.02)
     cb.set_label("position error / mm", fontsize=9)
-    ax3.set_xlabel("x / mm", fontsize=8)
-    ax3.set_ylabel("y / mm", fontsize=8)
-    ax3.set_zlabel("z / mm", fontsize=8)
-    ax3.tick_params(labelsize=7)
+    ax2.set_xlabel("x in the base frame / mm", fontsize=9)
+    ax2.set_ylabel("y in the base frame / mm", fontsize=9)
+    ax2.grid(alpha=0.3)
     shown = f"{len(idx)} of {int(kept.sum())} rows" if len(idx) < kept.sum() else f"{len(idx)} rows"
-    ax3.set_title(f"measured points in the base frame ({shown}; outliers as crosses)", fontsize=9.5)
-    fig.suptitle("Position error after calibration over the workspace")
+    ax2.set_title(f"measured points seen from above ({shown})", fontsize=9.5)
+    fig.suptitle(f"Position error {_after(rows)} over the workspace")
     return _png(fig)
 
 
@@ -234,20 +242,18 @@ def _drift(rows: ReportRows, columns: Mapping[str, np.ndarray]) -> bytes:
         if ok.sum() > THIN_ABOVE:
             _envelope(ax, v[ok], e[ok], _CAL, "rows")
         else:
-            for gname, mask, color in (("calibration rows", ~rows.validation & ok, _CAL),
-                                       ("validation rows", rows.validation & ok, _VAL)):
-                if mask.any():
-                    ax.plot(v[mask], e[mask], ls="none", marker=".", ms=4, color=color, label=gname)
+            for gname, mask, color in _groups(rows, ok):
+                ax.plot(v[mask], e[mask], ls="none", marker=".", ms=4, color=color, label=gname)
         if ok.sum() >= 3 and np.ptp(v[ok]) > 0:
             slope, icpt = np.polyfit(v[ok], e[ok], 1)
             xs = np.array([v[ok].min(), v[ok].max()])
             ax.plot(xs, icpt + slope * xs, color="black", lw=1, label=f"trend {slope:.3g} mm per {name.split('_')[-1]}")
         ax.set_xlabel(name, fontsize=9)
-        ax.set_ylabel("position error after / mm", fontsize=9)
+        ax.set_ylabel(f"position error {_after(rows)} / mm", fontsize=9)
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7.5)
-    fig.suptitle("Drift during the measurement: error after calibration against " + " and ".join(names))
+    fig.suptitle(f"Drift during the measurement: error {_after(rows)} against " + " and ".join(names))
     return _png(fig)
 
 
