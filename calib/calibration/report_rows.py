@@ -243,12 +243,19 @@ def iso9283(rows: ReportRows, dev: PoseDeviations, groups: np.ndarray, keep: np.
     no pose is. Returns ``{"poses": [{"first_row", "target", "visits", "ap_p_mm", "rp_l_mm",
     "ap_deg": [a, b, c], "rp_deg": [a, b, c]}...], "ap_p_max_mm", "rp_l_max_mm", ...}``."""
     g = np.where(keep, groups, -1)
-    ids = [k for k in np.unique(g[g >= 0]) if (g == k).sum() >= 2]
-    if not ids:
+    counts = np.bincount(g[g >= 0]) if (g >= 0).any() else np.zeros(0, int)
+    first = {}
+    for i, k in enumerate(g.tolist()):          # the poses in the order of their first visit
+        if k >= 0 and counts[k] >= 2 and k not in first:
+            first[k] = i
+    if not first:
         return None
     poses = []
-    for k in ids:
-        idx = np.flatnonzero(g == k)
+    members = {k: np.flatnonzero(g == k) for k in first} if len(first) <= 1000 else None
+    order = np.argsort(g, kind="stable")
+    starts = np.searchsorted(g[order], list(first))
+    for j, k in enumerate(first):
+        idx = members[k] if members is not None else order[starts[j]:starts[j] + counts[k]]
         d = -dev.position[idx] * 1e3                 # attained - commanded, mm
         bar = d.mean(axis=0)
         ap = float(np.linalg.norm(bar))

@@ -324,6 +324,12 @@ def add_progress(p: argparse.ArgumentParser) -> None:
                         "(by default only on a terminal)")
 
 
+def progress_enabled(args: argparse.Namespace) -> bool | None:
+    """True when --progress was given (draw even off a terminal), None otherwise (draw on a
+    terminal only)."""
+    return True if getattr(args, "progress", False) else None
+
+
 def parse_meta(values) -> dict:
     """The identity fields of ``--meta`` options (each ``key=value,...`` or a YAML / JSON file of
     a mapping); ParameterError (one line naming the option or the file) otherwise."""
@@ -372,7 +378,7 @@ def read(path, robot, args: argparse.Namespace, tracker=None, *, joined: bool = 
     from calib.io.specs import read_measurements
 
     log = logging.getLogger("calib.cli")
-    with working(f"reading {path}", logger=log):
+    with working(f"reading {path}", logger=log, enabled=progress_enabled(args)):
         m = read_measurements(path, robot, tracker=tracker, options=read_options(args, joined=joined))
     log.info("read %r", m)
     print_notes(m.notes)

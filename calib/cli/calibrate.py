@@ -9,7 +9,7 @@ from pathlib import Path
 
 from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_progress,
                             add_report_options, add_robot, add_verbose, compliance_options, count, load,
-                            parse_meta, positive, read)
+                            parse_meta, positive, progress_enabled, read)
 from calib.cli.output import Outputs, json_text, refuse_implausible, status_exit
 from calib.cli.progress import working
 from calib.errors import DataError, ParameterError
@@ -204,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
     log.info("calibrating: method %s, parameter set %s, %d calibration rows", args.method,
              args.params or f"default (estimator {args.estimator})", meas.calibration().n_poses)
     try:
-        with working(f"calibrating ({args.method})", logger=log):
+        with working(f"calibrating ({args.method})", logger=log, enabled=progress_enabled(args)):
             result = calib.calibrate(robot, meas, method=args.method, params=args.params,
                                      sigma_pos=None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3,
                                      sigma_rot=args.sigma_rot_rad, validation=validation, loss=args.loss,
@@ -273,7 +273,7 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
     want_plots = bool(plot_paths) or out_html is not None
     steps = 1 + (5 if want_plots else 0) + (out_report is not None or out_html is not None) \
         + (out_residuals is not None) + (out_html is not None)
-    with Progress(steps, "writing the report", enabled=True if args.progress else None) as progress, \
+    with Progress(steps, "writing the report", enabled=progress_enabled(args)) as progress, \
             stage(log, "report"):
         rows = report_rows_of(result, meas, validation)
         progress.update()

@@ -185,7 +185,9 @@ def _write_report(args, robot, meas, outputs, out_html, plot_paths, meta) -> Non
     from calib.cli.progress import Progress
     from calib.io.urdf_reader import robot_path
 
-    with Progress(7, "writing the report", enabled=True if args.progress else None) as progress:
+    from calib.cli.args import progress_enabled
+
+    with Progress(7, "writing the report", enabled=progress_enabled(args)) as progress:
         rows = report_rows(robot, meas, validation_rows="none")
         progress.update()
         images = plot_rows(rows, tolerance_m=None if args.tolerance_mm is None else args.tolerance_mm * 1e-3,
