@@ -40,19 +40,20 @@ TARGET = {"added_example_s": 0.5, "added_100k_s": 3.0, "html_200k_s": 10.0}
 PYCACHE = Path(tempfile.gettempdir()) / "calib-bench-pycache"
 
 
-def _env() -> dict:
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
-               PYTHONPYCACHEPREFIX=str(PYCACHE))
+def _env(root: Path = ROOT) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               PYTHONPYCACHEPREFIX=str(PYCACHE / root.name))
     env.pop("PYTHONDONTWRITEBYTECODE", None)
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env[var] = "1"
     return env
 
 
-def run(argv: list[str]) -> dict:
-    """One ``calib`` process: wall s, CPU s (user + sys), max RSS MB; raises on a non-zero exit."""
+def run(argv: list[str], root: Path = ROOT) -> dict:
+    """One ``calib`` process (of the checkout ``root``): wall s, CPU s (user + sys), max RSS MB;
+    raises on a non-zero exit."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "calib", *map(str, argv)], env=_env(), cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "calib", *map(str, argv)], env=_env(root), cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
@@ -64,13 +65,13 @@ def run(argv: list[str]) -> dict:
     return {"wall": wall, "cpu": usage.ru_utime + usage.ru_stime, "rss_mb": usage.ru_maxrss / 1024}
 
 
-def pair(base: list[str], extra: list[str], repeats: int) -> tuple[dict, dict]:
+def pair(base: list[str], extra: list[str], repeats: int, root: Path = ROOT) -> tuple[dict, dict]:
     """Medians of ``repeats`` interleaved runs of ``base`` and ``base + extra`` (after a warm-up)."""
-    run(base)
+    run(base, root)
     a, b = [], []
     for _ in range(repeats):
-        a.append(run(base))
-        b.append(run(base + extra))
+        a.append(run(base, root))
+        b.append(run(base + extra, root))
     med = lambda runs: {k: statistics.median(r[k] for r in runs) for k in runs[0]}
     return med(a), med(b)
 
@@ -85,6 +86,9 @@ def main() -> None:
     ap.add_argument("--rows", type=int, default=100_000)
     ap.add_argument("--html-rows", type=int, default=200_000)
     ap.add_argument("--quick", action="store_true", help="the bundled example only")
+    ap.add_argument("--compare", type=Path, default=None, metavar="CHECKOUT",
+                    help="also run the bundled example with the calib of another checkout (e.g. a "
+                         "`git archive main` snapshot), interleaved, to compare under the same load")
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; medians of {args.repeats} runs")
     with tempfile.TemporaryDirectory(prefix="calib-bench-report-") as tmp:
@@ -97,6 +101,10 @@ def main() -> None:
               f"before: {BEFORE['example_s'][0]} s -> {BEFORE['example_s'][1]} s "
               f"(+{BEFORE['example_s'][1] - BEFORE['example_s'][0]:.2f} s); target +{TARGET['added_example_s']} s")
         print(f"   JSON {_mb(tmp / 'r.json')}, HTML {_mb(tmp / 'r.html')}")
+        if args.compare is not None:
+            a2, b2 = pair(base, extra, args.repeats, args.compare.resolve())
+            print(f"   {args.compare} under the same load: {a2['wall']:.2f} s -> {b2['wall']:.2f} s wall, "
+                  f"+{b2['wall'] - a2['wall']:.2f} s (CPU +{b2['cpu'] - a2['cpu']:.2f} s)")
         if args.quick:
             return
         meas = tmp / "m.csv"
