@@ -25,7 +25,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from calib.calibration.report_plots import PLOT_FILES, plot_rows
-from calib.calibration.report_rows import (PoseDeviations, ReportRows, axis_table, error_stats, iso9283,
+from calib.calibration.report_rows import (PoseDeviations, ReportRows, axis_table, drift_columns, error_stats, iso9283,
                                            pose_deviations, registered_nominal, repeated_groups, report_rows,
                                            tolerance_verdict)
 from calib.calibration.result import CalibrationResult
@@ -100,7 +100,7 @@ def _calib_version() -> str:
 
 
 #: The per-row residual columns of a report, with their units (JSON and CSV alike).
-RESIDUAL_COLUMNS = ("file", "row", "set", "target", "outlier", "dx_mm", "dy_mm", "dz_mm", "position_error_mm",
+RESIDUAL_COLUMNS = ("file", "row", "set", "target", "outlier", "pose_id", "time_s", "temperature_c", "dx_mm", "dy_mm", "dz_mm", "position_error_mm",
                     "position_error_before_mm", "rx_rad", "ry_rad", "rz_rad", "rotation_error_rad",
                     "rotation_error_before_rad")
 
@@ -113,6 +113,9 @@ def _residual_columns(rows: ReportRows) -> dict[str, np.ndarray]:
     if rows.target is not None:
         cols["target"] = rows.target
     cols["outlier"] = rows.outlier
+    for name in ("pose_id", "time_s", "temperature_c"):
+        if name in rows.columns:
+            cols[name] = rows.columns[name] if name == "pose_id" else np.round(rows.columns[name], 6)
     dp = rows.after.position * 1e3
     for k, axis in enumerate("xyz"):
         cols[f"d{axis}_mm"] = np.round(dp[:, k], 6)
@@ -210,8 +213,17 @@ def _certificate(rows: ReportRows, tolerance_mm: float | None, *, calibration: b
     if iso is not None and rows.before is not None:
         iso_b = iso9283(rows, rows.before, groups_id, kept)
         iso["before"] = {k: iso_b[k] for k in ("ap_p_max_mm", "ap_p_mean_mm", "rp_l_max_mm", "rp_l_mean_mm")}
+    drift = {}
+    for name, v in drift_columns(rows).items():
+        ok = kept & np.isfinite(v)
+        e = rows.after.position_errors[ok] * 1e3
+        slope = float(np.polyfit(v[ok], e, 1)[0])
+        drift[name] = {"n": int(ok.sum()), "range": [float(v[ok].min()), float(v[ok].max())],
+                       "slope_mm_per_unit": slope, "change_mm": slope * float(np.ptp(v[ok])),
+                       "correlation": float(np.corrcoef(v[ok], e)[0, 1]) if np.ptp(e) > 0 else 0.0}
     out = {"before_label": rows.before_label if rows.before is not None else None,
            "headline_rows": what, "accuracy": accuracy, "per_axis": per_axis, "iso9283": iso,
+           "drift": drift or None,
            "outlier_rows": [int(r) for r in rows.row[rows.outlier]],
            "tolerance": None}
     if tolerance_mm is not None:

@@ -151,7 +151,7 @@ def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: st
         "unregistered_before": (before.get("position_mm") or {}).get("rms"),
         "outliers": outliers, "per_axis": cert["per_axis"],
         "axes": ["x", "y", "z"] + (["rx", "ry", "rz"] if has_rot else []),
-        "iso": cert.get("iso9283"), "iso_shown": ISO_SHOWN, "calibration": not evaluation,
+        "iso": cert.get("iso9283"), "iso_shown": ISO_SHOWN, "drift": cert.get("drift"), "calibration": not evaluation,
         "multi_target": bool(report.get("targets")) or any(
             p.get("target") for p in (cert.get("iso9283") or {}).get("poses", [])),
         "predicted": _predicted(report) if not evaluation else [], "targets": _targets(report),
@@ -160,5 +160,10 @@ def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: st
                    for name, data in images.items()],
         "text": text, "provenance": provenance,
     }
+    import jinja2
+
     template = _environment().from_string(_TEMPLATE.read_text(encoding="utf-8"))
-    return template.render(**context)
+    try:
+        return template.render(**context)
+    except jinja2.UndefinedError as exc:      # a report without a key the page needs
+        raise KeyError(str(exc)) from None

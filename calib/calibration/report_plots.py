@@ -24,7 +24,7 @@ from typing import Mapping
 
 import numpy as np
 
-from calib.calibration.report_rows import ReportRows
+from calib.calibration.report_rows import ReportRows, drift_columns
 
 __all__ = ["PLOT_FILES", "THIN_ABOVE", "plot_rows"]
 
@@ -230,6 +230,9 @@ def _error_map(rows: ReportRows, tolerance=None) -> bytes:
     return _png(fig)
 
 
+_AXIS_NAMES = {"time_s": ("time", "s"), "temperature_c": ("temperature", "°C")}
+
+
 def _drift(rows: ReportRows, columns: Mapping[str, np.ndarray]) -> bytes:
     names = list(columns)
     fig = _figure(11, 3.6, top=0.84, bottom=0.16)
@@ -247,20 +250,24 @@ def _drift(rows: ReportRows, columns: Mapping[str, np.ndarray]) -> bytes:
         if ok.sum() >= 3 and np.ptp(v[ok]) > 0:
             slope, icpt = np.polyfit(v[ok], e[ok], 1)
             xs = np.array([v[ok].min(), v[ok].max()])
-            ax.plot(xs, icpt + slope * xs, color="black", lw=1, label=f"trend {slope:.3g} mm per {name.split('_')[-1]}")
-        ax.set_xlabel(name, fontsize=9)
+            quantity, unit = _AXIS_NAMES.get(name, (name, ""))
+            ax.plot(xs, icpt + slope * xs, color="black", lw=1, label=f"trend {slope:.3g} mm per {unit}")
+        quantity, unit = _AXIS_NAMES.get(name, (name, ""))
+        ax.set_xlabel(f"{quantity} / {unit}" if unit else quantity, fontsize=9)
         ax.set_ylabel(f"position error {_after(rows)} / mm", fontsize=9)
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7.5)
-    fig.suptitle(f"Drift during the measurement: error {_after(rows)} against " + " and ".join(names))
+    fig.suptitle(f"Drift during the measurement: error {_after(rows)} against "
+                 + " and ".join(_AXIS_NAMES.get(n, (n,))[0] for n in names))
     return _png(fig)
 
 
 def plot_rows(rows: ReportRows, *, tolerance_m: float | None = None,
               columns: Mapping[str, np.ndarray] | None = None, progress=None) -> dict[str, bytes]:
     """PNG images of a report's rows by file name (module docstring); ``orientation_errors.png``
-    only for pose data, ``drift.png`` only with ``columns`` (name with unit -> (N,) values).
+    only for pose data, ``drift.png`` only with ``columns`` (name with unit -> (N,) values;
+    default: the rows' ``time_s`` and ``temperature_c`` when they have them).
     progress : called with the number of plots done after each (for a progress line)."""
     jobs = [("position_errors.png", lambda: _per_row(rows, "position_errors", 1e3, "mm", "position error",
                                                      tolerance_m))]
@@ -269,9 +276,11 @@ def plot_rows(rows: ReportRows, *, tolerance_m: float | None = None,
                      lambda: _per_row(rows, "rotation_errors", _DEG, "deg", "orientation error")))
     jobs.append(("error_histograms.png", lambda: _histograms(rows)))
     jobs.append(("error_map.png", lambda: _error_map(rows, tolerance_m)))
+    images = {}
+    if columns is None:
+        columns = drift_columns(rows)
     if columns:
         jobs.append(("drift.png", lambda: _drift(rows, columns)))
-    images = {}
     for k, (name, job) in enumerate(jobs):
         images[name] = job()
         if progress is not None:

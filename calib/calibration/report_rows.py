@@ -20,7 +20,7 @@ R_measured R_model^T about the meas frame's x, y, z axes.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
@@ -30,8 +30,8 @@ from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.model.spatial import log3_batch
 
-__all__ = ["PoseDeviations", "pose_deviations", "ReportRows", "report_rows", "axis_table", "iso9283", "error_stats", "tolerance_verdict",
-           "registered_nominal"]
+__all__ = ["PoseDeviations", "pose_deviations", "ReportRows", "report_rows", "axis_table", "iso9283", "error_stats",
+           "tolerance_verdict", "registered_nominal", "repeated_groups", "drift_columns"]
 
 _DEG = 180.0 / math.pi
 
@@ -85,6 +85,9 @@ class ReportRows:
     radians. outlier : (N,) bool, the rows the fit flagged. validation : (N,) bool, the rows the
     calibration's validation statistics are of. point_base : (N, 3) metres, the measured point in
     the robot's base frame (by the model of ``after``). before_label : what "before" is.
+    columns : the files' per-row columns (:attr:`Measurements.columns`: ``time_s``,
+    ``temperature_c`` as (N,) float, NaN where a file has none; ``pose_id`` (N,) str, "" where
+    a file has none).
     """
 
     file: np.ndarray
@@ -98,6 +101,7 @@ class ReportRows:
     validation: np.ndarray
     point_base: np.ndarray
     before_label: str = "nominal model"
+    columns: Mapping = field(default_factory=dict)
 
     @property
     def n_rows(self) -> int:
@@ -180,8 +184,14 @@ def report_rows(model: RobotModel, measurements: Measurements, validation: Measu
     position = np.concatenate([m.position for _, m in parts])
     T = model.T_meas_base()
     point_base = (position - T[:3, 3]) @ T[:3, :3]
+    columns = {}
+    for name in dict.fromkeys(k for _, m in parts for k in (m.columns or {})):
+        pid = name == "pose_id"
+        columns[name] = np.concatenate([
+            np.asarray(m.columns[name], object if pid else float) if m.columns and name in m.columns
+            else np.full(m.n_poses, "" if pid else np.nan, dtype=object if pid else float) for _, m in parts])
     return ReportRows(file, row, s, target, np.concatenate(qs), _concat(before) if before else None,
-                      dev_after, outlier, val, point_base, reference_label)
+                      dev_after, outlier, val, point_base, reference_label, columns)
 
 
 def _concat(devs) -> PoseDeviations:
@@ -215,11 +225,13 @@ def axis_table(dev: PoseDeviations, mask: np.ndarray) -> dict:
     return out
 
 
-def repeated_groups(rows: ReportRows, pose_id=None) -> np.ndarray:
-    """(N,) int: the group of each row, rows of one file with equal joint values (to 1e-9) and the
-    same target (or the same ``pose_id``) sharing one; -1 for rows visited once."""
+def repeated_groups(rows: ReportRows) -> np.ndarray:
+    """(N,) int: the group of each row, rows of one file with the same target and the same
+    ``pose_id`` (when the file has that column) or else equal joint values (to 1e-9 rad or m)
+    sharing one; -1 for rows visited once."""
     N = rows.n_rows
-    if pose_id is not None:
+    pose_id = rows.columns.get("pose_id")
+    if pose_id is not None and (pose_id != "").all():
         keys = [np.unique(np.asarray(pose_id, str), return_inverse=True)[1]]
     else:
         keys = list(np.round(rows.q, 9).T)
@@ -290,11 +302,12 @@ def tolerance_verdict(tolerance_m: float, errors: np.ndarray, what: str) -> dict
             "pass": bool(len(e) and over == 0)}
 
 
-def extra_columns(columns: Mapping | None, n: int) -> dict:
-    """The checked extra columns (time, temperature) of the rows: name -> (n,) float."""
+def drift_columns(rows: ReportRows) -> dict:
+    """The rows' time and temperature columns that hold at least three values and vary:
+    name -> (N,) float (NaN where unknown)."""
     out = {}
-    for name, values in (columns or {}).items():
-        v = np.asarray(values, float)
-        if v.shape == (n,) and np.isfinite(v).any():
-            out[name] = v
+    for name in ("time_s", "temperature_c"):
+        v = rows.columns.get(name)
+        if v is not None and np.isfinite(v).sum() >= 3 and np.nanmax(v) > np.nanmin(v):
+            out[name] = np.asarray(v, float)
     return out

@@ -263,3 +263,30 @@ def test_evaluate_html_and_plots(capsys, tmp_path):
                                                        "orientation_errors.png", "position_errors.png"]
     code, _, err = run(capsys, "evaluate", BUNDLED, EXAMPLE, "--tolerance-mm", "8")
     assert code == 2 and "give --html" in err
+
+
+def test_drift_against_time_and_iso_groups_by_pose_id(bundled_robot):
+    """Rows whose error grows 0.01 mm per minute along x: the drift table's trend is that slope
+    (the error along x is the whole error, 0.1-1 mm), drift.png is drawn; rows sharing a pose_id
+    are one ISO 9283 pose even though their joint values differ."""
+    from calib.calibration.report import build_accuracy_report
+
+    Q = bundled_robot.random_configurations(40, 5)
+    R, p = ChainKinematics(bundled_robot).frame_poses(Q)
+    t = np.arange(40) * 60.0 + 600.0                          # seconds, 10 min to 49 min
+    attained = p + np.outer(t / 60.0 * 0.01e-3, [1.0, 0.0, 0.0])
+    pose_id = [f"P{k % 5}" for k in range(40)]
+    m = calib.Measurements(q=Q, position=attained, rotation=R,
+                           columns={"time_s": t, "temperature_c": 20 + t / 3600, "pose_id": pose_id})
+    rows = report_rows(bundled_robot, m, validation_rows="none")
+    rep = build_accuracy_report(bundled_robot, m, rows=rows, residuals="json")
+    drift = rep["certificate"]["drift"]
+    assert drift["time_s"]["slope_mm_per_unit"] == pytest.approx(0.01 / 60, rel=1e-9)
+    assert drift["time_s"]["correlation"] == pytest.approx(1.0, abs=1e-12)
+    assert drift["temperature_c"]["slope_mm_per_unit"] == pytest.approx(0.01 * 60, rel=1e-9)
+    assert "drift.png" in plot_rows(rows)
+    iso = rep["certificate"]["iso9283"]
+    assert iso["n_poses"] == 5 and [pose["visits"] for pose in iso["poses"]] == [8] * 5
+    assert rep["residuals"]["columns"]["pose_id"][:2] == ["P0", "P1"]
+    page = calib.render_html(rep, "")
+    assert "Drift during the measurement" in page and "ISO 9283" in page
