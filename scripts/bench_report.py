@@ -4,6 +4,10 @@ to ``calib calibrate``, beside the figures measured before this work.
 Prints, each a median of ``--repeats`` runs of whole ``calib`` processes (interleaved, bytecode
 cached as after an install, one BLAS thread), wall and CPU time (user + system of the process):
 
+0. The report stage alone, in a fresh process after ``calibrate()`` of the bundled example:
+   CPU and wall time of importing the plotting and template code, drawing the plots, building
+   the JSON report and the HTML page (with ``--compare CHECKOUT``: the same for that checkout,
+   interleaved) — the figure least disturbed by other load on the machine.
 1. The bundled example (BRTIRUS0707A, 300 rows): ``calib calibrate`` alone and with
    ``--report R.json --html R.html --plots DIR``; the difference. Before: 0.57 s -> 4.4 s.
 2. ``--rows`` simulated rows (default 100,000; the bundled robot, pose data): the same two runs,
@@ -53,7 +57,7 @@ def run(argv: list[str], root: Path = ROOT) -> dict:
     """One ``calib`` process (of the checkout ``root``): wall s, CPU s (user + sys), max RSS MB;
     raises on a non-zero exit."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "calib", *map(str, argv)], env=_env(root), cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "calib", *map(str, argv)], env=_env(root), cwd=tempfile.gettempdir(),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
@@ -76,6 +80,31 @@ def pair(base: list[str], extra: list[str], repeats: int, root: Path = ROOT) -> 
     return med(a), med(b)
 
 
+_STAGE = """
+import json, sys, time
+import calib
+from calib.io.specs import read_measurements
+robot = calib.load_robot(sys.argv[1])
+meas = read_measurements(sys.argv[2], robot)
+res = calib.calibrate(robot, meas)
+c0, w0 = time.process_time(), time.perf_counter()
+from calib.calibration.report import build_report, render_html, render_plots
+images = render_plots(res, meas)
+page = render_html(build_report(res, meas), res.format(), images)
+print(json.dumps({"cpu": time.process_time() - c0, "wall": time.perf_counter() - w0}))
+"""
+
+
+def report_stage(root: Path) -> dict:
+    """CPU and wall seconds of the report stage (imports, plots, JSON, HTML) in a fresh process
+    of the checkout ``root``, after calibrate() of the bundled example."""
+    import json
+
+    out = subprocess.run([sys.executable, "-c", _STAGE, str(URDF), str(EXAMPLE)], env=_env(root), cwd=tempfile.gettempdir(),
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def _mb(path: Path) -> str:
     return f"{path.stat().st_size / 1e6:.2f} MB" if path.exists() else "-"
 
@@ -91,6 +120,16 @@ def main() -> None:
                          "`git archive main` snapshot), interleaved, to compare under the same load")
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; medians of {args.repeats} runs")
+    roots = [ROOT] + ([args.compare.resolve()] if args.compare is not None else [])
+    stages = {r: [] for r in roots}
+    for _ in range(args.repeats):
+        for r in roots:
+            stages[r].append(report_stage(r))
+    for r in roots:
+        cpu = statistics.median(x["cpu"] for x in stages[r])
+        wall = statistics.median(x["wall"] for x in stages[r])
+        print(f"0. report stage of the bundled example ({'this checkout' if r == ROOT else r}): {cpu:.2f} s CPU, "
+              f"{wall:.2f} s wall (imports, plots, JSON, HTML)")
     with tempfile.TemporaryDirectory(prefix="calib-bench-report-") as tmp:
         tmp = Path(tmp)
         extra = ["--report", tmp / "r.json", "--html", tmp / "r.html", "--plots", tmp / "plots"]

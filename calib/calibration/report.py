@@ -247,8 +247,8 @@ def _check_common(command_line, inputs, outputs, frames, meta, tolerance_mm, res
     if tolerance_mm is not None and (isinstance(tolerance_mm, bool) or not isinstance(tolerance_mm, (int, float))
                                      or not math.isfinite(tolerance_mm) or tolerance_mm <= 0):
         raise ParameterError(f"tolerance_mm must be a positive number of millimetres, got {tolerance_mm!r:.60}")
-    if not (residuals in ("json", "none", "auto") or isinstance(residuals, (str, os.PathLike))
-            and str(residuals).endswith(".csv")):
+    if not (isinstance(residuals, str) and residuals in ("json", "none", "auto")
+            or isinstance(residuals, (str, os.PathLike)) and os.fspath(residuals).endswith(".csv")):
         raise ParameterError(f"residuals must be 'json', 'none', 'auto' or the path of a CSV file (.csv), "
                              f"got {residuals!r:.60}")
 
