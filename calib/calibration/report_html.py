@@ -115,10 +115,11 @@ def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: st
         identity.insert(0, ("identity fields", "none given (--meta robot_serial=...,instrument=...,operator=...)"))
     accuracy = cert["accuracy"]
     has_rot = any(g.get("rotation_deg") for g in accuracy)
-    headline = [g for g in accuracy if g["label"].startswith(("calibration rows", "validation rows", "all rows"))]
+    headline = [g for g in accuracy if g["label"].startswith(("calibration rows", "validation rows", "all rows",
+                                                              "rows,"))]
     outliers = [{"row": o["row"], "position_error_mm": o["position_error_mm"],
                  "rotation_deg": None if o.get("rotation_error_rad") is None else o["rotation_error_rad"] * _DEG,
-                 "sigmas": o["sigmas"]} for o in report.get("outliers") or []]
+                 "sigmas": o.get("sigmas")} for o in report.get("outliers") or []]
     frames = [("base frame (measurement frame)", report["frames"].get("base_frame")),
               ("tool frame", report["frames"].get("tool_frame")),
               ("joints", ", ".join(report["frames"].get("joints", [])))]
@@ -151,10 +152,12 @@ def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: st
         "unregistered_before": (before.get("position_mm") or {}).get("rms"),
         "outliers": outliers, "per_axis": cert["per_axis"],
         "axes": ["x", "y", "z"] + (["rx", "ry", "rz"] if has_rot else []),
-        "iso": cert.get("iso9283"), "iso_shown": ISO_SHOWN, "drift": cert.get("drift"), "calibration": not evaluation,
+        "iso": cert.get("iso9283"), "iso_shown": ISO_SHOWN, "drift": cert.get("drift"),
+        "features": cert.get("features"), "quantity": cert.get("quantity"), "calibration": not evaluation,
         "multi_target": bool(report.get("targets")) or any(
             p.get("target") for p in (cert.get("iso9283") or {}).get("poses", [])),
-        "predicted": _predicted(report) if not evaluation else [], "targets": _targets(report),
+        "predicted": ([tuple(r) for r in report["predicted_rows"]] if report.get("predicted_rows")
+                      else _predicted(report) if not evaluation else []), "targets": _targets(report),
         "frames": frames, "parameters": _parameter_rows(report), "selection": sel,
         "images": [(name, IMAGE_CAPTIONS.get(name, name), base64.b64encode(data).decode("ascii"))
                    for name, data in images.items()],

@@ -158,7 +158,7 @@ def _per_row(rows: ReportRows, attr: str, scale: float, unit: str, name: str, to
 def _histograms(rows: ReportRows) -> bytes:
     """Histograms of the errors after calibration (position, and orientation for pose data),
     calibration and validation rows apart, outliers left out (counted in the legend)."""
-    quantities = [("position_errors", 1e3, f"position error {_after(rows)} / mm")]
+    quantities = [("position_errors", 1e3, f"{rows.quantity} {_after(rows)} / mm")]
     if rows.has_rotation:
         quantities.append(("rotation_errors", _DEG, f"orientation error {_after(rows)} / deg"))
     fig = _figure(11, 3.4, top=0.86, bottom=0.16)
@@ -206,7 +206,7 @@ def _error_map(rows: ReportRows, tolerance=None) -> bytes:
     _clip_outliers(ax, reach, e, rows.outlier, "mm", float(e[kept].max()) if kept.any() else 0.0,
                    None if tolerance is None else tolerance * 1e3)
     ax.set_xlabel("reach: distance of the measured point from the base frame origin / mm", fontsize=9)
-    ax.set_ylabel(f"position error {_after(rows)} / mm", fontsize=9)
+    ax.set_ylabel(f"{rows.quantity} {_after(rows)} / mm", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7.5)
     ax.set_title("error against reach", fontsize=9.5)
@@ -222,13 +222,13 @@ def _error_map(rows: ReportRows, tolerance=None) -> bytes:
         ax2.legend(fontsize=7.5)
     ax2.set_aspect("equal", adjustable="datalim")
     cb = fig.colorbar(sc, ax=ax2, shrink=0.9, pad=0.02)
-    cb.set_label("position error / mm", fontsize=9)
+    cb.set_label(f"{rows.quantity} / mm", fontsize=9)
     ax2.set_xlabel("x in the base frame / mm", fontsize=9)
     ax2.set_ylabel("y in the base frame / mm", fontsize=9)
     ax2.grid(alpha=0.3)
     shown = f"{len(idx)} of {int(kept.sum())} rows" if len(idx) < kept.sum() else f"{len(idx)} rows"
     ax2.set_title(f"measured points seen from above ({shown})", fontsize=9.5)
-    fig.suptitle(f"Position error {_after(rows)} over the workspace")
+    fig.suptitle(f"{rows.quantity.capitalize()} {_after(rows)} over the workspace")
     return _png(fig)
 
 
@@ -256,7 +256,7 @@ def _drift(rows: ReportRows, columns: Mapping[str, np.ndarray]) -> bytes:
             ax.plot(xs, icpt + slope * xs, color="black", lw=1, label=f"trend {slope:.3g} mm per {unit}")
         quantity, unit = _AXIS_NAMES.get(name, (name, ""))
         ax.set_xlabel(f"{quantity} / {unit}" if unit else quantity, fontsize=9)
-        ax.set_ylabel(f"position error {_after(rows)} / mm", fontsize=9)
+        ax.set_ylabel(f"{rows.quantity} {_after(rows)} / mm", fontsize=9)
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7.5)
@@ -271,7 +271,7 @@ def plot_rows(rows: ReportRows, *, tolerance_m: float | None = None,
     only for pose data, ``drift.png`` only with ``columns`` (name with unit -> (N,) values;
     default: the rows' ``time_s`` and ``temperature_c`` when they have them).
     progress : called with the number of plots done after each (for a progress line)."""
-    jobs = [("position_errors.png", lambda: _per_row(rows, "position_errors", 1e3, "mm", "position error",
+    jobs = [("position_errors.png", lambda: _per_row(rows, "position_errors", 1e3, "mm", rows.quantity,
                                                      tolerance_m))]
     if rows.has_rotation:
         jobs.append(("orientation_errors.png",

@@ -87,7 +87,8 @@ class ReportRows:
     the robot's base frame (by the model of ``after``). before_label : what "before" is.
     columns : the files' per-row columns (:attr:`Measurements.columns`: ``time_s``,
     ``temperature_c`` as (N,) float, NaN where a file has none; ``pose_id`` (N,) str, "" where
-    a file has none).
+    a file has none). quantity : what ``position_errors`` measure, for the plots ("position
+    error"; "touch residual" for touch rows, whose deviation is the residual along x).
     """
 
     file: np.ndarray
@@ -102,6 +103,7 @@ class ReportRows:
     point_base: np.ndarray
     before_label: str = "nominal model"
     columns: Mapping = field(default_factory=dict)
+    quantity: str = "position error"
 
     @property
     def n_rows(self) -> int:

@@ -290,3 +290,32 @@ def test_drift_against_time_and_iso_groups_by_pose_id(bundled_robot):
     assert rep["residuals"]["columns"]["pose_id"][:2] == ["P0", "P1"]
     page = calib.render_html(rep, "")
     assert "Drift during the measurement" in page and "ISO 9283" in page
+
+
+def test_touch_report_per_feature_before_and_after(capsys, tmp_path):
+    """A touch file (three planes and a sphere: one residual component per row) gets the same
+    report: the rows' RMS before and after are the fit's printed figures, per feature too, with
+    the verdict and the plots."""
+    cube, out, rep, page, plots = (tmp_path / n for n in ("cube.csv", "c.urdf", "r.json", "r.html", "plots"))
+    code, _, err = run(capsys, "simulate", "ur10", "--tool-frame", "tool0", "-o", cube, "--constraint",
+                       "plane:3,sphere:100", "--poses", 12, "--deviations", "random:0.5", "--seed", 1)
+    assert code == 0, err
+    code, text, err = run(capsys, "calibrate", "ur10", cube, "--tool-frame", "tool0", "-o", out, "--report", rep,
+                          "--html", page, "--plots", plots, "--tolerance-mm", "0.2", "--meta", "robot_serial=UR-1",
+                          "--cv", 0)
+    assert code == 0, err
+    r = json.loads(rep.read_text())
+    acc = {g["label"]: g["position_mm"] for g in r["certificate"]["accuracy"]}
+    assert acc["rows, before"]["rms"] == pytest.approx(r["residual_rms_mm"]["before"], rel=1e-9)
+    assert acc["rows, after"]["rms"] == pytest.approx(r["residual_rms_mm"]["after"], rel=1e-9)
+    features = r["certificate"]["features"]
+    assert [(f["kind"], f["id"], f["rows"]) for f in features] == [
+        ("plane", "A", 12), ("plane", "B", 12), ("plane", "C", 12), ("sphere", "S1", 12)]
+    per_row = np.sqrt(np.mean([f["rms_after_mm"] ** 2 for f in features]))    # equal row counts
+    assert per_row == pytest.approx(acc["rows, after"]["rms"], rel=1e-9)
+    tol = r["certificate"]["tolerance"]
+    assert tol["pass"] is (acc["rows, after"]["max"] <= 0.2) and tol["n"] == 48
+    assert f"tolerance 0.2 mm: {'PASS' if tol['pass'] else 'FAIL'}" in text
+    html = page.read_text()
+    assert "Touch calibration report" in html and "UR-1" in html and "<td class=\"l\">sphere S1</td>" in html
+    assert sorted(p.name for p in plots.iterdir()) == ["error_histograms.png", "error_map.png", "position_errors.png"]
