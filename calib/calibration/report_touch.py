@@ -10,7 +10,7 @@ The rows the fit dropped as outliers are kept here and marked.
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+from typing import Sequence
 
 import numpy as np
 

@@ -154,7 +154,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Run ``calib calibrate`` with parsed arguments; returns the exit code."""
     import calib
-    from calib.calibration.report import build_report
     from calib.io.urdf_reader import robot_path
     from calib.io.urdf_writer import check_writable, write_calibrated_urdf
     from calib.cli.touch import is_touch_input, run_touch

@@ -124,8 +124,6 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
                         frames) -> str:
     """The touch report's certificate (into ``report``, the JSON), plots and HTML page staged in
     ``outputs``; returns the verdict line for the printed text ("" without --tolerance-mm)."""
-    import math
-
     from calib.calibration.report import _provenance, render_html
     from calib.calibration.report_plots import plot_rows
     from calib.calibration.report_touch import touch_certificate, touch_rows
