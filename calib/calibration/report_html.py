@@ -46,10 +46,31 @@ def _environment():
     return _ENV
 
 
-def _parameter_rows(report: Mapping) -> list[dict]:
-    """The parameter table in display units with angles in degrees and U = k sigma."""
+def _frame_rows(report: Mapping) -> list[dict]:
+    """The frame transforms of a report that has them (``frame_transforms``: per frame its
+    nominal, identified and std as x, y, z mm and roll, pitch, yaw deg) as table rows, the std
+    expanded to U = k sigma."""
     out = []
+
+    def six(d, scale=1.0, fmt=".4f"):
+        return [("fixed" if v is None else _num(v * scale, fmt)) for v in (*d["xyz_mm"], *d["rpy_deg"])]
+    for f in report.get("frame_transforms") or []:
+        if f.get("nominal") is not None:
+            out.append({"frame": f["frame"], "what": "nominal", "values": six(f["nominal"])})
+        out.append({"frame": f["frame"], "what": "identified", "values": six(f["identified"])})
+        if f.get("std") is not None:
+            out.append({"frame": f["frame"], "what": "U (k = 2)", "values": six(f["std"], COVERAGE_FACTOR, ".3g")})
+    return out
+
+
+def _parameter_rows(report: Mapping) -> list[dict]:
+    """The parameter table in display units with angles in degrees and U = k sigma (without the
+    frames' u_ and v_ rows when the report gives the frames as transforms)."""
+    out = []
+    as_transforms = bool(report.get("frame_transforms"))
     for p in report.get("parameters") or []:
+        if as_transforms and p["name"].startswith(("u_", "v_")):
+            continue
         unit, f = (("deg", _DEG) if p["unit"] == "rad" else (p["unit"], 1.0))
         std = p.get("std")
         out.append({"name": p["name"], "unit": unit,
@@ -158,7 +179,8 @@ def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: st
             p.get("target") for p in (cert.get("iso9283") or {}).get("poses", [])),
         "predicted": ([tuple(r) for r in report["predicted_rows"]] if report.get("predicted_rows")
                       else _predicted(report) if not evaluation else []), "targets": _targets(report),
-        "frames": frames, "parameters": _parameter_rows(report), "selection": sel,
+        "frames": frames, "parameters": _parameter_rows(report), "frame_rows": _frame_rows(report),
+        "selection": sel,
         "images": [(name, IMAGE_CAPTIONS.get(name, name), base64.b64encode(data).decode("ascii"))
                    for name, data in images.items()],
         "text": text, "provenance": provenance,

@@ -319,3 +319,19 @@ def test_touch_report_per_feature_before_and_after(capsys, tmp_path):
     html = page.read_text()
     assert "Touch calibration report" in html and "UR-1" in html and "<td class=\"l\">sphere S1</td>" in html
     assert sorted(p.name for p in plots.iterdir()) == ["error_histograms.png", "error_map.png", "position_errors.png"]
+
+
+def test_frame_transforms_shown_as_transforms_when_the_report_has_them(tracker_case):
+    """A report with ``frame_transforms`` (the frames as x, y, z, roll, pitch, yaw) shows them in
+    their own table, U = 2 sigma, and leaves the u_ / v_ rows out of the parameter table."""
+    res, m = tracker_case
+    rep = build_report(res, m)
+    rep["frame_transforms"] = [{"frame": "measurement->base", "nominal": None,
+                                "identified": {"xyz_mm": [2000.0, 900.0, 0.0], "rpy_deg": [0.0, 0.0, 28.6]},
+                                "std": {"xyz_mm": [0.01, 0.02, None], "rpy_deg": [0.001, 0.002, 0.003]}}]
+    page = calib.render_html(rep, "")
+    table = page.split("<h2>Frame transforms</h2>")[1].split("</table>")[0]
+    assert "<td>2000.0000</td>" in table and "<td>0.04</td>" in table and "<td>fixed</td>" in table
+    params = page.split("<h2>Parameters</h2>")[1].split("</table>")[0]
+    assert "u_x" not in params and "theta2" in params
+    assert "u_x" in calib.render_html(build_report(res, m), "").split("<h2>Parameters</h2>")[1]
