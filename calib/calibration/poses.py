@@ -204,15 +204,21 @@ def select_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion
 
 def design_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion: str = "D",
                  measure: str = "pose", seed=None, sigma_pos: float = SIGMA_POS_M,
-                 sigma_rot: float = SIGMA_ROT_RAD, exchange_passes: int = 10) -> PoseDesign:
+                 sigma_rot: float = SIGMA_ROT_RAD, exchange_passes: int = 10, progress=None) -> PoseDesign:
     """:func:`select_poses` with the full result: a :class:`PoseDesign`.
 
     ``exchange_passes`` bounds the Fedorov exchange passes after the greedy start (0: greedy
-    only). Other parameters as :func:`select_poses`.
+    only). ``progress``: None, or called as ``progress(done, total)`` after each step (the
+    candidates' Jacobians, the greedy start, each exchange pass; ``total`` counts every pass
+    allowed, and the last call has ``done == total``). Other parameters as :func:`select_poses`.
     """
     t0 = time.perf_counter()
     check_robot(robot)
     crit = _check_options(n, candidates, criterion, measure, sigma_pos, sigma_rot, exchange_passes)
+    if progress is not None and not callable(progress):
+        raise ParameterError(f"progress must be None or a function progress(done, total), got {progress!r:.60}")
+    total = 2 + exchange_passes
+    tick = progress if progress is not None else (lambda done, total: None)
     rng = check_rng(seed, "seed")
     pool = robot.random_configurations(candidates, rng)
     report = analyze_identifiability(robot, pool, measure=measure, sigma_pos=sigma_pos,
@@ -225,15 +231,19 @@ def design_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion
                         f"{-(-r // k)} poses (several times more for accuracy)")
     cols = robot.indices(report.identifiable)
     A, scale = _scaled_blocks(robot, pool, measure, sigma_pos, sigma_rot, cols, None)
+    tick(1, total)
 
     sel = _greedy_d(A, n)
+    tick(2, total)
     passes = swaps = 0
     for _ in range(exchange_passes):
         passes += 1
         made = _exchange_pass(A, sel, crit)
         swaps += made
+        tick(2 + passes, total)
         if made == 0:
             break
+    tick(total, total)
 
     S = A[sel].reshape(-1, r)
     chosen = _criteria(S)

@@ -1,208 +1,88 @@
-"""Plots of a calibration: per-pose tool pose errors before and after, and their histograms.
+"""The report of a calibration (or of one model's accuracy): its JSON, plots and HTML page.
 
-:func:`render_plots` draws, with matplotlib's Agg canvas (no display needed; pyplot and the
-global backend are left alone):
-
-- ``position_errors.png`` (as Figure 7 of the paper): per pose, the position error |p_model -
-  p_measured| and its x, y, z components in the meas frame, millimetres; one panel for the
-  nominal model (before) and one for the calibrated model (after). Calibration rows come first,
-  then validation rows, separated by a dashed line.
-- ``orientation_errors.png`` (as Figure 8): per pose, the angle of ``R_model R_measured^T`` and
-  the components of its rotation vector about the meas frame's x, y, z axes, radians (not drawn
-  for position-only data).
-- ``error_histograms.png``: histograms of the position (mm) and orientation (rad) errors, before
-  and after, calibration and validation rows apart.
-
-The rows are split as :func:`calib.calibrate` splits them: the ``cal`` rows of the measurements
-(all rows without a set column) for identification; their ``val`` rows and the extra validation
-measurements for validation.
-
-:func:`build_report` makes the JSON report of a calibration (schema :data:`SCHEMA_VERSION`):
-the result's own dictionary plus provenance, frames, per-row residuals and the covariance of the
-free parameters; :func:`render_html` one self-contained HTML page of it with the plots.
+:func:`report_rows_of` computes the per-row content once (:mod:`calib.calibration.report_rows`:
+each row's deviation before and after, outliers, workspace position); :func:`build_report` makes
+the JSON report (schema :data:`SCHEMA_VERSION`): the result's own dictionary plus provenance,
+frames, identity fields (``meta``), the certificate figures (headline accuracy with the registered
+"before" and the without-outliers "after", per-axis table, ISO 9283 AP / RP when rows repeat a
+configuration, tolerance verdict), the covariance of the free parameters and the per-row
+residuals as columns (inline, or in a CSV beside the JSON: :func:`residuals_csv_text`);
+:func:`render_plots` draws the plots (:mod:`calib.calibration.report_plots`) and
+:func:`render_html` one self-contained HTML page of a report (:mod:`calib.calibration.report_html`,
+a Jinja2 template). :func:`build_accuracy_report` is the same report for ``calib evaluate``: one
+model against measurements, no calibration.
 """
 from __future__ import annotations
 
-import base64
 import datetime
 import hashlib
-import io
+import json
 import math
 import os
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
 
+from calib.calibration.report_plots import PLOT_FILES, plot_rows
+from calib.calibration.report_rows import (PoseDeviations, ReportRows, axis_table, drift_columns, error_stats, iso9283,
+                                           pose_deviations, registered_nominal, repeated_groups, report_rows,
+                                           tolerance_verdict)
 from calib.calibration.result import CalibrationResult
 from calib.checks import check_instance
 from calib.errors import ParameterError
-from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements, check_measurements
-from calib.model.robot import RobotModel
-from calib.model.spatial import log3_batch
+from calib.model.robot import RobotModel, check_robot
 
-__all__ = ["PoseDeviations", "SCHEMA_VERSION", "build_report", "file_provenance",
-           "pose_deviations", "render_html", "render_plots"]
+__all__ = ["PoseDeviations", "SCHEMA_VERSION", "PLOT_FILES", "build_report", "build_accuracy_report",
+           "file_provenance", "pose_deviations", "render_html", "render_plots", "report_rows_of",
+           "residuals_csv_text", "report_json_text", "INLINE_RESIDUALS_MAX", "RESIDUAL_COLUMNS",
+           "check_meta"]
 
-#: File names of the plots, in the order :func:`render_plots` returns them.
-PLOT_FILES = ("position_errors.png", "orientation_errors.png", "error_histograms.png")
-
-
-@dataclass(frozen=True)
-class PoseDeviations:
-    """Per-pose deviations of a model's tool pose from measured ones, in the meas frame.
-
-    position : (N, 3) float, metres: p_model - p_measured.
-    rotation : (N, 3) float, radians: rotation vector of R_model R_measured^T, or None for
-        position-only data.
-    """
-
-    position: np.ndarray
-    rotation: np.ndarray | None
-
-    @property
-    def position_errors(self) -> np.ndarray:
-        """(N,) metres: the length of each position deviation."""
-        return np.linalg.norm(self.position, axis=1)
-
-    @property
-    def rotation_errors(self) -> np.ndarray | None:
-        """(N,) radians: the rotation angle of each orientation deviation."""
-        return None if self.rotation is None else np.linalg.norm(self.rotation, axis=1)
+#: Above this many rows the per-row residuals go to a CSV beside the JSON report by default.
+INLINE_RESIDUALS_MAX = 20_000
+_DEG = 180.0 / math.pi
 
 
-def pose_deviations(robot: RobotModel, measurements: Measurements) -> PoseDeviations:
-    """Deviations of ``robot``'s tool poses from ``measurements`` (both in the meas frame; rows
-    of several targets against the model's transform of their target)."""
-    from calib.calibration.accuracy import target_rows, with_measured_targets
-
-    robot = with_measured_targets(robot, measurements)
-    R, p = ChainKinematics(robot).frame_poses(measurements.q, targets=target_rows(robot, measurements))
-    rot = None
-    if measurements.rotation is not None:
-        rot = log3_batch(R @ np.transpose(measurements.rotation, (0, 2, 1)))
-    return PoseDeviations(p - measurements.position, rot)
-
-
-def _split(measurements: Measurements, validation: Measurements | None):
-    """(calibration rows, validation rows or None), as calibrate() splits them."""
-    cal = measurements.calibration()
-    parts = [m for m in (measurements.validation(), validation) if m is not None and m.n_poses]
-    return cal, parts
-
-
-def _deviations(robot: RobotModel, cal: Measurements, val_parts) -> tuple[PoseDeviations, PoseDeviations | None]:
-    dc = pose_deviations(robot, cal)
-    if not val_parts:
-        return dc, None
-    dv = [pose_deviations(robot, m) for m in val_parts]
-    rot = None if any(d.rotation is None for d in dv) else np.concatenate([d.rotation for d in dv])
-    return dc, PoseDeviations(np.concatenate([d.position for d in dv]), rot)
-
-
-def _figure_bytes(fig) -> bytes:
-    """The figure as PNG, drawn by the Agg canvas (pyplot and the global backend are not used)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    FigureCanvasAgg(fig)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    return buf.getvalue()
+def report_rows_of(result: CalibrationResult, measurements: Measurements,
+                   validation: Measurements | None = None) -> ReportRows:
+    """The per-row content of a calibration's report (:class:`ReportRows`): "before" the nominal
+    model registered as the text report's ``before, frame registered`` line (when the frames were
+    estimated; the nominal model otherwise), "after" the calibrated model, the rows the fit
+    flagged marked. ``measurements`` and ``validation`` are the arguments :func:`calib.calibrate`
+    was given."""
+    check_instance(result, "result", CalibrationResult, "from calib.calibrate")
+    check_measurements(measurements)
+    check_measurements(validation, "validation", allow_none=True)
+    reference, label = result.nominal, "nominal model"
+    if result.before_registered is not None:
+        reference = registered_nominal(result.nominal, result.estimated_frames, measurements.calibration())
+        label = "nominal model, frames registered"
+    return report_rows(result.robot, measurements, validation, reference=reference, reference_label=label,
+                       outlier_rows={int(o.row) for o in result.outliers})
 
 
 def render_plots(result: CalibrationResult, measurements: Measurements,
-                 validation: Measurements | None = None) -> dict[str, bytes]:
-    """PNG images of the calibration's pose errors, by file name (see the module docstring).
+                 validation: Measurements | None = None, *, rows: ReportRows | None = None,
+                 tolerance_mm: float | None = None, columns: Mapping | None = None,
+                 progress=None) -> dict[str, bytes]:
+    """PNG images of the calibration's pose errors, by file name (:data:`PLOT_FILES`; see
+    :mod:`calib.calibration.report_plots`): per file row before and after, histograms, the error
+    over the workspace, and the drift against ``columns`` (name with unit -> (N,) values per
+    row, e.g. ``time_s``) when given.
 
-    Parameters
-    ----------
-    result : what :func:`calib.calibrate` returned for these measurements.
-    measurements, validation : the arguments given to :func:`calib.calibrate`.
-
-    Returns ``{file name: PNG bytes}``; ``orientation_errors.png`` is left out for position-only
-    data. Nothing is written: the caller decides where the images go.
+    ``result``, ``measurements``, ``validation``: what :func:`calib.calibrate` was given and
+    returned; ``rows``: :func:`report_rows_of` of them when already computed. Nothing is written:
+    the caller decides where the images go.
     """
-    from matplotlib.figure import Figure
-
-    cal, val_parts = _split(measurements, validation)
-    before = _deviations(result.nominal, cal, val_parts)
-    after = _deviations(result.robot, cal, val_parts)
-    n_cal = cal.n_poses
-    has_rot = before[0].rotation is not None and (before[1] is None or before[1].rotation is not None)
-
-    def stack(pair, attr):
-        parts = [getattr(d, attr) for d in pair if d is not None]
-        return np.concatenate(parts)
-
-    images: dict[str, bytes] = {}
-    colors = ("tab:red", "tab:green", "tab:blue")
-
-    def per_pose(kind: str, scale: float, unit: str, title: str) -> bytes:
-        fig = Figure(figsize=(10, 7), layout="constrained")
-        axes = fig.subplots(2, 1)
-        for ax, (label, dev) in zip(axes, (("before calibration (nominal model)", before),
-                                           ("after calibration", after))):
-            comp = stack(dev, kind) * scale
-            norm = np.linalg.norm(comp, axis=1)
-            idx = np.arange(1, len(norm) + 1)
-            ax.plot(idx, norm, color="black", lw=1.2, marker=".", ms=3, label="error (norm)")
-            for c, axis_name, color in zip(comp.T, "xyz", colors):
-                ax.plot(idx, c, color=color, lw=0.7, alpha=0.8,
-                        label=f"{'about ' if kind == 'rotation' else ''}{axis_name}")
-            ax.axhline(0.0, color="grey", lw=0.5)
-            if len(norm) > n_cal:
-                ax.axvline(n_cal + 0.5, color="grey", ls="--", lw=1.0)
-                ax.text(n_cal + 0.5, 1.0, "  validation rows", transform=ax.get_xaxis_transform(),
-                        va="top", ha="left", fontsize=8, color="grey")
-                ax.text(n_cal + 0.5, 1.0, "calibration rows  ", transform=ax.get_xaxis_transform(),
-                        va="top", ha="right", fontsize=8, color="grey")
-            ax.set_title(f"{title}, {label}: mean {norm.mean():.4g} {unit}, max {norm.max():.4g} {unit} "
-                         f"over all {len(norm)} rows",
-                         fontsize=10)
-            ax.set_xlabel("pose")
-            ax.set_ylabel(f"{title.split(' ')[0]} error / {unit}")
-            ax.set_xlim(0.5, len(norm) + 0.5)
-            ax.legend(fontsize=8, ncol=4, loc="lower right")
-            ax.grid(alpha=0.3)
-        fig.suptitle(f"Tool {title} in the meas frame per pose ({result.method.upper()}, "
-                     f"parameter set {result.param_set!r})")
-        return _figure_bytes(fig)
-
-    images["position_errors.png"] = per_pose("position", 1e3, "mm", "position deviation")
-    if has_rot:
-        images["orientation_errors.png"] = per_pose("rotation", 1.0, "rad", "orientation deviation")
-
-    fig = Figure(figsize=(10, 7 if has_rot else 3.8), layout="constrained")
-    rows = 2 if has_rot else 1
-    axes = np.atleast_2d(fig.subplots(rows, 2))
-    quantities = [("position_errors", 1e3, "position error / mm")]
-    if has_rot:
-        quantities.append(("rotation_errors", 1.0, "orientation error / rad"))
-    for r, (attr, scale, xlabel) in enumerate(quantities):
-        for c, (label, dev) in enumerate((("before calibration", before), ("after calibration", after))):
-            ax = axes[r, c]
-            data = [(name, getattr(d, attr) * scale) for name, d in (("calibration rows", dev[0]),
-                                                                     ("validation rows", dev[1]))
-                    if d is not None]
-            hi = max(float(e.max()) for _, e in data)
-            bins = np.linspace(0.0, hi * 1.0001 if hi > 0 else 1.0, 31)
-            for (name, e), color in zip(data, ("tab:blue", "tab:orange")):
-                ax.hist(e, bins=bins, alpha=0.6, color=color, label=f"{name} ({len(e)})")
-            ax.set_xlabel(xlabel)
-            ax.set_ylabel("poses")
-            ax.set_title(label, fontsize=10)
-            ax.legend(fontsize=8)
-            ax.grid(alpha=0.3)
-    fig.suptitle("Distribution of the tool pose errors")
-    images["error_histograms.png"] = _figure_bytes(fig)
-    return images
+    rows = rows if rows is not None else report_rows_of(result, measurements, validation)
+    return plot_rows(rows, tolerance_m=None if tolerance_mm is None else tolerance_mm * 1e-3,
+                     columns=columns, progress=progress)
 
 
 # ====================================================================== JSON report
 #: Version of the JSON report's layout; raised when a key changes meaning or disappears.
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 
 def file_provenance(path: str | Path) -> dict:
@@ -219,29 +99,49 @@ def _calib_version() -> str:
     return __version__
 
 
-def _residual_rows(result: CalibrationResult, parts: Sequence[tuple[str, str, Measurements]],
-                   outlier_rows: set) -> list[dict]:
-    out = []
-    for file_role, set_name, m in parts:
-        if m is None or not m.n_poses:
-            continue
-        after, before = pose_deviations(result.robot, m), pose_deviations(result.nominal, m)
-        sets = m.sets if m.sets is not None else [set_name] * m.n_poses
-        for k in range(m.n_poses):
-            rec = {"file": file_role, "row": int(m.rows[k]), "set": str(sets[k]),
-                   "position_mm": [float(v) * 1e3 for v in after.position[k]],
-                   "position_error_mm": float(np.linalg.norm(after.position[k])) * 1e3,
-                   "position_error_before_mm": float(np.linalg.norm(before.position[k])) * 1e3}
-            if after.rotation is not None:
-                rec.update({"rotation_rad": [float(v) for v in after.rotation[k]],
-                            "rotation_error_rad": float(np.linalg.norm(after.rotation[k])),
-                            "rotation_error_before_rad": float(np.linalg.norm(before.rotation[k]))})
-            if m.target is not None:
-                rec["target"] = m.target[k]
-            if file_role == "measurements":
-                rec["outlier"] = int(m.rows[k]) in outlier_rows
-            out.append(rec)
-    return out
+#: The per-row residual columns of a report, with their units (JSON and CSV alike).
+RESIDUAL_COLUMNS = ("file", "row", "set", "target", "outlier", "pose_id", "time_s", "temperature_c", "dx_mm", "dy_mm", "dz_mm", "position_error_mm",
+                    "position_error_before_mm", "rx_rad", "ry_rad", "rz_rad", "rotation_error_rad",
+                    "rotation_error_before_rad")
+
+
+def _residual_columns(rows: ReportRows) -> dict[str, np.ndarray]:
+    """The per-row residuals as columns (see :data:`RESIDUAL_COLUMNS`); position deviations
+    p_model - p_measured in mm (rounded to 1 nm), rotation vectors of R_model R_measured^T in rad
+    (to 1e-9 rad), in the meas frame; a column without data is left out."""
+    cols: dict[str, np.ndarray] = {"file": rows.file, "row": rows.row, "set": rows.sets}
+    if rows.target is not None:
+        cols["target"] = rows.target
+    cols["outlier"] = rows.outlier
+    for name in ("pose_id", "time_s", "temperature_c"):
+        if name in rows.columns:
+            cols[name] = rows.columns[name] if name == "pose_id" else np.round(rows.columns[name], 6)
+    dp = rows.after.position * 1e3
+    for k, axis in enumerate("xyz"):
+        cols[f"d{axis}_mm"] = np.round(dp[:, k], 6)
+    cols["position_error_mm"] = np.round(rows.after.position_errors * 1e3, 6)
+    if rows.before is not None:
+        cols["position_error_before_mm"] = np.round(rows.before.position_errors * 1e3, 6)
+    if rows.has_rotation:
+        for k, axis in enumerate("xyz"):
+            cols[f"r{axis}_rad"] = np.round(rows.after.rotation[:, k], 9)
+        cols["rotation_error_rad"] = np.round(rows.after.rotation_errors, 9)
+        if rows.before is not None and rows.before.rotation is not None:
+            cols["rotation_error_before_rad"] = np.round(rows.before.rotation_errors, 9)
+    return cols
+
+
+def residuals_csv_text(rows: ReportRows) -> str:
+    """The per-row residuals of a report as CSV text (one row per measured row, the columns of
+    :data:`RESIDUAL_COLUMNS` that have data; units in the column names)."""
+    cols = _residual_columns(rows)
+    names = list(cols)
+    fmt = ",".join("%d" if n in ("row", "outlier") else "%s" if cols[n].dtype.kind in "OUS" else "%.9g"
+                   for n in names) + "\n"
+    values = [cols[n].astype(int) if n == "outlier" else cols[n] for n in names]
+    body = "".join(fmt % t for t in zip(*[v.tolist() for v in values]))
+    return ("# per-row residuals of a calib report: p_model - p_measured (mm) and the rotation vector of "
+            "R_model R_measured^T (rad) in the meas frame\n" + ",".join(names) + "\n" + body)
 
 
 def _covariance_dict(result: CalibrationResult) -> dict:
@@ -262,29 +162,78 @@ def _covariance_dict(result: CalibrationResult) -> dict:
             "note": "covariance in the parameters' units (mm, rad, urad/(N m); products for mixed entries)"}
 
 
-def build_report(result: CalibrationResult, measurements: Measurements,
-                 validation: Measurements | None = None, *, command_line: Sequence[str] = (),
-                 inputs: Mapping[str, str | Path] | None = None, frames: Mapping | None = None,
-                 outputs: Mapping[str, str | Path] | None = None) -> dict:
-    """The JSON report of a calibration: ``result.to_dict()`` plus
+def _group_stats(dev: PoseDeviations | None, mask: np.ndarray) -> dict | None:
+    if dev is None or not mask.any():
+        return None
+    rot = dev.rotation_errors
+    return {"n": int(mask.sum()), "position_mm": error_stats(dev.position_errors[mask] * 1e3),
+            "rotation_deg": None if rot is None else error_stats(rot[mask] * _DEG)}
 
-    * ``schema_version`` (:data:`SCHEMA_VERSION`);
-    * ``provenance``: calib version, ``command_line`` (list of arguments), UTC date, and path,
-      sha256 and size of every file in ``inputs`` (role -> path, e.g. ``{"robot": ...,
-      "measurements": ...}``), and ``outputs`` (role -> path) as given;
-    * ``frames``: base and tool frame and chain joints of the model, plus ``frames`` given by the
-      caller (e.g. the frames recorded in the written URDF, under ``"written_urdf"``);
-    * ``residuals``: one entry per row of ``measurements`` and ``validation`` (file role, 1-based
-      file row, set, target (when the data has a target column), residual p_model - p_measured in mm in the meas frame, its length before and
-      after, rotation vector of R_model R_measured^T in rad and its angle, outlier flag);
-    * ``covariance``: names, units, standard deviations, covariance and correlation of the free
-      parameters (mm and rad).
 
-    ``measurements`` and ``validation`` are the arguments :func:`calib.calibrate` was given.
-    """
-    check_instance(result, "result", CalibrationResult, "from calib.calibrate")
-    check_measurements(measurements)
-    check_measurements(validation, "validation", allow_none=True)
+def _certificate(rows: ReportRows, tolerance_mm: float | None, *, calibration: bool) -> dict:
+    """The figures of the certificate (JSON-ready): headline accuracy groups, per-axis tables,
+    ISO 9283, tolerance verdict (see :mod:`calib.calibration.report_rows`)."""
+    kept = ~rows.outlier
+    groups = []
+    if calibration:
+        cal = rows.calibration
+        val = rows.validation
+        groups += [("calibration rows, before", "before", cal),
+                   ("calibration rows, after" + (", without outliers" if rows.outlier.any() else ""),
+                    "after", cal & kept)]
+        if rows.outlier.any():
+            groups.append(("outlier rows, after (left out of the fit)", "after", rows.outlier))
+        if val.any():
+            groups += [("validation rows, before", "before", val), ("validation rows, after", "after", val)]
+    else:
+        groups.append(("all rows", "after", np.ones(rows.n_rows, bool)))
+        for name, s in (("calibration rows (cal)", "cal"), ("validation rows (val)", "val")):
+            if (rows.sets == s).any() and not (rows.sets == s).all():
+                groups.append((name, "after", rows.sets == s))
+    accuracy = []
+    per_axis = []
+    for label, which, mask in groups:
+        dev = rows.before if which == "before" else rows.after
+        st = _group_stats(dev, mask)
+        if st is None:
+            continue
+        accuracy.append({"label": label, "model": which, **st})
+        if not label.startswith("outlier"):
+            per_axis.append({"label": label, "model": which, "axes": axis_table(dev, mask)})
+    # the rows a verdict and the headline "after" are of: held-out rows when there are some
+    if calibration and rows.validation.any():
+        judged, what = rows.validation, "validation rows (held out)"
+    elif calibration:
+        judged, what = rows.calibration & kept, ("calibration rows without the outliers" if rows.outlier.any()
+                                                 else "calibration rows")
+    else:
+        judged, what = np.ones(rows.n_rows, bool), "all rows"
+    groups_id = repeated_groups(rows)
+    iso = iso9283(rows, rows.after, groups_id, kept)
+    if iso is not None and rows.before is not None:
+        iso_b = iso9283(rows, rows.before, groups_id, kept)
+        iso["before"] = {k: iso_b[k] for k in ("ap_p_max_mm", "ap_p_mean_mm", "rp_l_max_mm", "rp_l_mean_mm")}
+    drift = {}
+    for name, v in drift_columns(rows).items():
+        ok = kept & np.isfinite(v)
+        e = rows.after.position_errors[ok] * 1e3
+        slope = float(np.polyfit(v[ok], e, 1)[0])
+        drift[name] = {"n": int(ok.sum()), "range": [float(v[ok].min()), float(v[ok].max())],
+                       "slope_mm_per_unit": slope, "change_mm": slope * float(np.ptp(v[ok])),
+                       "correlation": float(np.corrcoef(v[ok], e)[0, 1]) if np.ptp(e) > 0 else 0.0}
+    out = {"before_label": rows.before_label if rows.before is not None else None,
+           "headline_rows": what, "accuracy": accuracy, "per_axis": per_axis, "iso9283": iso,
+           "drift": drift or None,
+           "outlier_rows": [int(r) for r in rows.row[rows.outlier]],
+           "tolerance": None}
+    if tolerance_mm is not None:
+        out["tolerance"] = tolerance_verdict(tolerance_mm * 1e-3, rows.after.position_errors[judged], what)
+        over = judged & (rows.after.position_errors > tolerance_mm * 1e-3)
+        out["tolerance"]["rows_beyond"] = [int(r) for r in rows.row[over][:100]]
+    return out
+
+
+def _check_common(command_line, inputs, outputs, frames, meta, tolerance_mm, residuals) -> None:
     if not isinstance(command_line, (list, tuple)) or \
             not all(isinstance(a, (str, os.PathLike)) for a in command_line):
         raise ParameterError(f"command_line must be a list of arguments (strings), got {command_line!r:.60}")
@@ -294,8 +243,31 @@ def build_report(result: CalibrationResult, measurements: Measurements,
             raise ParameterError(f"{name} must map each role (a string) to a file path, got {paths!r:.60}")
     if frames is not None and not (isinstance(frames, Mapping) and all(isinstance(k, str) for k in frames)):
         raise ParameterError(f"frames must be a mapping of names to values, got {frames!r:.60}")
-    report = {"schema_version": SCHEMA_VERSION}
-    report["provenance"] = {
+    check_meta(meta)
+    if tolerance_mm is not None and (isinstance(tolerance_mm, bool) or not isinstance(tolerance_mm, (int, float))
+                                     or not math.isfinite(tolerance_mm) or tolerance_mm <= 0):
+        raise ParameterError(f"tolerance_mm must be a positive number of millimetres, got {tolerance_mm!r:.60}")
+    if not (isinstance(residuals, str) and residuals in ("json", "none", "auto")
+            or isinstance(residuals, (str, os.PathLike)) and os.fspath(residuals).endswith(".csv")):
+        raise ParameterError(f"residuals must be 'json', 'none', 'auto' or the path of a CSV file (.csv), "
+                             f"got {residuals!r:.60}")
+
+
+def check_meta(meta) -> dict:
+    """``meta`` (identity fields of a report: name -> text or number, e.g. robot_serial,
+    instrument, operator) checked; returns it as a dict of strings."""
+    if meta is None:
+        return {}
+    if not isinstance(meta, Mapping) or not all(
+            isinstance(k, str) and k.strip() and isinstance(v, (str, int, float)) and not isinstance(v, bool)
+            for k, v in meta.items()):
+        raise ParameterError(f"meta must map field names to text or numbers (robot_serial=..., "
+                             f"instrument=..., operator=...), got {meta!r:.80}")
+    return {k.strip(): str(v) for k, v in meta.items()}
+
+
+def _provenance(command_line, inputs, outputs) -> dict:
+    return {
         "calib_version": _calib_version(),
         "command_line": [os.fspath(a) for a in command_line],
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
@@ -303,163 +275,144 @@ def build_report(result: CalibrationResult, measurements: Measurements,
                    if path is not None},
         "outputs": {role: str(path) for role, path in (outputs or {}).items() if path is not None},
     }
+
+
+def _residuals_entry(rows: ReportRows, residuals) -> dict | None:
+    if residuals == "auto":
+        residuals = "json"
+    if residuals == "none":
+        return None
+    if residuals == "json":
+        return {"layout": "columns", "n_rows": rows.n_rows,
+                "columns": {k: v.tolist() for k, v in _residual_columns(rows).items()}}
+    return {"layout": "csv", "n_rows": rows.n_rows, "csv": os.fspath(residuals),
+            "columns": list(_residual_columns(rows))}
+
+
+def build_report(result: CalibrationResult, measurements: Measurements,
+                 validation: Measurements | None = None, *, command_line: Sequence[str] = (),
+                 inputs: Mapping[str, str | Path] | None = None, frames: Mapping | None = None,
+                 outputs: Mapping[str, str | Path] | None = None, meta: Mapping | None = None,
+                 tolerance_mm: float | None = None, residuals: str | Path = "auto",
+                 rows: ReportRows | None = None) -> dict:
+    """The JSON report of a calibration: ``result.to_dict()`` plus
+
+    * ``schema_version`` (:data:`SCHEMA_VERSION`);
+    * ``provenance``: calib version, ``command_line`` (list of arguments), UTC date, and path,
+      sha256 and size of every file in ``inputs`` (role -> path, e.g. ``{"robot": ...,
+      "measurements": ...}``), and ``outputs`` (role -> path) as given;
+    * ``meta``: the identity fields given (robot_serial, instrument, operator, ...: text);
+    * ``frames``: base and tool frame and chain joints of the model, plus ``frames`` given by the
+      caller (e.g. the frames recorded in the written URDF, under ``"written_urdf"``);
+    * ``certificate``: the accuracy groups (calibration rows before, with the nominal model's
+      frames registered when they were estimated, and after without the outliers; the outliers;
+      validation rows), mm and degrees; the per-axis table (x, y, z mm; rx, ry, rz deg); ISO 9283
+      AP / RP when rows repeat a configuration (None otherwise); the outlier rows; the verdict
+      against ``tolerance_mm`` (positive, millimetres; None without): every position error of
+      the validation rows (of the calibration rows without the outliers when there are none)
+      within it;
+    * ``residuals``: the per-row residuals as columns (:data:`RESIDUAL_COLUMNS`: file role,
+      1-based file row, set, target, outlier flag, p_model - p_measured in mm in the meas frame,
+      its length after and before, the rotation vector of R_model R_measured^T in rad and its
+      angle); ``residuals="json"`` inline, ``"none"`` left out, a ``.csv`` path: only that path
+      and the column names (the caller writes :func:`residuals_csv_text` there), ``"auto"``
+      inline (the CLI sends more than :data:`INLINE_RESIDUALS_MAX` rows to a CSV);
+    * ``covariance``: names, units, standard deviations, covariance and correlation of the free
+      parameters (mm and rad).
+
+    ``measurements`` and ``validation`` are the arguments :func:`calib.calibrate` was given;
+    ``rows`` their :func:`report_rows_of` when already computed.
+    """
+    check_instance(result, "result", CalibrationResult, "from calib.calibrate")
+    check_measurements(measurements)
+    check_measurements(validation, "validation", allow_none=True)
+    _check_common(command_line, inputs, outputs, frames, meta, tolerance_mm, residuals)
+    rows = check_instance(rows, "rows", ReportRows, "from report_rows_of", allow_none=True) \
+        or report_rows_of(result, measurements, validation)
+    report = {"schema_version": SCHEMA_VERSION, "provenance": _provenance(command_line, inputs, outputs),
+              "meta": check_meta(meta)}
     robot = result.robot
     report["frames"] = {"base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
                         "joints": list(robot.joint_names), **dict(frames or {})}
     report.update(result.to_dict())
-    outlier_rows = {int(o.row) for o in getattr(result, "outliers", ())}
-    parts = [("measurements", "cal", measurements), ("validation", "val", validation)]
-    report["residuals"] = _residual_rows(result, parts, outlier_rows)
+    report["certificate"] = _certificate(rows, tolerance_mm, calibration=True)
     report["covariance"] = _covariance_dict(result)
+    report["residuals"] = _residuals_entry(rows, residuals)
     return report
 
 
+def build_accuracy_report(robot: RobotModel, measurements: Measurements, *, command_line: Sequence[str] = (),
+                          inputs: Mapping[str, str | Path] | None = None, meta: Mapping | None = None,
+                          tolerance_mm: float | None = None, residuals: str | Path = "auto",
+                          rows: ReportRows | None = None) -> dict:
+    """The report of one model's accuracy against measurements (``calib evaluate --html``):
+    ``schema_version``, ``provenance``, ``meta``, ``frames`` and ``certificate`` as in
+    :func:`build_report` (the groups: all rows, and the cal and val rows apart when the file has
+    both; the verdict over all rows), ``evaluation: true`` and ``residuals``. rows :
+    :func:`report_rows` of ``robot`` and ``measurements`` when already computed."""
+    check_robot(robot)
+    check_measurements(measurements)
+    _check_common(command_line, inputs, None, None, meta, tolerance_mm, residuals)
+    rows = check_instance(rows, "rows", ReportRows, "from report_rows", allow_none=True) \
+        or report_rows(robot, measurements, validation_rows="none")
+    report = {"schema_version": SCHEMA_VERSION, "evaluation": True,
+              "provenance": _provenance(command_line, inputs, None), "meta": check_meta(meta),
+              "frames": {"base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
+                         "joints": list(robot.joint_names)},
+              "certificate": _certificate(rows, tolerance_mm, calibration=False),
+              "residuals": _residuals_entry(rows, residuals)}
+    return report
+
+
+def report_json_text(report: Mapping) -> str:
+    """The JSON text of a report: indented, with each residual column on one line (a 20,000-row
+    report stays a few MB and readable); strict JSON (NaN and infinities as null)."""
+    res = report.get("residuals")
+    cols = res.get("columns") if isinstance(res, Mapping) and res.get("layout") == "columns" else None
+    body = dict(report)
+    if cols:
+        body["residuals"] = {**res, "columns": {k: f"\0{k}\0" for k in cols}}
+    text = json.dumps(_clean(body), indent=2, allow_nan=False)
+    for k, v in (cols or {}).items():
+        text = text.replace(json.dumps(f"\0{k}\0"), json.dumps(_clean(list(v)), separators=(",", ":")), 1)
+    return text + "\n"
+
+
+def _clean(o):
+    """``o`` with non-finite floats as None and numpy scalars as Python ones."""
+    if isinstance(o, float):
+        return o if math.isfinite(o) else None
+    if isinstance(o, dict):
+        return {k: _clean(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        if o and all(type(v) is float for v in o[:3]) and all(math.isfinite(v) for v in o):
+            return list(o)
+        return [_clean(v) for v in o]
+    if isinstance(o, np.generic):
+        return _clean(o.item())
+    return o
+
+
 # ====================================================================== HTML report
-_CSS = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}
-table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:3px 8px;
-text-align:right}th{background:#eee}td.l,th.l{text-align:left}pre{background:#f6f6f6;padding:1em;
-overflow-x:auto}img{max-width:100%}.bad{color:#b00}"""
-
-
-def _escape(s: str) -> str:
-    """html.escape (imported on first use: the html package costs 10 ms of the CLI's start)."""
-    import html
-
-    return html.escape(s)
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence], left: int = 1) -> str:
-    def cell(tag, k, v):
-        cls = ' class="l"' if k < left else ""
-        return f"<{tag}{cls}>{_escape(str(v))}</{tag}>"
-    head = "".join(cell("th", k, h) for k, h in enumerate(header))
-    body = "".join("<tr>" + "".join(cell("td", k, v) for k, v in enumerate(r)) + "</tr>" for r in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
-
-
-def _frame_transforms_html(rows) -> str:
-    """The frame transforms (measurement->base, base, flange->tool) as transforms: x, y, z / mm
-    and roll, pitch, yaw / deg, nominal, identified and 1-sigma std."""
-    if not rows:
-        return ""
-
-    def six(d, fmt):
-        return [_num(v, fmt) if v is not None else "fixed" for v in (*d["xyz_mm"], *d["rpy_deg"])]
-    body = []
-    for f in rows:
-        if f.get("nominal") is not None:
-            body.append([f["frame"], "nominal", *six(f["nominal"], ".4f")])
-        body.append([f["frame"], "identified", *six(f["identified"], ".4f")])
-        body.append([f["frame"], f.get("std_label", "std") + " (1 sigma)", *six(f["std"], ".3g")])
-    return ("<h2>Frame transforms</h2>" + _table(
-        ["frame", "", "x / mm", "y / mm", "z / mm", "roll / deg", "pitch / deg", "yaw / deg"], body, left=2))
-
-
-def _num(v, fmt=".4g") -> str:
-    return "" if v is None else format(v, fmt)
-
-
 def render_html(report: Mapping, text: str, images: Mapping[str, bytes] | None = None, *,
-                title: str = "Kinematic calibration report") -> str:
+                title: str | None = None) -> str:
     """One self-contained HTML page (no external links; plots embedded as PNG data) of a report
-    from :func:`build_report`, with ``text`` (what the terminal printed) and ``images`` (file
-    name -> PNG bytes, e.g. from :func:`render_plots`)."""
+    from :func:`build_report` or :func:`build_accuracy_report`, with ``text`` (what the terminal
+    printed) and ``images`` (file name -> PNG bytes, e.g. from :func:`render_plots`): identity,
+    verdict, accuracy (mm, degrees), per-axis table, ISO 9283, parameters with expanded
+    uncertainties (k = 2), plots, provenance (:mod:`calib.calibration.report_html`)."""
+    from calib.calibration.report_html import html_page
+
     if not isinstance(report, Mapping):
         raise ParameterError(f"report must be a report from calib.build_report, got {type(report).__name__}")
     for name, value in (("text", text), ("title", title)):
-        if not isinstance(value, str):
+        if not isinstance(value, str) and not (name == "title" and value is None):
             raise ParameterError(f"{name} must be a string, got {type(value).__name__}")
     if images is not None and not (isinstance(images, Mapping) and all(
             isinstance(k, str) and isinstance(v, (bytes, bytearray)) for k, v in images.items())):
         raise ParameterError(f"images must map file names to PNG bytes, got {images!r:.60}")
     try:
-        return _html(report, text, images, title)
+        return html_page(report, text, images or {}, title)
     except (AttributeError, KeyError, TypeError, ValueError, IndexError) as exc:
         raise ParameterError(f"report is not a report from calib.build_report ({type(exc).__name__}: "
                              f"{exc})") from None
-
-
-def _html(report: Mapping, text: str, images: Mapping[str, bytes] | None, title: str) -> str:
-    """:func:`render_html` of checked arguments."""
-    e = _escape
-    prov, frames = report.get("provenance", {}), report.get("frames", {})
-    parts = [f"<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{e(title)}</title>"
-             f"<style>{_CSS}</style></head><body><h1>{e(title)}</h1>"]
-    ok = report.get("success")
-    parts.append(f"<p>Status: <b class=\"{'' if ok else 'bad'}\">{e(str(report.get('status')))}</b>"
-                 f" &mdash; {e(str(report.get('message', '')))}</p>")
-    dc = report.get("data_consistency")
-    if dc:
-        lead = next((n for n in report.get("notes", []) if n.startswith("the data disagree")), None)
-        if lead:
-            parts.append(f"<p class=\"bad\"><b>Inconsistent data:</b> {e(lead)}</p>")
-    parts.append("<h2>Robot and frames</h2>" + _table(
-        ["item", "value"],
-        [["base frame (measurement frame)", frames.get("base_frame")],
-         ["tool frame", frames.get("tool_frame")],
-         ["joints", ", ".join(frames.get("joints", []))]]
-        + [[f"written URDF: {k}", v] for k, v in (frames.get("written_urdf") or {}).items()], left=2))
-    acc_rows = []
-    per_target = [(f"target {t}, {when}", ("targets", t, when)) for t in (report.get("targets") or {})
-                  for when in ("before", "after")]
-    for label, key in [("calibration rows, before", ("before",)), ("calibration rows, after", ("after",)),
-                       ("validation rows, before", ("validation", "before")),
-                       ("validation rows, after", ("validation", "after"))] + per_target:
-        d = report
-        for k in key:
-            d = d.get(k) if isinstance(d, Mapping) else None
-        if not d:
-            continue
-        pos, rot = d.get("position_mm") or {}, d.get("rotation_rad") or {}
-        acc_rows.append([label, d.get("n_poses")] + [_num(pos.get(k)) for k in ("mean", "rms", "max")]
-                        + [_num(rot.get(k)) if rot else "" for k in ("mean", "rms", "max")])
-    parts.append("<h2>Accuracy</h2>" + _table(
-        ["rows", "poses", "position mean / mm", "RMS / mm", "max / mm", "orientation mean / rad",
-         "RMS / rad", "max / rad"], acc_rows))
-    pred_rows = []
-    for label, key, pos, rot in (("new rows, at the " + str((report.get("predicted_rms") or {}).get("where")),
-                                  "predicted_holdout_rms", "position_mm", "rotation_rad"),
-                                 ("new rows, at random configurations within the joint limits",
-                                  "predicted_workspace_rms", "position_mm", "rotation_rad"),
-                                 ("true poses (Cramer-Rao), at the " + str((report.get("predicted_rms") or {}).get("where")),
-                                  "predicted_rms", "position_mm", "rotation_rad"),
-                                 ("true poses, at random configurations within the joint limits",
-                                  "predicted_workspace_rms", "model_position_mm", "model_rotation_rad")):
-        d = report.get(key)
-        if d:
-            pred_rows.append([label, _num(d.get(pos)), _num(d.get(rot))])
-    if dc:
-        pred_rows.append(["held-out error of all calibration rows, flagged ones included",
-                          _num(dc["held_out_all_rows"]["position_mm"]), _num(dc["held_out_all_rows"]["rotation_rad"])])
-    if pred_rows:
-        parts.append("<h2>Predicted RMS error</h2>" + _table(["against", "position / mm", "orientation / rad"],
-                                                           pred_rows))
-    parts.append("<h2>Parameters</h2>" + _table(
-        ["parameter", "unit", "nominal", "identified", "deviation", "std"],
-        [[p["name"], p["unit"], _num(p["nominal"], ".6f"), _num(p["identified"], ".6f"),
-          _num(p["deviation"], ".6f"), _num(p["std"], ".3g") if p["free"] else "fixed"]
-         for p in report.get("parameters", []) if not p["name"].startswith(("u_", "v_"))], left=2))
-    parts.append(_frame_transforms_html(report.get("frame_transforms") or []))
-    sel = report.get("model_selection")
-    if sel:
-        parts.append(f"<h2>Model selection</h2><p>Candidate parameter sets compared by cross-validation "
-                     f"(rule: {e(str(sel.get('rule')))}); chosen: <b>{e(str(sel.get('chosen')))}</b>, lowest "
-                     f"score: {e(str(sel.get('best')))}.</p>" + _table(
-                         ["candidate", "free parameters", "score", "score s.e.", "position RMS / mm",
-                          "rotation RMS / rad"],
-                         [[c["label"], c["n_free"], _num(c["score"]), _num(c["score_se"], ".3g"),
-                           _num(c["position_rms_mm"]), _num(c["rotation_rms_rad"])]
-                          for c in sel.get("candidates", [])]))
-    for name, data in (images or {}).items():
-        b64 = base64.b64encode(data).decode("ascii")
-        parts.append(f"<h2>{e(name)}</h2><img alt=\"{e(name)}\" src=\"data:image/png;base64,{b64}\">")
-    parts.append(f"<h2>Terminal output</h2><pre>{e(text)}</pre>")
-    inputs = prov.get("inputs", {})
-    parts.append("<h2>Provenance</h2>" + _table(
-        ["item", "value"],
-        [["calib version", prov.get("calib_version")], ["date (UTC)", prov.get("date")],
-         ["command line", " ".join(prov.get("command_line", []))]]
-        + [[f"input {role}", f"{v['path']} (sha256 {v['sha256']}, {v['bytes']} bytes)"]
-           for role, v in inputs.items()], left=2))
-    parts.append("</body></html>\n")
-    return "\n".join(parts)

@@ -332,6 +332,63 @@ def add_verbose(p: argparse.ArgumentParser, *, top: bool = False,
                    help=help)
 
 
+def add_report_options(p: argparse.ArgumentParser, *, residuals: bool = True) -> None:
+    """The certificate options of a report: --meta, --tolerance-mm (and --residuals)."""
+    p.add_argument("--meta", action="append", default=None, metavar="KEY=VALUE,...|FILE.yaml|FILE.json",
+                   help="identity fields of the HTML and JSON report, e.g. robot_serial=R123,instrument="
+                        "'AT960 #4711',operator=J. Doe, or a YAML / JSON file of such fields (a mapping); "
+                        "may be repeated")
+    p.add_argument("--tolerance-mm", type=positive, default=None, metavar="T",
+                   help="position tolerance of the report's verdict (mm): pass when every position error of "
+                        "the held-out rows (without them: the calibration rows without the outliers) is "
+                        "within T")
+    if residuals:
+        p.add_argument("--residuals", choices=("auto", "json", "csv", "none"), default="auto",
+                       help="per-row residuals of --report: json inline (as columns), csv in REPORT.residuals.csv "
+                            "beside it, none; auto (default): inline up to 20,000 rows, csv above")
+
+
+def add_progress(p: argparse.ArgumentParser) -> None:
+    """--progress: draw the progress line even when stderr is not a terminal."""
+    p.add_argument("--progress", action="store_true",
+                   help="show progress (fraction done, time left) on stderr even when it is not a terminal "
+                        "(by default only on a terminal)")
+
+
+def progress_enabled(args: argparse.Namespace) -> bool | None:
+    """True when --progress was given (draw even off a terminal), None otherwise (draw on a
+    terminal only)."""
+    return True if getattr(args, "progress", False) else None
+
+
+def parse_meta(values) -> dict:
+    """The identity fields of ``--meta`` options (each ``key=value,...`` or a YAML / JSON file of
+    a mapping); ParameterError (one line naming the option or the file) otherwise."""
+    from calib.errors import ParameterError
+
+    meta: dict[str, str] = {}
+    for text in values or ():
+        text = text.strip()
+        if "=" not in text:
+            from calib.io.report_meta import read_meta
+
+            fields = read_meta(text)
+        else:
+            fields = {}
+            for part in text.split(","):
+                key, sep, value = part.partition("=")
+                if not sep or not key.strip() or not value.strip():
+                    raise ParameterError(f"--meta {text!r}: expected KEY=VALUE pairs separated by commas "
+                                         f"(robot_serial=R123,instrument=AT960,operator=J. Doe) or a "
+                                         f"YAML / JSON file")
+                fields[key.strip()] = value.strip()
+        for key, value in fields.items():
+            if key in meta and meta[key] != value:
+                raise ParameterError(f"--meta: {key} given twice ({meta[key]!r} and {value!r})")
+            meta[key] = value
+    return meta
+
+
 def load(args: argparse.Namespace):
     """The robot of ``args.robot`` with the frames of --base-frame / --tool-frame (logged)."""
     from calib.io.urdf_reader import load_robot
@@ -352,7 +409,7 @@ def read(path, robot, args: argparse.Namespace, tracker=None, *, joined: bool = 
     from calib.io.specs import read_measurements
 
     log = logging.getLogger("calib.cli")
-    with working(f"reading {path}", logger=log):
+    with working(f"reading {path}", logger=log, enabled=progress_enabled(args)):
         m = read_measurements(path, robot, tracker=tracker, options=read_options(args, joined=joined))
     log.info("read %r", m)
     print_notes(m.notes)

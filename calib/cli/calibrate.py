@@ -7,8 +7,9 @@ import logging
 import sys
 from pathlib import Path
 
-from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_robot, add_verbose,
-                            compliance_options, count, load, positive, read)
+from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_progress,
+                            add_report_options, add_robot, add_verbose, compliance_options, count, load,
+                            parse_meta, positive, progress_enabled, read)
 from calib.cli.output import Outputs, json_text, refuse_implausible, status_exit
 from calib.cli.progress import working
 from calib.errors import DataError, ParameterError
@@ -126,13 +127,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="more validation measurements (all rows held out), same format")
     p.add_argument("--report", metavar="REPORT.json", default=None,
                    help="write the full result as JSON (lengths in mm, angles in rad): status, "
-                        "before, after, validation, parameters, ...")
+                        "before, after, validation, parameters, certificate, per-row residuals, ...")
     p.add_argument("--plots", metavar="DIR", default=None,
-                   help="write PNG plots of the per-pose errors before and after and their "
-                        "histograms into DIR (created if missing; its parent must exist)")
+                   help="write PNG plots into DIR (created if missing; its parent must exist): the "
+                        "per-row errors before and after, their histograms, the error over the "
+                        "workspace")
     p.add_argument("--html", metavar="REPORT.html", default=None,
-                   help="write one self-contained HTML report (tables, the printed report and "
-                        "the plots embedded; no external links) for a person or a customer")
+                   help="write one self-contained HTML report, a calibration certificate (identity, "
+                        "verdict, accuracy, per-axis and ISO 9283 tables, parameters with expanded "
+                        "uncertainties, plots; no external links) for a person or a customer")
+    add_report_options(p)
+    add_progress(p)
     p.add_argument("--probe-radius-mm", type=positive, default=None, metavar="R",
                    help="touch files (rows naming point, plane or sphere, README.md): the ball tip's "
                         "radius for plane rows")
@@ -182,7 +187,6 @@ def _check_measurement_link(name, robot) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``calib calibrate`` with parsed arguments; returns the exit code."""
     import calib
-    from calib.calibration.report import build_report
     from calib.io.urdf_reader import robot_path
     from calib.io.urdf_writer import check_writable
     from calib.cli.touch import is_touch_input, run_touch
@@ -196,6 +200,13 @@ def run(args: argparse.Namespace) -> int:
     outputs = Outputs([robot_path(args.robot), args.measurements, args.validate, args.tracker])
     out_urdf = outputs.add(args.output)
     out_report = outputs.add(args.report) if args.report else None
+    meta = parse_meta(args.meta)
+    if args.report is None and args.html is None:
+        for given, name in ((args.meta, "--meta"), (args.tolerance_mm, "--tolerance-mm")):
+            if given is not None:
+                raise ParameterError(f"{name} applies to the report: give --report REPORT.json or --html REPORT.html")
+    if args.residuals != "auto" and args.report is None:
+        raise ParameterError("--residuals applies to --report REPORT.json")
     out_html = outputs.add(args.html) if args.html else None
     plot_paths = {}
     if args.plots:
@@ -218,10 +229,17 @@ def run(args: argparse.Namespace) -> int:
              frames.base_frame)
     meas = read(args.measurements, robot, args, args.tracker)
     validation = read(args.validate, robot, args, joined=False) if args.validate else None
+    out_residuals = None
+    if out_report is not None:
+        from calib.calibration.report import INLINE_RESIDUALS_MAX
+
+        n_rows = meas.n_poses + (validation.n_poses if validation is not None else 0)
+        if args.residuals == "csv" or args.residuals == "auto" and n_rows > INLINE_RESIDUALS_MAX:
+            out_residuals = outputs.add(residuals_path(out_report))
     log.info("calibrating: method %s, parameter set %s, %d calibration rows", args.method,
              args.params or f"default (estimator {args.estimator})", meas.calibration().n_poses)
     try:
-        with working(f"calibrating ({args.method})", logger=log):
+        with working(f"calibrating ({args.method})", logger=log, enabled=progress_enabled(args)):
             result = calib.calibrate(robot, meas, method=args.method, params=args.params,
                                      sigma_pos=None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3,
                                      sigma_rot=args.sigma_rot_rad, validation=validation, loss=args.loss,
@@ -256,30 +274,13 @@ def run(args: argparse.Namespace) -> int:
     out_sidecar = out_sidecar if result.robot.has_joint_terms else None
     text = result.format()
     images = {}
-    if plot_paths or out_html is not None:
-        from calib.calibration.report import render_plots
-
-        with working("drawing the plots", logger=log):
-            images = render_plots(result, meas, validation)
-    if out_report is not None or out_html is not None:
-        report = build_report(
-            result, meas, validation, command_line=["calib", *args.argv],
-            inputs={"robot": robot_path(args.robot), "measurements": args.measurements,
-                    "validation": args.validate},
-            outputs={"calibrated_urdf": out_urdf, "report": out_report, "html": out_html},
-            frames={"written_urdf": frames.to_dict()})
-        if out_report is not None:
-            outputs.stage(out_report, json_text(report))
-        if out_html is not None:
-            from calib.calibration.report import render_html
-
-            outputs.stage(out_html, render_html(report, text, images))
-    for name, path in plot_paths.items():
-        if name in images:
-            outputs.stage(path, images[name])
+    if plot_paths or out_html is not None or out_report is not None:
+        text += _report_stage(args, result, meas, validation, outputs, meta=meta, plot_paths=plot_paths,
+                              out_report=out_report, out_html=out_html, out_residuals=out_residuals,
+                              out_urdf=out_urdf, frames=frames, images=images)
     outputs.commit()
 
-    written = [out_urdf] + [p for p in (out_sidecar, out_report, out_html) if p is not None] + \
+    written = [out_urdf] + [p for p in (out_sidecar, out_report, out_residuals, out_html) if p is not None] + \
               [p for p in plot_paths.values() if p in outputs.data]
     sys.stdout.write(text + "\n\nwrote " + ", ".join(str(p) for p in written) + "\n"
                      + f"{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in "
@@ -291,3 +292,64 @@ def run(args: argparse.Namespace) -> int:
                          f"calibration does not have\n")
     return status_exit(result.status, result.message)
 
+
+
+def residuals_path(report: Path) -> Path:
+    """REPORT.residuals.csv beside REPORT.json."""
+    return report.with_name(report.stem + ".residuals.csv")
+
+
+def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, out_report, out_html,
+                  out_residuals, out_urdf, frames, images: dict) -> str:
+    """Stage the plots, JSON report (and its residuals CSV) and HTML page, with a progress line
+    (fraction, time left); fills ``images``; returns the verdict line for the printed text ("" without
+    --tolerance-mm)."""
+    from calib.calibration.report import (build_report, render_html, render_plots, report_json_text,
+                                          report_rows_of, residuals_csv_text)
+    from calib.cli.progress import Progress, stage
+
+    want_plots = bool(plot_paths) or out_html is not None
+    steps = 1 + (5 if want_plots else 0) + (out_report is not None or out_html is not None) \
+        + (out_residuals is not None) + (out_html is not None)
+    with Progress(steps, "writing the report", enabled=progress_enabled(args)) as progress, \
+            stage(log, "report"):
+        rows = report_rows_of(result, meas, validation)
+        progress.update()
+        if want_plots:
+            done = progress.done
+            images.update(render_plots(result, meas, validation, rows=rows, tolerance_mm=args.tolerance_mm,
+                                       progress=lambda k, n: progress.set(done + round(5 * k / n))))
+            progress.set(done + 5)
+        report = build_report(
+            result, meas, validation, command_line=["calib", *args.argv],
+            inputs={"robot": robot_path_of(args), "measurements": args.measurements,
+                    "validation": args.validate},
+            outputs={"calibrated_urdf": out_urdf, "report": out_report, "html": out_html,
+                     "residuals": out_residuals},
+            frames={"written_urdf": frames.to_dict()}, meta=meta, tolerance_mm=args.tolerance_mm,
+            residuals=out_residuals.name if out_residuals is not None else
+            ("none" if args.residuals == "none" else "json"), rows=rows)
+        progress.update()
+        if out_report is not None:
+            outputs.stage(out_report, report_json_text(report))
+        if out_residuals is not None:
+            outputs.stage(out_residuals, residuals_csv_text(rows))
+            progress.update()
+        verdict = ""
+        tol = report["certificate"]["tolerance"]
+        if tol is not None:
+            verdict = (f"\ntolerance {tol['tolerance_mm']:g} mm: {'PASS' if tol['pass'] else 'FAIL'} (largest "
+                       f"position error {tol['max_mm']:.4g} mm over {tol['n']} {tol['rows']}; {tol['beyond']} beyond)")
+        if out_html is not None:
+            outputs.stage(out_html, render_html(report, result.format() + verdict, images))
+            progress.update()
+    for name, path in plot_paths.items():
+        if name in images:
+            outputs.stage(path, images[name])
+    return verdict
+
+
+def robot_path_of(args):
+    from calib.io.urdf_reader import robot_path
+
+    return robot_path(args.robot)

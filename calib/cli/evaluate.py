@@ -4,8 +4,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from calib.cli.args import (COMMON_EPILOG, HelpFormatter, add_compliance, add_file_format, add_frames, add_robot,
-                            add_verbose, load, read, with_compliance_file)
+from calib.cli.args import (COMMON_EPILOG, HelpFormatter, add_compliance, add_file_format, add_frames, add_progress,
+                            add_report_options, add_robot, add_verbose, load, parse_meta, read,
+                            with_compliance_file)
 from calib.cli.output import EXIT_OK, PROG, json_text
 from calib.errors import ParameterError
 
@@ -33,6 +34,8 @@ examples:
   calib evaluate robots/brtirus0707a/brtirus0707a.urdf examples/brtirus0707a/measurements.csv
   calib evaluate calibrated.urdf examples/brtirus0707a/measurements.csv --json
   calib evaluate cal.urdf meas.csv --compliance cal.compliance.json --nominal ur10
+  calib evaluate cal.urdf check.csv --html check.html --plots check_plots --tolerance-mm 0.5 \\
+      --meta robot_serial=R123,instrument=AT960,operator=J.Doe
 """ + COMMON_EPILOG
 
 
@@ -46,6 +49,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object: n_poses, position_mm and rotation_rad statistics "
                         "(mean, rms, max, min) for all, cal and val rows")
+    p.add_argument("--html", metavar="REPORT.html", default=None,
+                   help="write one self-contained HTML accuracy report (identity, verdict, accuracy, "
+                        "per-axis and ISO 9283 tables, plots) of this model against these measurements")
+    p.add_argument("--plots", metavar="DIR", default=None,
+                   help="write PNG plots of the per-row errors, their histogram and the error over the "
+                        "workspace into DIR (created if missing; its parent must exist)")
+    add_report_options(p, residuals=False)
+    add_progress(p)
     add_file_format(p, tracker=True)
     add_frames(p)
     g = add_compliance(p, "evaluate")
@@ -135,6 +146,21 @@ def run(args: argparse.Namespace) -> int:
     import calib
     from calib.calibration.accuracy import format_accuracy_table
 
+    from pathlib import Path
+
+    from calib.cli.output import Outputs
+    from calib.io.urdf_reader import robot_path
+
+    outputs = Outputs([robot_path(args.robot), args.measurements, args.tracker, args.compliance, args.nominal])
+    out_html = outputs.add(args.html) if args.html else None
+    plot_paths = {}
+    if args.plots:
+        from calib.calibration.report_plots import PLOT_FILES
+
+        plot_paths = {name: outputs.add(Path(args.plots) / name, make_folder=True) for name in PLOT_FILES}
+    meta = parse_meta(args.meta)
+    if out_html is None and (args.meta is not None or args.tolerance_mm is not None):
+        raise ParameterError("--meta and --tolerance-mm apply to the report: give --html REPORT.html")
     robot = _evaluate_compliance(_in_measurement_frame(load(args), args), args)
     meas = read(args.measurements, robot, args, args.tracker)
     rows = [("all rows", calib.evaluate(robot, meas))]
@@ -146,6 +172,8 @@ def run(args: argparse.Namespace) -> int:
     per_target = []     # several targets: each target's rows too
     if len(meas.target_ids) > 1:
         per_target = [(t, calib.evaluate(robot, meas.subset(np.array(meas.target) == t))) for t in meas.target_ids]
+    if out_html is not None or plot_paths:
+        _write_report(args, robot, meas, outputs, out_html, plot_paths, meta)
     if args.json:
         keys = {"all rows": "all", "calibration rows (cal)": "cal", "validation rows (val)": "val"}
         out = {"robot": str(args.robot), "measurements": str(args.measurements),
@@ -159,5 +187,42 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     sys.stdout.write(f"Accuracy of {args.robot} (tool frame {robot.tool_frame!r} in base frame "
                      f"{robot.base_frame!r}) against {args.measurements}:\n\n"
-                     + format_accuracy_table(rows + [(f"target {t}", st) for t, st in per_target]) + "\n")
+                     + format_accuracy_table(rows + [(f"target {t}", st) for t, st in per_target]) + "\n"
+                     + getattr(args, "_verdict", "")
+                     + ("".join(f"wrote {p}\n" for p in getattr(args, "_written", []))))
     return EXIT_OK
+
+
+def _write_report(args, robot, meas, outputs, out_html, plot_paths, meta) -> None:
+    """Plots and the HTML accuracy report, staged and committed with a progress line; the verdict
+    line and the written paths are kept on ``args`` for the printed text."""
+    from calib.calibration.report import build_accuracy_report, render_html
+    from calib.calibration.report_plots import plot_rows
+    from calib.calibration.report_rows import report_rows
+    from calib.cli.progress import Progress
+    from calib.io.urdf_reader import robot_path
+
+    from calib.cli.args import progress_enabled
+
+    with Progress(7, "writing the report", enabled=progress_enabled(args)) as progress:
+        rows = report_rows(robot, meas, validation_rows="none")
+        progress.update()
+        images = plot_rows(rows, tolerance_m=None if args.tolerance_mm is None else args.tolerance_mm * 1e-3,
+                           progress=lambda k, n: progress.set(1 + round(5 * k / n)))
+        report = build_accuracy_report(robot, meas, command_line=["calib", *args.argv],
+                                       inputs={"robot": robot_path(args.robot), "measurements": args.measurements},
+                                       meta=meta, tolerance_mm=args.tolerance_mm, residuals="none", rows=rows)
+        tol = report["certificate"]["tolerance"]
+        args._verdict = "" if tol is None else (
+            f"tolerance {tol['tolerance_mm']:g} mm: {'PASS' if tol['pass'] else 'FAIL'} (largest position error "
+            f"{tol['max_mm']:.4g} mm over {tol['n']} rows; {tol['beyond']} beyond)\n")
+        if out_html is not None:
+            text = (f"Accuracy of {args.robot} (tool frame {robot.tool_frame!r} in base frame {robot.base_frame!r}) "
+                    f"against {args.measurements}")
+            outputs.stage(out_html, render_html(report, text, images))
+        for name, path in plot_paths.items():
+            if name in images:
+                outputs.stage(path, images[name])
+        progress.set(7)
+    outputs.commit()
+    args._written = [p for p in outputs.paths if p in outputs.data]

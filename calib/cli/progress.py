@@ -1,5 +1,10 @@
 """Progress of long stages on stderr, and stage logging.
 
+Used by ``calibrate`` (reading, the fit: time elapsed; the report stage: rows, plots, JSON, HTML
+with the fraction done and the time left), ``evaluate --html`` and ``select-poses`` (the
+candidates' Jacobians, the greedy start and each exchange pass). ``--progress`` draws the line
+also when stderr is not a terminal.
+
 :class:`Progress` draws one line (``label: 120/400 (30%), 12 s elapsed, ~28 s left``) on a
 stream that is a terminal, once a stage has run for :data:`SHOW_AFTER_S` seconds, redrawn at
 most every :data:`REDRAW_S` seconds; on anything else (a pipe, a log file, a test's captured
@@ -51,14 +56,14 @@ class Progress:
     """
 
     def __init__(self, total: int, label: str, *, stream: IO[str] | None = None,
-                 enabled: bool | None = None, show_after: float = SHOW_AFTER_S):
+                 enabled: bool | None = None, show_after: float | None = None):
         self.total, self.label = max(int(total), -1), label
         self.stream = sys.stderr if stream is None else stream
         if enabled is None:
             isatty = getattr(self.stream, "isatty", None)
             enabled = bool(isatty and isatty())
         self.enabled = enabled
-        self.show_after = show_after
+        self.show_after = SHOW_AFTER_S if show_after is None else show_after
         self.done = 0
         self.t0 = time.monotonic()
         self._last_draw = -math.inf
@@ -73,10 +78,14 @@ class Progress:
     def update(self, n: int = 1) -> None:
         self.set(self.done + n)
 
-    def set(self, done: int) -> None:
+    def set(self, done: int, total: int | None = None) -> None:
+        """``done`` units so far (and, when given, a new ``total``: an estimate revised)."""
+        if total is not None:
+            self.total = max(int(total), -1)
         self.done = min(max(int(done), 0), self.total) if self.total > 0 else int(done)
         now = time.monotonic()
-        if self.enabled and now - self.t0 >= self.show_after and now - self._last_draw >= REDRAW_S:
+        if self.enabled and now - self.t0 >= self.show_after and (now - self._last_draw >= REDRAW_S
+                                                                  or self.done == self.total):
             self._draw(now)
 
     def line(self, now: float | None = None) -> str:
@@ -93,6 +102,12 @@ class Progress:
                 f"{format_eta(elapsed, self.done, self.total)}")
 
     def _draw(self, now: float) -> None:
+        isatty = getattr(self.stream, "isatty", None)
+        if not (isatty and isatty()):        # forced (--progress) onto a file or pipe: one line each
+            self.stream.write(self.line(now) + "\n")
+            self.stream.flush()
+            self._last_draw = now
+            return
         self.stream.write("\r" + self.line(now) + "\033[K")
         self.stream.flush()
         self._last_draw, self._drawn = now, True

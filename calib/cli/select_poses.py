@@ -6,10 +6,10 @@ import argparse
 import logging
 import sys
 
-from calib.cli.args import (HelpFormatter, add_frames, add_targets, add_verbose, count, positive, positive_int,
-                            with_targets)
+from calib.cli.args import (HelpFormatter, add_frames, add_progress, add_targets, add_verbose, count, positive,
+                            positive_int, progress_enabled, with_targets)
 from calib.cli.output import EXIT_OK, Outputs, command_line
-from calib.cli.progress import working
+from calib.cli.progress import Progress, stage
 
 __all__ = ["add_parser", "run"]
 
@@ -81,6 +81,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="orientation measurement noise per axis, rad (weights orientation rows)")
     add_targets(p)
     add_frames(p)
+    add_progress(p)
     add_verbose(p, help="log progress on stderr")
     p.set_defaults(func=run)
     return p
@@ -98,10 +99,12 @@ def run(args: argparse.Namespace) -> int:
     log.info("robot %s: %d joints (%s), base frame %r, tool frame %r", args.robot, robot.n_joints,
              ", ".join(robot.joint_names), robot.base_frame, robot.tool_frame)
     robot = with_targets(robot, args)
-    with working(f"selecting {args.n} of {args.candidates} candidate poses", logger=log):
+    with Progress(12, f"selecting {args.n} of {args.candidates} candidate poses, step",
+                  enabled=progress_enabled(args)) as progress, stage(log, "pose selection"):
         design = design_poses(robot, args.n, candidates=args.candidates, criterion=args.criterion,
                               measure=args.measure, seed=args.seed,
-                              sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad)
+                              sigma_pos=args.sigma_pos_mm * 1e-3, sigma_rot=args.sigma_rot_rad,
+                              progress=progress.set)
     log.info("selection: %d exchange passes, %d swaps, %.3f s", design.passes, design.swaps,
              design.elapsed)
     c, b = design.criteria, design.random_criteria

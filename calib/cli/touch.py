@@ -22,11 +22,11 @@ ACCURACY_CONFIGURATIONS = 500
 #: calibrate's options that do not apply to touch files (yet), with their default.
 #: calibrate's options that touch files do not take, with their defaults (a value other than the
 #: default is refused: the touch fit is least squares by LM, geometry only).
-_NOT_FOR_TOUCH = (("tracker", None), ("validate", None), ("compliance", False), ("plots", None),
-                  ("html", None), ("method", "search-lm"), ("estimator", "auto"), ("loss", "linear"),
+_NOT_FOR_TOUCH = (("tracker", None), ("validate", None), ("compliance", False), ("method", "search-lm"), ("estimator", "auto"), ("loss", "linear"),
                   ("lm_variant", "calib"), ("periodic", False), ("payload_kg", None), ("payload_com_mm", None),
                   ("gravity", None), ("key", None), ("target_column", None), ("target_from", None),
-                  ("join", "key"), ("time", None), ("time_unit", None), ("max_gap", None))
+                  ("join", "key"), ("time", None), ("time_unit", None), ("max_gap", None),
+                  ("residuals", "auto"))
 
 
 def is_touch_input(args: argparse.Namespace) -> bool:
@@ -65,11 +65,27 @@ def run_touch(args: argparse.Namespace) -> int:
     outputs = Outputs([robot_path(args.robot), args.measurements])
     out_urdf = outputs.add(args.output)
     out_report = outputs.add(args.report) if args.report else None
+    out_html = outputs.add(args.html) if getattr(args, "html", None) else None
+    plot_paths = {}
+    if getattr(args, "plots", None):
+        from pathlib import Path
+
+        from calib.calibration.report_plots import PLOT_FILES
+
+        plot_paths = {name: outputs.add(Path(args.plots) / name, make_folder=True) for name in PLOT_FILES}
+    from calib.cli.args import parse_meta
+
+    meta = parse_meta(getattr(args, "meta", None))
+    if out_report is None and out_html is None and (getattr(args, "meta", None) is not None
+                                                     or getattr(args, "tolerance_mm", None) is not None):
+        raise ParameterError("--meta and --tolerance-mm apply to the report: give --report REPORT.json or "
+                             "--html REPORT.html")
     robot = load(args)
     check_writable(robot)
     probe = (getattr(args, "probe_radius_mm", None) or 0.0) * 1e-3
     data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
     noise = _noise_arguments(args, data)
+    data_all = data
     try:
         result = calibrate_touch(robot, data, params=params, cv=getattr(args, "cv", 5),
                                  outlier_k=getattr(args, "outlier_k", 5.0),
@@ -97,14 +113,75 @@ def run_touch(args: argparse.Namespace) -> int:
                      + ([f"predicted tool position error in the meas frame (identified by the {result.n_measured} "
                          f"measured rows, no registration): {absolute * 1e3:.4f} mm RMS (noise only)"]
                         if absolute is not None else []))
+    report = _report(result, predicted, args, registration, absolute)
+    if out_report is not None or out_html is not None or plot_paths:
+        text += _touch_report_stage(args, result, data_all, robot, report, text, meta, outputs, out_html,
+                                    plot_paths, written[0])
     if out_report is not None:
-        outputs.stage(out_report, json_text(_report(result, predicted, args, registration, absolute)))
+        outputs.stage(out_report, json_text(report))
     outputs.commit()
     frames = written[0]
-    sys.stdout.write(text + f"\n\nwrote {out_urdf}" + (f", {out_report}" if out_report else "")
+    shown = [p for p in [out_report, out_html] + list(plot_paths.values()) if p is not None and p in outputs.data]
+    sys.stdout.write(text + f"\n\nwrote {out_urdf}" + "".join(f", {p}" for p in shown)
                      + f"\n{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in base "
                        f"frame {frames.base_frame!r}\n")
     return status_exit(result.status, result.message)
+
+
+def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta, outputs, out_html, plot_paths,
+                        frames) -> str:
+    """The touch report's certificate (into ``report``, the JSON), plots and HTML page staged in
+    ``outputs``; returns the verdict line for the printed text ("" without --tolerance-mm)."""
+    from calib.calibration.report import _provenance, render_html
+    from calib.calibration.report_plots import plot_rows
+    from calib.calibration.report_touch import touch_certificate, touch_rows
+    from calib.cli.args import progress_enabled
+    from calib.cli.progress import Progress
+    from calib.io.urdf_reader import robot_path
+    from calib.units import DISPLAY_UNITS
+
+    tol_mm = getattr(args, "tolerance_mm", None)
+    with Progress(3, "writing the report", enabled=progress_enabled(args)) as progress:
+        rows = touch_rows(result, data, robot)
+        report["certificate"] = touch_certificate(rows, data.features, tol_mm)
+        report["meta"] = meta
+        progress.update()
+        images = plot_rows(rows, tolerance_m=None if tol_mm is None else tol_mm * 1e-3) if (
+            plot_paths or out_html is not None) else {}
+        progress.update()
+        tol = report["certificate"]["tolerance"]
+        verdict = "" if tol is None else (
+            f"\ntolerance {tol['tolerance_mm']:g} mm: {'PASS' if tol['pass'] else 'FAIL'} (largest touch residual "
+            f"{tol['max_mm']:.4g} mm over {tol['n']} {tol['rows']}; {tol['beyond']} beyond)")
+        if out_html is not None:
+            params = []
+            for name, s in zip(result.free, result.std):
+                p = robot.parameters[robot.index(name)]
+                unit, f = DISPLAY_UNITS[p.unit]
+                v0, v = robot.value(name), result.robot.value(name)
+                params.append({"name": name, "unit": unit, "nominal": v0 * f, "identified": v * f,
+                               "deviation": (v - v0) * f, "std": float(s) * f, "free": True})
+            page = {"status": result.status, "success": result.success, "message": result.message,
+                    "meta": meta, "certificate": report["certificate"], "parameters": params,
+                    "provenance": _provenance(["calib", *getattr(args, "argv", [])],
+                                              {"robot": robot_path(args.robot), "measurements": args.measurements},
+                                              {"calibrated_urdf": args.output, "html": out_html}),
+                    "frames": {"base_frame": frames.base_frame, "tool_frame": frames.tool_frame,
+                               "joints": list(robot.joint_names), "written_urdf": frames.to_dict()},
+                    "outliers": [{"row": row, "position_error_mm": e * 1e3, "rotation_error_rad": None,
+                                  "sigmas": None} for row, e in result.outliers],
+                    "predicted_rows": [r for r in (
+                        None if result.cv_rms is None else (
+                            f"touch residual held out by {result.cv_folds}-fold cross-validation (RMS per "
+                            f"component)", result.cv_rms * 1e3, None),
+                        (f"tool position at {ACCURACY_CONFIGURATIONS} random configurations, after a best-fit "
+                         f"registration (noise only)", report["predicted_tool_error_mm"], None)) if r is not None]}
+            outputs.stage(out_html, render_html(page, text + verdict, images, title="Touch calibration report"))
+        for name, path in plot_paths.items():
+            if name in images:
+                outputs.stage(path, images[name])
+        progress.update()
+    return verdict
 
 
 def _parameter_table(robot, result) -> str:

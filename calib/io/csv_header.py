@@ -27,6 +27,9 @@ __all__ = ["ANGLE_UNITS", "LENGTH_UNITS", "POSITION_COLUMNS", "ORIENTATIONS", "C
 #: Multiply a value in the unit of the suffix by this to get SI (radians, metres).
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
+#: Optional per-row columns a measurement file may carry for the report (drift during the
+#: measurement), with their units: time in seconds, temperature in degrees Celsius.
+EXTRA_UNITS = {"time": {"s": 1.0, "min": 60.0, "h": 3600.0}, "temperature": {"c": 1.0, "degc": 1.0}}
 POSITION_COLUMNS = ("x", "y", "z")
 
 #: Orientation column groups: kind -> (column base names, units (None: no suffix), label).
@@ -86,6 +89,8 @@ class Header:
             plain[label] = (label, None, "")
         for k in spec.lengths:
             suffixed[k] = (k, LENGTH_UNITS, "")
+        # extras: read only with a unit of theirs (a bare "time" column stays ignored, as before)
+        self.extras = {k: EXTRA_UNITS[k] for k in spec.extras}
         self.key = None
         if spec.keyed:
             self.key = str(options.key).strip()
@@ -167,6 +172,8 @@ class Header:
             parts.append("optionally " + ", ".join(spec.labels))
         if spec.lengths:
             parts.append("optionally " + ", ".join(f"{k} with _m or _mm" for k in spec.lengths))
+        if spec.extras:
+            parts.append("optionally " + ", ".join(f"{k} with {_unit_text(EXTRA_UNITS[k])}" for k in spec.extras))
         if self.key:
             parts.append(f"the key column {self.key}")
         return f"{spec.kind} file columns: " + "; ".join(parts)
@@ -178,6 +185,9 @@ class Header:
         m = _UNIT_IN_BRACKETS.match(written)
         name = f"{m.group(1)}_{m.group(2)}" if m and m.group(1) else written
         low = name.lower()
+        base, sep, suffix = low.rpartition("_")
+        if sep and base in self.extras and suffix in self.extras[base]:
+            return Column(index, written, base, self.extras[base][suffix], suffix, "")
         if low in self.plain:
             q, _, _ = self.plain[low]
             return Column(index, written, q)

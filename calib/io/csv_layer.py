@@ -149,6 +149,9 @@ class Spec:
         ``sphere``: one of them per row).
     sparse_pose : the position and orientation cells may be empty (NaN; touch files: a row
         measured by an instrument, or one naming the feature touched).
+    extras : optional per-row quantities of :data:`calib.io.csv_header.EXTRA_UNITS` (``time``
+        with _s, _min or _h; ``temperature`` with _c or _degc), read in seconds and degrees
+        Celsius, empty cells NaN: what a report plots the residuals against (drift).
     """
 
     kind: str
@@ -160,6 +163,7 @@ class Spec:
     lengths: tuple[str, ...] = ()
     sparse: tuple[str, ...] = ()
     sparse_pose: bool = False
+    extras: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,6 +176,8 @@ class Table:
     orientation : "none" or a key of :data:`ORIENTATIONS`.
     labels : label name (``set``, ``target``, the key) -> N stripped strings.
     lengths : length column name (``radius``) -> (N,) metres, NaN where the cell is empty.
+    extras : extra quantity (``time``, ``temperature``) -> (N,) seconds / degrees Celsius, NaN
+        where the cell is empty.
     names : quantity ("x", "qw", "set", joint index, ...) -> header name as written.
     ignored_columns : header names (as written) of columns calib does not know or that were
         dropped by a rename. notes : one-line remarks (ignored columns, readings kept just past a
@@ -191,6 +197,7 @@ class Table:
     notes: tuple[str, ...] = ()
     renamed: tuple[str, ...] = ()
     lengths: dict = field(default_factory=dict)
+    extras: dict = field(default_factory=dict)
 
 
 # ====================================================================== text
@@ -385,7 +392,7 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
             raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
                                                f"{ncols} (one per header column)", row=row)
         for key, c in numeric.items():
-            if (key in spec.lengths or (spec.sparse_pose and not isinstance(key, int))) \
+            if (key in spec.lengths or key in spec.extras or (spec.sparse_pose and not isinstance(key, int))) \
                     and not fields[c.index].strip():
                 values[key][k] = np.nan
                 continue
@@ -441,7 +448,8 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
                  names={k: c.name for k, c in cols.items()},
                  ignored_columns=tuple(header.ignored), notes=tuple(notes),
                  renamed=tuple(header.renamed),
-                 lengths={k: values[k] for k in spec.lengths if k in cols})
+                 lengths={k: values[k] for k in spec.lengths if k in cols},
+                 extras={k: values[k] for k in spec.extras if k in cols})
 
 
 def _quaternion_matrices(wxyz: np.ndarray) -> np.ndarray:

@@ -164,10 +164,15 @@ def sides(joint: Spec, tracker: Spec, options: ReadOptions) -> tuple[Spec, Spec]
     extra = (time,) if time is not None else ()
     target = _target_label(options)
     keyed = options.join == "key"
+
+    def extras(spec):
+        # the join's time column is a label (text: numbers, times of day, dates), not the
+        # report's per-row time quantity (time_s, ...) that a spec may also name
+        return tuple(e for e in spec.extras if time is None or not (time == e or time.startswith(e + "_")))
     joint = replace(joint, labels=tuple(dict.fromkeys(joint.labels + extra)), keyed=keyed,
-                    sparse=joint.sparse + extra)
+                    sparse=joint.sparse + extra, extras=extras(joint))
     tracker = replace(tracker, labels=tuple(dict.fromkeys(tracker.labels + (target,) + extra)),
-                      keyed=keyed, sparse=tracker.sparse + extra)
+                      keyed=keyed, sparse=tracker.sparse + extra, extras=extras(tracker))
     return joint, tracker
 
 
@@ -177,7 +182,7 @@ class Joined:
     """Two tables joined: result row ``k`` is joint row ``joint[k]`` with tracker row ``tracker[k]``.
 
     joint, tracker : (M,) int, indices into the rows of the joint and the tracker table.
-    labels : ``set`` and ``target`` -> (M,) tuple of str, or None where neither file has it.
+    labels : ``set``, ``target`` and ``pose_id`` -> (M,) tuple of str, or None where neither file has it.
     one_to_one : each joint row gives exactly one result row (then the result keeps the joint
         file's row numbers; otherwise the tracker file's, one per measured row).
     notes : one-line remarks of the join (a joint log not in time order).
@@ -206,6 +211,7 @@ def join_tables(j: Table, t: Table, options: ReadOptions) -> Joined:
     labels = {"set": _agree(j, t, jidx, tidx, "set", None, t.names.get("set"), how)}
     tt = None if target is None else [target[i] for i in tidx]
     labels["target"] = _agree(j, t, jidx, tidx, "target", tt, target_col, how)
+    labels["pose_id"] = _agree(j, t, jidx, tidx, "pose_id", None, t.names.get("pose_id"), how)
     one = len(jidx) == len(j.rows) and len(np.unique(jidx)) == len(jidx)
     return Joined(joint=jidx, tracker=tidx, labels=labels, one_to_one=bool(one), notes=notes)
 

@@ -66,13 +66,18 @@ __all__ = ["MEASUREMENT", "POSES", "TARGETS", "JOINT_SIDE", "TRACKER_SIDE", "rea
            "write_compensation"]
 
 MEASUREMENT = Spec("measurement", joints="required", position="required", orientation=True,
-                   labels=("set", "target"))
+                   labels=("set", "target", "pose_id"), extras=("time", "temperature"))
 POSES = Spec("poses", joints="required")
 TARGETS = Spec("targets", joints="optional", position="optional", orientation=True)
 #: The two halves of a measurement joined by a key: joints, and the tracker's poses.
-JOINT_SIDE = Spec("joint", joints="required", labels=("set", "target"), keyed=True)
+JOINT_SIDE = Spec("joint", joints="required", labels=("set", "target", "pose_id"), keyed=True,
+                  extras=("time", "temperature"))
 TRACKER_SIDE = Spec("tracker", joints="none", position="required", orientation=True,
-                    labels=("set", "target"), keyed=True)
+                    labels=("set", "target", "pose_id"), keyed=True, extras=("time", "temperature"))
+
+
+#: The unit of each extra column in :attr:`Measurements.columns` names (SI, or Celsius).
+_EXTRA_SI = {"time": "s", "temperature": "c"}
 
 
 def _rename_notes(options: ReadOptions, tables: list[Table]) -> tuple[str, ...]:
@@ -136,6 +141,7 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
         q, pose, rows, labels, tables = t.q, t, t.rows, t.labels, [t]
         source, joined_notes = Path(csv_path), ()
         order = np.arange(len(rows))
+        extras = dict(t.extras)
     else:
         if options.join == "key" and options.key is None:
             raise ParameterError("a tracker file is joined to the joint file by a key column: "
@@ -152,10 +158,15 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
         # (outliers are told by row), else the tracker file's
         rows, source = (j.rows[joined.joint], Path(csv_path)) if joined.one_to_one \
             else (pose.rows[joined.tracker], Path(tracker))
+        extras = {**{k: v[order] for k, v in pose.extras.items()},
+                  **{k: v[joined.joint] for k, v in j.extras.items()}}
     position = pose.position[order]
     rotation = None if pose.rotation is None else pose.rotation[order]
+    columns = {f"{k}_{_EXTRA_SI[k]}": v for k, v in extras.items()}
+    if labels.get("pose_id") is not None:
+        columns["pose_id"] = np.asarray(labels["pose_id"], dtype=object)
     return Measurements(q=q, position=position, rotation=rotation, rows=rows,
-                        sets=labels.get("set"), target=labels.get("target"),
+                        sets=labels.get("set"), target=labels.get("target"), columns=columns or None,
                         joint_names=robot.joint_names, source=source,
                         prismatic=robot.prismatic,
                         ignored_columns=tuple(c for t in tables for c in t.ignored_columns),
@@ -181,7 +192,8 @@ def write_measurements(path: str | Path, measurements: Measurements, *, angle_un
     comment : text written first as ``#`` comment lines (one per line of the text).
 
     The header names the joints ``<joint name>_<unit>`` from ``measurements.joint_names``, then
-    x, y, z, the orientation columns, ``set`` and ``target`` when the data has them. Numbers are
+    x, y, z, the orientation columns, ``time_s`` and ``temperature_c`` (empty cells for NaN),
+    ``set``, ``target`` and ``pose_id`` when the data has them. Numbers are
     written with ``repr`` (shortest exact round-trip form), so reading the file back gives the data
     to rounding of the unit conversion (~1e-16 relative).
     """
@@ -218,10 +230,15 @@ def write_measurements(path: str | Path, measurements: Measurements, *, angle_un
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # gimbal lock: any valid split is fine
             columns.append(Rotation.from_matrix(m.rotation).as_euler("ZYX") / ANGLE_UNITS[angle_unit])
+    extra = dict(m.columns or {})
+    for name in ("time_s", "temperature_c"):
+        if name in extra:
+            header.append(name)
+            columns.append(np.asarray(extra[name], float).reshape(-1, 1))
     values = np.hstack(columns) if m.n_poses else np.zeros((0, len(header)))
-    texts = [m.sets, m.target]
-    header += [name for name, t in zip(("set", "target"), texts) if t is not None]
-    rows = [[repr(float(v)) for v in values[k]] + [str(t[k]) for t in texts if t is not None]
+    texts = [m.sets, m.target, extra.get("pose_id")]
+    header += [name for name, t in zip(("set", "target", "pose_id"), texts) if t is not None]
+    rows = [[("" if v != v else repr(float(v))) for v in values[k]] + [str(t[k]) for t in texts if t is not None]
             for k in range(m.n_poses)]
     atomic_write_text(path, csv_text(header, rows, comment))
 

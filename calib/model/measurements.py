@@ -8,7 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Sequence
+from types import MappingProxyType
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -45,6 +46,9 @@ class Measurements:
     ignored_columns : header names of the source file's columns that calib ignored.
     notes : one-line remarks of the reading (ignored columns, readings kept just past a joint
         limit), for the caller to show; the library does not print them.
+    columns : per-row columns the report uses, or None: ``time_s`` (seconds), ``temperature_c``
+        (degrees Celsius), each (N,) float with NaN for an empty cell, and ``pose_id`` (N,) str
+        (rows of one id are visits of one commanded pose).
     orientation : how the file gave the orientation (``"quaternion"``, ``"zyx"``, ``"rotvec"``,
         ``"matrix"``, or ``"euler:<sequence>"`` with the sequence it was read with), or None
         (data not read from a file, position only): what a check of a misreading tries.
@@ -66,6 +70,7 @@ class Measurements:
     ignored_columns: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     orientation: str | None = None
+    columns: Mapping[str, np.ndarray] | None = None
 
     def __post_init__(self):
         q = finite_array(self.q, "q")
@@ -119,13 +124,25 @@ class Measurements:
                 raise DataError(f"target must be ({N},) ids or None, got shape "
                                 f"{np.shape(self.target)}")
         source = None if self.source is None else check_path(self.source, "source")
+        columns = None
+        if self.columns is not None:
+            if not isinstance(self.columns, Mapping) or not all(isinstance(k, str) for k in self.columns):
+                raise DataError(f"columns must map names to ({N},) arrays, got {self.columns!r:.60}")
+            columns = {}
+            for name, values in self.columns.items():
+                v = np.array(values, dtype=object if name == "pose_id" else float)
+                if v.shape != (N,):
+                    raise DataError(f"columns[{name!r}] must be ({N},), got shape {v.shape}")
+                v.setflags(write=False)
+                columns[name] = v
+            columns = MappingProxyType(columns)
         for arr in (q, position, rotation, rows, sets, prismatic):
             if arr is not None:
                 arr.setflags(write=False)
         for name, value in (("q", q), ("position", position), ("rotation", rotation),
                             ("rows", rows), ("sets", sets), ("joint_names", names),
                             ("source", source),
-                            ("prismatic", prismatic), ("target", target),
+                            ("prismatic", prismatic), ("target", target), ("columns", columns),
                             ("ignored_columns", check_names(self.ignored_columns, "ignored_columns")),
                             ("notes", check_names(self.notes, "notes")),
                             ("orientation", None if self.orientation is None or rotation is None
@@ -191,7 +208,8 @@ class Measurements:
         return replace(self, q=self.q[idx], position=self.position[idx],
                        rotation=None if self.rotation is None else self.rotation[idx],
                        rows=self.rows[idx], sets=None if self.sets is None else self.sets[idx],
-                       target=None if self.target is None else tuple(self.target[i] for i in idx))
+                       target=None if self.target is None else tuple(self.target[i] for i in idx),
+                       columns=None if self.columns is None else {k: v[idx] for k, v in self.columns.items()})
 
     def calibration(self) -> "Measurements":
         """The poses used for identification: the ``cal`` rows, or all poses when there is no set

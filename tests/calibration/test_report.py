@@ -254,7 +254,7 @@ def test_json_and_html_reports(capsys, tmp_path, monkeypatch):
                           "--html", html_path)
     assert code == 0, err
     r = json.loads(rep.read_text())
-    assert r["schema_version"] == 1
+    assert r["schema_version"] == 2
     prov = r["provenance"]
     assert prov["command_line"][:3] == ["calib", "calibrate", str(BUNDLED)]
     assert prov["inputs"]["measurements"]["sha256"] == hashlib.sha256(meas.read_bytes()).hexdigest()
@@ -262,25 +262,25 @@ def test_json_and_html_reports(capsys, tmp_path, monkeypatch):
     assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00", prov["date"])
     assert r["frames"]["base_frame"] == "meas" and r["frames"]["tool_frame"] == "tool"
     assert r["frames"]["joints"] == [f"joint{i}" for i in range(1, 7)]
-    # one residual per data row, with its file row number (comment lines and header first)
+    # one residual per data row, with its file row number (comment lines and header first), as columns
     lines = meas.read_text().splitlines()
     data_rows = [k + 1 for k, l in enumerate(lines) if l.strip() and not l.startswith("#")][1:]
-    res = r["residuals"]
-    assert len(data_rows) == 60 and [x["row"] for x in res] == data_rows
-    assert [x["set"] for x in (res[0], res[-1])] == ["cal", "val"]
-    val = [x["position_error_mm"] for x in res if x["set"] == "val"]
-    assert np.mean(val) == pytest.approx(r["validation"]["after"]["position_mm"]["mean"], rel=1e-9)
-    x = res[0]
-    assert x["position_error_mm"] == pytest.approx(np.linalg.norm(x["position_mm"]), rel=1e-12)
+    res = r["residuals"]["columns"]
+    assert len(data_rows) == 60 and res["row"] == data_rows and r["residuals"]["n_rows"] == 60
+    assert [res["set"][k] for k in (0, -1)] == ["cal", "val"]
+    val = [e for e, s in zip(res["position_error_mm"], res["set"]) if s == "val"]
+    assert np.mean(val) == pytest.approx(r["validation"]["after"]["position_mm"]["mean"], abs=1e-6)  # 1 nm
+    assert res["position_error_mm"][0] == pytest.approx(
+        np.linalg.norm([res[f"d{a}_mm"][0] for a in "xyz"]), abs=2e-6)     # rounded to 1 nm
     cov = r["covariance"]
     free = [p["name"] for p in r["parameters"] if p["free"]]
     assert cov["parameters"] == free and len(cov["covariance"]) == len(free)
     stds = {p["name"]: p["std"] for p in r["parameters"] if p["free"]}
     assert cov["std"] == pytest.approx([stds[n] for n in free], rel=1e-9)
     assert all(abs(cov["correlation"][k][k] - 1) < 1e-12 for k in range(len(free)))
-    # HTML: self-contained, with the printed report and three embedded plots
+    # HTML: self-contained, with the printed report and the embedded plots
     page = html_path.read_text()
-    assert page.count("data:image/png;base64,") == 3
+    assert page.count("data:image/png;base64,") == len(fake) == 5
     assert not re.search(r"(src|href)=\"(?!data:)", page) and "://" not in page
     assert "validation rows, after" in page and "calibration rows, after" in page
     # 40 rows: fewer than 10 residual components per parameter, the regularised estimate

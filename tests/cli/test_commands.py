@@ -186,7 +186,7 @@ def test_plots_are_written(job):
     import matplotlib.image
 
     names = sorted(p.name for p in (d / "plots").iterdir())
-    assert names == ["error_histograms.png", "orientation_errors.png", "position_errors.png"]
+    assert names == ["error_histograms.png", "error_map.png", "orientation_errors.png", "position_errors.png"]
     for name in names:
         data = (d / "plots" / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000

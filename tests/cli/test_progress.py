@@ -68,11 +68,34 @@ def test_every_imported_package_is_declared():
             elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
                 imported.add(node.module.split(".")[0])
     third_party = sorted(m for m in imported if m not in sys.stdlib_module_names and m != "calib")
-    assert third_party == ["example_robot_data", "lxml", "matplotlib", "numpy", "pinocchio", "scipy", "threadpoolctl",
-                           "yaml"]
+    assert third_party == ["example_robot_data", "jinja2", "lxml", "matplotlib", "numpy", "pinocchio", "scipy",
+                           "threadpoolctl", "yaml"]
     # cmeel wheels (Pinocchio, example-robot-data) install their modules under cmeel.prefix,
     # which packages_distributions() does not map
     cmeel = {"pinocchio": ["pin"], "example_robot_data": ["example-robot-data"]}
     for module in third_party:
         names = {d.lower().replace("_", "-") for d in dists.get(module) or cmeel.get(module, [])}
         assert names & declared, (module, names)
+
+
+def test_progress_flag_draws_fractions_off_a_terminal(capsys, tmp_path, monkeypatch):
+    """--progress: the report stage of calibrate and the steps of select-poses draw their
+    fraction done and time left on a captured (non-terminal) stderr; without it, nothing."""
+    import calib.cli.progress
+
+    monkeypatch.setattr(calib.cli.progress, "SHOW_AFTER_S", 0.0)
+    monkeypatch.setattr(calib.cli.progress, "REDRAW_S", 0.0)
+    meas = ROOT / "examples" / "brtirus0707a" / "measurements.csv"
+    argv = ["calibrate", str(BUNDLED_URDF), str(meas), "-o", str(tmp_path / "c.urdf"), "--report",
+            str(tmp_path / "r.json")]
+    assert main(argv + ["--progress"]) == 0
+    err = capsys.readouterr().err.replace("\r", "\n")
+    steps = [l for l in err.splitlines() if l.startswith("writing the report: ")]
+    assert steps and steps[-1].endswith("2/2 (100%), 0 s elapsed, ~0 s left") and "1/2 (50%)" in steps[0]
+    assert "nan" not in err
+    assert main(argv) == 0 and "writing the report" not in capsys.readouterr().err
+    assert main(["select-poses", str(BUNDLED_URDF), "-n", "20", "--candidates", "200", "-o",
+                 str(tmp_path / "p.csv"), "--progress"]) == 0
+    err = capsys.readouterr().err.replace("\r", "\n")
+    lines = [l for l in err.splitlines() if l.startswith("selecting 20 of 200 candidate poses, step: ")]
+    assert lines and "12/12 (100%)" in lines[-1] and "1/12 (8%)" in lines[0]

@@ -268,11 +268,30 @@ def test_too_many_joint_columns(tmp_path, bundled_robot):
 
 
 def test_unknown_columns_are_ignored_and_listed(tmp_path, bundled_robot):
-    path = _write(tmp_path, f"point,{HEADER},temperature_C,time (s)\nP1,{ROW},21,0.5\n")
+    path = _write(tmp_path, f"point,{HEADER},temperature_F,time_ms\nP1,{ROW},21,0.5\n")
     m = read_measurements(path, bundled_robot)
-    assert m.ignored_columns == ("point", "temperature_C", "time (s)")
-    assert m.notes == (f"{path}: ignored columns (not calib's): point, temperature_C, time (s)",)
+    assert m.ignored_columns == ("point", "temperature_F", "time_ms")
+    assert m.notes == (f"{path}: ignored columns (not calib's): point, temperature_F, time_ms",)
+    assert m.columns is None
     np.testing.assert_allclose(m.position, [[0.441, 0.0, -0.0365]], rtol=0, atol=1e-15)
+
+
+def test_time_temperature_and_pose_id_are_read_for_the_report(tmp_path, bundled_robot):
+    """time (s, min or h -> s), temperature (C) and pose_id: kept per row (the report's drift
+    plot and ISO 9283 groups), an empty time cell NaN; written back by write_measurements."""
+    path = _write(tmp_path, f"{HEADER},time (min),Temperature_degC,pose_id\n{ROW},1.5,21.25,P1\n{ROW},,21.5,P1\n")
+    m = read_measurements(path, bundled_robot)
+    assert m.ignored_columns == () and m.notes == ()
+    np.testing.assert_array_equal(m.columns["time_s"], [90.0, np.nan])
+    np.testing.assert_array_equal(m.columns["temperature_c"], [21.25, 21.5])
+    assert list(m.columns["pose_id"]) == ["P1", "P1"]
+    assert list(m.subset([1]).columns["temperature_c"]) == [21.5]
+    out = tmp_path / "back.csv"
+    write_measurements(out, m)
+    back = read_measurements(out, bundled_robot)
+    for name in ("time_s", "temperature_c"):
+        np.testing.assert_array_equal(back.columns[name], m.columns[name])
+    assert list(back.columns["pose_id"]) == ["P1", "P1"]
 
 
 def test_near_miss_column_is_an_error_with_did_you_mean(tmp_path, bundled_robot):
