@@ -35,7 +35,7 @@ from typing import Sequence
 import numpy as np
 
 from calib.errors import MeasurementFormatError, ParameterError
-from calib.io.csv_header import ANGLE_UNITS, LENGTH_UNITS, ORIENTATIONS, POSITION_COLUMNS, Header
+from calib.io.csv_header import ANGLE_UNITS, LENGTH_UNITS, ORIENTATIONS, POSITION_COLUMNS, Column, Header
 
 __all__ = ["ANGLE_UNITS", "LENGTH_UNITS", "ORIENTATIONS", "ReadOptions", "Spec", "Table",
            "read_table", "parse_rename", "check_euler_sequence", "joint_columns", "csv_text"]
@@ -93,12 +93,20 @@ class ReadOptions:
     limit_tolerance : joint values beyond a limit by at most this fraction of the joint range
         (upper - lower) are kept with a note (default 0.01, 1 %).
     key : name of the column that joins a joint file and a tracker file, or None.
+    convention : a vendor's column names and units (a key of
+        :data:`calib.io.conventions.CONVENTIONS`: ``"kuka"``, ``"abb"``, ``"ur"``, ``"fanuc"``,
+        ``"staubli"``, ``"yaskawa"``, or ``"calib"`` to state calib's own ZYX reading of rx, ry,
+        rz in any order), or None (calib's own names; ambiguous orientation names refused).
+    header_line : line number (from 1) of the header, or None: the first line that names known
+        columns (a preamble before it is skipped).
     """
 
     rename: tuple[tuple[str, str], ...] = ()
     euler: str | None = None
     limit_tolerance: float = LIMIT_TOLERANCE
     key: str | None = None
+    convention: str | None = None
+    header_line: int | None = None
 
     def __post_init__(self):
         if isinstance(self.rename, str):
@@ -116,6 +124,19 @@ class ReadOptions:
         if isinstance(tol, bool) or not (isinstance(tol, (int, float)) and math.isfinite(tol) and 0 <= tol <= 1):
             raise ParameterError(f"limit_tolerance must be a fraction of the joint range in "
                                  f"[0, 1], got {tol!r}")
+        if self.convention is not None:
+            from calib.io.conventions import CONVENTIONS
+
+            if not isinstance(self.convention, str) or self.convention not in CONVENTIONS:
+                raise ParameterError(f"convention must be one of {', '.join(CONVENTIONS)}, got "
+                                     f"{self.convention!r:.60}")
+            seq = CONVENTIONS[self.convention].euler
+            if seq is not None and self.euler is not None and self.euler != seq:
+                raise ParameterError(f"euler {self.euler!r} contradicts the {self.convention} "
+                                     f"convention, whose angles are the sequence {seq!r}")
+        h = self.header_line
+        if h is not None and (isinstance(h, bool) or not isinstance(h, int) or h < 1):
+            raise ParameterError(f"header_line must be a line number >= 1, got {h!r:.60}")
         if self.key is not None:
             if not isinstance(self.key, str) or not self.key.strip():
                 raise ParameterError(f"key must be a column name, got {self.key!r:.60}")
@@ -175,6 +196,7 @@ class Table:
     notes: tuple[str, ...] = ()
     renamed: tuple[str, ...] = ()
     lengths: dict = field(default_factory=dict)
+    euler: str | None = None
 
 
 # ====================================================================== text
@@ -269,13 +291,6 @@ def read_lines(path: Path) -> list[str]:
     return text.split("\n")
 
 
-def split_fields(path: Path, row: int, line: str, delimiter: str = ",") -> list[str]:
-    try:
-        return next(csv.reader([line], delimiter=delimiter, strict=True))
-    except csv.Error as exc:
-        raise MeasurementFormatError(path, f"malformed CSV: {exc}", row=row) from None
-
-
 def parse_number(path: Path, row: int, column: str, text: str, decimal_comma: bool = False) -> float:
     s = text.strip()
     if not s:
@@ -298,6 +313,27 @@ def parse_number(path: Path, row: int, column: str, text: str, decimal_comma: bo
     return value
 
 
+WHITESPACE = " "
+#: How many non-comment lines before the header a preamble may hold.
+MAX_PREAMBLE = 200
+#: Data lines parsed at once by the vectorised path (bounds its scratch memory).
+CHUNK_ROWS = 1 << 15
+
+
+def _split(line: str, delimiter: str) -> list[str]:
+    """Fields of a line without quotes: ``str.split`` (runs of blanks for :data:`WHITESPACE`)."""
+    return line.split() if delimiter == WHITESPACE else line.split(delimiter)
+
+
+def split_fields(path: Path, row: int, line: str, delimiter: str = ",") -> list[str]:
+    if delimiter == WHITESPACE:
+        return line.split()
+    try:
+        return next(csv.reader([line], delimiter=delimiter, strict=True))
+    except csv.Error as exc:
+        raise MeasurementFormatError(path, f"malformed CSV: {exc}", row=row) from None
+
+
 def _field_count(path: Path, row: int, line: str, delimiter: str) -> int:
     """How many fields ``line`` splits into at ``delimiter``; 0 when it is not valid CSV with it
     (a header quoted field by field, ``"a","b"``, is malformed for every other delimiter)."""
@@ -305,6 +341,15 @@ def _field_count(path: Path, row: int, line: str, delimiter: str) -> int:
         return len(split_fields(path, row, line, delimiter))
     except MeasurementFormatError:
         return 0
+
+
+def _delimiter(path: Path, row: int, line: str) -> str:
+    """The delimiter that splits ``line`` into the most fields: comma, semicolon or tab, else
+    runs of whitespace (a whitespace-separated log: UR's RTDE recorder)."""
+    best = max(_DELIMITERS, key=lambda d: _field_count(path, row, line, d))
+    if _field_count(path, row, line, best) <= 1 and len(line.split()) > 1:
+        return WHITESPACE
+    return best
 
 
 def _looks_numeric(fields: list[str]) -> bool:
@@ -315,24 +360,60 @@ def _looks_numeric(fields: list[str]) -> bool:
     return True
 
 
-def _records(path: Path) -> tuple[int, list[str], str, list[str], np.ndarray]:
+def _records(path: Path, known=None, header_line: int | None = None
+             ) -> tuple[int, list[str], str, list[str], np.ndarray]:
     """(header line number, header names as written, delimiter, the file's lines, (N,) index of
     each data line among them): an index array, not (line number, line) pairs, which cost a
-    million-row file 100 MB more."""
+    million-row file 100 MB more.
+
+    The header is line ``header_line`` when given; else the first line that names a known column
+    (``known(name) -> bool``) before any line of numbers (the lines before it are a preamble),
+    else the first line (whose names the header check then explains)."""
     lines = read_lines(path)
     records = np.fromiter((k for k, line in enumerate(lines)
                            if line.strip() and not line.lstrip().startswith("#")), dtype=np.int64)
-    if not len(records):
-        raise MeasurementFormatError(path, "no header row: the file holds only comments and blank "
-                                           "lines")
-    header_row, header_line = int(records[0]) + 1, lines[records[0]]
-    best = max(_DELIMITERS, key=lambda d: _field_count(path, header_row, header_line, d))
-    names = split_fields(path, header_row, header_line, best)
+    if header_line is not None:
+        k = header_line - 1
+        what = ("past the end of the file" if k >= len(lines) else
+                "a blank line" if not lines[k].strip() else
+                "a comment line" if lines[k].lstrip().startswith("#") else "")
+        if what:
+            raise MeasurementFormatError(path, f"--header-line {header_line} is {what} (the file has "
+                                               f"{len(lines) - (not lines[-1])} lines), expected the "
+                                               f"line of column names", row=header_line)
+        first = int(np.searchsorted(records, k))
+    else:
+        if not len(records):
+            raise MeasurementFormatError(path, "no header row: the file holds only comments and "
+                                               "blank lines")
+        first = 0
+        if known is not None:
+            for j, k in enumerate(records[:MAX_PREAMBLE].tolist()):
+                row = k + 1
+                names = split_fields(path, row, lines[k], _delimiter(path, row, lines[k]))
+                if _looks_numeric(names):
+                    if j >= 2:
+                        shown = f"lines {records[0] + 1}-{records[j - 1] + 1}" if j > 1 else \
+                            f"line {records[0] + 1}"
+                        raise MeasurementFormatError(
+                            path, f"no header line: {shown} name no column calib knows and line "
+                                  f"{row} is data; expected a line of column names (such as "
+                                  f"joint1_deg, x_mm; calib formats lists them) before the data, or "
+                                  f"--header-line N for a header calib does not recognise",
+                            row=row)
+                    break
+                if any(known(n) for n in names):
+                    first = j
+                    break
+    k = int(records[first])
+    header_row, header_line_text = k + 1, lines[k]
+    best = _delimiter(path, header_row, header_line_text)
+    names = split_fields(path, header_row, header_line_text, best)
     if _looks_numeric(names):
         raise MeasurementFormatError(path, "this line looks like data, expected the header row "
                                            "(column names such as joint1_deg, x_mm; a line starting "
                                            "with # is a comment)", row=header_row)
-    return header_row, names, best, lines, records[1:]
+    return header_row, names, best, lines, records[first + 1:]
 
 
 # ====================================================================== reading
@@ -342,76 +423,301 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     Returns a :class:`Table` in SI units (rad, m; rotations as (N, 3, 3) matrices of the tool
     frame in the meas frame). Raises :class:`calib.MeasurementFormatError` naming the file, row
     and column on any departure from the format.
+
+    The rows are parsed column by column, a chunk of :data:`CHUNK_ROWS` lines at a time
+    (vectorised); a chunk with anything unusual (quotes, a wrong field count, a cell that is not
+    a finite number) is parsed again line by line, which raises the one-line error naming the
+    row and column, or reads what the fast path declined (quoted fields).
     """
     from calib.checks import check_instance, check_path
+    from calib.io.csv_header import Vocabulary
     from calib.model.robot import check_robot
 
     path = check_path(path, "path")
     check_robot(robot)
     options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
         or ReadOptions()
-    header_row, names, delimiter, lines, data = _records(path)
-    header = Header(path, header_row, names, spec, robot, options)
+    vocabulary = Vocabulary(spec, robot, options)
+    header_row, names, delimiter, lines, data = _records(path, vocabulary.known, options.header_line)
+    header = Header(path, header_row, names, spec, robot, options, vocabulary)
     if not len(data):
         raise MeasurementFormatError(path, "header but no data rows", row=header_row)
     decimal_comma = delimiter != ","
     cols = header.columns
     N, ncols = len(data), len(names)
-    label_names = set(spec.labels) | ({header.key} if header.key else set())
+    label_names = set(spec.labels) | ({header.key} if header.key else set()) | \
+        {"pose_literal", "joint_literal"}
     numeric = {k: c for k, c in cols.items() if k not in label_names}
     values = {k: np.empty(N) for k in numeric}
     labels = {k: [] for k in cols if k not in numeric}
     rows = (data + 1).astype(int)
-    for k, i in enumerate(data.tolist()):
-        row, line = i + 1, lines[i]
-        fields = split_fields(path, row, line, delimiter)
-        if len(fields) != ncols:
-            raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
-                                               f"{ncols} (one per header column)", row=row)
-        for key, c in numeric.items():
-            if key in spec.lengths and not fields[c.index].strip():
-                values[key][k] = np.nan
-                continue
-            values[key][k] = parse_number(path, row, c.name, fields[c.index], decimal_comma) * c.scale
-        for key in labels:
-            c = cols[key]
-            text = fields[c.index].strip()
-            if key == "set":
-                if text.lower() not in ("cal", "val"):
-                    raise MeasurementFormatError(path, f"{text!r} is not a set; expected cal or val",
-                                                 row=row, column=c.name)
-                text = text.lower()
-            elif not text and key not in spec.sparse:
-                raise MeasurementFormatError(path, f"empty {'key' if key == header.key else key}, "
-                                                   f"expected an id", row=row, column=c.name)
-            labels[key].append(text)
-
+    reader = _Rows(path, spec, header, delimiter, decimal_comma, ncols, numeric, labels)
+    for start in range(0, N, CHUNK_ROWS):
+        chunk = [lines[i] for i in data[start:start + CHUNK_ROWS].tolist()]
+        got = reader.fast(chunk)
+        if got is None:
+            got = reader.slow(chunk, rows[start:start + CHUNK_ROWS])
+        for key, v in got[0].items():
+            values[key][start:start + len(chunk)] = v
+        for key, v in got[1].items():
+            labels[key].extend(v)
+        del chunk, got
+    preamble = int(np.count_nonzero([bool(x.strip()) and not x.lstrip().startswith("#")
+                                     for x in lines[:header_row - 1]]))
     del lines, data     # (the text of a million rows: 300 MB, before the rotations are built)
+    orientation = header.orientation
+    names_out = {k: c.name for k, c in cols.items()}
+    if "joint_literal" in cols:
+        c = cols["joint_literal"]
+        qv = _joint_literals(path, robot, c.name, labels.pop("joint_literal"), rows)
+        for i in range(robot.n_joints):
+            values[i] = qv[:, i]
+            names_out[i] = c.name
+    if "pose_literal" in cols:
+        c = cols["pose_literal"]
+        orientation, pv = _pose_literals(path, c.name, labels.pop("pose_literal"), rows)
+        for k, v in zip(POSITION_COLUMNS + ORIENTATIONS[orientation][0], pv.T):
+            values[k] = v
+            names_out[k] = c.name
     q = None
     notes: list[str] = []
-    if any(isinstance(k, int) for k in cols):
+    if preamble:
+        notes.append(f"{path}: {preamble} line{'s' if preamble > 1 else ''} before the header "
+                     f"(line {header_row}) skipped as a preamble")
+    if any(isinstance(k, int) for k in values):
         q = np.column_stack([values[i] for i in range(robot.n_joints)])
-        notes += _check_limits(path, robot, header, q, rows, options.limit_tolerance)
+        jcols = {i: cols[i] if i in cols else
+                 Column(cols["joint_literal"].index, cols["joint_literal"].name, i, 1.0,
+                        "m" if robot.joints[i].is_prismatic else "rad")
+                 for i in range(robot.n_joints)}
+        notes += _check_limits(path, robot, jcols, q, rows, options.limit_tolerance)
     position = None
-    if "x" in cols:
+    if "x" in values:
         position = np.column_stack([values[k] for k in POSITION_COLUMNS])
     rotation = None
-    if header.orientation != "none":
-        group = ORIENTATIONS[header.orientation][0]
-        rotation = _rotation(path, header, np.column_stack([values[k] for k in group]), rows,
-                             options.euler)
+    if orientation != "none":
+        group = ORIENTATIONS[orientation][0]
+        rotation = _rotation(path, orientation, names_out[group[0]],
+                             np.column_stack([values[k] for k in group]), rows, header.euler)
     if header.ignored:
         notes.insert(0, f"{path}: ignored columns (not calib's): {', '.join(header.ignored)}")
     for arr in (q, position, rotation, rows):
         if arr is not None:
             arr.setflags(write=False)
     return Table(path=path, header_row=header_row, rows=rows, q=q, position=position,
-                 rotation=rotation, orientation=header.orientation,
+                 rotation=rotation, orientation=orientation,
                  labels={k: tuple(v) for k, v in labels.items()},
-                 names={k: c.name for k, c in cols.items()},
+                 names=names_out,
                  ignored_columns=tuple(header.ignored), notes=tuple(notes),
                  renamed=tuple(header.renamed),
-                 lengths={k: values[k] for k in spec.lengths if k in cols})
+                 lengths={k: values[k] for k in spec.lengths if k in cols},
+                 euler=header.euler if orientation == "euler" else None)
+
+
+class _Rows:
+    """The data lines of one file, parsed a chunk at a time: :meth:`fast` (vectorised, None
+    when anything is unusual) and :meth:`slow` (line by line, the exact errors)."""
+
+    def __init__(self, path, spec, header, delimiter, decimal_comma, ncols, numeric, labels):
+        self.path, self.spec, self.header = path, spec, header
+        self.delimiter, self.decimal_comma, self.ncols = delimiter, decimal_comma, ncols
+        self.numeric, self.labels = numeric, list(labels)
+
+    def fast(self, chunk: list[str]):
+        """({key: (n,) SI values}, {label: [n stripped strings]}) of the lines, or None."""
+        d, ncols = self.delimiter, self.ncols
+        if d != WHITESPACE and any('"' in line for line in (chunk[0], chunk[-1])):
+            return None
+        split = [line.split() for line in chunk] if d == WHITESPACE else \
+            [line.split(d) for line in chunk]
+        if any(len(f) != ncols for f in split):
+            return None
+        columns = list(zip(*split))
+        del split
+        if d != WHITESPACE and any('"' in "".join(c) for c in columns):
+            return None
+        out, texts = {}, {}
+        for key, c in self.numeric.items():
+            col = columns[c.index]
+            joined = "\x00".join(col)
+            if "_" in joined:
+                return None
+            if self.decimal_comma and "," in joined:
+                col = joined.replace(",", ".").split("\x00")
+            if key in self.spec.lengths:
+                empty = np.array([not t.strip() for t in col])
+                col = ["nan" if e else t for t, e in zip(col, empty)]
+            else:
+                empty = None
+            try:
+                v = np.array(col, dtype=float)
+            except ValueError:
+                return None
+            ok = np.isfinite(v) if empty is None else (np.isfinite(v) | empty)
+            if not ok.all():
+                return None
+            out[key] = v * c.scale
+        cols = self.header.columns
+        for key in self.labels:
+            text = [t.strip() for t in columns[cols[key].index]]
+            if key == "set":
+                text = [t.lower() for t in text]
+                if not set(text) <= {"cal", "val"}:
+                    return None
+            elif key not in self.spec.sparse and "" in set(text):
+                return None
+            texts[key] = text
+        return out, texts
+
+    def slow(self, chunk: list[str], rows: np.ndarray):
+        """As :meth:`fast`, line by line; raises the first error of the lines."""
+        path, header, cols = self.path, self.header, self.header.columns
+        n = len(chunk)
+        out = {k: np.empty(n) for k in self.numeric}
+        texts = {k: [] for k in self.labels}
+        for k, (line, row) in enumerate(zip(chunk, rows.tolist())):
+            fields = split_fields(path, row, line, self.delimiter)
+            if len(fields) != self.ncols:
+                raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
+                                                   f"{self.ncols} (one per header column)", row=row)
+            for key, c in self.numeric.items():
+                if key in self.spec.lengths and not fields[c.index].strip():
+                    out[key][k] = np.nan
+                    continue
+                out[key][k] = parse_number(path, row, c.name, fields[c.index],
+                                           self.decimal_comma) * c.scale
+            for key in self.labels:
+                c = cols[key]
+                text = fields[c.index].strip()
+                if key == "set":
+                    if text.lower() not in ("cal", "val"):
+                        raise MeasurementFormatError(path, f"{text!r} is not a set; expected cal or val",
+                                                     row=row, column=c.name)
+                    text = text.lower()
+                elif not text and key not in self.spec.sparse:
+                    what = ("key" if key == header.key else
+                            "literal" if key in ("pose_literal", "joint_literal") else key)
+                    raise MeasurementFormatError(path, f"empty {what}, expected "
+                                                       f"{'a value' if what == 'literal' else 'an id'}",
+                                                 row=row, column=c.name)
+                texts[key].append(text)
+        return out, texts
+
+
+# ====================================================================== literals in a cell
+_POSE_FORMS = ("URScript pose p[x,y,z,rx,ry,rz] (m, rotation vector in rad) or RAPID robtarget "
+               "[[x,y,z],[q1,q2,q3,q4],[cf1,cf4,cf6,cfx],[eax_a,...,eax_f]] (mm, quaternion w first)")
+_JOINT_FORMS = ("URScript joint list [q1,...,qn] (rad; m for prismatic joints) or RAPID jointtarget "
+                "[[j1,...,j6],[eax_a,...,eax_f]] (deg; mm for prismatic joints)")
+
+
+def _literal_groups(text: str) -> tuple[str, list[list[str]]] | None:
+    """("p", [[6 fields]]) for ``p[...]``, ("flat", [[fields]]) for ``[...]``, ("nested",
+    [[fields], ...]) for ``[[...],[...],...]``; None for anything else."""
+    t = text.strip()
+    if t[:1] in "pP" and t[1:].lstrip().startswith("["):
+        inner = t[1:].strip()
+        if not inner.endswith("]") or "[" in inner[1:-1] or "]" in inner[1:-1]:
+            return None
+        return "p", [inner[1:-1].split(",")]
+    if not (t.startswith("[") and t.endswith("]")):
+        return None
+    inner = t[1:-1].strip()
+    if "[" not in inner:
+        return ("flat", [inner.split(",")]) if "]" not in inner else None
+    groups, rest = [], inner
+    while rest:
+        if not rest.startswith("["):
+            return None
+        end = rest.find("]")
+        if end < 0 or "[" in rest[1:end]:
+            return None
+        groups.append(rest[1:end].split(","))
+        rest = rest[end + 1:].lstrip()
+        if rest.startswith(","):
+            rest = rest[1:].lstrip()
+            if not rest:
+                return None
+        elif rest:
+            return None
+    return "nested", groups
+
+
+def _literal_numbers(path, row, column, text, fields, forms) -> list[float]:
+    out = []
+    for f in fields:
+        try:
+            v = float(f) if "_" not in f else math.nan
+        except ValueError:
+            v = math.nan
+        if not math.isfinite(v):
+            raise MeasurementFormatError(path, f"{f.strip()!r} in {text.strip()!r:.80} is not a finite "
+                                               f"number; expected a {forms}", row=row, column=column)
+        out.append(v)
+    return out
+
+
+def _pose_literals(path: Path, column: str, texts, rows: np.ndarray) -> tuple[str, np.ndarray]:
+    """(orientation kind, (N, 6 or 7) SI values x, y, z then the orientation) of the cells of a
+    pose column: all URScript poses (rotation vector) or all RAPID robtargets (quaternion)."""
+    out, first = [], None
+    for text, row in zip(texts, rows.tolist()):
+        parsed = _literal_groups(text)
+        form = None
+        if parsed is not None:
+            kind, groups = parsed
+            if kind == "p" and len(groups[0]) == 6:
+                form = "urscript"
+            elif kind == "nested" and len(groups) == 4 and len(groups[0]) == 3 and len(groups[1]) == 4:
+                form = "robtarget"
+        if form is None:
+            raise MeasurementFormatError(path, f"{text.strip()!r:.80} is not a pose literal; expected a "
+                                               f"{_POSE_FORMS}", row=row, column=column)
+        if first is None:
+            first = (form, row)
+        elif form != first[0]:
+            raise MeasurementFormatError(path, f"a {form} literal, but row {first[1]} holds a {first[0]} "
+                                               f"one; expected one form per column", row=row, column=column)
+        if form == "urscript":
+            out.append(_literal_numbers(path, row, column, text, groups[0], _POSE_FORMS))
+        else:
+            xyz = _literal_numbers(path, row, column, text, groups[0], _POSE_FORMS)
+            wxyz = _literal_numbers(path, row, column, text, groups[1], _POSE_FORMS)
+            out.append([v * 1e-3 for v in xyz] + wxyz)
+    return ("rotvec" if first[0] == "urscript" else "quaternion"), np.array(out, dtype=float)
+
+
+def _joint_literals(path: Path, robot, column: str, texts, rows: np.ndarray) -> np.ndarray:
+    """(N, n) SI joint values of the cells of a joints column: URScript lists (rad, m) or RAPID
+    jointtargets (deg, mm; the first n of the six robot axes, the others must be 0 or 9E9)."""
+    n = robot.n_joints
+    scale_rapid = np.where(robot.prismatic, 1e-3, math.pi / 180.0)
+    out = np.empty((len(texts), n))
+    for k, (text, row) in enumerate(zip(texts, rows.tolist())):
+        parsed = _literal_groups(text)
+        values = None
+        if parsed is not None:
+            kind, groups = parsed
+            if kind == "flat":
+                values = _literal_numbers(path, row, column, text, groups[0], _JOINT_FORMS)
+                if len(values) != n:
+                    raise MeasurementFormatError(path, f"{text.strip()!r:.80} holds {len(values)} joint values, "
+                                                       f"expected {n} (the robot's joints "
+                                                       f"{', '.join(robot.joint_names)})", row=row, column=column)
+                out[k] = values
+                continue
+            if kind == "nested" and len(groups) == 2 and len(groups[0]) == 6 and n <= 6:
+                values = _literal_numbers(path, row, column, text, groups[0], _JOINT_FORMS)
+                extra = values[n:]
+                if any(v != 0 and abs(v) < 8.9e9 for v in extra):
+                    raise MeasurementFormatError(path, f"{text.strip()!r:.80}: robot axes {n + 1}..6 hold "
+                                                       f"values but the robot has {n} joints; expected 0 or "
+                                                       f"9E9 there", row=row, column=column)
+                out[k] = np.array(values[:n]) * scale_rapid
+                continue
+        raise MeasurementFormatError(path, f"{text.strip()!r:.80} is not a joint literal; expected a "
+                                           f"{_JOINT_FORMS}", row=row, column=column)
+    return out
 
 
 def _quaternion_matrices(wxyz: np.ndarray) -> np.ndarray:
@@ -448,16 +754,12 @@ def _zyx_matrices(rz_ry_rx: np.ndarray) -> np.ndarray:
     return R
 
 
-def _rotation(path: Path, header: Header, values: np.ndarray, rows: np.ndarray,
+def _rotation(path: Path, kind: str, first: str, values: np.ndarray, rows: np.ndarray,
               euler: str | None) -> np.ndarray:
-    """(N, 3, 3) rotation matrices from the orientation columns (SI values), by libraries:
-    quaternions, ZYX angles and rotation vectors by Pinocchio (already loaded), other Euler
-    sequences by scipy's Rotation (imported only then: it takes longer to import than a whole
-    calibration)."""
-    import pinocchio as pin
-
-    kind, cols = header.orientation, header.columns
-    first = cols[ORIENTATIONS[kind][0][0]].name
+    """(N, 3, 3) rotation matrices from the orientation values (SI) of kind ``kind`` (``first``:
+    the name of its first column, for messages): quaternions, ZYX angles and rotation vectors by
+    calib's vectorised maps (:mod:`calib.model.spatial`), other Euler sequences by scipy's
+    Rotation (imported only then: it takes longer to import than a whole calibration)."""
     if kind == "quaternion":
         norm = np.linalg.norm(values, axis=1)
         bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE)
@@ -473,7 +775,9 @@ def _rotation(path: Path, header: Header, values: np.ndarray, rows: np.ndarray,
 
         return Rotation.from_euler(euler, values).as_matrix()
     if kind == "rotvec":
-        return np.array([pin.exp3(v) for v in values]).reshape(-1, 3, 3)
+        from calib.model.spatial import rotation_from_rotvec
+
+        return rotation_from_rotvec(values)
     R = values.reshape(-1, 3, 3)
     err = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
     det = np.linalg.det(R)
@@ -488,7 +792,7 @@ def _rotation(path: Path, header: Header, values: np.ndarray, rows: np.ndarray,
     return U @ Vt
 
 
-def _check_limits(path: Path, robot, header: Header, q: np.ndarray, rows: np.ndarray,
+def _check_limits(path: Path, robot, columns: dict, q: np.ndarray, rows: np.ndarray,
                   tolerance: float) -> list[str]:
     """Notes for readings just past a limit; raise on the first row (then first column in header
     order) further beyond."""
@@ -502,7 +806,7 @@ def _check_limits(path: Path, robot, header: Header, q: np.ndarray, rows: np.nda
     beyond = excess > tol + 1e-12
     notes = []
     for i in np.flatnonzero(((excess > 0) & ~beyond).any(axis=0)):
-        c = header.columns[int(i)]
+        c = columns[int(i)]
         near = np.flatnonzero((excess[:, i] > 0) & ~beyond[:, i])
         shown = ", ".join(str(r) for r in rows[near[:10]]) + (", ..." if len(near) > 10 else "")
         notes.append(f"{path}: {robot.joints[i].name} is past its joint limit by up to "
@@ -512,8 +816,8 @@ def _check_limits(path: Path, robot, header: Header, q: np.ndarray, rows: np.nda
     if not beyond.any():
         return notes
     k = int(np.flatnonzero(beyond.any(axis=1))[0])
-    i = int(min(np.flatnonzero(beyond[k]), key=lambda j: header.columns[int(j)].index))
-    c, joint = header.columns[i], robot.joints[i]
+    i = int(min(np.flatnonzero(beyond[k]), key=lambda j: columns[int(j)].index))
+    c, joint = columns[i], robot.joints[i]
     value = q[k, i] / c.scale
     count = int(beyond[:, i].sum())
     others = f" ({count} rows of this column are outside)" if count > 1 else ""

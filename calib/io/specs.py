@@ -137,7 +137,7 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
                         prismatic=robot.prismatic,
                         ignored_columns=tuple(c for t in tables for c in t.ignored_columns),
                         notes=tuple(n for t in tables for n in t.notes) + _rename_notes(options, tables),
-                        orientation=f"euler:{options.euler}" if pose.orientation == "euler" else pose.orientation)
+                        orientation=f"euler:{pose.euler}" if pose.orientation == "euler" else pose.orientation)
 
 
 def _join(j: Table, t: Table, key: str) -> np.ndarray:
