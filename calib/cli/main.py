@@ -6,6 +6,7 @@
     calib evaluate ROBOT.urdf MEAS.csv          accuracy of a model against measurements
     calib select-poses ROBOT.urdf -n N -o poses.csv       configurations worth measuring
     calib compensate CALIBRATED.urdf NOMINAL.urdf TARGETS.csv -o corrected.csv
+    calib formats                               column rules and vendor conventions
 
 Exit codes: 0 success; 2 bad input or usage (one line ``calib: error: ...`` on stderr, no
 output file created or changed); 3 ``calibrate`` ran but the fit did not converge, or
@@ -34,7 +35,7 @@ import warnings
 from pathlib import Path
 from typing import Sequence
 
-from calib.cli import calibrate, compensate, evaluate, identifiability, select_poses, simulate
+from calib.cli import calibrate, compensate, evaluate, formats, identifiability, select_poses, simulate
 from calib.cli.args import ArgumentParser, HelpFormatter, add_verbose
 from calib.cli.output import EXIT_INPUT, PROG, forget_written, written
 from calib.errors import CalibError
@@ -44,7 +45,7 @@ __all__ = ["main", "main_entry", "build_parser", "COMMANDS"]
 log = logging.getLogger(__name__)
 
 #: The subcommand modules, in the order ``calib --help`` lists them.
-COMMANDS = (identifiability, simulate, calibrate, evaluate, select_poses, compensate)
+COMMANDS = (identifiability, simulate, calibrate, evaluate, select_poses, compensate, formats)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -42,6 +42,9 @@ class Convention:
     columns: tuple
     euler: str | None
     orientation: str
+    #: regular expression (full match, lower case) of the vendor's other columns: ignored like
+    #: any column calib does not know, but never taken for a misspelt calib name
+    others: str = ""
 
     def joint_names(self, n: int) -> list[tuple[str, int]]:
         """(lower-case name, joint index) of every joint column name of an n-joint robot."""
@@ -96,7 +99,9 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                + tuple((f"actual_TCP_pose_{k}", q, "m") for k, q in enumerate(_XYZ))
                + (("rx", "rvx", "rad"), ("ry", "rvy", "rad"), ("rz", "rvz", "rad"))
                + tuple((f"actual_TCP_pose_{k + 3}", q, "rad") for k, q in enumerate(("rvx", "rvy", "rvz"))),
-               None, "rotation vector (axis times angle), rad"),
+               None, "rotation vector (axis times angle), rad",
+               others=r"timestamp|(actual|target|joint|tool|safety|robot|runtime|speed|output|input|"
+                      r"standard|payload|tcp|ft|elbow|euromap|script)_\w*"),
     Convention("fanuc", "FANUC (position registers, TP / KAREL exports)",
                (("J{i}",), "deg"),
                tuple((n, q, "mm") for n, q in zip("XYZ", _XYZ))
@@ -188,6 +193,8 @@ Ambiguous orientation names: rx, ry, rz written in that order (or without a unit
 def format_help() -> str:
     """The built-in help page of ``calib formats``: calib's own column rules and the vendor
     conventions, as plain text (an installed wheel needs no README)."""
+    import textwrap
+
     out = [RULES.format(candidates=ambiguous_candidates()), "",
            "Vendor conventions (--convention NAME): the names and units each controller writes.",
            "A column without a unit suffix is read in the unit shown; with a suffix, in the suffix's.",
@@ -202,4 +209,8 @@ def format_help() -> str:
         out.append(f"  position:    {c.position_text()}")
         out.append(f"  orientation: {c.orientation_text()}")
         out.append("")
-    return "\n".join(out)
+    lines = []
+    for line in "\n".join(out).splitlines():
+        indent = len(line) - len(line.lstrip())
+        lines += textwrap.wrap(line, 98, subsequent_indent=" " * (indent + 2)) or [""]
+    return "\n".join(lines) + "\n"

@@ -312,6 +312,9 @@ class Header:
                       f"({', '.join(self.robot.joint_names)}, from base frame {self.robot.base_frame!r} to "
                       f"tool frame {self.robot.tool_frame!r}): choose --base-frame / --tool-frame to take "
                       f"it in, or drop the column with --rename '{written}='", written)
+        if self.convention is not None and self.convention.others and \
+                re.fullmatch(self.convention.others, low):
+            return None         # one of the vendor's other columns, not a misspelt name
         close = difflib.get_close_matches(low, self.valid, n=1, cutoff=_NEAR_MISS_CUTOFF)
         if close:
             self.fail(f"unknown column: did you mean {self._spelling(close[0])!r}? (rename it with "

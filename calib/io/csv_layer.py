@@ -374,12 +374,13 @@ def _records(path: Path, known=None, header_line: int | None = None
                            if line.strip() and not line.lstrip().startswith("#")), dtype=np.int64)
     if header_line is not None:
         k = header_line - 1
-        what = ("past the end of the file" if k >= len(lines) else
+        size = len(lines) - (not lines[-1])       # (a final line end starts no line)
+        what = ("past the end of the file" if k >= size else
                 "a blank line" if not lines[k].strip() else
                 "a comment line" if lines[k].lstrip().startswith("#") else "")
         if what:
             raise MeasurementFormatError(path, f"--header-line {header_line} is {what} (the file has "
-                                               f"{len(lines) - (not lines[-1])} lines), expected the "
+                                               f"{size} lines), expected the "
                                                f"line of column names", row=header_line)
         first = int(np.searchsorted(records, k))
     else:
@@ -578,8 +579,12 @@ class _Rows:
         for k, (line, row) in enumerate(zip(chunk, rows.tolist())):
             fields = split_fields(path, row, line, self.delimiter)
             if len(fields) != self.ncols:
+                hint = ""
+                if "[" in line and self.delimiter in line[line.index("["):] and \
+                        any(k in cols for k in ("pose_literal", "joint_literal")):
+                    hint = f"; quote a literal [...] that holds the delimiter {self.delimiter!r}"
                 raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
-                                                   f"{self.ncols} (one per header column)", row=row)
+                                                   f"{self.ncols} (one per header column){hint}", row=row)
             for key, c in self.numeric.items():
                 if key in self.spec.lengths and not fields[c.index].strip():
                     out[key][k] = np.nan
