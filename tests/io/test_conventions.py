@@ -123,7 +123,7 @@ def test_each_vendor_file_calibrates_to_the_urdf_of_calibs_own_format(kind, data
 
 def test_a_ur_file_on_a_ur5_reads_as_the_truth(tmp_path):
     """The UR names on a UR5 of example-robot-data (nothing special-cases the bundled robot)."""
-    from tests.conftest import erd_urdf
+    from conftest import erd_urdf
 
     ur5 = calib.load_robot(erd_urdf("ur5"))
     m = calib.simulate_measurements(ur5, ur5.random_configurations(20, 0), sigma_pos=0, sigma_rot=0)
