@@ -28,6 +28,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+from operator import methodcaller
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -200,10 +201,12 @@ class Table:
 
 
 # ====================================================================== text
-#: Peak memory of reading a CSV file and calibrating from it, in bytes per byte of the file
-#: (scripts/bench_memory.py prints the measured figure); a file whose size times this exceeds
-#: the memory available is refused before it is read, rather than the process being killed.
-MEMORY_BYTES_PER_FILE_BYTE = 40.0
+#: Peak memory of reading a CSV file, in bytes per byte of the file, above the process before
+#: the read: scripts/bench_read.py prints the measured figure (2.6 at 1,000,000 rows, 3.3 at
+#: 200,000: the text of the lines, their index, the parsed columns and one chunk's scratch), with
+#: a margin. A file whose size times this exceeds the memory available is refused before it is
+#: read, rather than the process being killed.
+READ_BYTES_PER_FILE_BYTE = 4.0
 
 
 def available_memory() -> int | None:
@@ -223,26 +226,26 @@ def available_memory() -> int | None:
 
 
 def check_size(path: Path) -> None:
-    """Refuse a file too large for this machine's memory (see MEMORY_BYTES_PER_FILE_BYTE)."""
+    """Refuse a file too large to read in this machine's memory (see READ_BYTES_PER_FILE_BYTE)."""
     try:
         size = path.stat().st_size
     except OSError:
         return                 # reported by the read itself
     available = available_memory()
-    need = size * MEMORY_BYTES_PER_FILE_BYTE
+    need = size * READ_BYTES_PER_FILE_BYTE
     if available is not None and need > available:
-        raise MeasurementFormatError(path, f"{size / 1e6:.0f} MB: reading and calibrating from it "
-                                           f"needs about {need / 1e9:.1f} GB of memory, "
+        raise MeasurementFormatError(path, f"{size / 1e6:.0f} MB: reading it needs about "
+                                           f"{need / 1e9:.1f} GB of memory, "
                                            f"{available / 1e9:.1f} GB are available; split the file "
                                            f"or use a larger machine")
 
 
 def _read_stream(path: Path) -> bytes:
     """The bytes of a file that is not a regular file (a pipe, ``<(...)``), read in chunks up to
-    what this machine's memory can calibrate from (as :func:`check_size`): an endless stream is
-    refused once it passes that, not read until memory runs out."""
+    what this machine's memory can read (as :func:`check_size`): an endless stream is refused
+    once it passes that, not read until memory runs out."""
     available = available_memory()
-    limit = int(available / MEMORY_BYTES_PER_FILE_BYTE) if available is not None else 1 << 30
+    limit = int(available / READ_BYTES_PER_FILE_BYTE) if available is not None else 1 << 30
     chunks, total = [], 0
     with open(path, "rb") as fh:
         while True:
@@ -253,7 +256,7 @@ def _read_stream(path: Path) -> bytes:
             total += len(chunk)
             if total > limit:
                 raise MeasurementFormatError(path, f"more than {limit / 1e6:.0f} MB and not at its end: "
-                                                   f"more than this machine's memory can calibrate from "
+                                                   f"more than this machine's memory can read "
                                                    f"(an endless stream?); expected a CSV file")
 
 
@@ -370,8 +373,10 @@ def _records(path: Path, known=None, header_line: int | None = None
     (``known(name) -> bool``) before any line of numbers (the lines before it are a preamble),
     else the first line (whose names the header check then explains)."""
     lines = read_lines(path)
-    records = np.fromiter((k for k, line in enumerate(lines)
-                           if line.strip() and not line.lstrip().startswith("#")), dtype=np.int64)
+    heads = list(map(str.lstrip, lines))      # (map over C methods: no Python frame per line)
+    records = np.flatnonzero(np.fromiter(map(bool, heads), bool, len(lines)) &
+                             ~np.fromiter(map(methodcaller("startswith", "#"), heads), bool, len(lines)))
+    del heads
     if header_line is not None:
         k = header_line - 1
         size = len(lines) - (not lines[-1])       # (a final line end starts no line)
@@ -526,32 +531,33 @@ class _Rows:
 
     def fast(self, chunk: list[str]):
         """({key: (n,) SI values}, {label: [n stripped strings]}) of the lines, or None."""
-        d, ncols = self.delimiter, self.ncols
-        if d != WHITESPACE and any('"' in line for line in (chunk[0], chunk[-1])):
-            return None
-        split = [line.split() for line in chunk] if d == WHITESPACE else \
-            [line.split(d) for line in chunk]
-        if any(len(f) != ncols for f in split):
+        d, ncols, n = self.delimiter, self.ncols, len(chunk)
+        whole = "".join(chunk)
+        if d != WHITESPACE and '"' in whole:
+            return None                 # quoted fields: the csv module's reading
+        underscore = "_" in whole
+        del whole
+        split = list(map(str.split, chunk)) if d == WHITESPACE else \
+            list(map(methodcaller("split", d), chunk))
+        if set(map(len, split)) != {ncols}:
             return None
         columns = list(zip(*split))
         del split
-        if d != WHITESPACE and any('"' in "".join(c) for c in columns):
-            return None
         out, texts = {}, {}
         for key, c in self.numeric.items():
             col = columns[c.index]
-            joined = "\x00".join(col)
-            if "_" in joined:
-                return None
-            if self.decimal_comma and "," in joined:
-                col = joined.replace(",", ".").split("\x00")
+            if underscore and "_" in "".join(col):
+                return None             # float() reads 1_000, the format does not
+            if self.decimal_comma:
+                joined = "\x00".join(col)
+                if "," in joined:
+                    col = joined.replace(",", ".").split("\x00")
+            empty = None
             if key in self.spec.lengths:
                 empty = np.array([not t.strip() for t in col])
                 col = ["nan" if e else t for t, e in zip(col, empty)]
-            else:
-                empty = None
             try:
-                v = np.array(col, dtype=float)
+                v = np.fromiter(map(float, col), dtype=float, count=n)
             except ValueError:
                 return None
             ok = np.isfinite(v) if empty is None else (np.isfinite(v) | empty)
@@ -560,9 +566,9 @@ class _Rows:
             out[key] = v * c.scale
         cols = self.header.columns
         for key in self.labels:
-            text = [t.strip() for t in columns[cols[key].index]]
+            text = list(map(str.strip, columns[cols[key].index]))
             if key == "set":
-                text = [t.lower() for t in text]
+                text = list(map(str.lower, text))
                 if not set(text) <= {"cal", "val"}:
                     return None
             elif key not in self.spec.sparse and "" in set(text):

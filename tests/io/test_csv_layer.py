@@ -535,7 +535,7 @@ def test_a_device_as_the_measurement_file_is_refused_at_once(device):
 
 
 def test_an_endless_stream_is_refused_past_the_memory_bound(monkeypatch, tmp_path):
-    """A pipe is read in chunks up to what memory can calibrate from, then refused; a finite
+    """A pipe is read in chunks up to what memory can read, then refused; a finite
     pipe reads as the file."""
     import threading
 
@@ -561,7 +561,7 @@ def test_an_endless_stream_is_refused_past_the_memory_bound(monkeypatch, tmp_pat
     m = read_measurements(fifo, robot)
     t.join()
     assert m.n_poses == read_measurements(src, robot).n_poses
-    monkeypatch.setattr(layer, "available_memory", lambda: 40 * 3_000_000)     # a 3 MB bound
+    monkeypatch.setattr(layer, "available_memory", lambda: int(layer.READ_BYTES_PER_FILE_BYTE * 3_000_000))     # a 3 MB bound
     t = threading.Thread(target=feed, args=(b"1,2,3,4,5,6\n" * 100_000, 20))   # 24 MB
     t.start()
     with pytest.raises(MeasurementFormatError, match="not at its end"):

@@ -516,9 +516,9 @@ def test_file_too_large_for_the_memory_is_refused_before_reading(sim, monkeypatc
 
     d, robot, _ = sim
     size = (d / "cal.csv").stat().st_size
-    monkeypatch.setattr(layer, "available_memory", lambda: int(size * layer.MEMORY_BYTES_PER_FILE_BYTE) - 1)
-    with pytest.raises(calib.MeasurementFormatError, match=r"cal.csv: 0 MB: reading and calibrating "
-                                                           r"from it needs about 0.0 GB of memory"):
+    monkeypatch.setattr(layer, "available_memory", lambda: int(size * layer.READ_BYTES_PER_FILE_BYTE) - 1)
+    with pytest.raises(calib.MeasurementFormatError, match=r"cal.csv: 0 MB: reading it needs about "
+                                                           r"0.0 GB of memory"):
         calib.read_measurements(d / "cal.csv", robot)
 
 
