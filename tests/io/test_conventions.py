@@ -3,7 +3,6 @@
 known, read (and calibrated) as calib's own format of the same rows."""
 from __future__ import annotations
 
-import math
 import re
 from pathlib import Path
 

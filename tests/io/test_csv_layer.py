@@ -539,7 +539,7 @@ def test_an_endless_stream_is_refused_past_the_memory_bound(monkeypatch, tmp_pat
     pipe reads as the file."""
     import threading
 
-    import calib.io.csv_layer as layer
+    import calib.io.csv_lines as layer
     from calib import load_robot, read_measurements
     from calib.errors import MeasurementFormatError
 
