@@ -264,6 +264,7 @@ class Header:
             parts.append("optionally " + ", ".join(f"{k} with _m or _mm" for k in spec.lengths))
         if self.key:
             parts.append(f"the key column {self.key}")
+        parts.append("or a vendor's names with --convention (calib formats lists every rule)")
         return f"{spec.kind} file columns: " + "; ".join(parts)
 
     def _classify(self, index: int, written: str) -> Column | None:
@@ -470,7 +471,9 @@ class Header:
 
                 shown = ", ".join(c.name for c in sorted((cols["rx"], cols["ry"], rz),
                                                          key=lambda c: c.index))
-                self.fail(f"orientation columns {shown} without a stated convention are "
+                stated = ("without a stated convention" if self.convention is None else
+                          f"(not named by the {self.convention.name} convention)")
+                self.fail(f"orientation columns {shown} {stated} are "
                           f"ambiguous (calib's ZYX angles are written rz, ry, rx); they may be "
                           f"{ambiguous_candidates()} (calib formats lists them)", rx.name)
         if orientation != "none" and not have_pos:

@@ -392,3 +392,11 @@ def test_calib_formats_prints_every_rule_and_every_convention(capsys):
         assert rule in out
     assert main(["formats", "--markdown"]) == 0
     assert capsys.readouterr().out.startswith("| `--convention` |")
+
+
+def test_rx_ry_rz_stay_ambiguous_under_a_convention_that_does_not_name_them(data, tmp_path):
+    robot, m = data
+    path = _ur_rows(m, ["rx_deg", "ry_deg", "rz_deg"], tmp_path)
+    with pytest.raises(MeasurementFormatError, match=r"rx_deg, ry_deg, rz_deg \(not named by the kuka "
+                                                     r"convention\) are ambiguous"):
+        calib.read_measurements(path, robot, options=calib.ReadOptions(convention="kuka"))
