@@ -129,7 +129,7 @@ CONVENTION_NAMES = tuple(CONVENTIONS)
 ORIENTATION_READINGS = (
     ("ZYX angles, calib's R = Rz Ry Rx", "calib"),
     ("a rotation vector (UR)", "ur"),
-    ("fixed-axis XYZ angles (Yaskawa)", "yaskawa"),
+    ("fixed-axis XYZ angles, the same R (Yaskawa)", "yaskawa"),
     ("XYZ Euler angles R = Rx Ry Rz (Staubli)", "staubli"),
 )
 
@@ -185,8 +185,11 @@ Literals in one cell (read in any delimiter; quote them in comma-separated files
     [q1,...,qn]                            URScript joint list, rad
     [[j1,...,j6],[e1,...,e6]]              RAPID jointtarget, deg (revolute) / mm
 Ambiguous orientation names: rx, ry, rz written in that order (or without a unit) may be ZYX
-  angles, a rotation vector, fixed-axis XYZ or XYZ Euler angles; calib refuses to guess and names
-  the flag that chooses: {candidates}.
+  angles (the same as fixed-axis XYZ), a rotation vector or XYZ Euler angles. With a unit and
+  joint values in the file, the rows decide when exactly one reading agrees with the nominal
+  model (the rotation angles between consecutive rows, which no frame changes: at most 0.05 rad
+  off, the others at least 5 times more; a note gives the figures); otherwise the file is refused
+  with the flag that chooses: {candidates}.
 """
 
 

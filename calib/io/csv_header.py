@@ -189,6 +189,8 @@ class Header:
         if self.convention is None and spec.orientation:
             self._vendor_orientation([renames.get(r.strip().lower(), r.strip()) for r in names])
         self.renamed: list[str] = []
+        #: (message, column) when the orientation columns are ambiguous (rx, ry, rz in that order)
+        self.ambiguous: tuple[str, str] | None = None
         self.columns: dict[object, Column] = {}
         self.ignored: list[str] = []
         styles: dict[str, str] = {}
@@ -473,9 +475,10 @@ class Header:
                                                          key=lambda c: c.index))
                 stated = ("without a stated convention" if self.convention is None else
                           f"(not named by the {self.convention.name} convention)")
-                self.fail(f"orientation columns {shown} {stated} are "
-                          f"ambiguous (calib's ZYX angles are written rz, ry, rx); they may be "
-                          f"{ambiguous_candidates()} (calib formats lists them)", rx.name)
+                # decided by the rows where they can (calib.io.csv_orientation), else refused
+                self.ambiguous = (f"orientation columns {shown} {stated} are "
+                                  f"ambiguous (calib's ZYX angles are written rz, ry, rx); they may be "
+                                  f"{ambiguous_candidates()} (calib formats lists them)", rx.name)
         if orientation != "none" and not have_pos:
             self.fail("an orientation without a position: give x, y, z with _m or _mm too")
         if orientation == "euler" and self.euler is None:

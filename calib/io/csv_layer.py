@@ -270,6 +270,22 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
             names_out[k] = c.name
     q = None
     notes: list[str] = []
+    euler = header.euler
+    if header.ambiguous is not None:            # rx, ry, rz: the rows decide, or refused
+        from calib.io.csv_orientation import READINGS, decide_rx_ry_rz
+
+        qa = None if not any(isinstance(k, int) for k in values) else \
+            np.column_stack([values[i] for i in range(robot.n_joints)])
+        reading, note = decide_rx_ry_rz(
+            path, *header.ambiguous[:1], header_row, header.ambiguous[1],
+            ", ".join(cols[k].name for k in ("rx", "ry", "rz")), robot, qa,
+            np.column_stack([values[k] for k in ("rx", "ry", "rz")]))
+        orientation, keys, seq, _ = READINGS[reading]
+        for old_key, key in zip(("rx", "ry", "rz"), keys):
+            values[key] = values.pop(old_key)
+            names_out[key] = names_out.pop(old_key)
+        euler = seq or euler
+        notes.append(note)
     if preamble:
         notes.append(f"{path}: {preamble} line{'s' if preamble > 1 else ''} before the header "
                      f"(line {header_row}) skipped as a preamble")
@@ -287,7 +303,7 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     if orientation != "none":
         group = ORIENTATIONS[orientation][0]
         rotation = _rotation(path, orientation, names_out[group[0]],
-                             np.column_stack([values[k] for k in group]), rows, header.euler)
+                             np.column_stack([values[k] for k in group]), rows, euler)
     if header.ignored:
         notes.insert(0, f"{path}: ignored columns (not calib's): {', '.join(header.ignored)}")
     for arr in (q, position, rotation, rows):
@@ -300,7 +316,7 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
                  ignored_columns=tuple(header.ignored), notes=tuple(notes),
                  renamed=tuple(header.renamed),
                  lengths={k: values[k] for k in spec.lengths if k in cols},
-                 euler=header.euler if orientation == "euler" else None)
+                 euler=euler if orientation == "euler" else None)
 
 
 class _Rows:

@@ -139,12 +139,15 @@ def _ur_rows(m, names, tmp_path, sep=","):
                   np.hstack([m.q, m.position, R.as_rotvec()]), sep=sep)
 
 
-@pytest.mark.parametrize("names", [["rx_rad", "ry_rad", "rz_rad"], ["rx", "ry", "rz"], ["Rx", "Ry", "Rz"]])
-def test_ambiguous_rx_ry_rz_are_refused_with_the_candidates(names, data, tmp_path, capsys):
+@pytest.mark.parametrize("names, rows", [(["rx_rad", "ry_rad", "rz_rad"], 4), (["rx", "ry", "rz"], 40),
+                                         (["Rx", "Ry", "Rz"], 40)])
+def test_ambiguous_rx_ry_rz_are_refused_with_the_candidates(names, rows, data, tmp_path, capsys):
     """The issue's silent misread: a UR rotation vector under rx_rad, ry_rad, rz_rad was read as
-    ZYX angles and calibrated with exit 0. Refused (exit 2, nothing written), one line naming
-    every reading and the flag; with --convention ur it is read right."""
+    ZYX angles and calibrated with exit 0. When the rows cannot decide (4 rows; no unit), refused:
+    exit 2, nothing written, one line naming every reading and the flag; with --convention ur it
+    is read right."""
     robot, m = data
+    m = m.subset(np.arange(rows))
     path = _ur_rows(m, names, tmp_path)
     out = tmp_path / "out.urdf"
     urdf = str(ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
@@ -154,8 +157,46 @@ def test_ambiguous_rx_ry_rz_are_refused_with_the_candidates(names, data, tmp_pat
     assert f"{path}, row 1, column '{names[0]}'" in err and "ambiguous" in err
     for flag in ("--convention ur", "--convention calib", "--convention yaskawa", "--convention staubli"):
         assert flag in err
+    if rows == 4:
+        assert "the rows do not decide it (fewer than 5 pairs" in err
     got = calib.read_measurements(path, robot, options=calib.ReadOptions(convention="ur"))
     np.testing.assert_allclose(got.rotation, m.rotation, atol=1e-12)
+
+
+@pytest.mark.parametrize("reading, values, expected", [
+    ("rotvec", lambda R: R.as_rotvec(), "a rotation vector"),
+    ("zyx", lambda R: R.as_euler("xyz"), "ZYX angles (= fixed-axis XYZ)"),
+    ("XYZ", lambda R: R.as_euler("XYZ"), "XYZ Euler angles")])
+def test_the_rows_decide_rx_ry_rz_with_a_margin(reading, values, expected, data, tmp_path):
+    """40 rows of the perturbed robot: the reading that agrees with the nominal model's relative
+    rotations scores 0.005 rad, the others 0.24-0.37 rad; read right, with a note giving the
+    scores."""
+    robot, m = data
+    path = _table(tmp_path / "r.csv", [f"q{i}_rad" for i in range(1, 7)] + ["x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad"],
+                  np.hstack([m.q, m.position, values(Rotation.from_matrix(m.rotation))]))
+    got = calib.read_measurements(path, robot)
+    np.testing.assert_allclose(got.rotation, m.rotation, atol=1e-12)
+    note = next(n for n in got.notes if "the rows decide it" in n)
+    assert f"rx_rad, ry_rad, rz_rad read as {expected}: the rows decide it" in note
+    scores = [float(v) for v in re.findall(r"(\d\.\d+(?:e-\d+)?) rad", note)]
+    assert scores[0] < 0.01 and min(scores[1:]) > 0.2
+
+
+def test_the_ambiguous_ur_file_calibrates_to_the_urdf_of_calibs_own_format(data, tmp_path, capsys):
+    """Acceptance of issue 25 for the ambiguous file: read right (the rows decide), exit 0, the
+    same calibrated URDF as calib's own format, and the note on stderr."""
+    robot, m = data
+    own, path = tmp_path / "own.csv", _ur_rows(m, ["rx_rad", "ry_rad", "rz_rad"], tmp_path)
+    calib.write_measurements(own, m)
+    urdf = str(ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
+    assert main(["calibrate", urdf, str(own), "-o", str(tmp_path / "a.urdf")]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", urdf, str(path), "-o", str(tmp_path / "b.urdf")]) == 0
+    assert "read as a rotation vector: the rows decide it" in capsys.readouterr().err
+    ta, na = _numbers((tmp_path / "a.urdf").read_text())
+    tb, nb = _numbers((tmp_path / "b.urdf").read_text().replace(path.name, own.name))
+    assert ta == tb
+    np.testing.assert_allclose(nb, na, rtol=0, atol=1e-9)
 
 
 def test_calibs_own_zyx_order_is_read_and_convention_calib_states_it(data, tmp_path):
@@ -173,10 +214,12 @@ def test_calibs_own_zyx_order_is_read_and_convention_calib_states_it(data, tmp_p
     swapped = tmp_path / "xyz_order.csv"
     swapped.write_text("\n".join(",".join(line.split(",")[i] for i in order) for line in lines
                                  if not line.startswith("#")) + "\n")
-    with pytest.raises(MeasurementFormatError, match="ambiguous"):
-        calib.read_measurements(swapped, robot)
+    decided = calib.read_measurements(swapped, robot)          # (the rows decide it)
+    np.testing.assert_allclose(decided.rotation, m.rotation, atol=1e-12)
+    assert any("read as ZYX angles (= fixed-axis XYZ): the rows decide it" in n for n in decided.notes)
     b = calib.read_measurements(swapped, robot, options=calib.ReadOptions(convention="calib"))
     np.testing.assert_allclose(b.rotation, m.rotation, atol=1e-12)
+    assert not any("decide" in n for n in b.notes)
 
 
 @pytest.mark.parametrize("kind, flag, absent", [("abb", "--convention abb", "q1_deg"),
@@ -396,7 +439,23 @@ def test_calib_formats_prints_every_rule_and_every_convention(capsys):
 
 def test_rx_ry_rz_stay_ambiguous_under_a_convention_that_does_not_name_them(data, tmp_path):
     robot, m = data
-    path = _ur_rows(m, ["rx_deg", "ry_deg", "rz_deg"], tmp_path)
+    path = _ur_rows(m.subset(np.arange(3)), ["rx_deg", "ry_deg", "rz_deg"], tmp_path)
     with pytest.raises(MeasurementFormatError, match=r"rx_deg, ry_deg, rz_deg \(not named by the kuka "
                                                      r"convention\) are ambiguous"):
         calib.read_measurements(path, robot, options=calib.ReadOptions(convention="kuka"))
+
+
+def test_a_tracker_file_with_rx_ry_rz_cannot_be_decided_and_is_refused(data, tmp_path):
+    """The tracker side of a keyed pair holds no joint values: nothing to decide from."""
+    robot, m = data
+    R = Rotation.from_matrix(m.rotation).as_rotvec()
+    joints = _table(tmp_path / "j.csv", ["point"] + [f"q{i}_rad" for i in range(1, 7)],
+                    np.hstack([np.arange(m.n_poses)[:, None], m.q]))
+    tracker = _table(tmp_path / "t.csv", ["point", "x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad"],
+                     np.hstack([np.arange(m.n_poses)[:, None], m.position, R]))
+    with pytest.raises(MeasurementFormatError, match=r"t.csv, row 1, column 'rx_rad': .*ambiguous.*cannot "
+                                                     r"decide it here \(no joint values in this file\)"):
+        calib.read_measurements(joints, robot, tracker=tracker, options=calib.ReadOptions(key="point"))
+    got = calib.read_measurements(joints, robot, tracker=tracker,
+                                  options=calib.ReadOptions(key="point", convention="ur"))
+    np.testing.assert_allclose(got.rotation, m.rotation, atol=1e-12)
