@@ -379,7 +379,8 @@ class Header:
         c = found[0][0]
         self.fail(f"columns {shown} look like the {c.name} convention's orientation "
                   f"({c.orientation}), which calib's own names do not take: give --convention "
-                  f"{'|'.join(c.name for c, _ in found)} (calib formats lists the conventions)",
+                  f"{'|'.join(c.name for c, _ in found)} (calib formats lists the conventions), or "
+                  f"drop them with --rename '{','.join(w + '=' for w in written)}' if they are not",
                   written[0])
 
     def _urdf_joints(self) -> dict:
