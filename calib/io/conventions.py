@@ -124,6 +124,12 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
 )}
 CONVENTION_NAMES = tuple(CONVENTIONS)
 
+#: Ambiguous rx, ry, rz are read as one reading when its score (median |difference| of the
+#: rotation angles between consecutive rows from the nominal model's, rad) is at most DECIDE_MAX
+#: and every other reading's at least MARGIN times it (:mod:`calib.io.csv_orientation`).
+DECIDE_MAX = 0.05
+MARGIN = 5.0
+
 #: How three orientation columns named rx, ry, rz can be read, with the convention that states
 #: each reading (the candidates named when such a file states none).
 ORIENTATION_READINGS = (
@@ -180,16 +186,16 @@ Labels: set (cal or val), target (the reflector's id); with --tracker, the --key
 Literals in one cell (read in any delimiter; quote them in comma-separated files):
   pose column (named pose, tcp_pose or robtarget):
     p[x,y,z,rx,ry,rz]                      URScript pose: m and a rotation vector in rad
-    [[x,y,z],[q1,q2,q3,q4],[cf..],[ext..]]   RAPID robtarget: mm and a quaternion (w first)
+    [[x,y,z],[q1,q2,q3,q4],[cf..],[ext..]] RAPID robtarget: mm and a quaternion (w first)
   joints column (named joints, q or jointtarget):
     [q1,...,qn]                            URScript joint list, rad
     [[j1,...,j6],[e1,...,e6]]              RAPID jointtarget, deg (revolute) / mm
 Ambiguous orientation names: rx, ry, rz written in that order (or without a unit) may be ZYX
   angles (the same as fixed-axis XYZ), a rotation vector or XYZ Euler angles. With a unit and
   joint values in the file, the rows decide when exactly one reading agrees with the nominal
-  model (the rotation angles between consecutive rows, which no frame changes: at most 0.05 rad
-  off, the others at least 5 times more; a note gives the figures); otherwise the file is refused
-  with the flag that chooses: {candidates}.
+  model (the rotation angles between consecutive rows, which no frame changes: at most
+  {decide_max:g} rad off, the others at least {margin:g} times more; a note gives the figures);
+  otherwise the file is refused with the flag that chooses: {candidates}.
 """
 
 
@@ -198,7 +204,7 @@ def format_help() -> str:
     conventions, as plain text (an installed wheel needs no README)."""
     import textwrap
 
-    out = [RULES.format(candidates=ambiguous_candidates()), "",
+    out = [RULES.format(candidates=ambiguous_candidates(), decide_max=DECIDE_MAX, margin=MARGIN), "",
            "Vendor conventions (--convention NAME): the names and units each controller writes.",
            "A column without a unit suffix is read in the unit shown; with a suffix, in the suffix's.",
            "calib's own names stay valid under every convention.", ""]

@@ -22,13 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from calib.errors import MeasurementFormatError
+from calib.io.conventions import DECIDE_MAX, MARGIN
 
 __all__ = ["DECIDE_MAX", "MARGIN", "MIN_PAIRS", "decide_rx_ry_rz"]
 
-#: Largest score (median |angle difference|, rad) of a reading taken from the rows.
-DECIDE_MAX = 0.05
-#: Every other reading's score must be at least this many times the best one's.
-MARGIN = 5.0
 #: Fewest pairs of rows (with a relative rotation of the model above 0.1 rad) that decide.
 MIN_PAIRS = 5
 #: Rows compared (the first ones): the decision costs one kinematics pass over them.
