@@ -1,61 +1,130 @@
-"""Benchmark of the CSV layer (issue 11): reading measurement files of 300 and 10,000 poses.
+"""Benchmark of the CSV reader (issue 25, item 4): reading 200,000 and 1,000,000 rows.
 
-Prints the median read time over repeated runs for: the calib style (commas, quaternion), a
-European export (semicolons, decimal commas, controller joint names, ignored columns, rotation
-vectors) and two files joined by a key (rows in reverse order). No target: for scale only.
+Targets: 200,000 rows read in under 3 s; 1,000,000 rows read in at most 1 KB of memory per row.
 
-Run: python scripts/bench_read.py
+For each size N a measurement file of the bundled robot is written once (calib's own format:
+6 joints in degrees, x, y, z in mm, a quaternion, a set column; about 250 bytes a row) and read
+by ``calib.read_measurements`` in fresh Python processes (``--repeats`` of them). The script
+prints the medians of: the wall time and the CPU time of the read, the peak resident memory
+(VmHWM) of the process, its growth over the process before the read (numpy, Pinocchio and the
+robot loaded), both per row, and that growth per byte of the file: the figure the reader's
+memory guard uses (:data:`calib.io.csv_layer.READ_BYTES_PER_FILE_BYTE`, printed beside it).
+With ``--rtde`` the 200,000-row case is also read as a space-separated RTDE recording
+(``--convention ur``, 40 columns of which 12 are read).
+
+The machine is shared: the wall time grows with the load (printed), the CPU time much less.
+
+Run: python scripts/bench_read.py [--repeats R] [--sizes N ...] [--rtde]
 """
 from __future__ import annotations
 
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
 import _bench
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 import calib
+from calib.io.csv_layer import READ_BYTES_PER_FILE_BYTE
 
 ROOT = Path(__file__).resolve().parents[1]
+URDF = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
+
+CHILD = r"""
+import json, resource, sys, time
+def rss(field):
+    for line in open("/proc/self/status"):
+        if line.startswith(field):
+            return int(line.split()[1]) * 1024
+import calib
+robot = calib.load_robot(sys.argv[1])
+before = rss("VmRSS:")
+options = calib.ReadOptions(convention=sys.argv[3]) if len(sys.argv) > 3 else None
+t, c = time.perf_counter(), time.process_time()
+m = calib.read_measurements(sys.argv[2], robot, options=options)
+wall, cpu = time.perf_counter() - t, time.process_time() - c
+print(json.dumps({"wall": wall, "cpu": cpu, "before": before, "peak": rss("VmHWM:"), "n": m.n_poses}))
+"""
 
 
-def _write(folder: Path, meas, n: int) -> dict:
-    calib.write_measurements(folder / "calib.csv", meas)
-    q = np.degrees(meas.q)
-    p = meas.position * 1e3
-    rv = Rotation.from_matrix(meas.rotation).as_rotvec(degrees=True)
-    head = ";".join(["point"] + [f"A{i}_deg" for i in range(1, 7)]
-                    + ["X (mm)", "Y (mm)", "Z (mm)", "rvx_deg", "rvy_deg", "rvz_deg", "temp"])
-    lines = [head] + [";".join([f"P{k}"] + [repr(float(v)).replace(".", ",") for v in
-                                           (*q[k], *p[k], *rv[k], 21.5)]) for k in range(n)]
-    (folder / "euro.csv").write_text("\n".join(lines) + "\n")
-    (folder / "joints.csv").write_text(
-        "point," + ",".join(f"J{i}_deg" for i in range(1, 7)) + "\n"
-        + "".join(f"P{k}," + ",".join(repr(float(v)) for v in q[k]) + "\n" for k in range(n)))
-    (folder / "tracker.csv").write_text(
-        "point,x_mm,y_mm,z_mm,rvx_deg,rvy_deg,rvz_deg\n"
-        + "".join(f"P{k}," + ",".join(repr(float(v)) for v in (*p[k], *rv[k])) + "\n"
-                  for k in reversed(range(n))))
-    return {"calib style": (folder / "calib.csv", None, None),
-            "; , A1_deg rotvec": (folder / "euro.csv", None, None),
-            "joined by key": (folder / "joints.csv", folder / "tracker.csv",
-                              calib.ReadOptions(key="point"))}
+def write_file(path: Path, n: int, rtde: bool = False) -> None:
+    """n rows of the bundled robot (noisy measurements), written in blocks with numpy's
+    formatting (write_measurements writes a million rows in about a minute)."""
+    from scipy.spatial.transform import Rotation
+
+    robot = calib.load_robot(URDF)
+    rng = np.random.default_rng(n)
+    with open(path, "w") as fh:
+        if rtde:
+            fh.write(" ".join(["timestamp"] + [f"{p}_{i}" for p in ("target_q", "actual_q", "actual_qd",
+                                                                   "actual_TCP_pose", "actual_TCP_speed",
+                                                                   "actual_current")
+                                               for i in range(6)] + ["robot_mode", "safety_mode", "speed_scaling"])
+                     + "\n")
+        else:
+            fh.write("# bench_read\n" + ",".join([f"joint{i}_deg" for i in range(1, 7)]
+                                                + ["x_mm", "y_mm", "z_mm", "qw", "qx", "qy", "qz", "set"]) + "\n")
+        for start in range(0, n, 50_000):
+            k = min(50_000, n - start)
+            Q = robot.random_configurations(k, int(rng.integers(1 << 30)))
+            m = calib.simulate_measurements(robot, Q, sigma_pos=2e-5, sigma_rot=2e-4, rng=rng)
+            if rtde:
+                z = np.zeros((k, 6))
+                block = np.hstack([np.arange(start, start + k)[:, None] * 0.002, Q, Q, z, m.position,
+                                   Rotation.from_matrix(m.rotation).as_rotvec(), z, z, np.ones((k, 3))])
+                text = "\n".join(" ".join(f"{v:.17g}" for v in row) for row in block.tolist())
+            else:
+                wxyz = Rotation.from_matrix(m.rotation).as_quat(scalar_first=True)
+                block = np.hstack([np.degrees(Q), m.position * 1e3, wxyz])
+                sets = np.where(rng.random(k) < 0.8, "cal", "val")
+                text = "\n".join(",".join(f"{v:.17g}" for v in row) + "," + s
+                                 for row, s in zip(block.tolist(), sets))
+            fh.write(text + "\n")
+
+
+def run(path: Path, repeats: int, convention: str | None = None) -> dict:
+    out = []
+    for _ in range(repeats):
+        args = [sys.executable, "-c", CHILD, str(URDF), str(path)] + ([convention] if convention else [])
+        proc = subprocess.run(args, capture_output=True, text=True, cwd=ROOT,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
+        if proc.returncode:
+            raise SystemExit(proc.stderr)
+        out.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    return {k: statistics.median(r[k] for r in out) for k in out[0]}
 
 
 def main() -> None:
-    robot = calib.load_robot(ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
-    print(f"machine: {_bench.machine()}")
-    print(f"{'poses':>7} {'file':<20} {'read (median)':>14}")
-    for n in (300, 10_000):
-        Q = robot.random_configurations(n, 0)
-        meas = calib.simulate_measurements(robot, Q, sigma_pos=0.0, sigma_rot=0.0)
-        with tempfile.TemporaryDirectory() as tmp:
-            for label, (path, tracker, options) in _write(Path(tmp), meas, n).items():
-                t = _bench.median_time(lambda: calib.read_measurements(path, robot, tracker=tracker,
-                                                                       options=options),
-                                       repeats=5)
-                print(f"{n:>7} {label:<20} {t * 1e3:>11.1f} ms")
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[200_000, 1_000_000])
+    ap.add_argument("--rtde", action="store_true")
+    args = ap.parse_args()
+    print(f"machine: {_bench.machine()}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
+    print(f"median of {args.repeats} fresh processes each; reader's guard: "
+          f"READ_BYTES_PER_FILE_BYTE = {READ_BYTES_PER_FILE_BYTE:g}")
+    print(f"{'rows':>9} {'file':<6} {'MB':>6} {'wall s':>7} {'cpu s':>6} {'peak MB':>8} {'peak B/row':>10} "
+          f"{'read B/row':>10} {'read B/file B':>13}")
+    with tempfile.TemporaryDirectory() as tmp:
+        cases = [(n, "calib", None) for n in args.sizes]
+        if args.rtde:
+            cases.append((args.sizes[0], "rtde", "ur"))
+        for n, kind, convention in cases:
+            path = Path(tmp) / f"{kind}{n}.csv"
+            write_file(path, n, rtde=kind == "rtde")
+            size = path.stat().st_size
+            r = run(path, args.repeats, convention)
+            assert r["n"] == n
+            grow = r["peak"] - r["before"]
+            print(f"{n:>9} {kind:<6} {size / 1e6:>6.1f} {r['wall']:>7.2f} {r['cpu']:>6.2f} {r['peak'] / 1e6:>8.0f} "
+                  f"{r['peak'] / n:>10.0f} {grow / n:>10.0f} {grow / size:>13.2f}")
+            path.unlink()
 
 
 if __name__ == "__main__":

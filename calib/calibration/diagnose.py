@@ -1,7 +1,8 @@
 """Likely causes of a calibration that does not describe its data: the common ways a file is
 misread, tried on the calibration rows (:func:`misreadings`).
 
-A file with Euler angles of extrinsic ``xyz`` read as ``--euler XYZ``, two joint columns
+A file with Euler angles of extrinsic ``xyz`` read as ``--euler XYZ``, a rotation vector read
+as ZYX or Euler angles (UR's ``rx, ry, rz`` under calib's ``rz, ry, rx``), two joint columns
 swapped, joint angles in degrees labelled radians, positions in metres labelled millimetres, or
 a quaternion written (x, y, z, w) under (qw, qx, qy, qz) headers gives data that the model fits
 badly, but not always beyond the implausibility thresholds (on a UR5: 103-352 mm, status
@@ -67,6 +68,48 @@ def _quaternion_alternatives(m: Measurements):
                                                                            scalar_first=True).as_matrix())
 
 
+def _angle_triples(R: np.ndarray, seq: str) -> list[np.ndarray]:
+    """The (N, 3) angle triples of sequence ``seq`` that a file may have held for rotations R:
+    scipy's (middle angle within [-pi/2, pi/2] for three distinct axes, [0, pi] otherwise) and
+    the other solution, wrapped to (-pi, pi] (a rotation vector's components can be beyond
+    scipy's range, each within [-pi, pi])."""
+    import warnings
+
+    from scipy.spatial.transform import Rotation
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)      # gimbal lock: any split is as good
+        a = Rotation.from_matrix(R).as_euler(seq)
+    tait_bryan = len(set(seq.lower())) == 3
+    b = a + np.array([math.pi, math.pi, math.pi]) if not tait_bryan else a.copy()
+    if tait_bryan:
+        b[:, 0] += math.pi
+        b[:, 1] = math.pi - a[:, 1]
+        b[:, 2] += math.pi
+    else:
+        b[:, 1] = -a[:, 1]
+    b = (b + math.pi) % (2 * math.pi) - math.pi
+    return [a, b]
+
+
+def _rotvec_alternatives(m: Measurements):
+    """(sentence, rotations) for a rotation vector (UR's rx, ry, rz: axis times angle) read as
+    ZYX angles (columns rz, ry, rx) or as Euler angles (e1, e2, e3): the values of the columns
+    recovered from the rotations as read (both angle solutions), taken as a rotation vector
+    in the columns' x, y, z order."""
+    from calib.model.spatial import rotation_from_rotvec
+
+    if m.orientation == "zyx":
+        seq, order, read_as = "ZYX", [2, 1, 0], "ZYX angles (rz, ry, rx)"
+    else:
+        seq = m.orientation.split(":", 1)[1]
+        order, read_as = [0, 1, 2], f"Euler angles {seq!r} (e1, e2, e3)"
+    for triple in _angle_triples(m.rotation, seq):
+        yield (f"the orientation columns look like a rotation vector (axis times angle, as UR's rx, ry, rz) "
+               f"but were read as {read_as}: read them with --convention ur, or name them rvx, rvy, rvz",
+               rotation_from_rotvec(triple[:, order]))
+
+
 def alternatives(m: Measurements):
     """(sentence, measurements, length scale) for each common misreading of ``m`` undone: the
     orientation (by how it was read: :attr:`Measurements.orientation`), two joint columns of the
@@ -75,7 +118,10 @@ def alternatives(m: Measurements):
     if m.rotation is not None and m.orientation is not None:
         rot = []
         if m.orientation.startswith("euler:"):
-            rot = _euler_alternatives(m, m.orientation.split(":", 1)[1])
+            rot = list(_euler_alternatives(m, m.orientation.split(":", 1)[1])) + \
+                list(_rotvec_alternatives(m))
+        elif m.orientation == "zyx":
+            rot = _rotvec_alternatives(m)
         elif m.orientation == "quaternion":
             rot = _quaternion_alternatives(m)
         for sentence, R in rot:

@@ -138,7 +138,8 @@ def _fraction(text: str) -> float:
 
 def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> None:
     """The options that read CSV files as trackers and controllers write them, in their own help
-    group: --rename, --euler, --limit-tolerance, and with ``tracker`` --tracker and --key."""
+    group: --rename, --euler, --convention, --header-line, --limit-tolerance, and with
+    ``tracker`` --tracker and --key."""
     g = p.add_argument_group("file format (see README, Measurement file format)")
     g.add_argument("--rename", metavar="OLD=NEW[,...]", type=_rename, default=None,
                    help="rename the file's columns to calib's names before reading, e.g. "
@@ -146,6 +147,17 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
     g.add_argument("--euler", metavar="SEQ", type=_euler, default=None,
                    help="axis sequence of the e1, e2, e3 angle columns in scipy's notation: upper "
                         "case intrinsic (ZYX, ZYZ, ...), lower case extrinsic (xyz, ...)")
+    from calib.io.conventions import CONVENTION_NAMES
+
+    g.add_argument("--convention", choices=CONVENTION_NAMES, default=None,
+                   help="the column names and units a vendor's controller writes (KUKA A1..A6, "
+                        "X, Y, Z, A, B, C; ABB rax_1.., q1..q4; UR base..wrist3, x, y, z in m, "
+                        "rx, ry, rz rotation vector, RTDE actual_q_*, actual_TCP_pose_*; ...): "
+                        "`calib formats` lists every mapping; 'calib' states calib's own ZYX "
+                        "reading of rx, ry, rz in any column order")
+    g.add_argument("--header-line", metavar="N", type=positive_int, default=None,
+                   help="line number of the header (default: the first line that names known "
+                        "columns; a preamble before it is skipped)")
     g.add_argument("--limit-tolerance", metavar="F", type=_fraction, default=0.01,
                    help="keep joint readings at most this fraction of the joint range past a "
                         "limit (with a note); 0.01 or 1%%")
@@ -195,7 +207,7 @@ def read_options(args: argparse.Namespace, *, joined: bool = True):
                                                     "time_unit", "max_gap")}
         join["join"] = getattr(args, "join", None) or "key"
     return ReadOptions(rename=args.rename or (), euler=args.euler, limit_tolerance=args.limit_tolerance,
-                       **join)
+                       convention=args.convention, header_line=args.header_line, **join)
 
 
 def print_notes(notes, prog: str = "calib") -> None:

@@ -7,6 +7,7 @@
     calib select-poses ROBOT.urdf -n N -o poses.csv       configurations worth measuring
     calib compensate CALIBRATED.urdf NOMINAL.urdf TARGETS.csv -o corrected.csv
     calib export CALIBRATED.urdf --format ur-yaml -o kinematics.yaml   for the user's stack
+    calib formats                               column rules and vendor conventions
 
 Exit codes: 0 success; 2 bad input or usage (one line ``calib: error: ...`` on stderr, no
 output file created or changed); 3 ``calibrate`` ran but the fit did not converge, or
@@ -35,7 +36,7 @@ import warnings
 from pathlib import Path
 from typing import Sequence
 
-from calib.cli import calibrate, compensate, evaluate, export, identifiability, select_poses, simulate
+from calib.cli import calibrate, compensate, evaluate, export, formats, identifiability, select_poses, simulate
 from calib.cli.args import ArgumentParser, HelpFormatter, add_verbose
 from calib.cli.output import EXIT_INPUT, PROG, forget_written, written
 from calib.errors import CalibError
@@ -45,7 +46,7 @@ __all__ = ["main", "main_entry", "build_parser", "COMMANDS"]
 log = logging.getLogger(__name__)
 
 #: The subcommand modules, in the order ``calib --help`` lists them.
-COMMANDS = (identifiability, simulate, calibrate, evaluate, select_poses, compensate, export)
+COMMANDS = (identifiability, simulate, calibrate, evaluate, select_poses, compensate, export, formats)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -56,6 +56,7 @@ class Column:
     scale: float = 1.0    # value * scale is in rad or m
     unit: str = ""
     style: str = ""       # joint naming style
+    vendor: bool = False  # named by the vendor convention of ReadOptions.convention
 
 
 _UNIT_IN_BRACKETS = re.compile(r"^(.*?)\s*[\(\[]\s*([A-Za-z]+)\s*[\)\]]$")
@@ -66,21 +67,37 @@ def _unit_text(units) -> str:
     return " or ".join(f"_{u}" for u in units)
 
 
-class Header:
-    """A header checked against a spec and a robot."""
+#: Names of the columns that hold a whole pose or all joints as one literal (URScript, RAPID).
+POSE_LITERAL_NAMES = ("pose", "tcp_pose", "robtarget")
+JOINT_LITERAL_NAMES = ("joints", "q", "jointtarget")
+_UNIT_TABLE = {"deg": ANGLE_UNITS, "rad": ANGLE_UNITS, "mm": LENGTH_UNITS, "m": LENGTH_UNITS}
 
-    def __init__(self, path: Path, row: int, names: list[str], spec: Spec, robot,
-                 options: ReadOptions):
-        self.path, self.row, self.spec, self.robot, self.options = path, row, spec, robot, options
+
+def _conv_style(pattern) -> str:
+    if isinstance(pattern, tuple):
+        return "named"
+    return {"A{i}": "a", "J{i}": "j"}.get(pattern, pattern)
+
+
+class Vocabulary:
+    """The column names a spec takes for a robot under the read options: base name (lower
+    case) -> (quantity, units or None for no suffix, style), with the default unit of the names
+    a vendor convention writes without a suffix."""
+
+    def __init__(self, spec: Spec, robot, options: ReadOptions):
+        from calib.io.conventions import CONVENTIONS
+
+        self.spec, self.robot, self.options = spec, robot, options
         joints = robot.joints if spec.joints != "none" else ()
         n = robot.n_joints
         self.joint_units = [LENGTH_UNITS if j.is_prismatic else ANGLE_UNITS for j in robot.joints]
-        # base name (lower case) -> (quantity, units or None for no suffix, style)
         suffixed: dict[str, tuple] = {}
         plain: dict[str, tuple] = {}
         if spec.position != "none":
             for k in POSITION_COLUMNS:
                 suffixed[k] = (k, LENGTH_UNITS, "")
+            for k in POSE_LITERAL_NAMES:
+                plain[k] = ("pose_literal", None, "")
         if spec.orientation:
             for kind, (cols, units, _, _) in ORIENTATIONS.items():
                 for c in cols:
@@ -95,6 +112,9 @@ class Header:
         if spec.keyed:
             self.key = str(options.key).strip()
             plain[self.key.lower()] = (self.key, None, "")
+        if joints:
+            for k in JOINT_LITERAL_NAMES:
+                plain.setdefault(k, ("joint_literal", None, ""))
         for i, j in enumerate(joints):
             if j.name.lower() not in plain:
                 suffixed.setdefault(j.name.lower(), (i, self.joint_units[i], "urdf"))
@@ -103,11 +123,79 @@ class Header:
                 for i in range(n):
                     if f"{style}{i + 1}" not in plain:
                         suffixed.setdefault(f"{style}{i + 1}", (i, self.joint_units[i], style))
+        self.convention = CONVENTIONS.get(options.convention) if options.convention else None
+        #: lower-case name -> unit key read when the name has no suffix (vendor conventions)
+        self.default: dict[str, str] = {}
+        #: lower-case names that a vendor convention maps
+        self.vendor: set[str] = set()
+        self.euler = options.euler
+        conv = self.convention
+        if conv is not None:
+            self.euler = options.euler or conv.euler
+            if joints:
+                unit = conv.joints[1]
+                for pattern in conv.joints[0]:
+                    style = _conv_style(pattern)
+                    for name, i in _one(pattern, n):
+                        plain.pop(name, None)
+                        suffixed[name] = (i, self.joint_units[i], style)
+                        self.default[name] = ({"deg": "mm", "rad": "m"}[unit] if joints[i].is_prismatic
+                                              else unit)
+                        self.vendor.add(name)
+            for name, quantity, unit in conv.columns:
+                low = name.lower()
+                if quantity in POSITION_COLUMNS and spec.position == "none":
+                    continue
+                if quantity not in POSITION_COLUMNS and not spec.orientation:
+                    continue
+                if unit:
+                    plain.pop(low, None)
+                    suffixed[low] = (quantity, _UNIT_TABLE[unit], "")
+                    self.default[low] = unit
+                else:
+                    suffixed.pop(low, None)
+                    plain[low] = (quantity, None, "")
+                self.vendor.add(low)
         self.suffixed, self.plain = suffixed, plain
         self.valid = [f"{b}_{u}" for b, (_, units, _) in suffixed.items() for u in units] + list(plain)
 
+    def known(self, written: str) -> bool:
+        """Whether a header name (as written) names one of these columns, even with a wrong or
+        missing unit suffix (used to find the header line after a preamble)."""
+        name = written.strip()
+        m = _UNIT_IN_BRACKETS.match(name)
+        low = (f"{m.group(1)}_{m.group(2)}" if m and m.group(1) else name).lower()
+        if low in self.plain or low in self.suffixed:
+            return True
+        base, sep, _ = low.rpartition("_")
+        return bool(sep) and (base in self.suffixed or base in self.plain)
+
+
+def _one(pattern, n: int) -> list[tuple[str, int]]:
+    if isinstance(pattern, tuple):
+        return [(pattern[i].lower(), i) for i in range(min(n, len(pattern)))]
+    return [(pattern.format(i=i + 1, i0=i).lower(), i) for i in range(n)]
+
+
+class Header:
+    """A header checked against a spec and a robot."""
+
+    def __init__(self, path: Path, row: int, names: list[str], spec: Spec, robot,
+                 options: ReadOptions, vocabulary: Vocabulary | None = None):
+        self.path, self.row, self.spec, self.robot, self.options = path, row, spec, robot, options
+        voc = vocabulary or Vocabulary(spec, robot, options)
+        self.vocabulary = voc
+        self.joint_units = voc.joint_units
+        self.suffixed, self.plain, self.valid, self.key = voc.suffixed, voc.plain, voc.valid, voc.key
+        self.default, self.vendor, self.euler = voc.default, voc.vendor, voc.euler
+        self.convention, self.extras = voc.convention, voc.extras
+
         renames = {old.lower(): new for old, new in options.rename}
+        if self.convention is None and spec.orientation:
+            self._vendor_orientation([renames.get(r.strip().lower(), r.strip()) for r in names])
         self.renamed: list[str] = []
+        #: (message, column) when the orientation columns are ambiguous (rx, ry, rz in that order)
+        self.ambiguous: tuple[str, str] | None = None
         self.columns: dict[object, Column] = {}
         self.ignored: list[str] = []
         styles: dict[str, str] = {}
@@ -149,7 +237,16 @@ class Header:
         raise MeasurementFormatError(self.path, reason, row=self.row, column=column)
 
     def _style_text(self, style: str) -> str:
-        return _STYLE_TEXT[style].format(n=self.robot.n_joints)
+        n = self.robot.n_joints
+        if style in _STYLE_TEXT:
+            return _STYLE_TEXT[style].format(n=n)
+        conv = self.convention
+        pattern = next((p for p in (conv.joints[0] if conv else ()) if _conv_style(p) == style), None)
+        if isinstance(pattern, tuple):
+            return ", ".join(pattern[:n])
+        if pattern is not None:
+            return f"{pattern.format(i=1, i0=0)}..{pattern.format(i=n, i0=n - 1)}"
+        return style
 
     def accepted(self) -> str:
         spec, robot = self.spec, self.robot
@@ -176,6 +273,7 @@ class Header:
             parts.append("optionally " + ", ".join(f"{k} with {_unit_text(EXTRA_UNITS[k])}" for k in spec.extras))
         if self.key:
             parts.append(f"the key column {self.key}")
+        parts.append("or a vendor's names with --convention (calib formats lists every rule)")
         return f"{spec.kind} file columns: " + "; ".join(parts)
 
     def _classify(self, index: int, written: str) -> Column | None:
@@ -192,9 +290,12 @@ class Header:
             q, _, _ = self.plain[low]
             return Column(index, written, q)
         if low in self.suffixed:
-            _, units, _ = self.suffixed[low]
+            quantity, units, style = self.suffixed[low]
+            if low in self.default:
+                unit = self.default[low]
+                return Column(index, written, quantity, units[unit], unit, style, vendor=True)
             self.fail(f"missing unit suffix: expected a unit suffix {_unit_text(units)} "
-                      f"(e.g. {name}_{list(units)[-1]})", written)
+                      f"(e.g. {name}_{list(units)[-1]}){self._convention_hint(low)}", written)
         base, sep, suffix = low.rpartition("_")
         if sep and base in self.suffixed:
             quantity, units, style = self.suffixed[base]
@@ -207,7 +308,8 @@ class Header:
                     hint = f"; did you mean '{name[:len(base)]}_{close[0]}'?" if close else ""
                 self.fail(f"wrong unit suffix _{suffix}: {base} takes {_unit_text(units)}{hint}",
                           written)
-            return Column(index, written, quantity, units[suffix], suffix, style)
+            return Column(index, written, quantity, units[suffix], suffix, style,
+                          vendor=base in self.vendor)
         if sep and base in self.plain:
             group = next((label for cols, u, _, label in ORIENTATIONS.values() if base in cols),
                          base)
@@ -223,11 +325,73 @@ class Header:
                       f"({', '.join(self.robot.joint_names)}, from base frame {self.robot.base_frame!r} to "
                       f"tool frame {self.robot.tool_frame!r}): choose --base-frame / --tool-frame to take "
                       f"it in, or drop the column with --rename '{written}='", written)
+        if self.convention is not None and self.convention.others and \
+                re.fullmatch(self.convention.others, low):
+            return None         # one of the vendor's other columns, not a misspelt name
         close = difflib.get_close_matches(low, self.valid, n=1, cutoff=_NEAR_MISS_CUTOFF)
         if close:
             self.fail(f"unknown column: did you mean {self._spelling(close[0])!r}? (rename it with "
                       f"--rename '{written}=NEW', or drop it with --rename '{written}=')", written)
         return None
+
+    def _style_name(self, style: str, i: int) -> str:
+        """The name of joint i (from 0) in a vendor convention's naming style."""
+        conv = self.convention
+        pattern = next((p for p in (conv.joints[0] if conv else ()) if _conv_style(p) == style), None)
+        if isinstance(pattern, tuple):
+            return pattern[i] if i < len(pattern) else f"joint {i + 1}"
+        return pattern.format(i=i + 1, i0=i) if pattern else f"joint {i + 1}"
+
+    def _convention_hint(self, low: str) -> str:
+        """"; or ... --convention NAME" when a vendor convention names this column (without a
+        suffix), "" otherwise or when a convention is given."""
+        from calib.io.conventions import CONVENTIONS
+
+        if self.convention is not None:
+            return ""
+        n = self.robot.n_joints
+        found = [c for c in CONVENTIONS.values()
+                 if low in {nm for p in c.joints[0] for nm, _ in _one(p, n)}
+                 or low in {nm.lower() for nm, _, _ in c.columns}]
+        if not found:
+            return ""
+        return (f"; or, for a file written with a vendor's names, give --convention "
+                f"{'|'.join(c.name for c in found)} (calib formats lists them)")
+
+    def _vendor_orientation(self, names: list[str]) -> None:
+        """Refuse a header (no convention given) whose columns are the whole orientation group
+        of a vendor convention written without unit suffixes (KUKA A, B, C; ABB q1..q4; Fanuc
+        W, P, R; rx, ry, rz): read by calib's own rules they would be ignored or taken for joint
+        angles. Names the convention(s) and, for rx, ry, rz, every reading they can have."""
+        from calib.io.conventions import CONVENTIONS, ambiguous_candidates
+
+        present = {n.lower() for n in names}
+        found = []
+        for c in CONVENTIONS.values():
+            entries = [(n.lower(), q) for n, q, _ in c.columns if q not in POSITION_COLUMNS]
+            while entries:
+                size = 4 if entries[0][1] == "qw" else 3
+                group, entries = [n for n, _ in entries[:size]], entries[size:]
+                if not all(g in present for g in group):
+                    continue
+                # q1..q4 followed by q5: joint columns of calib's q style, not a quaternion
+                m = re.fullmatch(r"(.*?)(\d+)", group[-1])
+                if m and f"{m.group(1)}{int(m.group(2)) + 1}" in present:
+                    continue
+                found.append((c, group))
+        if not found:
+            return
+        written = [next(n for n in names if n.lower() == g) for g in found[0][1]]
+        shown = ", ".join(written)
+        if {g for _, gr in found for g in gr} == {"rx", "ry", "rz"}:
+            self.fail(f"orientation columns {shown} without a stated convention are ambiguous; "
+                      f"they may be {ambiguous_candidates()} (calib formats lists them)", written[0])
+        c = found[0][0]
+        self.fail(f"columns {shown} look like the {c.name} convention's orientation "
+                  f"({c.orientation}), which calib's own names do not take: give --convention "
+                  f"{'|'.join(c.name for c, _ in found)} (calib formats lists the conventions), or "
+                  f"drop them with --rename '{','.join(w + '=' for w in written)}' if they are not",
+                  written[0])
 
     def _urdf_joints(self) -> dict:
         """The joints of the robot's URDF (name -> :class:`calib.io.urdf.UrdfJoint`), from the
@@ -269,20 +433,33 @@ class Header:
     def _check_complete(self) -> str:
         robot, spec, cols = self.robot, self.spec, self.columns
         present = [c for c in cols.values() if isinstance(c.quantity, int)]
-        if spec.joints == "required" or (spec.joints == "optional" and present):
+        literal = cols.get("joint_literal")
+        if literal is not None and present:
+            self.fail(f"joints given twice: by the literal column {literal.name!r} and by "
+                      f"{present[0].name!r}; give one", present[0].name)
+        if literal is None and (spec.joints == "required" or (spec.joints == "optional" and present)):
             style = present[0].style if present else "urdf"
             missing = [i for i in range(robot.n_joints) if i not in cols]
             if missing:
                 def expected(i):
                     base = robot.joints[i].name if style == "urdf" else \
-                        f"{style.upper() if style != 'q' else 'q'}{i + 1}"
+                        f"{style.upper() if style != 'q' else 'q'}{i + 1}" if style in _STYLE_TEXT \
+                        else self._style_name(style, i)
                     return " or ".join(f"{base}_{u}" for u in self.joint_units[i])
                 self.fail(f"missing joint column{'s' if len(missing) > 1 else ''}: the header has "
                           f"{len(present)} joint columns but the robot has {robot.n_joints} joints "
                           f"({', '.join(robot.joint_names)}); expected "
                           f"{'; '.join(expected(i) for i in missing)}{self._trailing_hint(missing)}")
         have_pos = [k for k in POSITION_COLUMNS if k in cols]
-        if spec.position == "required" or have_pos:
+        pose = cols.get("pose_literal")
+        if pose is not None:
+            other = [c.name for k, c in cols.items() if k in POSITION_COLUMNS or
+                     any(k in g for g, _, _, _ in ORIENTATIONS.values())]
+            if other:
+                self.fail(f"the pose is given twice: by the literal column {pose.name!r} and by "
+                          f"{other[0]!r}; give one", other[0])
+            have_pos = ["pose_literal"]
+        elif spec.position == "required" or have_pos:
             for k in POSITION_COLUMNS:
                 if k not in cols:
                     self.fail(f"missing column {k}: expected {k}_m or {k}_mm (the position x, y, z "
@@ -299,10 +476,23 @@ class Header:
         if len(kinds) > 1:
             a, b = (ORIENTATIONS[k][2] for k in kinds[:2])
             self.fail(f"both {a} and {b} are given; give one orientation or none")
-        orientation = kinds[0] if kinds else "none"
+        orientation = "literal" if pose is not None else kinds[0] if kinds else "none"
+        if orientation == "zyx" and (self.convention is None or self.convention.name != "calib"):
+            rx, rz = cols["rx"], cols["rz"]
+            if not rx.vendor and rx.index < rz.index:
+                from calib.io.conventions import ambiguous_candidates
+
+                shown = ", ".join(c.name for c in sorted((cols["rx"], cols["ry"], rz),
+                                                         key=lambda c: c.index))
+                stated = ("without a stated convention" if self.convention is None else
+                          f"(not named by the {self.convention.name} convention)")
+                # decided by the rows where they can (calib.io.csv_orientation), else refused
+                self.ambiguous = (f"orientation columns {shown} {stated} are "
+                                  f"ambiguous (calib's ZYX angles are written rz, ry, rx); they may be "
+                                  f"{ambiguous_candidates()} (calib formats lists them)", rx.name)
         if orientation != "none" and not have_pos:
             self.fail("an orientation without a position: give x, y, z with _m or _mm too")
-        if orientation == "euler" and self.options.euler is None:
+        if orientation == "euler" and self.euler is None:
             self.fail("Euler angle columns e1, e2, e3 need their sequence: give --euler SEQ in "
                       "scipy's notation (ZYX intrinsic, xyz extrinsic, ...)", cols["e1"].name)
         if self.key is not None and self.key not in cols:
@@ -310,7 +500,8 @@ class Header:
                                               [c.strip().lower() for c in self.ignored], n=1)
             hint = f"; did you mean {close[0]!r}?" if close else ""
             self.fail(f"no key column {self.key!r} (given by --key){hint}")
-        if spec.joints == "optional" and spec.position != "none" and not present and not have_pos:
+        if spec.joints == "optional" and spec.position != "none" and not present and literal is None \
+                and not have_pos:
             self.fail(f"no {spec.kind}: give joint columns or a position x, y, z; {self.accepted()}")
         return orientation
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import csv
 import math
-import os
+from operator import methodcaller
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -35,7 +35,10 @@ from typing import Sequence
 import numpy as np
 
 from calib.errors import MeasurementFormatError, ParameterError
-from calib.io.csv_header import ANGLE_UNITS, LENGTH_UNITS, ORIENTATIONS, POSITION_COLUMNS, Header
+from calib.io.csv_lines import (READ_BYTES_PER_FILE_BYTE, WHITESPACE, _records, available_memory,  # noqa: F401
+                                check_size, parse_number, read_lines, split_fields)
+from calib.io.csv_literals import joint_literals, pose_literals
+from calib.io.csv_header import ANGLE_UNITS, LENGTH_UNITS, ORIENTATIONS, POSITION_COLUMNS, Column, Header
 
 __all__ = ["ANGLE_UNITS", "LENGTH_UNITS", "ORIENTATIONS", "ReadOptions", "Spec", "Table",
            "read_table", "parse_rename", "check_euler_sequence", "joint_columns", "csv_text"]
@@ -50,7 +53,6 @@ LIMIT_TOLERANCE = 0.01
 UNIT_HINT_EXCESS = 0.1
 #: A unit mix-up is suggested only for values at least this many times the largest limit.
 UNIT_HINT_RATIO = 3.0
-_DELIMITERS = (",", ";", "\t")
 
 
 # ====================================================================== options and specs
@@ -96,6 +98,12 @@ class ReadOptions:
     target_column, target_from, join, time, time_unit, max_gap : how a joint file and a tracker
         file are joined (one joint row to several measured rows, by nearest time): see
         :mod:`calib.io.join`, which checks them.
+    convention : a vendor's column names and units (a key of
+        :data:`calib.io.conventions.CONVENTIONS`: ``"kuka"``, ``"abb"``, ``"ur"``, ``"fanuc"``,
+        ``"staubli"``, ``"yaskawa"``, or ``"calib"`` to state calib's own ZYX reading of rx, ry,
+        rz in any order), or None (calib's own names; ambiguous orientation names refused).
+    header_line : line number (from 1) of the header, or None: the first line that names known
+        columns (a preamble before it is skipped).
     """
 
     rename: tuple[tuple[str, str], ...] = ()
@@ -108,6 +116,8 @@ class ReadOptions:
     time: str | None = None
     time_unit: str | None = None
     max_gap: float | None = None
+    convention: str | None = None
+    header_line: int | None = None
 
     def __post_init__(self):
         if isinstance(self.rename, str):
@@ -125,6 +135,19 @@ class ReadOptions:
         if isinstance(tol, bool) or not (isinstance(tol, (int, float)) and math.isfinite(tol) and 0 <= tol <= 1):
             raise ParameterError(f"limit_tolerance must be a fraction of the joint range in "
                                  f"[0, 1], got {tol!r}")
+        if self.convention is not None:
+            from calib.io.conventions import CONVENTIONS
+
+            if not isinstance(self.convention, str) or self.convention not in CONVENTIONS:
+                raise ParameterError(f"convention must be one of {', '.join(CONVENTIONS)}, got "
+                                     f"{self.convention!r:.60}")
+            seq = CONVENTIONS[self.convention].euler
+            if seq is not None and self.euler is not None and self.euler != seq:
+                raise ParameterError(f"euler {self.euler!r} contradicts the {self.convention} "
+                                     f"convention, whose angles are the sequence {seq!r}")
+        h = self.header_line
+        if h is not None and (isinstance(h, bool) or not isinstance(h, int) or h < 1):
+            raise ParameterError(f"header_line must be a line number >= 1, got {h!r:.60}")
         if self.key is not None:
             if not isinstance(self.key, str) or not self.key.strip():
                 raise ParameterError(f"key must be a column name, got {self.key!r:.60}")
@@ -165,6 +188,10 @@ class Spec:
     sparse_pose: bool = False
     extras: tuple[str, ...] = ()
 
+    def may_be_empty(self, key) -> bool:
+        """Whether the cells of the numeric quantity ``key`` may be empty (read as NaN)."""
+        return key in self.lengths or key in self.extras or (self.sparse_pose and not isinstance(key, int))
+
 
 @dataclass(frozen=True, eq=False)
 class Table:
@@ -198,304 +225,242 @@ class Table:
     renamed: tuple[str, ...] = ()
     lengths: dict = field(default_factory=dict)
     extras: dict = field(default_factory=dict)
-
-
-# ====================================================================== text
-#: Peak memory of reading a CSV file and calibrating from it, in bytes per byte of the file
-#: (scripts/bench_memory.py prints the measured figure); a file whose size times this exceeds
-#: the memory available is refused before it is read, rather than the process being killed.
-MEMORY_BYTES_PER_FILE_BYTE = 40.0
-
-
-def available_memory() -> int | None:
-    """Bytes of memory available to this process: MemAvailable of /proc/meminfo (Linux), else
-    the free physical pages; None when unknown."""
-    try:
-        with open("/proc/meminfo", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def check_size(path: Path) -> None:
-    """Refuse a file too large for this machine's memory (see MEMORY_BYTES_PER_FILE_BYTE)."""
-    try:
-        size = path.stat().st_size
-    except OSError:
-        return                 # reported by the read itself
-    available = available_memory()
-    need = size * MEMORY_BYTES_PER_FILE_BYTE
-    if available is not None and need > available:
-        raise MeasurementFormatError(path, f"{size / 1e6:.0f} MB: reading and calibrating from it "
-                                           f"needs about {need / 1e9:.1f} GB of memory, "
-                                           f"{available / 1e9:.1f} GB are available; split the file "
-                                           f"or use a larger machine")
-
-
-def _read_stream(path: Path) -> bytes:
-    """The bytes of a file that is not a regular file (a pipe, ``<(...)``), read in chunks up to
-    what this machine's memory can calibrate from (as :func:`check_size`): an endless stream is
-    refused once it passes that, not read until memory runs out."""
-    available = available_memory()
-    limit = int(available / MEMORY_BYTES_PER_FILE_BYTE) if available is not None else 1 << 30
-    chunks, total = [], 0
-    with open(path, "rb") as fh:
-        while True:
-            chunk = fh.read(1 << 20)
-            if not chunk:
-                return b"".join(chunks)
-            chunks.append(chunk)
-            total += len(chunk)
-            if total > limit:
-                raise MeasurementFormatError(path, f"more than {limit / 1e6:.0f} MB and not at its end: "
-                                                   f"more than this machine's memory can calibrate from "
-                                                   f"(an endless stream?); expected a CSV file")
-
-
-def read_lines(path: Path) -> list[str]:
-    import stat
-
-    try:
-        mode = path.stat().st_mode
-    except OSError:
-        mode = None            # reported by the read itself
-    if mode is not None and (stat.S_ISCHR(mode) or stat.S_ISBLK(mode)):
-        raise MeasurementFormatError(path, "is a device, expected a CSV file")
-    if mode is not None and stat.S_ISREG(mode):
-        check_size(path)
-    try:
-        data = path.read_bytes() if mode is None or stat.S_ISREG(mode) or stat.S_ISDIR(mode) \
-            else _read_stream(path)
-    except FileNotFoundError:
-        raise MeasurementFormatError(path, "file not found") from None
-    except IsADirectoryError:
-        raise MeasurementFormatError(path, "is a directory, expected a CSV file") from None
-    except OSError as exc:
-        raise MeasurementFormatError(path, f"cannot be read: {exc.strerror or exc}") from None
-    if not data:
-        raise MeasurementFormatError(path, "file is empty, expected a header row and data rows")
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        row = data[:exc.start].count(b"\n") + 1
-        raise MeasurementFormatError(path, f"not UTF-8 text (byte 0x{data[exc.start]:02x})",
-                                     row=row) from None
-    del data        # (a million rows: each copy of the file held at once costs 250 MB)
-    if "\r" in text:
-        text = text.replace("\r\n", "\n").replace("\r", "\n")
-    return text.split("\n")
-
-
-def split_fields(path: Path, row: int, line: str, delimiter: str = ",") -> list[str]:
-    try:
-        return next(csv.reader([line], delimiter=delimiter, strict=True))
-    except csv.Error as exc:
-        raise MeasurementFormatError(path, f"malformed CSV: {exc}", row=row) from None
-
-
-def parse_number(path: Path, row: int, column: str, text: str, decimal_comma: bool = False) -> float:
-    s = text.strip()
-    if not s:
-        raise MeasurementFormatError(path, "empty value, expected a number", row, column)
-    t = s.replace(",", ".") if decimal_comma and s.count(",") == 1 and "." not in s else s
-    try:
-        if "_" in t:
-            raise ValueError(t)
-        value = float(t)
-    except ValueError:
-        hint = ""
-        if "," in s and not decimal_comma:
-            hint = " (a decimal comma is read only in files separated by ; or tabs)"
-        raise MeasurementFormatError(path, f"{s!r} is not a number{hint}", row, column) from None
-    if math.isnan(value):
-        raise MeasurementFormatError(path, f"{s!r}: NaN value, expected a finite number", row, column)
-    if math.isinf(value):
-        raise MeasurementFormatError(path, f"{s!r}: infinite value, expected a finite number",
-                                     row, column)
-    return value
-
-
-def _field_count(path: Path, row: int, line: str, delimiter: str) -> int:
-    """How many fields ``line`` splits into at ``delimiter``; 0 when it is not valid CSV with it
-    (a header quoted field by field, ``"a","b"``, is malformed for every other delimiter)."""
-    try:
-        return len(split_fields(path, row, line, delimiter))
-    except MeasurementFormatError:
-        return 0
-
-
-def _looks_numeric(fields: list[str]) -> bool:
-    try:
-        [float(f.replace(",", ".")) for f in fields]
-    except ValueError:
-        return False
-    return True
-
-
-def _records(path: Path) -> tuple[int, list[str], str, list[str], np.ndarray]:
-    """(header line number, header names as written, delimiter, the file's lines, (N,) index of
-    each data line among them): an index array, not (line number, line) pairs, which cost a
-    million-row file 100 MB more."""
-    lines = read_lines(path)
-    records = np.fromiter((k for k, line in enumerate(lines)
-                           if line.strip() and not line.lstrip().startswith("#")), dtype=np.int64)
-    if not len(records):
-        raise MeasurementFormatError(path, "no header row: the file holds only comments and blank "
-                                           "lines")
-    header_row, header_line = int(records[0]) + 1, lines[records[0]]
-    best = max(_DELIMITERS, key=lambda d: _field_count(path, header_row, header_line, d))
-    names = split_fields(path, header_row, header_line, best)
-    if _looks_numeric(names):
-        raise MeasurementFormatError(path, "this line looks like data, expected the header row "
-                                           "(column names such as joint1_deg, x_mm; a line starting "
-                                           "with # is a comment)", row=header_row)
-    return header_row, names, best, lines, records[1:]
+    euler: str | None = None
 
 
 # ====================================================================== reading
+#: Data lines parsed at once by the vectorised path (bounds its scratch memory).
+CHUNK_ROWS = 1 << 15
+
+
 def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None = None) -> Table:
     """Read a CSV file of kind ``spec`` for ``robot`` (its joint names, units and limits).
 
     Returns a :class:`Table` in SI units (rad, m; rotations as (N, 3, 3) matrices of the tool
     frame in the meas frame). Raises :class:`calib.MeasurementFormatError` naming the file, row
     and column on any departure from the format.
+
+    The rows are parsed column by column, a chunk of :data:`CHUNK_ROWS` lines at a time
+    (vectorised); a chunk with anything unusual (quotes, a wrong field count, a cell that is not
+    a finite number) is parsed again line by line, which raises the one-line error naming the
+    row and column, or reads what the fast path declined (quoted fields).
     """
     from calib.checks import check_instance, check_path
+    from calib.io.csv_header import Vocabulary
     from calib.model.robot import check_robot
 
     path = check_path(path, "path")
     check_robot(robot)
     options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
         or ReadOptions()
-    header_row, names, delimiter, lines, data = _records(path)
-    header = Header(path, header_row, names, spec, robot, options)
+    vocabulary = Vocabulary(spec, robot, options)
+    header_row, names, delimiter, lines, data = _records(path, vocabulary.known, options.header_line)
+    header = Header(path, header_row, names, spec, robot, options, vocabulary)
     if not len(data):
         raise MeasurementFormatError(path, "header but no data rows", row=header_row)
     decimal_comma = delimiter != ","
     cols = header.columns
     N, ncols = len(data), len(names)
-    label_names = set(spec.labels) | ({header.key} if header.key else set())
+    label_names = set(spec.labels) | ({header.key} if header.key else set()) | \
+        {"pose_literal", "joint_literal"}
     numeric = {k: c for k, c in cols.items() if k not in label_names}
     values = {k: np.empty(N) for k in numeric}
     labels = {k: [] for k in cols if k not in numeric}
     rows = (data + 1).astype(int)
-    for k, i in enumerate(data.tolist()):
-        row, line = i + 1, lines[i]
-        fields = split_fields(path, row, line, delimiter)
-        if len(fields) != ncols:
-            raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
-                                               f"{ncols} (one per header column)", row=row)
-        for key, c in numeric.items():
-            if (key in spec.lengths or key in spec.extras or (spec.sparse_pose and not isinstance(key, int))) \
-                    and not fields[c.index].strip():
-                values[key][k] = np.nan
-                continue
-            values[key][k] = parse_number(path, row, c.name, fields[c.index], decimal_comma) * c.scale
-        for key in labels:
-            c = cols[key]
-            text = fields[c.index].strip()
-            if key == "set":
-                if text.lower() not in ("cal", "val"):
-                    raise MeasurementFormatError(path, f"{text!r} is not a set; expected cal or val",
-                                                 row=row, column=c.name)
-                text = text.lower()
-            elif not text and key not in spec.sparse:
-                raise MeasurementFormatError(path, f"empty {'key' if key == header.key else key}, "
-                                                   f"expected an id", row=row, column=c.name)
-            labels[key].append(text)
-
+    reader = _Rows(path, spec, header, delimiter, decimal_comma, ncols, numeric, labels)
+    for start in range(0, N, CHUNK_ROWS):
+        chunk = [lines[i] for i in data[start:start + CHUNK_ROWS].tolist()]
+        got = reader.fast(chunk)
+        if got is None:
+            got = reader.slow(chunk, rows[start:start + CHUNK_ROWS])
+        for key, v in got[0].items():
+            values[key][start:start + len(chunk)] = v
+        for key, v in got[1].items():
+            labels[key].extend(v)
+        del chunk, got
+    preamble = int(np.count_nonzero([bool(x.strip()) and not x.lstrip().startswith("#")
+                                     for x in lines[:header_row - 1]]))
     del lines, data     # (the text of a million rows: 300 MB, before the rotations are built)
+    orientation = header.orientation
+    names_out = {k: c.name for k, c in cols.items()}
+    if "joint_literal" in cols:
+        c = cols["joint_literal"]
+        qv = joint_literals(path, robot, c.name, labels.pop("joint_literal"), rows)
+        for i in range(robot.n_joints):
+            values[i] = qv[:, i]
+            names_out[i] = c.name
+    if "pose_literal" in cols:
+        c = cols["pose_literal"]
+        orientation, pv = pose_literals(path, c.name, labels.pop("pose_literal"), rows)
+        for k, v in zip(POSITION_COLUMNS + ORIENTATIONS[orientation][0], pv.T):
+            values[k] = v
+            names_out[k] = c.name
     q = None
     notes: list[str] = []
-    if any(isinstance(k, int) for k in cols):
+    euler = header.euler
+    if header.ambiguous is not None:            # rx, ry, rz: the rows decide, or refused
+        from calib.io.csv_orientation import READINGS, decide_rx_ry_rz
+
+        qa = None if not any(isinstance(k, int) for k in values) else \
+            np.column_stack([values[i] for i in range(robot.n_joints)])
+        reading, note = decide_rx_ry_rz(
+            path, *header.ambiguous[:1], header_row, header.ambiguous[1],
+            ", ".join(cols[k].name for k in ("rx", "ry", "rz")), robot, qa,
+            np.column_stack([values[k] for k in ("rx", "ry", "rz")]))
+        orientation, keys, seq, _ = READINGS[reading]
+        for old_key, key in zip(("rx", "ry", "rz"), keys):
+            values[key] = values.pop(old_key)
+            names_out[key] = names_out.pop(old_key)
+        euler = seq or euler
+        notes.append(note)
+    if preamble:
+        notes.append(f"{path}: {preamble} line{'s' if preamble > 1 else ''} before the header "
+                     f"(line {header_row}) skipped as a preamble")
+    if any(isinstance(k, int) for k in values):
         q = np.column_stack([values[i] for i in range(robot.n_joints)])
-        notes += _check_limits(path, robot, header, q, rows, options.limit_tolerance)
+        jcols = {i: cols[i] if i in cols else
+                 Column(cols["joint_literal"].index, cols["joint_literal"].name, i, 1.0,
+                        "m" if robot.joints[i].is_prismatic else "rad")
+                 for i in range(robot.n_joints)}
+        notes += _check_limits(path, robot, jcols, q, rows, options.limit_tolerance)
     position = None
-    if "x" in cols:
+    if "x" in values:
         position = np.column_stack([values[k] for k in POSITION_COLUMNS])
     rotation = None
-    if header.orientation != "none":
-        group = ORIENTATIONS[header.orientation][0]
+    if orientation != "none":
+        group = ORIENTATIONS[orientation][0]
         given = np.column_stack([values[k] for k in group])
         full = np.isfinite(given).all(axis=1)
         part = np.flatnonzero(~full & np.isfinite(given).any(axis=1))
         if len(part):       # (sparse_pose: an orientation is given whole or not at all)
             k = int(part[0])
-            empty = cols[group[int(np.argmin(np.isfinite(given[k])))]].name
+            empty = names_out[group[int(np.argmin(np.isfinite(given[k])))]]
             raise MeasurementFormatError(path, f"empty value: an orientation gives all of "
-                                               f"{', '.join(cols[c].name for c in group)} or none",
+                                               f"{', '.join(names_out[c] for c in group)} or none",
                                          row=int(rows[k]), column=empty)
         if full.all():
-            rotation = _rotation(path, header, given, rows, options.euler)
+            rotation = _rotation(path, orientation, names_out[group[0]], given, rows, euler)
         else:       # (sparse_pose: the rows without an orientation stay NaN)
             rotation = np.full((N, 3, 3), np.nan)
             if full.any():
-                rotation[full] = _rotation(path, header, given[full], rows[full], options.euler)
+                rotation[full] = _rotation(path, orientation, names_out[group[0]], given[full], rows[full], euler)
     if header.ignored:
         notes.insert(0, f"{path}: ignored columns (not calib's): {', '.join(header.ignored)}")
     for arr in (q, position, rotation, rows):
         if arr is not None:
             arr.setflags(write=False)
     return Table(path=path, header_row=header_row, rows=rows, q=q, position=position,
-                 rotation=rotation, orientation=header.orientation,
+                 rotation=rotation, orientation=orientation,
                  labels={k: tuple(v) for k, v in labels.items()},
-                 names={k: c.name for k, c in cols.items()},
+                 names=names_out,
                  ignored_columns=tuple(header.ignored), notes=tuple(notes),
                  renamed=tuple(header.renamed),
                  lengths={k: values[k] for k in spec.lengths if k in cols},
-                 extras={k: values[k] for k in spec.extras if k in cols})
+                 extras={k: values[k] for k in spec.extras if k in cols},
+                 euler=euler if orientation == "euler" else None)
 
 
-def _quaternion_matrices(wxyz: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) rotation matrices of unit quaternions (N, 4) (w, x, y, z), as Eigen's
-    toRotationMatrix computes them, vectorised (a million rows: no per-row objects)."""
-    w, x, y, z = wxyz.T
-    R = np.empty((len(wxyz), 3, 3))
-    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    R[:, 0, 1] = 2 * (x * y - w * z)
-    R[:, 0, 2] = 2 * (x * z + w * y)
-    R[:, 1, 0] = 2 * (x * y + w * z)
-    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    R[:, 1, 2] = 2 * (y * z - w * x)
-    R[:, 2, 0] = 2 * (x * z - w * y)
-    R[:, 2, 1] = 2 * (y * z + w * x)
-    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
-    return R
+class _Rows:
+    """The data lines of one file, parsed a chunk at a time: :meth:`fast` (vectorised, None
+    when anything is unusual) and :meth:`slow` (line by line, the exact errors)."""
+
+    def __init__(self, path, spec, header, delimiter, decimal_comma, ncols, numeric, labels):
+        self.path, self.spec, self.header = path, spec, header
+        self.delimiter, self.decimal_comma, self.ncols = delimiter, decimal_comma, ncols
+        self.numeric, self.labels = numeric, list(labels)
+
+    def fast(self, chunk: list[str]):
+        """({key: (n,) SI values}, {label: [n stripped strings]}) of the lines, or None."""
+        d, ncols, n = self.delimiter, self.ncols, len(chunk)
+        whole = "".join(chunk)
+        if d != WHITESPACE and '"' in whole:
+            return None                 # quoted fields: the csv module's reading
+        underscore = "_" in whole
+        del whole
+        split = list(map(str.split, chunk)) if d == WHITESPACE else \
+            list(map(methodcaller("split", d), chunk))
+        if set(map(len, split)) != {ncols}:
+            return None
+        columns = list(zip(*split))
+        del split
+        out, texts = {}, {}
+        for key, c in self.numeric.items():
+            col = columns[c.index]
+            if underscore and "_" in "".join(col):
+                return None             # float() reads 1_000, the format does not
+            if self.decimal_comma:
+                joined = "\x00".join(col)
+                if "," in joined:
+                    col = joined.replace(",", ".").split("\x00")
+            empty = None
+            if self.spec.may_be_empty(key):
+                empty = np.array([not t.strip() for t in col])
+                col = ["nan" if e else t for t, e in zip(col, empty)]
+            try:
+                v = np.fromiter(map(float, col), dtype=float, count=n)
+            except ValueError:
+                return None
+            ok = np.isfinite(v) if empty is None else (np.isfinite(v) | empty)
+            if not ok.all():
+                return None
+            out[key] = v * c.scale
+        cols = self.header.columns
+        for key in self.labels:
+            text = list(map(str.strip, columns[cols[key].index]))
+            if key == "set":
+                text = list(map(str.lower, text))
+                if not set(text) <= {"cal", "val"}:
+                    return None
+            elif key not in self.spec.sparse and "" in set(text):
+                return None
+            texts[key] = text
+        return out, texts
+
+    def slow(self, chunk: list[str], rows: np.ndarray):
+        """As :meth:`fast`, line by line; raises the first error of the lines."""
+        path, header, cols = self.path, self.header, self.header.columns
+        n = len(chunk)
+        out = {k: np.empty(n) for k in self.numeric}
+        texts = {k: [] for k in self.labels}
+        for k, (line, row) in enumerate(zip(chunk, rows.tolist())):
+            fields = split_fields(path, row, line, self.delimiter)
+            if len(fields) != self.ncols:
+                hint = ""
+                if "[" in line and self.delimiter in line[line.index("["):] and \
+                        any(k in cols for k in ("pose_literal", "joint_literal")):
+                    hint = f"; quote a literal [...] that holds the delimiter {self.delimiter!r}"
+                raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
+                                                   f"{self.ncols} (one per header column){hint}", row=row)
+            for key, c in self.numeric.items():
+                if self.spec.may_be_empty(key) and not fields[c.index].strip():
+                    out[key][k] = np.nan
+                    continue
+                out[key][k] = parse_number(path, row, c.name, fields[c.index],
+                                           self.decimal_comma) * c.scale
+            for key in self.labels:
+                c = cols[key]
+                text = fields[c.index].strip()
+                if key == "set":
+                    if text.lower() not in ("cal", "val"):
+                        raise MeasurementFormatError(path, f"{text!r} is not a set; expected cal or val",
+                                                     row=row, column=c.name)
+                    text = text.lower()
+                elif not text and key not in self.spec.sparse:
+                    what = ("key" if key == header.key else
+                            "literal" if key in ("pose_literal", "joint_literal") else key)
+                    raise MeasurementFormatError(path, f"empty {what}, expected "
+                                                       f"{'a value' if what == 'literal' else 'an id'}",
+                                                 row=row, column=c.name)
+                texts[key].append(text)
+        return out, texts
 
 
-def _zyx_matrices(rz_ry_rx: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) R = Rz(rz) Ry(ry) Rx(rx) of angles (N, 3) (rz, ry, rx) radians, vectorised."""
-    cz, cy, cx = np.cos(rz_ry_rx).T
-    sz, sy, sx = np.sin(rz_ry_rx).T
-    R = np.empty((len(rz_ry_rx), 3, 3))
-    R[:, 0, 0] = cz * cy
-    R[:, 0, 1] = cz * sy * sx - sz * cx
-    R[:, 0, 2] = cz * sy * cx + sz * sx
-    R[:, 1, 0] = sz * cy
-    R[:, 1, 1] = sz * sy * sx + cz * cx
-    R[:, 1, 2] = sz * sy * cx - cz * sx
-    R[:, 2, 0] = -sy
-    R[:, 2, 1] = cy * sx
-    R[:, 2, 2] = cy * cx
-    return R
-
-
-def _rotation(path: Path, header: Header, values: np.ndarray, rows: np.ndarray,
+def _rotation(path: Path, kind: str, first: str, values: np.ndarray, rows: np.ndarray,
               euler: str | None) -> np.ndarray:
-    """(N, 3, 3) rotation matrices from the orientation columns (SI values), by libraries:
-    quaternions, ZYX angles and rotation vectors by Pinocchio (already loaded), other Euler
-    sequences by scipy's Rotation (imported only then: it takes longer to import than a whole
-    calibration)."""
-    import pinocchio as pin
-
-    kind, cols = header.orientation, header.columns
-    first = cols[ORIENTATIONS[kind][0][0]].name
+    """(N, 3, 3) rotation matrices from the orientation values (SI) of kind ``kind`` (``first``:
+    the name of its first column, for messages): quaternions, ZYX angles and rotation vectors by
+    calib's vectorised maps (:mod:`calib.model.spatial`), other Euler sequences by scipy's
+    Rotation (imported only then: it takes longer to import than a whole calibration)."""
     if kind == "quaternion":
         norm = np.linalg.norm(values, axis=1)
         bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE)
@@ -503,15 +468,21 @@ def _rotation(path: Path, header: Header, values: np.ndarray, rows: np.ndarray,
             raise MeasurementFormatError(
                 path, f"quaternion (qw, qx, qy, qz) has norm {norm[bad[0]]:.6g}, expected 1 "
                       f"(within {QUATERNION_NORM_TOLERANCE:g})", row=int(rows[bad[0]]), column=first)
-        return _quaternion_matrices(values / norm[:, None])
+        from calib.model.spatial import rotation_from_quaternion
+
+        return rotation_from_quaternion(values / norm[:, None])
     if kind == "zyx":   # R = Rz(rz) Ry(ry) Rx(rx) = Pinocchio's rpy (roll rx, pitch ry, yaw rz)
-        return _zyx_matrices(values)
+        from calib.model.spatial import rotation_from_zyx
+
+        return rotation_from_zyx(values)
     if kind == "euler":
         from scipy.spatial.transform import Rotation
 
         return Rotation.from_euler(euler, values).as_matrix()
     if kind == "rotvec":
-        return np.array([pin.exp3(v) for v in values]).reshape(-1, 3, 3)
+        from calib.model.spatial import rotation_from_rotvec
+
+        return rotation_from_rotvec(values)
     R = values.reshape(-1, 3, 3)
     err = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
     det = np.linalg.det(R)
@@ -526,7 +497,7 @@ def _rotation(path: Path, header: Header, values: np.ndarray, rows: np.ndarray,
     return U @ Vt
 
 
-def _check_limits(path: Path, robot, header: Header, q: np.ndarray, rows: np.ndarray,
+def _check_limits(path: Path, robot, columns: dict, q: np.ndarray, rows: np.ndarray,
                   tolerance: float) -> list[str]:
     """Notes for readings just past a limit; raise on the first row (then first column in header
     order) further beyond."""
@@ -540,7 +511,7 @@ def _check_limits(path: Path, robot, header: Header, q: np.ndarray, rows: np.nda
     beyond = excess > tol + 1e-12
     notes = []
     for i in np.flatnonzero(((excess > 0) & ~beyond).any(axis=0)):
-        c = header.columns[int(i)]
+        c = columns[int(i)]
         near = np.flatnonzero((excess[:, i] > 0) & ~beyond[:, i])
         shown = ", ".join(str(r) for r in rows[near[:10]]) + (", ..." if len(near) > 10 else "")
         notes.append(f"{path}: {robot.joints[i].name} is past its joint limit by up to "
@@ -550,8 +521,8 @@ def _check_limits(path: Path, robot, header: Header, q: np.ndarray, rows: np.nda
     if not beyond.any():
         return notes
     k = int(np.flatnonzero(beyond.any(axis=1))[0])
-    i = int(min(np.flatnonzero(beyond[k]), key=lambda j: header.columns[int(j)].index))
-    c, joint = header.columns[i], robot.joints[i]
+    i = int(min(np.flatnonzero(beyond[k]), key=lambda j: columns[int(j)].index))
+    c, joint = columns[i], robot.joints[i]
     value = q[k, i] / c.scale
     count = int(beyond[:, i].sum())
     others = f" ({count} rows of this column are outside)" if count > 1 else ""

@@ -172,7 +172,7 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
                         ignored_columns=tuple(c for t in tables for c in t.ignored_columns),
                         notes=tuple(n for t in tables for n in t.notes) + joined_notes
                         + _rename_notes(options, tables),
-                        orientation=f"euler:{options.euler}" if pose.orientation == "euler" else pose.orientation)
+                        orientation=f"euler:{pose.euler}" if pose.orientation == "euler" else pose.orientation)
 
 
 def write_measurements(path: str | Path, measurements: Measurements, *, angle_unit: str = "deg",

@@ -127,6 +127,23 @@ def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
     return quat
 
 
+def rotation_from_quaternion(wxyz: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices of unit quaternions (N, 4) (w, x, y, z), as Eigen's
+    toRotationMatrix computes them, vectorised (a million rows: no per-row objects)."""
+    w, x, y, z = wxyz.T
+    R = np.empty((len(wxyz), 3, 3))
+    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    R[:, 0, 1] = 2 * (x * y - w * z)
+    R[:, 0, 2] = 2 * (x * z + w * y)
+    R[:, 1, 0] = 2 * (x * y + w * z)
+    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    R[:, 1, 2] = 2 * (y * z - w * x)
+    R[:, 2, 0] = 2 * (x * z - w * y)
+    R[:, 2, 1] = 2 * (y * z + w * x)
+    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
 def rotation_from_rotvec(v: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) ``exp([v])`` of rotation vectors (..., 3), radians."""
     v = np.asarray(v, float)

@@ -107,3 +107,20 @@ def test_clean_data_are_not_checked_and_noisy_data_get_no_cause(ur5, monkeypatch
     res = calib.calibrate(robot, noisy, params="base", cv=0)
     assert calls == [1] and res.status == "converged"
     assert not any(n.startswith("likely cause") for n in res.notes)
+
+
+@pytest.mark.parametrize("order", [["rz_rad", "ry_rad", "rx_rad"], ["e1_rad", "e2_rad", "e3_rad"]])
+def test_a_rotation_vector_read_as_angles_is_named(order, ur5, tmp_path):
+    """A UR rotation vector under calib's ZYX names in calib's order (rz, ry, rx: read as ZYX
+    angles without a word from the reader), or as Euler angles: the refusal names rotation
+    vectors and --convention ur (issue 25); read as a rotation vector it fits to the noise."""
+    robot, meas, _ = ur5
+    path = tmp_path / "rotvec.csv"
+    rv = Rotation.from_matrix(meas.rotation).as_rotvec()
+    values = rv[:, ::-1] if order[0] == "rz_rad" else rv      # columns in the header's x/y/z order
+    _write(path, robot, meas, order, values)
+    options = calib.ReadOptions(euler="ZYX") if order[0] == "e1_rad" else None
+    res = calib.calibrate(robot, calib.read_measurements(path, robot, options=options), params="base", cv=0)
+    assert res.status == "implausible"
+    assert "likely cause: the orientation columns look like a rotation vector" in res.message
+    assert "--convention ur" in res.message

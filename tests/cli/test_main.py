@@ -16,7 +16,7 @@ from calib.cli.main import COMMANDS, build_parser, main
 from conftest import BUNDLED_URDF, ROOT
 
 #: The subcommands as ``calib --help`` lists them.
-NAMES = ["identifiability", "simulate", "calibrate", "evaluate", "select-poses", "compensate", "export"]
+NAMES = ["identifiability", "simulate", "calibrate", "evaluate", "select-poses", "compensate", "export", "formats"]
 
 
 def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:

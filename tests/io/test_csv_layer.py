@@ -537,11 +537,11 @@ def test_a_device_as_the_measurement_file_is_refused_at_once(device):
 
 
 def test_an_endless_stream_is_refused_past_the_memory_bound(monkeypatch, tmp_path):
-    """A pipe is read in chunks up to what memory can calibrate from, then refused; a finite
+    """A pipe is read in chunks up to what memory can read, then refused; a finite
     pipe reads as the file."""
     import threading
 
-    import calib.io.csv_layer as layer
+    import calib.io.csv_lines as layer
     from calib import load_robot, read_measurements
     from calib.errors import MeasurementFormatError
 
@@ -563,7 +563,7 @@ def test_an_endless_stream_is_refused_past_the_memory_bound(monkeypatch, tmp_pat
     m = read_measurements(fifo, robot)
     t.join()
     assert m.n_poses == read_measurements(src, robot).n_poses
-    monkeypatch.setattr(layer, "available_memory", lambda: 40 * 3_000_000)     # a 3 MB bound
+    monkeypatch.setattr(layer, "available_memory", lambda: int(layer.READ_BYTES_PER_FILE_BYTE * 3_000_000))     # a 3 MB bound
     t = threading.Thread(target=feed, args=(b"1,2,3,4,5,6\n" * 100_000, 20))   # 24 MB
     t.start()
     with pytest.raises(MeasurementFormatError, match="not at its end"):
@@ -577,12 +577,12 @@ def test_vectorised_quaternion_and_zyx_matrices_match_pinocchio():
     Quaternion.toRotationMatrix (bit for bit) and rpyToMatrix (to 1e-15) on 1,000 random rows."""
     import pinocchio as pin
 
-    from calib.io.csv_layer import _quaternion_matrices, _zyx_matrices
+    from calib.model.spatial import rotation_from_quaternion, rotation_from_zyx
 
     rng = np.random.default_rng(0)
     q = rng.normal(size=(1000, 4))
     q /= np.linalg.norm(q, axis=1)[:, None]
-    np.testing.assert_array_equal(_quaternion_matrices(q), [pin.Quaternion(*v).toRotationMatrix() for v in q])
+    np.testing.assert_array_equal(rotation_from_quaternion(q), [pin.Quaternion(*v).toRotationMatrix() for v in q])
     ang = rng.uniform(-3.2, 3.2, (1000, 3))
-    np.testing.assert_allclose(_zyx_matrices(ang), [pin.rpy.rpyToMatrix(rx, ry, rz) for rz, ry, rx in ang],
+    np.testing.assert_allclose(rotation_from_zyx(ang), [pin.rpy.rpyToMatrix(rx, ry, rz) for rz, ry, rx in ang],
                                rtol=0, atol=1e-15)

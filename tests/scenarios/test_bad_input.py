@@ -512,13 +512,13 @@ def test_distinct_configurations_counts_repeats_once():
 
 
 def test_file_too_large_for_the_memory_is_refused_before_reading(sim, monkeypatch):
-    import calib.io.csv_layer as layer
+    import calib.io.csv_lines as layer     # (the text of files: calib.io.csv_lines)
 
     d, robot, _ = sim
     size = (d / "cal.csv").stat().st_size
-    monkeypatch.setattr(layer, "available_memory", lambda: int(size * layer.MEMORY_BYTES_PER_FILE_BYTE) - 1)
-    with pytest.raises(calib.MeasurementFormatError, match=r"cal.csv: 0 MB: reading and calibrating "
-                                                           r"from it needs about 0.0 GB of memory"):
+    monkeypatch.setattr(layer, "available_memory", lambda: int(size * layer.READ_BYTES_PER_FILE_BYTE) - 1)
+    with pytest.raises(calib.MeasurementFormatError, match=r"cal.csv: 0 MB: reading it needs about "
+                                                           r"0.0 GB of memory"):
         calib.read_measurements(d / "cal.csv", robot)
 
 

@@ -1,0 +1,33 @@
+"""``calib formats``: the column rules of calib's files and the vendor conventions, as a help page
+(an installed wheel needs no README); ``--markdown`` prints the conventions table of README.md."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from calib.cli.args import HelpFormatter
+from calib.cli.output import EXIT_OK
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add ``formats`` to ``subparsers``; it runs :func:`run`."""
+    p = subparsers.add_parser("formats", help="the column rules of measurement files and the vendor "
+                                              "conventions (--convention)",
+                              description="Print every column rule of calib's measurement, poses and "
+                                          "targets files, and the table of vendor conventions that "
+                                          "--convention NAME reads.",
+                              formatter_class=HelpFormatter)
+    p.add_argument("--markdown", action="store_true",
+                   help="print only the conventions table, in Markdown (as in README.md)")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the help page (or the Markdown table); returns 0."""
+    from calib.io.conventions import format_help, markdown_table
+
+    sys.stdout.write(markdown_table() if args.markdown else format_help())
+    return EXIT_OK
