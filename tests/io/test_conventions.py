@@ -459,3 +459,22 @@ def test_a_tracker_file_with_rx_ry_rz_cannot_be_decided_and_is_refused(data, tmp
     got = calib.read_measurements(joints, robot, tracker=tracker,
                                   options=calib.ReadOptions(key="point", convention="ur"))
     np.testing.assert_allclose(got.rotation, m.rotation, atol=1e-12)
+
+
+def test_calib_formats_names_every_file_format_flag():
+    """`calib formats` is the installed wheel's column reference: every option of calibrate's
+    file-format group (the joins included) and the touch rows' columns are named in it."""
+    import argparse
+
+    from calib.cli.args import add_file_format
+    from calib.io.conventions import format_help
+
+    p = argparse.ArgumentParser()
+    add_file_format(p, tracker=True)
+    flags = [s for a in p._actions for s in a.option_strings if s.startswith("--") and s != "--help"]
+    assert len(flags) >= 12
+    text = format_help()
+    missing = [f for f in flags if f not in text]
+    assert missing == []
+    for column in ("point", "plane", "sphere", "radius_mm", "pose_id", "temperature"):
+        assert column in text
