@@ -30,7 +30,12 @@ select_poses of 30 poses from 100,000 candidates, and ``calib --help`` over
 Timings are medians; the targets are per core (one BLAS thread). On a loaded machine wall times
 grow with the load: the load average is printed with the figures, and CPU times beside them.
 
-Run: python scripts/bench_speed.py [--max-poses 100000] [--study] [--figaroh PYTHON]
+With ``--end-to-end N`` only the end-to-end figures of N simulated rows (issue 27 item 6: N =
+1000000): reading, calibrate(), the URDF and the JSON report, each stage's time and the peak
+memory after it in a fresh process, then the whole ``calib calibrate --report`` process (wall
+time, peak resident memory).
+
+Run: python scripts/bench_speed.py [--max-poses 100000] [--study] [--figaroh PYTHON] [--end-to-end N]
 """
 from __future__ import annotations
 
@@ -174,6 +179,69 @@ def select_100k(n: int = 30, candidates: int = 100_000) -> dict:
     t, c = time.perf_counter(), time.process_time()
     calib.select_poses(robot, n, candidates=candidates, seed=1)
     return {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
+
+
+# ---------------------------------------------------------------------- 1d. rows end to end
+def end_to_end_child(csv: str, out: str) -> dict:
+    """In a fresh process: read ``csv``, calibrate with the defaults, write the URDF, build and
+    serialise the JSON report (as ``calib calibrate --report``); the seconds of each stage and
+    the peak resident memory after each (MB)."""
+    import calib
+    from calib.calibration.report import build_report
+    from calib.cli.output import json_text
+    from calib.io.urdf_writer import write_calibrated_urdf
+
+    def peak_mb():
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) / 1024 for line in f if line.startswith("VmHWM:"))
+
+    robot = calib.load_robot(URDF)
+    stages, t = {}, time.perf_counter()
+
+    def mark(name):
+        nonlocal t
+        now = time.perf_counter()
+        stages[name] = {"s": now - t, "peak_mb": peak_mb()}
+        t = now
+
+    m = calib.read_measurements(csv, robot)
+    mark("read")
+    res = calib.calibrate(robot, m)
+    mark("calibrate")
+    frames = write_calibrated_urdf(res.robot, Path(out) / "c.urdf", nominal=robot)
+    mark("urdf")
+    text = json_text(build_report(res, m, None, frames={"written_urdf": frames.to_dict()}))
+    mark("report")
+    return {"stages": stages, "report_mb": len(text) / 1e6, "status": res.status}
+
+
+def end_to_end(n: int) -> dict:
+    """n simulated rows of the bundled robot written as a CSV, then (1) the stages of
+    :func:`end_to_end_child` in a fresh process and (2) the whole ``calib calibrate --report``
+    process: wall time and peak resident memory."""
+    import resource
+
+    import calib
+
+    robot, meas = problem(n)
+    with tempfile.TemporaryDirectory() as tmp:
+        csv = Path(tmp) / "m.csv"
+        calib.write_measurements(csv, meas)
+        del meas
+        # (first: the children's peak resident memory is then this process's)
+        cmd = [sys.executable, "-m", "calib", "calibrate", str(URDF), str(csv), "-o", str(Path(tmp) / "cli.urdf"),
+               "--report", str(Path(tmp) / "cli.json")]
+        t = time.perf_counter()
+        r = subprocess.run(cmd, env=_env(), capture_output=True, cwd=tmp)
+        cli = {"s": time.perf_counter() - t, "exit": r.returncode,
+               "peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
+        r = subprocess.run([sys.executable, __file__, "--end-to-end-child", str(csv), tmp], env=_env(),
+                           capture_output=True, text=True)
+        if r.returncode != 0:
+            raise RuntimeError(f"end to end, {n} rows: {r.stderr[-1000:]}")
+        child = json.loads(r.stdout.strip().splitlines()[-1])
+        child["cli"] = cli
+    return child
 
 
 # ---------------------------------------------------------------------- 2. FIGAROH
@@ -346,7 +414,24 @@ def main(argv=None) -> int:
     ap.add_argument("--one-size", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--figaroh-worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--first-call", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--end-to-end", type=int, metavar="N",
+                    help="only the end-to-end figures of N rows (issue 27 item 6: 1000000): read, calibrate, "
+                         "URDF, JSON report, each stage's time and peak memory, and the whole calib calibrate "
+                         "--report process")
+    ap.add_argument("--end-to-end-child", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.end_to_end_child:
+        print(json.dumps(end_to_end_child(*args.end_to_end_child)))
+        return 0
+    if args.end_to_end:
+        e = end_to_end(args.end_to_end)
+        print(f"{args.end_to_end:,} rows end to end ({e['status']}; issue 27: <= 60 s, <= 1 GB peak):")
+        for name, st in e["stages"].items():
+            print(f"  {name:<10} {st['s']:8.2f} s   peak so far {st['peak_mb']:7.0f} MB")
+        print(f"  report JSON {e['report_mb']:.0f} MB")
+        print(f"  calib calibrate --report process: {e['cli']['s']:.1f} s, peak {e['cli']['peak_mb']:.0f} MB "
+              f"(exit {e['cli']['exit']})")
+        return 0
     if args.first_call:
         print(json.dumps(first_call(args.first_call)))
         return 0
