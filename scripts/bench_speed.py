@@ -18,13 +18,24 @@ Prints, for the bundled robot (BRTIRUS0707A, the paper's deviations of Tables 4-
    1M adds about two minutes: two calibrations of ~55 s, ~0.4 GB above the data): wall time of ``calibrate()`` and its
    peak memory above the loaded data (tracemalloc, which numpy reports its arrays to, started
    after the data are made), each size in a fresh subprocess; then t(100k) / t(10k).
+Issue 27's figures, each beside its earlier figure and target: calibrate() with its defaults on
+25 poses (warm, and the first call of a fresh process), on the 1,402 real iiwa rows of
+../shared/realdata/iiwa7_optical (defaults and compliance=True; skipped when absent),
+select_poses of 30 poses from 100,000 candidates, and ``calib --help`` over
+``python -c "import numpy"`` beside item 3.
+
 5. With ``--study``, the 63 x 63 convergence study of scripts/reproduce_paper.py on 2 workers
    (about a minute or more; skipped by default).
 
 Timings are medians; the targets are per core (one BLAS thread). On a loaded machine wall times
 grow with the load: the load average is printed with the figures, and CPU times beside them.
 
-Run: python scripts/bench_speed.py [--max-poses 100000] [--study] [--figaroh PYTHON]
+With ``--end-to-end N`` only the end-to-end figures of N simulated rows (issue 27 item 6: N =
+1000000): reading, calibrate(), the URDF and the JSON report, each stage's time and the peak
+memory after it in a fresh process, then the whole ``calib calibrate --report`` process (wall
+time, peak resident memory).
+
+Run: python scripts/bench_speed.py [--max-poses 100000] [--study] [--figaroh PYTHON] [--end-to-end N]
 """
 from __future__ import annotations
 
@@ -43,6 +54,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+# the in-process figures time this checkout's calib, not an installed one (the subprocesses get
+# PYTHONPATH: _env)
+sys.path.insert(0, str(ROOT))
 URDF = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
 SIZES = (100, 1_000, 10_000, 100_000, 1_000_000)
 #: The issue's figures before the speed work (same machine class, unloaded).
@@ -51,6 +65,13 @@ BEFORE = {"calibrate_100_ms": 25.0, "solver_100_ms": 12.0, "figaroh_ratio": 23.0
 TARGET = {"calibrate_100_ms": 15.0, "figaroh_ratio": 30.0, "process_ratio": 2.0,
           "scaling_ratio": 11.0, "memory_100k_mb": 100.0, "study_s": 60.0}
 
+
+#: Issue 27's figures before its speed work (the last session's note, same machine).
+BEFORE_27 = {"calibrate_100_cpu_ms": 9.1, "calibrate_25_ms": 31.6, "first_25_ms": 69.0, "process_ratio": 1.84,
+             "select_100k_s": 63.0, "iiwa_ms": 393.0, "iiwa_compliance_ms": 878.0}
+TARGET_27 = {"calibrate_100_ms": 7.0, "calibrate_25_ms": 25.0, "first_ratio": 3.0, "process_ratio": 1.3,
+             "help_ratio": 1.5, "select_100k_s": 10.0, "iiwa_ms": 100.0, "iiwa_compliance_ms": 200.0}
+REALDATA = ROOT.parent / "shared" / "realdata" / "iiwa7_optical"
 
 #: Bytecode cache of the subprocesses: compiled once, as after an install (the environment may
 #: set PYTHONDONTWRITEBYTECODE, which would make every run compile calib from source).
@@ -128,6 +149,99 @@ def first_call(n: int) -> dict:
     t = time.perf_counter()
     calib.calibrate(robot, meas)
     return {"first_s": time.perf_counter() - t}
+
+
+# ---------------------------------------------------------------------- 1c. real data, selection
+def iiwa_real(repeats: int = 5) -> dict | str:
+    """calibrate() on the 1,402 real iiwa rows (../shared/realdata/iiwa7_optical, the inertial
+    URDF as scripts/bench_realdata.py loads it): warm medians with the defaults (terms='auto'
+    chooses the joint terms by cross-validation there: issue 22 made it the default after issue
+    27 was filed), with terms='none' (the default when issue 27 was filed) and with
+    compliance=True, or why not measured."""
+    import calib
+
+    urdf, csv = REALDATA / "iiwa7_optical_inertial.urdf", REALDATA / "iiwa7_optical.csv"
+    if not (urdf.is_file() and csv.is_file()):
+        return f"skipped: {REALDATA} absent"
+    robot = calib.load_robot(urdf)
+    m = calib.read_measurements(csv, robot)
+    out = {"rows": m.n_poses}
+    for key, kwargs in (("default", {}), ("geometry", {"terms": "none"}), ("compliance", {"compliance": True})):
+        out[key + "_ms"] = _bench.median_time(lambda: calib.calibrate(robot, m, **kwargs), repeats) * 1e3
+    return out
+
+
+def select_100k(n: int = 30, candidates: int = 100_000) -> dict:
+    """calib.select_poses: n poses of the bundled robot from 100k candidates (one run: wall, CPU)."""
+    import calib
+
+    robot = calib.load_robot(URDF)
+    t, c = time.perf_counter(), time.process_time()
+    calib.select_poses(robot, n, candidates=candidates, seed=1)
+    return {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
+
+
+# ---------------------------------------------------------------------- 1d. rows end to end
+def end_to_end_child(csv: str, out: str) -> dict:
+    """In a fresh process: read ``csv``, calibrate with the defaults, write the URDF, build and
+    serialise the JSON report (as ``calib calibrate --report``); the seconds of each stage and
+    the peak resident memory after each (MB)."""
+    import calib
+    from calib.calibration.report import build_report
+    from calib.cli.output import json_text
+    from calib.io.urdf_writer import write_calibrated_urdf
+
+    def peak_mb():
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) / 1024 for line in f if line.startswith("VmHWM:"))
+
+    robot = calib.load_robot(URDF)
+    stages, t = {}, time.perf_counter()
+
+    def mark(name):
+        nonlocal t
+        now = time.perf_counter()
+        stages[name] = {"s": now - t, "peak_mb": peak_mb()}
+        t = now
+
+    m = calib.read_measurements(csv, robot)
+    mark("read")
+    res = calib.calibrate(robot, m)
+    mark("calibrate")
+    frames = write_calibrated_urdf(res.robot, Path(out) / "c.urdf", nominal=robot)
+    mark("urdf")
+    text = json_text(build_report(res, m, None, frames={"written_urdf": frames.to_dict()}))
+    mark("report")
+    return {"stages": stages, "report_mb": len(text) / 1e6, "status": res.status}
+
+
+def end_to_end(n: int) -> dict:
+    """n simulated rows of the bundled robot written as a CSV, then (1) the stages of
+    :func:`end_to_end_child` in a fresh process and (2) the whole ``calib calibrate --report``
+    process: wall time and peak resident memory."""
+    import resource
+
+    import calib
+
+    robot, meas = problem(n)
+    with tempfile.TemporaryDirectory() as tmp:
+        csv = Path(tmp) / "m.csv"
+        calib.write_measurements(csv, meas)
+        del meas
+        # (first: the children's peak resident memory is then this process's)
+        cmd = [sys.executable, "-m", "calib", "calibrate", str(URDF), str(csv), "-o", str(Path(tmp) / "cli.urdf"),
+               "--report", str(Path(tmp) / "cli.json")]
+        t = time.perf_counter()
+        r = subprocess.run(cmd, env=_env(), capture_output=True, cwd=tmp)
+        cli = {"s": time.perf_counter() - t, "exit": r.returncode,
+               "peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
+        r = subprocess.run([sys.executable, __file__, "--end-to-end-child", str(csv), tmp], env=_env(),
+                           capture_output=True, text=True)
+        if r.returncode != 0:
+            raise RuntimeError(f"end to end, {n} rows: {r.stderr[-1000:]}")
+        child = json.loads(r.stdout.strip().splitlines()[-1])
+        child["cli"] = cli
+    return child
 
 
 # ---------------------------------------------------------------------- 2. FIGAROH
@@ -211,8 +325,11 @@ def process_ratio(repeats: int = 7) -> dict:
         cmd = [sys.executable, "-m", "calib", "calibrate", str(URDF), str(csv), "-o", str(Path(tmp) / "c.urdf")]
         ref = [sys.executable, "-c", "import pinocchio"]
         imp = [sys.executable, "-c", "import calib"]
+        helps = [sys.executable, "-m", "calib", "--help"]
+        numpy = [sys.executable, "-c", "import numpy"]
         out = {}
-        for name, argv in (("calibrate", cmd), ("pinocchio", ref), ("import_calib", imp)):
+        for name, argv in (("calibrate", cmd), ("pinocchio", ref), ("import_calib", imp), ("help", helps),
+                           ("numpy", numpy)):
             subprocess.run(argv, env=_env(), capture_output=True, cwd=tmp)   # warm the caches
             times = []
             for _ in range(repeats):
@@ -297,7 +414,24 @@ def main(argv=None) -> int:
     ap.add_argument("--one-size", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--figaroh-worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--first-call", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--end-to-end", type=int, metavar="N",
+                    help="only the end-to-end figures of N rows (issue 27 item 6: 1000000): read, calibrate, "
+                         "URDF, JSON report, each stage's time and peak memory, and the whole calib calibrate "
+                         "--report process")
+    ap.add_argument("--end-to-end-child", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.end_to_end_child:
+        print(json.dumps(end_to_end_child(*args.end_to_end_child)))
+        return 0
+    if args.end_to_end:
+        e = end_to_end(args.end_to_end)
+        print(f"{args.end_to_end:,} rows end to end ({e['status']}; issue 27: <= 60 s, <= 1 GB peak):")
+        for name, st in e["stages"].items():
+            print(f"  {name:<10} {st['s']:8.2f} s   peak so far {st['peak_mb']:7.0f} MB")
+        print(f"  report JSON {e['report_mb']:.0f} MB")
+        print(f"  calib calibrate --report process: {e['cli']['s']:.1f} s, peak {e['cli']['peak_mb']:.0f} MB "
+              f"(exit {e['cli']['exit']})")
+        return 0
     if args.first_call:
         print(json.dumps(first_call(args.first_call)))
         return 0
@@ -311,11 +445,13 @@ def main(argv=None) -> int:
     print(f"machine: {_bench.machine()}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     c = calibrate_100()
     print(f"calibrate(), 100 poses: median {c['calibrate_ms']:.2f} ms wall, {c['calibrate_cpu_ms']:.2f} ms CPU; "
-          f"search-lm solver alone {c['solver_ms']:.2f} ms")
+          f"search-lm solver alone {c['solver_ms']:.2f} ms (issue 27: before {BEFORE_27['calibrate_100_cpu_ms']:g} ms "
+          f"CPU, target <= {TARGET_27['calibrate_100_ms']:g} ms)")
     small = calibrate_25()
     print(f"calibrate(), 25 poses (default estimator: {small['estimator']}): median {small['warm_ms']:.1f} ms warm; "
           f"first call of a process {small['first_ms']:.0f} ms ({small['first_ms'] / small['warm_ms']:.1f}x; "
-          f"issue 27: <= 25 ms warm, first <= 3x)")
+          f"issue 27: before {BEFORE_27['calibrate_25_ms']:g} ms warm, first {BEFORE_27['first_25_ms']:g} ms; "
+          f"target <= {TARGET_27['calibrate_25_ms']:g} ms warm, first <= {TARGET_27['first_ratio']:g}x)")
     fig = figaroh_ratio(args.figaroh)
     if isinstance(fig, dict):
         print(f"FIGAROH {fig['figaroh_version']}: fit {fig['figaroh_s'] * 1e3:.0f} ms, calib {fig['calib_s'] * 1e3:.1f} ms "
@@ -323,10 +459,26 @@ def main(argv=None) -> int:
               f"calib {fig['calib_val_rms_mm']:.4f} mm")
     else:
         print(f"FIGAROH: {fig}")
+    real = iiwa_real()
+    if isinstance(real, dict):
+        print(f"calibrate(), {real['rows']:,} real iiwa rows: median {real['default_ms']:.0f} ms warm with the "
+              f"defaults (terms='auto': cross-validated choice of the joint terms), {real['geometry_ms']:.0f} ms "
+              f"with terms='none' (before {BEFORE_27['iiwa_ms']:g}, target <= {TARGET_27['iiwa_ms']:g}); compliance=True "
+              f"{real['compliance_ms']:.0f} ms (before {BEFORE_27['iiwa_compliance_ms']:g}, "
+              f"target <= {TARGET_27['iiwa_compliance_ms']:g})")
+    else:
+        print(f"calibrate(), real iiwa rows: {real}")
+    sel = select_100k()
+    print(f"select_poses, 30 of 100,000 candidates: {sel['wall_s']:.1f} s wall, {sel['cpu_s']:.1f} s CPU "
+          f"(before {BEFORE_27['select_100k_s']:g} s, target <= {TARGET_27['select_100k_s']:g} s)")
     p = process_ratio()
     ratio = p["calibrate"] / p["pinocchio"]
     print(f"process: calib calibrate {p['calibrate']:.3f} s, import calib {p['import_calib']:.3f} s, "
-          f"import pinocchio {p['pinocchio']:.3f} s")
+          f"import pinocchio {p['pinocchio']:.3f} s; calib --help {p['help']:.3f} s, import numpy "
+          f"{p['numpy']:.3f} s")
+    print(f"issue 27: calib calibrate / import pinocchio {ratio:.2f}x (before {BEFORE_27['process_ratio']:g}x, "
+          f"target <= {TARGET_27['process_ratio']:g}x); calib --help / import numpy "
+          f"{p['help'] / p['numpy']:.2f}x (target <= {TARGET_27['help_ratio']:g}x)")
     print("scaling (calibrate() with its defaults, fresh process per size):")
     rows = scaling(args.max_poses)
     by_n = {r["n"]: r for r in rows}

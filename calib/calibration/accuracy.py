@@ -8,6 +8,7 @@ from typing import Sequence
 
 import numpy as np
 
+from calib.calibration.frames import project_to_so3
 from calib.calibration.options import _check_compatible
 from calib.model.measurements import check_measurements
 from calib.model.robot import check_robot
@@ -157,13 +158,12 @@ def register_measurement_frame(robot: RobotModel, measurements: Measurements) ->
     """``robot`` with its measurement frame moved by the rigid transform that best fits its tool
     positions to the measured ones (least squares over the positions only; the convention of
     tracker software for "before calibration" errors)."""
-    from scipy.spatial.transform import Rotation
-
     _, p_nom = ChainKinematics(robot).frame_poses(measurements.q, targets=target_rows(robot, measurements))
     c_nom, c_meas = p_nom.mean(axis=0), measurements.position.mean(axis=0)
-    R, _ = Rotation.align_vectors(measurements.position - c_meas, p_nom - c_nom)
+    # the rotation R minimising sum |a_i - R b_i|^2: the one closest to sum a_i b_i^T (Kabsch;
+    # scipy's Rotation.align_vectors, whose import costs 0.4 s)
     T = np.eye(4)
-    T[:3, :3] = R.as_matrix()
+    T[:3, :3] = project_to_so3((measurements.position - c_meas).T @ (p_nom - c_nom))
     T[:3, 3] = c_meas - T[:3, :3] @ c_nom
     return replace(robot, T_meas_base_ref=T @ robot.T_meas_base_ref)
 

@@ -62,12 +62,20 @@ class NoiseEstimate:
     chi2_rot: float | None
     chi2: float
     dof: float
-    p_value: float | None
     iterations: int
 
     @property
     def reduced_chi2(self) -> float:
         return self.chi2 / max(self.dof, 1e-300)
+
+    @property
+    def p_value(self) -> float | None:
+        """The chi-square test's two-sided p-value (None when the noise levels were estimated),
+        computed when asked: a report needs it, the fit does not (scipy.special, imported only
+        then, costs 0.3 s; scipy.stats seconds)."""
+        if self.estimated:
+            return None
+        return _chi2_p_value(self.chi2, self.dof)
 
     def to_dict(self) -> dict:
         return {"position_mm": self.position * 1e3, "rotation_rad": self.rotation,
@@ -151,18 +159,20 @@ def _noise_estimate(problem: Problem, lin: _Linearised, estimated: bool, iterati
     ne, red_p, red_r = lin.ne, lin.red_pos, lin.red_rot
     dof = red_p + red_r
     chi2 = ne.rss_pos + ne.rss_rot
-    p_value = None
-    if not estimated:
-        # chi-square distribution functions (scipy.special: scipy.stats costs seconds to import);
-        # two-sided: residuals far below the given noise disagree with it as much as far above
-        from scipy.special import gammainc, gammaincc
-
-        k = max(dof, 1e-9) / 2.0
-        p_value = float(min(1.0, 2.0 * min(gammaincc(k, chi2 / 2.0), gammainc(k, chi2 / 2.0))))
     has_rot = problem.has_orientation
     return NoiseEstimate(problem.sigma_pos, problem.sigma_rot if has_rot else None, estimated,
                          red_p, red_r, ne.rss_pos / max(red_p, 1e-300),
-                         ne.rss_rot / max(red_r, 1e-300) if has_rot else None, chi2, dof, p_value, iterations)
+                         ne.rss_rot / max(red_r, 1e-300) if has_rot else None, chi2, dof, iterations)
+
+
+def _chi2_p_value(chi2: float, dof: float) -> float:
+    """Two-sided p-value of a chi-square ``chi2`` with ``dof`` degrees of freedom: residuals far
+    below the given noise disagree with it as much as far above (scipy.special's regularised
+    incomplete gamma functions: scipy.stats costs seconds to import)."""
+    from scipy.special import gammainc, gammaincc
+
+    k = max(dof, 1e-9) / 2.0
+    return float(min(1.0, 2.0 * min(gammaincc(k, chi2 / 2.0), gammainc(k, chi2 / 2.0))))
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,11 @@ from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.solvers.problem import Problem
 
+#: Calibration rows the choice of the joint terms is judged on at most: above, an evenly spaced
+#: subset of this many (10,000 full-pose rows hold 60,000 residual components for at most a few
+#: dozen parameters: the paired standard errors of the held-out scores are already small, and
+#: judging every row of 100,000 cost three times the final fit).
+TERMS_MAX_ROWS = 10_000
 #: A compliance this many standard deviations below zero gets a note.
 NEGATIVE_COMPLIANCE_SIGMAS = 3.0
 #: The payload note: the relative change of the payload mass it reports the compliances' response to.
@@ -159,13 +164,15 @@ class TermScore:
 class TermsChoice:
     """What :func:`choose_terms` returns: the chosen groups (``compliance``, ``periodic``), the
     candidates' scores (``table``, smallest first; () when the data were too few to judge),
-    ``folds``, and ``reason``: why (a sentence for the report)."""
+    ``folds``, ``reason``: why (a sentence for the report), and ``rows``: the calibration rows the
+    choice was judged on when it used an evenly spaced subset of them (TERMS_MAX_ROWS), else None."""
 
     compliance: bool
     periodic: bool
     table: tuple[TermScore, ...] = field(default=())
     folds: int = 0
     reason: str = ""
+    rows: int | None = None
 
     @property
     def label(self) -> str:
@@ -187,7 +194,7 @@ class TermsChoice:
 
     def to_dict(self) -> dict:
         return {"chosen": self.label, "compliance": self.compliance, "periodic": self.periodic,
-                "folds": self.folds, "reason": self.reason, "min_se": TERMS_MIN_SE,
+                "folds": self.folds, "reason": self.reason, "min_se": TERMS_MIN_SE, "rows_judged": self.rows,
                 "candidates": [{"label": t.label, "n_free": t.n_free, "score": t.score,
                                 "se_vs_geometry": t.se_vs_geometry, "position_rms_mm": t.position_rms * 1e3,
                                 "rotation_rms_rad": t.rotation_rms} for t in self.table]}
@@ -231,6 +238,10 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         return TermsChoice(False, False, reason=f"{per_param:.1f} residual components per parameter of the "
                                                 f"largest candidate, below {TERMS_MIN_COMPONENTS_PER_PARAM:g}: "
                                                 f"too few rows to judge the joint terms")
+    judged_rows = None
+    if cal.n_poses > TERMS_MAX_ROWS:
+        judged_rows = TERMS_MAX_ROWS
+        measurements = cal.subset(np.linspace(0, cal.n_poses - 1, TERMS_MAX_ROWS).round().astype(int))
     table, rows = [], {}
     geo_scores = None
     sp = sr = keep = None
@@ -267,7 +278,9 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     best = pick_terms(table, rows)
     reason = (f"{best.label} beat the smaller candidates by more than {TERMS_MIN_SE:g} paired standard errors"
               if best is not table[0] else "no term group beat the geometry by the margin")
-    return TermsChoice(best.compliance, best.periodic, tuple(table), folds, reason)
+    if judged_rows is not None:
+        reason += f"; judged on {judged_rows:,} evenly spaced of the {cal.n_poses:,} calibration rows"
+    return TermsChoice(best.compliance, best.periodic, tuple(table), folds, reason, judged_rows)
 
 
 def pick_terms(table, row_scores: dict) -> TermScore:

@@ -182,16 +182,30 @@ def main(argv: Sequence[str] | None = None) -> int:
 def main_entry() -> None:
     """Console-script entry point: ``sys.exit(main())`` with one BLAS thread. calib's matrices
     are small (tens of columns): BLAS threads only add start-up and, on a busy machine,
-    contention (a 70 ms calibration was seen taking 2 s with them)."""
-    from threadpoolctl import threadpool_limits
+    contention (a 70 ms calibration was seen taking 2 s with them).
 
+    numpy is imported by the commands, after this point: the BLAS libraries read their thread
+    count from the environment when they load, so it is set there (threadpoolctl, which limits
+    the libraries already loaded, limited none: the commands ran with one BLAS thread per core).
+    When numpy is already loaded (main_entry called from a Python program) threadpoolctl does it."""
+    import contextlib
+    import os
+
+    if "numpy" in sys.modules:
+        from threadpoolctl import threadpool_limits
+
+        limit = threadpool_limits(limits=1, user_api="blas")
+    else:
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ[var] = "1"
+        limit = contextlib.nullcontext()
     # (main's handlers on both sides of main: a signal before it stops with the one line, one
     # after it is recorded when the outputs are in place; then ignored while Python exits, so
     # that the exit code stays the command's)
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, _raise_interrupted)
     try:
-        with threadpool_limits(limits=1, user_api="blas"):
+        with limit:
             code = main()
     except (Interrupted, KeyboardInterrupt) as exc:     # (outside main's run: nothing written)
         signum = getattr(exc, "signum", signal.SIGINT)

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import MeasurementFormatError
+from calib.errors import CalibError, MeasurementFormatError
 from calib.io.csv_layer import LENGTH_UNITS, ReadOptions, Spec, _records, csv_text, joint_columns, read_table
 from calib.io.fileio import atomic_write_text, check_not_input
 from calib.model.touch import FEATURE_KINDS, Feature, TouchData
@@ -44,11 +44,49 @@ TOUCH = Spec("touch", joints="required", position="optional", orientation=True, 
 RADIUS_TOL = 1e-9
 
 
+#: Bytes of a file's start in which :func:`is_touch_file` looks for the header row before it
+#: reads the whole file as the readers do.
+_HEADER_PEEK = 1 << 16
+
+
 def is_touch_file(path: str | Path) -> bool:
     """Whether the header of the CSV file ``path`` has a ``point``, ``plane`` or ``sphere``
-    column (the file is then read by :func:`read_touch`)."""
-    names = _records(Path(path))[1]
+    column (the file is then read by :func:`read_touch`). The header row of a regular UTF-8 file
+    is found in its first 64 KB (``calib calibrate`` asks this of every measurement file: a
+    million-row file was read whole, twice); other files are read as the readers read them."""
+    path = Path(path)
+    names = _peek_header(path)
+    if names is None:
+        names = _records(path)[1]
     return any(n.strip().lower() in FEATURE_KINDS for n in names)
+
+
+def _peek_header(path: Path) -> list[str] | None:
+    """The header names of a regular file from its first _HEADER_PEEK bytes, split as
+    :func:`calib.io.csv_layer._records` splits them, or None when they do not settle it (not a
+    regular file, not UTF-8 there, no complete header line, a header that looks like data)."""
+    from calib.io.csv_layer import _DELIMITERS, _field_count, _looks_numeric, split_fields
+
+    try:
+        if not path.is_file():
+            return None
+        with open(path, "rb") as f:
+            head = f.read(_HEADER_PEEK)
+        text = head.decode("utf-8-sig")
+    except (OSError, UnicodeDecodeError):
+        return None
+    text = text.replace("\r\n", "\n").replace("\r", "\n")
+    lines = text.split("\n")
+    complete = lines[:-1] if len(head) == _HEADER_PEEK else lines     # (the last may be cut)
+    for k, line in enumerate(complete):
+        if line.strip() and not line.lstrip().startswith("#"):
+            try:
+                best = max(_DELIMITERS, key=lambda d: _field_count(path, k + 1, line, d))
+                names = split_fields(path, k + 1, line, best)
+            except CalibError:
+                return None
+            return None if _looks_numeric(names) else names
+    return None
 
 
 def read_touch(csv_path: str | Path, robot, *, probe_radius: float = 0.0,

@@ -60,8 +60,12 @@ STANDARD_GRAVITY = 9.80665
 URDF_NOTE = ("the calibrated URDF holds the geometry only (URDF cannot hold joint compliance); "
              "the compliances are in this report and in the sidecar JSON written beside the URDF, "
              "which 'calib compensate --compliance' reads")
-#: Torque cache entries kept per model (the calibration rows' chunks are re-evaluated each step).
+#: Whole-array torque cache entries kept per gravity model (the calibration rows, their subsets
+#: and chunks are re-evaluated at every step of every fit).
 _CACHE_SIZE = 16
+#: Rows of the per-configuration torque memo of a gravity model (cleared when full: about
+#: 0.3 KB a row).
+_ROW_MEMO_SIZE = 200_000
 
 
 def _finite_vector(value, name: str, size: int = 3) -> np.ndarray:
@@ -145,6 +149,11 @@ class GravityModel:
     payload: Payload | None
     gravity: np.ndarray
     link_mass: float
+    #: Torques already computed, by content: whole arrays (shape, hash of the bytes) and single
+    #: configurations (their bytes). A model's torques depend on the configurations only, so
+    #: every kinematics object, fit, fold and subset of a data set shares them.
+    _arrays: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _rows: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def from_chain(cls, chain: UrdfSource, *, payload: Payload | None = None,
@@ -201,12 +210,42 @@ class GravityModel:
     def torques(self, Q: np.ndarray) -> np.ndarray:
         """(N, n) torque of gravity on each chain joint (N m; N for prismatic), at joint values
         Q (N, n) rad / m: minus Pinocchio's generalized gravity."""
-        Q = check_configurations(Q, len(self.chain.joint_ids))
-        data = self.model.createData()
-        idx_v = [self.model.joints[j].idx_v for j in self.chain.joint_ids]
+        Q = np.ascontiguousarray(check_configurations(Q, len(self.chain.joint_ids)), dtype=float)
+        key = (Q.shape, hash(Q.tobytes()))
+        tau = self._arrays.get(key)
+        if tau is not None:
+            return tau
+        rows = self._rows
+        keys = [q.tobytes() for q in Q]
+        missing = [k for k, b in enumerate(keys) if b not in rows]
+        if missing:
+            if len(rows) + len(missing) > _ROW_MEMO_SIZE:
+                rows.clear()
+            for k, t in zip(missing, self._compute(Q[missing])):
+                rows[keys[k]] = t
+        tau = np.array([rows[b] for b in keys]).reshape(Q.shape)
+        tau.setflags(write=False)
+        if len(self._arrays) >= _CACHE_SIZE:
+            self._arrays.pop(next(iter(self._arrays)))
+        self._arrays[key] = tau
+        return tau
+
+    def _compute(self, Q: np.ndarray) -> np.ndarray:
+        """(N, n) torques at Q (N, n) by Pinocchio, one configuration at a time."""
+        model = self.model
+        data = model.createData()
+        idx_v = [model.joints[j].idx_v for j in self.chain.joint_ids]
+        # the whole model's configurations at once (joints off the chain at their neutral value)
+        full = np.tile(pin.neutral(model), (len(Q), 1))
+        for k, jid in enumerate(self.chain.joint_ids):
+            jm = model.joints[jid]
+            if jm.nq == 2:
+                full[:, jm.idx_q], full[:, jm.idx_q + 1] = np.cos(Q[:, k]), np.sin(Q[:, k])
+            else:
+                full[:, jm.idx_q] = Q[:, k]
         out = np.empty(Q.shape)
-        for k, q in enumerate(Q):
-            out[k] = -pin.computeGeneralizedGravity(self.model, data, self.chain.configuration(q))[idx_v]
+        for k, qf in enumerate(full):
+            out[k] = -pin.computeGeneralizedGravity(model, data, qf)[idx_v]
         return out
 
 
@@ -223,18 +262,10 @@ class ComplianceTerm:
         self.c_idx = self.idx = robot.indices(robot.compliance_names)
         self.q_cols = robot.indices([f"d{i}" if j.is_prismatic else f"theta{i}"
                                      for i, j in enumerate(robot.joints, start=1)])
-        self._cache: dict = {}
 
     def torques(self, Q: np.ndarray) -> np.ndarray:
-        Q = np.ascontiguousarray(Q, dtype=float)
-        key = (Q.shape, hash(Q.tobytes()))
-        tau = self._cache.get(key)
-        if tau is None:
-            tau = self.gravity_model.torques(Q)
-            if len(self._cache) >= _CACHE_SIZE:
-                self._cache.pop(next(iter(self._cache)))
-            self._cache[key] = tau
-        return tau
+        """(N, n) gravity torques at Q (N, n), cached by content in the gravity model."""
+        return self.gravity_model.torques(Q)
 
     def effective(self, Q: np.ndarray, values: np.ndarray) -> np.ndarray:
         """(N, n) q + C tau(q) for Q (N, n) at parameter ``values`` (full vector)."""

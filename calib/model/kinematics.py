@@ -430,12 +430,14 @@ class ChainKinematics:
         ext = list(map(int, cols))            # each column once: add the missing theta_i / d_i
         ext += sorted({int(self.joint_terms[t].q_cols[j]) for _, t, j in wanted} - set(ext))
         at = {c: k for k, c in enumerate(ext)}
-        R, p, J = self._poses_and_jacobian(self.effective(Q), np.array(ext, int), targets=targets)
+        # in the layout the chain computes (Jt (columns, 6, N)): no transposed copies
+        R, p, Jt = self._poses_and_jacobian(self.effective(Q), np.array(ext, int), transposed=True,
+                                            targets=targets)
         factors = [term.factors(Q) for term in self.joint_terms]
         for k, t, j in wanted:
-            J[:, :, k] = J[:, :, at[int(self.joint_terms[t].q_cols[j])]] * factors[t][:, j, None]
-        J = J[:, :, :m]
-        return R, p, (np.ascontiguousarray(J.transpose(2, 1, 0)) if transposed else np.ascontiguousarray(J))
+            Jt[k] = Jt[at[int(self.joint_terms[t].q_cols[j])]] * factors[t][:, j]
+        Jt = Jt[:m]
+        return R, p, Jt if transposed else np.ascontiguousarray(Jt.transpose(2, 1, 0))
 
     def _poses_and_jacobian(self, Q: np.ndarray, columns: np.ndarray | None = None, *,
                             transposed: bool = False, targets: np.ndarray | None = None):

@@ -202,3 +202,60 @@ def test_whitened_blocks_from_the_normal_equations_pass(bundled_robot, position_
     np.testing.assert_allclose(r1, r2, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(Jw1, Jw2, rtol=1e-10, atol=1e-6 * np.abs(Jw2).max())
     np.testing.assert_allclose(J1, J2, rtol=0, atol=0)
+
+
+def test_registration_is_scipys_best_rotation_without_importing_it(bundled_robot):
+    # the registered "before" errors move the meas frame by the least-squares rigid fit of the
+    # positions; calib's Kabsch solution against scipy's Rotation.align_vectors
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    from calib.calibration.accuracy import register_measurement_frame
+    from calib.model.spatial import rotation_from_rotvec
+
+    m = simulate_measurements(bundled_robot, bundled_robot.random_configurations(30, 4), rng=5)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = rotation_from_rotvec(np.array([0.3, -0.2, 0.5])), [0.4, -0.1, 0.2]
+    _, p_nom = ChainKinematics(bundled_robot).frame_poses(m.q)
+    rng = np.random.default_rng(0)
+    p_meas = p_nom @ T[:3, :3].T + T[:3, 3] + rng.normal(scale=1e-3, size=p_nom.shape)
+    meas = replace(m, position=p_meas)
+    reg = register_measurement_frame(bundled_robot, meas)
+    R_calib = (reg.T_meas_base_ref @ np.linalg.inv(bundled_robot.T_meas_base_ref))[:3, :3]
+    R_scipy = Rotation.align_vectors(p_meas - p_meas.mean(axis=0), p_nom - p_nom.mean(axis=0))[0].as_matrix()
+    assert np.abs(R_calib - R_scipy).max() < 1e-12
+    assert np.abs(R_calib - T[:3, :3]).max() < 1e-3          # and the rotation applied (1 mm noise)
+
+
+def test_default_paths_import_no_scipy():
+    # issue 27: scipy (0.3-0.4 s to import) stays out of calibrate's default paths: a
+    # regularised fit of few rows, given noise levels (the chi-square test's p-value is computed
+    # only when asked), frames far from nominal (the registered "before" errors)
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    code = """
+import sys, numpy as np, calib
+from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+robot = calib.load_robot(sys.argv[1])
+true = apply_deviations(robot, PAPER_DEVIATIONS)
+T = np.eye(4); T[:3, 3] = [0.5, -0.2, 0.1]
+from dataclasses import replace
+true = replace(true, T_meas_base_ref=T @ true.T_meas_base_ref)
+for n, kw in ((25, {}), (100, {"sigma_pos": 2e-5, "sigma_rot": 2e-3})):
+    m = simulate_measurements(true, robot.random_configurations(n, 1), rng=2)
+    res = calib.calibrate(robot, m, **kw)
+    assert res.before_registered is not None, res.notes
+print(sorted(k for k in sys.modules if k.split('.')[0] in ('scipy',) or k == 'numpy.ma'))
+res.to_dict()      # the report's p-value: scipy now
+print('scipy.special' in sys.modules)
+"""
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    out = subprocess.run([sys.executable, "-c", code, str(root / "robots" / "brtirus0707a" / "brtirus0707a.urdf")],
+                         capture_output=True, text=True, env=env, cwd=root)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.splitlines() == ["[]", "True"]

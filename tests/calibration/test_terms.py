@@ -79,6 +79,21 @@ def test_choose_terms_finds_the_periodic_errors(ur5_loop):
     assert "+periodic" in choice.format() and choice.to_dict()["chosen"] == choice.label
 
 
+def test_many_rows_are_judged_on_an_evenly_spaced_subset(ur5_loop, monkeypatch):
+    # above TERMS_MAX_ROWS calibration rows the choice is that of the evenly spaced subset (the
+    # same table), says so, and still finds the periodic errors
+    from calib.calibration import terms
+
+    robot, _, m, _, _ = ur5_loop
+    monkeypatch.setattr(terms, "TERMS_MAX_ROWS", 280)
+    choice = choose_terms(robot, m)
+    cal = m.calibration()
+    sub = choose_terms(robot, cal.subset(np.linspace(0, cal.n_poses - 1, 280).round().astype(int)))
+    assert choice.rows == 280 and sub.rows is None and choice.to_dict()["rows_judged"] == 280
+    assert [(t.label, t.score) for t in choice.table] == [(t.label, t.score) for t in sub.table]
+    assert choice.periodic and "judged on 280 evenly spaced of the 300 calibration rows" in choice.reason
+
+
 def test_terms_auto_leaves_the_map_estimate_geometric(ur5_loop):
     """estimator 'map' has no prior group for the joint terms: terms='auto' chose +periodic on
     these rows and the MAP fit held all 24 terms at zero (geometry-only error, a note saying

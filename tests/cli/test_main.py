@@ -52,6 +52,24 @@ def test_importing_the_cli_loads_neither_numpy_nor_pinocchio():
     assert out == "[]\n"
 
 
+def test_the_command_runs_with_one_blas_thread():
+    """main_entry comes before numpy: the commands' BLAS has one thread (threadpoolctl at that
+    point limited no library, and they ran with one per core)."""
+    code = ("import calib.cli.main as m\n"
+            "def fake():\n"
+            "    import numpy\n"
+            "    from threadpoolctl import threadpool_info\n"
+            "    print(max(i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'))\n"
+            "    return 0\n"
+            "m.main = fake\n"
+            "m.main_entry()\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    env["PYTHONPATH"] = str(ROOT)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == "1\n"
+
+
 @pytest.mark.parametrize("output, message", [
     ("/dev/null", "/dev/null: is not a regular file"),
     (str(BUNDLED_URDF), "refusing to overwrite an input file"),

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from calib import load_robot
-from calib.errors import MeasurementFormatError
+from calib.errors import CalibError, MeasurementFormatError
 from calib.io.touch_file import is_touch_file, read_touch, write_touch
 from calib.model.touch import Feature, TouchData
 
@@ -98,3 +98,43 @@ def test_one_sphere_one_radius(ur10, tmp_path):
     with pytest.raises(MeasurementFormatError, match=r"radius 50.5 here but 50.0 in row 2") as info:
         read_touch(path, ur10)
     assert (info.value.row, info.value.column) == (3, "radius_mm")
+
+
+@pytest.mark.parametrize("text", [
+    "# a comment\n\njoint1_deg,joint2_deg,point\n1,2,A\n",
+    "\ufeffjoint1_deg;joint2_deg;x_mm\r\n1,5;2;3\r\n",
+    '"joint1_deg"\t"plane"\n1\tP\n',
+    "1,2,3\n4,5,6\n",                               # no header: the full reader decides
+    "# only a comment\n",
+])
+def test_touch_check_reads_only_the_header(tmp_path, text, monkeypatch):
+    # is_touch_file finds the header in the file's first bytes, as the readers split it; a
+    # file whose start does not settle it is read whole (the readers' errors are theirs)
+    from calib.io import csv_layer, touch_file
+
+    path = tmp_path / "f.csv"
+    path.write_bytes(text.encode())
+    try:
+        expected = any(n.strip().lower() in ("point", "plane", "sphere") for n in csv_layer._records(path)[1])
+    except CalibError:
+        expected = None
+    peek = touch_file._peek_header(path)
+    assert peek is None or peek == csv_layer._records(path)[1]
+    if expected is None:
+        with pytest.raises(CalibError):
+            is_touch_file(path)
+    else:
+        assert is_touch_file(path) == expected
+    # a header beyond the first bytes: read whole, same answer
+    monkeypatch.setattr(touch_file, "_HEADER_PEEK", 4)
+    if expected is not None:
+        assert is_touch_file(path) == expected
+
+
+def test_touch_check_of_a_large_file_does_not_read_it(tmp_path, monkeypatch):
+    from calib.io import touch_file
+
+    path = tmp_path / "m.csv"
+    path.write_text("joint1_deg,x_mm\n" + "1,2\n" * 50_000)
+    monkeypatch.setattr(touch_file, "_records", lambda p: pytest.fail("read whole"))
+    assert not is_touch_file(path)

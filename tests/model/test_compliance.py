@@ -69,6 +69,24 @@ def test_torques_are_minus_the_potential_gradient(ur10):
     assert 1.0 < np.abs(tau - tau0)[:, 1].max() < 10.0 * 9.81 * 1.4
 
 
+def test_torques_are_cached_by_content_and_shared(ur10):
+    # the cache (whole arrays and single configurations) returns Pinocchio's torques at each
+    # configuration, for the array, a subset of its rows, and new rows mixed in; every
+    # kinematics object of a model uses its one gravity model's cache
+    gm = GravityModel.for_robot(ur10, payload=PAYLOAD)
+    Q = ur10.random_configurations(30, 11)
+    data = gm.model.createData()
+    direct = np.array([-pin.computeGeneralizedGravity(gm.model, data, gm.chain.configuration(q)) for q in Q])
+    tau = gm.torques(Q)
+    assert np.array_equal(tau, direct)
+    assert gm.torques(Q.copy()) is tau                                   # same content: same array
+    mixed = np.vstack([Q[::3], ur10.random_configurations(4, 12)])
+    d_new = [-pin.computeGeneralizedGravity(gm.model, data, gm.chain.configuration(q)) for q in mixed[-4:]]
+    assert np.array_equal(gm.torques(mixed), np.vstack([direct[::3], d_new]))
+    rc = with_gravity(ur10, payload=PAYLOAD, values=TRUE_C)
+    assert ChainKinematics(rc).compliance.gravity_model is ChainKinematics(rc).compliance.gravity_model
+
+
 def test_compliance_jacobian_matches_finite_differences(ur10_c):
     Q = ur10_c.random_configurations(6, 11)
     kin = ChainKinematics(ur10_c)
