@@ -196,7 +196,7 @@ Two files joined (--tracker POSES.csv): the joint file holds the joints, the tra
   measured poses. --key COLUMN joins rows with the same value in both; a key may repeat in the
   tracker file when each of its rows names its reflector: a target column, --target-column COL,
   or the point name split by --target-from REGEX (named groups key and target, matching the whole
-  name, e.g. (?P<key>P\d+)_(?P<target>SMR\d+) for P001_SMR2). --join nearest-time --time COLUMN
+  name, e.g. (?P<key>P\\d+)_(?P<target>SMR\\d+) for P001_SMR2). --join nearest-time --time COLUMN
   --max-gap S joins each measured row to the joint row of nearest timestamp (at most S seconds
   away; numbers with _s, _ms, _us, _ns or --time-unit, times of day, or ISO 8601 in both files);
   two joint rows equally near with different joints, or none within S, are errors.

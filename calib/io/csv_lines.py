@@ -185,7 +185,13 @@ def _records(path: Path, known=None, header_line: int | None = None
     The header is line ``header_line`` when given; else the first line that names a known column
     (``known(name) -> bool``) before any line of numbers (the lines before it are a preamble),
     else the first line (whose names the header check then explains)."""
-    lines = read_lines(path)
+    return header_of(path, read_lines(path), known, header_line)
+
+
+def header_of(path: Path, lines: list[str], known=None, header_line: int | None = None
+              ) -> tuple[int, list[str], str, list[str], np.ndarray]:
+    """:func:`_records` of the file's ``lines`` (as :func:`read_lines` gives them; a file's
+    first lines alone find its header as well, e.g. to tell its kind without reading it whole)."""
     heads = list(map(str.lstrip, lines))      # (map over C methods: no Python frame per line)
     records = np.flatnonzero(np.fromiter(map(bool, heads), bool, len(lines)) &
                              ~np.fromiter(map(methodcaller("startswith", "#"), heads), bool, len(lines)))

@@ -51,21 +51,26 @@ _HEADER_PEEK = 1 << 16
 
 def is_touch_file(path: str | Path) -> bool:
     """Whether the header of the CSV file ``path`` has a ``point``, ``plane`` or ``sphere``
-    column (the file is then read by :func:`read_touch`). The header row of a regular UTF-8 file
-    is found in its first 64 KB (``calib calibrate`` asks this of every measurement file: a
-    million-row file was read whole, twice); other files are read as the readers read them."""
+    column (the file is then read by :func:`read_touch`). The header is found as the reader finds
+    it (past an instrument's preamble); in a regular UTF-8 file, in its first 64 KB (``calib
+    calibrate`` asks this of every measurement file: a million-row file was read whole, twice),
+    else, or when those lines do not settle it, in the whole file."""
     path = Path(path)
-    names = _peek_header(path)
+
+    def feature(name: str) -> bool:
+        return name.strip().lower() in FEATURE_KINDS
+
+    names = _peek_header(path, feature)
     if names is None:
-        names = _records(path)[1]
-    return any(n.strip().lower() in FEATURE_KINDS for n in names)
+        names = _records(path, feature)[1]
+    return any(map(feature, names))
 
 
-def _peek_header(path: Path) -> list[str] | None:
-    """The header names of a regular file from its first _HEADER_PEEK bytes, split as
-    :func:`calib.io.csv_layer._records` splits them, or None when they do not settle it (not a
-    regular file, not UTF-8 there, no complete header line, a header that looks like data)."""
-    from calib.io.csv_layer import _DELIMITERS, _field_count, _looks_numeric, split_fields
+def _peek_header(path: Path, known=None) -> list[str] | None:
+    """The header names of a regular file found in its first _HEADER_PEEK bytes as the reader
+    finds them (:func:`calib.io.csv_lines.header_of`), or None when those bytes do not settle it
+    (not a regular file, not UTF-8 there, no complete header line, any error)."""
+    from calib.io.csv_lines import header_of
 
     try:
         if not path.is_file():
@@ -75,18 +80,13 @@ def _peek_header(path: Path) -> list[str] | None:
         text = head.decode("utf-8-sig")
     except (OSError, UnicodeDecodeError):
         return None
-    text = text.replace("\r\n", "\n").replace("\r", "\n")
-    lines = text.split("\n")
-    complete = lines[:-1] if len(head) == _HEADER_PEEK else lines     # (the last may be cut)
-    for k, line in enumerate(complete):
-        if line.strip() and not line.lstrip().startswith("#"):
-            try:
-                best = max(_DELIMITERS, key=lambda d: _field_count(path, k + 1, line, d))
-                names = split_fields(path, k + 1, line, best)
-            except CalibError:
-                return None
-            return None if _looks_numeric(names) else names
-    return None
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    if len(head) == _HEADER_PEEK:
+        lines = lines[:-1]                  # (the last may be cut)
+    try:
+        return header_of(path, lines, known)[1]
+    except CalibError:
+        return None
 
 
 def read_touch(csv_path: str | Path, robot, *, probe_radius: float = 0.0,

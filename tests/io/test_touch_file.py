@@ -138,3 +138,12 @@ def test_touch_check_of_a_large_file_does_not_read_it(tmp_path, monkeypatch):
     path.write_text("joint1_deg,x_mm\n" + "1,2\n" * 50_000)
     monkeypatch.setattr(touch_file, "_records", lambda p: pytest.fail("read whole"))
     assert not is_touch_file(path)
+
+
+def test_touch_check_finds_the_header_past_a_preamble(tmp_path):
+    """A touch file exported with an instrument's preamble before the header is a touch file, as
+    the reader would find its header (before, the peek took the preamble's first line for it)."""
+    path = tmp_path / "touch.csv"
+    path.write_text("Exported by probe software 2.1\nOperator: A\nDate: 2026-11-25\n"
+                    "joint1_deg,joint2_deg,point\n1,2,A\n")
+    assert is_touch_file(path)
