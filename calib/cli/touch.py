@@ -53,6 +53,7 @@ def run_touch(args: argparse.Namespace) -> int:
     from calib.calibration.touch_accuracy import predicted_tool_error
     from calib.io.touch_file import read_touch
     from calib.io.urdf_reader import robot_path
+    from calib.calibration.base_frame import in_base_frame
     from calib.io.urdf_writer import check_writable, write_calibrated_urdf
 
     for name, default in _NOT_FOR_TOUCH:
@@ -82,6 +83,9 @@ def run_touch(args: argparse.Namespace) -> int:
                              "--html REPORT.html")
     robot = load(args)
     check_writable(robot)
+    from calib.cli.calibrate import _check_measurement_link
+
+    _check_measurement_link(getattr(args, "measurement_link", None), robot)
     probe = (getattr(args, "probe_radius_mm", None) or 0.0) * 1e-3
     data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
     noise = _noise_arguments(args, data)
@@ -101,9 +105,18 @@ def run_touch(args: argparse.Namespace) -> int:
     predicted = predicted_tool_error(result, Q, registration)
     absolute = predicted_tool_error(result, Q, "none") if result.n_measured else None
     estimated = ("flange->tool",) if any(n.startswith("v_") for n in result.free) else ()
+    mframe = _measurement_frame(result, robot, data)
+    link = getattr(args, "measurement_link", None)
+    if link is not None and mframe is None:
+        raise ParameterError(f"--measurement-link {link}: the calibration did not estimate the measurement "
+                             f"frame (no measured rows: the features are in the robot's base frame "
+                             f"{robot.base_frame!r}); nothing written")
     written = []
     outputs.stage_from_file(out_urdf, lambda p: written.append(write_calibrated_urdf(
-        result.robot.geometry(), p, nominal=robot.geometry(), estimated=estimated)))
+        (result.robot if mframe is None else in_base_frame(result.robot, mframe)).geometry(), p,
+        nominal=robot.geometry(), estimated=estimated,
+        T_meas_base=None if mframe is None else mframe.T_meas_base,
+        meas_covariance=None if mframe is None else mframe.covariance, measurement_link=link)))
     text = "\n".join([result.format(), result.identifiability.format(), _parameter_table(robot, result),
                       f"predicted tool position error over the workspace ({ACCURACY_CONFIGURATIONS} random "
                       f"configurations, " + ("relative to the nominal base frame, " if not result.n_measured else "")
@@ -112,8 +125,10 @@ def run_touch(args: argparse.Namespace) -> int:
                          if result.nominal_scale else ")")]
                      + ([f"predicted tool position error in the meas frame (identified by the {result.n_measured} "
                          f"measured rows, no registration): {absolute * 1e3:.4f} mm RMS (noise only)"]
-                        if absolute is not None else []))
+                        if absolute is not None else [])
+                     + ([mframe.format()] if mframe is not None else []))
     report = _report(result, predicted, args, registration, absolute)
+    report["measurement_frame"] = None if mframe is None else mframe.to_dict()
     if out_report is not None or out_html is not None or plot_paths:
         text += _touch_report_stage(args, result, data_all, robot, report, text, meta, outputs, out_html,
                                     plot_paths, written[0])
@@ -126,6 +141,20 @@ def run_touch(args: argparse.Namespace) -> int:
                      + f"\n{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in base "
                        f"frame {frames.base_frame!r}\n")
     return status_exit(result.status, result.message)
+
+
+def _measurement_frame(result, robot, data):
+    """The robot's base frame in the measurement frame (calib.calibration.base_frame, the
+    convention of ``calibrate``) when measured rows located the instrument, else None: the URDF
+    then stays rooted at the robot's base and the instrument's pose is recorded apart."""
+    if not result.n_measured:
+        return None
+    from calib.calibration.base_frame import robot_base_frame
+
+    k = len(result.free)
+    measured = data.measured
+    return robot_base_frame(result.robot, robot, covariance=result.covariance[:k, :k], free=result.free,
+                            position_only=measured is None or not measured.has_orientation)
 
 
 def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta, outputs, out_html, plot_paths,
@@ -311,7 +340,8 @@ def simulate_touch_file(args, robot, true_robot, rng, outputs, out_csv, describe
                          + f", noise {args.sigma_pos_mm:g} mm per axis)")
     comment = (f"Simulated by: {command_line(args)}\nTrue model: {args.robot} with deviations from "
                f"{described}; touch noise {args.sigma_pos_mm:g} mm per axis; {args.poses} rows per feature"
-               + measured_text)
+               + measured_text + (f"; features and measured rows in a frame where the base frame is at "
+                                  f"{args.meas_frame} (mm, deg)" if getattr(args, "meas_frame", None) else ""))
     outputs.stage_from_file(out_csv, lambda p: write_touch(p, data, robot, comment=comment))
     lines = [f"Simulated {sim.data.n_rows} touch rows{measured_text} of {args.robot} -> {out_csv}",
              f"  {len(features)} features ({', '.join(f'{f.kind} {f.id}' for f in features)}), {args.poses} rows "

@@ -185,3 +185,37 @@ def test_simulate_measured_rows_into_a_touch_file(urdf, tmp_path, capsys):
     assert (data.n_rows, data.n_measured) == (10, 7) and data.measured.rotation is None
     code, _, err = run(capsys, "simulate", urdf, "-o", tmp_path / "x.csv", "--constraint", "measured:5")
     assert code == 2 and "name a point, plane or sphere touched" in err and not (tmp_path / "x.csv").exists()
+
+
+def test_touch_file_with_measured_rows_from_a_tracker_keeps_the_urdf_at_the_robot_base(urdf, tmp_path, capsys):
+    """simulate --meas-frame puts a touch file's measured rows and features in the instrument's
+    frame (it was ignored); calibrate of that file writes the URDF rooted at the robot's base with
+    the tracker pose recorded apart, as for a measurement file (it wrote the tracker's metres into
+    the base joint), and --measurement-link adds the tracker as the root."""
+    from calib.io.touch_file import read_touch
+    from calib.io.urdf import UrdfDocument
+    from calib.model.kinematics import ChainKinematics
+
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "m.csv",
+                       "--constraint", "point:2,measured:12", "--poses", 6, "--seed", 4, "--position-only",
+                       "--deviations", "random:0.3", "--meas-frame", "1500,-800,300,0,0,40")
+    assert code == 0, err
+    nominal = calib.load_robot(urdf, tool_frame="tool0")
+    data = read_touch(tmp_path / "m.csv", nominal)
+    assert np.linalg.norm(data.measured.position, axis=1).min() > 0.3      # metres: the tracker's frame
+    assert np.abs(data.measured.position.mean(axis=0)[:2] - [1.5, -0.8]).max() < 1.0
+    out = tmp_path / "cal.urdf"
+    code, text, err = run(capsys, "calibrate", urdf, tmp_path / "m.csv", "--tool-frame", "tool0", "-o", out,
+                          "--cv", 0, "--report", tmp_path / "r.json", "--measurement-link", "tracker")
+    assert code == 0, err
+    assert "measurement->base" in text
+    rec = UrdfDocument.read(out).frames
+    assert np.abs(rec.measurement_transform[:3, 3] - [1.5, -0.8, 0.3]).max() < 5e-3
+    assert json.loads((tmp_path / "r.json").read_text())["measurement_frame"]["base_frame"] == nominal.base_frame
+    Q = nominal.random_configurations(20, 1)
+    base = calib.load_robot(out)
+    p_b, p_n = ChainKinematics(base).frame_poses(Q)[1], ChainKinematics(nominal).frame_poses(Q)[1]
+    assert np.abs(p_b - p_n).max() < 5e-3        # the robot's errors only, not the tracker's metres
+    seen = calib.load_robot(out, base_frame="tracker")
+    p_t = ChainKinematics(seen).frame_poses(data.measured.q)[1]
+    assert np.sqrt(np.mean(np.sum((p_t - data.measured.position) ** 2, axis=1))) < 2e-4
