@@ -39,7 +39,7 @@ def is_touch_input(args: argparse.Namespace) -> bool:
     if getattr(args, "tracker", None) is not None or not Path(args.measurements).is_file():
         return False
     try:
-        return is_touch_file(args.measurements)
+        return is_touch_file(args.measurements, getattr(args, "header_line", None))
     except CalibError:
         return False
 

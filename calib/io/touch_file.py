@@ -44,11 +44,15 @@ TOUCH = Spec("touch", joints="required", position="optional", orientation=True, 
 RADIUS_TOL = 1e-9
 
 
-def is_touch_file(path: str | Path) -> bool:
+def is_touch_file(path: str | Path, header_line: int | None = None) -> bool:
     """Whether the header of the CSV file ``path`` has a ``point``, ``plane`` or ``sphere``
-    column (the file is then read by :func:`read_touch`)."""
-    names = _records(Path(path))[1]
-    return any(n.strip().lower() in FEATURE_KINDS for n in names)
+    column (the file is then read by :func:`read_touch`). The header is found as the reader finds
+    it: past an instrument's preamble, or line ``header_line`` when given."""
+    def feature(name: str) -> bool:
+        return name.strip().lower() in FEATURE_KINDS
+
+    names = _records(Path(path), feature, header_line)[1]
+    return any(map(feature, names))
 
 
 def read_touch(csv_path: str | Path, robot, *, probe_radius: float = 0.0,

@@ -219,3 +219,22 @@ def test_touch_file_with_measured_rows_from_a_tracker_keeps_the_urdf_at_the_robo
     seen = calib.load_robot(out, base_frame="tracker")
     p_t = ChainKinematics(seen).frame_poses(data.measured.q)[1]
     assert np.sqrt(np.mean(np.sum((p_t - data.measured.position) ** 2, axis=1))) < 2e-4
+
+
+def test_touch_file_after_an_instrument_preamble_is_read_as_a_touch_file(urdf, tmp_path, capsys):
+    """A touch file whose header follows a preamble (project, instrument lines, as measurement
+    files may have) is a touch file: it was routed to the measurement reader and refused as
+    'missing column x'."""
+    from calib.io.touch_file import is_touch_file
+
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "t.csv",
+                       "--constraint", "point:2,sphere:100", "--poses", 6, "--seed", 5)
+    assert code == 0, err
+    body = [line for line in (tmp_path / "t.csv").read_text().splitlines() if not line.startswith("#")]
+    (tmp_path / "p.csv").write_text("\n".join(["Project: cell 4", "Instrument: probe", "Operator: J. Doe"] + body)
+                                    + "\n")
+    assert is_touch_file(tmp_path / "p.csv") and is_touch_file(tmp_path / "p.csv", header_line=4)
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "p.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf", "--cv", 0)
+    assert code == 0, err
+    assert out.startswith("touch calibration: 18 touch rows")
