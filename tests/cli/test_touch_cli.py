@@ -147,7 +147,11 @@ def test_a_file_mixing_touch_and_measured_rows(urdf, tmp_path, capsys):
     report = json.loads((tmp_path / "report.json").read_text())
     assert [g["name"] for g in report["groups"]] == ["touch", "position"] and report["measured_rows"] == 15
     assert 0.6 < report["groups"][1]["noise_estimated_mm"] / 0.05 < 1.4
-    cal = calib.load_robot(tmp_path / "cal.urdf")
+    from calib.io.urdf import UrdfDocument
+
+    cal = calib.load_robot(tmp_path / "cal.urdf")      # rooted at the robot's base, the tracker recorded
+    T = UrdfDocument.read(tmp_path / "cal.urdf").frames.measurement_transform
+    cal = replace(cal, T_meas_base_ref=T @ cal.T_meas_base_ref)
     Q = nominal.random_configurations(500, np.random.default_rng(9))
     e_cal = registered_error(cal, true, Q, "none")
     assert e_cal <= 1.5 * report["predicted_tool_error_meas_frame_mm"] * 1e-3, e_cal
