@@ -352,6 +352,12 @@ def test_mdh_csv_refuses_a_report_of_another_calibration(calibration, tmp_path):
     assert not out.exists()
     with pytest.raises(calib.CalibError, match="not a JSON report"):
         calib.export_calibration(urdf, "mdh-csv", out, report=urdf)
+    # a touch calibration's report (free parameters only, SI values without units)
+    touch = tmp_path / "touch.json"
+    touch.write_text(json.dumps({"kind": "touch", "parameters": [{"name": "theta1", "value": 0.001, "std": 1e-5}]}))
+    with pytest.raises(calib.CalibError, match="touch calibration .* export without --report"):
+        calib.export_calibration(urdf, "mdh-csv", out, report=touch)
+    assert not out.exists()
 
 
 def test_read_mdh_csv_names_row_and_column_of_a_bad_cell(tmp_path):
