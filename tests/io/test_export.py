@@ -426,3 +426,13 @@ def test_mdh_csv_of_a_calibration_of_several_targets(tmp_path):
     assert back.targets == ("A", "B", "C")
     dp, dr = kinematics_difference(back, calib.load_robot(tmp_path / "cal.urdf"), n=10)
     assert dp < TOL and dr < TOL
+
+
+def test_mdh_csv_of_tiago_whose_tool_frame_is_at_zyx_gimbal_lock(tmp_path):
+    """TIAGo's hand_palm_link is turned by -90 deg about y (1.2e-11 rad from the ZYX lock): its
+    mdh-csv reads back to 1e-9 (it was refused: 'read back differs ... by 1.73e-05 rad')."""
+    from conftest import erd_urdf
+
+    out = tmp_path / "tiago.csv"
+    calib.export_calibration(erd_urdf("tiago"), "mdh-csv", out)
+    assert out.exists() and "tool," in out.read_text()
