@@ -163,7 +163,7 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
     ``outputs``; returns the verdict line for the printed text ("" without --tolerance-mm)."""
     from calib.calibration.report import _provenance, render_html
     from calib.calibration.report_plots import plot_rows
-    from calib.calibration.report_touch import touch_certificate, touch_rows
+    from calib.calibration.report_touch import measured_deviations, touch_certificate, touch_rows
     from calib.cli.args import progress_enabled
     from calib.cli.progress import Progress
     from calib.io.urdf_reader import robot_path
@@ -172,7 +172,8 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
     tol_mm = getattr(args, "tolerance_mm", None)
     with Progress(3, "writing the report", enabled=progress_enabled(args)) as progress:
         rows = touch_rows(result, data, robot)
-        report["certificate"] = touch_certificate(rows, data.features, tol_mm)
+        report["certificate"] = touch_certificate(rows, data.features, tol_mm,
+                                                  measured_deviations(result, data, robot))
         report["meta"] = meta
         progress.update()
         images = plot_rows(rows, tolerance_m=None if tol_mm is None else tol_mm * 1e-3) if (
@@ -180,7 +181,8 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
         progress.update()
         tol = report["certificate"]["tolerance"]
         verdict = "" if tol is None else (
-            f"\ntolerance {tol['tolerance_mm']:g} mm: {'PASS' if tol['pass'] else 'FAIL'} (largest touch residual "
+            f"\ntolerance {tol['tolerance_mm']:g} mm: {'PASS' if tol['pass'] else 'FAIL'} (largest "
+            f"{'touch residual or measured position error' if data.n_measured else 'touch residual'} "
             f"{tol['max_mm']:.4g} mm over {tol['n']} {tol['rows']}; {tol['beyond']} beyond)")
         if out_html is not None:
             params = []

@@ -242,3 +242,43 @@ def test_touch_file_after_an_instrument_preamble_is_read_as_a_touch_file(urdf, t
                          "-o", tmp_path / "cal.urdf", "--cv", 0)
     assert code == 0, err
     assert out.startswith("touch calibration: 18 touch rows")
+
+
+def test_touch_certificate_judges_the_measured_rows_too(urdf, tmp_path, capsys):
+    """A mixed file's certificate has the measured rows' accuracy (their position errors, from
+    the written URDF in its recorded measurement frame) and its verdict covers them: a tolerance
+    above every touch residual but below the worst measured row fails (it passed, judging the
+    touch rows alone)."""
+    from dataclasses import replace
+
+    from calib.io.touch_file import read_touch
+    from calib.io.urdf import UrdfDocument
+    from calib.model.kinematics import ChainKinematics
+
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "m.csv",
+                       "--constraint", "point:2,measured:10", "--poses", 6, "--seed", 6, "--position-only",
+                       "--deviations", "random:0.3")
+    assert code == 0, err
+    argv = ["calibrate", urdf, tmp_path / "m.csv", "--tool-frame", "tool0", "-o", tmp_path / "cal.urdf",
+            "--cv", 0, "--outlier-k", "off", "--report", tmp_path / "r.json"]
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    cert = json.loads((tmp_path / "r.json").read_text())["certificate"]
+    labels = [a["label"] for a in cert["accuracy"]]
+    assert "measured rows, after" in labels and "touch rows, after" in labels
+    data = read_touch(tmp_path / "m.csv", calib.load_robot(urdf, tool_frame="tool0"))
+    cal = calib.load_robot(tmp_path / "cal.urdf")
+    T = UrdfDocument.read(tmp_path / "cal.urdf").frames.measurement_transform
+    cal = replace(cal, T_meas_base_ref=T @ cal.T_meas_base_ref)
+    e = np.linalg.norm(ChainKinematics(cal).frame_poses(data.measured.q)[1] - data.measured.position, axis=1) * 1e3
+    after = cert["accuracy"][labels.index("measured rows, after")]["position_mm"]
+    assert after["n"] == 10 and abs(after["max"] - e.max()) < 1e-6
+    touch_max = cert["accuracy"][labels.index("touch rows, after")]["position_mm"]["max"]
+    assert e.max() > touch_max
+    tol = 0.5 * (touch_max + e.max())
+    code, out, err = run(capsys, *argv, "--tolerance-mm", tol)
+    assert code == 0, err
+    verdict = json.loads((tmp_path / "r.json").read_text())["certificate"]["tolerance"]
+    assert not verdict["pass"] and verdict["n"] == 22 and "FAIL" in out
+    rows = np.asarray(data.measured.rows)
+    assert verdict["rows_beyond"] == sorted(int(r) for r in rows[e > tol])
