@@ -39,7 +39,8 @@ def is_touch_input(args: argparse.Namespace) -> bool:
     if getattr(args, "tracker", None) is not None or not Path(args.measurements).is_file():
         return False
     try:
-        return is_touch_file(args.measurements, getattr(args, "header_line", None))
+        return is_touch_file(args.measurements, getattr(args, "header_line", None),
+                             read_options(args, joined=False).rename)
     except CalibError:
         return False
 

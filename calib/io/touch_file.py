@@ -44,12 +44,16 @@ TOUCH = Spec("touch", joints="required", position="optional", orientation=True, 
 RADIUS_TOL = 1e-9
 
 
-def is_touch_file(path: str | Path, header_line: int | None = None) -> bool:
+def is_touch_file(path: str | Path, header_line: int | None = None, rename=()) -> bool:
     """Whether the header of the CSV file ``path`` has a ``point``, ``plane`` or ``sphere``
     column (the file is then read by :func:`read_touch`). The header is found as the reader finds
-    it: past an instrument's preamble, or line ``header_line`` when given."""
+    it: past an instrument's preamble, or line ``header_line`` when given; ``rename`` (the pairs
+    (old, new) of :attr:`ReadOptions.rename`) applies first, as in the reader."""
+    renames = {str(old).strip().lower(): str(new).strip() for old, new in rename}
+
     def feature(name: str) -> bool:
-        return name.strip().lower() in FEATURE_KINDS
+        name = name.strip()
+        return renames.get(name.lower(), name).lower() in FEATURE_KINDS
 
     names = _records(Path(path), feature, header_line)[1]
     return any(map(feature, names))

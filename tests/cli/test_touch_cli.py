@@ -282,3 +282,22 @@ def test_touch_certificate_judges_the_measured_rows_too(urdf, tmp_path, capsys):
     assert not verdict["pass"] and verdict["n"] == 22 and "FAIL" in out
     rows = np.asarray(data.measured.rows)
     assert verdict["rows_beyond"] == sorted(int(r) for r in rows[e > tol])
+
+
+def test_touch_file_whose_feature_column_is_renamed_is_a_touch_file(urdf, tmp_path, capsys):
+    """--rename 'Feature=point' names the feature column as the reader reads it: the file is a
+    touch file (it was routed to the measurement reader: '--nominal-scale applies to touch
+    files', or 'missing column x'); --rename 'point=' drops it (then not a touch file)."""
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "t.csv",
+                       "--constraint", "point:3", "--poses", 6, "--seed", 5)
+    assert code == 0, err
+    text = (tmp_path / "t.csv").read_text()
+    assert ",point\n" in text
+    (tmp_path / "f.csv").write_text(text.replace(",point\n", ",Feature\n", 1))
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "f.csv", "--tool-frame", "tool0", "-o",
+                         tmp_path / "cal.urdf", "--cv", 0, "--nominal-scale", "--rename", "feature=point")
+    assert code == 0, err
+    assert out.startswith("touch calibration: 18 touch rows")
+    code, _, err = run(capsys, "calibrate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0", "-o",
+                       tmp_path / "cal2.urdf", "--rename", "point=")
+    assert code == 2 and "missing column x" in err and not (tmp_path / "cal2.urdf").exists()
