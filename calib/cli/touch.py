@@ -84,9 +84,9 @@ def run_touch(args: argparse.Namespace) -> int:
                              "--html REPORT.html")
     robot = load(args)
     check_writable(robot)
-    from calib.cli.calibrate import _check_measurement_link
+    from calib.cli.args import check_measurement_link
 
-    _check_measurement_link(getattr(args, "measurement_link", None), robot)
+    check_measurement_link(getattr(args, "measurement_link", None), robot)
     probe = (getattr(args, "probe_radius_mm", None) or 0.0) * 1e-3
     data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
     noise = _noise_arguments(args, data)
