@@ -89,6 +89,11 @@ def run_touch(args: argparse.Namespace) -> int:
     check_measurement_link(getattr(args, "measurement_link", None), robot)
     probe = (getattr(args, "probe_radius_mm", None) or 0.0) * 1e-3
     data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
+    link = getattr(args, "measurement_link", None)
+    if link is not None and not data.n_measured:
+        raise ParameterError(f"--measurement-link {link}: {args.measurements} has no rows measured by an "
+                             f"instrument, so the calibration estimates no measurement frame (the features "
+                             f"are in the robot's base frame {robot.base_frame!r}); nothing written")
     noise = _noise_arguments(args, data)
     data_all = data
     try:
@@ -107,11 +112,6 @@ def run_touch(args: argparse.Namespace) -> int:
     absolute = predicted_tool_error(result, Q, "none") if result.n_measured else None
     estimated = ("flange->tool",) if any(n.startswith("v_") for n in result.free) else ()
     mframe = _measurement_frame(result, robot, data)
-    link = getattr(args, "measurement_link", None)
-    if link is not None and mframe is None:
-        raise ParameterError(f"--measurement-link {link}: the calibration did not estimate the measurement "
-                             f"frame (no measured rows: the features are in the robot's base frame "
-                             f"{robot.base_frame!r}); nothing written")
     written = []
     outputs.stage_from_file(out_urdf, lambda p: written.append(write_calibrated_urdf(
         (result.robot if mframe is None else in_base_frame(result.robot, mframe)).geometry(), p,

@@ -298,6 +298,11 @@ def test_touch_file_whose_feature_column_is_renamed_is_a_touch_file(urdf, tmp_pa
                          tmp_path / "cal.urdf", "--cv", 0, "--nominal-scale", "--rename", "feature=point")
     assert code == 0, err
     assert out.startswith("touch calibration: 18 touch rows")
+    # no measured rows: no measurement frame to write as a link
+    code, _, err = run(capsys, "calibrate", urdf, tmp_path / "f.csv", "--tool-frame", "tool0", "-o",
+                       tmp_path / "cal3.urdf", "--nominal-scale", "--rename", "feature=point",
+                       "--measurement-link", "tracker")
+    assert code == 2 and "has no rows measured by an instrument" in err and not (tmp_path / "cal3.urdf").exists()
     code, _, err = run(capsys, "calibrate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0", "-o",
                        tmp_path / "cal2.urdf", "--rename", "point=")
     assert code == 2 and "missing column x" in err and not (tmp_path / "cal2.urdf").exists()
