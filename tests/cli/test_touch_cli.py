@@ -306,3 +306,14 @@ def test_touch_file_whose_feature_column_is_renamed_is_a_touch_file(urdf, tmp_pa
     code, _, err = run(capsys, "calibrate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0", "-o",
                        tmp_path / "cal2.urdf", "--rename", "point=")
     assert code == 2 and "missing column x" in err and not (tmp_path / "cal2.urdf").exists()
+
+
+def test_evaluate_of_a_touch_file_says_it_is_one(urdf, tmp_path, capsys):
+    """evaluate on a touch file: one line saying so (it said 'missing column x' or 'row 4,
+    column x_mm: empty value' of a mixed file), exit 2, nothing written."""
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "t.csv",
+                       "--constraint", "point:2,measured:4", "--poses", 4, "--seed", 5, "--position-only")
+    assert code == 0, err
+    code, _, err = run(capsys, "evaluate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0",
+                       "--html", tmp_path / "r.html")
+    assert code == 2 and "t.csv: a touch file" in err and not (tmp_path / "r.html").exists()
