@@ -223,6 +223,13 @@ def test_touch_file_with_measured_rows_from_a_tracker_keeps_the_urdf_at_the_robo
     seen = calib.load_robot(out, base_frame="tracker")
     p_t = ChainKinematics(seen).frame_poses(data.measured.q)[1]
     assert np.sqrt(np.mean(np.sum((p_t - data.measured.position) ** 2, axis=1))) < 2e-4
+    # the URDF seen from the tracker is the fit's model (the split changes no prediction)
+    from calib.calibration.touch import calibrate_touch
+
+    fit = calibrate_touch(nominal, data, cv=0)
+    R_f, p_f = ChainKinematics(fit.robot).frame_poses(Q)
+    R_s, p_s = ChainKinematics(seen).frame_poses(Q)
+    assert np.abs(p_s - p_f).max() < 1e-9 and np.abs(R_s - R_f).max() < 1e-9
 
 
 def test_touch_file_after_an_instrument_preamble_is_read_as_a_touch_file(urdf, tmp_path, capsys):
