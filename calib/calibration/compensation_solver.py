@@ -4,7 +4,7 @@ batch of targets, and the seeds of pose targets without starting joints."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -68,6 +68,8 @@ class CompensationResult:
         the reached pose that the uncertainty of the base frame's definition (the recorded
         measurement->base covariance) causes: the correction cannot be better
         (:func:`with_frame_uncertainty`); None otherwise.
+    seeded : True when the starts were seeds the solver chose (pose targets without starting
+        joints): ``q - q_start`` is then no correction of anything and the summary omits it.
     """
 
     q: np.ndarray
@@ -88,6 +90,7 @@ class CompensationResult:
     tol_rot: float = TOL_ROT_RAD
     frame_position_std: np.ndarray | None = field(default=None, repr=False)
     frame_rotation_std: np.ndarray | None = field(default=None, repr=False)
+    seeded: bool = False
 
     @property
     def n_targets(self) -> int:
@@ -144,9 +147,9 @@ class CompensationResult:
             change = np.abs(self.q[ok] - self.q_start[ok])
             scale = np.where(self.prismatic, 1e3, 180.0 / math.pi)
             lines.append(f"  ok targets: largest residual position {self.position_error[ok].max() * 1e3:.3g} "
-                         f"mm{rot}; largest joint change "
-                         + ", ".join(f"{n} {v:.4g} {'mm' if p else 'deg'}" for n, v, p in
-                                     zip(self.joint_names, (change * scale).max(axis=0), self.prismatic)))
+                         f"mm{rot}" + ("" if self.seeded else "; largest joint change " + ", ".join(
+                             f"{n} {v:.4g} {'mm' if p else 'deg'}" for n, v, p in
+                             zip(self.joint_names, (change * scale).max(axis=0), self.prismatic))))
         if self.frame_position_std is not None:
             lines.append(f"  the base frame's uncertainty (the calibration's measurement->base transform) limits "
                          f"the correction: {self.frame_position_std.max() * 1e3:.3g} mm at most (median "
@@ -222,7 +225,7 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
             pick = np.arange(N)
             pick[todo[better]] = N + np.flatnonzero(better)
             best = _take(_concat(best, more), pick)
-    return best
+    return replace(best, seeded=True)
 
 
 #: Seed configurations of pose targets without starting joints (see :func:`compensate_poses`),
