@@ -174,7 +174,8 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
     iterations, the targets then still not reached continuing from where they got with the rest of
     ``max_iterations``. A target keeps the least severe status met
     (then the smallest joint distance from the middle of the ranges). Revolute joints of a
-    solution beyond a limit are moved by whole turns inside it when they fit (the same pose)."""
+    solution are moved by whole turns to the turn nearest the middle of their range when it lies
+    within the limits (continuous joints into [-pi, pi]): the same pose, not a turn more."""
     N = len(p_t)
     lo, hi = _finite_limits(robot)
     mid, half = (lo + hi) / 2, np.where(hi > lo, (hi - lo) / 2, 1.0)
@@ -412,13 +413,15 @@ def _solve(robot: RobotModel, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot
     e_rot = None if R_t is None else np.linalg.norm(e[:, 3:], axis=1)
     reached = _reached(e, tol_pos, tol_rot)
     lo, hi = robot.lower, robot.upper
-    if wrap:     # revolute joints beyond a limit by whole turns: the same pose inside the limits
+    if wrap:     # revolute joints by whole turns to the turn nearest the middle of the range
         turn = 2 * math.pi
         rev = ~robot.prismatic
-        shifted = q - turn * np.floor((q - lo) / turn)            # in [lo, lo + 2 pi)
-        fits = rev & np.isfinite(lo) & (shifted <= hi) & ((q < lo) | (q > hi))
+        bounded = np.isfinite(lo) & np.isfinite(hi)
+        mid = np.where(bounded, (lo + hi) / 2, 0.0)               # continuous joints: into [-pi, pi]
+        near = q - turn * np.round((q - mid) / turn)
+        fits = rev & (~bounded | ((near >= lo) & (near <= hi)))
         if fits.any():
-            q = np.where(fits, shifted, q)
+            q = np.where(fits, near, q)
     excess = np.where(q > hi + LIMIT_SLACK, q - hi, 0.0) + np.where(q < lo - LIMIT_SLACK, q - lo, 0.0)
     status = np.where(sv < singular_threshold, "singular",
                       np.where(~reached, "not_converged",
