@@ -393,6 +393,9 @@ def parse_meta(values) -> dict:
                     raise ParameterError(f"--meta {text!r}: expected KEY=VALUE pairs separated by commas "
                                          f"(robot_serial=R123,instrument=AT960,operator=J. Doe) or a "
                                          f"YAML / JSON file")
+                if key.strip() in fields and fields[key.strip()] != value.strip():
+                    raise ParameterError(f"--meta: {key.strip()} given twice ({fields[key.strip()]!r} and "
+                                         f"{value.strip()!r})")
                 fields[key.strip()] = value.strip()
         for key, value in fields.items():
             if key in meta and meta[key] != value:
