@@ -47,14 +47,15 @@ def is_touch_input(args: argparse.Namespace) -> bool:
 
 def run_touch(args: argparse.Namespace) -> int:
     """``calib calibrate`` on a touch file: the identifiable parameters and the features, the
-    calibrated URDF (u nominal), the printed report (and --report JSON)."""
+    calibrated URDF (u nominal; with measured rows rooted at the robot's base, the measurement->base
+    transform recorded apart as calibrate records it), the printed report (and --report JSON)."""
     import numpy as np
 
+    from calib.calibration.base_frame import in_base_frame
     from calib.calibration.touch import PARAM_CHOICES, calibrate_touch
     from calib.calibration.touch_accuracy import predicted_tool_error
     from calib.io.touch_file import read_touch
     from calib.io.urdf_reader import robot_path
-    from calib.calibration.base_frame import in_base_frame
     from calib.io.urdf_writer import check_writable, write_calibrated_urdf
 
     for name, default in _NOT_FOR_TOUCH:
