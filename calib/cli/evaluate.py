@@ -164,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
     robot = _evaluate_compliance(_in_measurement_frame(load(args), args), args)
     from calib.cli.touch import is_touch_input
 
-    if is_touch_input(args):
+    if args.key is None and is_touch_input(args):     # (a joint file's key column may be named point)
         raise ParameterError(f"{args.measurements}: a touch file (rows naming a point, plane or sphere): evaluate "
                              f"compares measured poses; calib calibrate ROBOT.urdf {args.measurements} reports "
                              f"its touch residuals")
