@@ -4,7 +4,7 @@ batch of targets, and the seeds of pose targets without starting joints."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -68,6 +68,8 @@ class CompensationResult:
         the reached pose that the uncertainty of the base frame's definition (the recorded
         measurement->base covariance) causes: the correction cannot be better
         (:func:`with_frame_uncertainty`); None otherwise.
+    seeded : True when the starts were seeds the solver chose (pose targets without starting
+        joints): ``q - q_start`` is then no correction of anything and the summary omits it.
     """
 
     q: np.ndarray
@@ -88,6 +90,7 @@ class CompensationResult:
     tol_rot: float = TOL_ROT_RAD
     frame_position_std: np.ndarray | None = field(default=None, repr=False)
     frame_rotation_std: np.ndarray | None = field(default=None, repr=False)
+    seeded: bool = False
 
     @property
     def n_targets(self) -> int:
@@ -144,9 +147,9 @@ class CompensationResult:
             change = np.abs(self.q[ok] - self.q_start[ok])
             scale = np.where(self.prismatic, 1e3, 180.0 / math.pi)
             lines.append(f"  ok targets: largest residual position {self.position_error[ok].max() * 1e3:.3g} "
-                         f"mm{rot}; largest joint change "
-                         + ", ".join(f"{n} {v:.4g} {'mm' if p else 'deg'}" for n, v, p in
-                                     zip(self.joint_names, (change * scale).max(axis=0), self.prismatic)))
+                         f"mm{rot}" + ("" if self.seeded else "; largest joint change " + ", ".join(
+                             f"{n} {v:.4g} {'mm' if p else 'deg'}" for n, v, p in
+                             zip(self.joint_names, (change * scale).max(axis=0), self.prismatic))))
         if self.frame_position_std is not None:
             lines.append(f"  the base frame's uncertainty (the calibration's measurement->base transform) limits "
                          f"the correction: {self.frame_position_std.max() * 1e3:.3g} mm at most (median "
@@ -171,7 +174,8 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
     iterations, the targets then still not reached continuing from where they got with the rest of
     ``max_iterations``. A target keeps the least severe status met
     (then the smallest joint distance from the middle of the ranges). Revolute joints of a
-    solution beyond a limit are moved by whole turns inside it when they fit (the same pose)."""
+    solution are moved by whole turns to the turn nearest the middle of their range when it lies
+    within the limits (continuous joints into [-pi, pi]): the same pose, not a turn more."""
     N = len(p_t)
     lo, hi = _finite_limits(robot)
     mid, half = (lo + hi) / 2, np.where(hi > lo, (hi - lo) / 2, 1.0)
@@ -222,7 +226,7 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
             pick = np.arange(N)
             pick[todo[better]] = N + np.flatnonzero(better)
             best = _take(_concat(best, more), pick)
-    return best
+    return replace(best, seeded=True)
 
 
 #: Seed configurations of pose targets without starting joints (see :func:`compensate_poses`),
@@ -409,13 +413,15 @@ def _solve(robot: RobotModel, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot
     e_rot = None if R_t is None else np.linalg.norm(e[:, 3:], axis=1)
     reached = _reached(e, tol_pos, tol_rot)
     lo, hi = robot.lower, robot.upper
-    if wrap:     # revolute joints beyond a limit by whole turns: the same pose inside the limits
+    if wrap:     # revolute joints by whole turns to the turn nearest the middle of the range
         turn = 2 * math.pi
         rev = ~robot.prismatic
-        shifted = q - turn * np.floor((q - lo) / turn)            # in [lo, lo + 2 pi)
-        fits = rev & np.isfinite(lo) & (shifted <= hi) & ((q < lo) | (q > hi))
+        bounded = np.isfinite(lo) & np.isfinite(hi)
+        mid = np.where(bounded, (lo + hi) / 2, 0.0)               # continuous joints: into [-pi, pi]
+        near = q - turn * np.round((q - mid) / turn)
+        fits = rev & (~bounded | ((near >= lo) & (near <= hi)))
         if fits.any():
-            q = np.where(fits, shifted, q)
+            q = np.where(fits, near, q)
     excess = np.where(q > hi + LIMIT_SLACK, q - hi, 0.0) + np.where(q < lo - LIMIT_SLACK, q - lo, 0.0)
     status = np.where(sv < singular_threshold, "singular",
                       np.where(~reached, "not_converged",

@@ -393,6 +393,9 @@ def parse_meta(values) -> dict:
                     raise ParameterError(f"--meta {text!r}: expected KEY=VALUE pairs separated by commas "
                                          f"(robot_serial=R123,instrument=AT960,operator=J. Doe) or a "
                                          f"YAML / JSON file")
+                if key.strip() in fields and fields[key.strip()] != value.strip():
+                    raise ParameterError(f"--meta: {key.strip()} given twice ({fields[key.strip()]!r} and "
+                                         f"{value.strip()!r})")
                 fields[key.strip()] = value.strip()
         for key, value in fields.items():
             if key in meta and meta[key] != value:
@@ -442,3 +445,20 @@ def parse_triple(text: str, option: str, scale: float = 1.0) -> np.ndarray:
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise ParameterError(f"{option} {text!r}: expected three finite numbers X,Y,Z")
     return v * scale
+
+
+def check_measurement_link(name, robot) -> None:
+    """Refuse a --measurement-link name that is empty, has spaces or is a link of the URDF
+    (calibrate, of measurement and touch files)."""
+    from calib.errors import ParameterError
+
+    if name is None:
+        return
+    if not name.strip() or any(c.isspace() for c in name):
+        raise ParameterError(f"--measurement-link: expected a link name without spaces, got {name!r}")
+    links = () if robot.source is None else robot.source.document.links
+    if robot.source is None:
+        raise ParameterError("--measurement-link needs a robot read from a URDF")
+    if name in links:
+        raise ParameterError(f"--measurement-link {name}: {robot.urdf_path} has a link of that name already; "
+                             f"choose a new name")

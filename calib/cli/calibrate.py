@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 
 from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_progress,
-                            add_report_options, add_robot, add_verbose, compliance_options, count, load,
-                            parse_meta, positive, progress_enabled, read)
+                            add_report_options, add_robot, add_verbose, check_measurement_link,
+                            compliance_options, count, load, parse_meta, positive, progress_enabled, read)
 from calib.cli.output import Outputs, json_text, refuse_implausible, status_exit
 from calib.cli.progress import working
 from calib.errors import DataError, ParameterError
@@ -170,20 +170,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def _check_measurement_link(name, robot) -> None:
-    """Refuse a --measurement-link name that is empty, has spaces or is a link of the URDF."""
-    if name is None:
-        return
-    if not name.strip() or any(c.isspace() for c in name):
-        raise ParameterError(f"--measurement-link: expected a link name without spaces, got {name!r}")
-    links = () if robot.source is None else robot.source.document.links
-    if robot.source is None:
-        raise ParameterError("--measurement-link needs a robot read from a URDF")
-    if name in links:
-        raise ParameterError(f"--measurement-link {name}: {robot.urdf_path} has a link of that name already; "
-                             f"choose a new name")
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``calib calibrate`` with parsed arguments; returns the exit code."""
     import calib
@@ -224,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
     # (reserved always: written when the model has joint terms, an earlier one removed otherwise)
     out_sidecar = outputs.add(sidecar_path(out_urdf))
     frames = check_writable(robot)     # what cannot be written is refused before the fit
-    _check_measurement_link(args.measurement_link, robot)
+    check_measurement_link(args.measurement_link, robot)
     log.info("the calibrated URDF will hold tool frame %r in base frame %r", frames.tool_frame,
              frames.base_frame)
     meas = read(args.measurements, robot, args, args.tracker)

@@ -195,10 +195,15 @@ def run(args: argparse.Namespace) -> int:
     deviations, described = _deviations(args.deviations, robot, rng)
     true_robot = apply_deviations(robot, deviations)
     T_meas_base = _meas_frame(args.meas_frame)
-    if args.constraint is not None:     # a touch file (issue 24)
+    measured = true_robot
+    if T_meas_base is not None:     # the instrument's frame (the truth URDF stays the robot's)
+        from dataclasses import replace
+
+        measured = replace(true_robot, T_meas_base_ref=T_meas_base @ true_robot.T_meas_base_ref)
+    if args.constraint is not None:     # a touch file (issue 24): features and measured rows in that frame
         from calib.cli.touch import simulate_touch_file
 
-        text = simulate_touch_file(args, robot, true_robot, rng, outputs, out_csv, described, out_truth)
+        text = simulate_touch_file(args, robot, measured, rng, outputs, out_csv, described, out_truth)
         if out_truth is not None:
             from calib.io.urdf_writer import write_calibrated_urdf
 
@@ -215,11 +220,6 @@ def run(args: argparse.Namespace) -> int:
         k = robot.n_targets
         Q, ids = np.repeat(Q, k, axis=0), list(robot.targets) * (n_cal + n_val)
         sets = None if sets is None else np.repeat(sets, k)
-    measured = true_robot
-    if T_meas_base is not None:     # the instrument's frame (the truth URDF stays the robot's)
-        from dataclasses import replace
-
-        measured = replace(true_robot, T_meas_base_ref=T_meas_base @ true_robot.T_meas_base_ref)
     meas = simulate_measurements(measured, Q, sigma_pos=args.sigma_pos_mm * 1e-3,
                                  sigma_rot=args.sigma_rot_rad, position_only=args.position_only,
                                  rng=rng, sets=sets, unmodelled=args.unmodelled_rad, targets=ids)

@@ -39,16 +39,19 @@ def is_touch_input(args: argparse.Namespace) -> bool:
     if getattr(args, "tracker", None) is not None or not Path(args.measurements).is_file():
         return False
     try:
-        return is_touch_file(args.measurements)
+        return is_touch_file(args.measurements, getattr(args, "header_line", None),
+                             read_options(args, joined=False).rename)
     except CalibError:
         return False
 
 
 def run_touch(args: argparse.Namespace) -> int:
     """``calib calibrate`` on a touch file: the identifiable parameters and the features, the
-    calibrated URDF (u nominal), the printed report (and --report JSON)."""
+    calibrated URDF (u nominal; with measured rows rooted at the robot's base, the measurement->base
+    transform recorded apart as calibrate records it), the printed report (and --report JSON)."""
     import numpy as np
 
+    from calib.calibration.base_frame import in_base_frame
     from calib.calibration.touch import PARAM_CHOICES, calibrate_touch
     from calib.calibration.touch_accuracy import predicted_tool_error
     from calib.io.touch_file import read_touch
@@ -82,8 +85,16 @@ def run_touch(args: argparse.Namespace) -> int:
                              "--html REPORT.html")
     robot = load(args)
     check_writable(robot)
+    from calib.cli.args import check_measurement_link
+
+    check_measurement_link(getattr(args, "measurement_link", None), robot)
     probe = (getattr(args, "probe_radius_mm", None) or 0.0) * 1e-3
     data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
+    link = getattr(args, "measurement_link", None)
+    if link is not None and not data.n_measured:
+        raise ParameterError(f"--measurement-link {link}: {args.measurements} has no rows measured by an "
+                             f"instrument, so the calibration estimates no measurement frame (the features "
+                             f"are in the robot's base frame {robot.base_frame!r}); nothing written")
     noise = _noise_arguments(args, data)
     data_all = data
     try:
@@ -101,9 +112,13 @@ def run_touch(args: argparse.Namespace) -> int:
     predicted = predicted_tool_error(result, Q, registration)
     absolute = predicted_tool_error(result, Q, "none") if result.n_measured else None
     estimated = ("flange->tool",) if any(n.startswith("v_") for n in result.free) else ()
+    mframe = _measurement_frame(result, robot, data)
     written = []
     outputs.stage_from_file(out_urdf, lambda p: written.append(write_calibrated_urdf(
-        result.robot.geometry(), p, nominal=robot.geometry(), estimated=estimated)))
+        (result.robot if mframe is None else in_base_frame(result.robot, mframe)).geometry(), p,
+        nominal=robot.geometry(), estimated=estimated,
+        T_meas_base=None if mframe is None else mframe.T_meas_base,
+        meas_covariance=None if mframe is None else mframe.covariance, measurement_link=link)))
     text = "\n".join([result.format(), result.identifiability.format(), _parameter_table(robot, result),
                       f"predicted tool position error over the workspace ({ACCURACY_CONFIGURATIONS} random "
                       f"configurations, " + ("relative to the nominal base frame, " if not result.n_measured else "")
@@ -112,8 +127,10 @@ def run_touch(args: argparse.Namespace) -> int:
                          if result.nominal_scale else ")")]
                      + ([f"predicted tool position error in the meas frame (identified by the {result.n_measured} "
                          f"measured rows, no registration): {absolute * 1e3:.4f} mm RMS (noise only)"]
-                        if absolute is not None else []))
+                        if absolute is not None else [])
+                     + ([mframe.format()] if mframe is not None else []))
     report = _report(result, predicted, args, registration, absolute)
+    report["measurement_frame"] = None if mframe is None else mframe.to_dict()
     if out_report is not None or out_html is not None or plot_paths:
         text += _touch_report_stage(args, result, data_all, robot, report, text, meta, outputs, out_html,
                                     plot_paths, written[0])
@@ -128,13 +145,27 @@ def run_touch(args: argparse.Namespace) -> int:
     return status_exit(result.status, result.message)
 
 
+def _measurement_frame(result, robot, data):
+    """The robot's base frame in the measurement frame (calib.calibration.base_frame, the
+    convention of ``calibrate``) when measured rows located the instrument, else None: the URDF
+    then stays rooted at the robot's base and the instrument's pose is recorded apart."""
+    if not result.n_measured:
+        return None
+    from calib.calibration.base_frame import robot_base_frame
+
+    k = len(result.free)
+    measured = data.measured
+    return robot_base_frame(result.robot, robot, covariance=result.covariance[:k, :k], free=result.free,
+                            position_only=measured is None or not measured.has_orientation)
+
+
 def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta, outputs, out_html, plot_paths,
                         frames) -> str:
     """The touch report's certificate (into ``report``, the JSON), plots and HTML page staged in
     ``outputs``; returns the verdict line for the printed text ("" without --tolerance-mm)."""
     from calib.calibration.report import _provenance, render_html
     from calib.calibration.report_plots import plot_rows
-    from calib.calibration.report_touch import touch_certificate, touch_rows
+    from calib.calibration.report_touch import measured_deviations, touch_certificate, touch_rows
     from calib.cli.args import progress_enabled
     from calib.cli.progress import Progress
     from calib.io.urdf_reader import robot_path
@@ -143,7 +174,8 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
     tol_mm = getattr(args, "tolerance_mm", None)
     with Progress(3, "writing the report", enabled=progress_enabled(args)) as progress:
         rows = touch_rows(result, data, robot)
-        report["certificate"] = touch_certificate(rows, data.features, tol_mm)
+        report["certificate"] = touch_certificate(rows, data.features, tol_mm,
+                                                  measured_deviations(result, data, robot))
         report["meta"] = meta
         progress.update()
         images = plot_rows(rows, tolerance_m=None if tol_mm is None else tol_mm * 1e-3) if (
@@ -151,7 +183,8 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
         progress.update()
         tol = report["certificate"]["tolerance"]
         verdict = "" if tol is None else (
-            f"\ntolerance {tol['tolerance_mm']:g} mm: {'PASS' if tol['pass'] else 'FAIL'} (largest touch residual "
+            f"\ntolerance {tol['tolerance_mm']:g} mm: {'PASS' if tol['pass'] else 'FAIL'} (largest "
+            f"{'touch residual or measured position error' if data.n_measured else 'touch residual'} "
             f"{tol['max_mm']:.4g} mm over {tol['n']} {tol['rows']}; {tol['beyond']} beyond)")
         if out_html is not None:
             params = []
@@ -311,7 +344,8 @@ def simulate_touch_file(args, robot, true_robot, rng, outputs, out_csv, describe
                          + f", noise {args.sigma_pos_mm:g} mm per axis)")
     comment = (f"Simulated by: {command_line(args)}\nTrue model: {args.robot} with deviations from "
                f"{described}; touch noise {args.sigma_pos_mm:g} mm per axis; {args.poses} rows per feature"
-               + measured_text)
+               + measured_text + (f"; features and measured rows in a frame where the base frame is at "
+                                  f"{args.meas_frame} (mm, deg)" if getattr(args, "meas_frame", None) else ""))
     outputs.stage_from_file(out_csv, lambda p: write_touch(p, data, robot, comment=comment))
     lines = [f"Simulated {sim.data.n_rows} touch rows{measured_text} of {args.robot} -> {out_csv}",
              f"  {len(features)} features ({', '.join(f'{f.kind} {f.id}' for f in features)}), {args.poses} rows "

@@ -195,6 +195,9 @@ def model_from_report(report_path: str | Path, urdf_model: RobotModel) -> tuple[
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise CalibError(f"{path}: not a JSON report of calib calibrate --report ({' '.join(str(exc).split())})") from None
     params = report.get("parameters") if isinstance(report, dict) else None
+    if isinstance(report, dict) and report.get("kind") == "touch":
+        raise CalibError(f"{path}: the report of a touch calibration lists its free parameters only, without "
+                         f"units: export without --report (the values then come from the calibrated URDF)")
     if not isinstance(params, list) or not all(isinstance(p, dict) and isinstance(p.get("name"), str) for p in params):
         raise CalibError(f"{path}: no 'parameters' list: not a JSON report of calib calibrate --report")
     values, std, notes = {}, {}, []

@@ -49,24 +49,28 @@ RADIUS_TOL = 1e-9
 _HEADER_PEEK = 1 << 16
 
 
-def is_touch_file(path: str | Path) -> bool:
+def is_touch_file(path: str | Path, header_line: int | None = None, rename=()) -> bool:
     """Whether the header of the CSV file ``path`` has a ``point``, ``plane`` or ``sphere``
     column (the file is then read by :func:`read_touch`). The header is found as the reader finds
-    it (past an instrument's preamble); in a regular UTF-8 file, in its first 64 KB (``calib
-    calibrate`` asks this of every measurement file: a million-row file was read whole, twice),
-    else, or when those lines do not settle it, in the whole file."""
+    it: past an instrument's preamble, or line ``header_line`` when given; ``rename`` (the pairs
+    (old, new) of :attr:`ReadOptions.rename`) applies first, as in the reader. In a regular UTF-8
+    file the header is looked for in its first 64 KB (``calib calibrate`` asks this of every
+    measurement file: a million-row file was read whole, twice), else, or when those lines do not
+    settle it, in the whole file."""
     path = Path(path)
+    renames = {str(old).strip().lower(): str(new).strip() for old, new in rename}
 
     def feature(name: str) -> bool:
-        return name.strip().lower() in FEATURE_KINDS
+        name = name.strip()
+        return renames.get(name.lower(), name).lower() in FEATURE_KINDS
 
-    names = _peek_header(path, feature)
+    names = _peek_header(path, feature, header_line)
     if names is None:
-        names = _records(path, feature)[1]
+        names = _records(path, feature, header_line)[1]
     return any(map(feature, names))
 
 
-def _peek_header(path: Path, known=None) -> list[str] | None:
+def _peek_header(path: Path, known=None, header_line: int | None = None) -> list[str] | None:
     """The header names of a regular file found in its first _HEADER_PEEK bytes as the reader
     finds them (:func:`calib.io.csv_lines.header_of`), or None when those bytes do not settle it
     (not a regular file, not UTF-8 there, no complete header line, any error)."""
@@ -84,7 +88,7 @@ def _peek_header(path: Path, known=None) -> list[str] | None:
     if len(head) == _HEADER_PEEK:
         lines = lines[:-1]                  # (the last may be cut)
     try:
-        return header_of(path, lines, known)[1]
+        return header_of(path, lines, known, header_line)[1]
     except CalibError:
         return None
 

@@ -80,19 +80,26 @@ def zyx_from_rotation(R: np.ndarray) -> np.ndarray:
     """ZYX angles (..., 3) (alpha, beta, gamma), radians, of rotation matrices (..., 3, 3).
 
     alpha and gamma in (-pi, pi], beta in [-pi/2, pi/2]. At gimbal lock (beta = +-pi/2, where
-    only alpha -+ gamma is defined) gamma is set to 0.
+    only alpha -+ gamma is defined) gamma is set to 0. gamma is taken from alpha and the entries
+    that stay of order one near the lock (sin gamma = sa R02 - ca R12, cos gamma = ca R11 - sa R01),
+    so the angles give back R to rounding also a hair away from the lock, where alpha and the
+    textbook atan2(R21, R22) are each off by ~1e-16 / cos(beta) (1.7e-5 rad at 1e-11 from it).
     """
     R = np.asarray(R, float)
     if R.ndim == 2:         # one rotation, in scalar math
         c = math.hypot(R[0, 0], R[1, 0])
         if c < 1e-12:
             return np.array([math.atan2(-R[0, 1], R[1, 1]), math.atan2(-R[2, 0], c), 0.0])
-        return np.array([math.atan2(R[1, 0], R[0, 0]), math.atan2(-R[2, 0], c), math.atan2(R[2, 1], R[2, 2])])
+        alpha = math.atan2(R[1, 0], R[0, 0])
+        sa, ca = math.sin(alpha), math.cos(alpha)
+        return np.array([alpha, math.atan2(-R[2, 0], c),
+                         math.atan2(sa * R[0, 2] - ca * R[1, 2], ca * R[1, 1] - sa * R[0, 1])])
     c = np.hypot(R[..., 0, 0], R[..., 1, 0])   # |cos beta|
     beta = np.arctan2(-R[..., 2, 0], c)
     lock = c < 1e-12
     alpha = np.where(lock, np.arctan2(-R[..., 0, 1], R[..., 1, 1]), np.arctan2(R[..., 1, 0], R[..., 0, 0]))
-    gamma = np.where(lock, 0.0, np.arctan2(R[..., 2, 1], R[..., 2, 2]))
+    sa, ca = np.sin(alpha), np.cos(alpha)
+    gamma = np.where(lock, 0.0, np.arctan2(sa * R[..., 0, 2] - ca * R[..., 1, 2], ca * R[..., 1, 1] - sa * R[..., 0, 1]))
     return np.stack([alpha, beta, gamma], axis=-1)
 
 

@@ -225,6 +225,7 @@ def test_cli_certificate_of_the_bundled_example(capsys, tmp_path):
     (["--meta", "robot_serial"], "expected KEY=VALUE"),
     (["--meta", "robot_serial=,operator=x"], "expected KEY=VALUE"),
     (["--meta", "a=1", "--meta", "a=2"], "given twice"),
+    (["--meta", "a=1,a=2"], "given twice"),
     (["--meta", "META.yaml"], "expected a mapping"),
     (["--meta", "BAD.yaml"], "line 2"),
     (["--tolerance-mm", "-1"], "--tolerance-mm"),

@@ -147,7 +147,11 @@ def test_a_file_mixing_touch_and_measured_rows(urdf, tmp_path, capsys):
     report = json.loads((tmp_path / "report.json").read_text())
     assert [g["name"] for g in report["groups"]] == ["touch", "position"] and report["measured_rows"] == 15
     assert 0.6 < report["groups"][1]["noise_estimated_mm"] / 0.05 < 1.4
-    cal = calib.load_robot(tmp_path / "cal.urdf")
+    from calib.io.urdf import UrdfDocument
+
+    cal = calib.load_robot(tmp_path / "cal.urdf")      # rooted at the robot's base, the tracker recorded
+    T = UrdfDocument.read(tmp_path / "cal.urdf").frames.measurement_transform
+    cal = replace(cal, T_meas_base_ref=T @ cal.T_meas_base_ref)
     Q = nominal.random_configurations(500, np.random.default_rng(9))
     e_cal = registered_error(cal, true, Q, "none")
     assert e_cal <= 1.5 * report["predicted_tool_error_meas_frame_mm"] * 1e-3, e_cal
@@ -185,3 +189,138 @@ def test_simulate_measured_rows_into_a_touch_file(urdf, tmp_path, capsys):
     assert (data.n_rows, data.n_measured) == (10, 7) and data.measured.rotation is None
     code, _, err = run(capsys, "simulate", urdf, "-o", tmp_path / "x.csv", "--constraint", "measured:5")
     assert code == 2 and "name a point, plane or sphere touched" in err and not (tmp_path / "x.csv").exists()
+
+
+def test_touch_file_with_measured_rows_from_a_tracker_keeps_the_urdf_at_the_robot_base(urdf, tmp_path, capsys):
+    """simulate --meas-frame puts a touch file's measured rows and features in the instrument's
+    frame (it was ignored); calibrate of that file writes the URDF rooted at the robot's base with
+    the tracker pose recorded apart, as for a measurement file (it wrote the tracker's metres into
+    the base joint), and --measurement-link adds the tracker as the root."""
+    from calib.io.touch_file import read_touch
+    from calib.io.urdf import UrdfDocument
+    from calib.model.kinematics import ChainKinematics
+
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "m.csv",
+                       "--constraint", "point:2,measured:12", "--poses", 6, "--seed", 4, "--position-only",
+                       "--deviations", "random:0.3", "--meas-frame", "1500,-800,300,0,0,40")
+    assert code == 0, err
+    nominal = calib.load_robot(urdf, tool_frame="tool0")
+    data = read_touch(tmp_path / "m.csv", nominal)
+    assert np.linalg.norm(data.measured.position, axis=1).min() > 0.3      # metres: the tracker's frame
+    assert np.abs(data.measured.position.mean(axis=0)[:2] - [1.5, -0.8]).max() < 1.0
+    out = tmp_path / "cal.urdf"
+    code, text, err = run(capsys, "calibrate", urdf, tmp_path / "m.csv", "--tool-frame", "tool0", "-o", out,
+                          "--cv", 0, "--report", tmp_path / "r.json", "--measurement-link", "tracker")
+    assert code == 0, err
+    assert "measurement->base" in text
+    rec = UrdfDocument.read(out).frames
+    assert np.abs(rec.measurement_transform[:3, 3] - [1.5, -0.8, 0.3]).max() < 5e-3
+    assert json.loads((tmp_path / "r.json").read_text())["measurement_frame"]["base_frame"] == nominal.base_frame
+    Q = nominal.random_configurations(20, 1)
+    base = calib.load_robot(out)
+    p_b, p_n = ChainKinematics(base).frame_poses(Q)[1], ChainKinematics(nominal).frame_poses(Q)[1]
+    assert np.abs(p_b - p_n).max() < 5e-3        # the robot's errors only, not the tracker's metres
+    seen = calib.load_robot(out, base_frame="tracker")
+    p_t = ChainKinematics(seen).frame_poses(data.measured.q)[1]
+    assert np.sqrt(np.mean(np.sum((p_t - data.measured.position) ** 2, axis=1))) < 2e-4
+    # the URDF seen from the tracker is the fit's model (the split changes no prediction)
+    from calib.calibration.touch import calibrate_touch
+
+    fit = calibrate_touch(nominal, data, cv=0)
+    R_f, p_f = ChainKinematics(fit.robot).frame_poses(Q)
+    R_s, p_s = ChainKinematics(seen).frame_poses(Q)
+    assert np.abs(p_s - p_f).max() < 1e-9 and np.abs(R_s - R_f).max() < 1e-9
+
+
+def test_touch_file_after_an_instrument_preamble_is_read_as_a_touch_file(urdf, tmp_path, capsys):
+    """A touch file whose header follows a preamble (project, instrument lines, as measurement
+    files may have) is a touch file: it was routed to the measurement reader and refused as
+    'missing column x'."""
+    from calib.io.touch_file import is_touch_file
+
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "t.csv",
+                       "--constraint", "point:2,sphere:100", "--poses", 6, "--seed", 5)
+    assert code == 0, err
+    body = [line for line in (tmp_path / "t.csv").read_text().splitlines() if not line.startswith("#")]
+    (tmp_path / "p.csv").write_text("\n".join(["Project: cell 4", "Instrument: probe", "Operator: J. Doe"] + body)
+                                    + "\n")
+    assert is_touch_file(tmp_path / "p.csv") and is_touch_file(tmp_path / "p.csv", header_line=4)
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "p.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf", "--cv", 0)
+    assert code == 0, err
+    assert out.startswith("touch calibration: 18 touch rows")
+
+
+def test_touch_certificate_judges_the_measured_rows_too(urdf, tmp_path, capsys):
+    """A mixed file's certificate has the measured rows' accuracy (their position errors, from
+    the written URDF in its recorded measurement frame) and its verdict covers them: a tolerance
+    above every touch residual but below the worst measured row fails (it passed, judging the
+    touch rows alone)."""
+    from dataclasses import replace
+
+    from calib.io.touch_file import read_touch
+    from calib.io.urdf import UrdfDocument
+    from calib.model.kinematics import ChainKinematics
+
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "m.csv",
+                       "--constraint", "point:2,measured:10", "--poses", 6, "--seed", 6, "--position-only",
+                       "--deviations", "random:0.3")
+    assert code == 0, err
+    argv = ["calibrate", urdf, tmp_path / "m.csv", "--tool-frame", "tool0", "-o", tmp_path / "cal.urdf",
+            "--cv", 0, "--outlier-k", "off", "--report", tmp_path / "r.json"]
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    cert = json.loads((tmp_path / "r.json").read_text())["certificate"]
+    labels = [a["label"] for a in cert["accuracy"]]
+    assert "measured rows, after" in labels and "touch rows, after" in labels
+    data = read_touch(tmp_path / "m.csv", calib.load_robot(urdf, tool_frame="tool0"))
+    cal = calib.load_robot(tmp_path / "cal.urdf")
+    T = UrdfDocument.read(tmp_path / "cal.urdf").frames.measurement_transform
+    cal = replace(cal, T_meas_base_ref=T @ cal.T_meas_base_ref)
+    e = np.linalg.norm(ChainKinematics(cal).frame_poses(data.measured.q)[1] - data.measured.position, axis=1) * 1e3
+    after = cert["accuracy"][labels.index("measured rows, after")]["position_mm"]
+    assert after["n"] == 10 and abs(after["max"] - e.max()) < 1e-6
+    touch_max = cert["accuracy"][labels.index("touch rows, after")]["position_mm"]["max"]
+    assert e.max() > touch_max
+    tol = 0.5 * (touch_max + e.max())
+    code, out, err = run(capsys, *argv, "--tolerance-mm", tol)
+    assert code == 0, err
+    verdict = json.loads((tmp_path / "r.json").read_text())["certificate"]["tolerance"]
+    assert not verdict["pass"] and verdict["n"] == 22 and "FAIL" in out
+    rows = np.asarray(data.measured.rows)
+    assert verdict["rows_beyond"] == sorted(int(r) for r in rows[e > tol])
+
+
+def test_touch_file_whose_feature_column_is_renamed_is_a_touch_file(urdf, tmp_path, capsys):
+    """--rename 'Feature=point' names the feature column as the reader reads it: the file is a
+    touch file (it was routed to the measurement reader: '--nominal-scale applies to touch
+    files', or 'missing column x'); --rename 'point=' drops it (then not a touch file)."""
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "t.csv",
+                       "--constraint", "point:3", "--poses", 6, "--seed", 5)
+    assert code == 0, err
+    text = (tmp_path / "t.csv").read_text()
+    assert ",point\n" in text
+    (tmp_path / "f.csv").write_text(text.replace(",point\n", ",Feature\n", 1))
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "f.csv", "--tool-frame", "tool0", "-o",
+                         tmp_path / "cal.urdf", "--cv", 0, "--nominal-scale", "--rename", "feature=point")
+    assert code == 0, err
+    assert out.startswith("touch calibration: 18 touch rows")
+    # no measured rows: no measurement frame to write as a link
+    code, _, err = run(capsys, "calibrate", urdf, tmp_path / "f.csv", "--tool-frame", "tool0", "-o",
+                       tmp_path / "cal3.urdf", "--nominal-scale", "--rename", "feature=point",
+                       "--measurement-link", "tracker")
+    assert code == 2 and "has no rows measured by an instrument" in err and not (tmp_path / "cal3.urdf").exists()
+    code, _, err = run(capsys, "calibrate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0", "-o",
+                       tmp_path / "cal2.urdf", "--rename", "point=")
+    assert code == 2 and "missing column x" in err and not (tmp_path / "cal2.urdf").exists()
+
+
+def test_evaluate_of_a_touch_file_says_it_is_one(urdf, tmp_path, capsys):
+    """evaluate on a touch file: one line saying so (it said 'missing column x' or 'row 4,
+    column x_mm: empty value' of a mixed file), exit 2, nothing written."""
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "t.csv",
+                       "--constraint", "point:2,measured:4", "--poses", 4, "--seed", 5, "--position-only")
+    assert code == 0, err
+    code, _, err = run(capsys, "evaluate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0",
+                       "--html", tmp_path / "r.html")
+    assert code == 2 and "t.csv: a touch file" in err and not (tmp_path / "r.html").exists()

@@ -352,6 +352,12 @@ def test_mdh_csv_refuses_a_report_of_another_calibration(calibration, tmp_path):
     assert not out.exists()
     with pytest.raises(calib.CalibError, match="not a JSON report"):
         calib.export_calibration(urdf, "mdh-csv", out, report=urdf)
+    # a touch calibration's report (free parameters only, SI values without units)
+    touch = tmp_path / "touch.json"
+    touch.write_text(json.dumps({"kind": "touch", "parameters": [{"name": "theta1", "value": 0.001, "std": 1e-5}]}))
+    with pytest.raises(calib.CalibError, match="touch calibration .* export without --report"):
+        calib.export_calibration(urdf, "mdh-csv", out, report=touch)
+    assert not out.exists()
 
 
 def test_read_mdh_csv_names_row_and_column_of_a_bad_cell(tmp_path):
@@ -420,3 +426,13 @@ def test_mdh_csv_of_a_calibration_of_several_targets(tmp_path):
     assert back.targets == ("A", "B", "C")
     dp, dr = kinematics_difference(back, calib.load_robot(tmp_path / "cal.urdf"), n=10)
     assert dp < TOL and dr < TOL
+
+
+def test_mdh_csv_of_tiago_whose_tool_frame_is_at_zyx_gimbal_lock(tmp_path):
+    """TIAGo's hand_palm_link is turned by -90 deg about y (1.2e-11 rad from the ZYX lock): its
+    mdh-csv reads back to 1e-9 (it was refused: 'read back differs ... by 1.73e-05 rad')."""
+    from conftest import erd_urdf
+
+    out = tmp_path / "tiago.csv"
+    calib.export_calibration(erd_urdf("tiago"), "mdh-csv", out)
+    assert out.exists() and "tool," in out.read_text()
