@@ -194,7 +194,8 @@ class CalibrationResult:
         return write_calibrated_urdf(
             self.base_robot().geometry(), path, nominal=self.nominal.geometry(), estimated=self.estimated_frames,
             T_meas_base=None if mf is None else mf.T_meas_base,
-            meas_covariance=None if mf is None else mf.covariance, measurement_link=measurement_link)
+            meas_covariance=None if mf is None else mf.covariance, measurement_link=measurement_link,
+            orientation_measured=self.before.rotation is not None)
 
     def compliance_record(self) -> dict | None:
         """The compliances and periodic terms with their std, payload and gravity

@@ -129,8 +129,15 @@ def run(args: argparse.Namespace) -> int:
              calibrated.tool_frame)
     targets = read_targets(args.targets, nominal, options=read_options(args))
     print_notes(targets.notes)
-    log.info("read %d %s targets from %s", targets.n_targets, targets.kind, args.targets)
     rec = calibrated.source.document.frames if calibrated.source is not None else None
+    uncalibrated_orientation = (rec is not None and not rec.orientation_measured
+                                and (targets.kind == "pose" or (targets.kind == "joints" and args.measure == "pose")))
+    if uncalibrated_orientation:
+        sys.stderr.write(f"{PROG}: note: {args.calibrated}'s calibration measured no tool orientation (positions "
+                         f"only, or touch rows): the corrected joints reach the targets' orientations as the "
+                         f"model predicts them, which the measurements did not check; status ok vouches for "
+                         f"the position (--measure position corrects the position alone)\n")
+    log.info("read %d %s targets from %s", targets.n_targets, targets.kind, args.targets)
     T_meas_base = None if rec is None else rec.measurement_transform
     opts = dict(singular_threshold=args.singular_threshold)
     if targets.kind == "joints":
@@ -168,7 +175,9 @@ def run(args: argparse.Namespace) -> int:
     comment = (f"Corrected joint values, computed by: {command_line(args)}\n"
                f"Targets: {targets.kind} targets of {args.targets} (tool frame {nominal.tool_frame} "
                f"in {frame}); status ok: the calibrated model reaches the "
-               f"target; other rows must not be sent to the robot as they are")
+               f"target; other rows must not be sent to the robot as they are"
+               + ("\nThe calibration measured no tool orientation: the orientations reached are the model's "
+                  "prediction, not calibrated" if uncalibrated_orientation else ""))
     outputs.stage_from_file(out, lambda p: write_compensation(p, result, comment=comment))
     outputs.commit()
     sys.stdout.write(result.format() + f"\n\nwrote {out}\n")

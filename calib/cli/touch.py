@@ -118,7 +118,8 @@ def run_touch(args: argparse.Namespace) -> int:
         (result.robot if mframe is None else in_base_frame(result.robot, mframe)).geometry(), p,
         nominal=robot.geometry(), estimated=estimated,
         T_meas_base=None if mframe is None else mframe.T_meas_base,
-        meas_covariance=None if mframe is None else mframe.covariance, measurement_link=link)))
+        meas_covariance=None if mframe is None else mframe.covariance, measurement_link=link,
+        orientation_measured=data.measured is not None and data.measured.rotation is not None)))
     text = "\n".join([result.format(), result.identifiability.format(), _parameter_table(robot, result),
                       f"predicted tool position error over the workspace ({ACCURACY_CONFIGURATIONS} random "
                       f"configurations, " + ("relative to the nominal base frame, " if not result.n_measured else "")

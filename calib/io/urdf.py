@@ -77,6 +77,9 @@ class RecordedFrames:
     frame, or the tool (or target) frames, from the data because they were far from the nominal
     ones (attributes ``measurement_estimated="true"``, ``tool_estimated="true"``): the base
     frame is then the instrument's, the tool frame the measured point's, not the nominal ones.
+    orientation_measured : whether the calibration's rows measured the tool's orientation
+    (attribute ``orientation_measured="false"`` when they did not: positions only, or touch
+    rows): the tool orientation the model gives is then not calibrated (compensate says so).
     """
 
     base_frame: str
@@ -87,6 +90,7 @@ class RecordedFrames:
     targets: tuple[tuple[str, str], ...] = ()
     measurement_estimated: bool = False
     tool_estimated: bool = False
+    orientation_measured: bool = True
     #: The measurement->base transform of a calibration that estimated the measurement frame
     #: and kept the URDF rooted at the robot's base: ``T_meas_base`` (4, 4) pose of ``base_frame``
     #: in the measurement frame as a 16-tuple (row-major, metres), its (6, 6) covariance as a
@@ -113,6 +117,8 @@ class RecordedFrames:
         for key in ("measurement_estimated", "tool_estimated"):
             if getattr(self, key):
                 out[key] = "true"
+        if not self.orientation_measured:
+            out["orientation_measured"] = "false"
         return out
 
     def to_dict(self) -> dict:
@@ -265,6 +271,10 @@ class UrdfDocument:
             if el.get(k, "false") not in ("true", "false"):
                 raise URDFError(self.path, f"<calib:frames> {k}={el.get(k)!r}: expected true or false")
             flags[k] = el.get(k) == "true"
+        if el.get("orientation_measured", "true") not in ("true", "false"):
+            raise URDFError(self.path, f"<calib:frames> orientation_measured="
+                                       f"{el.get('orientation_measured')!r}: expected true or false")
+        flags["orientation_measured"] = el.get("orientation_measured", "true") == "true"
         meas = el.find(MEASUREMENT_TAG)
         if meas is not None:
             xyz, rpy = (_floats(meas.get(a), 3) for a in ("xyz", "rpy"))

@@ -89,7 +89,8 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
                           estimated: Sequence[str] = (),
                           T_meas_base: np.ndarray | None = None,
                           meas_covariance: np.ndarray | None = None,
-                          measurement_link: str | None = None) -> RecordedFrames:
+                          measurement_link: str | None = None,
+                          orientation_measured: bool = True) -> RecordedFrames:
     """Write a copy of the URDF ``robot`` was read from whose kinematics are exactly ``robot``'s.
 
     Parameters
@@ -113,6 +114,9 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
         a new root link with a fixed joint ``<name>_to_<root>`` whose child is the URDF's root
         link (ROS: one tree, one root; robot_state_publisher then publishes the tracker frame
         as the parent of the robot). Must not be a link of the URDF already.
+    orientation_measured : False when the calibration's rows measured no tool orientation
+        (positions only, touch rows): recorded (``orientation_measured="false"``) so that a
+        compensation with orientation targets can say the orientation is not calibrated.
 
     Returns the frames the output records (:class:`calib.io.urdf.RecordedFrames`): in the output,
     Pinocchio's pose of ``tool_frame`` in ``base_frame`` is ``robot.T_meas_tool(q)`` (4x4,
@@ -137,6 +141,8 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
     estimated = check_names(estimated, "estimated")
     check_not_input(check_path(path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
     measurement = _check_measurement(T_meas_base, meas_covariance, measurement_link)
+    if not isinstance(orientation_measured, bool):
+        raise CalibError(f"orientation_measured must be True or False, got {orientation_measured!r}")
     if robot.source is None:      # a model built in code: a minimal URDF of its kinematics
         if nominal is not None:
             _check_compatible(robot, nominal)
@@ -144,8 +150,8 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
             raise CalibError("measurement_link needs a model read from a URDF (this one was built in code)")
         text, frames = minimal_urdf(robot, estimated=tuple(e for e in estimated if measurement is None
                                                            or e != "measurement->base"))
-        if measurement is not None:
-            frames = replace(frames, **measurement)
+        if measurement is not None or not orientation_measured:
+            frames = replace(frames, **(measurement or {}), orientation_measured=orientation_measured)
             text = _minimal_with_record(text, frames)
         atomic_write_text(path, text)
         return frames
@@ -158,6 +164,7 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
     plan = replace(plan, frames=replace(
         f, measurement_estimated=meas_estimated,
         tool_estimated=f.tool_estimated or any(e.startswith("flange->") for e in estimated),
+        orientation_measured=orientation_measured,
         **(measurement or {"T_meas_base": (), "meas_covariance": (), "measurement_link": ""})))
     if measurement_link:
         plan = _plan_measurement_link(doc, plan, robot.base_frame, measurement_link)

@@ -456,3 +456,29 @@ def test_a_recalibration_keeps_the_record_of_frames_estimated_before(tmp_path, b
     rec = UrdfDocument.read(tmp_path / "plain2.urdf").frames
     assert (rec.tool_estimated, rec.measurement_estimated) == (False, False)
     check_joint_targets(tmp_path / "plain2.urdf")
+
+
+def test_a_calibration_without_orientation_is_recorded_and_compensate_says_so(tmp_path, bundled, paper_true,
+                                                                                capsys):
+    """A position-only (or touch) calibration records orientation_measured="false"; compensate of
+    targets that ask for an orientation notes that the orientation is the model's, not calibrated."""
+    from calib.io.urdf import UrdfDocument
+
+    cal = tmp_path / "calibrated.urdf"
+    frames = write_calibrated_urdf(paper_true, cal, nominal=bundled, orientation_measured=False)
+    assert frames.orientation_measured is False
+    assert 'orientation_measured="false"' in cal.read_text()
+    assert UrdfDocument.read(cal).frames.orientation_measured is False       # read back
+    targets = np.array([[0.1, 0.3, 0.2, 0.4, 0.6, 0.5]])
+    write_poses(tmp_path / "targets.csv", bundled, targets)
+    assert _run(["compensate", cal, BUNDLED_URDF, tmp_path / "targets.csv", "-o", tmp_path / "c.csv"]) == 0
+    assert "measured no tool orientation" in capsys.readouterr().err
+    assert "measured no tool orientation" in (tmp_path / "c.csv").read_text()
+    assert _run(["compensate", cal, BUNDLED_URDF, tmp_path / "targets.csv", "-o", tmp_path / "c2.csv",
+                 "--measure", "position"]) == 0
+    assert "measured no tool orientation" not in capsys.readouterr().err
+    # a full-pose calibration writes no such attribute
+    cal2 = tmp_path / "full.urdf"
+    write_calibrated_urdf(paper_true, cal2, nominal=bundled)
+    assert "orientation_measured" not in cal2.read_text()
+    assert UrdfDocument.read(cal2).frames.orientation_measured is True
