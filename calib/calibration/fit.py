@@ -153,6 +153,40 @@ def _linearised(problem: Problem, x: np.ndarray) -> _Linearised:
     return _Linearised(ne, Ainv, full_rank, ne.n_pos - share_p, ne.n_rot - share_r)
 
 
+def _vce_fixed_point(ne: NormalEquations, sigmas: tuple[float, float], start: tuple[float, float],
+                     free: tuple[bool, bool], max_iterations: int = 50) -> tuple[float, float]:
+    """The noise levels (sigma_pos m, sigma_rot rad) at which variance-component estimation
+    stops, found on the least-squares normal equations ``ne`` of pose rows weighted by
+    ``sigmas``, from the levels ``start`` their residuals give: for trial levels, the
+    Gauss-Newton solution of the linearised problem, each group's residual sum of squares and
+    redundancy there and the levels they give, repeated until they change by less than
+    VCE_RTOL / 100 (``free``: which levels are estimated; a given one stays). Exact for a model
+    linear in its parameters: the fit re-solved at these levels confirms them, where each
+    re-weighted fit would otherwise move them one step of the estimation (a few passes of LM over
+    the data each). ``start`` when ``ne`` does not split its gradient by group."""
+    if ne.g_pos is None or ne.A_pos is None or ne.A_rot is None:
+        return start
+    (sp0, sr0), (sp, sr) = sigmas, start
+    g_rot = ne.g - ne.g_pos
+    for _ in range(max_iterations):
+        f_p, f_r = (sp0 / sp) ** 2, (sr0 / sr) ** 2
+        Ainv, _ = normal_inverse(f_p * ne.A_pos + f_r * ne.A_rot)
+        dx = -Ainv @ (f_p * ne.g_pos + f_r * g_rot)
+        rss_p = ne.rss_pos + 2.0 * ne.g_pos @ dx + dx @ ne.A_pos @ dx     # (at the weights sigmas)
+        rss_r = ne.rss_rot + 2.0 * g_rot @ dx + dx @ ne.A_rot @ dx
+        red_p = ne.n_pos - f_p * float(np.sum(Ainv * ne.A_pos))       # (tr(Ainv A_pos): both symmetric)
+        red_r = ne.n_rot - f_r * float(np.sum(Ainv * ne.A_rot))
+        if min(red_p, red_r) <= 0.5 or min(rss_p, rss_r) <= 0.0:
+            return start                 # (nothing to estimate from: the loop's own rule decides)
+        new_p = sp0 * math.sqrt(rss_p / red_p) if free[0] else sp
+        new_r = sr0 * math.sqrt(rss_r / red_r) if free[1] else sr
+        change = max(abs(new_p / sp - 1.0), abs(new_r / sr - 1.0))
+        sp, sr = max(new_p, 1e-12), max(new_r, 1e-12)
+        if change < VCE_RTOL / 100:
+            return sp, sr
+    return start
+
+
 def _noise_estimate(problem: Problem, lin: _Linearised, estimated: bool, iterations: int) -> NoiseEstimate:
     """The noise levels of ``problem`` and the residuals' agreement with them, from its
     linearisation ``lin`` at the solution."""
@@ -320,6 +354,11 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
             new_sr = est_r if (sigma_rot is None and two_groups) else sr
             new_sp, new_sr = max(new_sp, 1e-12), max(new_sr, 1e-12)
             change = max(abs(new_sp / sp - 1.0), abs(new_sr / sr - 1.0))
+            if change >= VCE_RTOL and two_groups and loss == "linear":
+                # where the estimation would stop, from this linearisation: one re-weighted fit
+                # confirms it instead of one per step of the estimation
+                new_sp, new_sr = _vce_fixed_point(ne, (sp, sr), (new_sp, new_sr),
+                                                  (sigma_pos is None, sigma_rot is None))
             sp, sr = new_sp, new_sr
             if (change < VCE_RTOL and not loose) or (not two_groups and loss == "linear"):
                 break   # (one group: the weights do not change the fit)

@@ -91,6 +91,8 @@ class NormalEquations:
     rss_rot: float
     n_pos: int
     n_rot: int
+    #: (m,) the position rows' share of g (None where not kept: robust and touch problems)
+    g_pos: np.ndarray | None = None
 
     @property
     def cost(self) -> float:
@@ -330,7 +332,7 @@ class Problem:
                 A, g = A_rot, g_rot
         N = self.n_poses
         ne = NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1],
-                             3 * N if use_pos else 0, 3 * N if use_rot else 0)
+                             3 * N if use_pos else 0, 3 * N if use_rot else 0, g_pos if use_pos else None)
         return ne, g_pos, blocks
 
     def _compute_robust_normal_equations(self, x: np.ndarray, parts: str) -> tuple[NormalEquations, np.ndarray]:
@@ -435,7 +437,8 @@ def _reweighted(ne: NormalEquations, g_pos: np.ndarray, f_pos: float, f_rot: flo
     A = (A_pos if A_pos is not None else 0.0) + (A_rot if A_rot is not None else 0.0)
     g = (ne.g * f_rot if A_pos is None else ne.g * f_pos if A_rot is None
          else g_pos * f_pos + (ne.g - g_pos) * f_rot)
-    return NormalEquations(A, g, A_pos, A_rot, ne.rss_pos * f_pos, ne.rss_rot * f_rot, ne.n_pos, ne.n_rot)
+    return NormalEquations(A, g, A_pos, A_rot, ne.rss_pos * f_pos, ne.rss_rot * f_rot, ne.n_pos, ne.n_rot,
+                           None if A_pos is None else g_pos * f_pos)
 
 
 def robust_scaling(r: np.ndarray, J: np.ndarray | None, loss: str, c: float, curvature: bool = False):

@@ -213,3 +213,24 @@ def test_given_position_noise_is_judged_on_position_only_data():
                                        position_only=True, rng=4)
     assert calib.calibrate(robot, meas, sigma_pos=2e-5).status == "implausible"
     assert calib.calibrate(robot, meas, sigma_pos=2e-4).status == "converged"
+
+
+@pytest.mark.parametrize("scale_rot", [1.0, 30.0])
+def test_noise_estimate_reaches_its_fixed_point_in_two_reweighted_fits(bundled_robot, scale_rot):
+    """Variance-component estimation: the levels found on the first fit's linearisation
+    (fit._vce_fixed_point) are confirmed by one re-weighted fit. Its residuals give back the noise
+    levels it was weighted with (to VCE_RTOL), and the simulated noise is found (to the spread of
+    a 300-row estimate); before, each re-weighted fit moved the levels one step (4-7 fits on the
+    real iiwa rows)."""
+    from calib.calibration.options import VCE_RTOL
+
+    true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
+    Q = bundled_robot.random_configurations(300, 11)
+    sp, sr = 0.05e-3, 0.1e-3 * scale_rot        # (far from the starting levels 0.02 mm / 2 mrad)
+    m = simulate_measurements(true, Q, sigma_pos=sp, sigma_rot=sr, rng=12)
+    res = calib.calibrate(bundled_robot, m, cv=0, estimator="ls")
+    nz = res.noise
+    assert nz.iterations <= 2
+    assert abs(nz.position / sp - 1) < 0.1 and abs(nz.rotation / sr - 1) < 0.1
+    # the fixed point: the kept rows' residual sums over their redundancies give the levels back
+    assert abs(nz.chi2_pos - 1) < 2 * VCE_RTOL and abs(nz.chi2_rot - 1) < 2 * VCE_RTOL

@@ -294,7 +294,7 @@ def test_readme_real_measurements_example_runs_as_printed(tmp_path, monkeypatch,
     for command in commands[:3]:
         assert main(shlex.split(command)[1:]) == 0
     out = capsys.readouterr().out
-    for quoted in ("noise estimated from the residuals (4 re-weighted fits): position 1.026 mm, "
+    for quoted in ("noise estimated from the residuals (2 re-weighted fits): position 1.026 mm, "
                    "orientation 0.00521 rad per axis", "offsets+frames                 16    27.04",
                    "prior scales from the evidence: theta 0.0026 rad, length 1.43 mm, twist 0.00196 rad",
                    "cross-validated (5-fold) held-out RMS error: position 2.077 mm",
