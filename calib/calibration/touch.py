@@ -398,9 +398,12 @@ def _second_pass(robot, data, params, given, options, ident, fitted: _Fitted):
     (the residuals weighted by the noise levels of the second fit)."""
     prob, sol = fitted.prob, fitted.sol
     first = fitted.start_robot.with_values(prob.full(sol.x))
-    again = touch_identifiability(first, data, params=params, first=ident.robot_free, **_start_weights(given))
+    again = touch_identifiability(first, data, params=params, first=ident.robot_free, require_redundancy=False,
+                                  **_start_weights(given))
     extra = set(again.robot_free) - set(ident.robot_free)
     if not extra or not set(ident.robot_free) <= set(again.robot_free):
+        return None
+    if prob.n_residuals <= len(again.robot_free) + len(again.features):     # (no redundancy left)
         return None
     fitted2 = _fit(first, data, first.indices(again.robot_free), given, options, declared=True)
     prob2, sol2 = fitted2.prob, fitted2.sol

@@ -324,3 +324,53 @@ def test_evaluate_of_a_touch_file_says_it_is_one(urdf, tmp_path, capsys):
     code, _, err = run(capsys, "evaluate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0",
                        "--html", tmp_path / "r.html")
     assert code == 2 and "t.csv: a touch file" in err and not (tmp_path / "r.html").exists()
+
+
+def _bad_touch_files(tmp_path, sphere_csv, points_csv):
+    """name -> (file text, what the one-line error must say): the bad input issue 24's
+    acceptance names, each made from a valid simulated file by one change."""
+    sphere, points = sphere_csv.read_text().splitlines(), points_csv.read_text().splitlines()
+    header = next(i for i, line in enumerate(sphere) if not line.startswith("#"))
+    first = header + 1
+    neg = list(sphere)
+    neg[first] = neg[first].rsplit(",", 1)[0] + ",-100"
+    p_header = next(i for i, line in enumerate(points) if not line.startswith("#"))
+    both = points[:p_header] + [points[p_header].replace(",point", ",x_mm,y_mm,z_mm,point")] + [
+        line.rsplit(",", 1)[0] + (",1,2,3," if i == 1 else ",,,,") + line.rsplit(",", 1)[1]
+        for i, line in enumerate(points[p_header + 1:])]
+    three = points[:p_header + 1] + [line for line in points[p_header + 1:] if line.endswith(",P1")][:3]
+    return {
+        "both": ("\n".join(both), f"row {p_header + 3}, column 'x_mm': a row touching point"),
+        "unit": ("\n".join(sphere).replace("radius_mm", "radius_in"),
+                 f"row {header + 1}, column 'radius_in': wrong unit suffix _in: radius takes _m or _mm"),
+        "negative": ("\n".join(neg), f"row {first + 1}, column 'radius_mm': sphere 'S1' needs a positive radius, got -100"),
+        "three": ("\n".join(three), "point 'P1' is touched in 3 rows: touch it from at least 4 orientations"),
+        "sphere15": ("\n".join(sphere), "15 residual components for 15 unknowns"),
+    }
+
+
+def test_the_acceptance_bad_input_through_the_cli_exits_2_one_line_nothing_written(urdf, tmp_path, capsys):
+    """Issue 24's acceptance, end to end: a row with both x/y/z and point, an unknown radius
+    unit, a negative radius, one point from 3 orientations, one sphere from 15 rows (15
+    components for 15 unknowns: the fit passed through every row, exit 0, before the check);
+    each exits 2 with one line naming the file (and row and column), the input unchanged,
+    neither the URDF nor the report written; identifiability --touch refuses the designs the same
+    way, naming the file. (One plane only: test_degenerate_design_and_bad_input_exit_2_writing_nothing.)"""
+    for name, constraint in (("sphere", "sphere:100"), ("points", "point:2")):
+        code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / f"{name}.csv",
+                           "--constraint", constraint, "--poses", 15, "--seed", 3, "--deviations", "random:0.5")
+        assert code == 0, err
+    cases = _bad_touch_files(tmp_path, tmp_path / "sphere.csv", tmp_path / "points.csv")
+    for name, (text, reason) in cases.items():
+        path = tmp_path / f"bad_{name}.csv"
+        path.write_text(text + "\n")
+        before = sorted(p.name for p in tmp_path.iterdir())
+        code, out, err = run(capsys, "calibrate", urdf, path, "--tool-frame", "tool0", "-o", tmp_path / "cal.urdf",
+                             "--report", tmp_path / "r.json")
+        assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, (name, code, err)
+        assert f"{path}" in err and reason in err, (name, err)
+        assert sorted(p.name for p in tmp_path.iterdir()) == before and path.read_text() == text + "\n"
+        if name in ("three", "sphere15"):
+            code, out, err = run(capsys, "identifiability", urdf, "--tool-frame", "tool0", "--touch", path)
+            assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, (name, err)
+            assert f"{path}: " in err and reason in err, (name, err)
