@@ -374,3 +374,32 @@ def test_the_acceptance_bad_input_through_the_cli_exits_2_one_line_nothing_writt
             code, out, err = run(capsys, "identifiability", urdf, "--tool-frame", "tool0", "--touch", path)
             assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, (name, err)
             assert f"{path}: " in err and reason in err, (name, err)
+
+
+def test_measured_rows_too_few_to_estimate_their_noise_are_refused(urdf, tmp_path, capsys):
+    """2 points x 10 touch rows and 3 measured positions: the 3 rows locate the instrument, but
+    their 9 components leave a redundancy of 0.5 once the meas frame and the scale are fitted;
+    their noise was printed as 'estimated' 0.009947 mm (the weight the fit had reached; true
+    0.02 mm) and the prediction in the meas frame given at it, exit 0. Refused now, naming what
+    to add; with their noise given, calibrated; with 4 rows, estimated."""
+    for n in (3, 4):
+        code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / f"m{n}.csv",
+                           "--constraint", f"point:2,measured:{n}", "--poses", 10, "--seed", 1,
+                           "--deviations", "random:0.5", "--position-only")
+        assert code == 0, err
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "m3.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf", "--cv", 0)
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+    assert f"{tmp_path / 'm3.csv'}: the measured positions have a redundancy of 0.5" in err
+    assert "add measured rows, or give their noise (--sigma-pos-mm, API sigma_pos)" in err
+    assert not (tmp_path / "cal.urdf").exists()
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "m3.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf", "--cv", 0, "--sigma-pos-mm", 0.02, "--report", tmp_path / "r.json")
+    assert code == 0, err
+    pos = next(g for g in json.loads((tmp_path / "r.json").read_text())["groups"] if g["name"] == "position")
+    assert pos["noise_given"] and pos["noise_mm"] == pytest.approx(0.02)
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "m4.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal4.urdf", "--cv", 0, "--report", tmp_path / "r4.json")
+    assert code == 0, err
+    pos = next(g for g in json.loads((tmp_path / "r4.json").read_text())["groups"] if g["name"] == "position")
+    assert not pos["noise_given"] and pos["redundancy"] > 2 and 0.005 < pos["noise_estimated_mm"] < 0.05
