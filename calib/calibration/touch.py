@@ -300,7 +300,31 @@ def _calibrate(robot, data, params, given, options, nominal_scale):
     second = _second_pass(robot, data, params, given, options, ident, fitted)
     if second is not None:
         ident, fitted = second
+    _check_group_redundancy(fitted, given)
     return ident, fitted
+
+
+#: A residual group whose noise is estimated needs at least this redundancy (its components
+#: minus its share of the unknowns): below it the fit passes through its rows and the "estimate"
+#: would be the weight it started with.
+MIN_GROUP_REDUNDANCY = 1.0
+_GROUP_ADVICE = {"touch": ("touch residuals", "touch rows", "--sigma-touch-mm, API sigma"),
+                 "position": ("measured positions", "measured rows", "--sigma-pos-mm, API sigma_pos"),
+                 "rotation": ("measured rotations", "measured rows", "--sigma-rot-rad, API sigma_rot")}
+
+
+def _check_group_redundancy(fitted: _Fitted, given: dict) -> None:
+    """Raise DataError, naming what to add, when a group whose noise is estimated has a
+    redundancy below MIN_GROUP_REDUNDANCY (3 measured positions mixed with touch rows: 9
+    components, 8.5 of them spent on the meas frame and the scale; its noise was printed as
+    'estimated' at the weight it started with, and the prediction in the meas frame at it)."""
+    levels = _noise_levels(fitted.prob, fitted.sol.x)
+    for g, (_, red) in levels.items():
+        if given[g] is None and red < MIN_GROUP_REDUNDANCY:
+            what, rows, flag = _GROUP_ADVICE[g]
+            raise DataError(f"the {what} have a redundancy of {red:.2g} (their components minus their share "
+                            f"of the unknowns, below {MIN_GROUP_REDUNDANCY:g}): the fit passes through them and "
+                            f"their noise cannot be estimated; add {rows}, or give their noise ({flag})")
 
 
 def _start_weights(given: dict) -> dict:
@@ -398,9 +422,12 @@ def _second_pass(robot, data, params, given, options, ident, fitted: _Fitted):
     (the residuals weighted by the noise levels of the second fit)."""
     prob, sol = fitted.prob, fitted.sol
     first = fitted.start_robot.with_values(prob.full(sol.x))
-    again = touch_identifiability(first, data, params=params, first=ident.robot_free, **_start_weights(given))
+    again = touch_identifiability(first, data, params=params, first=ident.robot_free, require_redundancy=False,
+                                  **_start_weights(given))
     extra = set(again.robot_free) - set(ident.robot_free)
     if not extra or not set(ident.robot_free) <= set(again.robot_free):
+        return None
+    if prob.n_residuals <= len(again.robot_free) + len(again.features):     # (no redundancy left)
         return None
     fitted2 = _fit(first, data, first.indices(again.robot_free), given, options, declared=True)
     prob2, sol2 = fitted2.prob, fitted2.sol

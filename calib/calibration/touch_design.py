@@ -131,15 +131,19 @@ def _priority(robot: RobotModel, candidates: Sequence[int]) -> list[int]:
 def touch_identifiability(robot: RobotModel, data: TouchData, *, params: str = "auto",
                           sigma: float = SIGMA_TOUCH_M, sigma_pos: float | None = None,
                           sigma_rot: float | None = None, tol: float = RANK_TOL,
-                          first: Sequence[str] = ()) -> TouchIdentifiability:
+                          first: Sequence[str] = (), require_redundancy: bool = True) -> TouchIdentifiability:
     """Which robot parameters ``data`` determine with the features (see the module docstring),
     at ``robot``'s idealised values. params : "auto" (every geometric parameter a candidate) or
     "tool" (the flange->tool offset v_x, v_y, v_z only, the robot held nominal; with measured
     rows the meas frame's u too). sigma, sigma_pos, sigma_rot : the groups' noise, the weights
     of the stacked Jacobian (metres, metres, radians; None: calib's defaults). first : robot
     parameter names to keep before the others (after the features). Raises DataError
-    naming what to add when a feature's unknowns or every robot parameter are undetermined, or
-    when planes alone have normals that do not span space. Measured rows (``data.measured``)
+    naming what to add when a feature's unknowns or every robot parameter are undetermined, when
+    planes alone have normals that do not span space, or (``require_redundancy``) when the rows
+    give no more residual components than the unknowns they determine (the fit would pass
+    through every row: no noise to estimate, nothing left to check it, the "noise estimate" and
+    the prediction an assumption; one sphere from 15 rows, one point from 6 rows for the full
+    model). Measured rows (``data.measured``)
     stack their pose Jacobian under the touch rows': they determine the meas frame and the
     scale."""
     check_robot(robot)
@@ -181,6 +185,13 @@ def touch_identifiability(robot: RobotModel, data: TouchData, *, params: str = "
     robot_kept = sorted(j for j in kept if j < mr)
     if not robot_kept:
         raise DataError("the rows determine no robot parameter: add rows or features")
+    if require_redundancy and J.shape[0] <= len(kept):
+        raise DataError(f"the rows give {J.shape[0]} residual components for {len(kept)} unknowns "
+                        f"({len(robot_kept)} robot parameters, {n_feat} of the features): the fit would pass "
+                        f"through every row, with no noise to estimate and nothing to check it; add rows (a "
+                        f"point row gives 3 components, a plane or sphere row 1) or another feature"
+                        + (", or calibrate the tool only (--params tool)"
+                           if params != "tool" and any(f.kind == "point" for f in data.features) else ""))
     norms = np.linalg.norm(J, axis=0)
     names = [model.names[k] for k in candidates] + list(fnames)
     relations = []
@@ -192,7 +203,8 @@ def touch_identifiability(robot: RobotModel, data: TouchData, *, params: str = "
         scale = norms[kept] / norms[j]
         partners = tuple((names[k], float(c)) for k, c, s in zip(kept, coef, scale) if abs(c * s) > 1e-4)
         relations.append(Relation(names[j], partners, "its effect equals that of the listed parameters"))
-    scale_free = not any(f.kind == "sphere" for f in data.features) and not data.n_measured
+    # (the tool offset alone, the robot held nominal: the nominal lengths fix the scale)
+    scale_free = params != "tool" and not any(f.kind == "sphere" for f in data.features) and not data.n_measured
     return TouchIdentifiability(tuple(names[j] for j in robot_kept), tuple(fnames), tuple(relations),
                                 scale_free, data.n_measured)
 

@@ -7,7 +7,7 @@ import sys
 from calib.cli.args import (COMMON_EPILOG, HelpFormatter, add_compliance, add_frames, add_robot, add_targets,
                             add_verbose, compliance_options, count, load, positive_int, with_targets)
 from calib.cli.output import EXIT_OK, json_text
-from calib.errors import ParameterError
+from calib.errors import CalibError, ParameterError
 
 __all__ = ["add_parser", "run"]
 
@@ -66,7 +66,11 @@ def run(args: argparse.Namespace) -> int:
         from calib.io.touch_file import read_touch
 
         robot = load(args)
-        ident = touch_identifiability(robot, read_touch(args.touch, robot), params=args.params)
+        data = read_touch(args.touch, robot)
+        try:
+            ident = touch_identifiability(robot, data, params=args.params)
+        except CalibError as exc:   # about the rows as a whole (a degenerate design): name the file
+            raise type(exc)(f"{args.touch}: {exc}") from None
         sys.stdout.write((json_text(ident.to_dict()) if args.json else ident.format() + "\n"))
         return EXIT_OK
     robot = with_targets(load(args), args)

@@ -133,6 +133,34 @@ def test_degenerate_designs_are_refused_naming_what_to_add():
         calibrate_touch(robot, sim.data, params="tool")
 
 
+def test_designs_without_redundancy_are_refused_naming_what_to_add():
+    """Rows giving no more residual components than the unknowns they determine: the fit passes
+    through every row, the residuals are 0 and the 'estimated' noise was the default weight
+    (one sphere from 15 rows: 12 robot parameters + 3 centre coordinates = 15 components; it was
+    written with exit 0, noise 'estimated' 0.0200 mm, a predicted error of 2.29 mm). One point
+    from 6 rows with the scale held nominal: 18 components, 15 + 3 unknowns."""
+    robot = _robot("ur10")
+    rng = np.random.default_rng(3)
+    true = apply_deviations(robot, random_deviations(robot, 0.5e-3, rng))
+    sphere = simulate_touch(true, [Feature("sphere", "S", radius=0.1)], [15], sigma=0.02e-3, rng=rng)
+    with pytest.raises(DataError, match="15 residual components for 15 unknowns .* add rows"):
+        calibrate_touch(robot, sphere.data)
+    with pytest.raises(DataError, match="15 residual components for 15 unknowns"):
+        touch_identifiability(robot, sphere.data)
+    point = simulate_touch(true, [Feature("point", "P")], [6], sigma=0.02e-3, rng=rng)
+    with pytest.raises(DataError, match=r"18 residual components for 18 unknowns .* the tool only \(--params tool\)"):
+        calibrate_touch(robot, point.data, nominal_scale=True)
+    # the tool alone from the same rows: 18 components for 6 unknowns, redundancy 12; no scale
+    # is involved (the robot held nominal), so the identifiability does not call it undetermined
+    res = calibrate_touch(robot, point.data, params="tool", cv=0)
+    assert res.n_residuals - len(res.free) - len(res.feature_names) == 12
+    assert not res.identifiability.scale_free and "the scale is not determined" not in res.identifiability.format()
+    # enough sphere rows: calibrated (40 components for 22 unknowns)
+    sphere = simulate_touch(true, [Feature("sphere", "S", radius=0.1)], [40], sigma=0.02e-3, rng=rng)
+    res = calibrate_touch(robot, sphere.data, cv=0)
+    assert res.n_residuals == 40 and res.n_residuals - len(res.free) - 3 >= 10
+
+
 def test_tool_offset_from_one_point_and_six_orientations():
     """--params tool: the classic TCP calibration, robot nominal, a 150 mm tool."""
     robot = _robot("ur10")

@@ -324,3 +324,82 @@ def test_evaluate_of_a_touch_file_says_it_is_one(urdf, tmp_path, capsys):
     code, _, err = run(capsys, "evaluate", urdf, tmp_path / "t.csv", "--tool-frame", "tool0",
                        "--html", tmp_path / "r.html")
     assert code == 2 and "t.csv: a touch file" in err and not (tmp_path / "r.html").exists()
+
+
+def _bad_touch_files(tmp_path, sphere_csv, points_csv):
+    """name -> (file text, what the one-line error must say): the bad input issue 24's
+    acceptance names, each made from a valid simulated file by one change."""
+    sphere, points = sphere_csv.read_text().splitlines(), points_csv.read_text().splitlines()
+    header = next(i for i, line in enumerate(sphere) if not line.startswith("#"))
+    first = header + 1
+    neg = list(sphere)
+    neg[first] = neg[first].rsplit(",", 1)[0] + ",-100"
+    p_header = next(i for i, line in enumerate(points) if not line.startswith("#"))
+    both = points[:p_header] + [points[p_header].replace(",point", ",x_mm,y_mm,z_mm,point")] + [
+        line.rsplit(",", 1)[0] + (",1,2,3," if i == 1 else ",,,,") + line.rsplit(",", 1)[1]
+        for i, line in enumerate(points[p_header + 1:])]
+    three = points[:p_header + 1] + [line for line in points[p_header + 1:] if line.endswith(",P1")][:3]
+    return {
+        "both": ("\n".join(both), f"row {p_header + 3}, column 'x_mm': a row touching point"),
+        "unit": ("\n".join(sphere).replace("radius_mm", "radius_in"),
+                 f"row {header + 1}, column 'radius_in': wrong unit suffix _in: radius takes _m or _mm"),
+        "negative": ("\n".join(neg), f"row {first + 1}, column 'radius_mm': sphere 'S1' needs a positive radius, got -100"),
+        "three": ("\n".join(three), "point 'P1' is touched in 3 rows: touch it from at least 4 orientations"),
+        "sphere15": ("\n".join(sphere), "15 residual components for 15 unknowns"),
+    }
+
+
+def test_the_acceptance_bad_input_through_the_cli_exits_2_one_line_nothing_written(urdf, tmp_path, capsys):
+    """Issue 24's acceptance, end to end: a row with both x/y/z and point, an unknown radius
+    unit, a negative radius, one point from 3 orientations, one sphere from 15 rows (15
+    components for 15 unknowns: the fit passed through every row, exit 0, before the check);
+    each exits 2 with one line naming the file (and row and column), the input unchanged,
+    neither the URDF nor the report written; identifiability --touch refuses the designs the same
+    way, naming the file. (One plane only: test_degenerate_design_and_bad_input_exit_2_writing_nothing.)"""
+    for name, constraint in (("sphere", "sphere:100"), ("points", "point:2")):
+        code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / f"{name}.csv",
+                           "--constraint", constraint, "--poses", 15, "--seed", 3, "--deviations", "random:0.5")
+        assert code == 0, err
+    cases = _bad_touch_files(tmp_path, tmp_path / "sphere.csv", tmp_path / "points.csv")
+    for name, (text, reason) in cases.items():
+        path = tmp_path / f"bad_{name}.csv"
+        path.write_text(text + "\n")
+        before = sorted(p.name for p in tmp_path.iterdir())
+        code, out, err = run(capsys, "calibrate", urdf, path, "--tool-frame", "tool0", "-o", tmp_path / "cal.urdf",
+                             "--report", tmp_path / "r.json")
+        assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, (name, code, err)
+        assert f"{path}" in err and reason in err, (name, err)
+        assert sorted(p.name for p in tmp_path.iterdir()) == before and path.read_text() == text + "\n"
+        if name in ("three", "sphere15"):
+            code, out, err = run(capsys, "identifiability", urdf, "--tool-frame", "tool0", "--touch", path)
+            assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, (name, err)
+            assert f"{path}: " in err and reason in err, (name, err)
+
+
+def test_measured_rows_too_few_to_estimate_their_noise_are_refused(urdf, tmp_path, capsys):
+    """2 points x 10 touch rows and 3 measured positions: the 3 rows locate the instrument, but
+    their 9 components leave a redundancy of 0.5 once the meas frame and the scale are fitted;
+    their noise was printed as 'estimated' 0.009947 mm (the weight the fit had reached; true
+    0.02 mm) and the prediction in the meas frame given at it, exit 0. Refused now, naming what
+    to add; with their noise given, calibrated; with 4 rows, estimated."""
+    for n in (3, 4):
+        code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / f"m{n}.csv",
+                           "--constraint", f"point:2,measured:{n}", "--poses", 10, "--seed", 1,
+                           "--deviations", "random:0.5", "--position-only")
+        assert code == 0, err
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "m3.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf", "--cv", 0)
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+    assert f"{tmp_path / 'm3.csv'}: the measured positions have a redundancy of 0.5" in err
+    assert "add measured rows, or give their noise (--sigma-pos-mm, API sigma_pos)" in err
+    assert not (tmp_path / "cal.urdf").exists()
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "m3.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal.urdf", "--cv", 0, "--sigma-pos-mm", 0.02, "--report", tmp_path / "r.json")
+    assert code == 0, err
+    pos = next(g for g in json.loads((tmp_path / "r.json").read_text())["groups"] if g["name"] == "position")
+    assert pos["noise_given"] and pos["noise_mm"] == pytest.approx(0.02)
+    code, out, err = run(capsys, "calibrate", urdf, tmp_path / "m4.csv", "--tool-frame", "tool0",
+                         "-o", tmp_path / "cal4.urdf", "--cv", 0, "--report", tmp_path / "r4.json")
+    assert code == 0, err
+    pos = next(g for g in json.loads((tmp_path / "r4.json").read_text())["groups"] if g["name"] == "position")
+    assert not pos["noise_given"] and pos["redundancy"] > 2 and 0.005 < pos["noise_estimated_mm"] < 0.05
