@@ -9,8 +9,9 @@ prints the medians of: the wall time and the CPU time of the read, the peak resi
 (VmHWM) of the process, its growth over the process before the read (numpy, Pinocchio and the
 robot loaded), both per row, and that growth per byte of the file: the figure the reader's
 memory guard uses (:data:`calib.io.csv_layer.READ_BYTES_PER_FILE_BYTE`, printed beside it).
-With ``--rtde`` the 200,000-row case is also read as a space-separated RTDE recording
-(``--convention ur``, 40 columns of which 12 are read).
+With ``--rtde`` each size is also read as a space-separated RTDE recording
+(``--convention ur``, 40 columns of which 12 are read: about 420 bytes a row, so the memory per
+row is the wide file's).
 
 The machine is shared: the wall time grows with the load (printed), the CPU time much less.
 
@@ -114,7 +115,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         cases = [(n, "calib", None) for n in args.sizes]
         if args.rtde:
-            cases.append((args.sizes[0], "rtde", "ur"))
+            cases += [(n, "rtde", "ur") for n in args.sizes]
         for n, kind, convention in cases:
             path = Path(tmp) / f"{kind}{n}.csv"
             write_file(path, n, rtde=kind == "rtde")

@@ -54,3 +54,17 @@ def fd_pose_column(robot, Q, k: int, h: float = 1e-6):
     dp = (Tp[:, :3, 3] - Tm[:, :3, 3]) / (2 * h)
     dw = log3_batch(Tp[:, :3, :3] @ np.transpose(Tm[:, :3, :3], (0, 2, 1))) / (2 * h)
     return np.concatenate([dp, dw], axis=1)
+
+
+def urdf_numbers(text: str):
+    """(the URDF text with every number as #, the numbers (k,) float) of a calibrated URDF, to
+    compare two calibrations number by number; without the comment's list of recomputed origins,
+    which lists a joint whose origin moved by less than the writer's threshold in one reading and
+    not the other (differences of 1e-16 in the data)."""
+    import re
+
+    import numpy as np
+
+    text = re.sub(r"Recomputed joint origins: [^.]*\.", "", text)
+    pattern = r"-?\d+\.?\d*(?:[eE][-+]?\d+)?"
+    return re.sub(pattern, "#", text), np.array([float(v) for v in re.findall(pattern, text)])

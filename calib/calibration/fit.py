@@ -521,8 +521,8 @@ def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]
                      "and the robot")
     if rot > IMPLAUSIBLE_ROT_RAD:
         what.append(f"an orientation RMS error of {rot:.3g} rad")
-        check.append("the orientation columns (quaternion order w, x, y, z; --euler sequence; angle "
-                     "units) and the tool frame")
+        check.append("the orientation columns (quaternion order w, x, y, z; --euler sequence; a rotation "
+                     "vector read as angles: --convention ur; angle units) and the tool frame")
     if not what:
         return []
     return [f"the calibrated model does not describe these measurements: on the calibration rows it "

@@ -14,6 +14,8 @@ import calib
 from calib.cli.main import main
 from calib.errors import MeasurementFormatError, ParameterError
 
+from conftest import urdf_numbers
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -92,15 +94,6 @@ def test_each_vendor_file_reads_as_the_truth(kind, data, tmp_path):
     np.testing.assert_allclose(got.rotation, m.rotation, atol=1e-12)
 
 
-def _numbers(text: str) -> tuple[str, np.ndarray]:
-    """(the text with every number as #, the numbers); without the comment's list of recomputed
-    origins, which lists a joint whose origin moved by less than the writer's threshold in one
-    reading and not the other (differences of 1e-16 in the data)."""
-    text = re.sub(r"Recomputed joint origins: [^.]*\.", "", text)
-    pattern = r"-?\d+\.?\d*(?:[eE][-+]?\d+)?"
-    return re.sub(pattern, "#", text), np.array([float(v) for v in re.findall(pattern, text)])
-
-
 @pytest.mark.parametrize("kind", ["kuka", "ur", "rtde", "abb", "fanuc"])
 def test_each_vendor_file_calibrates_to_the_urdf_of_calibs_own_format(kind, data, tmp_path, capsys):
     """Acceptance of issue 25: only --convention, no --rename; the same calibrated URDF as the
@@ -114,8 +107,8 @@ def test_each_vendor_file_calibrates_to_the_urdf_of_calibs_own_format(kind, data
     assert main(["calibrate", urdf, str(vendor), "--convention", CONVENTION_OF[kind],
                  "-o", str(tmp_path / "b.urdf")]) == 0
     capsys.readouterr()
-    ta, na = _numbers((tmp_path / "a.urdf").read_text())
-    tb, nb = _numbers((tmp_path / "b.urdf").read_text().replace(vendor.name, own.name))
+    ta, na = urdf_numbers((tmp_path / "a.urdf").read_text())
+    tb, nb = urdf_numbers((tmp_path / "b.urdf").read_text().replace(vendor.name, own.name))
     assert ta == tb
     np.testing.assert_allclose(nb, na, rtol=0, atol=1e-9)
 
@@ -193,8 +186,8 @@ def test_the_ambiguous_ur_file_calibrates_to_the_urdf_of_calibs_own_format(data,
     capsys.readouterr()
     assert main(["calibrate", urdf, str(path), "-o", str(tmp_path / "b.urdf")]) == 0
     assert "read as a rotation vector: the rows decide it" in capsys.readouterr().err
-    ta, na = _numbers((tmp_path / "a.urdf").read_text())
-    tb, nb = _numbers((tmp_path / "b.urdf").read_text().replace(path.name, own.name))
+    ta, na = urdf_numbers((tmp_path / "a.urdf").read_text())
+    tb, nb = urdf_numbers((tmp_path / "b.urdf").read_text().replace(path.name, own.name))
     assert ta == tb
     np.testing.assert_allclose(nb, na, rtol=0, atol=1e-9)
 

@@ -17,7 +17,7 @@ import calib
 from calib import MeasurementFormatError, ParameterError, ReadOptions
 from calib.cli.main import main
 
-from conftest import BUNDLED_URDF
+from conftest import BUNDLED_URDF, urdf_numbers
 
 #: Reflectors on the tool, metres in the tool frame (README's "several targets" example).
 OFFSETS = {"SMR1": [0.1, 0.0, 0.05], "SMR2": [-0.05, 0.08, 0.05], "SMR3": [0.0, -0.07, 0.1]}
@@ -98,24 +98,46 @@ def test_tracker_export_with_compound_point_names_calibrates_as_calibs_own_forma
     assert m.source == tracker and m.n_poses == 3 * N_POSES
 
 
-def test_leica_export_with_preamble_joined_to_a_kuka_log_by_point_name(tmp_path, robot, smr):
+def _leica_kuka_pair(d, Q, meas):
     """Issue 25's acceptance file pair as written: a tracker export with a 3-line preamble, ``;``
-    and decimal commas, unsuffixed X, Y, Z, P001_SMR1..3; a KUKA joint log with A1..A6 (deg):
-    read with --convention kuka and the join flags alone (no --rename), the rows of calib's own
-    multi-target file. Needs the reader's vendor conventions and preambles (issue 25, items 1
-    and 3: the vendor branch); skipped without them."""
-    if "convention" not in ReadOptions.__dataclass_fields__:
-        pytest.skip("needs ReadOptions(convention=...) and preambles (the vendor side of issue 25)")
-    Q, meas = smr
-    joints, tracker, own = _write_pair(tmp_path, Q, meas)
+    and decimal commas, unsuffixed X, Y, Z, P001_SMR1..3; a KUKA joint log with A1..A6 (deg);
+    and calib's own multi-target file of the same rows."""
+    joints, tracker, own = _write_pair(d, Q, meas)
     joints.write_text(joints.read_text().replace("_deg", ""))
     lines = tracker.read_text().splitlines()
     tracker.write_text("Leica Absolute Tracker AT960 export\nJob: cell 3;Operator: A. N.\nUnits: mm\n"
                        + "\n".join([lines[0].replace(" [mm]", "")] + lines[1:]) + "\n")
+    return joints, tracker, own
+
+
+def test_leica_export_with_preamble_joined_to_a_kuka_log_by_point_name(tmp_path, robot, smr):
+    """Read with --convention kuka and the join flags alone (no --rename): the rows of calib's own
+    multi-target file."""
+    joints, tracker, own = _leica_kuka_pair(tmp_path, *smr)
     m = calib.read_measurements(joints, robot, tracker=tracker, options=ReadOptions(
         convention="kuka", key="Point", target_from=REGEX))
     _same_rows(m, calib.read_measurements(own, robot))
     np.testing.assert_array_equal(m.rows, np.arange(5, 3 * N_POSES + 5))   # after the preamble
+
+
+def test_leica_export_joined_to_a_kuka_log_calibrates_to_the_urdf_of_calibs_own_format(tmp_path, smr,
+                                                                                        capsys):
+    """Acceptance of issue 25 for the tracker export: `calib calibrate` with --convention kuka and
+    the join flags only gives the calibrated URDF of calib's own file, every number to 1e-9, and
+    says what it skipped and ignored (the preamble, the Date column)."""
+    joints, tracker, own = _leica_kuka_pair(tmp_path, *smr)
+    a, b = tmp_path / "joined.urdf", tmp_path / "own.urdf"
+    assert main(["calibrate", str(BUNDLED_URDF), str(joints), "--tracker", str(tracker), "--convention",
+                 "kuka", "--key", "Point", "--target-from", REGEX, "-o", str(a)]) == 0
+    err = capsys.readouterr().err
+    assert f"{tracker}: 3 lines before the header (line 4) skipped as a preamble" in err
+    assert f"{tracker}: ignored columns (not calib's): Date" in err
+    assert main(["calibrate", str(BUNDLED_URDF), str(own), "-o", str(b)]) == 0
+    capsys.readouterr()
+    ta, na = urdf_numbers(a.read_text())
+    tb, nb = urdf_numbers(b.read_text())
+    assert ta == tb and len(na) > 100
+    np.testing.assert_allclose(na, nb, rtol=0, atol=1e-9)
 
 
 def test_target_column_and_any_order_give_the_same_rows(tmp_path, robot, smr):
@@ -373,6 +395,41 @@ def test_cli_join_errors_exit_2_with_one_line_and_nothing_written(tmp_path, smr,
         assert code == 2 and not out.exists(), err
         assert start in err and err.endswith("\n")
         assert err.count("\n") == (1 if err.startswith("calib: error") else 2)   # usage line first
+
+
+def test_cli_bad_input_of_the_acceptance_exits_2_with_one_line_and_leaves_the_output(tmp_path, smr,
+                                                                                      capsys):
+    """Issue 25's bad-input cases through `calib calibrate`: a many-to-one join with a key missing
+    on either side, two joint timestamps equally near a measured one, a preamble with no header.
+    Each: exit 2, one line naming file, row and column, an existing output file left as it was."""
+    joints, tracker, _ = _leica_kuka_pair(tmp_path, *smr)
+    join = ["--convention", "kuka", "--key", "Point", "--target-from", REGEX]
+    text = tracker.read_text()
+    no_p004 = tmp_path / "no_p004.csv"
+    no_p004.write_text("\n".join(l for l in text.splitlines() if not l.startswith("P004_")) + "\n")
+    no_p007 = tmp_path / "no_p007.csv"
+    no_p007.write_text("\n".join(l for l in joints.read_text().splitlines() if not l.startswith("P007,")) + "\n")
+    log, trk = _log(tmp_path, ["0.00", "0.01", "0.02"], [0, 1, 2], ["0,01", "0,015"])
+    bare = tmp_path / "bare.csv"
+    bare.write_text("Leica Absolute Tracker AT960 export\nJob: cell 3\nUnits: mm\n"
+                    + "".join(";".join(["1"] * 9) + "\n" for _ in range(5)))
+    cases = [
+        ([str(joints), "--tracker", str(no_p004)] + join,
+         f"{joints}, row 5, column 'Point': key 'P004' is not in {no_p004}"),
+        ([str(no_p007), "--tracker", str(tracker)] + join,
+         f"{tracker}, row 23, column 'Point': key 'P007' (of 'P007_SMR1', by --target-from) is not in {no_p007}"),
+        ([str(log), "--tracker", str(trk), "--join", "nearest-time", "--time", "time_s", "--max-gap", "0.006"],
+         f"{trk}, row 3, column 'time_s': rows 3 and 4 of {log} ('0.01' and '0.02') are equally near '0,015'"),
+        ([str(bare)], f"{bare}, row 4: no header line: lines 1-3 name no column calib knows"),
+    ]
+    out = tmp_path / "cal.urdf"
+    for argv, start in cases:
+        out.write_text("earlier calibration\n")
+        code = main(["calibrate", str(BUNDLED_URDF)] + argv + ["-o", str(out), "--report", str(tmp_path / "r.json")])
+        err = capsys.readouterr().err
+        assert code == 2, err
+        assert err.startswith(f"calib: error: {start}") and err.count("\n") == 1, err
+        assert out.read_text() == "earlier calibration\n" and not (tmp_path / "r.json").exists()
 
 
 def test_readme_join_examples_read_as_the_several_targets_example(tmp_path, robot):

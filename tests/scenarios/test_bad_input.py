@@ -422,7 +422,8 @@ def test_data_that_do_not_fit_the_robot_get_a_note_not_silence(sim):
                    f"orientation RMS error of {res.after.rotation['rms']:.3g} rad; check the joint "
                    f"units (degrees read as radians, or radians as degrees), the joint order and the "
                    f"robot, and the orientation columns (quaternion order w, x, y, z; --euler "
-                   f"sequence; angle units) and the tool frame"]
+                   f"sequence; a rotation vector read as angles: --convention ur; angle units) and the "
+                   f"tool frame"]
     clean = calib.calibrate(robot, meas, params="base", cv=0)
     assert not any("does not describe" in n for n in clean.notes)
     # quaternions written x, y, z, w and read as w, x, y, z: the note names the orientation
@@ -435,7 +436,8 @@ def test_data_that_do_not_fit_the_robot_get_a_note_not_silence(sim):
     assert len(bad) == 1 and res.after.rotation["rms"] > 0.1
     assert (f"an orientation RMS error of {res.after.rotation['rms']:.3g} rad; check " in bad[0]
             and bad[0].endswith("the orientation columns (quaternion order w, x, y, z; --euler sequence; "
-                                "angle units) and the tool frame"))
+                                "a rotation vector read as angles: --convention ur; angle units) and the "
+                                "tool frame"))
 
 
 def test_positions_in_metres_named_mm_get_a_note(sim):
