@@ -228,6 +228,8 @@ def test_cli_certificate_of_the_bundled_example(capsys, tmp_path):
     (["--meta", "a=1,a=2"], "given twice"),
     (["--meta", "META.yaml"], "expected a mapping"),
     (["--meta", "BAD.yaml"], "line 2"),
+    (["--meta", "TWICE.yaml"], "line 3: field robot_serial given twice"),    # (PyYAML kept the last)
+    (["--meta", "TWICE.json"], "line 1: field a given twice"),
     (["--tolerance-mm", "-1"], "--tolerance-mm"),
     (["--tolerance-mm", "0"], "--tolerance-mm"),
     (["--tolerance-mm", "nan"], "--tolerance-mm"),
@@ -235,7 +237,9 @@ def test_cli_certificate_of_the_bundled_example(capsys, tmp_path):
 def test_bad_certificate_options_are_one_line_exit_2_nothing_written(capsys, tmp_path, extra, message):
     (tmp_path / "META.yaml").write_text("- a list\n- not a mapping\n")
     (tmp_path / "BAD.yaml").write_text("robot_serial: [unclosed\noperator: x\n")
-    extra = [str(tmp_path / e) if e.endswith(".yaml") else e for e in extra]
+    (tmp_path / "TWICE.yaml").write_text("robot_serial: R1\noperator: x\nrobot_serial: R2\n")
+    (tmp_path / "TWICE.json").write_text('{"a": "1", "b": "2", "a": "3"}')
+    extra = [str(tmp_path / e) if e.endswith((".yaml", ".json")) else e for e in extra]
     out, page = tmp_path / "c.urdf", tmp_path / "r.html"
     code, text, err = run(capsys, "calibrate", BUNDLED, EXAMPLE, "-o", out, "--html", page, *extra)
     lines = [l for l in err.strip().splitlines() if not l.startswith("usage:")]   # (argparse's usage line)
