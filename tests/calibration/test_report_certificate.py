@@ -12,7 +12,7 @@ import pytest
 
 import calib
 from calib.calibration.report import (build_report, report_json_text, report_rows_of, residuals_csv_text)
-from calib.calibration.report_plots import BINS, _envelope, _thin_index, plot_rows
+from calib.calibration.report_plots import BINS, _clip_outliers, _envelope, _thin_index, plot_rows
 from calib.calibration.report_rows import (PoseDeviations, ReportRows, iso9283, repeated_groups, report_rows)
 from calib.cli.main import main
 from calib.model.kinematics import ChainKinematics
@@ -196,6 +196,49 @@ def test_plots_of_200k_rows(tmp_path):
 
 
 # ====================================================================== CLI
+def _png_height(data: bytes) -> int:
+    """Height in pixels of a PNG (its IHDR chunk)."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    return int.from_bytes(data[20:24], "big")
+
+
+def test_per_row_plots_have_one_panel_per_model(tracker_case, bundled_robot):
+    """A calibration's per-row plot has two panels (before, after: 6.4 in at 90 dpi, 576 px); one
+    model's evaluation has one (3.6 in, 324 px), not a second, empty panel below it."""
+    res, m = tracker_case
+    two = plot_rows(report_rows_of(res, m))["position_errors.png"]
+    one = plot_rows(report_rows(bundled_robot, m, validation_rows="none"))["position_errors.png"]
+    assert (_png_height(two), _png_height(one)) == (576, 324)
+
+
+def test_legend_is_lowered_below_off_scale_outliers():
+    """Outliers beyond the kept rows' scale are drawn at 97 % of the axes' height: the legend is
+    then anchored at 93 %, below them (at the top right it hid those on the right, as on the
+    TIAGo error map); without off-scale outliers it stays at the top right."""
+    from matplotlib.figure import Figure
+
+    x, e = np.arange(10.0), np.r_[np.ones(9), 60.0]
+    out = np.zeros(10, bool)
+    out[-1] = True
+    ax = Figure().subplots()
+    assert _clip_outliers(ax, x, e, out, "mm", 1.0) == {"loc": "upper right", "bbox_to_anchor": (1.0, 0.93)}
+    assert ax.lines[-1].get_ydata()[0] == pytest.approx(0.97 * ax.get_ylim()[1])
+    assert _clip_outliers(Figure().subplots(), x, e, np.zeros(10, bool), "mm", 60.0) == {"loc": "upper right"}
+
+
+def test_html_frames_recorded_in_the_urdf_read_as_a_transform(tracker_case):
+    """The written URDF's measurement record is shown in mm and degrees, with the link it was
+    written as (the page showed Python's repr of the dict: metres, radians, 'link': None)."""
+    res, m = tracker_case
+    rep = build_report(res, m, frames={"written_urdf": {
+        "base_frame": "meas", "targets": {"M1": "tool_M1"},
+        "measurement": {"xyz": [2.0, 0.9, 0.0015], "rpy": [0.0, 0.0, 0.5], "link": None}}})
+    table = calib.render_html(rep, "").split("<h2>Robot and frames</h2>")[1].split("</table>")[0]
+    assert "xyz 2000.0000, 900.0000, 1.5000 mm; rpy 0.000000, 0.000000, 28.647890 deg" in table
+    assert "recorded in calib:frames only" in table and "None" not in table and "{" not in table
+    assert "M1: tool_M1" in table
+
+
 def test_cli_certificate_of_the_bundled_example(capsys, tmp_path):
     meta = tmp_path / "id.yaml"
     meta.write_text("robot_serial: BR-0707-17\ninstrument: 'Leica AT960 #4711'\noperator: J. Doe\n")
