@@ -119,6 +119,22 @@ def _targets(report: Mapping) -> list[dict]:
     return out
 
 
+def _written(key: str, value) -> str:
+    """One value of the frames recorded in the written URDF (``FramesRecord.to_dict``) for a
+    person: the measurement->base transform in mm and degrees, the targets' links as a list (the
+    page showed Python's repr of the dicts, in metres and radians, with ``'link': None``)."""
+    if key == "measurement" and isinstance(value, Mapping):
+        xyz, rpy = value.get("xyz") or [], value.get("rpy") or []
+        text = ("xyz " + ", ".join(f"{v * 1e3:.4f}" for v in xyz) + " mm; rpy "
+                + ", ".join(f"{v * _DEG:.6f}" for v in rpy) + " deg (the measurement->base transform)")
+        link = value.get("link")
+        return text + (f"; written as the fixed link '{link}' above the root" if link else
+                       "; recorded in calib:frames only (no --measurement-link)")
+    if isinstance(value, Mapping):
+        return ", ".join(f"{k}: {v}" for k, v in value.items())
+    return value
+
+
 def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: str | None) -> str:
     """The page (see the module docstring) of a checked report, text and images."""
     cert = report["certificate"]
@@ -144,7 +160,7 @@ def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: st
     frames = [("base frame (measurement frame)", report["frames"].get("base_frame")),
               ("tool frame", report["frames"].get("tool_frame")),
               ("joints", ", ".join(report["frames"].get("joints", [])))]
-    frames += [(f"written URDF: {k}", v) for k, v in (report["frames"].get("written_urdf") or {}).items()]
+    frames += [(f"written URDF: {k}", _written(k, v)) for k, v in (report["frames"].get("written_urdf") or {}).items()]
     if report.get("estimated_frames"):
         frames.append(("frames estimated in closed form", ", ".join(report["estimated_frames"])))
     sel = report.get("model_selection")

@@ -93,13 +93,16 @@ def _after(rows: ReportRows) -> str:
 
 
 def _clip_outliers(ax, x: np.ndarray, e: np.ndarray, mask: np.ndarray, unit: str, kept_max: float,
-                   tolerance=None) -> None:
+                   tolerance=None) -> dict:
     """The outliers of ``mask`` as red crosses, those above the scale of the kept rows drawn at
-    the top edge with their value (the kept rows keep a readable scale)."""
+    the top edge with their value (the kept rows keep a readable scale). Returns the keyword
+    arguments of the axes' legend: upper right, lowered below the top edge's markers when there
+    are any (a legend there hid them)."""
     top = max(kept_max, tolerance or 0.0) * 1.3 or 1.0
     ax.set_ylim(0, top)
+    legend = {"loc": "upper right"}
     if not mask.any():
-        return
+        return legend
     xs, es = x[mask], e[mask]
     inside = es <= top
     label = f"outliers ({int(mask.sum())}, left out of the fit)"
@@ -112,18 +115,21 @@ def _clip_outliers(ax, x: np.ndarray, e: np.ndarray, mask: np.ndarray, unit: str
         off = es[~inside]
         ax.text(0.01, 0.95, "off scale: " + ", ".join(f"{v:.3g}" for v in off[:8]) + (" ..." if len(off) > 8 else "")
                 + f" {unit}", transform=ax.transAxes, fontsize=7.5, color=_OUT, va="top")
+        legend["bbox_to_anchor"] = (1.0, 0.93)
+    return legend
 
 
 def _per_row(rows: ReportRows, attr: str, scale: float, unit: str, name: str, tolerance=None) -> bytes:
-    fig = _figure(11, 6.4, top=0.88)
-    axes = fig.subplots(2, 1)
-    thin = rows.n_rows > THIN_ABOVE
-    x = rows.row.astype(float)
-    groups = _groups(rows)
     panels = [(_after(rows), rows.after)]
     if rows.before is not None:
         panels.insert(0, (f"before calibration ({rows.before_label})", rows.before))
-    for ax, (label, dev) in zip(np.atleast_1d(axes), panels):
+    # one panel per model: an evaluation (one model) drew an empty second panel below its own
+    fig = _figure(11, 6.4, top=0.88) if len(panels) == 2 else _figure(11, 3.6, top=0.88, bottom=0.15)
+    axes = np.atleast_1d(fig.subplots(len(panels), 1))
+    thin = rows.n_rows > THIN_ABOVE
+    x = rows.row.astype(float)
+    groups = _groups(rows)
+    for ax, (label, dev) in zip(axes, panels):
         e = getattr(dev, attr) * scale
         for gname, mask, color in groups:
             marker = np.where(rows.file[mask] == "validation", "^", ".")
@@ -138,7 +144,7 @@ def _per_row(rows: ReportRows, attr: str, scale: float, unit: str, name: str, to
         if tol is not None:
             ax.axhline(tol, color="black", ls="--", lw=0.8, label=f"tolerance {tol:g} {unit}")
         kept = ~rows.outlier
-        _clip_outliers(ax, x, e, rows.outlier, unit, float(e[kept].max()) if kept.any() else 0.0, tol)
+        legend = _clip_outliers(ax, x, e, rows.outlier, unit, float(e[kept].max()) if kept.any() else 0.0, tol)
         # the figures of the accuracy table: all calibration rows before, without the outliers after
         judged = rows.calibration & (kept if dev is rows.after else True)
         if rows.before is None or not judged.any():
@@ -151,7 +157,7 @@ def _per_row(rows: ReportRows, attr: str, scale: float, unit: str, name: str, to
         ax.set_xlabel(rows.x_label(), fontsize=9)
         ax.set_ylabel(f"{name} / {unit}", fontsize=9)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7.5, loc="upper right", ncol=2)
+        ax.legend(fontsize=7.5, ncol=2, **legend)
     return _png(fig)
 
 
@@ -203,12 +209,12 @@ def _error_map(rows: ReportRows, tolerance=None) -> bytes:
             ax.plot(reach[mask], e[mask], ls="none", marker=".", ms=4, color=color, label=name)
     if tolerance is not None:
         ax.axhline(tolerance * 1e3, color="black", ls="--", lw=0.8, label="tolerance")
-    _clip_outliers(ax, reach, e, rows.outlier, "mm", float(e[kept].max()) if kept.any() else 0.0,
-                   None if tolerance is None else tolerance * 1e3)
+    legend = _clip_outliers(ax, reach, e, rows.outlier, "mm", float(e[kept].max()) if kept.any() else 0.0,
+                            None if tolerance is None else tolerance * 1e3)
     ax.set_xlabel("reach: distance of the measured point from the base frame origin / mm", fontsize=9)
     ax.set_ylabel(f"{rows.quantity} {_after(rows)} / mm", fontsize=9)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7.5)
+    ax.legend(fontsize=7.5, **legend)
     ax.set_title("error against reach", fontsize=9.5)
     ax2 = fig.add_subplot(1, 2, 2)
     idx = _thin_index(np.where(kept, e, -1.0), SCATTER_POINTS)

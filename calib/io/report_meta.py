@@ -29,7 +29,7 @@ def read_meta(path: str | Path) -> dict[str, str]:
     import yaml
 
     try:
-        doc = yaml.safe_load(data.decode("utf-8-sig"))
+        doc = yaml.load(data.decode("utf-8-sig"), Loader=_unique_key_loader())
     except UnicodeDecodeError:
         raise CalibError(f"{path}: not UTF-8 text") from None
     except yaml.YAMLError as exc:
@@ -48,3 +48,26 @@ def read_meta(path: str | Path) -> dict[str, str]:
             raise CalibError(f"{path}: field {key}: expected text or a number, got {value!r:.40}")
         out[key.strip()] = str(value).strip()
     return out
+
+
+def _unique_key_loader():
+    """PyYAML's safe loader refusing a mapping that names a key twice (it keeps the last value
+    silently; ``--meta a=1,a=2`` is refused, so is ``a: 1`` then ``a: 2`` in a file, and a JSON
+    object with a key twice)."""
+    import yaml
+
+    class UniqueKeyLoader(yaml.SafeLoader):
+        def construct_mapping(self, node, deep=False):
+            seen = set()
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=deep)
+                try:
+                    if key in seen:
+                        raise yaml.constructor.ConstructorError(
+                            None, None, f"field {key} given twice", key_node.start_mark)
+                    seen.add(key)
+                except TypeError:        # an unhashable key: the base loader says so
+                    break
+            return super().construct_mapping(node, deep=deep)
+
+    return UniqueKeyLoader

@@ -160,6 +160,23 @@ def test_base_frame_covariance_matches_finite_differences(bundled_case):
         assert np.abs(mf.covariance - np.outer(g, g)).max() < 1e-2 * np.abs(g).max() ** 2, name
 
 
+def test_std_of_the_printed_xyz_carries_the_rotation_times_the_distance():
+    """MeasurementFrame.std[:3] is the std of T_meas_base's x, y, z (printed beside them), not
+    of the left perturbation's d_t: a frame 3 m along x whose only uncertainty is 1e-5 rad about z
+    has its origin uncertain by 3e-5 m along y (the diagonal of the covariance said 0; on a
+    simulated tracker 3 m away it said 15-20 um where 40 noise draws scatter 3-4 um)."""
+    from calib.calibration.base_frame import MeasurementFrame
+
+    T = np.eye(4)
+    T[:3, 3] = (3.0, 0.0, 0.0)
+    C = np.zeros((6, 6))
+    C[5, 5] = 1e-10
+    assert np.allclose(MeasurementFrame(T, C, "base", 0.0).std, [0.0, 3e-5, 0.0, 0.0, 0.0, 1e-5], rtol=1e-12,
+                       atol=1e-18)
+    C = np.diag([4e-12, 0, 0, 0, 0, 0])                     # a pure translation: std as given
+    assert np.allclose(MeasurementFrame(T, C, "base", 0.0).std, [2e-6, 0, 0, 0, 0, 0], rtol=1e-12, atol=1e-18)
+
+
 def test_position_only_tracker_calibration():
     """Three positions per pose only: the base frame by matching tool origins; joint origins still
     change by the robot's errors only."""

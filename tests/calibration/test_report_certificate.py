@@ -12,7 +12,7 @@ import pytest
 
 import calib
 from calib.calibration.report import (build_report, report_json_text, report_rows_of, residuals_csv_text)
-from calib.calibration.report_plots import BINS, _envelope, _thin_index, plot_rows
+from calib.calibration.report_plots import BINS, _clip_outliers, _envelope, _thin_index, plot_rows
 from calib.calibration.report_rows import (PoseDeviations, ReportRows, iso9283, repeated_groups, report_rows)
 from calib.cli.main import main
 from calib.model.kinematics import ChainKinematics
@@ -196,6 +196,49 @@ def test_plots_of_200k_rows(tmp_path):
 
 
 # ====================================================================== CLI
+def _png_height(data: bytes) -> int:
+    """Height in pixels of a PNG (its IHDR chunk)."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    return int.from_bytes(data[20:24], "big")
+
+
+def test_per_row_plots_have_one_panel_per_model(tracker_case, bundled_robot):
+    """A calibration's per-row plot has two panels (before, after: 6.4 in at 90 dpi, 576 px); one
+    model's evaluation has one (3.6 in, 324 px), not a second, empty panel below it."""
+    res, m = tracker_case
+    two = plot_rows(report_rows_of(res, m))["position_errors.png"]
+    one = plot_rows(report_rows(bundled_robot, m, validation_rows="none"))["position_errors.png"]
+    assert (_png_height(two), _png_height(one)) == (576, 324)
+
+
+def test_legend_is_lowered_below_off_scale_outliers():
+    """Outliers beyond the kept rows' scale are drawn at 97 % of the axes' height: the legend is
+    then anchored at 93 %, below them (at the top right it hid those on the right, as on the
+    TIAGo error map); without off-scale outliers it stays at the top right."""
+    from matplotlib.figure import Figure
+
+    x, e = np.arange(10.0), np.r_[np.ones(9), 60.0]
+    out = np.zeros(10, bool)
+    out[-1] = True
+    ax = Figure().subplots()
+    assert _clip_outliers(ax, x, e, out, "mm", 1.0) == {"loc": "upper right", "bbox_to_anchor": (1.0, 0.93)}
+    assert ax.lines[-1].get_ydata()[0] == pytest.approx(0.97 * ax.get_ylim()[1])
+    assert _clip_outliers(Figure().subplots(), x, e, np.zeros(10, bool), "mm", 60.0) == {"loc": "upper right"}
+
+
+def test_html_frames_recorded_in_the_urdf_read_as_a_transform(tracker_case):
+    """The written URDF's measurement record is shown in mm and degrees, with the link it was
+    written as (the page showed Python's repr of the dict: metres, radians, 'link': None)."""
+    res, m = tracker_case
+    rep = build_report(res, m, frames={"written_urdf": {
+        "base_frame": "meas", "targets": {"M1": "tool_M1"},
+        "measurement": {"xyz": [2.0, 0.9, 0.0015], "rpy": [0.0, 0.0, 0.5], "link": None}}})
+    table = calib.render_html(rep, "").split("<h2>Robot and frames</h2>")[1].split("</table>")[0]
+    assert "xyz 2000.0000, 900.0000, 1.5000 mm; rpy 0.000000, 0.000000, 28.647890 deg" in table
+    assert "recorded in calib:frames only" in table and "None" not in table and "{" not in table
+    assert "M1: tool_M1" in table
+
+
 def test_cli_certificate_of_the_bundled_example(capsys, tmp_path):
     meta = tmp_path / "id.yaml"
     meta.write_text("robot_serial: BR-0707-17\ninstrument: 'Leica AT960 #4711'\noperator: J. Doe\n")
@@ -228,6 +271,8 @@ def test_cli_certificate_of_the_bundled_example(capsys, tmp_path):
     (["--meta", "a=1,a=2"], "given twice"),
     (["--meta", "META.yaml"], "expected a mapping"),
     (["--meta", "BAD.yaml"], "line 2"),
+    (["--meta", "TWICE.yaml"], "line 3: field robot_serial given twice"),    # (PyYAML kept the last)
+    (["--meta", "TWICE.json"], "line 1: field a given twice"),
     (["--tolerance-mm", "-1"], "--tolerance-mm"),
     (["--tolerance-mm", "0"], "--tolerance-mm"),
     (["--tolerance-mm", "nan"], "--tolerance-mm"),
@@ -235,7 +280,9 @@ def test_cli_certificate_of_the_bundled_example(capsys, tmp_path):
 def test_bad_certificate_options_are_one_line_exit_2_nothing_written(capsys, tmp_path, extra, message):
     (tmp_path / "META.yaml").write_text("- a list\n- not a mapping\n")
     (tmp_path / "BAD.yaml").write_text("robot_serial: [unclosed\noperator: x\n")
-    extra = [str(tmp_path / e) if e.endswith(".yaml") else e for e in extra]
+    (tmp_path / "TWICE.yaml").write_text("robot_serial: R1\noperator: x\nrobot_serial: R2\n")
+    (tmp_path / "TWICE.json").write_text('{"a": "1", "b": "2", "a": "3"}')
+    extra = [str(tmp_path / e) if e.endswith((".yaml", ".json")) else e for e in extra]
     out, page = tmp_path / "c.urdf", tmp_path / "r.html"
     code, text, err = run(capsys, "calibrate", BUNDLED, EXAMPLE, "-o", out, "--html", page, *extra)
     lines = [l for l in err.strip().splitlines() if not l.startswith("usage:")]   # (argparse's usage line)
