@@ -225,8 +225,8 @@ def run(args: argparse.Namespace) -> int:
     log.info("calibrating: method %s, parameter set %s, %d calibration rows", args.method,
              args.params or f"default (estimator {args.estimator})", meas.calibration().n_poses)
     try:
-        with working(f"calibrating ({args.method})", logger=log, enabled=progress_enabled(args)):
-            result = calib.calibrate(robot, meas, method=args.method, params=args.params,
+        with working(f"calibrating ({args.method})", logger=log, enabled=progress_enabled(args)) as line:
+            result = calib.calibrate(robot, meas, method=args.method, params=args.params, progress=line.fraction,
                                      sigma_pos=None if args.sigma_pos_mm is None else args.sigma_pos_mm * 1e-3,
                                      sigma_rot=args.sigma_rot_rad, validation=validation, loss=args.loss,
                                      outlier_k=args.outlier_k, cv=args.cv, compliance=args.compliance,

@@ -1,6 +1,7 @@
 """Progress of long stages on stderr, and stage logging.
 
-Used by ``calibrate`` (reading, the fit: time elapsed; the report stage: rows, plots, JSON, HTML
+Used by ``calibrate`` (reading: time elapsed; the calibration: its stage, the fraction done by
+the stages' shares of the time and the time left; the report stage: rows, plots, JSON, HTML
 with the fraction done and the time left), ``evaluate --html`` and ``select-poses`` (the
 candidates' Jacobians, the greedy start and each exchange pass). ``--progress`` draws the line
 also when stderr is not a terminal.
@@ -30,6 +31,8 @@ __all__ = ["Progress", "format_eta", "stage", "working"]
 SHOW_AFTER_S = 2.0
 #: Smallest interval between two redraws (seconds).
 REDRAW_S = 0.2
+#: Units of work of a stage measured as a fraction (:meth:`Progress.fraction`).
+FRACTION_UNITS = 1000
 
 
 def format_eta(elapsed: float, done: float, total: float) -> str:
@@ -65,6 +68,7 @@ class Progress:
         self.enabled = enabled
         self.show_after = SHOW_AFTER_S if show_after is None else show_after
         self.done = 0
+        self.stage: str | None = None
         self.t0 = time.monotonic()
         self._last_draw = -math.inf
         self._drawn = False
@@ -88,11 +92,20 @@ class Progress:
                                                                   or self.done == self.total):
             self._draw(now)
 
+    def fraction(self, done: float, stage: str | None = None) -> None:
+        """Work measured as a fraction (0..1) done, in the stage named ``stage``: the line shows
+        the stage, the percentage and the time left (:data:`FRACTION_UNITS` units of work)."""
+        self.stage = stage
+        self.set(round(min(max(float(done), 0.0), 1.0) * FRACTION_UNITS), FRACTION_UNITS)
+
     def line(self, now: float | None = None) -> str:
         """The text of the progress line."""
         elapsed = (time.monotonic() if now is None else now) - self.t0
         if self.total < 0:            # work of unknown size: elapsed time only
             return f"{self.label}: {elapsed:.0f} s elapsed"
+        if self.stage is not None:    # a fraction done, by stage
+            return (f"{self.label}: {self.stage}, {100.0 * self.done / max(self.total, 1):.0f}%, "
+                    f"{elapsed:.0f} s elapsed, {format_eta(elapsed, self.done, self.total)}")
         if self.total:
             pct = f" ({100.0 * self.done / self.total:.0f}%)"
             count = f"{self.done}/{self.total}{pct}"
@@ -132,16 +145,19 @@ def stage(logger: logging.Logger, what: str) -> Iterator[None]:
 
 @contextlib.contextmanager
 def working(label: str, *, stream: IO[str] | None = None, enabled: bool | None = None,
-            logger: logging.Logger | None = None) -> Iterator[None]:
+            logger: logging.Logger | None = None) -> Iterator[Progress]:
     """A stage of unknown length (one library call): on a terminal, a line with the elapsed time
     redrawn every second by a background thread once :data:`SHOW_AFTER_S` have passed; with
-    ``logger``, the start and the duration logged as :func:`stage` does."""
+    ``logger``, the start and the duration logged as :func:`stage` does. Yields the
+    :class:`Progress`: a call that reports the fraction it has done (``calibrate(progress=)``)
+    is given its :meth:`Progress.fraction`, and the line then shows the stage, the percentage and
+    the time left."""
     progress = Progress(-1, label, stream=stream, enabled=enabled)
     stop = threading.Event()
 
     def tick():
         while not stop.wait(1.0):
-            progress.set(0)
+            progress.set(progress.done)
 
     thread = None
     if progress.enabled:
@@ -149,7 +165,7 @@ def working(label: str, *, stream: IO[str] | None = None, enabled: bool | None =
         thread.start()
     with (stage(logger, label) if logger is not None else contextlib.nullcontext()):
         try:
-            yield
+            yield progress
         finally:
             stop.set()
             if thread is not None:

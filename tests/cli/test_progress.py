@@ -99,3 +99,35 @@ def test_progress_flag_draws_fractions_off_a_terminal(capsys, tmp_path, monkeypa
     err = capsys.readouterr().err.replace("\r", "\n")
     lines = [l for l in err.splitlines() if l.startswith("selecting 20 of 200 candidate poses, step: ")]
     assert lines and "12/12 (100%)" in lines[-1] and "1/12 (8%)" in lines[0]
+
+
+def test_calibrate_reports_its_stages_as_a_rising_fraction(bundled_robot):
+    """calibrate(progress=): each stage's start with the fraction of the work before it, in
+    order, rising to 1.0 at the end; a non-callable is refused up front."""
+    import pytest
+
+    import calib
+    from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+
+    true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
+    m = simulate_measurements(true, bundled_robot.random_configurations(60, 2), rng=3)
+    calls = []
+    calib.calibrate(bundled_robot, m, progress=lambda f, s: calls.append((f, s)))
+    stages = [s for _, s in calls]
+    # the joint terms are not judged on 60 rows (too few per parameter): their share is skipped
+    assert stages == ["joint terms", "prepare", "fit", "statistics", "cross-validation", "done"]
+    fractions = [f for f, _ in calls]
+    assert fractions[0] == 0.0 and fractions[1] == 0.0 and fractions[-1] == 1.0
+    assert all(b > a for a, b in zip(fractions[1:], fractions[2:]))
+    assert abs(fractions[2] - 0.05 / 0.55) < 1e-12          # prepare's share of what ran
+    with pytest.raises(calib.CalibError, match="progress must be None or a function"):
+        calib.calibrate(bundled_robot, m, progress=3)
+
+
+def test_a_fraction_line_shows_the_stage_percentage_and_time_left():
+    out = _Terminal()
+    with working("calibrating (search-lm)", stream=out) as line:
+        line.show_after = 0.0
+        line.fraction(0.25, "fit")
+    text = out.getvalue()
+    assert "calibrating (search-lm): fit, 25%, " in text and "left" in text and "nan" not in text
