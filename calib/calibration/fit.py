@@ -326,6 +326,11 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
         return last_lin[1]
 
     for outlier_pass in range(4):
+        if not first and estimate and two_groups and loss == "linear":
+            # rows were removed (or taken back): the noise levels of the fit of the rows now kept,
+            # from their linearisation at x (whose normal equations the re-fit starts from)
+            sp, sr = _vce_fixed_point(linearised(everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr), x).ne,
+                                      (sp, sr), (sp, sr), (sigma_pos is None, sigma_rot is None))
         for _ in range(VCE_MAX_ITERATIONS):
             problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
             # (pose data: the weights change the fit, so a re-weighted fit follows the first)

@@ -19,13 +19,14 @@ refuses the result (status "implausible"). scripts/accept_gross_rows.py measures
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
 
 from calib.calibration.frames import median
 from calib.calibration.options import (
+    ROBUST_CHECK_FTOL,
     ROBUST_CHECK_INFLATION,
     ROBUST_CHECK_ITERATIONS,
     TRIMMED_FIT_STEPS,
@@ -210,6 +211,7 @@ def _huber(everything, problem, x, keep, red, given, levels, options, trace, jud
     least-squares fit's smeared residuals, set the threshold near them (5 rows 1-1.5 mm off
     among 40 UR5 rows of 0.05 mm noise: sigma 0.27 mm, none flagged). Returns (x, sp, sr)."""
     fsp, fsr = levels
+    options = replace(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))
     for _ in range(ROBUST_CHECK_ITERATIONS):
         x = levenberg_marquardt(problem.derived(loss="huber", sigma_pos=fsp, sigma_rot=fsr), x, "pose",
                                 options, trace).x
