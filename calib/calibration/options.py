@@ -74,10 +74,11 @@ ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM = 10
 #: The robust fit of the outlier check and the noise levels of its residuals are iterated at
 #: most this many times (until the levels change by less than 10 %).
 ROBUST_CHECK_ITERATIONS = 3
-#: The robust fit of the outlier check stops when an iteration lowers its cost by less than this
-#: fraction: it only says which rows lie beyond outlier_k sigma (and starts the least-squares
-#: refit without them, which converges fully), and its Huber iterations converge linearly (the
-#: real iiwa rows: 6 passes at 1e-12, each changing the residuals by 1e-7 of their size or less).
+#: The fits of the outlier check (the Huber fit, the trimmed fit's concentration steps and its
+#: refits of the inliers) stop when an iteration lowers the cost by less than this fraction:
+#: they only say which rows lie beyond outlier_k sigma and at what noise (the least-squares
+#: refit without the flagged rows converges fully), and the Huber iterations converge linearly
+#: (the real iiwa rows: 6 passes at 1e-12, each changing the residuals by 1e-7 of their size).
 ROBUST_CHECK_FTOL = 1e-6
 #: Above that, a least-squares noise level more than this factor above the robust one (1.4826
 #: MAD of the residual components at the least-squares fit) in either group means many gross

@@ -122,6 +122,7 @@ def trimmed_fit(problem: Problem, starts: Sequence[np.ndarray], keep: np.ndarray
     by many gross rows can lead the steps to a half that holds some of them)."""
     n = int(keep.sum())
     per_row = 6 if problem.has_orientation else 3
+    options = replace(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it ranks rows)
     h = min(max(-(-n // 3), -(-2 * len(starts[0]) // per_row) + 1), (n + 1) // 2)
     best, best_cost = None, np.inf
     for x in starts:
@@ -256,6 +257,7 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
     are many), then a Huber fit from its solution at those levels (the trimmed fit fits half of
     the rows: its predictions for the others scatter more than the noise)."""
     fsp, fsr = levels
+    options = replace(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it judges rows)
     starts = (x, everything.values[everything.free])    # (the fit's solution, the nominal values)
     x_t = trimmed_fit(everything.derived(sigma_pos=fsp, sigma_rot=fsr), starts, keep, fsp, fsr, options, trace)
     inliers, n = keep, keep.sum()
