@@ -271,7 +271,8 @@ def solver_for(setup: Setup, free: Sequence[str], method: str, options: LMOption
 def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: float | None,
               sigma_rot: float | None, loss: str = "linear", loss_scale: float = 3.0,
               outlier_k: float | None = 5.0, keep: np.ndarray | None = None,
-              kin: ChainKinematics | None = None, rank_deficit: int = 0) -> tuple[Fit, Problem]:
+              kin: ChainKinematics | None = None, rank_deficit: int = 0,
+              warm: bool = False) -> tuple[Fit, Problem]:
     """The fit stage: identify ``free`` on the calibration rows of ``setup``.
 
     sigma_pos (m) / sigma_rot (rad): the noise per axis, or None to estimate it from the residuals
@@ -281,6 +282,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     with noise levels that outliers cannot inflate) are removed and the fit repeated.
     rank_deficit : how many directions ``free`` leaves undetermined at the nominal model on these
     rows (0 for an identifiable set; see :meth:`calib.solvers.problem.Problem.set_rank_deficit`).
+    warm : ``setup.start`` is already near the solution (a fit of a nested model's): LM from it
+    with the damping of a re-fit, not the method's scheme from a nominal start.
     Returns the :class:`Fit` and the final weighted problem on the kept rows.
     """
     cal, start = setup.cal, setup.start
@@ -308,7 +311,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     outliers: list[Outlier] = []
     notes: list[str] = []
     refusals: list[str] = []
-    first = True
+    first = not warm
     stuck = None
     unjudged = False
     unremoved: tuple[Outlier, ...] = ()
@@ -500,15 +503,17 @@ def length_notes(nominal: RobotModel, fit: Fit) -> list[str]:
 
 def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, outlier_k: float | None,
              keep: np.ndarray | None = None, kin: ChainKinematics | None = None, rank_deficit: int = 0,
-             sigma_pos: float | None = None, sigma_rot: float | None = None) -> tuple[Fit, Problem]:
+             sigma_pos: float | None = None, sigma_rot: float | None = None,
+             warm: bool = False) -> tuple[Fit, Problem]:
     """:func:`fit_stage` of ``free`` with the solver, loss and noise levels of ``options``
-    (sigma_pos / sigma_rot: given instead of the options' ones when not None)."""
+    (sigma_pos / sigma_rot: given instead of the options' ones when not None; warm: see
+    :func:`fit_stage`)."""
     solve = solver_for(setup, free, options.method, options.lm, options.max_rounds, options.fixed_rounds,
                         options.lm_variant)
     return fit_stage(setup, free, solve, sigma_pos=options.sigma_pos if sigma_pos is None else sigma_pos,
                      sigma_rot=options.sigma_rot if sigma_rot is None else sigma_rot, loss=options.loss,
                      loss_scale=options.loss_scale, outlier_k=outlier_k, keep=keep, kin=kin,
-                     rank_deficit=rank_deficit)
+                     rank_deficit=rank_deficit, warm=warm)
 
 
 def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]:
