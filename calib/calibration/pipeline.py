@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from typing import Sequence
 
 from calib.calibration.accuracy import accuracy_after, accuracy_before
@@ -49,7 +50,7 @@ from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.regularised import map_fit_stage
 from calib.calibration.result import CalibrationResult, _parameter_table
 from calib.calibration.statistics import statistics_notes, statistics_stage
-from calib.calibration.terms import compliance_notes, payload_note, resolve_terms
+from calib.calibration.terms import compliance_notes, payload_note, resolve_terms, warm_start
 from calib.calibration.validation import held_out_error, select_and_fit
 from calib.errors import ParameterError
 from calib.model.kinematics import ChainKinematics
@@ -190,7 +191,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                            outlier_k=outlier_k, cv=cv, compliance=compliance, lm_variant=lm_variant,
                            estimator=estimator, periodic=periodic)
     stages.start("joint terms")
-    opts, notes = resolve_terms(robot, measurements, opts, terms, payload, gravity)
+    opts, notes, terms_fit = resolve_terms(robot, measurements, opts, terms, payload, gravity)
     if not any(n.startswith("joint terms chosen") for n in notes):
         stages.skip("joint terms")
     stages.start("prepare")
@@ -222,8 +223,12 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         fit, problem, estimator = regular.fit, regular.problem, regular.estimate.to_dict()
         label = "eb-map"
     else:
-        fit, problem = fit_with(setup, choice.free, opts, outlier_k=opts.outlier_k, kin=kin,
-                                rank_deficit=choice.deficit)
+        # after the joint terms were judged, the fit starts where the chosen candidate's fit ended
+        # (the same model on the same rows: a few LM iterations instead of the method's scheme)
+        warm = terms_fit is not None and not choice.deficit
+        fit, problem = fit_with(replace(setup, start=warm_start(setup.start, [terms_fit], choice.free))
+                                if warm else setup, choice.free, opts, outlier_k=opts.outlier_k, kin=kin,
+                                rank_deficit=choice.deficit, warm=warm)
     implausible = implausibility(robot, fit, sigma_pos_given=opts.sigma_pos is not None,
                                  sigma_rot_given=opts.sigma_rot is not None)
     causes = misreadings(setup, fit, opts, implausible=bool(implausible) or fit.solver.status != "converged")

@@ -173,6 +173,10 @@ class TermsChoice:
     folds: int = 0
     reason: str = ""
     rows: int | None = None
+    #: The chosen candidate's fit (:class:`calib.calibration.fit.Fit`) on the judged rows, at the
+    #: geometric fit's noise levels and kept rows: where calibrate's own fit of the chosen model
+    #: starts (None when nothing was judged).
+    fit: object = field(default=None, repr=False, compare=False)
 
     @property
     def label(self) -> str:
@@ -242,7 +246,7 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     if cal.n_poses > TERMS_MAX_ROWS:
         judged_rows = TERMS_MAX_ROWS
         measurements = cal.subset(np.linspace(0, cal.n_poses - 1, TERMS_MAX_ROWS).round().astype(int))
-    table, rows = [], {}
+    table, rows, fitted = [], {}, {}
     geo_scores = None
     sp = sr = keep = None
     for label, c, p in cands:
@@ -262,7 +266,7 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
             # started where the smaller candidates' fits left each parameter (the terms they did not
             # have at zero, their nominal): the same minimum in 2-3 iterations of LM instead of the
             # method's scheme from the nominal model (the real iiwa rows: 4-6 iterations each)
-            setup = replace(setup, start=_warm_start(setup.start, fits, choice.free))
+            setup = replace(setup, start=warm_start(setup.start, fits, choice.free))
             opts = resolve_options(robot, measurements, method=base.method, params="base", sigma_pos=sp,
                                    sigma_rot=sr if cal.has_orientation else None, init_frames=base.init_frames,
                                    options=base.lm, cv=0, compliance=c, periodic=p)
@@ -281,15 +285,17 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         rows[label] = cv.row_scores
         table.append(TermScore(label, c, p, len(choice.free), cv.position_rms, cv.rotation_rms,
                                cv.score, _standard_error(cv.row_scores - geo_scores)))
+        fitted[label] = fit
     best = pick_terms(table, rows)
     reason = (f"{best.label} beat the smaller candidates by more than {TERMS_MIN_SE:g} paired standard errors"
               if best is not table[0] else "no term group beat the geometry by the margin")
     if judged_rows is not None:
         reason += f"; judged on {judged_rows:,} evenly spaced of the {cal.n_poses:,} calibration rows"
-    return TermsChoice(best.compliance, best.periodic, tuple(table), folds, reason, judged_rows)
+    return TermsChoice(best.compliance, best.periodic, tuple(table), folds, reason, judged_rows,
+                       fitted[best.label])
 
 
-def _warm_start(start: RobotModel, fits, free) -> RobotModel:
+def warm_start(start: RobotModel, fits, free) -> RobotModel:
     """``start`` with each parameter of ``free`` at the value of the latest of ``fits`` that freed
     it (the others keep their values: the candidate's model is unchanged)."""
     values = start.values.copy()
@@ -318,33 +324,41 @@ TERMS = ("auto", "none")
 
 
 def resolve_terms(robot: RobotModel, measurements: Measurements, options: CalibrationOptions, terms,
-                  payload=None, gravity=None) -> tuple[CalibrationOptions, list[str]]:
+                  payload=None, gravity=None) -> tuple[CalibrationOptions, list[str], object]:
     """The options of :func:`calib.calibrate` with the joint terms of ``terms`` ("auto":
     :func:`choose_terms` decides, unless compliance or periodic terms were asked for by name;
-    None or "none": as given), and a note saying what was chosen and why."""
+    None or "none": as given), a note saying what was chosen and why, and the chosen candidate's
+    fit where calibrate's own fit may start (:attr:`TermsChoice.fit`; None when nothing was
+    judged)."""
+    options, notes, choice = _resolve_terms(robot, measurements, options, terms, payload, gravity)
+    return options, notes, None if choice is None else choice.fit
+
+
+def _resolve_terms(robot, measurements, options, terms, payload, gravity):
+    """:func:`resolve_terms` with the :class:`TermsChoice` (or None)."""
     if terms is None or (isinstance(terms, str) and terms.lower() == "none"):
-        return options, []
+        return options, [], None
     if not isinstance(terms, str) or terms.lower() not in TERMS:
         raise ParameterError(f"unknown terms {terms!r}: expected one of {', '.join(TERMS)} or None")
     if options.compliance or options.periodic:
-        return options, []          # named: honoured as given
+        return options, [], None    # named: honoured as given
     if options.estimator == "map":
         # the MAP estimate has no prior group for the joint terms: choosing them here would fit
         # them held at zero (and write them so) while the note says they were chosen
         return options, ["joint terms not judged: estimator 'map' fits the geometry only (estimator 'ls' "
-                         "chooses them)"]
+                         "chooses them)"], None
     if options.folds < 2:
-        return options, ["joint terms not judged: they are chosen by cross-validation, which cv=0 turns off"]
+        return options, ["joint terms not judged: they are chosen by cross-validation, which cv=0 turns off"], None
     # (a payload or gravity without compliance stays refused: compliance is a candidate with neither)
     if payload is not None or gravity is not None:
-        return options, []
+        return options, [], None
     try:
         choice = choose_terms(robot, measurements, folds=options.folds, options=options)
     except DataError as exc:
-        return options, [f"joint terms not judged: {exc}"]
+        return options, [f"joint terms not judged: {exc}"], None
     if not choice.table:
-        return options, []
+        return options, [], None
     summary = ", ".join(f"{t.label} {t.position_rms * 1e3:.4g} mm" for t in choice.table)
     note = (f"joint terms chosen by {choice.folds}-fold cross-validation: {choice.label} ({choice.reason}; "
             f"held-out position RMS {summary})")
-    return replace(options, compliance=choice.compliance, periodic=choice.periodic), [note]
+    return replace(options, compliance=choice.compliance, periodic=choice.periodic), [note], choice

@@ -103,7 +103,7 @@ def test_terms_auto_leaves_the_map_estimate_geometric(ur5_loop):
 
     robot, _, m, _, _ = ur5_loop
     opts = resolve_options(robot, m, estimator="map")
-    resolved, notes = resolve_terms(robot, m, opts, "auto")
+    resolved, notes, _ = resolve_terms(robot, m, opts, "auto")
     assert not resolved.periodic and not resolved.compliance
     assert notes and "estimator 'map'" in notes[0]
 
