@@ -32,6 +32,7 @@ from calib.calibration.accuracy import target_rows
 from calib.calibration.evidence import (SIGMA_POS_BOUNDS, SIGMA_ROT_BOUNDS, TAU_BOUNDS, Evidence, evidence,
                                         linearise, maximise_evidence)
 from calib.calibration.prepare import Setup, prepare
+from calib.calibration.robust import robust_sigmas, row_rms
 from calib.calibration.workspace import propagate_covariance
 from calib.checks import check_instance, check_int, check_number
 from calib.errors import DataError, ParameterError
@@ -455,16 +456,11 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
 def _judge_rows(problem_all: Problem, x: np.ndarray, ev: Evidence, rot: bool, keep: np.ndarray,
                 k: float) -> np.ndarray:
     """Rows to keep: those whose whitened residual RMS per component is at most k, the noise
-    levels from the median absolute residual component of the kept rows (1.4826 MAD, corrected
-    for the fit's share of each group's degrees of freedom), which gross rows cannot inflate."""
-    dp, dr = problem_all.pose_residuals(x)
-    n_p = 3 * int(keep.sum())
-    f_p = max(ev.red_p / max(n_p, 1), 1e-3)
-    sp = max(1.4826 * float(np.median(np.abs(dp[keep]))) / math.sqrt(f_p), 1e-12)
-    w = [dp / sp]
-    if rot and dr is not None:
-        f_r = max(ev.red_r / max(n_p, 1), 1e-3)
-        sr = max(1.4826 * float(np.median(np.abs(dr[keep]))) / math.sqrt(f_r), 1e-12)
-        w.append(dr / sr)
-    rms = np.sqrt(np.mean(np.concatenate(w, axis=1) ** 2, axis=1))
-    return rms <= k
+    levels from the median absolute residual component of the kept rows
+    (:func:`calib.calibration.robust.robust_sigmas`: 1.4826 MAD, corrected for the fit's share of
+    each group's degrees of freedom), which gross rows cannot inflate."""
+    sp, sr = robust_sigmas(problem_all, x, keep, ev.red_p, ev.red_r)
+    if rot:
+        return row_rms(problem_all, x, sp, sr)[0] <= k
+    dp, _ = problem_all.pose_residuals(x)
+    return np.sqrt(np.mean((dp / sp) ** 2, axis=1)) <= k
