@@ -256,12 +256,20 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         model, _ = with_gravity_for(robot, c, payload if c else None, gravity if c else None)
         if p:
             model = model.with_periodic()
-        setup, _ = prepare(model, measurements, None, opts.init_frames)
+        if sp is None:
+            setup, _ = prepare(model, measurements, None, opts.init_frames)
+        else:
+            # the geometric fit's start frames (the closed-form estimate of the same rows with the
+            # same kinematics, the terms being zero): not estimated again for each candidate
+            model = replace(model, T_meas_base_ref=geometric.start.T_meas_base_ref,
+                            T_flange_tool_ref=geometric.start.T_flange_tool_ref,
+                            T_flange_target_refs=geometric.start.T_flange_target_refs)
+            setup, _ = prepare(model, measurements, None, False)
         choice = choose_parameters(setup, opts)
         if sp is None:          # the geometric fit: noise estimate and outlier check
             fit, problem = fit_with(setup, choice.free, opts, outlier_k=opts.outlier_k, kin=setup.kin)
             sp, sr, keep = problem.sigma_pos, problem.sigma_rot, fit.keep
-            fits = [fit]
+            fits, geometric = [fit], setup
         else:
             # started where the smaller candidates' fits left each parameter (the terms they did not
             # have at zero, their nominal): the same minimum in 2-3 iterations of LM instead of the
