@@ -289,6 +289,43 @@ def test_a_preamble_without_a_header_is_one_line_naming_the_file(data, tmp_path,
         calib.read_measurements(path, robot, options=calib.ReadOptions(header_line=100))
 
 
+@pytest.mark.parametrize("preamble, has_rows, fragment", [
+    # one preamble line (2 fields by ';') before the rows (6 fields)
+    (["Project;Cell 4"], True, "row 2: no header line: line 1 names no column calib knows and line 2 "
+                               "is data; expected a line of column names (such as joint1_deg, x_mm"),
+    (["Project;Cell 4"], False, "row 1: no header line and no data: line 1 names no column calib "
+                                "knows and no line is data"),
+    (["Project;Cell 4", "Instrument;AT960"], False, "row 1: no header line and no data: lines 1-2 name "
+                                                    "no column calib knows and no line is data"),
+])
+def test_a_short_preamble_without_a_header_says_so(data, tmp_path, capsys, preamble, has_rows, fragment):
+    """A 1-line preamble before the data, or preamble lines and no data, were taken for a header
+    ('row 1: missing joint columns: the header has 0 joint columns')."""
+    robot, m = data
+    path = tmp_path / "noheader.csv"
+    rows = "".join(",".join(_r(v) for v in row) + "\n" for row in np.degrees(m.q)) if has_rows else ""
+    path.write_text("".join(f"{p}\n" for p in preamble) + rows)
+    urdf = str(ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
+    out = tmp_path / "out.urdf"
+    assert main(["calibrate", urdf, str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and not out.exists()
+    assert f"{path}, {fragment}" in err
+    assert ("--header-line N" in err) == has_rows
+
+
+def test_a_header_of_unknown_names_as_wide_as_the_data_is_checked_as_a_header(data, tmp_path):
+    """A line before the data with the data's field count is its header, whose names the header
+    check explains (what the joint columns should be called), not a preamble."""
+    robot, m = data
+    path = tmp_path / "unknown.csv"
+    path.write_text("c1,c2,c3,c4,c5,c6\n" + "".join(",".join(_r(v) for v in row) + "\n"
+                                                     for row in np.degrees(m.q)))
+    with pytest.raises(MeasurementFormatError, match=r"row 1: missing joint columns: the header has 0 "
+                                                     r"joint columns .* expected joint1_rad or joint1_deg"):
+        calib.read_poses(path, robot)
+
+
 def test_a_header_line_given_that_is_a_comment_is_refused(data, tmp_path):
     robot, m = data
     path = tmp_path / "c.csv"
