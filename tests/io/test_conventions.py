@@ -240,6 +240,33 @@ def test_unsuffixed_kuka_joints_name_the_convention(data, tmp_path):
     np.testing.assert_allclose(got.q, m.q, atol=1e-12)
 
 
+def _joint_patterns():
+    from calib.io.conventions import CONVENTIONS
+
+    return [(c.name, k) for c in CONVENTIONS.values() for k in range(len(c.joints[0]))]
+
+
+@pytest.mark.parametrize("name, pattern", _joint_patterns())
+def test_vendor_joint_names_with_positions_alone_name_the_convention(name, pattern, data, tmp_path):
+    """A file with a vendor's joint names (UR's base..wrist3 or actual_q_0..5, ABB's rax_1..)
+    and x, y, z but no orientation columns got 'the header has 0 joint columns' with no word of
+    the convention; with it, it reads the joints."""
+    from calib.io.conventions import CONVENTIONS
+
+    robot, m = data
+    c = CONVENTIONS[name]
+    joints = [nm for nm, _ in c.joint_names(6)][6 * pattern:6 * pattern + 6]
+    unit = c.joints[1]
+    path = _table(tmp_path / "v.csv", joints + ["x_mm", "y_mm", "z_mm"],
+                  np.hstack([np.degrees(m.q) if unit == "deg" else m.q, m.position * 1e3]))
+    with pytest.raises(MeasurementFormatError) as exc:
+        calib.read_measurements(path, robot)
+    text = str(exc.value)
+    assert "row 1" in text and re.search(rf"--convention (\w+\|)*{name}\b", text), text
+    got = calib.read_measurements(path, robot, options=calib.ReadOptions(convention=name))
+    np.testing.assert_allclose(got.q, m.q, atol=1e-12)
+
+
 def test_an_unknown_convention_is_refused(data, tmp_path, capsys):
     robot, m = data
     with pytest.raises(ParameterError, match="convention must be one of"):
