@@ -176,6 +176,10 @@ def _looks_numeric(fields: list[str]) -> bool:
     return True
 
 
+def _has_number(fields: list[str]) -> bool:
+    return any(_looks_numeric([f]) for f in fields if f.strip())
+
+
 def _records(path: Path, known=None, header_line: int | None = None
              ) -> tuple[int, list[str], str, list[str], np.ndarray]:
     """(header line number, header names as written, delimiter, the file's lines, (N,) index of
@@ -239,7 +243,10 @@ def header_of(path: Path, lines: list[str], known=None, header_line: int | None 
                     break
                 previous, width = delimiter, len(names)
             else:
-                if len(records) <= MAX_PREAMBLE:
+                # no line is data and none has a number: not a header over rows with labels
+                if len(records) <= MAX_PREAMBLE and not any(
+                        _has_number(split_fields(path, k + 1, lines[k], _delimiter(path, k + 1, lines[k])))
+                        for k in window):
                     shown = f"lines {records[0] + 1}-{records[-1] + 1} name" if len(records) > 1 \
                         else f"line {records[0] + 1} names"
                     raise MeasurementFormatError(

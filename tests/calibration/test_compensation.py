@@ -269,7 +269,10 @@ def test_targets_file_kinds_and_errors(tmp_path, bundled):
         "x_mm,y_mm\n1,2\n": ("missing column z: expected z_m or z_mm", 1),
         "x_mm,y_mm,z_mm,qw,qx\n1,2,3,1,0\n": ("incomplete quaternion columns", 1),
         "x_mm,y_mm,z_mm,qw,qx,qy,qz\n1,2,3,1,1,0,0\n": ("norm 1.41421", 2),
-        "# only a comment\nset\ncal\n": ("no targets: give joint columns or a position", 2),
+        # (a header naming no targets column over a row of data; "set\ncal\n", lines with no
+        # number, is now refused as no header line and no data)
+        "# only a comment\nset\n1\n": ("no targets: give joint columns or a position", 2),
+        "# only a comment\nset\ncal\n": ("no header line and no data: lines 2-3 name no column", 2),
     }
     for k, (content, (fragment, row)) in enumerate(bad.items()):
         (tmp_path / f"bad{k}.csv").write_text(content)

@@ -353,6 +353,21 @@ def test_a_header_of_unknown_names_as_wide_as_the_data_is_checked_as_a_header(da
         calib.read_poses(path, robot)
 
 
+def test_a_header_of_unknown_names_over_rows_with_labels_is_checked_as_a_header(data, tmp_path):
+    """Rows with a label cell are not all numbers, yet they hold numbers: data, so the line
+    before them is the header (here of ABB's joint names, which the check names), not a file
+    with no data."""
+    robot, m = data
+    path = tmp_path / "labelled.csv"
+    path.write_text(",".join(f"rax_{i}" for i in range(1, 7)) + ",name\n" + "".join(
+        ",".join(_r(v) for v in row) + f",P{k}\n" for k, row in enumerate(np.degrees(m.q))))
+    with pytest.raises(MeasurementFormatError, match=r"row 1: missing joint columns: the header has 0 "
+                                                     r"joint columns .* give --convention abb"):
+        calib.read_poses(path, robot)
+    np.testing.assert_allclose(calib.read_poses(path, robot, options=calib.ReadOptions(convention="abb")),
+                               m.q, atol=1e-12)
+
+
 def test_a_header_line_given_that_is_a_comment_is_refused(data, tmp_path):
     robot, m = data
     path = tmp_path / "c.csv"
