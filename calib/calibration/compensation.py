@@ -108,7 +108,8 @@ def compensate(calibrated: RobotModel, nominal: RobotModel, q_nominal: np.ndarra
     R_t, p_t = ChainKinematics(nominal).frame_poses(q0)
     if measure == "position":
         R_t = None
-    return _solve(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
+    return replace(_solve(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations),
+                   targets="joint")
 
 
 def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None = None,

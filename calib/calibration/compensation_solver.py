@@ -70,6 +70,9 @@ class CompensationResult:
         (:func:`with_frame_uncertainty`); None otherwise.
     seeded : True when the starts were seeds the solver chose (pose targets without starting
         joints): ``q - q_start`` is then no correction of anything and the summary omits it.
+    targets : what the targets were given as: "joint" (the nominal controller's joint values,
+        :func:`calib.calibration.compensation.compensate`), "pose" or "position" (tool poses or
+        positions, ``compensate_poses``); "" when not said (the summary then names ``measure``).
     """
 
     q: np.ndarray
@@ -91,6 +94,7 @@ class CompensationResult:
     frame_position_std: np.ndarray | None = field(default=None, repr=False)
     frame_rotation_std: np.ndarray | None = field(default=None, repr=False)
     seeded: bool = False
+    targets: str = ""
 
     @property
     def n_targets(self) -> int:
@@ -138,7 +142,9 @@ class CompensationResult:
         """A summary for a person: counts per status, the largest residuals and joint changes of
         the ok targets, and the first ten targets that are not ok (numbered from 1)."""
         c = self.counts()
-        lines = [f"Compensated {self.n_targets} {self.measure} targets: "
+        kind = self.targets or self.measure
+        matched = f" (their nominal tool {self.measure})" if kind == "joint" else ""
+        lines = [f"Compensated {self.n_targets} {kind} targets{matched}: "
                  + ", ".join(f"{v} {k}" for k, v in c.items())]
         ok = self.ok
         if ok.any():
@@ -463,7 +469,8 @@ def _concat(a: CompensationResult, b: CompensationResult) -> CompensationResult:
         iterations=cat(a.iterations, b.iterations), measure=a.measure,
         target_position=cat(a.target_position, b.target_position),
         target_rotation=cat(a.target_rotation, b.target_rotation), joint_names=a.joint_names,
-        prismatic=a.prismatic, singular_threshold=a.singular_threshold, tol_pos=a.tol_pos, tol_rot=a.tol_rot)
+        prismatic=a.prismatic, singular_threshold=a.singular_threshold, tol_pos=a.tol_pos, tol_rot=a.tol_rot,
+        targets=a.targets)
 
 
 def _take(res: CompensationResult, pick: np.ndarray) -> CompensationResult:
@@ -481,4 +488,5 @@ def _take(res: CompensationResult, pick: np.ndarray) -> CompensationResult:
         iterations=sub(res.iterations), measure=res.measure,
         target_position=sub(res.target_position), target_rotation=sub(res.target_rotation),
         joint_names=res.joint_names, prismatic=res.prismatic,
-        singular_threshold=res.singular_threshold, tol_pos=res.tol_pos, tol_rot=res.tol_rot)
+        singular_threshold=res.singular_threshold, tol_pos=res.tol_pos, tol_rot=res.tol_rot,
+        targets=res.targets)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import base64
 import math
+from functools import partial
 from pathlib import Path
 from typing import Mapping
 
@@ -52,15 +53,23 @@ def _frame_rows(report: Mapping) -> list[dict]:
     expanded to U = k sigma."""
     out = []
 
-    def six(d, scale=1.0, fmt=".4f"):
-        return [("fixed" if v is None else _num(v * scale, fmt)) for v in (*d["xyz_mm"], *d["rpy_deg"])]
+    def six(d, scale=1.0, fmt=".4f", point=False):
+        return [("fixed" if v is None else _num(v * scale, fmt)) for v in d["xyz_mm"]] + \
+            [(("\u2014" if point else "fixed") if v is None else _num(v * scale, fmt)) for v in d["rpy_deg"]]
     for f in report.get("frame_transforms") or []:
+        point = f.get("orientation_measured") is False      # a point: no orientation to show
+        six_ = partial(six, point=point)
         if f.get("nominal") is not None:
-            out.append({"frame": f["frame"], "what": "nominal", "values": six(f["nominal"])})
-        out.append({"frame": f["frame"], "what": "identified", "values": six(f["identified"])})
+            out.append({"frame": f["frame"], "what": "nominal", "values": six_(f["nominal"])})
+        out.append({"frame": f["frame"], "what": "identified", "values": six_(f["identified"])})
         if f.get("std") is not None:
-            out.append({"frame": f["frame"], "what": "U (k = 2)", "values": six(f["std"], COVERAGE_FACTOR, ".3g")})
+            out.append({"frame": f["frame"], "what": "U (k = 2)", "values": six_(f["std"], COVERAGE_FACTOR, ".3g")})
     return out
+
+
+def _point_frames(report: Mapping) -> list[str]:
+    """The frames of the frame table measured by position only (points: no orientation shown)."""
+    return [f["frame"] for f in report.get("frame_transforms") or [] if f.get("orientation_measured") is False]
 
 
 def _parameter_rows(report: Mapping) -> list[dict]:
@@ -196,6 +205,7 @@ def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: st
         "predicted": ([tuple(r) for r in report["predicted_rows"]] if report.get("predicted_rows")
                       else _predicted(report) if not evaluation else []), "targets": _targets(report),
         "frames": frames, "parameters": _parameter_rows(report), "frame_rows": _frame_rows(report),
+        "point_frames": _point_frames(report),
         "selection": sel,
         "images": [(name, IMAGE_CAPTIONS.get(name, name), base64.b64encode(data).decode("ascii"))
                    for name, data in images.items()],

@@ -376,9 +376,10 @@ def _frames_text(rows: list[dict]) -> str:
     for f in rows:
         parts = ([("nominal", f["nominal"], ".4f", ".6f")] if f["nominal"] is not None else []) + \
             [("identified", f["identified"], ".4f", ".6f"), (f["std_label"], f["std"], ".3g", ".3g")]
+        none = "-" if f.get("orientation_measured") is False else "fixed"
         for k, (label, d, fl, fa) in enumerate(parts):
             vals = [("fixed" if x is None else format(x, fl)) for x in d["xyz_mm"]] + \
-                   [("fixed" if x is None else format(x, fa)) for x in d["rpy_deg"]]
+                   [(none if x is None else format(x, fa)) for x in d["rpy_deg"]]
             out.append(f"{f['frame'] if k == 0 else '':<{w}}{label:<16}" + "".join(f"{v:>12}" for v in vals))
         if f.get("note"):
             out.append(f"{'':<{w}}({f['note']})")
@@ -399,6 +400,8 @@ def _frames_table(result: "CalibrationResult") -> list[dict]:
                     "std_label": "std (rot x,y,z)",
                     "note": "estimated from the data: the instrument's pose, not an error of the robot; "
                             "rotation std about the meas axes x, y, z"})
+    # a tool or target measured by position alone is a point: its frame has no measured orientation
+    point = result.before.rotation is None
     groups: dict = {}
     for p in result.parameters:
         f = _frame_of(p.name)
@@ -422,13 +425,18 @@ def _frames_table(result: "CalibrationResult") -> list[dict]:
             if is_std:
                 xyz = [x if free[i] else None for i, x in enumerate(xyz)]
                 rpy = [x if free[i] else None for i, x in zip((5, 4, 3), rpy)]
+            if group == "v" and point:
+                rpy = [None, None, None]
             return {"xyz_mm": xyz, "rpy_deg": rpy}
         estimated = (group == "u" and mf is not None) or (
             group == "v" and any(e.startswith("flange->") for e in result.estimated_frames))
-        out.append({"frame": label, "nominal": as_transform(nom), "identified": as_transform(ide),
-                    "std": as_transform(std, True), "std_label": "std",
-                    "note": ("the tool frame was estimated from the data: the measured point"
-                             if group == "v" and estimated else "")})
+        notes = (["the tool frame was estimated from the data: the measured point"] if group == "v" and estimated
+                 else []) + (["measured by position only: a point, no orientation"] if group == "v" and point else [])
+        entry = {"frame": label, "nominal": as_transform(nom), "identified": as_transform(ide),
+                 "std": as_transform(std, True), "std_label": "std", "note": "; ".join(notes)}
+        if group == "v" and point:
+            entry["orientation_measured"] = False
+        out.append(entry)
     return out
 
 

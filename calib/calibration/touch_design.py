@@ -231,7 +231,7 @@ def consistent_rows(model: RobotModel, data: TouchData, start: FeatureStart) -> 
         else:
             e = p[rows] - F[k]
             target[rows] = F[k] + f.radius * e / np.linalg.norm(e, axis=1)[:, None]
-    Q, ok = reach_positions(model, target, starts=data.q)
+    Q, ok = reach_positions(model, target, starts=data.q, margin=0.0)   # (measured rows may touch a limit)
     moved = replace(data, q=np.where(ok[:, None], Q, data.q))
     if ok.all() or len(set(data.feature[ok].tolist())) < len(data.features):
         return moved

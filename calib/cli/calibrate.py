@@ -198,8 +198,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plots:
         from calib.calibration.report import PLOT_FILES
 
-        for name in PLOT_FILES:
-            plot_paths[name] = outputs.add(Path(args.plots) / name, make_folder=True)
+        plot_paths = outputs.add_folder(args.plots, PLOT_FILES, "--plots")
 
     robot = load(args)
     payload, gravity = compliance_options(args)

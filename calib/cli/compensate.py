@@ -137,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
                          f"only, or touch rows): the corrected joints reach the targets' orientations as the "
                          f"model predicts them, which the measurements did not check; status ok vouches for "
                          f"the position (--measure position corrects the position alone)\n")
-    log.info("read %d %s targets from %s", targets.n_targets, targets.kind, args.targets)
+    kind = {"joints": "joint"}.get(targets.kind, targets.kind)      # joint, pose, position
+    log.info("read %d %s targets from %s", targets.n_targets, kind, args.targets)
     T_meas_base = None if rec is None else rec.measurement_transform
     opts = dict(singular_threshold=args.singular_threshold)
     if targets.kind == "joints":
@@ -173,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
     frame = (f"the measurement frame of {args.calibrated}" if args.targets_frame == "meas" and
              T_meas_base is not None else f"base frame {nominal.base_frame}")
     comment = (f"Corrected joint values, computed by: {command_line(args)}\n"
-               f"Targets: {targets.kind} targets of {args.targets} (tool frame {nominal.tool_frame} "
+               f"Targets: {kind} targets of {args.targets} (tool frame {nominal.tool_frame} "
                f"in {frame}); status ok: the calibrated model reaches the "
                f"target; other rows must not be sent to the robot as they are"
                + ("\nThe calibration measured no tool orientation: the orientations reached are the model's "

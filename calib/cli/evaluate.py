@@ -145,9 +145,6 @@ def run(args: argparse.Namespace) -> int:
 
     import calib
     from calib.calibration.accuracy import format_accuracy_table
-
-    from pathlib import Path
-
     from calib.cli.output import Outputs
     from calib.io.urdf_reader import robot_path
 
@@ -157,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plots:
         from calib.calibration.report_plots import PLOT_FILES
 
-        plot_paths = {name: outputs.add(Path(args.plots) / name, make_folder=True) for name in PLOT_FILES}
+        plot_paths = outputs.add_folder(args.plots, PLOT_FILES, "--plots")
     meta = parse_meta(args.meta)
     if out_html is None and (args.meta is not None or args.tolerance_mm is not None):
         raise ParameterError("--meta and --tolerance-mm apply to the report: give --html REPORT.html")

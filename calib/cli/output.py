@@ -82,6 +82,21 @@ class Outputs:
         self.paths.append(path)
         return path
 
+    def add_folder(self, folder: str | Path, names: Sequence[str], option: str) -> dict[str, Path]:
+        """Reserve the files ``names`` in ``folder`` (the value of ``option``, such as --plots,
+        which takes a folder; created by :meth:`commit` when missing): name -> path. A folder
+        that is a file, or lies in one, is refused naming the option (each file's path was then
+        refused as 'cannot be inspected: Not a directory')."""
+        from calib.errors import ParameterError
+
+        folder = Path(folder)
+        there = next((p for p in (folder, *folder.parents) if p.exists() or p.is_symlink()), None)
+        if there is not None and not there.is_dir():
+            where = "is a file" if there == folder else f"{there} is a file"
+            raise ParameterError(f"{option} {folder}: {where}, not a folder; {option} takes a folder, into "
+                                 f"which it writes {', '.join(names)}")
+        return {name: self.add(folder / name, make_folder=True) for name in names}
+
     def stage(self, path: Path, data: bytes | str) -> None:
         if path not in self.paths:
             raise ValueError(f"{path} was not reserved with Outputs.add")

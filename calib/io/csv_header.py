@@ -358,6 +358,36 @@ class Header:
         return (f"; or, for a file written with a vendor's names, give --convention "
                 f"{'|'.join(c.name for c in found)} (calib formats lists them)")
 
+    def _joint_convention_hint(self) -> str:
+        """"; columns ... are the joint names of the NAME convention: give --convention NAME"
+        when columns the header check ignored (with or without a unit suffix) are a vendor
+        convention's joint names (:data:`calib.io.conventions.CONVENTIONS`: base..wrist3 and
+        actual_q_0.. of UR, rax_1.. of ABB, ...) other than the one given; "" otherwise."""
+        from calib.io.conventions import CONVENTIONS
+
+        units = ANGLE_UNITS.keys() | LENGTH_UNITS.keys()
+
+        def bare(name: str) -> str:
+            m = _UNIT_IN_BRACKETS.match(name)
+            low = (f"{m.group(1)}_{m.group(2)}" if m and m.group(1) else name).lower()
+            base, sep, suffix = low.rpartition("_")
+            return base if sep and suffix in units else low
+
+        n = self.robot.n_joints
+        found = []
+        for c in CONVENTIONS.values():
+            joints = dict(c.joint_names(n))
+            hits = [w for w in self.ignored if bare(w) in joints]
+            if hits and c is not self.convention:
+                found.append((c, hits))
+        if not found:
+            return ""
+        hits = found[0][1]
+        shown = ", ".join(hits[:3]) + (", ..." if len(hits) > 3 else "")
+        names = "|".join(c.name for c, _ in found)
+        return (f"; columns {shown} are joint names of the {names} convention: give --convention "
+                f"{names} (calib formats lists the conventions)")
+
     def _vendor_orientation(self, names: list[str]) -> None:
         """Refuse a header (no convention given) whose columns are the whole orientation group
         of a vendor convention written without unit suffixes (KUKA A, B, C; ABB q1..q4; Fanuc
@@ -449,7 +479,8 @@ class Header:
                 self.fail(f"missing joint column{'s' if len(missing) > 1 else ''}: the header has "
                           f"{len(present)} joint columns but the robot has {robot.n_joints} joints "
                           f"({', '.join(robot.joint_names)}); expected "
-                          f"{'; '.join(expected(i) for i in missing)}{self._trailing_hint(missing)}")
+                          f"{'; '.join(expected(i) for i in missing)}{self._trailing_hint(missing)}"
+                          f"{self._joint_convention_hint()}")
         have_pos = [k for k in POSITION_COLUMNS if k in cols]
         pose = cols.get("pose_literal")
         if pose is not None:
@@ -502,6 +533,7 @@ class Header:
             self.fail(f"no key column {self.key!r} (given by --key){hint}")
         if spec.joints == "optional" and spec.position != "none" and not present and literal is None \
                 and not have_pos:
-            self.fail(f"no {spec.kind}: give joint columns or a position x, y, z; {self.accepted()}")
+            self.fail(f"no {spec.kind}: give joint columns or a position x, y, z"
+                      f"{self._joint_convention_hint()}; {self.accepted()}")
         return orientation
 

@@ -176,6 +176,10 @@ def _looks_numeric(fields: list[str]) -> bool:
     return True
 
 
+def _has_number(fields: list[str]) -> bool:
+    return any(_looks_numeric([f]) for f in fields if f.strip())
+
+
 def _records(path: Path, known=None, header_line: int | None = None
              ) -> tuple[int, list[str], str, list[str], np.ndarray]:
     """(header line number, header names as written, delimiter, the file's lines, (N,) index of
@@ -184,7 +188,9 @@ def _records(path: Path, known=None, header_line: int | None = None
 
     The header is line ``header_line`` when given; else the first line that names a known column
     (``known(name) -> bool``) before any line of numbers (the lines before it are a preamble),
-    else the first line (whose names the header check then explains)."""
+    else the first line when it alone comes before the data with the data's field count (whose
+    names the header check then explains); other lines before the data, or lines and no data,
+    are refused as no header line."""
     return header_of(path, read_lines(path), known, header_line)
 
 
@@ -213,23 +219,41 @@ def header_of(path: Path, lines: list[str], known=None, header_line: int | None 
                                                "blank lines")
         first = 0
         if known is not None:
-            for j, k in enumerate(records[:MAX_PREAMBLE].tolist()):
+            window = records[:MAX_PREAMBLE].tolist()
+            for j, k in enumerate(window):
                 row = k + 1
-                names = split_fields(path, row, lines[k], _delimiter(path, row, lines[k]))
+                delimiter = _delimiter(path, row, lines[k])
+                names = split_fields(path, row, lines[k], delimiter)
                 if _looks_numeric(names):
-                    if j >= 2:
+                    # one line before the data is its header (of names calib does not know: the
+                    # header check says what they should be) when it has the data's field count;
+                    # two or more, or one of another width, are a preamble
+                    if j >= 2 or (j == 1 and _field_count(path, row, lines[k], previous) != width):
                         shown = f"lines {records[0] + 1}-{records[j - 1] + 1}" if j > 1 else \
                             f"line {records[0] + 1}"
                         raise MeasurementFormatError(
-                            path, f"no header line: {shown} name no column calib knows and line "
-                                  f"{row} is data; expected a line of column names (such as "
-                                  f"joint1_deg, x_mm; calib formats lists them) before the data, or "
-                                  f"--header-line N for a header calib does not recognise",
-                            row=row)
+                            path, f"no header line: {shown} {'name' if j > 1 else 'names'} no "
+                                  f"column calib knows and line {row} is data; expected a line of "
+                                  f"column names (such as joint1_deg, x_mm; calib formats lists "
+                                  f"them) before the data, or --header-line N for a header calib "
+                                  f"does not recognise", row=row)
                     break
                 if any(known(n) for n in names):
                     first = j
                     break
+                previous, width = delimiter, len(names)
+            else:
+                # no line is data and none has a number: not a header over rows with labels
+                if len(records) <= MAX_PREAMBLE and not any(
+                        _has_number(split_fields(path, k + 1, lines[k], _delimiter(path, k + 1, lines[k])))
+                        for k in window):
+                    shown = f"lines {records[0] + 1}-{records[-1] + 1} name" if len(records) > 1 \
+                        else f"line {records[0] + 1} names"
+                    raise MeasurementFormatError(
+                        path, f"no header line and no data: {shown} no column calib knows and no "
+                              f"line is data; expected a line of column names (such as joint1_deg, "
+                              f"x_mm; calib formats lists them) followed by data rows",
+                        row=int(records[0]) + 1)
     k = int(records[first])
     header_row, header_line_text = k + 1, lines[k]
     best = _delimiter(path, header_row, header_line_text)

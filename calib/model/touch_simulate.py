@@ -7,8 +7,8 @@ and the 70th percentile of the distances from the base of 400 random tool points
 of a design are perpendicular faces of a cube through one corner (their normals the columns of a
 random rotation, in turn); a sphere's centre is such a point too. A row is found by inverse
 kinematics of the position only (damped least squares on the true model, from a random start
-within the limits, clamped to them at every step): targets are the point itself; a point of the
-plane within ``spread`` of the corner, the tool's z axis (the probe's direction) pointing into
+within the limits, clamped at every step to LIMIT_MARGIN inside them): targets are the point
+itself; a point of the plane within ``spread`` of the corner, the tool's z axis (the probe's direction) pointing into
 the plane's front side, that of its normal, at least PROBE_MIN_SIN of it (a probe cannot touch
 a plate from behind, nor along it); a point of the sphere in a random direction. The target is
 moved by Gaussian noise of ``sigma`` per axis first (the touch's error: the recorded joint
@@ -36,6 +36,9 @@ IK_TOL = 1e-10
 STARTS_PER_ROW = 12
 #: A probe touching a plane: the sine of its angle to the plane, at least (about 17 degrees).
 PROBE_MIN_SIN = 0.3
+#: Simulated joint values stay this far inside each limit (rad, or m for prismatic joints; at
+#: most 1 % of the range): a real controller's soft limits refuse a value on the limit itself.
+LIMIT_MARGIN = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,16 +54,20 @@ class SimulatedTouch:
 
 
 def reach_positions(robot: RobotModel, targets: np.ndarray, rng=None, attempts: int = 1,
-                    starts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    starts: np.ndarray | None = None,
+                    margin: float = LIMIT_MARGIN) -> tuple[np.ndarray, np.ndarray]:
     """Configurations whose tool point is at ``targets`` (M, 3) metres, meas frame, by damped
     least squares from random starts within the joint limits (``attempts`` starts per target,
-    the first that converges kept), or from ``starts`` (M, n) (one attempt). Returns
-    (Q (M, n), reached (M,) bool)."""
+    the first that converges kept), or from ``starts`` (M, n) (one attempt), every iterate
+    clamped to ``margin`` (rad or m, at most 1 % of the range) inside the limits (0: onto
+    them). Returns (Q (M, n), reached (M,) bool)."""
     kin = ChainKinematics(robot)
     n = robot.n_joints
     cols = np.array([robot.index(f"d{i + 1}" if robot.prismatic[i] else f"theta{i + 1}") for i in range(n)])
     lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
     hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+    inset = np.minimum(margin, 0.01 * (hi - lo))
+    lo, hi = lo + inset, hi - inset            # strictly inside the limits when margin > 0
     targets = np.asarray(targets, float)
     M = len(targets)
     Q_out, ok = np.zeros((M, n)), np.zeros(M, bool)
@@ -68,7 +75,7 @@ def reach_positions(robot: RobotModel, targets: np.ndarray, rng=None, attempts: 
         todo = np.flatnonzero(~ok)
         if not todo.size:
             break
-        Q = (robot.random_configurations(len(todo), rng) if starts is None
+        Q = (np.clip(robot.random_configurations(len(todo), rng), lo, hi) if starts is None
              else np.array(starts, float)[todo])
         for _ in range(IK_ITERATIONS):
             _, p, J = kin.poses_and_jacobian(Q, cols)

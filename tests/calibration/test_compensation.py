@@ -269,7 +269,10 @@ def test_targets_file_kinds_and_errors(tmp_path, bundled):
         "x_mm,y_mm\n1,2\n": ("missing column z: expected z_m or z_mm", 1),
         "x_mm,y_mm,z_mm,qw,qx\n1,2,3,1,0\n": ("incomplete quaternion columns", 1),
         "x_mm,y_mm,z_mm,qw,qx,qy,qz\n1,2,3,1,1,0,0\n": ("norm 1.41421", 2),
-        "# only a comment\nset\ncal\n": ("no targets: give joint columns or a position", 2),
+        # (a header naming no targets column over a row of data; "set\ncal\n", lines with no
+        # number, is now refused as no header line and no data)
+        "# only a comment\nset\n1\n": ("no targets: give joint columns or a position", 2),
+        "# only a comment\nset\ncal\n": ("no header line and no data: lines 2-3 name no column", 2),
     }
     for k, (content, (fragment, row)) in enumerate(bad.items()):
         (tmp_path / f"bad{k}.csv").write_text(content)
@@ -311,7 +314,10 @@ def test_cli_select_poses_then_compensate_end_to_end(tmp_path, bundled, paper_tr
     write_poses(tmp_path / "targets.csv", bundled, targets)
     corrected = tmp_path / "corrected.csv"
     assert _run(["compensate", cal_urdf, BUNDLED_URDF, tmp_path / "targets.csv", "-o", corrected]) == 0
-    assert "3 ok" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    # the words follow the targets' kind (it said "3 pose targets" and "joints targets")
+    assert out.startswith("Compensated 3 joint targets (their nominal tool pose): ") and "3 ok" in out
+    assert f"# Targets: joint targets of {tmp_path / 'targets.csv'} (" in corrected.read_text()
     lines = [l for l in corrected.read_text().splitlines() if not l.startswith("#")]
     assert lines[0].endswith("status,residual_mm,residual_rad,detail")
     rows = [l.split(",") for l in lines[1:]]
@@ -331,6 +337,8 @@ def test_cli_select_poses_then_compensate_end_to_end(tmp_path, bundled, paper_tr
                   for p, w, d in zip(p_t, wxyz, np.degrees(targets))))
     assert _run(["compensate", cal_urdf, BUNDLED_URDF, tmp_path / "poses_t.csv", "-o",
                  tmp_path / "c2.csv"]) == 0
+    assert capsys.readouterr().out.startswith("Compensated 3 pose targets: ")
+    assert f"# Targets: pose targets of {tmp_path / 'poses_t.csv'} (" in (tmp_path / "c2.csv").read_text()
     rows2 = [l.split(",") for l in (tmp_path / "c2.csv").read_text().splitlines()
              if not l.startswith("#")][1:]
     q2 = np.radians(np.array([[float(v) for v in r[:6]] for r in rows2]))

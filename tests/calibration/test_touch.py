@@ -14,7 +14,7 @@ from calib.errors import DataError
 from calib.model.kinematics import ChainKinematics
 from calib.model.simulate import apply_deviations, random_deviations
 from calib.model.touch import Feature
-from calib.model.touch_simulate import simulate_touch
+from calib.model.touch_simulate import LIMIT_MARGIN, simulate_touch
 
 from conftest import erd_urdf
 
@@ -40,7 +40,10 @@ def test_simulated_rows_touch_their_features_within_limits():
     robot, true, sim, _ = _case("panda", PLANES, 3)
     d = sim.data
     assert d.n_rows == 75 and d.n_residuals == 75
-    assert np.all(d.q >= robot.lower) and np.all(d.q <= robot.upper)
+    # strictly inside the limits, by LIMIT_MARGIN (1e-3 rad; a controller's soft limits refuse a
+    # value on the limit: 13 of 560 simulated Panda values sat exactly on one)
+    gap = np.minimum(d.q - true.lower, true.upper - d.q)
+    assert gap.min() >= min(LIMIT_MARGIN, 0.01 * np.min(true.upper - true.lower)) - 1e-15
     p = ChainKinematics(true).frame_poses(d.q)[1]
     F = sim.truth.reshape(-1, 3)
     res = []
@@ -245,7 +248,10 @@ def test_a_row_naming_the_wrong_feature_is_dropped():
     assert res.n_rows == sim.data.n_rows - 1 and res.success
     assert registered_error(res.robot, true, Qt) <= 1.5 * predicted_tool_error(res, Qt)
     kept = calibrate_touch(robot, data, sigma=0.02e-3, cv=0, outlier_k=None)
-    assert not kept.outliers and kept.status == "implausible"
+    # kept, the row spoils the fit: refused as implausible, or (since the simulated rows stay
+    # LIMIT_MARGIN inside the limits, other rows) stopped at the iteration limit, 3.1 mm RMS for
+    # a given noise of 0.02 mm; never a success
+    assert not kept.outliers and kept.status in ("implausible", "max_iterations") and not kept.success
 
 
 def test_cross_validation_predicts_held_out_rows_exactly_on_noise_free_data():

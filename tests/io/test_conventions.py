@@ -240,6 +240,33 @@ def test_unsuffixed_kuka_joints_name_the_convention(data, tmp_path):
     np.testing.assert_allclose(got.q, m.q, atol=1e-12)
 
 
+def _joint_patterns():
+    from calib.io.conventions import CONVENTIONS
+
+    return [(c.name, k) for c in CONVENTIONS.values() for k in range(len(c.joints[0]))]
+
+
+@pytest.mark.parametrize("name, pattern", _joint_patterns())
+def test_vendor_joint_names_with_positions_alone_name_the_convention(name, pattern, data, tmp_path):
+    """A file with a vendor's joint names (UR's base..wrist3 or actual_q_0..5, ABB's rax_1..)
+    and x, y, z but no orientation columns got 'the header has 0 joint columns' with no word of
+    the convention; with it, it reads the joints."""
+    from calib.io.conventions import CONVENTIONS
+
+    robot, m = data
+    c = CONVENTIONS[name]
+    joints = [nm for nm, _ in c.joint_names(6)][6 * pattern:6 * pattern + 6]
+    unit = c.joints[1]
+    path = _table(tmp_path / "v.csv", joints + ["x_mm", "y_mm", "z_mm"],
+                  np.hstack([np.degrees(m.q) if unit == "deg" else m.q, m.position * 1e3]))
+    with pytest.raises(MeasurementFormatError) as exc:
+        calib.read_measurements(path, robot)
+    text = str(exc.value)
+    assert "row 1" in text and re.search(rf"--convention (\w+\|)*{name}\b", text), text
+    got = calib.read_measurements(path, robot, options=calib.ReadOptions(convention=name))
+    np.testing.assert_allclose(got.q, m.q, atol=1e-12)
+
+
 def test_an_unknown_convention_is_refused(data, tmp_path, capsys):
     robot, m = data
     with pytest.raises(ParameterError, match="convention must be one of"):
@@ -287,6 +314,58 @@ def test_a_preamble_without_a_header_is_one_line_naming_the_file(data, tmp_path,
     with pytest.raises(MeasurementFormatError, match=r"row 100: --header-line 100 is past the end of "
                                                      r"the file \(the file has 43 lines\)"):
         calib.read_measurements(path, robot, options=calib.ReadOptions(header_line=100))
+
+
+@pytest.mark.parametrize("preamble, has_rows, fragment", [
+    # one preamble line (2 fields by ';') before the rows (6 fields)
+    (["Project;Cell 4"], True, "row 2: no header line: line 1 names no column calib knows and line 2 "
+                               "is data; expected a line of column names (such as joint1_deg, x_mm"),
+    (["Project;Cell 4"], False, "row 1: no header line and no data: line 1 names no column calib "
+                                "knows and no line is data"),
+    (["Project;Cell 4", "Instrument;AT960"], False, "row 1: no header line and no data: lines 1-2 name "
+                                                    "no column calib knows and no line is data"),
+])
+def test_a_short_preamble_without_a_header_says_so(data, tmp_path, capsys, preamble, has_rows, fragment):
+    """A 1-line preamble before the data, or preamble lines and no data, were taken for a header
+    ('row 1: missing joint columns: the header has 0 joint columns')."""
+    robot, m = data
+    path = tmp_path / "noheader.csv"
+    rows = "".join(",".join(_r(v) for v in row) + "\n" for row in np.degrees(m.q)) if has_rows else ""
+    path.write_text("".join(f"{p}\n" for p in preamble) + rows)
+    urdf = str(ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
+    out = tmp_path / "out.urdf"
+    assert main(["calibrate", urdf, str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and not out.exists()
+    assert f"{path}, {fragment}" in err
+    assert ("--header-line N" in err) == has_rows
+
+
+def test_a_header_of_unknown_names_as_wide_as_the_data_is_checked_as_a_header(data, tmp_path):
+    """A line before the data with the data's field count is its header, whose names the header
+    check explains (what the joint columns should be called), not a preamble."""
+    robot, m = data
+    path = tmp_path / "unknown.csv"
+    path.write_text("c1,c2,c3,c4,c5,c6\n" + "".join(",".join(_r(v) for v in row) + "\n"
+                                                     for row in np.degrees(m.q)))
+    with pytest.raises(MeasurementFormatError, match=r"row 1: missing joint columns: the header has 0 "
+                                                     r"joint columns .* expected joint1_rad or joint1_deg"):
+        calib.read_poses(path, robot)
+
+
+def test_a_header_of_unknown_names_over_rows_with_labels_is_checked_as_a_header(data, tmp_path):
+    """Rows with a label cell are not all numbers, yet they hold numbers: data, so the line
+    before them is the header (here of ABB's joint names, which the check names), not a file
+    with no data."""
+    robot, m = data
+    path = tmp_path / "labelled.csv"
+    path.write_text(",".join(f"rax_{i}" for i in range(1, 7)) + ",name\n" + "".join(
+        ",".join(_r(v) for v in row) + f",P{k}\n" for k, row in enumerate(np.degrees(m.q))))
+    with pytest.raises(MeasurementFormatError, match=r"row 1: missing joint columns: the header has 0 "
+                                                     r"joint columns .* give --convention abb"):
+        calib.read_poses(path, robot)
+    np.testing.assert_allclose(calib.read_poses(path, robot, options=calib.ReadOptions(convention="abb")),
+                               m.q, atol=1e-12)
 
 
 def test_a_header_line_given_that_is_a_comment_is_refused(data, tmp_path):

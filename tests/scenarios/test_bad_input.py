@@ -260,6 +260,23 @@ def test_unwritable_report_folder_leaves_the_urdf_unchanged(sim, out, capfd):
     assert snapshot(out) == before
 
 
+@pytest.mark.parametrize("command", ["calibrate", "evaluate"])
+@pytest.mark.parametrize("inside", [False, True])
+def test_plots_naming_a_file_is_one_line_saying_it_takes_a_folder(command, inside, sim, out, capfd):
+    """--plots FILE (an existing regular file, or a folder under one) printed
+    '.../position_errors.png: cannot be inspected: Not a directory'."""
+    d, _, _ = sim
+    plots = out / "report.json" / "plots" if inside else out / "report.json"
+    argv = ["calibrate", URDF, d / "cal.csv", "-o", out / "calibrated.urdf"] if command == "calibrate" \
+        else ["evaluate", URDF, d / "cal.csv"]
+    before = snapshot(out)
+    code, _, err = run_cli(capfd, [*argv, "--plots", plots])
+    where = f"{out / 'report.json'} is a file" if inside else "is a file"
+    assert_refused(code, err, "^calib: error: " + re.escape(f"--plots {plots}: {where}, not a folder; --plots "
+                                                            f"takes a folder, into which it writes position_errors.png"))
+    assert snapshot(out) == before
+
+
 def test_full_disk_on_the_second_output_changes_nothing(sim, out, capfd, monkeypatch):
     d, _, _ = sim
     import calib.io.fileio as fileio

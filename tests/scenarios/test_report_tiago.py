@@ -42,3 +42,19 @@ def test_tiago_certificate_shows_the_without_outliers_figures_and_marks_rows_31_
     assert re.findall(r'<tr class="out"><td>(\d+)</td>', html) == ["31", "32", "33"]
     assert 'class="verdict pass">PASS<' in html and "TIAGo-demo" in html
     assert html.count("data:image/png;base64,") == 3               # position-only: no orientation plot
+    # the markers are points measured by position only: the frame table shows no orientation for
+    # them (it showed roll, pitch, yaw such as -10.3317, -82.5693, -79.7532 deg for M2), the
+    # measurement->base frame keeps its rotation (three or more points fix it)
+    table = html.split("<h2>Frame transforms</h2>")[1].split("</table>")[0]
+    rows = re.findall(r'<tr><td class="l">([^<]*)</td><td class="l">([^<]*)</td>((?:<td>[^<]*</td>){6})</tr>',
+                      table)
+    cells = {(f, w): re.findall(r"<td>([^<]*)</td>", v) for f, w, v in rows}
+    for marker in ("M1", "M2", "M3"):
+        for what in ("nominal", "identified", "U (k = 2)"):
+            assert cells[(f"flange-&gt;{marker}", what)][3:] == ["\u2014"] * 3
+        ft = next(f for f in r["frame_transforms"] if f["frame"] == f"flange->{marker}")
+        assert ft["orientation_measured"] is False and ft["identified"]["rpy_deg"] == [None] * 3
+        assert cells[(f"flange-&gt;{marker}", "identified")][:3] == [f"{v:.4f}" for v in ft["identified"]["xyz_mm"]]
+    base = cells[("measurement-&gt;base_footprint", "identified")][3:]
+    assert all(re.fullmatch(r"-?\d+\.\d{4}", v) for v in base), base
+    assert "flange-&gt;M1, flange-&gt;M2, flange-&gt;M3: measured by position only" in html
