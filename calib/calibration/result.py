@@ -417,14 +417,14 @@ def _frames_table(result: "CalibrationResult") -> list[dict]:
             v = [getattr(rows[k], attr) if k in rows else math.nan for k in _ZYX_KINDS]
             return v
         nom, ide, std = pick("nominal"), pick("identified"), pick("std")
-        free = [k in rows and rows[k].free for k in _ZYX_KINDS]
 
         def as_transform(v, is_std=False):
             xyz = [v[i] * 1e3 for i in range(3)]
             rpy = [math.degrees(v[i]) for i in (5, 4, 3)]     # roll = gamma, pitch = beta, yaw = alpha
-            if is_std:
-                xyz = [x if free[i] else None for i, x in enumerate(xyz)]
-                rpy = [x if free[i] else None for i, x in zip((5, 4, 3), rpy)]
+            if is_std:      # (a tool frame's std is propagated: it can move where a parameter is held)
+                moves = [k in rows and math.isfinite(rows[k].std) for k in _ZYX_KINDS]
+                xyz = [x if moves[i] else None for i, x in enumerate(xyz)]
+                rpy = [x if moves[i] else None for i, x in zip((5, 4, 3), rpy)]
             if group == "v" and point:
                 rpy = [None, None, None]
             return {"xyz_mm": xyz, "rpy_deg": rpy}
@@ -472,10 +472,19 @@ def _consistency_dict(c: dict | None) -> dict | None:
 
 
 def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> tuple[ParameterEstimate, ...]:
+    """One row per parameter of ``nominal``: the joint parameters' values, the measurement and
+    tool frames' as the ZYX parameters of the whole transform (reference and deviation), with
+    the standard deviations of what is shown: a tool frame's are propagated from the covariance
+    of its six deviation parameters (its x, y, z move with a free angle when the reference
+    places the tool away from the flange: a marker measured by position only, held x and z, free
+    beta and gamma, was shown as "fixed" in x and z)."""
     std = dict(zip(free, np.sqrt(np.maximum(np.diag(cov), 0.0))))
+    fitted = set(free)
     frame_vals = {("u", None): (zyx_parameters(nominal.T_meas_base()), zyx_parameters(calibrated.T_meas_base()))}
     for t in nominal.targets or (None,):
         frame_vals["v", t] = (zyx_parameters(nominal.T_flange_tool(t)), zyx_parameters(calibrated.T_flange_tool(t)))
+        names = calibrated.v_names(t)
+        std.update(_tool_frame_std(calibrated, t, names, [n for n in free if n in names], free, cov))
     kinds = ("x", "y", "z", "alpha", "beta", "gamma")
     rows = []
     for k, p in enumerate(nominal.parameters):
@@ -484,6 +493,23 @@ def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> 
             nom, ide = frame_vals[p.group, p.target][0][i], frame_vals[p.group, p.target][1][i]
         else:
             nom, ide = nominal.values[k], calibrated.values[k]
-        rows.append(ParameterEstimate(p.name, p.unit, float(nom), float(ide), p.name in std,
+        rows.append(ParameterEstimate(p.name, p.unit, float(nom), float(ide), p.name in fitted,
                                       float(std.get(p.name, math.nan))))
     return tuple(rows)
+
+
+def _tool_frame_std(model: RobotModel, target, names, fitted, free, cov) -> dict:
+    """Name -> standard deviation of each ZYX parameter of ``model``'s flange->tool transform of
+    ``target`` (``names``: its v parameters, ``fitted``: those fitted), from the covariance
+    ``cov`` of the parameters ``free``; none where the transform does not move or the angles are
+    at gimbal lock."""
+    if not fitted:
+        return {}
+    from calib.model.spatial import zyx_parameters_jacobian
+
+    where = {n: k for k, n in enumerate(free)}
+    cols = [k for k, n in enumerate(names) if n in where]
+    idx = [where[names[k]] for k in cols]
+    J = zyx_parameters_jacobian(np.eye(4), model.v(target), model.T_flange_tool_ref_of(target))[:, cols]
+    var = np.einsum("ij,jk,ik->i", J, np.asarray(cov)[np.ix_(idx, idx)], J)
+    return {n: float(math.sqrt(v)) for n, v in zip(names, var) if np.isfinite(v) and v > 0.0}

@@ -59,6 +59,37 @@ def zyx_parameters(T: np.ndarray) -> np.ndarray:
     return np.concatenate([T[:3, 3], zyx_from_rotation(T[:3, :3])])
 
 
+def zyx_axes(alpha: float, beta: float) -> np.ndarray:
+    """(3, 3) columns: the axes, in the parent frame, about which d alpha, d beta, d gamma turn
+    Rz(alpha) Ry(beta) Rx(gamma): d R R^T = skew(E @ (d alpha, d beta, d gamma))."""
+    ca, sa, cb, sb = math.cos(alpha), math.sin(alpha), math.cos(beta), math.sin(beta)
+    return np.array([[0.0, -sa, ca * cb], [0.0, ca, sa * cb], [1.0, 0.0, -sb]])
+
+
+def zyx_parameters_jacobian(T_left: np.ndarray, p: np.ndarray, T_right: np.ndarray) -> np.ndarray:
+    """(6, 6) d zyx_parameters(T_left @ zyx_transform(*p) @ T_right) / d p: how the ZYX parameters
+    (x, y, z m, alpha, beta, gamma rad) of a frame built from constant transforms around ZYX
+    parameters p (6,) change with p (a reference frame and its deviation parameters, as the
+    measurement and tool frames are modelled). Rows of the result's angles are NaN at its gimbal
+    lock (its beta = +-pi/2: alpha and gamma are not separately defined there)."""
+    p = np.asarray(p, float)
+    Z = zyx_transform(*p)
+    F = T_left @ Z @ T_right
+    L = T_left[:3, :3]
+    E = zyx_axes(p[3], p[4])
+    J = np.zeros((6, 6))
+    J[:3, :3] = L
+    arm = Z[:3, :3] @ T_right[:3, 3]                    # the right transform's origin, turned by Z
+    J[:3, 3:] = L @ np.cross(E.T, arm).T                  # d t = L (e_k x arm) d theta_k
+    angles = zyx_from_rotation(F[:3, :3])
+    E_F = zyx_axes(angles[0], angles[1])
+    if abs(math.cos(angles[1])) < 1e-9:
+        J[3:, 3:] = np.nan
+    else:
+        J[3:, 3:] = np.linalg.solve(E_F, L @ E)            # omega = L E d theta = E_F d theta_F
+    return J
+
+
 def rotation_from_zyx(angles: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) ``Rz(alpha) Ry(beta) Rx(gamma)`` of ZYX angles (..., 3), rad."""
     angles = np.asarray(angles, float)

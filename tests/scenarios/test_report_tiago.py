@@ -58,3 +58,20 @@ def test_tiago_certificate_shows_the_without_outliers_figures_and_marks_rows_31_
     base = cells[("measurement-&gt;base_footprint", "identified")][3:]
     assert all(re.fullmatch(r"-?\d+\.\d{4}", v) for v in base), base
     assert "flange-&gt;M1, flange-&gt;M2, flange-&gt;M3: measured by position only" in html
+
+
+def test_tiago_marker_positions_carry_their_propagated_std(capsys, tmp_path):
+    """A marker measured by position only whose x and z are held but whose angles are free (the
+    closed-form point sits off the flange, so the angles move it): its x, y, z standard
+    deviations are propagated from the six tool parameters' covariance, not shown as "fixed";
+    the three markers on the same hand are then determined alike (M1 all three free: 5.5, 1.2,
+    5.4 mm; M2 was 'fixed', 3.87, 'fixed')."""
+    rep = tmp_path / "t.json"
+    assert main(["calibrate", "tiago", str(TIAGO), "-o", str(tmp_path / "t.urdf"), "--report", str(rep)]) == 0
+    capsys.readouterr()
+    r = json.loads(rep.read_text())
+    frames = {f["frame"]: f for f in r["frame_transforms"]}
+    m1, m2 = frames["flange->M1"]["std"]["xyz_mm"], frames["flange->M2"]["std"]["xyz_mm"]
+    assert None not in m2 and all(0.5 < b / a < 2.0 for a, b in zip(m1, m2))
+    rows = {p["name"]: p for p in r["parameters"]}
+    assert rows["v_x@M2"]["free"] is False and rows["v_x@M2"]["std"] == pytest.approx(m2[0], rel=1e-9)
