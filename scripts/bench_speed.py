@@ -12,7 +12,8 @@ Prints, for the bundled robot (BRTIRUS0707A, the paper's deviations of Tables 4-
    and tool frames) with the same noise weights; both fits' RMS position errors on 200
    validation poses are printed beside the times.
 3. The whole ``calib calibrate`` process (import, read, fit, report, URDF written) over
-   ``python -c "import pinocchio"``, medians of several runs after one to warm the caches, with
+   ``python -c "import pinocchio"``, on 100 simulated poses and on the bundled example
+   (examples/brtirus0707a, 100 + 200 validation rows: issue 27 item 2), medians of several runs after one to warm the caches, with
    the bytecode cached as after an install.
 4. The scaling table, 100 / 1k / 10k / 100k / 1M poses up to ``--max-poses`` (default 100,000:
    1M adds about two minutes: two calibrations of ~55 s, ~0.4 GB above the data): wall time of ``calibrate()`` and its
@@ -58,6 +59,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # PYTHONPATH: _env)
 sys.path.insert(0, str(ROOT))
 URDF = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
+EXAMPLE = ROOT / "examples" / "brtirus0707a" / "measurements.csv"
 SIZES = (100, 1_000, 10_000, 100_000, 1_000_000)
 #: The issue's figures before the speed work (same machine class, unloaded).
 BEFORE = {"calibrate_100_ms": 25.0, "solver_100_ms": 12.0, "figaroh_ratio": 23.0,
@@ -332,13 +334,14 @@ def process_ratio(repeats: int = 7) -> dict:
         csv = Path(tmp) / "m.csv"
         calib.write_measurements(csv, meas)
         cmd = [sys.executable, "-m", "calib", "calibrate", str(URDF), str(csv), "-o", str(Path(tmp) / "c.urdf")]
+        example = [sys.executable, "-m", "calib", "calibrate", str(URDF), str(EXAMPLE), "-o", str(Path(tmp) / "e.urdf")]
         ref = [sys.executable, "-c", "import pinocchio"]
         imp = [sys.executable, "-c", "import calib"]
         helps = [sys.executable, "-m", "calib", "--help"]
         numpy = [sys.executable, "-c", "import numpy"]
         out = {}
-        for name, argv in (("calibrate", cmd), ("pinocchio", ref), ("import_calib", imp), ("help", helps),
-                           ("numpy", numpy)):
+        for name, argv in (("calibrate", cmd), ("example", example), ("pinocchio", ref), ("import_calib", imp),
+                           ("help", helps), ("numpy", numpy)):
             subprocess.run(argv, env=_env(), capture_output=True, cwd=tmp)   # warm the caches
             times = []
             for _ in range(repeats):
@@ -486,7 +489,9 @@ def main(argv=None) -> int:
     print(f"process: calib calibrate {p['calibrate']:.3f} s, import calib {p['import_calib']:.3f} s, "
           f"import pinocchio {p['pinocchio']:.3f} s; calib --help {p['help']:.3f} s, import numpy "
           f"{p['numpy']:.3f} s")
-    print(f"issue 27: calib calibrate / import pinocchio {ratio:.2f}x (before {BEFORE_27['process_ratio']:g}x, "
+    print(f"issue 27: calib calibrate / import pinocchio {ratio:.2f}x on 100 simulated poses (before "
+          f"{BEFORE_27['process_ratio']:g}x), {p['example'] / p['pinocchio']:.2f}x on the bundled example "
+          f"(examples/brtirus0707a: 100 + 200 validation rows, {p['example']:.3f} s; "
           f"target <= {TARGET_27['process_ratio']:g}x); calib --help / import numpy "
           f"{p['help'] / p['numpy']:.2f}x (target <= {TARGET_27['help_ratio']:g}x)")
     print("scaling (calibrate() with its defaults, fresh process per size):")
