@@ -300,7 +300,8 @@ def _scaled_blocks(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: fl
     J = weighted_jacobian(robot, np.repeat(Q, K, axis=0), measure, sigma_pos, sigma_rot, targets)[:, cols]
     if scale is None:
         scale = np.sqrt(np.sum(J ** 2, axis=0) / len(Q))
-    return (J / scale).reshape(len(Q), k, len(cols)), np.array(scale, float)
+    J /= scale                           # (in place: the pool's Jacobian is the largest array)
+    return J.reshape(len(Q), k, len(cols)), np.array(scale, float)
 
 
 def _criteria(S: np.ndarray) -> dict[str, float]:
@@ -342,8 +343,13 @@ def _logdet_eye_plus(S: np.ndarray) -> np.ndarray:
 
 
 def _gram(C: np.ndarray) -> np.ndarray:
-    """C_i C_i^T for a stack C (N, k, m): (N, k, k)."""
-    return np.matmul(C, np.transpose(C, (0, 2, 1)))
+    """C_i C_i^T for a stack C (N, k, m): (N, k, k) (a view). For small m (the rank-k updates'
+    m = k) the products are summed with the stack laid out last (a stacked matmul of 6 x 6
+    blocks is slower; for m = r it is faster)."""
+    if C.shape[2] > 8:
+        return np.matmul(C, np.transpose(C, (0, 2, 1)))
+    Ct = np.ascontiguousarray(np.transpose(C, (1, 2, 0)))       # (k, m, N)
+    return np.einsum("ikn,jkn->ijn", Ct, Ct).transpose(2, 0, 1)
 
 
 def _leverages(A: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -398,18 +404,25 @@ class _RankUpdate:
         return out
 
 
-def _update_leverages(A: np.ndarray, B: np.ndarray, updates, gains: bool = True) -> np.ndarray | None:
+def _update_leverages(A: np.ndarray, B: np.ndarray, updates, gains: bool = True, removals=()):
     """Apply the :class:`_RankUpdate` s ``updates`` to the leverages B (N, k, k) in place, in one
-    pass over the pool; with ``gains`` return the new log det(I_k + B_i) (N,) as well."""
+    pass over the pool; with ``gains`` return the new log det(I_k + B_i) (N,) as well, and with
+    ``removals`` (:class:`_RankUpdate` s, sign -1, at the updated M) also their
+    :func:`_removal_bounds` from the same pass (the pool is read once: it does not fit in the
+    cache), as ``(gains, bounds)``."""
     N = A.shape[0]
     out = np.empty(N) if gains else None
+    X = np.concatenate([u.X for u in removals], axis=1) if removals else None
+    growth = np.empty((N, len(removals))) if removals else None
     for s in range(0, N, _CHUNK):
         Ac, Bc = A[s:s + _CHUNK], B[s:s + _CHUNK]
         for u in updates:
             Bc -= u.sign * _gram(Ac @ u.X)
         if gains:
             out[s:s + _CHUNK] = _logdet_eye_plus(Bc)
-    return out
+        if X is not None:
+            growth[s:s + _CHUNK] = _growth(Ac, X, len(removals))
+    return (out, growth) if removals else out
 
 
 def _greedy_d(A: np.ndarray, n: int) -> list[int]:
@@ -468,9 +481,15 @@ def _removal_bounds(A: np.ndarray, ups: list) -> np.ndarray:
     X = np.concatenate([u.X for u in ups], axis=1)             # (r, m k)
     out = np.empty((N, len(ups)))
     for s in range(0, N, _CHUNK):
-        G = A[s:s + _CHUNK] @ X                                # (c, k, m k)
-        out[s:s + _CHUNK] = np.einsum("iax,iax->ix", G, G).reshape(len(G), len(ups), -1).sum(axis=2)
+        out[s:s + _CHUNK] = _growth(A[s:s + _CHUNK], X, len(ups))
     return out
+
+
+def _growth(Ac: np.ndarray, X: np.ndarray, m: int) -> np.ndarray:
+    """(c, m) ``|A_i X_j|_F^2`` of the blocks Ac (c, k, r) for the m removals whose X (r, k) are
+    the column blocks of X (r, m k)."""
+    G = Ac @ X                                                 # (c, k, m k)
+    return np.einsum("iax,iax->ix", G, G).reshape(len(G), m, -1).sum(axis=2)
 
 
 #: Removals whose bounds are computed together at most (one product; recomputed after a swap).
@@ -489,7 +508,8 @@ def _exchange_pass(A: np.ndarray, sel: list[int], criterion: str) -> int:
     the current value by the swap tolerance cannot be the swap (in practice 99.9 % of the pool),
     so the swaps made are those of scoring every candidate."""
     N, k, r = A.shape
-    colsq = np.sum(A ** 2, axis=1)                       # (N, r): |A_i[:, c]|^2
+    # (N, r): |A_i[:, c]|^2, for O1 and O4 (a temporary the size of the pool, not made for D)
+    colsq = np.sum(A ** 2, axis=1) if criterion != "D" else None
     M = _EPS * np.eye(r) + sum(A[i].T @ A[i] for i in sel)
     taken = np.zeros(N, bool)
     taken[sel] = True
@@ -555,8 +575,16 @@ def _exchange_pass(A: np.ndarray, sel: list[int], criterion: str) -> int:
             current = _value(M, criterion)
             swaps += 1
             up = _RankUpdate.of(down.Minv, A[i], +1.0)
-            gains_M = _update_leverages(A, B, [down, up], gains=criterion != "O4")
             Minv = up.Minv
             logdet_M += down.dlogdet + up.dlogdet
             bounds = None
+            if criterion == "O4" or t + 1 == len(sel):
+                gains_M = _update_leverages(A, B, [down, up], gains=criterion != "O4")
+                continue
+            # the next removal's bound from the same pass over the pool (as the loop would
+            # compute it at the new M, for that removal alone)
+            nxt = _RankUpdate.of(Minv, A[sel[t + 1]], -1.0)
+            gains_M, growth = _update_leverages(A, B, [down, up], removals=[nxt])
+            col_M = (np.log1p(colsq / np.diag(M)).sum(axis=1) if criterion == "O1" else 0.0)
+            bounds, first = True, t + 1
     return swaps

@@ -290,7 +290,7 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
     (fraction, time left); fills ``images``; returns the verdict line for the printed text ("" without
     --tolerance-mm)."""
     from calib.calibration.report import (build_report, render_html, render_plots, report_json_text,
-                                          report_rows_of, residuals_csv_text)
+                                          report_rows_of, residuals_csv_chunks)
     from calib.cli.progress import Progress, stage
 
     want_plots = bool(plot_paths) or out_html is not None
@@ -318,7 +318,7 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
         if out_report is not None:
             outputs.stage(out_report, report_json_text(report))
         if out_residuals is not None:
-            outputs.stage(out_residuals, residuals_csv_text(rows))
+            outputs.stage(out_residuals, residuals_csv_chunks(rows))
             progress.update()
         verdict = ""
         tol = report["certificate"]["tolerance"]

@@ -97,7 +97,9 @@ class Outputs:
                                  f"which it writes {', '.join(names)}")
         return {name: self.add(folder / name, make_folder=True) for name in names}
 
-    def stage(self, path: Path, data: bytes | str) -> None:
+    def stage(self, path: Path, data: bytes | str | list[bytes]) -> None:
+        """Keep ``data`` for ``path`` (str: UTF-8; a list: the file's chunks of bytes, in order,
+        so that a large file is not joined into one more copy in memory)."""
         if path not in self.paths:
             raise ValueError(f"{path} was not reserved with Outputs.add")
         self.data[path] = data.encode("utf-8") if isinstance(data, str) else data

@@ -71,7 +71,8 @@ def _reason(exc: OSError) -> str:
 class OutputSet:
     """Output files written as a set: all or none.
 
-    :meth:`stage` keeps each file's bytes; :meth:`commit` writes every one to a temporary file
+    :meth:`stage` keeps each file's bytes (or the list of its chunks, written in order: a large
+    file need not be joined into one more copy in memory); :meth:`commit` writes every one to a temporary file
     in its target folder (``.NAME.XXXX.tmp``), and only when all are written and flushed renames
     them into place (SIGINT and SIGTERM are held back during the renames). If anything fails --
     a read-only folder, a full disk, a signal before the renames -- every temporary file is
@@ -86,10 +87,11 @@ class OutputSet:
         self.folders: list[Path] = []
         self.removals: list[Path] = []
 
-    def stage(self, path: str | Path, data: bytes | str) -> None:
-        """Keep ``data`` (str: UTF-8) to be written to ``path`` by :meth:`commit` (through a
-        symbolic link: into the file it names; see :func:`output_target`)."""
-        self.data[output_target(path)] = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+    def stage(self, path: str | Path, data: bytes | str | list[bytes]) -> None:
+        """Keep ``data`` (str: UTF-8; a list: the file's chunks of bytes, in order) to be written
+        to ``path`` by :meth:`commit` (through a symbolic link: into the file it names; see
+        :func:`output_target`)."""
+        self.data[output_target(path)] = _chunks_or_bytes(data)
 
     def remove(self, path: str | Path) -> None:
         """Remove ``path`` (if it exists then) with the renames of :meth:`commit`, as part of the
@@ -141,8 +143,18 @@ def _unlink(path) -> None:
         pass
 
 
-def _write_temporary(path: Path, data: bytes) -> str:
-    """``data`` in a new temporary file beside ``path`` (flushed to disk); its name."""
+def _chunks_or_bytes(data: bytes | str | list[bytes]) -> bytes | list[bytes]:
+    """What :meth:`OutputSet.stage` keeps of ``data``: bytes, or a list of chunks of bytes."""
+    if isinstance(data, str):
+        return data.encode("utf-8")
+    if isinstance(data, list):
+        return [bytes(c) for c in data]
+    return bytes(data)
+
+
+def _write_temporary(path: Path, data: bytes | list[bytes]) -> str:
+    """``data`` (bytes, or chunks of bytes written in order) in a new temporary file beside
+    ``path`` (flushed to disk); its name."""
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise OutputError(path, f"folder {folder} does not exist")
@@ -152,7 +164,8 @@ def _write_temporary(path: Path, data: bytes) -> str:
         raise OutputError(path, f"cannot write in folder {folder}: {_reason(exc)}") from None
     try:
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            for chunk in (data if isinstance(data, list) else [data]):
+                fh.write(chunk)
             fh.flush()
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual permissions

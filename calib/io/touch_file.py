@@ -64,17 +64,23 @@ def is_touch_file(path: str | Path, header_line: int | None = None, rename=()) -
         name = name.strip()
         return renames.get(name.lower(), name).lower() in FEATURE_KINDS
 
-    names = _peek_header(path, feature, header_line)
+    names = _peek_header(path, feature, header_line, words=not renames)
     if names is None:
         names = _records(path, feature, header_line)[1]
     return any(map(feature, names))
 
 
-def _peek_header(path: Path, known=None, header_line: int | None = None) -> list[str] | None:
+def _peek_header(path: Path, known=None, header_line: int | None = None, words: bool = False
+                 ) -> list[str] | None:
     """The header names of a regular file found in its first _HEADER_PEEK bytes as the reader
     finds them (:func:`calib.io.csv_lines.header_of`), or None when those bytes do not settle it
-    (not a regular file, not UTF-8 there, no complete header line, any error)."""
-    from calib.io.csv_lines import header_of
+    (not a regular file, not UTF-8 there, no complete header line, any error). With ``words``
+    (``known`` is a feature name, no renames) and bytes that name no feature where the header is
+    looked for, the header is their first line (whichever line it is, it names no feature: the
+    search would split each of up to 200 data lines that are not all numbers, e.g. with a
+    ``set`` column, to find none); a file without a header line is still refused here, one with
+    a preamble and no header by the reader."""
+    from calib.io.csv_lines import MAX_PREAMBLE, header_of
 
     try:
         if not path.is_file():
@@ -87,6 +93,10 @@ def _peek_header(path: Path, known=None, header_line: int | None = None) -> list
     lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
     if len(head) == _HEADER_PEEK:
         lines = lines[:-1]                  # (the last may be cut)
+    if words and not any(w in text.lower() for w in FEATURE_KINDS) and (
+            len(head) < _HEADER_PEEK or header_line is None and sum(
+                1 for line in lines if line.strip() and not line.lstrip().startswith("#")) > MAX_PREAMBLE):
+        known = None                        # (the whole file, or every line the search looks at)
     try:
         return header_of(path, lines, known, header_line)[1]
     except CalibError:

@@ -55,6 +55,18 @@ def test_a_removal_goes_with_the_outputs_or_not_at_all(tmp_path):
     assert stale.read_text() == "old"
 
 
+def test_an_output_staged_in_chunks_is_written_in_order(tmp_path):
+    """OutputSet.stage takes a file's chunks of bytes (a large report's residuals are not joined
+    into one more copy in memory) and writes them one after the other."""
+    from calib.io.fileio import OutputSet
+
+    out = tmp_path / "r.csv"
+    s = OutputSet()
+    s.stage(out, [b"a,b\n", b"1,2\n", b"", b"3,4\n"])
+    assert s.commit() == [out]
+    assert out.read_bytes() == b"a,b\n1,2\n3,4\n"
+
+
 def test_a_geometry_only_calibration_removes_an_earlier_sidecar(tmp_path, capsys):
     """An earlier calibration with joint terms left CALIBRATED.compliance.json; a calibration
     without them into the same URDF removes it (it would be read with the new URDF), and says so."""

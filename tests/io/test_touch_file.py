@@ -131,6 +131,26 @@ def test_touch_check_reads_only_the_header(tmp_path, text, monkeypatch):
         assert is_touch_file(path) == expected
 
 
+def test_touch_check_of_rows_with_text_splits_only_the_header(tmp_path, monkeypatch):
+    """A measurement file whose rows are not all numbers (a set column) and that names no feature:
+    the header is its first line, not searched for over 200 rows (7 ms of every calib calibrate
+    start, issue 27 item 2); a header naming a feature is still found, as is a file without one."""
+    from calib.io import csv_lines
+
+    calls = []
+    split = csv_lines.split_fields
+    monkeypatch.setattr(csv_lines, "split_fields", lambda *a: calls.append(a) or split(*a))
+    path = tmp_path / "m.csv"
+    path.write_text("# made by calib simulate\njoint1_deg,x_mm,set\n" + "1,2,cal\n" * 300)
+    assert not is_touch_file(path)
+    assert len(calls) <= 5                 # the header line (delimiter and names), not 200 rows
+    path.write_text("joint1_deg,point,set\n" + "1,A,cal\n" * 300)
+    assert is_touch_file(path)
+    path.write_text("1,2,3\n" * 3)
+    with pytest.raises(CalibError, match="looks like data"):
+        is_touch_file(path)
+
+
 def test_touch_check_of_a_large_file_does_not_read_it(tmp_path, monkeypatch):
     from calib.io import touch_file
 
