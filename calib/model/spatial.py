@@ -80,7 +80,7 @@ def zyx_parameters_jacobian(T_left: np.ndarray, p: np.ndarray, T_right: np.ndarr
     J = np.zeros((6, 6))
     J[:3, :3] = L
     arm = Z[:3, :3] @ T_right[:3, 3]                    # the right transform's origin, turned by Z
-    J[:3, 3:] = L @ np.cross(E.T, arm).T                  # d t = L (e_k x arm) d theta_k
+    J[:3, 3:] = -L @ skew(arm) @ E                        # d t = L (e_k x arm) d theta_k
     angles = zyx_from_rotation(F[:3, :3])
     E_F = zyx_axes(angles[0], angles[1])
     if abs(math.cos(angles[1])) < 1e-9:
