@@ -313,7 +313,9 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     refusals: list[str] = []
     first = not warm
     stuck = None
-    unjudged = False
+    # (a warm start is a nested model's fit, which may itself have stopped in a local minimum: the
+    # warm fit's first converged solution is judged as a first fit's is)
+    unjudged = warm
     unremoved: tuple[Outlier, ...] = ()
     vce_total = 0
     two_groups = setup.measure == "pose"
