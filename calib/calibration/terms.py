@@ -268,6 +268,11 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         choice = choose_parameters(setup, opts)
         if sp is None:          # the geometric fit: noise estimate and outlier check
             fit, problem = fit_with(setup, choice.free, opts, outlier_k=opts.outlier_k, kin=setup.kin)
+            if fit.solver.status != "converged":
+                # (its noise levels and rows would whiten every candidate: a fit stuck in a local
+                # minimum gave sigma_rot 1.03 rad, refused as a given level, a ParameterError
+                # naming an option the user had not given)
+                raise DataError(f"the geometric fit did not converge ({fit.solver.status})")
             sp, sr, keep = problem.sigma_pos, problem.sigma_rot, fit.keep
             fits, geometric = [fit], setup
         else:
