@@ -319,6 +319,10 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     unremoved: tuple[Outlier, ...] = ()
     vce_total = 0
     two_groups = setup.measure == "pose"
+    # the levels where the estimation stops, from one linearisation (_vce_fixed_point): a re-fit
+    # that follows the weights confirms them; the paper's LM as printed ignores the weights, and
+    # the estimation then ran to its limit of re-fits, its levels not its residuals' own
+    fixed_point = two_groups and loss == "linear" and solve.lm_variant != "paper"
     last_lin = None
 
     def linearised(problem: Problem, x: np.ndarray) -> _Linearised:
@@ -331,7 +335,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
         return last_lin[1]
 
     for outlier_pass in range(4):
-        if not first and estimate and two_groups and loss == "linear":
+        if not first and estimate and fixed_point:
             # rows were removed (or taken back): the noise levels of the fit of the rows now kept,
             # from their linearisation at x (whose normal equations the re-fit starts from)
             sp, sr = _vce_fixed_point(linearised(everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr), x).ne,
@@ -364,7 +368,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
             new_sr = est_r if (sigma_rot is None and two_groups) else sr
             new_sp, new_sr = max(new_sp, 1e-12), max(new_sr, 1e-12)
             change = max(abs(new_sp / sp - 1.0), abs(new_sr / sr - 1.0))
-            if change >= VCE_RTOL and two_groups and loss == "linear":
+            if change >= VCE_RTOL and fixed_point:
                 # where the estimation would stop, from this linearisation: one re-weighted fit
                 # confirms it instead of one per step of the estimation
                 new_sp, new_sr = _vce_fixed_point(ne, (sp, sr), (new_sp, new_sr),
