@@ -474,17 +474,20 @@ def _consistency_dict(c: dict | None) -> dict | None:
 def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> tuple[ParameterEstimate, ...]:
     """One row per parameter of ``nominal``: the joint parameters' values, the measurement and
     tool frames' as the ZYX parameters of the whole transform (reference and deviation), with
-    the standard deviations of what is shown: a tool frame's are propagated from the covariance
-    of its six deviation parameters (its x, y, z move with a free angle when the reference
-    places the tool away from the flange: a marker measured by position only, held x and z, free
-    beta and gamma, was shown as "fixed" in x and z)."""
+    the standard deviations of what is shown: a frame's are propagated from the covariance of its
+    six deviation parameters (a tool's x, y, z move with a free angle when the reference places
+    the tool away from the flange: a marker measured by position only, held x and z, free beta
+    and gamma, was shown as "fixed" in x and z; the measurement frame's angles mix when its
+    reference is rotated)."""
     std = dict(zip(free, np.sqrt(np.maximum(np.diag(cov), 0.0))))
     fitted = set(free)
     frame_vals = {("u", None): (zyx_parameters(nominal.T_meas_base()), zyx_parameters(calibrated.T_meas_base()))}
+    u_names = tuple(f"u_{k}" for k in ("x", "y", "z", "alpha", "beta", "gamma"))
+    std.update(_frame_std(calibrated.T_meas_base_ref, calibrated.u(), np.eye(4), u_names, free, cov))
     for t in nominal.targets or (None,):
         frame_vals["v", t] = (zyx_parameters(nominal.T_flange_tool(t)), zyx_parameters(calibrated.T_flange_tool(t)))
-        names = calibrated.v_names(t)
-        std.update(_tool_frame_std(calibrated, t, names, [n for n in free if n in names], free, cov))
+        std.update(_frame_std(np.eye(4), calibrated.v(t), calibrated.T_flange_tool_ref_of(t), calibrated.v_names(t),
+                              free, cov))
     kinds = ("x", "y", "z", "alpha", "beta", "gamma")
     rows = []
     for k, p in enumerate(nominal.parameters):
@@ -498,18 +501,18 @@ def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> 
     return tuple(rows)
 
 
-def _tool_frame_std(model: RobotModel, target, names, fitted, free, cov) -> dict:
-    """Name -> standard deviation of each ZYX parameter of ``model``'s flange->tool transform of
-    ``target`` (``names``: its v parameters, ``fitted``: those fitted), from the covariance
-    ``cov`` of the parameters ``free``; none where the transform does not move or the angles are
-    at gimbal lock."""
-    if not fitted:
-        return {}
+def _frame_std(T_left: np.ndarray, p: np.ndarray, T_right: np.ndarray, names, free, cov) -> dict:
+    """Name -> standard deviation of each ZYX parameter of the frame ``T_left @ zyx(p) @ T_right``
+    (the measurement frame: reference @ zyx(u); a tool frame: zyx(v) @ reference), ``names``
+    its six parameters, from the covariance ``cov`` of the parameters ``free``; none where the
+    frame does not move or its angles are at gimbal lock."""
     from calib.model.spatial import zyx_parameters_jacobian
 
     where = {n: k for k, n in enumerate(free)}
     cols = [k for k, n in enumerate(names) if n in where]
+    if not cols:
+        return {}
     idx = [where[names[k]] for k in cols]
-    J = zyx_parameters_jacobian(np.eye(4), model.v(target), model.T_flange_tool_ref_of(target))[:, cols]
+    J = zyx_parameters_jacobian(T_left, p, T_right)[:, cols]
     var = np.einsum("ij,jk,ik->i", J, np.asarray(cov)[np.ix_(idx, idx)], J)
     return {n: float(math.sqrt(v)) for n, v in zip(names, var) if np.isfinite(v) and v > 0.0}

@@ -327,3 +327,41 @@ def test_compensate_defaults_to_the_frames_calibrate_used(tmp_path):
     assert (calibrated.base_frame, calibrated.tool_frame) == ("world", "tool0")
     q = nominal.random_configurations(3, rng=4)
     assert max(np.abs(calibrated.T_meas_tool(x) - true.T_meas_tool(x)).max() for x in q) < 1e-11
+
+
+def test_frame_rows_std_are_those_of_the_transform_shown(bundled_robot):
+    """The parameter table shows the measurement frame as the ZYX parameters of the whole
+    T_meas_base = reference @ zyx(u): with a rotated reference their standard deviations are
+    the u covariance propagated through that map (central differences of the exact map here,
+    1e-6 relative), not each u parameter's own (z and alpha, held, were shown as fixed)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    import calib
+    from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
+    from calib.model.spatial import zyx_parameters, zyx_transform
+
+    ref = zyx_transform(0.2, -0.1, 0.05, 0.9, 0.3, -0.4)
+    robot = replace(bundled_robot, T_meas_base_ref=ref @ np.linalg.inv(zyx_transform(*bundled_robot.u())))
+    true = apply_deviations(robot, PAPER_DEVIATIONS)
+    m = simulate_measurements(true, robot.random_configurations(60, 4), rng=5)
+    r = calib.calibrate(robot, m, cv=0, estimator="ls", init_frames=False)
+    names = [f"u_{k}" for k in ("x", "y", "z", "alpha", "beta", "gamma")]
+    free = [n for n in names if n in r.free]
+    k = [r.free.index(n) for n in free]
+    C = r.covariance[np.ix_(k, k)]
+    u0, L = r.robot.u(), r.robot.T_meas_base_ref
+
+    def shown(du):
+        u = u0.copy()
+        u[[names.index(n) for n in free]] += du
+        return zyx_parameters(L @ zyx_transform(*u))
+
+    h = 1e-7
+    J = np.column_stack([(shown(h * e) - shown(-h * e)) / (2 * h) for e in np.eye(len(free))])
+    expected = np.sqrt(np.einsum("ij,jk,ik->i", J, C, J))
+    rows = {p.name: p for p in r.parameters}
+    got = np.array([rows[n].std for n in names])
+    np.testing.assert_allclose(got, expected, rtol=1e-6)
+    assert len(free) < 6 and np.isfinite(got).all()        # held ones move too
