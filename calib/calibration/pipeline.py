@@ -87,6 +87,22 @@ class _Stages:
         self.progress(sum(w for _, w in shares[:names.index(name)]) / sum(w for _, w in shares), name)
 
 
+def _check_progress(progress) -> None:
+    """Refuse a ``progress`` that is not a function taking (fraction, stage)."""
+    import inspect
+
+    try:
+        ok = callable(progress)
+        if ok:
+            inspect.signature(progress).bind(0.0, "prepare")
+    except TypeError:
+        ok = False
+    except ValueError:          # (a builtin without a signature: let it be)
+        pass
+    if not ok:
+        raise ParameterError(f"progress must be None or a function progress(fraction, stage), got {progress!r:.60}")
+
+
 # ====================================================================== calibrate
 def calibrate(robot: RobotModel, measurements: Measurements, method: str = "search-lm",
               params: str | Sequence[str] | None = None, sigma_pos: float | None = None,
@@ -181,8 +197,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     ``status``, never raised. Raises :class:`calib.CalibError` for unusable input.
     """
     t0 = time.perf_counter()
-    if progress is not None and not callable(progress):
-        raise ParameterError(f"progress must be None or a function progress(fraction, stage), got {progress!r:.60}")
+    if progress is not None:
+        _check_progress(progress)
     stages = _Stages(progress)
     opts = resolve_options(robot, measurements, validation, method=method, params=params, sigma_pos=sigma_pos,
                            sigma_rot=sigma_rot, init_frames=init_frames, max_rounds=max_rounds,

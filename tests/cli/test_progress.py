@@ -120,8 +120,9 @@ def test_calibrate_reports_its_stages_as_a_rising_fraction(bundled_robot):
     assert fractions[0] == 0.0 and fractions[1] == 0.0 and fractions[-1] == 1.0
     assert all(b > a for a, b in zip(fractions[1:], fractions[2:]))
     assert abs(fractions[2] - 0.05 / 0.55) < 1e-12          # prepare's share of what ran
-    with pytest.raises(calib.CalibError, match="progress must be None or a function"):
-        calib.calibrate(bundled_robot, m, progress=3)
+    for bad in (3, "x", len, lambda f: None):      # (not callable, or not with (fraction, stage))
+        with pytest.raises(calib.CalibError, match="progress must be None or a function"):
+            calib.calibrate(bundled_robot, m, progress=bad)
 
 
 def test_a_fraction_line_shows_the_stage_percentage_and_time_left():
