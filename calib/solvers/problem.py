@@ -91,7 +91,7 @@ class NormalEquations:
     rss_rot: float
     n_pos: int
     n_rot: int
-    #: (m,) the position rows' share of g (None where not kept: robust and touch problems)
+    #: (m,) the position rows' share of g (least squares with position rows; None otherwise)
     g_pos: np.ndarray | None = None
 
     @property
@@ -259,14 +259,14 @@ class Problem:
         key = (self.full(x).tobytes(), self.free.tobytes(), parts, getattr(self, "_rows_key", None))
         hit = shared.get(key)
         if hit is not None:
-            ne, g_pos, sp, sr, _ = hit
+            ne, sp, sr, _ = hit
             if sp == self.sigma_pos and sr == self.sigma_rot:
                 return ne
-            return _reweighted(ne, g_pos, (sp / self.sigma_pos) ** 2, (sr / self.sigma_rot) ** 2)
-        ne, g_pos, blocks = self._compute_normal_equations(x, parts)
+            return _reweighted(ne, (sp / self.sigma_pos) ** 2, (sr / self.sigma_rot) ** 2)
+        ne, blocks = self._compute_normal_equations(x, parts)
         for k, hit in shared.items():      # (the blocks of the latest point only: bounded memory)
-            shared[k] = hit[:4] + (None,)
-        shared[key] = (ne, g_pos, self.sigma_pos, self.sigma_rot, blocks)
+            shared[k] = hit[:3] + (None,)
+        shared[key] = (ne, self.sigma_pos, self.sigma_rot, blocks)
         while len(shared) > 4:
             shared.pop(next(iter(shared)))
         return ne
@@ -278,16 +278,16 @@ class Problem:
         if self.loss != "linear" or shared is None or self.n_poses > CHUNK_POSES:
             return None
         hit = shared.get((self.full(x).tobytes(), self.free.tobytes(), "pose", getattr(self, "_rows_key", None)))
-        return None if hit is None else hit[4]
+        return None if hit is None else hit[3]
 
     def _compute_normal_equations(self, x: np.ndarray, parts: str):
-        """(normal equations, the position rows' share of g, blocks): the blocks are the
+        """(normal equations, blocks): the blocks are the
         unweighted ones the least-squares sums were made of when the rows are one chunk and
         ``parts`` is "pose" (Jt (m, 6, N), the rotation rows Jl^-1 Jt (m, 3 N) or None, residuals
         (3 N,) and (3 N,) or None, laid out component first), else None: :meth:`whitened_blocks`
         at the same x is then assembled from them without another pass over the data."""
         if self.loss != "linear":
-            return self._compute_robust_normal_equations(x, parts) + (None,)
+            return self._compute_robust_normal_equations(x, parts), None
         keep_blocks = parts == "pose" and self.n_poses <= CHUNK_POSES
         blocks = None
         self.kin.set_values(self.full(x))
@@ -333,9 +333,9 @@ class Problem:
         N = self.n_poses
         ne = NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1],
                              3 * N if use_pos else 0, 3 * N if use_rot else 0, g_pos if use_pos else None)
-        return ne, g_pos, blocks
+        return ne, blocks
 
-    def _compute_robust_normal_equations(self, x: np.ndarray, parts: str) -> tuple[NormalEquations, np.ndarray]:
+    def _compute_robust_normal_equations(self, x: np.ndarray, parts: str) -> NormalEquations:
         """:meth:`_compute_normal_equations` of a robust loss (residuals and Jacobian rescaled
         pose by pose, :func:`robust_scaling`: the cost and the exact gradient, and the Gauss-Newton
         matrix of iteratively reweighted least squares)."""
@@ -344,7 +344,6 @@ class Problem:
         A_pos = np.zeros((m, m))
         A_rot = np.zeros((m, m)) if (self.has_orientation and parts != "position") else None
         g = np.zeros(m)
-        g_pos = np.zeros(m)
         rss = [0.0, 0.0]
         use_pos = parts in ("pose", "position")
         for sl in self._chunks():
@@ -357,7 +356,6 @@ class Problem:
             if npos:
                 Jp = Jc[:, :npos].reshape(-1, m)
                 A_pos += Jp.T @ Jp
-                g_pos += Jw[:, :npos].reshape(-1, m).T @ r[:, :npos].reshape(-1)
                 rss[0] += float(np.sum(r[:, :npos] ** 2))
             if k > npos:
                 Jr = Jc[:, npos:].reshape(-1, m)
@@ -368,7 +366,7 @@ class Problem:
         n_pos = 3 * N if use_pos else 0
         n_rot = 3 * N if A_rot is not None else 0
         A = A_pos + (A_rot if A_rot is not None else 0.0)
-        return NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1], n_pos, n_rot), g_pos
+        return NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1], n_pos, n_rot)
 
     def whitened_blocks(self, x: np.ndarray, raw: bool = False):
         """Per chunk of poses: (r (n, k), Jw (n, k, m)), the weighted residual and Jacobian blocks
@@ -428,17 +426,17 @@ class Problem:
         return r, J_all.reshape(len(r), -1)
 
 
-def _reweighted(ne: NormalEquations, g_pos: np.ndarray, f_pos: float, f_rot: float) -> NormalEquations:
-    """Least-squares normal equations ``ne`` (``g_pos``: the position rows' share of its g) with
-    the position rows' weights multiplied by f_pos (sigma_pos_old^2 / sigma_pos_new^2) and the
-    rotation rows' by f_rot."""
+def _reweighted(ne: NormalEquations, f_pos: float, f_rot: float) -> NormalEquations:
+    """Least-squares normal equations ``ne`` (with ``g_pos``, the position rows' share of its g)
+    with the position rows' weights multiplied by f_pos (sigma_pos_old^2 / sigma_pos_new^2) and
+    the rotation rows' by f_rot."""
     A_pos = None if ne.A_pos is None else ne.A_pos * f_pos
     A_rot = None if ne.A_rot is None else ne.A_rot * f_rot
     A = (A_pos if A_pos is not None else 0.0) + (A_rot if A_rot is not None else 0.0)
     g = (ne.g * f_rot if A_pos is None else ne.g * f_pos if A_rot is None
-         else g_pos * f_pos + (ne.g - g_pos) * f_rot)
+         else ne.g_pos * f_pos + (ne.g - ne.g_pos) * f_rot)
     return NormalEquations(A, g, A_pos, A_rot, ne.rss_pos * f_pos, ne.rss_rot * f_rot, ne.n_pos, ne.n_rot,
-                           None if A_pos is None else g_pos * f_pos)
+                           None if A_pos is None else ne.g_pos * f_pos)
 
 
 def robust_scaling(r: np.ndarray, J: np.ndarray | None, loss: str, c: float, curvature: bool = False):
