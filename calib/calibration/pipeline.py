@@ -207,7 +207,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                            estimator=estimator, periodic=periodic)
     stages.start("joint terms")
     opts, notes, terms_fit = resolve_terms(robot, measurements, opts, terms, payload, gravity)
-    if not any(n.startswith("joint terms chosen") for n in notes):
+    if terms_fit is None:                       # (the joint terms were not judged)
         stages.skip("joint terms")
     stages.start("prepare")
     robot, gravity_notes = with_gravity_for(robot, opts.compliance, payload, gravity)

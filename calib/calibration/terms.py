@@ -274,17 +274,16 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
                 # naming an option the user had not given)
                 raise DataError(f"the geometric fit did not converge ({fit.solver.status})")
             sp, sr, keep = problem.sigma_pos, problem.sigma_rot, fit.keep
-            fits, geometric = [fit], setup
+            geometric = setup
         else:
             # started where the smaller candidates' fits left each parameter (the terms they did not
             # have at zero, their nominal): the same minimum in 2-3 iterations of LM instead of the
             # method's scheme from the nominal model (the real iiwa rows: 4-6 iterations each)
-            setup = replace(setup, start=warm_start(setup.start, fits, choice.free))
+            setup = replace(setup, start=warm_start(setup.start, fitted.values(), choice.free))
             opts = resolve_options(robot, measurements, method=base.method, params="base", sigma_pos=sp,
                                    sigma_rot=sr if cal.has_orientation else None, init_frames=base.init_frames,
                                    options=base.lm, cv=0, compliance=c, periodic=p)
             fit, problem = fit_with(setup, choice.free, opts, outlier_k=None, keep=keep, kin=setup.kin, warm=True)
-            fits.append(fit)
         # the same rows, folds (seed) and whitening (the geometric fit's noise levels) for every
         # candidate: their row scores pair up
         try:
@@ -343,12 +342,6 @@ def resolve_terms(robot: RobotModel, measurements: Measurements, options: Calibr
     None or "none": as given), a note saying what was chosen and why, and the chosen candidate's
     fit where calibrate's own fit may start (:attr:`TermsChoice.fit`; None when nothing was
     judged)."""
-    options, notes, choice = _resolve_terms(robot, measurements, options, terms, payload, gravity)
-    return options, notes, None if choice is None else choice.fit
-
-
-def _resolve_terms(robot, measurements, options, terms, payload, gravity):
-    """:func:`resolve_terms` with the :class:`TermsChoice` (or None)."""
     if terms is None or (isinstance(terms, str) and terms.lower() == "none"):
         return options, [], None
     if not isinstance(terms, str) or terms.lower() not in TERMS:
@@ -374,4 +367,4 @@ def _resolve_terms(robot, measurements, options, terms, payload, gravity):
     summary = ", ".join(f"{t.label} {t.position_rms * 1e3:.4g} mm" for t in choice.table)
     note = (f"joint terms chosen by {choice.folds}-fold cross-validation: {choice.label} ({choice.reason}; "
             f"held-out position RMS {summary})")
-    return replace(options, compliance=choice.compliance, periodic=choice.periodic), [note], choice
+    return replace(options, compliance=choice.compliance, periodic=choice.periodic), [note], choice.fit
