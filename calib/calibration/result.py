@@ -16,6 +16,7 @@ from calib.units import display_unit, display_value
 from calib.calibration.fit import NoiseEstimate, Outlier
 from calib.calibration.validation import CrossValidation, ModelSelection
 from calib.errors import ParameterError
+from calib.model.chain import U_NAMES
 from calib.model.robot import RobotModel
 from calib.model.spatial import zyx_parameters
 
@@ -482,8 +483,7 @@ def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> 
     std = dict(zip(free, np.sqrt(np.maximum(np.diag(cov), 0.0))))
     fitted = set(free)
     frame_vals = {("u", None): (zyx_parameters(nominal.T_meas_base()), zyx_parameters(calibrated.T_meas_base()))}
-    u_names = tuple(f"u_{k}" for k in ("x", "y", "z", "alpha", "beta", "gamma"))
-    std.update(_frame_std(calibrated.T_meas_base_ref, calibrated.u(), np.eye(4), u_names, free, cov))
+    std.update(_frame_std(calibrated.T_meas_base_ref, calibrated.u(), np.eye(4), U_NAMES, free, cov))
     for t in nominal.targets or (None,):
         frame_vals["v", t] = (zyx_parameters(nominal.T_flange_tool(t)), zyx_parameters(calibrated.T_flange_tool(t)))
         std.update(_frame_std(np.eye(4), calibrated.v(t), calibrated.T_flange_tool_ref_of(t), calibrated.v_names(t),

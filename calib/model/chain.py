@@ -64,6 +64,10 @@ class Parameter:
             ("" if self.target is None else f"@{self.target}")
 
 
+#: Names of the six measurement->base parameters (as :func:`v_names` for the tool's).
+U_NAMES = tuple(f"u_{k}" for k in _FRAME_KINDS)
+
+
 def v_names(target: str | None = None) -> tuple[str, ...]:
     """Names of the six flange->tool parameters: ``v_x`` ... or ``v_x@<target>`` ..."""
     suffix = "" if target is None else f"@{target}"

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from calib.model.chain import U_NAMES
 from calib.model.compliance import compliance_term
 from calib.model.periodic import periodic_term
 from calib.model.robot import RobotModel
@@ -73,7 +74,7 @@ def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
     (relative to joint n)."""
     n = robot.n_joints
     out = [[_Factor("const", const=robot.T_meas_base_ref),
-            *_frame_factors(robot, [f"u_{k}" for k in ("x", "y", "z", "alpha", "beta", "gamma")]),
+            *_frame_factors(robot, list(U_NAMES)),
             *_pre_factors(robot, 1)]]
     for i in range(2, n + 1):
         out.append([*_post_factors(robot, i - 1), *_pre_factors(robot, i)])
