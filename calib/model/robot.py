@@ -35,7 +35,7 @@ import numpy as np
 from calib.checks import (check_array, check_configurations, check_instance, check_int, check_names, check_number,
                           check_rng)
 from calib.errors import ParameterError
-from calib.model.chain import (_FRAME_KINDS, U_NAMES, ChainJoint, Parameter, UrdfSource,
+from calib.model.chain import (U_NAMES, ChainJoint, Parameter, UrdfSource,
                                make_parameters, v_names)
 from calib.model.mdh import PARALLEL_THRESHOLD_RAD, link_transform
 from calib.model.periodic import PERIODIC_GROUP, PERIODIC_KINDS, periodic_name, periodic_offsets
