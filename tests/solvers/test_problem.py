@@ -245,28 +245,43 @@ def test_weak_directions_undetermined_at_the_start_are_held():
                                -np.linalg.solve(A2 + 1e-9 * np.eye(5), g), rtol=1e-8)
 
 
+@pytest.mark.parametrize("chunk", [2048, 7])
 @pytest.mark.parametrize("loss", ["huber", "soft_l1"])
-def test_robust_curvature_rows_are_those_of_reweighted_least_squares(loss):
-    """robust_scaling's kappa turns the scaled Jacobian rows into sqrt(rho') J: the Gauss-Newton
-    matrix of iteratively reweighted least squares (the scaled rows alone under-weight a pose
-    beyond c by up to half), while the scaled residuals keep the cost and the gradient exact."""
-    rng = np.random.default_rng(3)
-    r = rng.normal(size=(40, 6)) * rng.uniform(0.1, 8.0, size=(40, 1))     # some beyond c = 3
-    J = rng.normal(size=(40, 6, 5))
-    c = 3.0
-    r_s, J_s, kappa = solvers.robust_scaling(r, J, loss, c, curvature=True)
-    z = np.sum(r * r, axis=1)
-    if loss == "huber":
-        rho = np.where(z > c * c, 2 * c * np.sqrt(z) - c * c, z)
-        drho = np.where(z > c * c, c / np.sqrt(z), 1.0)
-    else:
-        rho = 2 * c * c * (np.sqrt(1 + z / (c * c)) - 1)
-        drho = 1 / np.sqrt(1 + z / (c * c))
-    np.testing.assert_allclose(np.sum(r_s * r_s, axis=1), rho, rtol=1e-12)                 # cost
-    np.testing.assert_allclose(np.einsum("nkm,nk->m", J_s, r_s), np.einsum("n,nkm,nk->m", drho, J, r),
-                               rtol=1e-10)                                                  # gradient
-    np.testing.assert_allclose(J_s * kappa[:, None, None], J * np.sqrt(drho)[:, None, None], rtol=1e-12)
-    assert (z > c * c).sum() > 5 and kappa.max() > 1.2          # (the correction matters here)
+@pytest.mark.parametrize("kind", ["bundled", "targets", "compliance"])
+def test_robust_normal_equations_are_those_of_reweighted_least_squares(monkeypatch, kind, loss, chunk):
+    """The robust normal equations (made on the transposed Jacobian) against sums over the
+    least-squares problem's per-pose whitened blocks: cost 1/2 sum rho(z_i), gradient
+    sum rho'(z_i) J_i^T r_i, Gauss-Newton matrix sum rho'(z_i) J_i^T J_i (of iteratively
+    reweighted least squares: J~^T J~ of the rescaled rows under-weights a pose beyond c by up to
+    half), each group's share, for every choice of parts; rows beyond c among them."""
+    monkeypatch.setattr(solvers, "CHUNK_POSES", chunk)
+    robot, meas, targets = _data(kind, False)
+    x = robot.values + np.random.default_rng(1).normal(size=robot.n_params) * 1e-4
+    c = 1.0
+    for parts, cols in (("pose", slice(0, 6)), ("position", slice(0, 3)), ("rotation", slice(3, 6))):
+        lin = _problem(robot, meas, targets)
+        rob = Problem(ChainKinematics(robot), meas.q, meas.position, meas.rotation, robot.values,
+                      np.arange(robot.n_params), 2e-5, 2e-3, loss=loss, loss_scale=c, targets=targets)
+        (r, Jw), = list(lin.derived(keep=np.ones(25, bool)).whitened_blocks(x)) if chunk > 25 else \
+            [(np.concatenate(a), np.concatenate(b)) for a, b in [zip(*lin.whitened_blocks(x))]]
+        r, Jw = r[:, cols], Jw[:, cols]
+        z = np.sum(r * r, axis=1)
+        if loss == "huber":
+            rho = np.where(z > c * c, 2 * c * np.sqrt(z) - c * c, z)
+            drho = np.where(z > c * c, c / np.sqrt(z), 1.0)
+        else:
+            rho = 2 * c * c * (np.sqrt(1 + z / (c * c)) - 1)
+            drho = 1 / np.sqrt(1 + z / (c * c))
+        ne = rob.normal_equations(x, parts)
+        _close(ne.A, np.einsum("n,nkm,nkl->ml", drho, Jw, Jw), f"{parts} A")
+        _close(ne.g, np.einsum("n,nkm,nk->m", drho, Jw, r), f"{parts} g")
+        assert ne.cost == pytest.approx(0.5 * rho.sum(), rel=1e-12)
+        if parts == "pose":
+            _close(ne.A_pos, np.einsum("n,nkm,nkl->ml", drho, Jw[:, :3], Jw[:, :3]), "A_pos")
+            _close(ne.A_rot, np.einsum("n,nkm,nkl->ml", drho, Jw[:, 3:], Jw[:, 3:]), "A_rot")
+            share = np.sum(r[:, :3] ** 2, axis=1) * np.where(z > 0, rho / z, 1.0)
+            assert ne.rss_pos == pytest.approx(share.sum(), rel=1e-12)
+        assert (z > c * c).sum() >= 5 and drho.min() < 0.5      # (rows well beyond c: weights matter)
 
 
 @pytest.mark.parametrize("loss", ["linear", "huber"])
