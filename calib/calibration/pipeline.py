@@ -40,6 +40,8 @@ import time
 from dataclasses import replace
 from typing import Sequence
 
+import numpy as np
+
 from calib.calibration.accuracy import accuracy_after, accuracy_before
 from calib.calibration.consistency import consistency_notes
 from calib.calibration.diagnose import misreadings
@@ -242,10 +244,18 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         label = "eb-map"
     else:
         # after the joint terms were judged, the fit starts where the chosen candidate's fit ended
-        # (the same model on the same rows: a few LM iterations instead of the method's scheme)
+        # (the same model on the same rows, linearised at the geometric solution: a few LM
+        # iterations instead of the method's scheme), without the rows the geometric fit's
+        # outlier check left out (taken back when the chosen model explains them: no robust fit
+        # of every row again, which cost the real iiwa rows 100 ms)
         warm = terms_fit is not None and not choice.deficit
-        fit, problem = fit_with(replace(setup, start=warm_start(setup.start, [terms_fit], choice.free))
-                                if warm else setup, choice.free, opts, outlier_k=opts.outlier_k, kin=kin,
+        start_setup = setup
+        if warm:
+            gross = np.isin(cal.rows, terms_fit.outlier_rows)
+            suspect = gross if setup.suspect is None else (setup.suspect | gross)
+            start_setup = replace(setup, start=warm_start(setup.start, terms_fit.start, choice.free),
+                                  suspect=suspect if suspect.any() else None)
+        fit, problem = fit_with(start_setup, choice.free, opts, outlier_k=opts.outlier_k, kin=kin,
                                 rank_deficit=choice.deficit, warm=warm)
     implausible = implausibility(robot, fit, sigma_pos_given=opts.sigma_pos is not None,
                                  sigma_rot_given=opts.sigma_rot is not None)

@@ -7,8 +7,8 @@ joint terms (gravity compliance, periodic joint errors) by cross-validated held-
   placeholders (the compliances then carry their error, which their std does not show).
 * :func:`choose_terms`: for data with many residual components per parameter, the geometric
   model, + compliance (when the URDF has real link masses), + periodic, + both, each fitted at
-  the noise levels and kept rows of the geometric fit and scored by K-fold cross-validated
-  held-out error on the same rows and folds; a term group is kept only when its held-out score
+  the noise levels and kept rows of the geometric fit (one Gauss-Newton step from its solution)
+  and scored by K-fold cross-validated held-out error on the same rows and folds; a term group is kept only when its held-out score
   beats the geometric model's by more than ``TERMS_MIN_SE`` standard errors of their paired
   row-by-row difference. Returns the chosen groups and the table of scores
   (:class:`TermsChoice`).
@@ -19,17 +19,19 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from calib.calibration.accuracy import target_rows
 from calib.calibration.fit import fit_with
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
-from calib.calibration.validation import _standard_error, cross_validate
+from calib.calibration.validation import (_standard_error, fold_labels, fold_normal_equations, held_out_summary,
+                                          newton_held_out)
 from calib.errors import DataError, ParameterError
 from calib.model.compliance import GravityModel, Payload
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
-from calib.solvers.problem import Problem
+from calib.solvers.problem import Problem, normal_inverse
 
 #: Calibration rows the choice of the joint terms is judged on at most: above, an evenly spaced
 #: subset of this many (10,000 full-pose rows hold 60,000 residual components for at most a few
@@ -173,10 +175,14 @@ class TermsChoice:
     folds: int = 0
     reason: str = ""
     rows: int | None = None
-    #: The chosen candidate's fit (:class:`calib.calibration.fit.Fit`) on the judged rows, at the
-    #: geometric fit's noise levels and kept rows: where calibrate's own fit of the chosen model
-    #: starts (None when nothing was judged).
-    fit: object = field(default=None, repr=False, compare=False)
+    #: The chosen candidate's fit on the judged rows, at the geometric fit's noise levels and
+    #: kept rows (one Gauss-Newton step from the geometric solution), name -> value of its free
+    #: parameters: where calibrate's own fit of the chosen model starts (None when nothing was
+    #: judged).
+    start: dict | None = field(default=None, repr=False, compare=False)
+    #: The line numbers of the rows the geometric fit's outlier check left out (calibrate's fit of
+    #: the chosen model starts without them and takes back those it explains).
+    outlier_rows: tuple[int, ...] = field(default=(), repr=False, compare=False)
 
     @property
     def label(self) -> str:
@@ -246,9 +252,8 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     if cal.n_poses > TERMS_MAX_ROWS:
         judged_rows = TERMS_MAX_ROWS
         measurements = cal.subset(np.linspace(0, cal.n_poses - 1, TERMS_MAX_ROWS).round().astype(int))
-    table, rows, fitted = [], {}, {}
-    geo_scores = None
-    sp = sr = keep = None
+    # each candidate's model and parameter set (its identifiable set), the geometric one's fitted
+    setups, frees = [], []
     for label, c, p in cands:
         opts = resolve_options(robot, measurements, method=base.method, params="base", sigma_pos=base.sigma_pos,
                                sigma_rot=base.sigma_rot, init_frames=base.init_frames, options=base.lm,
@@ -256,66 +261,82 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         model, _ = with_gravity_for(robot, c, payload if c else None, gravity if c else None)
         if p:
             model = model.with_periodic()
-        if sp is None:
+        if not setups:
             setup, _ = prepare(model, measurements, None, opts.init_frames)
+            geo_opts = opts
         else:
             # the geometric fit's start frames (the closed-form estimate of the same rows with the
             # same kinematics, the terms being zero): not estimated again for each candidate
-            model = replace(model, T_meas_base_ref=geometric.start.T_meas_base_ref,
-                            T_flange_tool_ref=geometric.start.T_flange_tool_ref,
-                            T_flange_target_refs=geometric.start.T_flange_target_refs)
+            geometric = setups[0].start
+            model = replace(model, T_meas_base_ref=geometric.T_meas_base_ref,
+                            T_flange_tool_ref=geometric.T_flange_tool_ref,
+                            T_flange_target_refs=geometric.T_flange_target_refs)
             setup, _ = prepare(model, measurements, None, False)
-        choice = choose_parameters(setup, opts)
-        if sp is None:          # the geometric fit: noise estimate and outlier check
-            fit, problem = fit_with(setup, choice.free, opts, outlier_k=opts.outlier_k, kin=setup.kin)
-            if fit.solver.status != "converged":
-                # (its noise levels and rows would whiten every candidate: a fit stuck in a local
-                # minimum gave sigma_rot 1.03 rad, refused as a given level, a ParameterError
-                # naming an option the user had not given)
-                raise DataError(f"the geometric fit did not converge ({fit.solver.status})")
-            sp, sr, keep = problem.sigma_pos, problem.sigma_rot, fit.keep
-            geometric = setup
-        else:
-            # started where the smaller candidates' fits left each parameter (the terms they did not
-            # have at zero, their nominal): the same minimum in 2-3 iterations of LM instead of the
-            # method's scheme from the nominal model (the real iiwa rows: 4-6 iterations each)
-            setup = replace(setup, start=warm_start(setup.start, fitted.values(), choice.free))
-            opts = resolve_options(robot, measurements, method=base.method, params="base", sigma_pos=sp,
-                                   sigma_rot=sr if cal.has_orientation else None, init_frames=base.init_frames,
-                                   options=base.lm, cv=0, compliance=c, periodic=p)
-            fit, problem = fit_with(setup, choice.free, opts, outlier_k=None, keep=keep, kin=setup.kin, warm=True)
-        # the same rows, folds (seed) and whitening (the geometric fit's noise levels) for every
-        # candidate: their row scores pair up
+        setups.append(setup)
+        frees.append(choose_parameters(setup, opts).free)
+    # the geometric fit: noise levels and outlier check
+    fit, problem = fit_with(setups[0], frees[0], geo_opts, outlier_k=geo_opts.outlier_k, kin=setups[0].kin)
+    if fit.solver.status != "converged":
+        # (its noise levels and rows would whiten every candidate: a fit stuck in a local
+        # minimum gave sigma_rot 1.03 rad, refused as a given level, a ParameterError
+        # naming an option the user had not given)
+        raise DataError(f"the geometric fit did not converge ({fit.solver.status})")
+    sp, sr, keep = problem.sigma_pos, problem.sigma_rot, fit.keep
+    # every candidate linearised at the geometric solution, the terms at zero (a model that holds
+    # them all: at zero terms its geometric columns are the geometric model's): the
+    # candidates' fits and their K-fold refits are Gauss-Newton steps from there on the same
+    # rows, folds (seed) and whitening, so their row scores pair up. The terms move the fit by
+    # little (the real iiwa rows: the nonlinear fits of each candidate, before, chose the same
+    # and their scores agreed to 1e-3): one Jacobian pass instead of a fit and a pass per candidate
+    big = setups[-1]
+    union = list(dict.fromkeys(n for free in frees for n in free))
+    start = warm_start(big.start, dict(zip(fit.free, fit.model.values[fit.model.indices(fit.free)])), union)
+    idx = start.indices(union)
+    lin = Problem(big.kin or ChainKinematics(start), big.cal.q, big.cal.position, big.cal.rotation, start.values,
+                  idx, sp, sr, targets=target_rows(start, big.cal)).derived(keep=keep)
+    x0 = start.values[idx]
+    blocks = [(r, Jw) for r, Jw in lin.whitened_blocks(x0)]
+    fold_of = fold_labels(int(keep.sum()), folds, seed)
+    fold_ne = fold_normal_equations(lambda: blocks, fold_of, folds)
+    A_all, g_all = fold_ne[0].sum(axis=0), fold_ne[1].sum(axis=0)
+    has_rot = big.measure == "pose"
+    table, rows, solutions = [], {}, {}
+    geo_scores = None
+    for (label, c, p), free in zip(cands, frees):
+        cols = np.array([union.index(n) for n in free], int)
         try:
-            cv = cross_validate(setup, fit, problem, folds, options=base.lm, seed=seed)
+            w_p, w_r = newton_held_out(lambda: blocks, fold_of, folds, cols=cols, fold_ne=fold_ne)
         except DataError:
             if geo_scores is None:
                 raise
             continue            # a fold's rows cannot identify this candidate: not a candidate
+        cv = held_out_summary(fold_of, folds, w_p * sp ** 2, w_r * sr ** 2 if has_rot else None, sp, sr)
         if geo_scores is None:
             geo_scores = cv.row_scores
         rows[label] = cv.row_scores
-        table.append(TermScore(label, c, p, len(choice.free), cv.position_rms, cv.rotation_rms,
+        table.append(TermScore(label, c, p, len(free), cv.position_rms, cv.rotation_rms,
                                cv.score, _standard_error(cv.row_scores - geo_scores)))
-        fitted[label] = fit
+        # the candidate's own fit, one Gauss-Newton step (where calibrate's fit of it starts)
+        step = normal_inverse(A_all[np.ix_(cols, cols)])[0] @ g_all[cols]
+        solutions[label] = dict(zip(free, x0[cols] - step))
     best = pick_terms(table, rows)
     reason = (f"{best.label} beat the smaller candidates by more than {TERMS_MIN_SE:g} paired standard errors"
               if best is not table[0] else "no term group beat the geometry by the margin")
     if judged_rows is not None:
         reason += f"; judged on {judged_rows:,} evenly spaced of the {cal.n_poses:,} calibration rows"
     return TermsChoice(best.compliance, best.periodic, tuple(table), folds, reason, judged_rows,
-                       fitted[best.label])
+                       solutions[best.label], tuple(o.row for o in fit.outliers))
 
 
-def warm_start(start: RobotModel, fits, free) -> RobotModel:
-    """``start`` with each parameter of ``free`` at the value of the latest of ``fits`` that freed
-    it (the others keep their values: the candidate's model is unchanged)."""
-    values = start.values.copy()
-    for fit in fits:
-        names = [n for n in free if n in set(fit.free)]
-        if names:
-            values[start.indices(names)] = fit.model.values[fit.model.indices(names)]
-    return start.with_values(values)
+def warm_start(start: RobotModel, values: dict, free) -> RobotModel:
+    """``start`` with each parameter of ``free`` that ``values`` (name -> value) holds at that
+    value (the others keep theirs: the candidate's model is unchanged)."""
+    names = [n for n in free if n in values]
+    if not names:
+        return start
+    out = start.values.copy()
+    out[start.indices(names)] = [values[n] for n in names]
+    return start.with_values(out)
 
 
 def pick_terms(table, row_scores: dict) -> TermScore:
@@ -336,12 +357,12 @@ TERMS = ("auto", "none")
 
 
 def resolve_terms(robot: RobotModel, measurements: Measurements, options: CalibrationOptions, terms,
-                  payload=None, gravity=None) -> tuple[CalibrationOptions, list[str], object]:
+                  payload=None, gravity=None) -> tuple[CalibrationOptions, list[str], TermsChoice | None]:
     """The options of :func:`calib.calibrate` with the joint terms of ``terms`` ("auto":
     :func:`choose_terms` decides, unless compliance or periodic terms were asked for by name;
-    None or "none": as given), a note saying what was chosen and why, and the chosen candidate's
-    fit where calibrate's own fit may start (:attr:`TermsChoice.fit`; None when nothing was
-    judged)."""
+    None or "none": as given), a note saying what was chosen and why, and the
+    :class:`TermsChoice` (where calibrate's own fit may start: its ``start`` and
+    ``outlier_rows``; None when nothing was judged)."""
     if terms is None or (isinstance(terms, str) and terms.lower() == "none"):
         return options, [], None
     if not isinstance(terms, str) or terms.lower() not in TERMS:
@@ -367,4 +388,4 @@ def resolve_terms(robot: RobotModel, measurements: Measurements, options: Calibr
     summary = ", ".join(f"{t.label} {t.position_rms * 1e3:.4g} mm" for t in choice.table)
     note = (f"joint terms chosen by {choice.folds}-fold cross-validation: {choice.label} ({choice.reason}; "
             f"held-out position RMS {summary})")
-    return replace(options, compliance=choice.compliance, periodic=choice.periodic), [note], choice.fit
+    return replace(options, compliance=choice.compliance, periodic=choice.periodic), [note], choice

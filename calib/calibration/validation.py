@@ -129,49 +129,17 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
     n = int(fit.keep.sum())
     if folds > n:
         raise ParameterError(f"cv: {folds} folds need at least {folds} calibration rows, there are {n}")
-    fold_of = np.empty(n, int)
-    fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
+    fold_of = fold_labels(n, folds, seed)
     kept = problem.derived(loss="linear")   # the kept rows, least squares
     x0 = fit.model.values[fit.model.indices(fit.free)]
     e_p, e_r = np.zeros(n), np.zeros(n)
     has_rot = setup.measure == "pose"
     if refit == "newton":
-        # J^T J and J^T r of each fold's rows (their sums are the fit's normal equations)
-        m = len(x0)
-        A_fold, g_fold = np.zeros((folds, m, m)), np.zeros((folds, m))
-        start = 0
-        for r, Jw, _ in kept.whitened_blocks(x0, raw=True):
-            lab = fold_of[start:start + len(r)]
-            start += len(r)
-            for f in range(folds):
-                Jf, rf = Jw[lab == f].reshape(-1, m), r[lab == f].reshape(-1)
-                A_fold[f] += Jf.T @ Jf
-                g_fold[f] += Jf.T @ rf
-        A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
-        if fit.prior_precision is not None:
-            # a regularised fit: each refit keeps the prior (its hyper-parameters held)
-            A_all = A_all + np.diag(fit.prior_precision)
-            g_all = g_all + fit.prior_precision * (x0 - fit.prior_mean)
-        # the folds' refits: A without each fold's rows, inverted at once
-        A_inv, full = normal_inverse(A_all[None] - A_fold)
-        bad = np.flatnonzero(~full)
-        if len(bad) and fit.full_rank:
-            # without this fold the rows cannot identify the parameters: its prediction would be
-            # the whole fit's, which has seen it (a leak), not a held-out error
-            f = int(bad[0])
-            raise DataError(f"cross-validation: without fold {f + 1} of {folds} the remaining "
-                            f"{n - int(np.sum(fold_of == f))} rows cannot identify the "
-                            f"{len(x0)} parameters")
-        dx = -np.einsum("fij,fj->fi", A_inv, g_all[None] - g_fold)       # (folds, m)
-        # each row's whitened residual at its fold's refit, r + Jw dx, back in m and rad
-        start = 0
-        for r, Jw, _ in kept.whitened_blocks(x0, raw=True):
-            lab = fold_of[start:start + len(r)]
-            pred = r + np.einsum("nkm,nm->nk", Jw, dx[lab])
-            e_p[start:start + len(r)] = np.sum(pred[:, :3] ** 2, axis=1) * kept.sigma_pos ** 2
-            if has_rot:
-                e_r[start:start + len(r)] = np.sum(pred[:, 3:] ** 2, axis=1) * kept.sigma_rot ** 2
-            start += len(r)
+        # (a generator each pass: the whole Jacobian of a million rows is not held at once)
+        blocks = lambda: ((r, Jw) for r, Jw, _ in kept.whitened_blocks(x0, raw=True))   # noqa: E731
+        prior = None if fit.prior_precision is None else (fit.prior_precision, x0 - fit.prior_mean)
+        w_p, w_r = newton_held_out(blocks, fold_of, folds, prior=prior, check_rank=fit.full_rank)
+        e_p, e_r = w_p * kept.sigma_pos ** 2, w_r * kept.sigma_rot ** 2
     else:
         if fit.prior_precision is not None:
             raise ParameterError("cross_validate: refit='lm' is least squares; a regularised fit is "
@@ -183,9 +151,89 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
             e_p[where] = np.sum(dp ** 2, axis=1)
             if dr is not None:
                 e_r[where] = np.sum(dr ** 2, axis=1)
+    return held_out_summary(fold_of, folds, e_p, e_r if has_rot else None, problem.sigma_pos, problem.sigma_rot)
+
+
+def fold_labels(n: int, folds: int, seed: int = 0) -> np.ndarray:
+    """(n,) the fold of each of n rows: a random permutation (``seed``) dealt into ``folds``."""
+    fold_of = np.empty(n, int)
+    fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
+    return fold_of
+
+
+def fold_normal_equations(blocks, fold_of: np.ndarray, folds: int) -> tuple[np.ndarray, np.ndarray]:
+    """(A (folds, m, m), g (folds, m)): J^T J and J^T r of each fold's rows (their sums are the
+    normal equations of all the rows), from ``blocks()`` (see :func:`newton_held_out`)."""
+    A_fold = g_fold = None
+    start = 0
+    for r, Jw in blocks():
+        m = Jw.shape[2]
+        if A_fold is None:
+            A_fold, g_fold = np.zeros((folds, m, m)), np.zeros((folds, m))
+        lab = fold_of[start:start + len(r)]
+        start += len(r)
+        for f in range(folds):
+            Jf, rf = Jw[lab == f].reshape(-1, m), r[lab == f].reshape(-1)
+            A_fold[f] += Jf.T @ Jf
+            g_fold[f] += Jf.T @ rf
+    return A_fold, g_fold
+
+
+def newton_held_out(blocks, fold_of: np.ndarray, folds: int, *, prior=None, check_rank: bool = True,
+                    cols: np.ndarray | None = None, fold_ne=None) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's whitened squared held-out error, (position (n,), rotation (n,)), predicted by one
+    Gauss-Newton step from the linearisation ``blocks()`` (a function that returns an iterable of
+    (r (n_b, k), Jw (n_b, k, m)), the whitened residuals and Jacobian of the rows in order) with
+    its fold's rows taken out of the normal equations (exact for a model linear in its
+    parameters). prior : None or (precision (m,), x0 - prior mean (m,)) of a regularised fit,
+    kept in every refit. cols : the model's columns of Jw (default all: a smaller model
+    linearised with a larger one's Jacobian); fold_ne : the blocks' :func:`fold_normal_equations`
+    when already made. A fold without which the rows cannot identify the parameters raises
+    DataError when ``check_rank``."""
+    n = len(fold_of)
+    A_fold, g_fold = fold_ne if fold_ne is not None else fold_normal_equations(blocks, fold_of, folds)
+    m_all = A_fold.shape[1]
+    if cols is not None:
+        A_fold, g_fold = A_fold[:, cols][:, :, cols], g_fold[:, cols]
+    m = A_fold.shape[1]
+    A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
+    if prior is not None:
+        A_all = A_all + np.diag(prior[0])
+        g_all = g_all + prior[0] * prior[1]
+    # the folds' refits: A without each fold's rows, inverted at once
+    A_inv, full = normal_inverse(A_all[None] - A_fold)
+    bad = np.flatnonzero(~full)
+    if len(bad) and check_rank:
+        # without this fold the rows cannot identify the parameters: its prediction would be
+        # the whole fit's, which has seen it (a leak), not a held-out error
+        f = int(bad[0])
+        raise DataError(f"cross-validation: without fold {f + 1} of {folds} the remaining "
+                        f"{n - int(np.sum(fold_of == f))} rows cannot identify the {m} parameters")
+    dx = -np.einsum("fij,fj->fi", A_inv, g_all[None] - g_fold)       # (folds, m)
+    if cols is not None:
+        dx_all = np.zeros((folds, m_all))
+        dx_all[:, cols] = dx
+        dx = dx_all
+    # each row's whitened residual at its fold's refit, r + Jw dx
+    w_p, w_r = np.zeros(n), np.zeros(n)
+    start = 0
+    for r, Jw in blocks():
+        lab = fold_of[start:start + len(r)]
+        pred = r + np.einsum("nkm,nm->nk", Jw, dx[lab])
+        w_p[start:start + len(r)] = np.sum(pred[:, :3] ** 2, axis=1)
+        w_r[start:start + len(r)] = np.sum(pred[:, 3:] ** 2, axis=1)
+        start += len(r)
+    return w_p, w_r
+
+
+def held_out_summary(fold_of: np.ndarray, folds: int, e_p: np.ndarray, e_r: np.ndarray | None,
+                     sigma_pos: float, sigma_rot: float) -> CrossValidation:
+    """The :class:`CrossValidation` of the rows' squared held-out errors e_p (m^2) and e_r (rad^2,
+    None for position data), their scores whitened at sigma_pos / sigma_rot."""
+    has_rot = e_r is not None
     per_fold = [(int(np.sum(fold_of == f)), math.sqrt(float(np.mean(e_p[fold_of == f]))),
                  math.sqrt(float(np.mean(e_r[fold_of == f]))) if has_rot else None) for f in range(folds)]
-    score = e_p / problem.sigma_pos ** 2 + (e_r / problem.sigma_rot ** 2 if has_rot else 0.0)
+    score = e_p / sigma_pos ** 2 + (e_r / sigma_rot ** 2 if has_rot else 0.0)
     return CrossValidation(folds, math.sqrt(float(np.mean(e_p))),
                            math.sqrt(float(np.mean(e_r))) if has_rot else None, tuple(per_fold),
                            float(np.mean(score)), _standard_error(score), score)
