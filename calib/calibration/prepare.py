@@ -211,10 +211,23 @@ def _duplicate_row_notes(cal: Measurements, val: Measurements | None) -> list[st
     return notes
 
 
+_DISTINCT_LAST: list = [None, 0]
+
+
 def distinct_configurations(Q: np.ndarray, tol: float = DISTINCT_Q_TOL) -> int:
-    """The number of distinct rows of Q (N, n) (rad / m), rows equal to ``tol`` counted once."""
+    """The number of distinct rows of Q (N, n) (rad / m), rows equal to ``tol`` counted once
+    (the last answer kept by content: each candidate model of one calibration asks it)."""
     if len(Q) == 0:
         return 0
+    Q = np.ascontiguousarray(Q, float)
+    key = (Q.shape, hash(Q.tobytes()), tol)       # (as the torque cache keys its arrays)
+    if _DISTINCT_LAST[0] == key:
+        return _DISTINCT_LAST[1]
+    _DISTINCT_LAST[:] = [key, _distinct(Q, tol)]
+    return _DISTINCT_LAST[1]
+
+
+def _distinct(Q: np.ndarray, tol: float) -> int:
     # rows sorted lexicographically, then the changes counted: np.unique(axis=0) without its
     # import of numpy.ma (20 ms of the CLI's start); + 0.0 makes -0.0 equal to 0.0
     K = np.round(np.asarray(Q, float).reshape(len(Q), -1) / tol) + 0.0

@@ -66,6 +66,11 @@ _CACHE_SIZE = 16
 #: Rows of the per-configuration torque memo of a gravity model (cleared when full: about
 #: 0.3 KB a row).
 _ROW_MEMO_SIZE = 200_000
+#: Gravity models kept for the next request of the same chain, payload and gravity (with their
+#: torque caches): the joint-term candidates and the final fit of one calibration, and the next
+#: calibrations of the same arm, compute the torques of a data set once.
+_MODELS_KEPT = 8
+_MODELS: dict = {}
 
 
 def _finite_vector(value, name: str, size: int = 3) -> np.ndarray:
@@ -170,10 +175,15 @@ class GravityModel:
         if payload is not None and not isinstance(payload, Payload):
             raise ParameterError(f"payload must be a calib.model.compliance.Payload, got {type(payload).__name__}")
         g = np.array([0.0, 0.0, -STANDARD_GRAVITY]) if gravity is None else _finite_vector(gravity, "gravity")
-        model = pin.Model(chain.model)
         first = chain.joint_ids[0]
-        link_mass = float(sum(model.inertias[j].mass for j in model.subtrees[first]))
+        link_mass = float(sum(chain.model.inertias[j].mass for j in chain.model.subtrees[first]))
         _check_physical(payload, g, link_mass)
+        load = None if payload is None else (float(payload.mass), np.asarray(payload.com_tool, float).tobytes())
+        key = (id(chain), load, g.tobytes())
+        kept = _MODELS.get(key)
+        if kept is not None and kept.chain is chain:      # (the entry holds its chain: the id is its own)
+            return kept
+        model = pin.Model(chain.model)
         if payload is not None and payload.mass > 0:
             frame = model.frames[chain.tool_frame_id]
             inertia = pin.Inertia(payload.mass, np.array(payload.com_tool), np.zeros((3, 3)))
@@ -181,7 +191,12 @@ class GravityModel:
             model.inertias[jid] = model.inertias[jid] + frame.placement.act(inertia)
         model.gravity = pin.Motion(g.copy(), np.zeros(3))
         g.setflags(write=False)
-        return cls(model=model, chain=chain, payload=payload, gravity=g, link_mass=link_mass)
+        gm = cls(model=model, chain=chain, payload=payload, gravity=g, link_mass=link_mass)
+        _MODELS.pop(key, None)
+        _MODELS[key] = gm
+        while len(_MODELS) > _MODELS_KEPT:
+            _MODELS.pop(next(iter(_MODELS)))
+        return gm
 
     @classmethod
     def for_robot(cls, robot: RobotModel, *, payload: Payload | None = None,

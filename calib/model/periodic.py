@@ -38,10 +38,28 @@ def periodic_name(joint: int, kind: str) -> str:
     return f"q{joint}_{kind}"
 
 
+#: Harmonic bases kept by content (the calibration rows and their chunks are evaluated at every
+#: step of every fit, and the basis depends on the joint angles only), of at most
+#: _BASES_MAX_ANGLES angles each.
+_BASES_KEPT = 16
+_BASES_MAX_ANGLES = 100_000
+_BASES: dict = {}
+
+
 def harmonic_basis(q: np.ndarray) -> np.ndarray:
-    """(..., 4) sin q, cos q, sin 2q, cos 2q of joint angles q (...), radians."""
-    q = np.asarray(q, float)
-    return np.stack((np.sin(q), np.cos(q), np.sin(2 * q), np.cos(2 * q)), axis=-1)
+    """(..., 4) sin q, cos q, sin 2q, cos 2q of joint angles q (...), radians (read-only: kept
+    by content for the next call with the same angles)."""
+    q = np.ascontiguousarray(q, float)
+    key = (q.shape, q.tobytes()) if q.size <= _BASES_MAX_ANGLES else None
+    B = _BASES.get(key)
+    if B is None:
+        B = np.stack((np.sin(q), np.cos(q), np.sin(2 * q), np.cos(2 * q)), axis=-1)
+        B.setflags(write=False)
+        if key is not None:
+            _BASES[key] = B
+            while len(_BASES) > _BASES_KEPT:
+                _BASES.pop(next(iter(_BASES)))
+    return B
 
 
 def periodic_offsets(Q: np.ndarray, joints: np.ndarray, coefficients: np.ndarray, n_joints: int) -> np.ndarray:
