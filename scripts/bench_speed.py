@@ -36,7 +36,10 @@ With ``--end-to-end N`` only the end-to-end figures of N simulated rows (issue 2
 memory after it in a fresh process, then the whole ``calib calibrate --report`` process (wall
 time, peak resident memory).
 
+With ``--startup-only`` only the process figures of item 3 (a few seconds; issue 27 item 2).
+
 Run: python scripts/bench_speed.py [--max-poses 100000] [--study] [--figaroh PYTHON] [--end-to-end N]
+     [--startup-only]
 """
 from __future__ import annotations
 
@@ -417,6 +420,18 @@ def _line(label: str, now: str, before: str, target: str) -> str:
     return f"| {label} | {now} | {before} | {target} |"
 
 
+def print_process(p: dict) -> None:
+    """The process figures of :func:`process_ratio`, with issue 27's line."""
+    print(f"process: calib calibrate {p['calibrate']:.3f} s, import calib {p['import_calib']:.3f} s, "
+          f"import pinocchio {p['pinocchio']:.3f} s; calib --help {p['help']:.3f} s, import numpy "
+          f"{p['numpy']:.3f} s")
+    print(f"issue 27: calib calibrate / import pinocchio {p['calibrate'] / p['pinocchio']:.2f}x on 100 simulated "
+          f"poses (before {BEFORE_27['process_ratio']:g}x), {p['example'] / p['pinocchio']:.2f}x on the bundled "
+          f"example (examples/brtirus0707a: 100 + 200 validation rows, {p['example']:.3f} s; "
+          f"target <= {TARGET_27['process_ratio']:g}x); calib --help / import numpy "
+          f"{p['help'] / p['numpy']:.2f}x (target <= {TARGET_27['help_ratio']:g}x)")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--max-poses", type=int, default=100_000,
@@ -431,6 +446,9 @@ def main(argv=None) -> int:
                          "URDF, JSON report, each stage's time and peak memory, and the whole calib calibrate "
                          "--report process")
     ap.add_argument("--end-to-end-child", nargs=2, help=argparse.SUPPRESS)
+    ap.add_argument("--startup-only", action="store_true",
+                    help="only the process figures (calib calibrate over import pinocchio, calib --help over "
+                         "import numpy: issue 27 item 2)")
     args = ap.parse_args(argv)
     if args.end_to_end_child:
         print(json.dumps(end_to_end_child(*args.end_to_end_child)))
@@ -444,6 +462,10 @@ def main(argv=None) -> int:
         print(f"  report JSON {e['report_mb']:.1f} MB, residuals CSV {e['residuals_mb']:.0f} MB")
         print(f"  calib calibrate --report process: {e['cli']['s']:.1f} s, peak {e['cli']['peak_mb']:.0f} MB "
               f"(exit {e['cli']['exit']})")
+        return 0
+    if args.startup_only:
+        print(f"machine: {_bench.machine()}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+        print_process(process_ratio())
         return 0
     if args.first_call:
         print(json.dumps(first_call(args.first_call)))
@@ -486,14 +508,7 @@ def main(argv=None) -> int:
           f"(before {BEFORE_27['select_100k_s']:g} s, target <= {TARGET_27['select_100k_s']:g} s)")
     p = process_ratio()
     ratio = p["calibrate"] / p["pinocchio"]
-    print(f"process: calib calibrate {p['calibrate']:.3f} s, import calib {p['import_calib']:.3f} s, "
-          f"import pinocchio {p['pinocchio']:.3f} s; calib --help {p['help']:.3f} s, import numpy "
-          f"{p['numpy']:.3f} s")
-    print(f"issue 27: calib calibrate / import pinocchio {ratio:.2f}x on 100 simulated poses (before "
-          f"{BEFORE_27['process_ratio']:g}x), {p['example'] / p['pinocchio']:.2f}x on the bundled example "
-          f"(examples/brtirus0707a: 100 + 200 validation rows, {p['example']:.3f} s; "
-          f"target <= {TARGET_27['process_ratio']:g}x); calib --help / import numpy "
-          f"{p['help'] / p['numpy']:.2f}x (target <= {TARGET_27['help_ratio']:g}x)")
+    print_process(p)
     print("scaling (calibrate() with its defaults, fresh process per size):")
     rows = scaling(args.max_poses)
     by_n = {r["n"]: r for r in rows}
