@@ -188,15 +188,23 @@ class CalibrationResult:
         """The URDF of :meth:`write_urdf` without the compliance sidecar; returns its frames."""
         from calib.io.urdf_writer import write_calibrated_urdf
 
+        return write_calibrated_urdf(self.base_robot().geometry(), path, **self._urdf_arguments(measurement_link))
+
+    def urdf_text(self, *, measurement_link: str | None = None):
+        """(the text :meth:`write_urdf_only` writes, the frames it records), without a file."""
+        from calib.io.urdf_writer import calibrated_urdf_text
+
+        return calibrated_urdf_text(self.base_robot().geometry(), **self._urdf_arguments(measurement_link))
+
+    def _urdf_arguments(self, measurement_link: str | None) -> dict:
         mf = self.measurement_frame
         if mf is None and measurement_link is not None:
             raise ParameterError("measurement_link: this calibration did not estimate a measurement frame "
                                  "(its measurements are in the robot's base frame)")
-        return write_calibrated_urdf(
-            self.base_robot().geometry(), path, nominal=self.nominal.geometry(), estimated=self.estimated_frames,
-            T_meas_base=None if mf is None else mf.T_meas_base,
-            meas_covariance=None if mf is None else mf.covariance, measurement_link=measurement_link,
-            orientation_measured=self.before.rotation is not None)
+        return dict(nominal=self.nominal.geometry(), estimated=self.estimated_frames,
+                    T_meas_base=None if mf is None else mf.T_meas_base,
+                    meas_covariance=None if mf is None else mf.covariance, measurement_link=measurement_link,
+                    orientation_measured=self.before.rotation is not None)
 
     def compliance_record(self) -> dict | None:
         """The compliances and periodic terms with their std, payload and gravity
