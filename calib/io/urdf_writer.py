@@ -84,12 +84,9 @@ _UNCHANGED_TOL = 1e-13
 
 
 # ====================================================================== public API
-def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
-                          nominal: RobotModel | None = None,
-                          estimated: Sequence[str] = (),
-                          T_meas_base: np.ndarray | None = None,
-                          meas_covariance: np.ndarray | None = None,
-                          measurement_link: str | None = None,
+def write_calibrated_urdf(robot: RobotModel, path: str | Path, *, nominal: RobotModel | None = None,
+                          estimated: Sequence[str] = (), T_meas_base: np.ndarray | None = None,
+                          meas_covariance: np.ndarray | None = None, measurement_link: str | None = None,
                           orientation_measured: bool = True) -> RecordedFrames:
     """Write a copy of the URDF ``robot`` was read from whose kinematics are exactly ``robot``'s.
 
@@ -132,15 +129,7 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
 
     Raises :class:`~calib.errors.CalibError` (or a subclass): output = input, ``nominal`` incompatible with ``robot`` or not describing the URDF.
     """
-    from calib.checks import check_names, check_path
-    from calib.model.robot import check_robot
-
-    check_robot(robot)      # (the checks of calibrated_urdf_text first: the same error first)
-    if nominal is not None:
-        check_robot(nominal, "nominal")
-    check_names(estimated, "estimated")
-    check_not_input(check_path(path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
-    text, frames = calibrated_urdf_text(robot, nominal=nominal, estimated=estimated, T_meas_base=T_meas_base,
+    text, frames = calibrated_urdf_text(robot, nominal=nominal, estimated=estimated, T_meas_base=T_meas_base, _path=path,
                                         meas_covariance=meas_covariance, measurement_link=measurement_link,
                                         orientation_measured=orientation_measured)
     atomic_write_text(path, text)
@@ -149,18 +138,19 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
 
 def calibrated_urdf_text(robot: RobotModel, *, nominal: RobotModel | None = None, estimated: Sequence[str] = (),
                          T_meas_base: np.ndarray | None = None, meas_covariance: np.ndarray | None = None,
-                         measurement_link: str | None = None,
-                         orientation_measured: bool = True) -> tuple[str, RecordedFrames]:
-    """(the text :func:`write_calibrated_urdf` writes, the frames it records) for the same
-    arguments, without a file (the command line stages its outputs in memory and writes them as
-    a set)."""
-    from calib.checks import check_names
+                         measurement_link: str | None = None, orientation_measured: bool = True, _path=...
+                         ) -> tuple[str, RecordedFrames]:
+    """(the text :func:`write_calibrated_urdf` writes, the frames it records), without a file
+    (``calib calibrate`` stages its outputs in memory, then writes them as a set)."""
+    from calib.checks import check_names, check_path
     from calib.model.robot import check_robot
 
     check_robot(robot)
     if nominal is not None:
         check_robot(nominal, "nominal")
     estimated = check_names(estimated, "estimated")
+    if _path is not ...:       # (write_calibrated_urdf's output, checked in its turn)
+        check_not_input(check_path(_path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
     measurement = _check_measurement(T_meas_base, meas_covariance, measurement_link)
     if not isinstance(orientation_measured, bool):
         raise CalibError(f"orientation_measured must be True or False, got {orientation_measured!r}")
