@@ -131,3 +131,23 @@ def test_help_loads_neither_numpy_nor_pinocchio():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
                          env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120)
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stderr
+
+
+def test_a_named_command_is_parsed_by_its_own_parser_alone():
+    """main builds only the named subcommand's parser (start-up): the same arguments, help and
+    errors as the whole parser; help, version, unknown commands and anything else before the
+    command take the whole parser."""
+    from calib.cli.main import _named_command
+
+    assert _named_command(["calibrate", "a.urdf"]) == "calibrate"
+    assert _named_command(["-vv", "--verbose", "select-poses"]) == "select-poses"
+    for argv in ([], ["--help", "calibrate"], ["-h", "calibrate"], ["--version"], ["--", "calibrate"],
+                 ["calibrat"], ["-x", "calibrate"], ["--verb", "calibrate"]):
+        assert _named_command(argv) is None
+    for name in NAMES:
+        alone, whole = _subparsers(build_parser(name)), _subparsers(build_parser())
+        assert list(alone) == [name]
+        assert alone[name].format_help() == whole[name].format_help()
+    argv = ["-v", "calibrate", "r.urdf", "m.csv", "-o", "c.urdf", "--cv", "3", "--params", "paper"]
+    assert vars(build_parser("calibrate").parse_args(argv)) == vars(build_parser().parse_args(argv))
+    assert build_parser("calibrate").parse_args(argv).cv == 3
