@@ -232,9 +232,8 @@ def identifiable_names(robot: RobotModel, Q: np.ndarray, *, measure: str = "pose
     """``analyze_identifiability(robot, Q, ...).identifiable`` (the same arguments, the same
     names in ``robot.names`` order) without the relations and observability indices of the
     report: the rank-revealing selection alone. The names are kept by content as the reports
-    are, and the last noise-weighted Jacobian is reused for a call that differs only by
-    ``priority`` or that finds a model with the same values (the idealised model of a nominal
-    URDF is the model itself)."""
+    are, and the last noise-weighted Jacobian is reused for a call that differs from the one
+    that computed it only by ``priority`` (the same model values, configurations and options)."""
     global _last_jacobian
     Q, targets = _checked_rows(robot, Q, measure, 100, 0, tol, sigma_pos, sigma_rot, priority, max_poses, targets)
     key = _cache_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
