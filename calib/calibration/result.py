@@ -3,15 +3,14 @@ its text, dict and JSON forms, and the calibrated URDF.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from calib.calibration.accuracy import AccuracyStats, TargetAccuracy, format_accuracy_table
-from calib.calibration.base_frame import MeasurementFrame
 from calib.units import display_unit, display_value
 from calib.calibration.fit import NoiseEstimate, Outlier
 from calib.calibration.validation import CrossValidation, ModelSelection
@@ -19,6 +18,9 @@ from calib.errors import ParameterError
 from calib.model.chain import U_NAMES
 from calib.model.robot import RobotModel
 from calib.model.spatial import zyx_parameters
+
+if TYPE_CHECKING:           # (calib.calibration.base_frame is loaded when a calibration reports the frame)
+    from calib.calibration.base_frame import MeasurementFrame
 
 
 # ====================================================================== result
@@ -272,6 +274,8 @@ class CalibrationResult:
         }
 
     def to_json(self) -> str:
+        import json
+
         return json.dumps(self.to_dict(), indent=2, allow_nan=False)
 
     def format(self) -> str:

@@ -29,7 +29,6 @@ Nahvi and Hollerbach), and the condition number sigma_1 / sigma_r.
 from __future__ import annotations
 
 import hashlib
-import json
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -113,6 +112,8 @@ class IdentifiabilityReport:
         }
 
     def to_json(self) -> str:
+        import json
+
         return json.dumps(self.to_dict(), indent=2)
 
     def format(self) -> str:
