@@ -151,3 +151,22 @@ def test_a_named_command_is_parsed_by_its_own_parser_alone():
     argv = ["-v", "calibrate", "r.urdf", "m.csv", "-o", "c.urdf", "--cv", "3", "--params", "paper"]
     assert vars(build_parser("calibrate").parse_args(argv)) == vars(build_parser().parse_args(argv))
     assert build_parser("calibrate").parse_args(argv).cv == 3
+
+
+def test_the_console_ends_without_the_teardown_and_keeps_every_line(tmp_path):
+    """calib._entry.console (the console script, python -m calib) ends the process once the
+    streams are flushed (no exit handler runs: the interpreter's teardown is skipped), with the
+    command's exit code and every line of its output."""
+    code = "import atexit, calib._entry as e; atexit.register(print, 'teardown'); e.console()"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    example = ROOT / "examples" / "brtirus0707a" / "measurements.csv"
+    out = tmp_path / "c.urdf"
+    run = subprocess.run([sys.executable, "-c", code, "calibrate", str(BUNDLED_URDF), str(example), "-o", str(out)],
+                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "teardown" not in run.stdout
+    assert f"wrote {out}" in run.stdout and run.stdout.endswith("evaluate and compensate use them by default)\n")
+    assert out.stat().st_size > 1000
+    bad = subprocess.run([sys.executable, "-c", code, "calibrate", str(BUNDLED_URDF)], capture_output=True,
+                         text=True, env=env, cwd=tmp_path, timeout=300)
+    assert (bad.returncode, bad.stdout, len(bad.stderr.splitlines())) == (2, "", 2)   # usage line, error line
