@@ -13,8 +13,9 @@ Prints, for the bundled robot (BRTIRUS0707A, the paper's deviations of Tables 4-
    validation poses are printed beside the times.
 3. The whole ``calib calibrate`` process (import, read, fit, report, URDF written) over
    ``python -c "import pinocchio"``, on 100 simulated poses and on the bundled example
-   (examples/brtirus0707a, 100 + 200 validation rows: issue 27 item 2), medians of several runs after one to warm the caches, with
-   the bytecode cached as after an install.
+   (examples/brtirus0707a, 100 + 200 validation rows: issue 27 item 2), medians of several rounds
+   (``--repeats``) in which the commands alternate, after one to warm the caches, with the
+   bytecode cached as after an install; wall and CPU time.
 4. The scaling table, 100 / 1k / 10k / 100k / 1M poses up to ``--max-poses`` (default 100,000:
    1M adds about two minutes: two calibrations of ~55 s, ~0.4 GB above the data): wall time of ``calibrate()`` and its
    peak memory above the loaded data (tracemalloc, which numpy reports its arrays to, started
@@ -330,6 +331,12 @@ def figaroh_ratio(python: str | None) -> dict | str:
 
 # ---------------------------------------------------------------------- 3. process time
 def process_ratio(repeats: int = 7) -> dict:
+    """Median wall seconds of each process (``calibrate``, ``example``, ``pinocchio``,
+    ``import_calib``, ``help``, ``numpy``) and, under ``"cpu"``, their median CPU seconds (user +
+    system of the child): the commands alternate in each of ``repeats`` rounds, after one round
+    to warm the caches, so that a change of the machine's load falls on all of them alike."""
+    import resource
+
     import calib
 
     robot, meas = problem(100)
@@ -342,18 +349,24 @@ def process_ratio(repeats: int = 7) -> dict:
         imp = [sys.executable, "-c", "import calib"]
         helps = [sys.executable, "-m", "calib", "--help"]
         numpy = [sys.executable, "-c", "import numpy"]
-        out = {}
-        for name, argv in (("calibrate", cmd), ("example", example), ("pinocchio", ref), ("import_calib", imp),
-                           ("help", helps), ("numpy", numpy)):
+        commands = {"calibrate": cmd, "example": example, "pinocchio": ref, "import_calib": imp, "help": helps,
+                    "numpy": numpy}
+        wall = {name: [] for name in commands}
+        cpu = {name: [] for name in commands}
+        for argv in commands.values():
             subprocess.run(argv, env=_env(), capture_output=True, cwd=tmp)   # warm the caches
-            times = []
-            for _ in range(repeats):
+        for _ in range(repeats):
+            for name, argv in commands.items():
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
                 t = time.perf_counter()
                 r = subprocess.run(argv, env=_env(), capture_output=True, cwd=tmp)
-                times.append(time.perf_counter() - t)
+                wall[name].append(time.perf_counter() - t)
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
+                cpu[name].append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
                 if r.returncode not in (0, 3):
                     raise RuntimeError(f"{' '.join(argv)} failed: {r.stderr.decode()[-500:]}")
-            out[name] = statistics.median(times)
+    out = {name: statistics.median(v) for name, v in wall.items()}
+    out["cpu"] = {name: statistics.median(v) for name, v in cpu.items()}
     return out
 
 
@@ -430,6 +443,11 @@ def print_process(p: dict) -> None:
           f"example (examples/brtirus0707a: 100 + 200 validation rows, {p['example']:.3f} s; "
           f"target <= {TARGET_27['process_ratio']:g}x); calib --help / import numpy "
           f"{p['help'] / p['numpy']:.2f}x (target <= {TARGET_27['help_ratio']:g}x)")
+    c = p["cpu"]
+    print(f"the same in CPU time (user + system; less sensitive to the machine's load): calib calibrate "
+          f"{c['calibrate']:.3f} s, the bundled example {c['example']:.3f} s, import pinocchio {c['pinocchio']:.3f} s: "
+          f"{c['calibrate'] / c['pinocchio']:.2f}x on 100 simulated poses, {c['example'] / c['pinocchio']:.2f}x on "
+          f"the bundled example; calib --help / import numpy {c['help'] / c['numpy']:.2f}x")
 
 
 def main(argv=None) -> int:
@@ -446,6 +464,7 @@ def main(argv=None) -> int:
                          "URDF, JSON report, each stage's time and peak memory, and the whole calib calibrate "
                          "--report process")
     ap.add_argument("--end-to-end-child", nargs=2, help=argparse.SUPPRESS)
+    ap.add_argument("--repeats", type=int, default=7, help="rounds of the process figures (default 7)")
     ap.add_argument("--startup-only", action="store_true",
                     help="only the process figures (calib calibrate over import pinocchio, calib --help over "
                          "import numpy: issue 27 item 2)")
@@ -465,7 +484,7 @@ def main(argv=None) -> int:
         return 0
     if args.startup_only:
         print(f"machine: {_bench.machine()}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-        print_process(process_ratio())
+        print_process(process_ratio(args.repeats))
         return 0
     if args.first_call:
         print(json.dumps(first_call(args.first_call)))
@@ -506,7 +525,7 @@ def main(argv=None) -> int:
     sel = select_100k()
     print(f"select_poses, 30 of 100,000 candidates: {sel['wall_s']:.1f} s wall, {sel['cpu_s']:.1f} s CPU "
           f"(before {BEFORE_27['select_100k_s']:g} s, target <= {TARGET_27['select_100k_s']:g} s)")
-    p = process_ratio()
+    p = process_ratio(args.repeats)
     ratio = p["calibrate"] / p["pinocchio"]
     print_process(p)
     print("scaling (calibrate() with its defaults, fresh process per size):")
