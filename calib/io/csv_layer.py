@@ -156,7 +156,8 @@ class ReadOptions:
             if not isinstance(self.key, str) or not self.key.strip():
                 raise ParameterError(f"key must be a column name, got {self.key!r:.60}")
             object.__setattr__(self, "key", str(self.key).strip())
-        if self.join != "key" or any(getattr(self, f) is not None for f in _JOIN_FIELDS):
+        if not isinstance(self.join, str) or self.join != "key" or any(getattr(self, f) is not None
+                                                                       for f in _JOIN_FIELDS):
             from calib.io.join import check_join_options     # (the defaults need no check)
 
             check_join_options(self)
