@@ -35,17 +35,21 @@ def main() -> None:
 
 
 def console() -> None:
-    """The ``calib`` command (console script, ``python -m calib``): :func:`main`, then
-    ``os._exit`` with its exit code once stdout and stderr are flushed, skipping the
-    interpreter's teardown (the outputs are written and closed by then; nothing calib starts
-    needs an exit handler). When a stream cannot be flushed (a closed pipe) the exit is Python's
-    own, which reports it as before. An exception other than SystemExit (a bug) is Python's to
-    report."""
+    """The ``calib`` command (console script, ``python -m calib``): :func:`main`, then the exit
+    handlers (atexit: logging's, weakref finalizers, a coverage tool's), stdout and stderr
+    flushed, and ``os._exit`` with its exit code, skipping the interpreter's teardown of the
+    modules (the outputs are written and closed by then). Python's own exit instead when a
+    profiler or tracer runs (``python -m cProfile -m calib``: it reports after the command) or a
+    stream cannot be flushed (a closed pipe: Python reports it as before). An exception other
+    than SystemExit (a bug) is Python's to report."""
+    import atexit
+
     try:
         main()
     except SystemExit as exc:
         code = exc.code
-        if code is None or isinstance(code, int):
+        if (code is None or isinstance(code, int)) and sys.gettrace() is None and sys.getprofile() is None:
+            atexit._run_exitfuncs()
             try:
                 for stream in (sys.stdout, sys.stderr):
                     if stream is not None:

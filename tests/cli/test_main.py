@@ -154,10 +154,16 @@ def test_a_named_command_is_parsed_by_its_own_parser_alone():
 
 
 def test_the_console_ends_without_the_teardown_and_keeps_every_line(tmp_path):
-    """calib._entry.console (the console script, python -m calib) ends the process once the
-    streams are flushed (no exit handler runs: the interpreter's teardown is skipped), with the
-    command's exit code and every line of its output."""
-    code = "import atexit, calib._entry as e; atexit.register(print, 'teardown'); e.console()"
+    """calib._entry.console (the console script, python -m calib) ends the process once the exit
+    handlers ran and the streams are flushed (the interpreter's teardown of the modules is
+    skipped: a module's __del__ is not called), with the command's exit code and every line of
+    its output."""
+    code = ("import atexit, sys, calib._entry as e\n"
+            "class Torn:\n"
+            "    def __del__(self): print('teardown')\n"
+            "sys.modules['torn'] = Torn()\n"
+            "atexit.register(print, 'exit handler')\n"
+            "e.console()\n")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     example = ROOT / "examples" / "brtirus0707a" / "measurements.csv"
     out = tmp_path / "c.urdf"
@@ -165,8 +171,8 @@ def test_the_console_ends_without_the_teardown_and_keeps_every_line(tmp_path):
                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
     assert run.returncode == 0, run.stderr
     assert "teardown" not in run.stdout
-    assert f"wrote {out}" in run.stdout and run.stdout.endswith("evaluate and compensate use them by default)\n")
+    assert f"wrote {out}" in run.stdout and run.stdout.endswith("use them by default)\nexit handler\n")
     assert out.stat().st_size > 1000
     bad = subprocess.run([sys.executable, "-c", code, "calibrate", str(BUNDLED_URDF)], capture_output=True,
                          text=True, env=env, cwd=tmp_path, timeout=300)
-    assert (bad.returncode, bad.stdout, len(bad.stderr.splitlines())) == (2, "", 2)   # usage line, error line
+    assert (bad.returncode, bad.stdout, len(bad.stderr.splitlines())) == (2, "exit handler\n", 2)   # usage, error
