@@ -1,5 +1,5 @@
 """``python -m calib``: the ``calib`` command (see :mod:`calib.cli.main`)."""
-from calib._entry import main
+from calib._entry import console
 
 if __name__ == "__main__":
-    main()
+    console()

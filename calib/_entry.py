@@ -5,6 +5,11 @@ Pinocchio come later, inside :func:`calib.cli.main.main`, which handles the sign
 A signal in that time would otherwise end the process with a traceback (SIGINT) or silently
 (SIGTERM); here it ends it with the command's one line and exit code 128 + the signal, as
 :func:`calib.cli.main.main` does later. Nothing has been written yet at that point.
+
+The console script and ``python -m calib`` run :func:`console`: the command, then the end of
+the process without the interpreter's teardown (freeing every module, Pinocchio's and numpy's
+included, took ~45 ms of a ~300 ms ``calib calibrate``), once the command's outputs are
+committed and stdout and stderr flushed.
 """
 from __future__ import annotations
 
@@ -27,3 +32,29 @@ def main() -> None:
     for s, handler in previous.items():
         signal.signal(s, handler)
     main_entry()
+
+
+def console() -> None:
+    """The ``calib`` command (console script, ``python -m calib``): :func:`main`, then the exit
+    handlers (atexit: logging's, weakref finalizers, a coverage tool's), stdout and stderr
+    flushed, and ``os._exit`` with its exit code, skipping the interpreter's teardown of the
+    modules (the outputs are written and closed by then). Python's own exit instead when a
+    profiler or tracer runs (``python -m cProfile -m calib``: it reports after the command) or a
+    stream cannot be flushed (a closed pipe: Python reports it as before). An exception other
+    than SystemExit (a bug) is Python's to report."""
+    import atexit
+
+    try:
+        main()
+    except SystemExit as exc:
+        code = exc.code
+        if (code is None or isinstance(code, int)) and sys.gettrace() is None and sys.getprofile() is None:
+            atexit._run_exitfuncs()
+            try:
+                for stream in (sys.stdout, sys.stderr):
+                    if stream is not None:
+                        stream.flush()
+            except (OSError, ValueError):
+                raise exc from None
+            os._exit(code or 0)
+        raise

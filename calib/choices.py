@@ -14,6 +14,9 @@ JOINS = ("key", "nearest-time")
 TIME_UNITS = ("s", "ms", "us", "ns")
 #: Estimators of :func:`calib.calibrate` (:mod:`calib.calibration.options`).
 ESTIMATORS = ("auto", "map", "ls")
+#: The features a touch row names, each its column (:mod:`calib.model.touch`, :mod:`calib.io.touch_file`);
+#: ``calib simulate --constraint`` takes them too.
+FEATURE_KINDS = ("point", "plane", "sphere")
 #: Pose-selection criteria (:mod:`calib.calibration.poses`).
 POSE_CRITERIA = ("D", "O1", "O4")
 #: Compensation: a configuration whose smallest singular value of the scaled pose Jacobian is

@@ -13,8 +13,9 @@ Prints, for the bundled robot (BRTIRUS0707A, the paper's deviations of Tables 4-
    validation poses are printed beside the times.
 3. The whole ``calib calibrate`` process (import, read, fit, report, URDF written) over
    ``python -c "import pinocchio"``, on 100 simulated poses and on the bundled example
-   (examples/brtirus0707a, 100 + 200 validation rows: issue 27 item 2), medians of several runs after one to warm the caches, with
-   the bytecode cached as after an install.
+   (examples/brtirus0707a, 100 + 200 validation rows: issue 27 item 2), medians of several rounds
+   (``--repeats``) in which the commands alternate, after one to warm the caches, with the
+   bytecode cached as after an install; wall and CPU time.
 4. The scaling table, 100 / 1k / 10k / 100k / 1M poses up to ``--max-poses`` (default 100,000:
    1M adds about two minutes: two calibrations of ~55 s, ~0.4 GB above the data): wall time of ``calibrate()`` and its
    peak memory above the loaded data (tracemalloc, which numpy reports its arrays to, started
@@ -36,7 +37,10 @@ With ``--end-to-end N`` only the end-to-end figures of N simulated rows (issue 2
 memory after it in a fresh process, then the whole ``calib calibrate --report`` process (wall
 time, peak resident memory).
 
+With ``--startup-only`` only the process figures of item 3 (a few seconds; issue 27 item 2).
+
 Run: python scripts/bench_speed.py [--max-poses 100000] [--study] [--figaroh PYTHON] [--end-to-end N]
+     [--startup-only]
 """
 from __future__ import annotations
 
@@ -327,6 +331,12 @@ def figaroh_ratio(python: str | None) -> dict | str:
 
 # ---------------------------------------------------------------------- 3. process time
 def process_ratio(repeats: int = 7) -> dict:
+    """Median wall seconds of each process (``calibrate``, ``example``, ``pinocchio``,
+    ``import_calib``, ``help``, ``numpy``) and, under ``"cpu"``, their median CPU seconds (user +
+    system of the child): the commands alternate in each of ``repeats`` rounds, after one round
+    to warm the caches, so that a change of the machine's load falls on all of them alike."""
+    import resource
+
     import calib
 
     robot, meas = problem(100)
@@ -339,18 +349,24 @@ def process_ratio(repeats: int = 7) -> dict:
         imp = [sys.executable, "-c", "import calib"]
         helps = [sys.executable, "-m", "calib", "--help"]
         numpy = [sys.executable, "-c", "import numpy"]
-        out = {}
-        for name, argv in (("calibrate", cmd), ("example", example), ("pinocchio", ref), ("import_calib", imp),
-                           ("help", helps), ("numpy", numpy)):
+        commands = {"calibrate": cmd, "example": example, "pinocchio": ref, "import_calib": imp, "help": helps,
+                    "numpy": numpy}
+        wall = {name: [] for name in commands}
+        cpu = {name: [] for name in commands}
+        for argv in commands.values():
             subprocess.run(argv, env=_env(), capture_output=True, cwd=tmp)   # warm the caches
-            times = []
-            for _ in range(repeats):
+        for _ in range(repeats):
+            for name, argv in commands.items():
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
                 t = time.perf_counter()
                 r = subprocess.run(argv, env=_env(), capture_output=True, cwd=tmp)
-                times.append(time.perf_counter() - t)
+                wall[name].append(time.perf_counter() - t)
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
+                cpu[name].append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
                 if r.returncode not in (0, 3):
                     raise RuntimeError(f"{' '.join(argv)} failed: {r.stderr.decode()[-500:]}")
-            out[name] = statistics.median(times)
+    out = {name: statistics.median(v) for name, v in wall.items()}
+    out["cpu"] = {name: statistics.median(v) for name, v in cpu.items()}
     return out
 
 
@@ -417,6 +433,23 @@ def _line(label: str, now: str, before: str, target: str) -> str:
     return f"| {label} | {now} | {before} | {target} |"
 
 
+def print_process(p: dict) -> None:
+    """The process figures of :func:`process_ratio`, with issue 27's line."""
+    print(f"process: calib calibrate {p['calibrate']:.3f} s, import calib {p['import_calib']:.3f} s, "
+          f"import pinocchio {p['pinocchio']:.3f} s; calib --help {p['help']:.3f} s, import numpy "
+          f"{p['numpy']:.3f} s")
+    print(f"issue 27: calib calibrate / import pinocchio {p['calibrate'] / p['pinocchio']:.2f}x on 100 simulated "
+          f"poses (before {BEFORE_27['process_ratio']:g}x), {p['example'] / p['pinocchio']:.2f}x on the bundled "
+          f"example (examples/brtirus0707a: 100 + 200 validation rows, {p['example']:.3f} s; "
+          f"target <= {TARGET_27['process_ratio']:g}x); calib --help / import numpy "
+          f"{p['help'] / p['numpy']:.2f}x (target <= {TARGET_27['help_ratio']:g}x)")
+    c = p["cpu"]
+    print(f"the same in CPU time (user + system; less sensitive to the machine's load): calib calibrate "
+          f"{c['calibrate']:.3f} s, the bundled example {c['example']:.3f} s, import pinocchio {c['pinocchio']:.3f} s: "
+          f"{c['calibrate'] / c['pinocchio']:.2f}x on 100 simulated poses, {c['example'] / c['pinocchio']:.2f}x on "
+          f"the bundled example; calib --help / import numpy {c['help'] / c['numpy']:.2f}x")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--max-poses", type=int, default=100_000,
@@ -431,6 +464,10 @@ def main(argv=None) -> int:
                          "URDF, JSON report, each stage's time and peak memory, and the whole calib calibrate "
                          "--report process")
     ap.add_argument("--end-to-end-child", nargs=2, help=argparse.SUPPRESS)
+    ap.add_argument("--repeats", type=int, default=7, help="rounds of the process figures (default 7)")
+    ap.add_argument("--startup-only", action="store_true",
+                    help="only the process figures (calib calibrate over import pinocchio, calib --help over "
+                         "import numpy: issue 27 item 2)")
     args = ap.parse_args(argv)
     if args.end_to_end_child:
         print(json.dumps(end_to_end_child(*args.end_to_end_child)))
@@ -444,6 +481,10 @@ def main(argv=None) -> int:
         print(f"  report JSON {e['report_mb']:.1f} MB, residuals CSV {e['residuals_mb']:.0f} MB")
         print(f"  calib calibrate --report process: {e['cli']['s']:.1f} s, peak {e['cli']['peak_mb']:.0f} MB "
               f"(exit {e['cli']['exit']})")
+        return 0
+    if args.startup_only:
+        print(f"machine: {_bench.machine()}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+        print_process(process_ratio(args.repeats))
         return 0
     if args.first_call:
         print(json.dumps(first_call(args.first_call)))
@@ -484,16 +525,9 @@ def main(argv=None) -> int:
     sel = select_100k()
     print(f"select_poses, 30 of 100,000 candidates: {sel['wall_s']:.1f} s wall, {sel['cpu_s']:.1f} s CPU "
           f"(before {BEFORE_27['select_100k_s']:g} s, target <= {TARGET_27['select_100k_s']:g} s)")
-    p = process_ratio()
+    p = process_ratio(args.repeats)
     ratio = p["calibrate"] / p["pinocchio"]
-    print(f"process: calib calibrate {p['calibrate']:.3f} s, import calib {p['import_calib']:.3f} s, "
-          f"import pinocchio {p['pinocchio']:.3f} s; calib --help {p['help']:.3f} s, import numpy "
-          f"{p['numpy']:.3f} s")
-    print(f"issue 27: calib calibrate / import pinocchio {ratio:.2f}x on 100 simulated poses (before "
-          f"{BEFORE_27['process_ratio']:g}x), {p['example'] / p['pinocchio']:.2f}x on the bundled example "
-          f"(examples/brtirus0707a: 100 + 200 validation rows, {p['example']:.3f} s; "
-          f"target <= {TARGET_27['process_ratio']:g}x); calib --help / import numpy "
-          f"{p['help'] / p['numpy']:.2f}x (target <= {TARGET_27['help_ratio']:g}x)")
+    print_process(p)
     print("scaling (calibrate() with its defaults, fresh process per size):")
     rows = scaling(args.max_poses)
     by_n = {r["n"]: r for r in rows}

@@ -19,7 +19,7 @@ from calib.calibration.options import (
 )
 from calib.calibration.prepare import Setup, check_data_rank
 from calib.errors import DataError, ParameterError
-from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability
+from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, identifiable_names
 from calib.model.robot import RobotModel
 
 
@@ -39,9 +39,8 @@ def _set_rank_deficit(setup: Setup, free: Sequence[str], weights: tuple[float, f
     """How many directions the parameter set ``free`` leaves undetermined at the start model on
     the calibration rows: its size minus the identifiable parameters a greedy selection with
     ``free`` first keeps (a maximal independent part of it)."""
-    kept = set(analyze_identifiability(setup.start, setup.cal.q, measure=setup.measure, sigma_pos=weights[0],
-                                       sigma_rot=weights[1], priority=free,
-                                       targets=target_rows(setup.start, setup.cal)).identifiable)
+    kept = set(identifiable_names(setup.start, setup.cal.q, measure=setup.measure, sigma_pos=weights[0],
+                                  sigma_rot=weights[1], priority=free, targets=target_rows(setup.start, setup.cal)))
     return len(free) - sum(name in kept for name in free)
 
 
@@ -58,10 +57,10 @@ def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: 
     target's v absorbs exactly), never coordinates of single targets (a gauge that turns singular
     as the fit moves)."""
     first = [p.name for p in robot.parameters if p.group == "v"] if robot.targets else None
-    ideal = analyze_identifiability(_idealised(robot), Q, measure=measure, sigma_pos=sigma_pos,
-                                    sigma_rot=sigma_rot, targets=targets, priority=first).identifiable
-    return analyze_identifiability(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
-                                   priority=ideal, targets=targets).identifiable
+    ideal = identifiable_names(_idealised(robot), Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
+                               targets=targets, priority=first)
+    return identifiable_names(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
+                              priority=ideal, targets=targets)
 
 
 def select_parameters(robot: RobotModel, params, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
@@ -114,12 +113,11 @@ def _maximal_subset(robot: RobotModel, names: Sequence[str], Q: np.ndarray, meas
     order = ([n for n in robot.names if n in want and group[n] == "v"]
              + [n for n in robot.names if n in want and group[n] == "u"]
              + [n for n in robot.names if n in want and group[n] not in ("u", "v")])
-    ideal = set(analyze_identifiability(_idealised(robot), Q, measure=measure, sigma_pos=sigma_pos,
-                                        sigma_rot=sigma_rot, targets=targets, priority=order).identifiable)
+    ideal = set(identifiable_names(_idealised(robot), Q, measure=measure, sigma_pos=sigma_pos,
+                                   sigma_rot=sigma_rot, targets=targets, priority=order))
     first = [n for n in order if n in ideal]
-    kept = set(analyze_identifiability(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
-                                       targets=targets, priority=first + [n for n in order if n not in ideal]
-                                       ).identifiable)
+    kept = set(identifiable_names(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
+                                  targets=targets, priority=first + [n for n in order if n not in ideal]))
     return tuple(n for n in robot.names if n in want and n in kept)
 
 

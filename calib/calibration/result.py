@@ -3,15 +3,14 @@ its text, dict and JSON forms, and the calibrated URDF.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from calib.calibration.accuracy import AccuracyStats, TargetAccuracy, format_accuracy_table
-from calib.calibration.base_frame import MeasurementFrame
 from calib.units import display_unit, display_value
 from calib.calibration.fit import NoiseEstimate, Outlier
 from calib.calibration.validation import CrossValidation, ModelSelection
@@ -19,6 +18,9 @@ from calib.errors import ParameterError
 from calib.model.chain import U_NAMES
 from calib.model.robot import RobotModel
 from calib.model.spatial import zyx_parameters
+
+if TYPE_CHECKING:           # (calib.calibration.base_frame is loaded when a calibration reports the frame)
+    from calib.calibration.base_frame import MeasurementFrame
 
 
 # ====================================================================== result
@@ -188,15 +190,23 @@ class CalibrationResult:
         """The URDF of :meth:`write_urdf` without the compliance sidecar; returns its frames."""
         from calib.io.urdf_writer import write_calibrated_urdf
 
+        return write_calibrated_urdf(self.base_robot().geometry(), path, **self._urdf_arguments(measurement_link))
+
+    def urdf_text(self, *, measurement_link: str | None = None):
+        """(the text :meth:`write_urdf_only` writes, the frames it records), without a file."""
+        from calib.io.urdf_writer import calibrated_urdf_text
+
+        return calibrated_urdf_text(self.base_robot().geometry(), **self._urdf_arguments(measurement_link))
+
+    def _urdf_arguments(self, measurement_link: str | None) -> dict:
         mf = self.measurement_frame
         if mf is None and measurement_link is not None:
             raise ParameterError("measurement_link: this calibration did not estimate a measurement frame "
                                  "(its measurements are in the robot's base frame)")
-        return write_calibrated_urdf(
-            self.base_robot().geometry(), path, nominal=self.nominal.geometry(), estimated=self.estimated_frames,
-            T_meas_base=None if mf is None else mf.T_meas_base,
-            meas_covariance=None if mf is None else mf.covariance, measurement_link=measurement_link,
-            orientation_measured=self.before.rotation is not None)
+        return dict(nominal=self.nominal.geometry(), estimated=self.estimated_frames,
+                    T_meas_base=None if mf is None else mf.T_meas_base,
+                    meas_covariance=None if mf is None else mf.covariance, measurement_link=measurement_link,
+                    orientation_measured=self.before.rotation is not None)
 
     def compliance_record(self) -> dict | None:
         """The compliances and periodic terms with their std, payload and gravity
@@ -264,6 +274,8 @@ class CalibrationResult:
         }
 
     def to_json(self) -> str:
+        import json
+
         return json.dumps(self.to_dict(), indent=2, allow_nan=False)
 
     def format(self) -> str:

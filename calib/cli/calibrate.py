@@ -240,14 +240,12 @@ def run(args: argparse.Namespace) -> int:
     if result.status == "implausible" and not args.accept_implausible:
         return refuse_implausible(result.format(), result.message)   # nonsense is not written
 
-    written_frames = []
     if args.measurement_link is not None and result.measurement_frame is None:
         raise ParameterError(f"--measurement-link {args.measurement_link}: the calibration did not estimate "
                              f"a measurement frame (the measurements are taken as given in the robot's base "
                              f"frame {robot.base_frame!r}); nothing written")
-    outputs.stage_from_file(out_urdf, lambda p: written_frames.append(
-        result.write_urdf_only(p, measurement_link=args.measurement_link)))
-    frames = written_frames[0]
+    urdf_text, frames = result.urdf_text(measurement_link=args.measurement_link)
+    outputs.stage(out_urdf, urdf_text)
     if out_sidecar is not None and result.robot.has_joint_terms:
         outputs.stage(out_sidecar, json_text(result.compliance_record()))
     stale = None

@@ -49,8 +49,15 @@ log = logging.getLogger(__name__)
 COMMANDS = (identifiability, simulate, calibrate, evaluate, select_poses, compensate, export, formats)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the ``calib`` command."""
+def _name(command) -> str:
+    """The subcommand's name on the command line (``select_poses``: ``select-poses``)."""
+    return command.__name__.rsplit(".", 1)[1].replace("_", "-")
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser of the ``calib`` command; with ``command`` (a subcommand's name) the
+    main parser with that subcommand's parser only (what :func:`main` parses a command line that
+    names it with: the other subcommands' parsers are not built)."""
     from calib import __version__ as ver
     parser = ArgumentParser(
         prog=PROG, formatter_class=HelpFormatter,
@@ -62,9 +69,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {ver}")
     add_verbose(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for command in COMMANDS:
-        command.add_parser(sub)
+    for module in COMMANDS:
+        if command is None or _name(module) == command:
+            module.add_parser(sub)
     return parser
+
+
+def _named_command(argv: Sequence[str]) -> str | None:
+    """The subcommand ``argv`` names when only -v / --verbose come before it; otherwise None (the
+    whole parser then parses: help, version, usage errors, unknown commands)."""
+    names = {_name(module) for module in COMMANDS}
+    for arg in argv:
+        if arg in names:
+            return arg
+        if arg != "--verbose" and not (len(arg) > 1 and arg == "-" + "v" * (len(arg) - 1)):
+            return None
+    return None
 
 
 # ====================================================================== entry points
@@ -138,7 +158,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         # the parser's choices and defaults come from the library: building it imports numpy
         # and Pinocchio, so a signal may land here too
-        parser = build_parser()
+        parser = build_parser(_named_command(argv))
         try:
             args, extra = parser.parse_known_args(argv)
             if extra:  # reported by the subcommand's parser, so that its usage line is shown

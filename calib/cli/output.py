@@ -7,10 +7,8 @@ or written by a command is strict (:func:`json_text`).
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
-import shlex
 import sys
 import tempfile
 from pathlib import Path
@@ -146,6 +144,8 @@ def json_text(obj) -> str:
         if isinstance(o, np.generic):
             return clean(o.item())
         return o
+    import json
+
     return json.dumps(clean(obj), indent=2, allow_nan=False) + "\n"
 
 
@@ -154,6 +154,8 @@ def command_line(args) -> str:
     argv = getattr(args, "argv", None)
     if argv is None:
         return f"{PROG} " + args.command if getattr(args, "command", None) else PROG
+    import shlex
+
     return " ".join(shlex.quote(a) for a in [PROG, *argv])
 
 

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -121,6 +120,8 @@ def _deviations(spec: str, robot, rng) -> tuple[dict[str, float], str]:
         return (random_deviations(robot, scale_mm * 1e-3, rng),
                 f"random:{scale_mm:g} (Gaussian, standard deviation {scale_mm:g} mm and "
                 f"{scale_mm * 2e-3:g} rad)")
+    import json
+
     path = Path(spec)
     try:
         text = path.read_text(encoding="utf-8-sig")

@@ -12,7 +12,6 @@ rad; ``"compliance"`` null without compliance); one with compliance alone keeps
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -68,6 +67,8 @@ def sidecar_path(urdf_path: str | Path) -> Path:
 
 def write_sidecar(path: str | Path, record: dict) -> None:
     """Write a compliance record (:func:`compliance_record`) as JSON, atomically."""
+    import json
+
     atomic_write_text(path, json.dumps(record, indent=2, allow_nan=False) + "\n")
 
 
@@ -89,6 +90,8 @@ def read_compliance(path: str | Path) -> ComplianceRecord:
     """Read compliances from a sidecar JSON (:func:`write_sidecar`) or a ``calib calibrate
     --report`` JSON (its ``"compliance"`` entry). Raises :class:`ParameterError` naming the file
     and what was expected."""
+    import json
+
     path = Path(path)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))

@@ -10,7 +10,6 @@ Used by :func:`calib.io.csv_layer.read_table`; the rest of the text of a file li
 """
 from __future__ import annotations
 
-import difflib
 import math
 import re
 from dataclasses import dataclass
@@ -71,6 +70,14 @@ def _unit_text(units) -> str:
 POSE_LITERAL_NAMES = ("pose", "tcp_pose", "robtarget")
 JOINT_LITERAL_NAMES = ("joints", "q", "jointtarget")
 _UNIT_TABLE = {"deg": ANGLE_UNITS, "rad": ANGLE_UNITS, "mm": LENGTH_UNITS, "m": LENGTH_UNITS}
+
+
+def _close(word: str, candidates: list, cutoff: float) -> list:
+    """The closest of ``candidates`` to ``word`` (a list of at most one), for error hints
+    (difflib is loaded by a failing header only)."""
+    import difflib
+
+    return difflib.get_close_matches(word, candidates, n=1, cutoff=cutoff)
 
 
 def _conv_style(pattern) -> str:
@@ -304,7 +311,7 @@ class Header:
                 if suffix not in _OTHER_UNITS:  # a typo (_mn, _dg), not another unit (_cm)
                     typo = [u for u in units if len(u) == len(suffix)
                             and sum(a != b for a, b in zip(u, suffix)) == 1]
-                    close = typo or difflib.get_close_matches(suffix, list(units), n=1, cutoff=0.5)
+                    close = typo or _close(suffix, list(units), 0.5)
                     hint = f"; did you mean '{name[:len(base)]}_{close[0]}'?" if close else ""
                 self.fail(f"wrong unit suffix _{suffix}: {base} takes {_unit_text(units)}{hint}",
                           written)
@@ -328,7 +335,7 @@ class Header:
         if self.convention is not None and self.convention.others and \
                 re.fullmatch(self.convention.others, low):
             return None         # one of the vendor's other columns, not a misspelt name
-        close = difflib.get_close_matches(low, self.valid, n=1, cutoff=_NEAR_MISS_CUTOFF)
+        close = _close(low, self.valid, _NEAR_MISS_CUTOFF)
         if close:
             self.fail(f"unknown column: did you mean {self._spelling(close[0])!r}? (rename it with "
                       f"--rename '{written}=NEW', or drop it with --rename '{written}=')", written)
@@ -527,8 +534,7 @@ class Header:
             self.fail("Euler angle columns e1, e2, e3 need their sequence: give --euler SEQ in "
                       "scipy's notation (ZYX intrinsic, xyz extrinsic, ...)", cols["e1"].name)
         if self.key is not None and self.key not in cols:
-            close = difflib.get_close_matches(self.key.lower(),
-                                              [c.strip().lower() for c in self.ignored], n=1)
+            close = _close(self.key.lower(), [c.strip().lower() for c in self.ignored], 0.6)
             hint = f"; did you mean {close[0]!r}?" if close else ""
             self.fail(f"no key column {self.key!r} (given by --key){hint}")
         if spec.joints == "optional" and spec.position != "none" and not present and literal is None \

@@ -84,6 +84,10 @@ def parse_rename(text: str) -> tuple[tuple[str, str], ...]:
     return tuple(pairs)
 
 
+#: ReadOptions' fields of the joining of a tracker file (:mod:`calib.io.join`) besides ``join``.
+_JOIN_FIELDS = ("target_column", "target_from", "time", "time_unit", "max_gap")
+
+
 @dataclass(frozen=True)
 class ReadOptions:
     """How to read tracker files as they come (all optional).
@@ -152,9 +156,11 @@ class ReadOptions:
             if not isinstance(self.key, str) or not self.key.strip():
                 raise ParameterError(f"key must be a column name, got {self.key!r:.60}")
             object.__setattr__(self, "key", str(self.key).strip())
-        from calib.io.join import check_join_options
+        if not isinstance(self.join, str) or self.join != "key" or any(getattr(self, f) is not None
+                                                                       for f in _JOIN_FIELDS):
+            from calib.io.join import check_join_options     # (the defaults need no check)
 
-        check_join_options(self)
+            check_join_options(self)
 
 
 @dataclass(frozen=True)

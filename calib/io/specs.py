@@ -56,7 +56,6 @@ import numpy as np
 
 from calib.errors import MeasurementFormatError, ParameterError
 from calib.io.fileio import atomic_write_text, check_not_input
-from calib.io.join import join_tables, sides
 from calib.model.measurements import Measurements
 from calib.io.csv_layer import (ANGLE_UNITS, LENGTH_UNITS, POSITION_COLUMNS, ORIENTATIONS, ReadOptions, Spec,
                                 Table, csv_text, joint_columns, read_table)
@@ -147,6 +146,8 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
             raise ParameterError("a tracker file is joined to the joint file by a key column: "
                                  "give it (--key COLUMN), or join by the nearest time (--join "
                                  "nearest-time)")
+        from calib.io.join import join_tables, sides       # (a tracker file only)
+
         joint_spec, tracker_spec = sides(JOINT_SIDE, TRACKER_SIDE, options)
         j = read_table(csv_path, joint_spec, robot, options)
         pose = read_table(tracker, tracker_spec, robot, options)

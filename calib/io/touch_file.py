@@ -31,10 +31,13 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.choices import FEATURE_KINDS
 from calib.errors import CalibError, MeasurementFormatError
 from calib.io.csv_layer import LENGTH_UNITS, ReadOptions, Spec, _records, csv_text, joint_columns, read_table
 from calib.io.fileio import atomic_write_text, check_not_input
-from calib.model.touch import FEATURE_KINDS, Feature, TouchData
+
+# (calib.model.touch is imported by the reader and the writer: calib calibrate asks
+# is_touch_file of every measurement file, which needs none of it)
 
 __all__ = ["TOUCH", "is_touch_file", "read_touch", "write_touch"]
 
@@ -113,6 +116,7 @@ def read_touch(csv_path: str | Path, robot, *, probe_radius: float = 0.0,
     file, row and column on any departure from the format.
     """
     from calib.checks import check_number, check_path
+    from calib.model.touch import Feature, TouchData
 
     path = check_path(csv_path, "csv_path")
     check_number(probe_radius, "probe_radius (m)", minimum=0.0, maximum=1.0)
@@ -225,6 +229,7 @@ def write_touch(path: str | Path, data: TouchData, robot, *, angle_unit: str = "
     written with ``repr``: reading the file back gives the data to the unit conversion's rounding."""
     from calib.checks import check_instance, check_path
     from calib.model.robot import check_robot
+    from calib.model.touch import TouchData
 
     check_path(path, "path")
     check_instance(data, "data", TouchData, "calib.read_touch or calib.simulate_touch")

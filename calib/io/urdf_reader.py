@@ -23,6 +23,7 @@ from calib.model.mdh import PARALLEL_THRESHOLD_RAD, derive_mdh
 from calib.io.urdf import UrdfDocument, UrdfJoint
 from calib.model.chain import JOINT_KINDS, ChainJoint
 from calib.model.robot import RobotModel
+from calib.model.spatial import cross3
 
 log = logging.getLogger(__name__)
 
@@ -308,7 +309,7 @@ def chain_axes(chain: UrdfChain) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if joint.is_prismatic:
             direction, point = v, data.oMi[jid].translation
         else:
-            direction, point = w, np.cross(w, v) / (w @ w)
+            direction, point = w, cross3(w, v) / (w @ w)
         pts.append(oMb.actInv(point))
         dirs.append(oMb.rotation.T @ direction / np.linalg.norm(direction))
     T_meas_tool = oMb.actInv(data.oMf[chain.tool_frame_id]).homogeneous
@@ -336,9 +337,24 @@ def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame:
     return robot_from_chain(read_urdf_chain(urdf_path, base_frame, tool_frame), parallel_threshold)
 
 
+#: (chain, parallel threshold, model) of the last :func:`robot_from_chain`: the writer derives
+#: the nominal model again from the chain the loader read (check_writable, before a fit).
+_LAST_DERIVED: list = []
+
+
 def robot_from_chain(chain: UrdfChain, parallel_threshold: float = PARALLEL_THRESHOLD_RAD) -> RobotModel:
     """The TM-MDH model of a chain already read (:func:`read_urdf_chain`), carrying it as its
-    ``source``: no file is read and nothing is rebuilt. See :func:`load_robot`."""
+    ``source``: no file is read and nothing is rebuilt. See :func:`load_robot`. (The model of the
+    last chain is kept: both are immutable.)"""
+    for kept, threshold, robot in _LAST_DERIVED:
+        if kept is chain and threshold == parallel_threshold:
+            return robot
+    robot = _derived(chain, parallel_threshold)
+    _LAST_DERIVED[:] = [(chain, parallel_threshold, robot)]
+    return robot
+
+
+def _derived(chain: UrdfChain, parallel_threshold: float) -> RobotModel:
     pts, dirs, T_meas_tool = chain_axes(chain)
     geo = derive_mdh(pts, dirs, T_meas_tool, parallel_threshold)
     robot = RobotModel.from_mdh(

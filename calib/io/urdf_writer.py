@@ -72,7 +72,7 @@ from calib.io.urdf import unique_name as _unique_name
 from calib.io.urdf_minimal import minimal_urdf
 from calib.model.spatial import inverse
 
-__all__ = ["check_writable", "format_number", "rpy_nearest", "write_calibrated_urdf"]
+__all__ = ["calibrated_urdf_text", "check_writable", "format_number", "rpy_nearest", "write_calibrated_urdf"]
 
 #: Tolerance (metres, radians) for the check that a ``nominal`` model describes the URDF's joint
 #: axes and tool frame. A model derived by :func:`calib.load_robot` matches to rounding (1e-15).
@@ -84,12 +84,9 @@ _UNCHANGED_TOL = 1e-13
 
 
 # ====================================================================== public API
-def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
-                          nominal: RobotModel | None = None,
-                          estimated: Sequence[str] = (),
-                          T_meas_base: np.ndarray | None = None,
-                          meas_covariance: np.ndarray | None = None,
-                          measurement_link: str | None = None,
+def write_calibrated_urdf(robot: RobotModel, path: str | Path, *, nominal: RobotModel | None = None,
+                          estimated: Sequence[str] = (), T_meas_base: np.ndarray | None = None,
+                          meas_covariance: np.ndarray | None = None, measurement_link: str | None = None,
                           orientation_measured: bool = True) -> RecordedFrames:
     """Write a copy of the URDF ``robot`` was read from whose kinematics are exactly ``robot``'s.
 
@@ -132,6 +129,19 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
 
     Raises :class:`~calib.errors.CalibError` (or a subclass): output = input, ``nominal`` incompatible with ``robot`` or not describing the URDF.
     """
+    text, frames = calibrated_urdf_text(robot, nominal=nominal, estimated=estimated, T_meas_base=T_meas_base, _path=path,
+                                        meas_covariance=meas_covariance, measurement_link=measurement_link,
+                                        orientation_measured=orientation_measured)
+    atomic_write_text(path, text)
+    return frames
+
+
+def calibrated_urdf_text(robot: RobotModel, *, nominal: RobotModel | None = None, estimated: Sequence[str] = (),
+                         T_meas_base: np.ndarray | None = None, meas_covariance: np.ndarray | None = None,
+                         measurement_link: str | None = None, orientation_measured: bool = True, _path=...
+                         ) -> tuple[str, RecordedFrames]:
+    """(the text :func:`write_calibrated_urdf` writes, the frames it records), without a file
+    (``calib calibrate`` stages its outputs in memory, then writes them as a set)."""
     from calib.checks import check_names, check_path
     from calib.model.robot import check_robot
 
@@ -139,7 +149,8 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
     if nominal is not None:
         check_robot(nominal, "nominal")
     estimated = check_names(estimated, "estimated")
-    check_not_input(check_path(path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
+    if _path is not ...:       # (write_calibrated_urdf's output, checked in its turn)
+        check_not_input(check_path(_path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
     measurement = _check_measurement(T_meas_base, meas_covariance, measurement_link)
     if not isinstance(orientation_measured, bool):
         raise CalibError(f"orientation_measured must be True or False, got {orientation_measured!r}")
@@ -153,8 +164,7 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
         if measurement is not None or not orientation_measured:
             frames = replace(frames, **(measurement or {}), orientation_measured=orientation_measured)
             text = _minimal_with_record(text, frames)
-        atomic_write_text(path, text)
-        return frames
+        return text, frames
     doc, plan = _prepare(robot, nominal)
     estimated = tuple(estimated)
     f = plan.frames     # (a calibrated input's record kept: see _prepare)
@@ -168,8 +178,7 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *,
         **(measurement or {"T_meas_base": (), "meas_covariance": (), "measurement_link": ""})))
     if measurement_link:
         plan = _plan_measurement_link(doc, plan, robot.base_frame, measurement_link)
-    atomic_write_text(path, doc.render(plan))
-    return plan.frames
+    return doc.render(plan), plan.frames
 
 
 def _check_measurement(T, cov, link) -> dict | None:

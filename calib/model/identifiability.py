@@ -29,7 +29,6 @@ Nahvi and Hollerbach), and the condition number sigma_1 / sigma_r.
 from __future__ import annotations
 
 import hashlib
-import json
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -113,6 +112,8 @@ class IdentifiabilityReport:
         }
 
     def to_json(self) -> str:
+        import json
+
         return json.dumps(self.to_dict(), indent=2)
 
     def format(self) -> str:
@@ -213,6 +214,67 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
     model values, configurations and options (as a calibration repeated on the same data makes)
     returns the same report without recomputing it.
     """
+    Q, targets = _checked_rows(robot, Q, measure, n_poses, seed, tol, sigma_pos, sigma_rot, priority, max_poses,
+                               targets)
+    key = _cache_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
+    report = _cache.get(key)
+    if report is None:
+        report = _analyze(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
+        _keep(key, report)
+    else:
+        _cache.move_to_end(key)
+    return report
+
+
+def identifiable_names(robot: RobotModel, Q: np.ndarray, *, measure: str = "pose", tol: float = RANK_TOL,
+                       sigma_pos: float = SIGMA_POS_M, sigma_rot: float = SIGMA_ROT_RAD,
+                       priority: Sequence[str] | None = None, max_poses: int | None = 500,
+                       targets: np.ndarray | None = None) -> tuple[str, ...]:
+    """``analyze_identifiability(robot, Q, ...).identifiable`` (the same arguments, the same
+    names in ``robot.names`` order) without the relations and observability indices of the
+    report: the rank-revealing selection alone. The names are kept by content as the reports
+    are, and the last noise-weighted Jacobian is reused for a call that differs from the one
+    that computed it only by ``priority`` (the same model values, configurations and options)."""
+    global _last_jacobian
+    Q, targets = _checked_rows(robot, Q, measure, 100, 0, tol, sigma_pos, sigma_rot, priority, max_poses, targets)
+    key = _cache_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
+    report = _cache.get(key)
+    if report is not None:
+        _cache.move_to_end(key)
+        return report.identifiable
+    names_key = ("names",) + key
+    names = _cache.get(names_key)
+    if names is not None:
+        _cache.move_to_end(names_key)
+        return names
+    J = _last_jacobian[1] if _last_jacobian[0] == key[:-1] else None
+    if J is None:
+        J = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot, targets)
+        _last_jacobian = (key[:-1], J)
+    order = list(robot.indices(priority)) if priority else []
+    order += [k for k in range(robot.n_params) if k not in order]
+    kept, _ = select_identifiable(J, order, tol)
+    names = tuple(robot.names[k] for k in sorted(kept))
+    _keep(names_key, names)
+    return names
+
+
+#: (the cache key of a Jacobian without the priority, the noise-weighted Jacobian) of the last
+#: :func:`identifiable_names` that computed one.
+_last_jacobian: tuple = (None, None)
+
+
+def _keep(key: tuple, value) -> None:
+    _cache[key] = value
+    while len(_cache) > CACHE_SIZE:
+        _cache.popitem(last=False)
+
+
+def _checked_rows(robot: RobotModel, Q, measure: str, n_poses: int, seed, tol: float, sigma_pos: float,
+                  sigma_rot: float, priority, max_poses: int | None, targets) -> tuple:
+    """The arguments of :func:`analyze_identifiability` checked, and the (configurations, target
+    of each row) it analyses: random ones when Q is None, at most ``max_poses`` evenly spaced,
+    every target at each configuration of a multi-target model without ``targets``."""
     check_robot(robot)
     if not isinstance(measure, str) or measure not in MEASURES:
         raise ParameterError(f"measure must be one of {', '.join(MEASURES)}, got {measure!r}")
@@ -235,16 +297,7 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
         Q, targets = Q[pick], None if targets is None else targets[pick]
     if targets is None and robot.targets:
         Q, targets = np.repeat(Q, robot.n_targets, axis=0), np.tile(np.arange(robot.n_targets), len(Q))
-    key = _cache_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
-    report = _cache.get(key)
-    if report is None:
-        report = _analyze(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
-        _cache[key] = report
-        while len(_cache) > CACHE_SIZE:
-            _cache.popitem(last=False)
-    else:
-        _cache.move_to_end(key)
-    return report
+    return Q, targets
 
 
 def _cache_key(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,

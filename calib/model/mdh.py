@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.model.spatial import elementary, inverse
+from calib.model.spatial import cross3, elementary, inverse
 
 #: Default threshold (radians) on the angle between consecutive joint axes below which they are
 #: treated as parallel and modelled with Hayati's beta instead of DH. At 0.1 rad (5.7 deg) the DH
@@ -87,7 +87,7 @@ def _first_perpendicular(candidates: list[np.ndarray], z: np.ndarray) -> np.ndar
 
 def _signed_angle(x_from: np.ndarray, x_to: np.ndarray, z: np.ndarray) -> float:
     """Angle of the rotation about z that takes x_from to x_to (both normal to z)."""
-    return float(np.arctan2(np.cross(x_from, x_to) @ z, x_from @ x_to))
+    return float(np.arctan2(cross3(x_from, x_to) @ z, x_from @ x_to))
 
 
 def _closest_sign(n: np.ndarray, x_prev: np.ndarray) -> np.ndarray:
@@ -118,7 +118,7 @@ def derive_mdh(axis_points: np.ndarray, axis_dirs: np.ndarray, T_meas_tool: np.n
     o0 = pts[0] + ((np.zeros(3) - pts[0]) @ z0) * z0
     x0 = _first_perpendicular([np.eye(3)[0], np.eye(3)[1]], z0)
     F = np.eye(4)
-    F[:3, :3] = np.column_stack([x0, np.cross(z0, x0), z0])
+    F[:3, :3] = np.column_stack([x0, cross3(z0, x0), z0])
     F[:3, 3] = o0
     frames = [F]
 
@@ -135,7 +135,7 @@ def derive_mdh(axis_points: np.ndarray, axis_dirs: np.ndarray, T_meas_tool: np.n
             x_i = _closest_sign(w / dist, x_prev) if dist > _EPS_LENGTH else x_prev
             theta[i] = _signed_angle(x_prev, x_i, z)
             a[i] = w @ x_i
-            y_i = np.cross(z, x_i)
+            y_i = cross3(z, x_i)
             cx, cy, cz = z_next @ x_i, z_next @ y_i, z_next @ z
             beta[i] = np.arcsin(np.clip(cx, -1.0, 1.0))
             alpha[i] = np.arctan2(-cy, cz)
@@ -150,12 +150,12 @@ def derive_mdh(axis_points: np.ndarray, axis_dirs: np.ndarray, T_meas_tool: np.n
             foot_i, foot_next = o + s * z, p_next + t * z_next
             w = foot_next - foot_i
             dist = np.linalg.norm(w)
-            normal = w / dist if dist > _EPS_LENGTH else _unit(np.cross(z, z_next))
+            normal = w / dist if dist > _EPS_LENGTH else _unit(cross3(z, z_next))
             x_i = _closest_sign(normal, x_prev)
             theta[i] = _signed_angle(x_prev, x_i, z)
             d[i] = s
             a[i] = w @ x_i
-            alpha[i] = float(np.arctan2(np.cross(z, z_next) @ x_i, z @ z_next))
+            alpha[i] = float(np.arctan2(cross3(z, z_next) @ x_i, z @ z_next))
         F = F @ link_transform(theta[i], d[i], a[i], alpha[i], beta[i])
         frames.append(F)
 

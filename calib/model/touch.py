@@ -28,9 +28,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calib.checks import check_array, check_int, check_number
+from calib.choices import FEATURE_KINDS
 from calib.errors import DataError
-
-FEATURE_KINDS = ("point", "plane", "sphere")
 #: The three unknowns of each kind, as suffixes of the parameter names.
 FEATURE_UNKNOWNS = {"point": ("x", "y", "z"), "plane": ("a", "b", "d"), "sphere": ("x", "y", "z")}
 #: The unit of each unknown.

@@ -131,3 +131,48 @@ def test_help_loads_neither_numpy_nor_pinocchio():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
                          env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120)
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stderr
+
+
+def test_a_named_command_is_parsed_by_its_own_parser_alone():
+    """main builds only the named subcommand's parser (start-up): the same arguments, help and
+    errors as the whole parser; help, version, unknown commands and anything else before the
+    command take the whole parser."""
+    from calib.cli.main import _named_command
+
+    assert _named_command(["calibrate", "a.urdf"]) == "calibrate"
+    assert _named_command(["-vv", "--verbose", "select-poses"]) == "select-poses"
+    for argv in ([], ["--help", "calibrate"], ["-h", "calibrate"], ["--version"], ["--", "calibrate"],
+                 ["calibrat"], ["-x", "calibrate"], ["--verb", "calibrate"]):
+        assert _named_command(argv) is None
+    for name in NAMES:
+        alone, whole = _subparsers(build_parser(name)), _subparsers(build_parser())
+        assert list(alone) == [name]
+        assert alone[name].format_help() == whole[name].format_help()
+    argv = ["-v", "calibrate", "r.urdf", "m.csv", "-o", "c.urdf", "--cv", "3", "--params", "paper"]
+    assert vars(build_parser("calibrate").parse_args(argv)) == vars(build_parser().parse_args(argv))
+    assert build_parser("calibrate").parse_args(argv).cv == 3
+
+
+def test_the_console_ends_without_the_teardown_and_keeps_every_line(tmp_path):
+    """calib._entry.console (the console script, python -m calib) ends the process once the exit
+    handlers ran and the streams are flushed (the interpreter's teardown of the modules is
+    skipped: a module's __del__ is not called), with the command's exit code and every line of
+    its output."""
+    code = ("import atexit, sys, calib._entry as e\n"
+            "class Torn:\n"
+            "    def __del__(self): print('teardown')\n"
+            "sys.modules['torn'] = Torn()\n"
+            "atexit.register(print, 'exit handler')\n"
+            "e.console()\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    example = ROOT / "examples" / "brtirus0707a" / "measurements.csv"
+    out = tmp_path / "c.urdf"
+    run = subprocess.run([sys.executable, "-c", code, "calibrate", str(BUNDLED_URDF), str(example), "-o", str(out)],
+                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "teardown" not in run.stdout
+    assert f"wrote {out}" in run.stdout and run.stdout.endswith("use them by default)\nexit handler\n")
+    assert out.stat().st_size > 1000
+    bad = subprocess.run([sys.executable, "-c", code, "calibrate", str(BUNDLED_URDF)], capture_output=True,
+                         text=True, env=env, cwd=tmp_path, timeout=300)
+    assert (bad.returncode, bad.stdout, len(bad.stderr.splitlines())) == (2, "exit handler\n", 2)   # usage, error

@@ -147,3 +147,12 @@ def test_a_model_beyond_the_dof_bound_is_refused_before_pinocchio_builds_its_wor
     with pytest.raises(URDFError, match=f"{n} moving degrees of freedom"):
         load_robot(path)
     assert main(["identifiability", str(path)]) == 2
+
+
+def test_the_last_chain_derived_is_kept():
+    """robot_from_chain of the chain the loader read (the writer's check before a fit) is the
+    loaded model itself, not a second derivation; another threshold derives again."""
+    robot = calib.load_robot(BUNDLED)
+    assert robot_from_chain(robot.source, robot.parallel_threshold) is robot
+    other = robot_from_chain(robot.source, robot.parallel_threshold / 2)
+    assert other is not robot and other.n_params == robot.n_params == 37

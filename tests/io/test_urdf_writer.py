@@ -497,3 +497,21 @@ def test_base_frame_above_the_first_joint_via_a_parent_joint(tmp_path):
     fk = _PinFK(out, robot.joint_names, base="base")
     for q in robot.random_configurations(20, rng=2):
         assert max(_pose_errors(fk(q)["tool0"], robot.T_meas_tool(q))) < TOL_M
+
+
+def test_text_is_what_the_writer_writes(tmp_path):
+    """calibrated_urdf_text (what calib calibrate stages in memory) gives the bytes and frames
+    write_calibrated_urdf writes, with and without a measurement frame recorded apart."""
+    from calib.io.urdf_writer import calibrated_urdf_text
+
+    robot = load_robot(BUNDLED)
+    calibrated = robot.with_changes(d1=robot.value("d1") + 1e-3, alpha2=2e-3)
+    T = np.eye(4)
+    T[:3, 3] = [0.5, -0.2, 0.1]
+    for k, kwargs in enumerate(({}, {"T_meas_base": T, "measurement_link": "tracker"})):
+        out = tmp_path / f"c{k}.urdf"
+        frames = write_calibrated_urdf(calibrated, out, nominal=robot, **kwargs)
+        text, text_frames = calibrated_urdf_text(calibrated, nominal=robot, **kwargs)
+        assert out.read_bytes() == text.encode("utf-8")
+        assert text_frames == frames
+        assert len(text) > 1000

@@ -93,3 +93,27 @@ def test_repeated_analysis_comes_from_the_cache(bundled_robot):
     fresh = analyze_identifiability(bundled_robot, Q)
     assert fresh is not first and fresh.identifiable == first.identifiable
     np.testing.assert_array_equal(fresh.singular_values, first.singular_values)
+
+
+@pytest.mark.parametrize("measure", ["pose", "position"])
+def test_identifiable_names_are_the_reports(bundled_robot, measure):
+    """identifiable_names (the selection without relations and indices, which calibrate's
+    parameter choice asks for) gives the report's identifiable names, for several priorities and
+    models, whether the Jacobian was reused, the names cached or a report cached first."""
+    from calib.model import identifiability
+    from calib.model.identifiability import identifiable_names
+    from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations
+
+    Q = bundled_robot.random_configurations(40, 5)
+    perturbed = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
+    priorities = (None, ["v_x", "v_z", "u_z", "u_alpha"], list(reversed(bundled_robot.names)))
+    for robot in (bundled_robot, perturbed, bundled_robot.with_changes(v_x=0.1)):
+        for priority in priorities:
+            identifiability._cache.clear()
+            names = identifiable_names(robot, Q, measure=measure, priority=priority)
+            assert identifiable_names(robot, Q, measure=measure, priority=priority) is names      # cached
+            identifiability._cache.clear()
+            report = analyze_identifiability(robot, Q, measure=measure, priority=priority)
+            assert names == report.identifiable
+            assert identifiable_names(robot, Q, measure=measure, priority=priority) is report.identifiable
+    assert len(identifiable_names(bundled_robot, Q, measure=measure)) == (30 if measure == "pose" else 25)

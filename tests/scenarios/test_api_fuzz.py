@@ -108,6 +108,7 @@ def table(tmp_path_factory):
         "MeasurementFrame.xyz_rpy": (mframe.xyz_rpy, {}),
         "CalibrationResult.base_robot": (res.base_robot, {}),
         "CalibrationResult.write_urdf_only": (res.write_urdf_only, dict(path=d / "r2.urdf")),
+        "CalibrationResult.urdf_text": (res.urdf_text, dict(measurement_link=None)),
         "Payload": (calib.Payload, dict(mass=1.0)),
         "PaperLMOptions": (calib.PaperLMOptions, {}),
         "paper_lm": (calib.paper_lm, dict(problem=prob, x0=robot.values[idx], angular=angular)),
