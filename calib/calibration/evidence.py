@@ -95,9 +95,9 @@ def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray) -> 
     wp = math.exp(log_h[0])
     wr = math.exp(log_h[1]) if rot else 0.0
     lam_g = np.exp(log_h[k:])
-    prior = group_index >= 0
+    prior, prior_group, members = _groups(group_index, len(lam_g))
     lam = np.zeros(len(group_index))
-    lam[prior] = lam_g[group_index[prior]]
+    lam[prior] = lam_g[prior_group]
     A_data = wp * lin.JpJp + (wr * lin.JrJr if rot else 0.0)
     b = wp * lin.Jpy + (wr * lin.Jry if rot else 0.0)
     A = A_data + np.diag(lam)
@@ -132,10 +132,27 @@ def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray) -> 
         grad[1] = 0.5 * lin.n_r - 0.5 * wr * (rss_r + tr_r)
         red_r = lin.n_r - wr * tr_r
     q = z ** 2 + np.diag(C)
-    for g in range(len(lam_g)):
-        mem = group_index == g
-        grad[k + g] = 0.5 * np.count_nonzero(mem) - 0.5 * lam_g[g] * float(np.sum(q[mem]))
+    for g, mem in enumerate(members):
+        grad[k + g] = 0.5 * len(mem) - 0.5 * lam_g[g] * float(np.sum(q[mem]))
     return Evidence(np.array(log_h, float), float(value), grad, z, C, A_data, red_p, red_r)
+
+
+_GROUPS: dict = {}
+
+
+def _groups(group_index: np.ndarray, n_groups: int):
+    """(prior mask (m,), the group of each prior parameter, each group's member indices) of
+    ``group_index`` (see :func:`evidence`), kept for the last few index vectors: the evidence is
+    evaluated many times with one."""
+    key = (group_index.tobytes(), n_groups)
+    hit = _GROUPS.get(key)
+    if hit is None:
+        prior = group_index >= 0
+        hit = (prior, group_index[prior], [np.flatnonzero(group_index == g) for g in range(n_groups)])
+        if len(_GROUPS) >= 8:
+            _GROUPS.pop(next(iter(_GROUPS)))
+        _GROUPS[key] = hit
+    return hit
 
 
 def _log_bounds(rot: bool, n_groups: int) -> np.ndarray:
