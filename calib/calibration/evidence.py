@@ -82,8 +82,9 @@ class Evidence:
     red_r: float
 
 
-def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray) -> Evidence:
-    """Log evidence of the linearised model (design note, step 2b) and its gradient.
+def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray, *, value: bool = True) -> Evidence:
+    """Log evidence of the linearised model (design note, step 2b) and its gradient (``value``
+    False: the gradient only, the value NaN).
 
     group_index : (m,) int, each free parameter's prior group (index into the lambda part of
     log_h), -1 for a frame parameter (flat prior). log_h : see :class:`Evidence`.
@@ -113,12 +114,15 @@ def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray) -> 
     Linv = np.linalg.inv(Lc)
     C = (Linv.T @ Linv) * s[:, None] * s[None, :]
     z = C @ b
-    logdet = 2.0 * float(np.sum(np.log(np.diag(Lc)))) - 2.0 * float(np.sum(np.log(s)))
-    yWy = wp * lin.yyp + (wr * lin.yyr if rot else 0.0)
-    M = lin.n_p + lin.n_r
-    value = (-0.5 * (yWy - float(b @ z)) - 0.5 * logdet + 0.5 * float(np.sum(np.log(lam[prior])))
-             + 0.5 * lin.n_p * log_h[0] + (0.5 * lin.n_r * log_h[1] if rot else 0.0)
-             - 0.5 * M * math.log(2.0 * math.pi))
+    if value:
+        logdet = 2.0 * float(np.sum(np.log(np.diag(Lc)))) - 2.0 * float(np.sum(np.log(s)))
+        yWy = wp * lin.yyp + (wr * lin.yyr if rot else 0.0)
+        M = lin.n_p + lin.n_r
+        value = (-0.5 * (yWy - float(b @ z)) - 0.5 * logdet + 0.5 * float(np.sum(np.log(lam[prior])))
+                 + 0.5 * lin.n_p * log_h[0] + (0.5 * lin.n_r * log_h[1] if rot else 0.0)
+                 - 0.5 * M * math.log(2.0 * math.pi))
+    else:       # (the gradient alone: the Hessian's differences)
+        value = math.nan
     # gradient: d/d log w = n/2 - w/2 (|y - J z|^2 + tr(C J^T J)); d/d log lambda_g =
     # n_g/2 - lambda_g/2 sum_{j in g} (z_j^2 + C_jj)
     grad = np.zeros(len(log_h))
@@ -228,8 +232,8 @@ def _newton_ascent(lin: Linearisation, group_index: np.ndarray, ev: Evidence, bo
         for a, i in enumerate(free):
             e = np.zeros(n)
             e[i] = eps
-            H[:, a] = (evidence(lin, group_index, h + e).gradient[free]
-                       - evidence(lin, group_index, h - e).gradient[free]) / (2 * eps)
+            H[:, a] = (evidence(lin, group_index, h + e, value=False).gradient[free]
+                       - evidence(lin, group_index, h - e, value=False).gradient[free]) / (2 * eps)
         w, V = np.linalg.eigh(0.5 * (H + H.T))
         w = np.maximum(np.abs(w), 1e-8 * max(float(np.max(np.abs(w))), 1e-300))
         step = np.zeros(n)
