@@ -437,8 +437,15 @@ class ChainKinematics:
         if frame == "base":
             T = self.base_placement
             return np.repeat(T[None, :3, :3], N, axis=0), np.repeat(T[None, :3, 3], N, axis=0)
+        groups = self._target_groups(N, targets if frame == "tool" else None)
+        if len(groups) == 1 and N <= CHUNK:
+            # one chunk of one target: its arrays are the outputs (no scatter copies)
+            t = groups[0][0]
+            T = self.placements[self.n_joints + t] if frame == "tool" else self.flange_placement
+            Rc, pc = self._attach(*self._walk(Q), T)
+            return np.ascontiguousarray(Rc.transpose(2, 1, 0)), np.ascontiguousarray(pc.T)
         R, p = np.empty((N, 3, 3)), np.empty((N, 3))
-        for t, rows in self._target_groups(N, targets if frame == "tool" else None):
+        for t, rows in groups:
             T = self.placements[self.n_joints + t] if frame == "tool" else self.flange_placement
             Q_rows = Q[rows]
             R_rows, p_rows = np.empty((len(Q_rows), 3, 3)), np.empty((len(Q_rows), 3))

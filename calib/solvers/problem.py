@@ -253,6 +253,8 @@ class Problem:
         for sl in self._chunks():
             R, p = self.kin.frame_poses(self.Q[sl], targets=self._targets(sl))
             out.append(self._assemble(R, p, None, parts, sl)[0])
+        if len(out) == 1:
+            return out[0]
         return np.concatenate(out) if out else np.zeros(0)
 
     def normal_equations(self, x: np.ndarray, parts: str = "pose") -> NormalEquations:
