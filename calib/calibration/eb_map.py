@@ -100,6 +100,9 @@ class EBMapResult:
     #: (m,) prior precision lambda_j = 1 / tau_g(j)^2 of each free parameter (0 for frames), in
     #: the units of the parameter (1/m^2, 1/rad^2); the posterior is N(estimate, covariance).
     prior_precision: np.ndarray | None = field(default=None, repr=False)
+    #: the weighted problem of the kept rows over the free parameters, at the final noise levels
+    #: (its caches hold the normal equations at the estimate), or None
+    problem: Problem | None = field(default=None, repr=False, compare=False)
 
     @property
     def std(self) -> np.ndarray:
@@ -450,7 +453,9 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
         sigma_pos=float(math.exp(-0.5 * ev.log_h[0])),
         sigma_rot=float(math.exp(-0.5 * ev.log_h[1])) if rot else None,
         keep=keep, outliers=outliers, passes=done, notes=tuple(notes),
-        prior_precision=np.where(group_index >= 0, np.exp(ev.log_h[k:])[np.maximum(group_index, 0)], 0.0))
+        prior_precision=np.where(group_index >= 0, np.exp(ev.log_h[k:])[np.maximum(group_index, 0)], 0.0),
+        problem=problem.derived(sigma_pos=math.exp(-0.5 * ev.log_h[0]),
+                                sigma_rot=math.exp(-0.5 * ev.log_h[1]) if rot else problem.sigma_rot))
 
 
 def _judge_rows(problem_all: Problem, x: np.ndarray, ev: Evidence, rot: bool, keep: np.ndarray,

@@ -82,8 +82,9 @@ class Evidence:
     red_r: float
 
 
-def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray) -> Evidence:
-    """Log evidence of the linearised model (design note, step 2b) and its gradient.
+def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray, *, value: bool = True) -> Evidence:
+    """Log evidence of the linearised model (design note, step 2b) and its gradient (``value``
+    False: the gradient only, the value NaN).
 
     group_index : (m,) int, each free parameter's prior group (index into the lambda part of
     log_h), -1 for a frame parameter (flat prior). log_h : see :class:`Evidence`.
@@ -95,9 +96,9 @@ def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray) -> 
     wp = math.exp(log_h[0])
     wr = math.exp(log_h[1]) if rot else 0.0
     lam_g = np.exp(log_h[k:])
-    prior = group_index >= 0
+    prior, prior_group, members = _groups(group_index, len(lam_g))
     lam = np.zeros(len(group_index))
-    lam[prior] = lam_g[group_index[prior]]
+    lam[prior] = lam_g[prior_group]
     A_data = wp * lin.JpJp + (wr * lin.JrJr if rot else 0.0)
     b = wp * lin.Jpy + (wr * lin.Jry if rot else 0.0)
     A = A_data + np.diag(lam)
@@ -113,12 +114,15 @@ def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray) -> 
     Linv = np.linalg.inv(Lc)
     C = (Linv.T @ Linv) * s[:, None] * s[None, :]
     z = C @ b
-    logdet = 2.0 * float(np.sum(np.log(np.diag(Lc)))) - 2.0 * float(np.sum(np.log(s)))
-    yWy = wp * lin.yyp + (wr * lin.yyr if rot else 0.0)
-    M = lin.n_p + lin.n_r
-    value = (-0.5 * (yWy - float(b @ z)) - 0.5 * logdet + 0.5 * float(np.sum(np.log(lam[prior])))
-             + 0.5 * lin.n_p * log_h[0] + (0.5 * lin.n_r * log_h[1] if rot else 0.0)
-             - 0.5 * M * math.log(2.0 * math.pi))
+    if value:
+        logdet = 2.0 * float(np.sum(np.log(np.diag(Lc)))) - 2.0 * float(np.sum(np.log(s)))
+        yWy = wp * lin.yyp + (wr * lin.yyr if rot else 0.0)
+        M = lin.n_p + lin.n_r
+        value = (-0.5 * (yWy - float(b @ z)) - 0.5 * logdet + 0.5 * float(np.sum(np.log(lam[prior])))
+                 + 0.5 * lin.n_p * log_h[0] + (0.5 * lin.n_r * log_h[1] if rot else 0.0)
+                 - 0.5 * M * math.log(2.0 * math.pi))
+    else:       # (the gradient alone: the Hessian's differences)
+        value = math.nan
     # gradient: d/d log w = n/2 - w/2 (|y - J z|^2 + tr(C J^T J)); d/d log lambda_g =
     # n_g/2 - lambda_g/2 sum_{j in g} (z_j^2 + C_jj)
     grad = np.zeros(len(log_h))
@@ -132,10 +136,27 @@ def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray) -> 
         grad[1] = 0.5 * lin.n_r - 0.5 * wr * (rss_r + tr_r)
         red_r = lin.n_r - wr * tr_r
     q = z ** 2 + np.diag(C)
-    for g in range(len(lam_g)):
-        mem = group_index == g
-        grad[k + g] = 0.5 * np.count_nonzero(mem) - 0.5 * lam_g[g] * float(np.sum(q[mem]))
+    for g, mem in enumerate(members):
+        grad[k + g] = 0.5 * len(mem) - 0.5 * lam_g[g] * float(np.sum(q[mem]))
     return Evidence(np.array(log_h, float), float(value), grad, z, C, A_data, red_p, red_r)
+
+
+_GROUPS: dict = {}
+
+
+def _groups(group_index: np.ndarray, n_groups: int):
+    """(prior mask (m,), the group of each prior parameter, each group's member indices) of
+    ``group_index`` (see :func:`evidence`), kept for the last few index vectors: the evidence is
+    evaluated many times with one."""
+    key = (group_index.tobytes(), n_groups)
+    hit = _GROUPS.get(key)
+    if hit is None:
+        prior = group_index >= 0
+        hit = (prior, group_index[prior], [np.flatnonzero(group_index == g) for g in range(n_groups)])
+        if len(_GROUPS) >= 8:
+            _GROUPS.pop(next(iter(_GROUPS)))
+        _GROUPS[key] = hit
+    return hit
 
 
 def _log_bounds(rot: bool, n_groups: int) -> np.ndarray:
@@ -211,8 +232,8 @@ def _newton_ascent(lin: Linearisation, group_index: np.ndarray, ev: Evidence, bo
         for a, i in enumerate(free):
             e = np.zeros(n)
             e[i] = eps
-            H[:, a] = (evidence(lin, group_index, h + e).gradient[free]
-                       - evidence(lin, group_index, h - e).gradient[free]) / (2 * eps)
+            H[:, a] = (evidence(lin, group_index, h + e, value=False).gradient[free]
+                       - evidence(lin, group_index, h - e, value=False).gradient[free]) / (2 * eps)
         w, V = np.linalg.eigh(0.5 * (H + H.T))
         w = np.maximum(np.abs(w), 1e-8 * max(float(np.max(np.abs(w))), 1e-300))
         step = np.zeros(n)

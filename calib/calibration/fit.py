@@ -33,7 +33,7 @@ from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
 from calib.solvers import dispatch
 from calib.solvers.angles import RotationChain
-from calib.solvers.lm import LMOptions, LMTrace, SolverResult
+from calib.solvers.lm import LMOptions, LMTrace, SolverResult, options_with
 from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem, normal_inverse
 
 log = logging.getLogger(__name__)
@@ -231,9 +231,9 @@ class Solver:
             return self._paper(problem, x, trace)
         opts = self.options
         if loose:   # (stopping at its last evaluated point, whose normal equations the estimate uses)
-            opts = replace(opts, ftol=max(opts.ftol, VCE_FIRST_FTOL), last_step=False)
+            opts = options_with(opts, ftol=max(opts.ftol, VCE_FIRST_FTOL), last_step=False)
         if not first:
-            return dispatch.solve(problem, x, "lm", options=replace(opts, mu0=min(opts.mu0, WARM_MU0)), trace=trace)
+            return dispatch.solve(problem, x, "lm", options=options_with(opts, mu0=min(opts.mu0, WARM_MU0)), trace=trace)
         method = "lm" if self.measure == "position" else self.method
         return dispatch.solve(problem, x, method, angular=self.angular, chain=self.chain, options=opts,
                               trace=trace, max_rounds=self.max_rounds, fixed_rounds=self.fixed_rounds)

@@ -240,14 +240,24 @@ def _distinct(Q: np.ndarray, tol: float) -> int:
 _ROBOT_MEMO: OrderedDict = OrderedDict()
 
 
+def _robot_key(robot: RobotModel) -> tuple:
+    """What the results of :func:`_robot_memo` depend on: the model's structure, values, frames,
+    limits and gravity (a digest); kept on the (immutable) model, so that asking again costs
+    nothing (:meth:`RobotModel.with_values` makes a model without it)."""
+    key = robot.__dict__.get("_memo_key")
+    if key is None:
+        from calib.model.identifiability import _cache_key
+
+        limits = np.stack([robot.lower, robot.upper])
+        key = (_cache_key(robot, limits, "pose", 1.0, 1.0, 1.0, None, None), repr(getattr(robot, "gravity", None)))
+        robot.__dict__["_memo_key"] = key
+    return key
+
+
 def _robot_memo(kind: str, robot: RobotModel, options: tuple, compute):
     """``compute()``, or its value from an earlier call with the same ``kind``, model and
     ``options`` (the last 64 kept)."""
-    from calib.model.identifiability import _cache_key
-
-    limits = np.stack([robot.lower, robot.upper])
-    key = (kind, _cache_key(robot, limits, "pose", 1.0, 1.0, 1.0, None, None),
-           repr(getattr(robot, "gravity", None)), options)
+    key = (kind, _robot_key(robot), options)
     if key in _ROBOT_MEMO:
         _ROBOT_MEMO.move_to_end(key)
         return _ROBOT_MEMO[key]

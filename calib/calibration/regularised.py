@@ -58,7 +58,11 @@ def map_fit_stage(setup: Setup, ident: Sequence[str], options: CalibrationOption
     sr = est.sigma_rot if rot else (options.sigma_rot or pre.noise.rotation or 1.0)
     all_rows = Problem(setup.kin or kin, setup.cal.q, setup.cal.position, setup.cal.rotation, est.robot.values, idx,
                        est.sigma_pos, sr, targets=pre.all_rows.targets)
-    problem = all_rows.derived(keep=est.keep)
+    # (the estimate's own problem when it has these weights: its normal equations at the
+    # estimate are already made)
+    own = est.problem
+    problem = own if (own is not None and own.sigma_pos == est.sigma_pos and own.sigma_rot == float(sr)
+                      and np.array_equal(own.free, idx)) else all_rows.derived(keep=est.keep)
     x = est.estimate
     ne = problem.normal_equations(x)
     C = est.covariance

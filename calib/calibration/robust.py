@@ -19,7 +19,7 @@ refuses the result (status "implausible"). scripts/accept_gross_rows.py measures
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -32,7 +32,7 @@ from calib.calibration.options import (
     TRIMMED_FIT_STEPS,
     TRIMMED_MAX_OUTLIER_SHARE,
 )
-from calib.solvers.lm import LMOptions, LMTrace, levenberg_marquardt
+from calib.solvers.lm import LMOptions, LMTrace, levenberg_marquardt, options_with
 from calib.solvers.problem import Problem, normal_inverse
 
 
@@ -122,7 +122,7 @@ def trimmed_fit(problem: Problem, starts: Sequence[np.ndarray], keep: np.ndarray
     by many gross rows can lead the steps to a half that holds some of them)."""
     n = int(keep.sum())
     per_row = 6 if problem.has_orientation else 3
-    options = replace(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it ranks rows)
+    options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it ranks rows)
     h = min(max(-(-n // 3), -(-2 * len(starts[0]) // per_row) + 1), (n + 1) // 2)
     best, best_cost = None, np.inf
     for x in starts:
@@ -212,7 +212,7 @@ def _huber(everything, problem, x, keep, red, given, levels, options, trace, jud
     least-squares fit's smeared residuals, set the threshold near them (5 rows 1-1.5 mm off
     among 40 UR5 rows of 0.05 mm noise: sigma 0.27 mm, none flagged). Returns (x, sp, sr)."""
     fsp, fsr = levels
-    options = replace(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))
+    options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))
     for _ in range(ROBUST_CHECK_ITERATIONS):
         x = levenberg_marquardt(problem.derived(loss="huber", sigma_pos=fsp, sigma_rot=fsr), x, "pose",
                                 options, trace).x
@@ -257,7 +257,7 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
     are many), then a Huber fit from its solution at those levels (the trimmed fit fits half of
     the rows: its predictions for the others scatter more than the noise)."""
     fsp, fsr = levels
-    options = replace(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it judges rows)
+    options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it judges rows)
     starts = (x, everything.values[everything.free])    # (the fit's solution, the nominal values)
     x_t = trimmed_fit(everything.derived(sigma_pos=fsp, sigma_rot=fsr), starts, keep, fsp, fsr, options, trace)
     inliers, n = keep, keep.sum()

@@ -100,7 +100,19 @@ def workspace_configurations(robot: RobotModel, n: int = WORKSPACE_CONFIGURATION
                             f"limits in the URDF or calibration configurations to take the range from")
         q = np.asarray(calibration_q, float)
         lo[open_], hi[open_] = q[:, open_].min(axis=0), q[:, open_].max(axis=0)
-    return np.random.default_rng(seed).uniform(lo, hi, size=(n, robot.n_joints))
+    # (the same draw for the same ranges: kept for the next calibrations)
+    key = (lo.tobytes(), hi.tobytes(), int(n), int(seed))
+    Q = _DRAWS.get(key)
+    if Q is None:
+        Q = np.random.default_rng(seed).uniform(lo, hi, size=(n, robot.n_joints))
+        Q.setflags(write=False)
+        _DRAWS[key] = Q
+        while len(_DRAWS) > 8:
+            _DRAWS.pop(next(iter(_DRAWS)))
+    return Q.copy()
+
+
+_DRAWS: dict = {}
 
 
 #: Bins of the circle when measuring the arc that angles cover (in O(N), not a sort: a 1M-row
@@ -139,14 +151,14 @@ def joint_coverage(robot: RobotModel, Q: np.ndarray) -> dict[str, float | None]:
     circle). None for a prismatic joint without limits (its range is not known)."""
     Q = np.asarray(Q, float)
     circ = _circular(robot)
+    lower, upper = robot.lower.tolist(), robot.upper.tolist()
+    spans = (Q.max(axis=0) - Q.min(axis=0)).tolist() if len(Q) else [0.0] * robot.n_joints
     out: dict[str, float | None] = {}
     for j, name in enumerate(robot.joint_names):
-        q = Q[:, j]
         if circ[j]:
-            out[name] = _arc_covered(q)
-        elif np.isfinite(robot.lower[j]) and np.isfinite(robot.upper[j]) and robot.upper[j] > robot.lower[j]:
-            span = float(q.max() - q.min()) if len(q) else 0.0
-            out[name] = float(min(span / (robot.upper[j] - robot.lower[j]), 1.0))
+            out[name] = _arc_covered(Q[:, j])
+        elif math.isfinite(lower[j]) and math.isfinite(upper[j]) and upper[j] > lower[j]:
+            out[name] = float(min(spans[j] / (upper[j] - lower[j]), 1.0))
         else:
             out[name] = None
     return out

@@ -124,24 +124,51 @@ class _FactorTable:
         pairs = np.concatenate([self.rot[:, [0, 3]], self.trans[:, [0, 3]]])
         if len(set(map(tuple, pairs.tolist()))) != len(pairs):   # (np.unique(axis=0) imports numpy.ma)
             raise ValueError("a parameter appears in two factors of one placement")
+        # flat positions in (P, F, 4, 4) of the entries the parameters set: c, c, -s, s of each
+        # rotation factor, then the offset of each translation factor (one scatter per set)
+        k, j, _, _ = self.rot.T
+        at = lambda kk, jj, a, b: ((kk * F + jj) * 4 + a) * 4 + b    # noqa: E731
+        self._flat = np.concatenate([at(k, j, self.rot_i, self.rot_i), at(k, j, self.rot_j, self.rot_j),
+                                     at(k, j, self.rot_i, self.rot_j), at(k, j, self.rot_j, self.rot_i),
+                                     at(self.trans[:, 0], self.trans[:, 1], self.trans[:, 2], 3)])
+        self._entry_params = np.concatenate([self.rot[:, 3], self.trans[:, 3]])
+        # (placement, parameter) -> row of the factor twists (translation factors, then rotation)
+        self.factor_row = {(int(kk), int(pp)): r for r, (kk, pp) in
+                           enumerate(np.concatenate([self.trans[:, [0, 3]], self.rot[:, [0, 3]]]).tolist())}
+        # flat positions in the suffix products (P, F + 1, 4, 4) of what the twists read: the
+        # axis row of the suffix's rotation for a translation factor; the whole suffix for a rotation
+        k, j, axis, _ = self.trans.T
+        self._trans_rows = (((k * (F + 1) + j + 1) * 4 + axis) * 4)[:, None] + np.arange(3)
+        k, j, _, _ = self.rot.T
+        self._rot_suffix = k * (F + 1) + j + 1
+        self._rot_axis = self.rot[:, 2]
 
     def elementary(self, values: np.ndarray) -> np.ndarray:
         """(P, F, 4, 4) factor matrices at parameter ``values``."""
         E = self.base.copy()
-        k, j, _, idx = self.rot.T
-        c, s = np.cos(values[idx]), np.sin(values[idx])
-        E[k, j, self.rot_i, self.rot_i] = c
-        E[k, j, self.rot_j, self.rot_j] = c
-        E[k, j, self.rot_i, self.rot_j] = -s
-        E[k, j, self.rot_j, self.rot_i] = s
-        k, j, axis, idx = self.trans.T
-        E[k, j, axis, 3] = values[idx]
+        v = values[self._entry_params]
+        nr = len(self.rot)
+        c, s = np.cos(v[:nr]), np.sin(v[:nr])
+        E.reshape(-1)[self._flat] = np.concatenate((c, c, -s, s, v[nr:]))
         return E
 
     def products(self, values: np.ndarray, twists: bool = True):
         """Products of the placements' factors (P, 4, 4), the factor matrices (P, F, 4, 4) and,
         with ``twists``, the local twist of each parameter, (6 P, n_params) (rows 6k..6k+5 for
         placement k)."""
+        M, E, ftw = self.factor_products(values, twists)
+        if ftw is None:
+            return M, E, None
+        tw = np.zeros((self.n_placements, 6, self.n_params))
+        rows = np.array(list(self.factor_row.values()), int)
+        kp = np.array(list(self.factor_row.keys()), int).reshape(-1, 2)
+        tw[kp[:, 0], :, kp[:, 1]] = ftw[rows]
+        return M, E, tw.reshape(6 * self.n_placements, self.n_params)
+
+    def factor_products(self, values: np.ndarray, twists: bool = True):
+        """Products of the placements' factors (P, 4, 4), the factor matrices (P, F, 4, 4) and,
+        with ``twists``, the local twist (6,) of each factor with a parameter, one row per
+        (placement, parameter) of :attr:`factor_row` (the dense :meth:`products` scattered)."""
         E = self.elementary(np.asarray(values, float))
         P, F = self.n_placements, self.n_factors
         if not twists:
@@ -155,17 +182,16 @@ class _FactorTable:
         suffix = np.empty((P, F + 1, 4, 4))
         suffix[:, F] = _I4
         for j in range(F - 1, -1, -1):
-            suffix[:, j] = E[:, j] @ suffix[:, j + 1]
-        tw = np.zeros((P, 6, self.n_params))
-        k, j, axis, idx = self.trans.T
-        tw[k, :3, idx] = suffix[k, j + 1, axis, :3]
-        k, j, axis, idx = self.rot.T
-        S = suffix[k, j + 1]
+            np.matmul(E[:, j], suffix[:, j + 1], out=suffix[:, j])
+        nt = len(self.trans)
+        ftw = np.zeros((nt + len(self.rot), 6))
+        ftw[:nt, :3] = suffix.reshape(-1)[self._trans_rows]
+        S = suffix.reshape(-1, 4, 4)[self._rot_suffix]
         R, p = S[:, :3, :3], S[:, :3, 3]
         e_x_p = np.einsum("mij,mj->mi", self.rot_skew, p)
-        tw[k, :3, idx] = np.einsum("mji,mj->mi", R, e_x_p)
-        tw[k, 3:, idx] = R[np.arange(len(axis)), axis]
-        return suffix[:, 0], E, tw.reshape(6 * P, self.n_params)
+        ftw[nt:, :3] = np.einsum("mji,mj->mi", R, e_x_p)
+        ftw[nt:, 3:] = R[np.arange(len(self.rot)), self._rot_axis]
+        return suffix[:, 0], E, ftw
 
 
 def _chain(matrices: np.ndarray) -> np.ndarray:
@@ -251,18 +277,35 @@ class ChainKinematics:
         placement twists needed by the Jacobian (:attr:`placement_twists`)."""
         values = np.array(values, float)
         last = getattr(self, "values", None)
-        if (last is not None and (not twists or self.placement_twists is not None)
+        if (last is not None and (not twists or self._factor_twists is not None)
                 and np.array_equal(values, last)):
             return      # already there (an LM step's Jacobian after its trial residuals needs twists)
-        M, E, tw = self._table.products(values, twists)
+        M, E, ftw = self._table.factor_products(values, twists)
         n = self.n_joints
         self.placements = M          # (n + K, 4, 4): joint placements, then each target's tool mount
         self._rot_T = np.ascontiguousarray(M[:, :3, :3].transpose(0, 2, 1))   # (for _walk)
         self._trans = np.ascontiguousarray(M[:, :3, 3])
         self.flange_placement = _chain(E[n, :self._flange_at])   # relative to joint n
         self.base_placement = _chain(E[0, :self._base_at])       # T_meas_base
-        self.placement_twists = tw
+        self._factor_twists = ftw
+        self._dense_twists = None
         self.values = values
+
+    @property
+    def placement_twists(self) -> np.ndarray | None:
+        """The local twist of each parameter in each placement at the current values, (6 P,
+        n_params) (rows 6k..6k+5 for placement k: the n joints, then each target's tool mount),
+        or None when the last :meth:`set_values` did not compute them."""
+        ftw = getattr(self, "_factor_twists", None)
+        if ftw is None:
+            return None
+        if self._dense_twists is None:
+            tab = self._table
+            tw = np.zeros((tab.n_placements, 6, tab.n_params))
+            for (k, p), r in tab.factor_row.items():
+                tw[k, :, p] = ftw[r]
+            self._dense_twists = tw.reshape(6 * tab.n_placements, tab.n_params)
+        return self._dense_twists
 
     # ------------------------------------------------------------------ Pinocchio model
     def _pinocchio(self):
@@ -394,8 +437,15 @@ class ChainKinematics:
         if frame == "base":
             T = self.base_placement
             return np.repeat(T[None, :3, :3], N, axis=0), np.repeat(T[None, :3, 3], N, axis=0)
+        groups = self._target_groups(N, targets if frame == "tool" else None)
+        if len(groups) == 1 and N <= CHUNK:
+            # one chunk of one target: its arrays are the outputs (no scatter copies)
+            t = groups[0][0]
+            T = self.placements[self.n_joints + t] if frame == "tool" else self.flange_placement
+            Rc, pc = self._attach(*self._walk(Q), T)
+            return np.ascontiguousarray(Rc.transpose(2, 1, 0)), np.ascontiguousarray(pc.T)
         R, p = np.empty((N, 3, 3)), np.empty((N, 3))
-        for t, rows in self._target_groups(N, targets if frame == "tool" else None):
+        for t, rows in groups:
             T = self.placements[self.n_joints + t] if frame == "tool" else self.flange_placement
             Q_rows = Q[rows]
             R_rows, p_rows = np.empty((len(Q_rows), 3, 3)), np.empty((len(Q_rows), 3))
@@ -458,10 +508,15 @@ class ChainKinematics:
         A right perturbation ``exp(xi)`` of the placement of frame F (R_F, p_F) moves the tool by
         ``Ad xi`` about the tool point: ``Ad = [[R_F, [p_F - p_tool]x R_F], [0, R_F]]``.
         """
-        if self.placement_twists is None:
+        if self._factor_twists is None:
             self.set_values(self.values)
         Q = np.atleast_2d(np.asarray(Q, float))
         N = len(Q)
+        if N <= JACOBIAN_CHUNK and (targets is None or self.n_targets == 1):
+            # one chunk of one target: its arrays are the outputs (no scatter copies)
+            Rc, pc, Jc = self._jacobian_chunk(Q, self._column_plan(columns, 0), 0)
+            return (np.ascontiguousarray(Rc.transpose(2, 1, 0)), np.ascontiguousarray(pc.T),
+                    Jc if transposed else np.ascontiguousarray(Jc.transpose(2, 1, 0)))
         m = len(columns) if columns is not None else self.n_params
         R, p = np.empty((N, 3, 3)), np.empty((N, 3))
         J = np.empty((m, 6, N)) if transposed else np.empty((N, 6, m))
@@ -493,10 +548,9 @@ class ChainKinematics:
         Rt, p = self._attach(*self._walk(Q, (RtF, pF)), self.placements[self.n_joints + target])
         RtF[-1], pF[-1] = Rt, p
         D = (pF - p)[:, None]                                                # (P, 1, 3, N)
-        slot, param, out_col, width, m = plan
+        slot, rows, out_col, width, m = plan
         TW = np.zeros((P * width, 6))
-        used = list(range(self.n_joints)) + [self.n_joints + target]   # joints, this target's tool
-        TW[slot] = self.placement_twists.reshape(-1, 6, self.n_params)[used][slot // width, :, param]
+        TW[slot] = self._factor_twists[rows]
         # (R v, R w) of every slot: (R x)[i] = sum_j x[j] Rt[j, i]
         X = np.matmul(TW.reshape(P, 2 * width, 3), RtF.reshape(P, 3, 3 * N)).reshape(P, width, 6, N)
         Rw = X[:, :, 3:]
@@ -508,8 +562,9 @@ class ChainKinematics:
         return Rt, p, Jt
 
     def _column_plan(self, columns, target: int = 0):
-        """Where each wanted parameter sits: (slot = placement * width + place in it, parameter,
-        output column, width = most wanted parameters of one placement, number of columns).
+        """Where each wanted parameter sits: (slot = placement * width + place in it, its row of
+        the factor twists, output column, width = most wanted parameters of one placement, number
+        of columns).
         The plans of the last few column sets are kept (an LM run asks for the same ones)."""
         columns = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
         key = (columns.tobytes(), target)
@@ -523,9 +578,11 @@ class ChainKinematics:
     def _make_plan(self, columns, target: int = 0):
         out_col = np.full(self.n_params, -1)
         out_col[columns] = np.arange(len(columns))
-        placements = self._params_of[:self.n_joints] + [self._params_of[self.n_joints + target]]
-        params = [ps[out_col[ps] >= 0] for ps in placements]
+        used = list(range(self.n_joints)) + [self.n_joints + target]   # joints, this target's tool
+        params = [self._params_of[k][out_col[self._params_of[k]] >= 0] for k in used]
         width = max(1, max(len(ps) for ps in params))
         slot = np.concatenate([k * width + np.arange(len(ps)) for k, ps in enumerate(params)])
         param = np.concatenate(params)
-        return slot, param, out_col[param], width, len(columns)
+        # each slot's row of the factor twists (its placement's factor of that parameter)
+        rows = np.array([self._table.factor_row[(k, int(p))] for k, ps in zip(used, params) for p in ps], int)
+        return slot, rows, out_col[param], width, len(columns)

@@ -48,6 +48,24 @@ log = logging.getLogger(__name__)
 MAX_CONFIGURATIONS = 100_000_000
 
 
+def _checked_values(values, parameters) -> np.ndarray:
+    """``values`` as a read-only float array of one finite number per parameter, or a
+    :class:`ParameterError` naming what is wrong."""
+    try:
+        vals = np.array(values, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise ParameterError(f"values must be {len(parameters)} numbers (SI units), got "
+                             f"{values!r:.60}") from None
+    if vals.shape != (len(parameters),):
+        raise ParameterError(f"expected {len(parameters)} parameter values, got {vals.shape}")
+    if not np.isfinite(vals).all():
+        bad = [p.name for p, x in zip(parameters, vals) if not math.isfinite(x)]
+        raise ParameterError(f"parameter values must be finite (SI units); {', '.join(bad)} "
+                             f"{'is' if len(bad) == 1 else 'are'} not")
+    vals.setflags(write=False)
+    return vals
+
+
 @dataclass(frozen=True, eq=False)
 class RobotModel:
     """A serial arm described by TM-MDH parameters (immutable; see the module docstring).
@@ -115,19 +133,7 @@ class RobotModel:
         elif self.T_flange_target_refs is not None:
             raise ParameterError("T_flange_target_refs needs targets")
         object.__setattr__(self, "T_flange_target_refs", refs)
-        try:
-            vals = np.array(self.values, dtype=float)
-        except (TypeError, ValueError, OverflowError):
-            raise ParameterError(f"values must be {len(self.parameters)} numbers (SI units), got "
-                                 f"{self.values!r:.60}") from None
-        if vals.shape != (len(self.parameters),):
-            raise ParameterError(f"expected {len(self.parameters)} parameter values, got {vals.shape}")
-        if not np.isfinite(vals).all():
-            bad = [p.name for p, x in zip(self.parameters, vals) if not math.isfinite(x)]
-            raise ParameterError(f"parameter values must be finite (SI units); {', '.join(bad)} "
-                                 f"{'is' if len(bad) == 1 else 'are'} not")
-        vals.setflags(write=False)
-        object.__setattr__(self, "values", vals)
+        object.__setattr__(self, "values", _checked_values(self.values, self.parameters))
         for name in ("T_meas_base_ref", "T_flange_tool_ref"):
             T = _transform(getattr(self, name), name)
             T.setflags(write=False)
@@ -242,7 +248,13 @@ class RobotModel:
 
     def with_values(self, values: np.ndarray) -> "RobotModel":
         """A copy of this model with other parameter values (full vector, same order, finite)."""
-        return replace(self, values=values)
+        # (everything else was checked when this model was made and is immutable: only the
+        # values are checked again, not the joints, parameters and transforms)
+        out = object.__new__(type(self))
+        out.__dict__.update(self.__dict__)
+        out.__dict__.pop("_memo_key", None)
+        object.__setattr__(out, "values", _checked_values(values, self.parameters))
+        return out
 
     def with_changes(self, **deltas: float) -> "RobotModel":
         """A copy with parameter values changed by the given amounts: ``with_changes(d2=1e-4)``

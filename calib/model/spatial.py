@@ -227,6 +227,9 @@ def skew(w: np.ndarray) -> np.ndarray:
     return S
 
 
+_LOG3_PLUS, _LOG3_MINUS = np.array([7, 2, 3]), np.array([5, 6, 1])
+
+
 def log3_batch(R: np.ndarray) -> np.ndarray:
     """Rotation vectors (n, 3), radians, of rotation matrices (n, 3, 3).
 
@@ -240,17 +243,20 @@ def log3_batch(R: np.ndarray) -> np.ndarray:
         # every angle below ~120 deg (w the largest quaternion component, Shepperd's first
         # branch of quaternion_from_rotation): the same arithmetic with fewer array operations
         s = np.sqrt(1.0 + m00 + m11 + m22) * 2.0
-        v = np.empty((len(R), 3))
-        v[:, 0] = R[:, 2, 1] - R[:, 1, 2]
-        v[:, 1] = R[:, 0, 2] - R[:, 2, 0]
-        v[:, 2] = R[:, 1, 0] - R[:, 0, 1]
+        flat = R.reshape(len(R), 9)
+        # (R21 - R12, R02 - R20, R10 - R01)
+        v = flat[:, _LOG3_PLUS] - flat[:, _LOG3_MINUS]
         v /= s[:, None]
         w = 0.25 * s
         nv = np.sqrt(np.einsum("ij,ij->i", v, v))
         small = ~(nv > 1e-12)
-        f = 2.0 * np.arctan2(nv, w) / np.where(small, 1.0, nv)
-        f[small] = 2.0 / w[small]
-        return v * f[:, None]
+        if small.any():
+            f = 2.0 * np.arctan2(nv, w) / np.where(small, 1.0, nv)
+            f[small] = 2.0 / w[small]
+        else:
+            f = 2.0 * np.arctan2(nv, w) / nv
+        v *= f[:, None]
+        return v
     quat = quaternion_from_rotation(R)
     v = quat[:, 1:]
     nv = np.linalg.norm(v, axis=1)

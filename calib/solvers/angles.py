@@ -21,6 +21,8 @@ from calib.model.kinematics import placement_factors
 from calib.model.robot import RobotModel
 
 _AXIS = {"x": 0, "y": 1, "z": 2}
+_I3 = np.eye(3)
+_I3.setflags(write=False)
 #: Rotation by pi about x, y, z.
 _FLIP = {0: np.diag([1.0, -1.0, -1.0]), 1: np.diag([-1.0, 1.0, -1.0]), 2: np.diag([-1.0, -1.0, 1.0])}
 
@@ -29,6 +31,14 @@ def _rotations(axis: int, angles: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) about a coordinate axis."""
     angles = np.asarray(angles, float)
     c, s = np.cos(angles), np.sin(angles)
+    if angles.ndim == 0:        # (one matrix: built from its entries in one call)
+        c, s = float(c), float(s)
+        R = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+        i, j = ((1, 2), (2, 0), (0, 1))[axis]
+        R[axis][axis] = 1.0
+        R[i][i] = R[j][j] = c
+        R[i][j], R[j][i] = -s, s
+        return np.array(R)
     R = np.zeros(angles.shape + (3, 3))
     i, j = ((1, 2), (2, 0), (0, 1))[axis]
     R[..., axis, axis] = 1.0
@@ -133,10 +143,10 @@ class RotationChain:
         """Prefix products (before each factor; the last one the whole product C_i) and suffix
         products (after each factor) of segment i, 3x3."""
         F = [arg if kind == "const" else _rotations(arg[0], values[arg[1]]) for kind, arg in self.segments[i]]
-        prefix = [np.eye(3)]
+        prefix = [_I3]
         for f in F:
             prefix.append(prefix[-1] @ f)
-        suffix = [np.eye(3)]
+        suffix = [_I3]
         for f in reversed(F[1:]):
             suffix.append(f @ suffix[-1])
         return prefix, suffix[::-1]

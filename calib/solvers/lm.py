@@ -7,9 +7,10 @@ Options (:class:`LMOptions`) and the result every solver returns (:class:`Solver
 """
 from __future__ import annotations
 
+import functools
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -43,6 +44,14 @@ class LMOptions:
             check_number(getattr(self, name), f"LMOptions.{name}", minimum=0.0, strict=True)
         check_number(self.lam, "LMOptions.lam", minimum=1.0, strict=True)
         check_instance(self.last_step, "LMOptions.last_step", bool, "True or False")
+
+
+@functools.lru_cache(maxsize=64)
+def options_with(options: LMOptions, **changes) -> LMOptions:
+    """``dataclasses.replace(options, **changes)``, kept: the fit stage derives the same few
+    variants (a looser ftol, a re-fit's damping) in every calibration, and each new one is
+    checked again by LMOptions."""
+    return replace(options, **changes)
 
 
 @dataclass(frozen=True)

@@ -129,6 +129,9 @@ class Problem:
         # by the problems derived with other weights (see _normal_equations)
         self._shared: dict = {}
         self._rows_key = None
+        # unweighted residuals (and pose Jacobian blocks) of the same rows at the same parameter
+        # values, shared by the derived problems the same way (see pose_residuals, whitened_blocks)
+        self._shared_res: dict = {}
         # (parts, free) -> (rank deficit, declared): declared by set_rank_deficit, else counted
         # at the first point LM asked; shared by the problems derived from this one
         self._rank_deficits: dict = {}
@@ -176,6 +179,7 @@ class Problem:
                 p._rows_key = (k.dtype.str, k.shape, k.tobytes())   # rows of this problem's data
             else:
                 p._shared, p._rows_key = {}, None    # a subset of a subset: its own cache
+                p._shared_res = {}
             p.Q, p.p_meas = self.Q[keep], self.p_meas[keep]
             p.R_meas_T = None if self.R_meas_T is None else self.R_meas_T[keep]
             p.targets = self._targets(keep)
@@ -219,6 +223,12 @@ class Problem:
         last = getattr(self, "_last_pr", None)
         if last is not None and np.array_equal(last[0], v):
             return last[1], last[2]     # (read-only arrays)
+        shared = self._shared_cache()
+        key = ("residuals", v.tobytes(), getattr(self, "_rows_key", None))
+        hit = None if shared is None else shared.get(key)
+        if hit is not None:     # (a problem of the same rows with other weights asked at v)
+            self._last_pr = (v,) + hit
+            return hit
         self.kin.set_values(v, twists=False)
         R, p = self.kin.frame_poses(self.Q, targets=self._targets())
         dr = None if self.R_meas_T is None else log3_batch(R @ self.R_meas_T)
@@ -227,7 +237,14 @@ class Problem:
             if a is not None:
                 a.setflags(write=False)
         self._last_pr = (v, dp, dr)
+        if shared is not None:
+            _remember(shared, key, (dp, dr))
         return dp, dr
+
+    def _shared_cache(self) -> dict | None:
+        """The cache of unweighted results shared with the problems derived for the same rows
+        (None for a problem made without the constructor)."""
+        return getattr(self, "_shared_res", None)
 
     def residuals(self, x: np.ndarray, parts: str = "pose") -> np.ndarray:
         """Weighted residual vector; parts: "pose" (position and rotation), "position", "rotation"."""
@@ -236,6 +253,8 @@ class Problem:
         for sl in self._chunks():
             R, p = self.kin.frame_poses(self.Q[sl], targets=self._targets(sl))
             out.append(self._assemble(R, p, None, parts, sl)[0])
+        if len(out) == 1:
+            return out[0]
         return np.concatenate(out) if out else np.zeros(0)
 
     def normal_equations(self, x: np.ndarray, parts: str = "pose") -> NormalEquations:
@@ -410,6 +429,35 @@ class Problem:
             self._last_wb = (blocks, (r, Jw, J))
             yield (r, Jw, J) if raw else (r, Jw)
             return
+        shared = self._shared_cache()
+        if self.loss == "linear" and shared is not None and self.n_poses <= CHUNK_POSES:
+            # one chunk, least squares: its unweighted blocks at x are kept for the problems of
+            # the same rows with other weights (a row check re-weighted at the same solution)
+            v = self.full(x)
+            key = ("blocks", v.tobytes(), self.free.tobytes(), getattr(self, "_rows_key", None))
+            hit = shared.get(key)
+            if hit is None:
+                self.kin.set_values(v)
+                R, p, J = pose_jacobian(self.kin, self.Q, self.free, targets=self._targets())
+                dp, Jp = p - self.p_meas, J[:, :3]
+                rr = LJ = None
+                if self.has_orientation:
+                    rr = log3_batch(R @ self.R_meas_T)
+                    LJ = left_jacobian_inverse_batch(rr) @ J[:, 3:]
+                hit = (dp, Jp, rr, LJ, J)
+                for a in hit:
+                    if a is not None:
+                        a.setflags(write=False)
+                _remember(shared, key, hit)
+            dp, Jp, rr, LJ, J = hit
+            # (the arithmetic of _assemble: each block divided by its noise level)
+            res, jac = [dp / self.sigma_pos], [Jp / self.sigma_pos]
+            if rr is not None:
+                res.append(rr / self.sigma_rot)
+                jac.append(LJ / self.sigma_rot)
+            r, Jw = np.concatenate(res, axis=1), np.concatenate(jac, axis=1)
+            yield (r, Jw, J) if raw else (r, Jw)
+            return
         self.kin.set_values(self.full(x))
         for sl in self._chunks():
             R, p, J = pose_jacobian(self.kin, self.Q[sl], self.free, targets=self._targets(sl))
@@ -439,6 +487,13 @@ class Problem:
         if J_all is None:
             return r, None
         return r, J_all.reshape(len(r), -1)
+
+
+def _remember(cache: dict, key, value, size: int = 4) -> None:
+    """Keep ``value`` under ``key`` in ``cache``, with the ``size`` latest entries at most."""
+    cache[key] = value
+    while len(cache) > size:
+        cache.pop(next(iter(cache)))
 
 
 def _reweighted(ne: NormalEquations, f_pos: float, f_rot: float) -> NormalEquations:
