@@ -211,12 +211,12 @@ def main_entry() -> None:
     import contextlib
     import os
 
-    if "numpy" in sys.modules:
-        from threadpoolctl import threadpool_limits
+    from calib.threads import THREAD_VARS, one_blas_thread
 
-        limit = threadpool_limits(limits=1, user_api="blas")
+    if "numpy" in sys.modules:
+        limit = one_blas_thread()
     else:
-        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        for var in THREAD_VARS:
             os.environ[var] = "1"
         limit = contextlib.nullcontext()
     # (main's handlers on both sides of main: a signal before it stops with the one line, one
