@@ -1,0 +1,184 @@
+"""The plots of ``--plots`` and ``--html`` drawn in a worker process (issue 27, item 3).
+
+matplotlib's import (about 0.35 s CPU) and the drawing (about 0.1 s a figure) cost more than
+the calibration of a few hundred rows. :class:`PlotWorker` starts a second Python process as soon
+as a command knows that it will draw (``python -m calib.cli.plot_worker``); that process imports
+matplotlib and the plotting code while the command reads its inputs and calibrates, then draws
+the rows it is sent while the command builds the JSON report and the HTML page. On a machine
+with a free second core the import and most of the drawing leave the command's wall time; its
+CPU time (the worker's included, once it is waited for) stays what it was.
+
+The images are :func:`calib.calibration.report_plots.plot_rows` of the same rows, byte for byte
+as drawn in the command's own process. Nothing is written by the worker: the command stages the
+images with its other outputs (:mod:`calib.cli.output`), so an error anywhere still writes
+nothing. The worker ignores SIGINT (Ctrl-C reaches the whole process group; the command handles
+it and stops the worker) and ends when the command closes its pipe or stops it.
+
+Protocol: the command writes one pickle, ``(rows, tolerance_m, columns)``, to the worker's stdin;
+the worker answers on its stdout with pickles ``("progress", k, n)`` after each plot, then
+``("images", {name: png bytes})`` or ``("error", traceback text)``.
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Callable, Mapping
+
+__all__ = ["PlotWorker"]
+
+
+class PlotWorker:
+    """A worker process drawing one set of plots; start it early, :meth:`submit` the rows when
+    they are known, collect the images with :meth:`images`. Use as a context manager (or call
+    :meth:`close`): the process is stopped and waited for on every path."""
+
+    def __init__(self) -> None:
+        import calib
+
+        env = dict(os.environ)
+        # the worker imports the calib this process runs, wherever it was found
+        root = str(Path(calib.__file__).resolve().parents[1])
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+        self._proc = subprocess.Popen([sys.executable, "-m", "calib.cli.plot_worker"], stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env)
+
+    def __enter__(self) -> "PlotWorker":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def submit(self, rows, *, tolerance_m: float | None = None, columns: Mapping | None = None) -> None:
+        """Send the rows to draw (:class:`calib.calibration.report_rows.ReportRows`, and the
+        arguments of :func:`calib.calibration.report_plots.plot_rows`)."""
+        try:
+            pickle.dump((rows, tolerance_m, columns), self._proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            self._proc.stdin.close()
+        except BrokenPipeError:
+            self._proc.stdin = None
+            self._failed()
+
+    def images(self, progress: Callable[[int, int], None] | None = None) -> dict[str, bytes]:
+        """The PNG images by file name, once drawn; ``progress(k, n)`` after each plot."""
+        while True:
+            try:
+                message = pickle.load(self._proc.stdout)
+            except EOFError:
+                self._failed()
+            if message[0] == "progress":
+                if progress is not None:
+                    progress(message[1], message[2])
+            elif message[0] == "images":
+                self._proc.wait()         # (the worker ends at once: os._exit after its answer)
+                return message[1]
+            else:
+                self._proc.wait()
+                raise RuntimeError(f"drawing the plots failed in the worker process:\n{message[1]}")
+
+    def _failed(self):
+        code = self._proc.wait()
+        raise RuntimeError(f"the plots' worker process ended before drawing them (exit code {code})")
+
+    def close(self) -> None:
+        """Stop the worker if it still runs, wait for it, close the pipes."""
+        if self._proc.poll() is None:
+            self._proc.kill()
+        self._proc.wait()
+        for pipe in (self._proc.stdin, self._proc.stdout):
+            if pipe is not None:
+                pipe.close()
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:      # (not on Linux)
+        return os.cpu_count() or 1
+
+
+def _forked(draw: Callable[[], dict]) -> Callable[[], dict]:
+    """Run ``draw()`` in a forked copy of this process (matplotlib already imported: nothing to
+    pay twice); returns the function that waits for its images (raises what it raised)."""
+    import traceback
+
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid == 0:                  # the copy: draw, answer through the pipe, end at once
+        code = 1
+        try:
+            os.close(read_end)
+            with os.fdopen(write_end, "wb") as out:
+                try:
+                    message = ("images", draw())
+                    code = 0
+                except Exception:  # noqa: BLE001 - raised again in the worker
+                    message = ("error", traceback.format_exc())
+                pickle.dump(message, out, protocol=pickle.HIGHEST_PROTOCOL)
+        finally:
+            os._exit(code)
+    os.close(write_end)
+
+    def images() -> dict:
+        with os.fdopen(read_end, "rb") as fh:
+            try:
+                message = pickle.load(fh)
+            except EOFError:
+                message = ("error", "the worker's second process ended without answering")
+        os.waitpid(pid, 0)
+        if message[0] != "images":
+            raise RuntimeError(message[1])
+        return message[1]
+    return images
+
+
+def serve(stdin, stdout) -> int:
+    """The worker's side: import the plotting code, read one job, draw it (half of the plots in a
+    forked copy of itself when there are two cores: the command waits, idle, meanwhile), answer."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    import traceback
+    import warnings
+
+    from calib.calibration.report_plots import plot_names, plot_rows, warm_up
+
+    warm_up()                 # matplotlib imported while the command calibrates
+    try:
+        rows, tolerance_m, columns = pickle.load(stdin)
+    except EOFError:          # the command needs no plots after all
+        return 0
+
+    def send(*message) -> None:
+        pickle.dump(message, stdout, protocol=pickle.HIGHEST_PROTOCOL)
+        stdout.flush()
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")      # (the command keeps library warnings off the terminal)
+            names = plot_names(rows, columns)
+            theirs = None
+            if len(names) > 1 and _cores() > 1:
+                theirs = _forked(lambda: plot_rows(rows, tolerance_m=tolerance_m, columns=columns,
+                                                   names=names[1::2]))
+            mine = plot_rows(rows, tolerance_m=tolerance_m, columns=columns,
+                             names=names if theirs is None else names[0::2],
+                             progress=lambda k, n: send("progress", k, len(names)))
+            if theirs is not None:
+                mine.update(theirs())
+                send("progress", len(names), len(names))
+            images = {name: mine[name] for name in names}
+    except Exception:  # noqa: BLE001 - any failure is the command's to report
+        send("error", traceback.format_exc())
+        return 1
+    send("images", images)
+    return 0
+
+
+if __name__ == "__main__":
+    try:
+        code = serve(sys.stdin.buffer, sys.stdout.buffer)
+    except BrokenPipeError:   # the command stopped waiting
+        code = 1
+    os._exit(code)            # the answer is flushed: no interpreter shutdown for the command to wait on

@@ -1,0 +1,92 @@
+"""The plots' worker process (calib.cli.plot_worker): the same images as drawn in process, its
+failures raised in the command, and the process stopped on every path of ``calib calibrate``."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import calib.cli.plot_worker
+from calib.calibration.report_plots import plot_rows
+from calib.calibration.report_rows import PoseDeviations, ReportRows
+from calib.cli.main import main
+from calib.cli.plot_worker import PlotWorker
+
+from conftest import BUNDLED_URDF, ROOT
+
+EXAMPLE = ROOT / "examples" / "brtirus0707a" / "measurements.csv"
+
+
+def _rows(n: int, seed: int = 0) -> ReportRows:
+    rng = np.random.default_rng(seed)
+    after = PoseDeviations(rng.normal(0, 0.05e-3, (n, 3)), rng.normal(0, 1e-4, (n, 3)))
+    before = PoseDeviations(rng.normal(0, 1e-3, (n, 3)), rng.normal(0, 1e-3, (n, 3)))
+    outlier = np.zeros(n, bool)
+    outlier[3] = True
+    return ReportRows(np.full(n, "measurements"), np.arange(2, n + 2), np.full(n, "cal"), None,
+                      np.zeros((n, 6)), before, after, outlier, np.arange(n) % 4 == 0,
+                      rng.uniform(-1, 1, (n, 3)), "nominal model",
+                      columns={"time_s": np.arange(n, dtype=float)})
+
+
+def test_worker_draws_the_images_of_the_process_itself():
+    """Byte for byte the PNGs plot_rows draws here (drift included), in its order, with progress
+    calls counting up to the 5 plots."""
+    rows = _rows(200)
+    seen = []
+    with PlotWorker() as worker:
+        worker.submit(rows, tolerance_m=0.1e-3)
+        images = worker.images(progress=lambda k, n: seen.append((k, n)))
+    assert images == plot_rows(rows, tolerance_m=0.1e-3)
+    assert list(images) == list(plot_rows(rows)) and len(images) == 5
+    assert seen[-1] == (5, 5) and all(n == 5 and 0 < k for k, n in seen) and sorted(seen) == seen
+    assert worker._proc.returncode == 0
+
+
+def test_worker_failure_is_raised_and_closing_stops_it():
+    with PlotWorker() as worker:
+        worker.submit("not rows")
+        with pytest.raises(RuntimeError, match="drawing the plots failed in the worker process"):
+            worker.images()
+    assert worker._proc.returncode == 1
+    idle = PlotWorker()           # never sent anything: stopped (killed) by close
+    idle.close()
+    assert idle._proc.returncode is not None
+
+
+@pytest.fixture
+def workers(monkeypatch):
+    """The PlotWorkers the command starts."""
+    started = []
+
+    class Recorded(PlotWorker):
+        def __init__(self):
+            super().__init__()
+            started.append(self)
+    monkeypatch.setattr(calib.cli.plot_worker, "PlotWorker", Recorded)
+    return started
+
+
+def test_calibrate_stops_its_worker_on_bad_input_and_writes_nothing(tmp_path, capsys, workers):
+    bad = tmp_path / "m.csv"
+    lines = EXAMPLE.read_text().splitlines()
+    lines[5] = ",".join(["abc" if k == 2 else v for k, v in enumerate(lines[5].split(","))])
+    bad.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    code = main(["calibrate", str(BUNDLED_URDF), str(bad), "-o", str(out / "c.urdf"), "--html", str(out / "r.html"),
+                 "--plots", str(out / "plots")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(f"calib: error: {bad}") and "row 6" in err and list(out.iterdir()) == []
+    assert len(workers) == 1 and workers[0]._proc.returncode is not None
+
+
+def test_calibrate_plots_from_the_worker(tmp_path, capsys, workers):
+    plots = tmp_path / "plots"
+    code = main(["calibrate", str(BUNDLED_URDF), str(EXAMPLE), "-o", str(tmp_path / "c.urdf"), "--html",
+                 str(tmp_path / "r.html"), "--plots", str(plots)])
+    assert code == 0, capsys.readouterr().err
+    assert len(workers) == 1 and workers[0]._proc.returncode == 0
+    names = sorted(p.name for p in plots.iterdir())
+    assert names == ["error_histograms.png", "error_map.png", "orientation_errors.png", "position_errors.png"]
+    page = (tmp_path / "r.html").read_text()
+    assert page.count("data:image/png;base64,") == 4
