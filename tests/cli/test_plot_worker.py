@@ -42,6 +42,26 @@ def test_worker_draws_the_images_of_the_process_itself():
     assert worker._proc.returncode == 0
 
 
+def test_threaded_process_starts_a_new_interpreter_with_the_same_images():
+    """A process with threads is not forked (a fork copies their locks, not the threads): the
+    worker is then a new interpreter (subprocess.Popen), drawing the same images."""
+    import subprocess
+    import threading
+
+    rows, stop = _rows(50, seed=1), threading.Event()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    try:
+        with PlotWorker() as worker:
+            assert isinstance(worker._proc, subprocess.Popen)
+            worker.submit(rows)
+            images = worker.images()
+    finally:
+        stop.set()
+        other.join()
+    assert images == plot_rows(rows) and len(images) == 5 and worker._proc.returncode == 0
+
+
 def test_worker_failure_is_raised_and_closing_stops_it():
     with PlotWorker() as worker:
         worker.submit("not rows")
