@@ -86,14 +86,16 @@ def workers(monkeypatch):
     return started
 
 
-def test_calibrate_stops_its_worker_on_bad_input_and_writes_nothing(tmp_path, capsys, workers):
+@pytest.mark.parametrize("command", ["calibrate", "evaluate"])
+def test_command_stops_its_worker_on_bad_input_and_writes_nothing(command, tmp_path, capsys, workers):
     bad = tmp_path / "m.csv"
     lines = EXAMPLE.read_text().splitlines()
     lines[5] = ",".join(["abc" if k == 2 else v for k, v in enumerate(lines[5].split(","))])
     bad.write_text("\n".join(lines) + "\n")
     out = tmp_path / "out"
     out.mkdir()
-    code = main(["calibrate", str(BUNDLED_URDF), str(bad), "-o", str(out / "c.urdf"), "--html", str(out / "r.html"),
+    extra = ["-o", str(out / "c.urdf")] if command == "calibrate" else []
+    code = main([command, str(BUNDLED_URDF), str(bad), *extra, "--html", str(out / "r.html"),
                  "--plots", str(out / "plots")])
     err = capsys.readouterr().err
     assert code == 2 and err.startswith(f"calib: error: {bad}") and "row 6" in err and list(out.iterdir()) == []
