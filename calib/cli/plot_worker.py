@@ -40,7 +40,7 @@ class PlotWorker:
         import threading
 
         self._sender = None
-        if hasattr(os, "fork") and threading.active_count() == 1:
+        if _can_fork() and threading.active_count() == 1:
             self._proc = _Forked()        # numpy and calib already imported: ready about 0.15 s sooner
             return
         import calib                      # (a new interpreter: forking a threaded process is unsafe)
@@ -64,7 +64,11 @@ class PlotWorker:
         writes them while the worker may still be importing matplotlib."""
         import threading
 
-        data = pickle.dumps((rows, tolerance_m, columns), protocol=pickle.HIGHEST_PROTOCOL)
+        from dataclasses import replace
+
+        rows = replace(rows, columns=dict(rows.columns))     # (a read-only mapping does not pickle)
+        data = pickle.dumps((rows, tolerance_m, None if columns is None else dict(columns)),
+                            protocol=pickle.HIGHEST_PROTOCOL)
         self._sender = threading.Thread(target=self._send, args=(data,), name="calib-plots-submit", daemon=True)
         self._sender.start()
 
@@ -158,6 +162,12 @@ class _Forked:
             os.kill(self.pid, signal.SIGKILL)
 
 
+def _can_fork() -> bool:
+    """Whether a process may fork without exec here: Linux (macOS's system libraries do not
+    survive it, Windows has no fork)."""
+    return sys.platform.startswith("linux") and hasattr(os, "fork")
+
+
 def _cores() -> int:
     try:
         return len(os.sched_getaffinity(0))
@@ -224,7 +234,7 @@ def serve(stdin, stdout) -> int:
             warnings.simplefilter("ignore")      # (the command keeps library warnings off the terminal)
             names = plot_names(rows, columns)
             theirs = None
-            if len(names) > 1 and _cores() > 1 and hasattr(os, "fork"):
+            if len(names) > 1 and _cores() > 1 and _can_fork():
                 theirs = _forked(lambda: plot_rows(rows, tolerance_m=tolerance_m, columns=columns,
                                                    names=names[1::2]))
             mine = plot_rows(rows, tolerance_m=tolerance_m, columns=columns,

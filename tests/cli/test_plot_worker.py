@@ -2,6 +2,9 @@
 failures raised in the command, and the process stopped on every path of ``calib calibrate``."""
 from __future__ import annotations
 
+from dataclasses import replace
+from types import MappingProxyType
+
 import numpy as np
 import pytest
 
@@ -25,7 +28,7 @@ def _rows(n: int, seed: int = 0) -> ReportRows:
     return ReportRows(np.full(n, "measurements"), np.arange(2, n + 2), np.full(n, "cal"), None,
                       np.zeros((n, 6)), before, after, outlier, np.arange(n) % 4 == 0,
                       rng.uniform(-1, 1, (n, 3)), "nominal model",
-                      columns={"time_s": np.arange(n, dtype=float)})
+                      columns=MappingProxyType({"time_s": np.arange(n, dtype=float)}))   # (as Measurements)
 
 
 def test_worker_draws_the_images_of_the_process_itself():
@@ -64,8 +67,8 @@ def test_threaded_process_starts_a_new_interpreter_with_the_same_images():
 
 def test_worker_failure_is_raised_and_closing_stops_it():
     with PlotWorker() as worker:
-        worker.submit("not rows")
-        with pytest.raises(RuntimeError, match="drawing the plots failed in the worker process"):
+        worker.submit(replace(_rows(50), point_base=np.zeros((3, 3))))    # 3 points for 50 rows
+        with pytest.raises(RuntimeError, match="(?s)drawing the plots failed in the worker process.*IndexError"):
             worker.images()
     assert worker._proc.returncode == 1
     idle = PlotWorker()           # never sent anything: stopped (killed) by close
