@@ -1,21 +1,26 @@
 """The plots of ``--plots`` and ``--html`` drawn in a worker process (issue 27, item 3).
 
 matplotlib's import (about 0.35 s CPU) and the drawing (about 0.1 s a figure) cost more than
-the calibration of a few hundred rows. :class:`PlotWorker` starts a second Python process as soon
-as a command knows that it will draw (``python -m calib.cli.plot_worker``); that process imports
-matplotlib and the plotting code while the command reads its inputs and calibrates, then draws
-the rows it is sent while the command builds the JSON report and the HTML page. On a machine
-with a free second core the import and most of the drawing leave the command's wall time; its
-CPU time (the worker's included, once it is waited for) stays what it was.
+the calibration of a few hundred rows. :class:`PlotWorker` starts a second process as soon as a
+command knows that it will draw: a fork of the command on Linux when it runs no other thread
+(numpy and calib are then already imported), else a new interpreter (``python -m
+calib.cli.plot_worker``). The worker imports matplotlib and the plotting code while the command
+reads its inputs and calibrates, then draws the rows it is sent while the command builds the JSON
+report and the HTML page, half of the plots in a fork of itself when there are two cores (the
+command only waits meanwhile). With free cores the import and most of the drawing leave the
+command's wall time; the CPU time (the workers', counted in the command's once waited for) grows
+a little (the fork, the rows pickled, the first figure's set-up in each process). On a machine
+whose cores are busy with other work the wall time gains little.
 
 The images are :func:`calib.calibration.report_plots.plot_rows` of the same rows, byte for byte
-as drawn in the command's own process. Nothing is written by the worker: the command stages the
-images with its other outputs (:mod:`calib.cli.output`), so an error anywhere still writes
-nothing. The worker ignores SIGINT (Ctrl-C reaches the whole process group; the command handles
-it and stops the worker) and ends when the command closes its pipe or stops it.
+as drawn in the command's own process, in the same order. Nothing is written by the worker: the
+command stages the images with its other outputs (:mod:`calib.cli.output`), so an error anywhere
+still writes nothing. The worker ignores SIGINT (Ctrl-C reaches the whole process group; the
+command handles it and stops the worker), writes nothing on the command's terminal, and ends
+when the command closes its pipe or stops it (:meth:`PlotWorker.close`, on every path).
 
 Protocol: the command writes one pickle, ``(rows, tolerance_m, columns)``, to the worker's stdin;
-the worker answers on its stdout with pickles ``("progress", k, n)`` after each plot, then
+the worker answers on its stdout with pickles ``("progress", k, n)`` as plots are done, then
 ``("images", {name: png bytes})`` or ``("error", traceback text)``.
 """
 from __future__ import annotations
