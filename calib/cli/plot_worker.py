@@ -54,8 +54,10 @@ class PlotWorker:
         # the worker imports the calib this process runs, wherever it was found
         root = str(Path(calib.__file__).resolve().parents[1])
         env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+        # (its own process group, as a forked worker's: close() stops the fork drawing its other half too)
         self._proc = subprocess.Popen([sys.executable, "-m", "calib.cli.plot_worker"], stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env)
+                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env,
+                                      start_new_session=True)
 
     def __enter__(self) -> "PlotWorker":
         return self
@@ -107,9 +109,13 @@ class PlotWorker:
         raise RuntimeError(f"the plots' worker process ended before drawing them (exit code {code})")
 
     def close(self) -> None:
-        """Stop the worker if it still runs, wait for it, close the pipes."""
-        if self._proc.poll() is None:
-            self._proc.kill()
+        """Stop the worker (and the fork drawing its other half) if it still runs, wait for it,
+        close the pipes."""
+        if self._proc.poll() is None:      # (not reaped yet: its id still names its process group)
+            try:
+                os.killpg(self._proc.pid, signal.SIGKILL)
+            except (AttributeError, OSError):     # (no process groups, or already gone)
+                self._proc.kill()
         self._proc.wait()
         if self._sender is not None:
             self._sender.join()
@@ -133,6 +139,7 @@ class _Forked:
         if self.pid == 0:                 # the worker: never returns into the command's code
             code = 1
             try:
+                os.setpgid(0, 0)          # its own process group, with the fork drawing its other half
                 os.close(job_write)
                 os.close(answer_read)
                 signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -145,6 +152,10 @@ class _Forked:
                 pass
             finally:
                 os._exit(code)
+        try:
+            os.setpgid(self.pid, self.pid)    # (also here: close() may come before the worker runs)
+        except OSError:
+            pass
         os.close(job_read)
         os.close(answer_write)
         self.stdin = os.fdopen(job_write, "wb")
@@ -180,9 +191,33 @@ def _cores() -> int:
         return os.cpu_count() or 1
 
 
-def _forked(draw: Callable[[], dict]) -> Callable[[], dict]:
-    """Run ``draw()`` in a forked copy of this process (matplotlib already imported: nothing to
-    pay twice); returns the function that waits for its images (raises what it raised)."""
+class _Half:
+    """``draw()`` run in a forked copy of this process (matplotlib already imported: nothing to
+    pay twice): :meth:`images` waits for its images (raises what it raised), :meth:`stop` ends it."""
+
+    def __init__(self, draw: Callable[[], dict]) -> None:
+        self.read_end, self.pid = _forked(draw)
+
+    def images(self) -> dict:
+        with os.fdopen(self.read_end, "rb") as fh:
+            try:
+                message = pickle.load(fh)
+            except EOFError:
+                message = ("error", "the worker's second process ended without answering")
+        os.waitpid(self.pid, 0)
+        if message[0] != "images":
+            raise RuntimeError(message[1])
+        return message[1]
+
+    def stop(self) -> None:
+        os.kill(self.pid, signal.SIGKILL)
+        os.waitpid(self.pid, 0)
+        os.close(self.read_end)
+
+
+def _forked(draw: Callable[[], dict]) -> tuple[int, int]:
+    """Fork; the copy runs ``draw()`` and pickles ``("images", ...)`` or ``("error", traceback)``
+    into a pipe, then ends. Returns the pipe's read end and the copy's pid."""
     import traceback
 
     read_end, write_end = os.pipe()
@@ -201,18 +236,7 @@ def _forked(draw: Callable[[], dict]) -> Callable[[], dict]:
         finally:
             os._exit(code)
     os.close(write_end)
-
-    def images() -> dict:
-        with os.fdopen(read_end, "rb") as fh:
-            try:
-                message = pickle.load(fh)
-            except EOFError:
-                message = ("error", "the worker's second process ended without answering")
-        os.waitpid(pid, 0)
-        if message[0] != "images":
-            raise RuntimeError(message[1])
-        return message[1]
-    return images
+    return read_end, pid
 
 
 def serve(stdin, stdout) -> int:
@@ -234,22 +258,25 @@ def serve(stdin, stdout) -> int:
         pickle.dump(message, stdout, protocol=pickle.HIGHEST_PROTOCOL)
         stdout.flush()
 
+    theirs = None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")      # (the command keeps library warnings off the terminal)
             names = plot_names(rows, columns)
-            theirs = None
             if len(names) > 1 and _cores() > 1 and _can_fork():
-                theirs = _forked(lambda: plot_rows(rows, tolerance_m=tolerance_m, columns=columns,
-                                                   names=names[1::2]))
+                theirs = _Half(lambda: plot_rows(rows, tolerance_m=tolerance_m, columns=columns,
+                                                 names=names[1::2]))
             mine = plot_rows(rows, tolerance_m=tolerance_m, columns=columns,
                              names=names if theirs is None else names[0::2],
                              progress=lambda k, n: send("progress", k, len(names)))
             if theirs is not None:
-                mine.update(theirs())
+                half, theirs = theirs, None
+                mine.update(half.images())
                 send("progress", len(names), len(names))
             images = {name: mine[name] for name in names}
     except Exception:  # noqa: BLE001 - any failure is the command's to report
+        if theirs is not None:           # (this half failed: the other is not waited for)
+            theirs.stop()
         send("error", traceback.format_exc())
         return 1
     send("images", images)

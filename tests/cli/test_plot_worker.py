@@ -2,6 +2,7 @@
 failures raised in the command, and the process stopped on every path of ``calib calibrate``."""
 from __future__ import annotations
 
+import sys
 from dataclasses import replace
 from types import MappingProxyType
 
@@ -74,6 +75,38 @@ def test_worker_failure_is_raised_and_closing_stops_it():
     idle = PlotWorker()           # never sent anything: stopped (killed) by close
     idle.close()
     assert idle._proc.returncode is not None
+
+
+def _group_states(group: int) -> list[str]:
+    """The states (R, S, Z, ...) of the processes of process group ``group`` (Linux /proc)."""
+    from pathlib import Path
+
+    states = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:            # (ended meanwhile)
+            continue
+        if int(fields[2]) == group:
+            states.append(fields[0])
+    return states
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="process groups read from /proc")
+def test_closing_a_drawing_worker_stops_the_fork_drawing_its_other_half_too():
+    """close() while both processes draw (200,000 rows: over a second) ends the worker's whole
+    process group at once: nothing keeps drawing for a command that has stopped (killing the
+    worker alone left its fork drawing)."""
+    import signal
+
+    worker = PlotWorker()
+    worker.submit(_rows(200_000))
+    assert worker._proc.stdout.peek(1)       # the first progress message: both halves draw
+    group = worker._proc.pid
+    assert len(_group_states(group)) == 2
+    worker.close()
+    assert worker._proc.returncode == -signal.SIGKILL
+    assert set(_group_states(group)) <= {"Z"}     # gone, or dead and not yet reaped by init
 
 
 @pytest.fixture
