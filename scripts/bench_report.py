@@ -81,13 +81,21 @@ def run(argv: list[str], root: Path = ROOT) -> dict:
 
 def pair(base: list[str], extra: list[str], repeats: int, root: Path = ROOT) -> tuple[dict, dict]:
     """Medians of ``repeats`` interleaved runs of ``base`` and ``base + extra`` (after a warm-up)."""
-    run(base, root)
-    a, b = [], []
+    return pairs(base, extra, repeats, [root])[root]
+
+
+def pairs(base: list[str], extra: list[str], repeats: int, roots: list[Path]) -> dict[Path, tuple[dict, dict]]:
+    """:func:`pair` for each checkout of ``roots``, all runs interleaved (each repetition runs
+    every checkout in turn), so that a change of the machine's load falls on all alike."""
+    for root in roots:
+        run(base, root)
+    runs = {root: ([], []) for root in roots}
     for _ in range(repeats):
-        a.append(run(base, root))
-        b.append(run(base + extra, root))
-    med = lambda runs: {k: statistics.median(r[k] for r in runs) for k in runs[0]}
-    return med(a), med(b)
+        for root in roots:
+            runs[root][0].append(run(base, root))
+            runs[root][1].append(run(base + extra, root))
+    med = lambda rs: {k: statistics.median(r[k] for r in rs) for k in rs[0]}
+    return {root: (med(a), med(b)) for root, (a, b) in runs.items()}
 
 
 _STAGE = """
@@ -126,8 +134,8 @@ def main() -> None:
     ap.add_argument("--html-rows", type=int, default=200_000)
     ap.add_argument("--quick", action="store_true", help="the bundled example only")
     ap.add_argument("--compare", type=Path, default=None, metavar="CHECKOUT",
-                    help="also run the bundled example with the calib of another checkout (e.g. a "
-                         "`git archive main` snapshot), interleaved, to compare under the same load")
+                    help="also run the calib of another checkout (e.g. a `git archive main` snapshot), "
+                         "interleaved with this one's, to compare under the same load")
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; medians of {args.repeats} runs")
     roots = [ROOT] + ([args.compare.resolve()] if args.compare is not None else [])
@@ -144,15 +152,16 @@ def main() -> None:
         tmp = Path(tmp)
         extra = ["--report", tmp / "r.json", "--html", tmp / "r.html", "--plots", tmp / "plots"]
         base = ["calibrate", URDF, EXAMPLE, "-o", tmp / "c.urdf"]
-        a, b = pair(base, extra, args.repeats)
+        both = pairs(base, extra, args.repeats, roots)
+        a, b = both[ROOT]
         print(f"\n1. bundled example, 300 rows: calibrate {a['wall']:.2f} s -> with --report --html --plots "
               f"{b['wall']:.2f} s wall, +{b['wall'] - a['wall']:.2f} s (CPU +{b['cpu'] - a['cpu']:.2f} s); "
               f"before: {BEFORE['example_s'][0]} s -> {BEFORE['example_s'][1]} s "
               f"(+{BEFORE['example_s'][1] - BEFORE['example_s'][0]:.2f} s); target +{TARGET['added_example_s']} s")
         print(f"   JSON {_mb(tmp / 'r.json')}, HTML {_mb(tmp / 'r.html')}")
         if args.compare is not None:
-            a2, b2 = pair(base, extra, args.repeats, args.compare.resolve())
-            print(f"   {args.compare} under the same load: {a2['wall']:.2f} s -> {b2['wall']:.2f} s wall, "
+            a2, b2 = both[args.compare.resolve()]
+            print(f"   {args.compare} under the same load (interleaved): {a2['wall']:.2f} s -> {b2['wall']:.2f} s wall, "
                   f"+{b2['wall'] - a2['wall']:.2f} s (CPU +{b2['cpu'] - a2['cpu']:.2f} s)")
         if args.quick:
             return
@@ -160,13 +169,19 @@ def main() -> None:
         run(["simulate", URDF, "-o", meas, "--poses", args.rows, "--seed", 1, "--deviations", "random:0.3"])
         base = ["calibrate", URDF, meas, "-o", tmp / "c.urdf", "--cv", 0]
         reps = max(1, min(args.repeats, 3))
-        a, b = pair(base, extra, reps)
+        both = pairs(base, extra, reps, roots)
+        a, b = both[ROOT]
         print(f"\n2. {args.rows} rows (medians of {reps}): calibrate {a['wall']:.1f} s, {a['rss_mb']:.0f} MB -> "
               f"with --report --html --plots {b['wall']:.1f} s, {b['rss_mb']:.0f} MB: +{b['wall'] - a['wall']:.2f} s "
               f"wall (CPU +{b['cpu'] - a['cpu']:.2f} s), +{b['rss_mb'] - a['rss_mb']:.0f} MB peak; "
               f"before: +{BEFORE['added_100k_s']} s, {BEFORE['memory_100k_mb']:.0f} MB; target +{TARGET['added_100k_s']} s")
         print(f"   JSON {_mb(tmp / 'r.json')} (before: {BEFORE['json_100k_mb']:.0f} MB), residuals CSV "
               f"{_mb(tmp / 'r.residuals.csv')}, HTML {_mb(tmp / 'r.html')}")
+        if args.compare is not None:
+            a2, b2 = both[args.compare.resolve()]
+            print(f"   {args.compare} under the same load (interleaved): {a2['wall']:.1f} s -> {b2['wall']:.1f} s "
+                  f"wall, +{b2['wall'] - a2['wall']:.2f} s (CPU +{b2['cpu'] - a2['cpu']:.2f} s), "
+                  f"+{b2['rss_mb'] - a2['rss_mb']:.0f} MB peak")
         big = tmp / "big.csv"
         run(["simulate", URDF, "-o", big, "--poses", args.html_rows, "--seed", 2, "--deviations", "random:0.3"])
         page = tmp / "big.html"

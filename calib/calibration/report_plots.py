@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import io
 import math
-from typing import Mapping
+from typing import Collection, Mapping
 
 import numpy as np
 
 from calib.calibration.report_rows import ReportRows, drift_columns
 
-__all__ = ["PLOT_FILES", "THIN_ABOVE", "plot_rows"]
+__all__ = ["PLOT_FILES", "THIN_ABOVE", "plot_names", "plot_rows", "warm_up"]
 
 #: File names of the plots, in the order :func:`plot_rows` returns them.
 PLOT_FILES = ("position_errors.png", "orientation_errors.png", "error_histograms.png", "error_map.png",
@@ -38,6 +38,13 @@ BINS, SCATTER_POINTS = 400, 3000
 DPI = 90
 _DEG = 180.0 / math.pi
 _CAL, _VAL, _OUT = "tab:blue", "tab:orange", "red"
+
+
+def warm_up() -> None:
+    """Import what drawing needs (matplotlib's figure and Agg canvas, about 0.35 s), so that a
+    process that will draw can pay for it while it waits for the rows (calib.cli.plot_worker)."""
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import matplotlib.figure  # noqa: F401
 
 
 def _png(fig) -> bytes:
@@ -271,12 +278,8 @@ def _drift(rows: ReportRows, columns: Mapping[str, np.ndarray]) -> bytes:
     return _png(fig)
 
 
-def plot_rows(rows: ReportRows, *, tolerance_m: float | None = None,
-              columns: Mapping[str, np.ndarray] | None = None, progress=None) -> dict[str, bytes]:
-    """PNG images of a report's rows by file name (module docstring); ``orientation_errors.png``
-    only for pose data, ``drift.png`` only with ``columns`` (name with unit -> (N,) values;
-    default: the rows' ``time_s`` and ``temperature_c`` when they have them).
-    progress : called with the number of plots done after each (for a progress line)."""
+def _jobs(rows: ReportRows, tolerance_m: float | None, columns: Mapping[str, np.ndarray] | None) -> list:
+    """The plots of ``rows`` (see :func:`plot_rows`): (file name, function drawing its PNG)."""
     jobs = [("position_errors.png", lambda: _per_row(rows, "position_errors", 1e3, "mm", rows.quantity,
                                                      tolerance_m))]
     if rows.has_rotation:
@@ -284,11 +287,31 @@ def plot_rows(rows: ReportRows, *, tolerance_m: float | None = None,
                      lambda: _per_row(rows, "rotation_errors", _DEG, "deg", "orientation error")))
     jobs.append(("error_histograms.png", lambda: _histograms(rows)))
     jobs.append(("error_map.png", lambda: _error_map(rows, tolerance_m)))
-    images = {}
     if columns is None:
         columns = drift_columns(rows)
     if columns:
         jobs.append(("drift.png", lambda: _drift(rows, columns)))
+    return jobs
+
+
+def plot_names(rows: ReportRows, columns: Mapping[str, np.ndarray] | None = None) -> list[str]:
+    """The file names of the plots :func:`plot_rows` draws of ``rows`` (and ``columns``), in order."""
+    return [name for name, _ in _jobs(rows, None, columns)]
+
+
+def plot_rows(rows: ReportRows, *, tolerance_m: float | None = None,
+              columns: Mapping[str, np.ndarray] | None = None, progress=None,
+              names: Collection[str] | None = None) -> dict[str, bytes]:
+    """PNG images of a report's rows by file name (module docstring); ``orientation_errors.png``
+    only for pose data, ``drift.png`` only with ``columns`` (name with unit -> (N,) values;
+    default: the rows' ``time_s`` and ``temperature_c`` when they have them).
+    progress : called with the number of plots done after each (for a progress line).
+    names : draw only these of the plots (the others are left out: a worker process drawing its
+    share of them, calib.cli.plot_worker)."""
+    jobs = _jobs(rows, tolerance_m, columns)
+    if names is not None:
+        jobs = [(name, job) for name, job in jobs if name in names]
+    images = {}
     for k, (name, job) in enumerate(jobs):
         images[name] = job()
         if progress is not None:

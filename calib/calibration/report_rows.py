@@ -21,14 +21,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
-from calib.model.robot import RobotModel
-from calib.model.spatial import log3_batch
+
+if TYPE_CHECKING:     # Pinocchio is imported where the kinematics run: the plots' worker process
+    from calib.model.robot import RobotModel     # (calib.cli.plot_worker) unpickles ReportRows without it
 
 __all__ = ["PoseDeviations", "pose_deviations", "ReportRows", "report_rows", "axis_table", "iso9283", "error_stats",
            "tolerance_verdict", "registered_nominal", "repeated_groups", "drift_columns"]
@@ -63,6 +63,8 @@ def pose_deviations(robot: RobotModel, measurements: Measurements) -> PoseDeviat
     """Deviations of ``robot``'s tool poses from ``measurements`` (both in the meas frame; rows
     of several targets against the model's transform of their target)."""
     from calib.calibration.accuracy import target_rows, with_measured_targets
+    from calib.model.kinematics import ChainKinematics
+    from calib.model.spatial import log3_batch
 
     robot = with_measured_targets(robot, measurements)
     R, p = ChainKinematics(robot).frame_poses(measurements.q, targets=target_rows(robot, measurements))

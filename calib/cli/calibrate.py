@@ -172,13 +172,26 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calib calibrate`` with parsed arguments; returns the exit code."""
-    import calib
-    from calib.io.urdf_reader import robot_path
-    from calib.io.urdf_writer import check_writable
     from calib.cli.touch import is_touch_input, run_touch
 
     if is_touch_input(args):        # rows naming the point, plane or sphere touched (issue 24)
         return run_touch(args)
+    if not (args.plots or args.html):
+        return _calibrate(args, None)
+    from calib.cli.plot_worker import PlotWorker
+
+    # the plots' process imports matplotlib while this one reads and calibrates (stopped on every path)
+    with PlotWorker() as plots:
+        return _calibrate(args, plots)
+
+
+def _calibrate(args: argparse.Namespace, plots) -> int:
+    """:func:`run` of measured rows; ``plots``: the :class:`calib.cli.plot_worker.PlotWorker` that
+    draws the plots of --plots and --html (None without them)."""
+    import calib
+    from calib.io.urdf_reader import robot_path
+    from calib.io.urdf_writer import check_writable
+
     for flag, value in (("--probe-radius-mm", args.probe_radius_mm), ("--sigma-touch-mm", args.sigma_touch_mm),
                         ("--nominal-scale", args.nominal_scale or None)):
         if value is not None:
@@ -260,7 +273,7 @@ def run(args: argparse.Namespace) -> int:
     if plot_paths or out_html is not None or out_report is not None:
         text += _report_stage(args, result, meas, validation, outputs, meta=meta, plot_paths=plot_paths,
                               out_report=out_report, out_html=out_html, out_residuals=out_residuals,
-                              out_urdf=out_urdf, frames=frames, images=images)
+                              out_urdf=out_urdf, frames=frames, images=images, plots=plots)
     outputs.commit()
 
     written = [out_urdf] + [p for p in (out_sidecar, out_report, out_residuals, out_html) if p is not None] + \
@@ -283,12 +296,12 @@ def residuals_path(report: Path) -> Path:
 
 
 def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, out_report, out_html,
-                  out_residuals, out_urdf, frames, images: dict) -> str:
-    """Stage the plots, JSON report (and its residuals CSV) and HTML page, with a progress line
-    (fraction, time left); fills ``images``; returns the verdict line for the printed text ("" without
-    --tolerance-mm)."""
-    from calib.calibration.report import (build_report, render_html, render_plots, report_json_text,
-                                          report_rows_of, residuals_csv_chunks)
+                  out_residuals, out_urdf, frames, images: dict, plots) -> str:
+    """Stage the plots (drawn by the worker ``plots`` while the JSON report is built), JSON report
+    (and its residuals CSV) and HTML page, with a progress line (fraction, time left); fills
+    ``images``; returns the verdict line for the printed text ("" without --tolerance-mm)."""
+    from calib.calibration.report import (build_report, render_html, report_json_text, report_rows_of,
+                                          residuals_csv_chunks)
     from calib.cli.progress import Progress, stage
 
     want_plots = bool(plot_paths) or out_html is not None
@@ -297,12 +310,9 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
     with Progress(steps, "writing the report", enabled=progress_enabled(args)) as progress, \
             stage(log, "report"):
         rows = report_rows_of(result, meas, validation)
-        progress.update()
         if want_plots:
-            done = progress.done
-            images.update(render_plots(result, meas, validation, rows=rows, tolerance_mm=args.tolerance_mm,
-                                       progress=lambda k, n: progress.set(done + round(5 * k / n))))
-            progress.set(done + 5)
+            plots.submit(rows, tolerance_m=None if args.tolerance_mm is None else args.tolerance_mm * 1e-3)
+        progress.update()
         report = build_report(
             result, meas, validation, command_line=["calib", *args.argv],
             inputs={"robot": robot_path_of(args), "measurements": args.measurements,
@@ -323,6 +333,14 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
         if tol is not None:
             verdict = (f"\ntolerance {tol['tolerance_mm']:g} mm: {'PASS' if tol['pass'] else 'FAIL'} (largest "
                        f"position error {tol['max_mm']:.4g} mm over {tol['n']} {tol['rows']}; {tol['beyond']} beyond)")
+        if want_plots:
+            if out_html is not None:
+                from calib.calibration.report_html import load_template
+
+                load_template()          # (while the plots are drawn)
+            done = progress.done
+            images.update(plots.images(progress=lambda k, n: progress.set(done + round(5 * k / n))))
+            progress.set(done + 5)
         if out_html is not None:
             outputs.stage(out_html, render_html(report, result.format() + verdict, images))
             progress.update()

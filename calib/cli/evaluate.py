@@ -141,6 +141,18 @@ def _in_measurement_frame(robot, args):
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calib evaluate`` with parsed arguments; returns the exit code."""
+    if not (args.plots or args.html):
+        return _evaluate(args, None)
+    from calib.cli.plot_worker import PlotWorker
+
+    # the plots' process imports matplotlib while this one reads and evaluates (stopped on every path)
+    with PlotWorker() as plots:
+        return _evaluate(args, plots)
+
+
+def _evaluate(args: argparse.Namespace, plots) -> int:
+    """:func:`run`; ``plots``: the :class:`calib.cli.plot_worker.PlotWorker` that draws the plots
+    of --plots and --html (None without them)."""
     import numpy as np
 
     import calib
@@ -176,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
     if len(meas.target_ids) > 1:
         per_target = [(t, calib.evaluate(robot, meas.subset(np.array(meas.target) == t))) for t in meas.target_ids]
     if out_html is not None or plot_paths:
-        _write_report(args, robot, meas, outputs, out_html, plot_paths, meta)
+        _write_report(args, robot, meas, outputs, out_html, plot_paths, meta, plots)
     if args.json:
         keys = {"all rows": "all", "calibration rows (cal)": "cal", "validation rows (val)": "val"}
         out = {"robot": str(args.robot), "measurements": str(args.measurements),
@@ -196,11 +208,12 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _write_report(args, robot, meas, outputs, out_html, plot_paths, meta) -> None:
-    """Plots and the HTML accuracy report, staged and committed with a progress line; the verdict
-    line and the written paths are kept on ``args`` for the printed text."""
+def _write_report(args, robot, meas, outputs, out_html, plot_paths, meta, plots) -> None:
+    """Plots (drawn by the worker ``plots`` while the report is built) and the HTML accuracy
+    report, staged and committed with a progress line; the verdict line and the written paths
+    are kept on ``args`` for the printed text."""
     from calib.calibration.report import build_accuracy_report, render_html
-    from calib.calibration.report_plots import plot_rows
+    from calib.calibration.report_html import load_template
     from calib.calibration.report_rows import report_rows
     from calib.cli.progress import Progress
     from calib.io.urdf_reader import robot_path
@@ -209,9 +222,8 @@ def _write_report(args, robot, meas, outputs, out_html, plot_paths, meta) -> Non
 
     with Progress(7, "writing the report", enabled=progress_enabled(args)) as progress:
         rows = report_rows(robot, meas, validation_rows="none")
+        plots.submit(rows, tolerance_m=None if args.tolerance_mm is None else args.tolerance_mm * 1e-3)
         progress.update()
-        images = plot_rows(rows, tolerance_m=None if args.tolerance_mm is None else args.tolerance_mm * 1e-3,
-                           progress=lambda k, n: progress.set(1 + round(5 * k / n)))
         report = build_accuracy_report(robot, meas, command_line=["calib", *args.argv],
                                        inputs={"robot": robot_path(args.robot), "measurements": args.measurements},
                                        meta=meta, tolerance_mm=args.tolerance_mm, residuals="none", rows=rows)
@@ -219,6 +231,9 @@ def _write_report(args, robot, meas, outputs, out_html, plot_paths, meta) -> Non
         args._verdict = "" if tol is None else (
             f"tolerance {tol['tolerance_mm']:g} mm: {'PASS' if tol['pass'] else 'FAIL'} (largest position error "
             f"{tol['max_mm']:.4g} mm over {tol['n']} rows; {tol['beyond']} beyond)\n")
+        if out_html is not None:
+            load_template()              # (while the plots are drawn)
+        images = plots.images(progress=lambda k, n: progress.set(1 + round(5 * k / n)))
         if out_html is not None:
             text = (f"Accuracy of {args.robot} (tool frame {robot.tool_frame!r} in base frame {robot.base_frame!r}) "
                     f"against {args.measurements}")

@@ -242,10 +242,26 @@ def test_rpy_nearest_the_input_near_pitch_pi_2():
 # ====================================================================== reports
 def test_json_and_html_reports(capsys, tmp_path, monkeypatch):
     import calib.calibration.report
+    import calib.cli.plot_worker
 
-    # the plots themselves are tested in test_cli; here a stand-in keeps the test fast
+    # the plots themselves are tested in test_cli; here a stand-in for their worker process keeps
+    # the test fast (and checks that the rows it is sent are the report's)
     fake = {name: b"\x89PNG fake " + name.encode() for name in calib.calibration.report.PLOT_FILES}
-    monkeypatch.setattr(calib.calibration.report, "render_plots", lambda *a, **k: fake)
+    sent = []
+
+    class FakeWorker:
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            pass
+
+        def submit(self, rows, **kwargs):
+            sent.append(rows)
+
+        def images(self, progress=None):
+            return fake
+    monkeypatch.setattr(calib.cli.plot_worker, "PlotWorker", FakeWorker)
     meas = tmp_path / "m.csv"
     assert run(capsys, "simulate", BUNDLED, "-o", meas, "--poses", 40, "--val-poses", 20,
                "--seed", 2)[0] == 0
@@ -281,6 +297,7 @@ def test_json_and_html_reports(capsys, tmp_path, monkeypatch):
     # HTML: self-contained, with the printed report and the embedded plots
     page = html_path.read_text()
     assert page.count("data:image/png;base64,") == len(fake) == 5
+    assert len(sent) == 1 and sent[0].n_rows == 60 and list(sent[0].row) == data_rows
     assert not re.search(r"(src|href)=\"(?!data:)", page) and "://" not in page
     assert "validation rows, after" in page and "calibration rows, after" in page
     # 40 rows: fewer than 10 residual components per parameter, the regularised estimate
