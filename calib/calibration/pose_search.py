@@ -38,12 +38,16 @@ _BOUND_MARGIN = 1e-9
 
 
 def _logdet_eye_plus(S: np.ndarray) -> np.ndarray:
-    """log det(I_k + S_i) for a stack of symmetric positive semi-definite S (N, k, k): a Cholesky
-    factorisation written over the stack (k (k + 1) / 2 array operations of length N instead of
-    N LAPACK calls of a k x k matrix)."""
-    k, n = S.shape[1], S.shape[0]
-    St = np.ascontiguousarray(np.transpose(S, (1, 2, 0)))   # (k, k, N)
-    L = np.empty_like(St)
+    """log det(I_k + S_i) for a stack of symmetric positive semi-definite S (N, k, k)."""
+    return _logdet_eye_plus_t(np.ascontiguousarray(np.transpose(S, (1, 2, 0))))
+
+
+def _logdet_eye_plus_t(St: np.ndarray) -> np.ndarray:
+    """log det(I_k + S_i) for the stack laid out last, St (k, k, N) (the leverages are kept so:
+    no transposed copy per evaluation): a Cholesky factorisation written over the stack
+    (k (k + 1) / 2 array operations of length N instead of N LAPACK calls of a k x k matrix)."""
+    k, n = St.shape[0], St.shape[2]
+    L = np.empty((k, k, n))
     out = np.zeros(n)
     for j in range(k):
         d = 1.0 + St[j, j]
@@ -66,8 +70,13 @@ def _gram(C: np.ndarray) -> np.ndarray:
     blocks is slower; for m = r it is faster)."""
     if C.shape[2] > 8:
         return np.matmul(C, np.transpose(C, (0, 2, 1)))
+    return _gram_t(C).transpose(2, 0, 1)
+
+
+def _gram_t(C: np.ndarray) -> np.ndarray:
+    """C_i C_i^T for a stack C (N, k, m <= 8), laid out last: (k, k, N)."""
     Ct = np.ascontiguousarray(np.transpose(C, (1, 2, 0)))       # (k, m, N)
-    return np.einsum("ikn,jkn->ijn", Ct, Ct).transpose(2, 0, 1)
+    return np.einsum("ikn,jkn->ijn", Ct, Ct)
 
 
 def _leverages(A: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -80,6 +89,16 @@ def _leverages(A: np.ndarray, M: np.ndarray) -> np.ndarray:
         C = A[s:s + _CHUNK] @ Linv.T
         B[s:s + _CHUNK] = _gram(C)
     return B
+
+
+def _leverages_t(A: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """:func:`_leverages` laid out last: (k, k, N)."""
+    N, k, r = A.shape
+    Linv = np.linalg.inv(np.linalg.cholesky(M))
+    Bt = np.empty((k, k, N))
+    for s in range(0, N, _CHUNK):
+        Bt[:, :, s:s + _CHUNK] = _gram(A[s:s + _CHUNK] @ Linv.T).transpose(1, 2, 0)
+    return Bt
 
 
 def _logdet_gains(A: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -123,9 +142,9 @@ class _RankUpdate:
         return out
 
 
-def _update_leverages(A: np.ndarray, B: np.ndarray, updates, norms: np.ndarray | None = None,
+def _update_leverages(A: np.ndarray, Bt: np.ndarray, updates, norms: np.ndarray | None = None,
                       removals=()) -> np.ndarray:
-    """Apply the :class:`_RankUpdate` s ``updates`` to the leverages B (N, k, k) in place, in one
+    """Apply the :class:`_RankUpdate` s ``updates`` to the leverages Bt (k, k, N) in place, in one
     pass over the pool, and return the new log det(I_k + B_i) (N,). With ``norms``
     (len(updates), N), fill it with each update's ``|E_i|_F^2`` (what :func:`_shift_bounds`
     needs); with ``removals`` (:class:`_RankUpdate` s, sign -1, at the updated M) return their
@@ -136,13 +155,13 @@ def _update_leverages(A: np.ndarray, B: np.ndarray, updates, norms: np.ndarray |
     X = np.concatenate([u.X for u in removals], axis=1) if removals else None
     growth = np.empty((N, len(removals))) if removals else None
     for s in range(0, N, _CHUNK):
-        Ac, Bc = A[s:s + _CHUNK], B[s:s + _CHUNK]
+        Ac, Bc = A[s:s + _CHUNK], Bt[:, :, s:s + _CHUNK]
         for m, u in enumerate(updates):
-            G = _gram(Ac @ u.X)
+            G = _gram_t(Ac @ u.X)
             Bc -= u.sign * G
             if norms is not None:
-                norms[m, s:s + _CHUNK] = np.trace(G, axis1=1, axis2=2)
-        out[s:s + _CHUNK] = _logdet_eye_plus(Bc)
+                norms[m, s:s + _CHUNK] = np.trace(G)
+        out[s:s + _CHUNK] = _logdet_eye_plus_t(Bc)
         if X is not None:
             growth[s:s + _CHUNK] = _growth(Ac, X, len(removals))
     return (out, growth) if removals else out
@@ -160,9 +179,9 @@ def greedy_d(A: np.ndarray, n: int) -> list[int]:
     B = Minv = None
     for step in range(n):
         if B is None:
-            B = _leverages(A, M)
+            B = _leverages_t(A, M)
             Minv = np.linalg.inv(M)
-            gain = _logdet_eye_plus(B)
+            gain = _logdet_eye_plus_t(B)
         gain[taken] = -np.inf
         i = int(np.argmax(gain))
         sel.append(i)
@@ -278,11 +297,11 @@ def exchange_pass(A: np.ndarray, sel: list[int], criterion: str, limit: int | No
     taken = np.zeros(N, bool)
     taken[sel] = True
     current = _value(M, criterion)
-    B = _leverages(A, M)
+    B = _leverages_t(A, M)                                     # (k, k, N)
     Minv = np.linalg.inv(M)
     Minv = (Minv + Minv.T) / 2
     logdet_M = float(np.linalg.slogdet(M)[1])
-    gains_M = _logdet_eye_plus(B)
+    gains_M = _logdet_eye_plus_t(B)
     col_M = np.log1p(colsq / np.diag(M)).sum(axis=1) if criterion == "O1" else 0.0
     # root[:, t]: an upper bound of |E_i|_F under removal t (exact when computed at this M:
     # exact[t]), R_of[t] the factor R of that removal at the M the bound refers to; columns
@@ -317,7 +336,7 @@ def exchange_pass(A: np.ndarray, sel: list[int], criterion: str, limit: int | No
             cand = np.flatnonzero((extra + gains_M + root[:, t] ** 2 > floor) & ~taken)
         if cand.size == 0:
             continue
-        score = base + down.apply(A[cand], B[cand], gains=True)
+        score = base + down.apply(A[cand], B[:, :, cand].transpose(2, 0, 1), gains=True)
         if criterion == "O1":
             score -= np.log(np.diag(Mj)[None, :] + colsq[cand]).sum(axis=1)
         best = int(np.argmax(score))
@@ -361,7 +380,7 @@ def _exchange_pass_o4(A: np.ndarray, sel: list[int], limit: int) -> int:
     taken = np.zeros(N, bool)
     taken[sel] = True
     current = _value(M, "O4")
-    B = _leverages(A, M)
+    B = _leverages_t(A, M)                                     # (k, k, N)
     Minv = np.linalg.inv(M)
     Minv = (Minv + Minv.T) / 2
     logdet_M = float(np.linalg.slogdet(M)[1])
@@ -374,7 +393,7 @@ def _exchange_pass_o4(A: np.ndarray, sel: list[int], limit: int) -> int:
         down = _RankUpdate.of(Minv, A[j], -1.0)
         base = logdet_M + down.dlogdet
         threshold = current + _SWAP_TOL * max(1.0, abs(current))
-        score = base + down.apply(A, B, gains=True)
+        score = base + down.apply(A, B.transpose(2, 0, 1), gains=True)
         score -= np.log(np.diag(Mj)[None, :] + colsq).sum(axis=1)
         score[taken] = -np.inf
         d = 1.0 / np.sqrt(np.diag(Mj))
@@ -400,5 +419,5 @@ def _exchange_pass_o4(A: np.ndarray, sel: list[int], limit: int) -> int:
             if t + 1 < len(sel):               # (after the last removal the leverages are not read)
                 for s in range(0, N, _CHUNK):
                     for u in (down, up):
-                        B[s:s + _CHUNK] -= u.sign * _gram(A[s:s + _CHUNK] @ u.X)
+                        B[:, :, s:s + _CHUNK] -= u.sign * _gram_t(A[s:s + _CHUNK] @ u.X)
     return swaps

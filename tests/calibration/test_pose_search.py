@@ -113,7 +113,7 @@ def test_bounds_carried_over_a_swap_hold_at_the_new_information():
     down = _RankUpdate.of(Minv, A[0], -1.0)
     up = _RankUpdate.of(down.Minv, A[50], +1.0)
     norms = np.empty((2, 400))
-    _update_leverages(A, _leverages(A, M), [down, up], norms)
+    _update_leverages(A, np.ascontiguousarray(_leverages(A, M).transpose(1, 2, 0)), [down, up], norms)
     assert np.allclose(norms[0], _removal_bounds(A, [down])[:, 0], rtol=1e-12)
     sel[0] = 50
     _shift_bounds(A, sel, root, R_of, range(1, 6), up.Minv, down, up, norms)
