@@ -85,10 +85,17 @@ def _leverages(A: np.ndarray, M: np.ndarray) -> np.ndarray:
     Linv = np.linalg.inv(np.linalg.cholesky(M))
     B = np.empty((N, k, k))
     for s in range(0, N, _CHUNK):
-        # C_i = L^-1 A_i^T: then A_i M^-1 A_i^T = C_i^T C_i
-        C = A[s:s + _CHUNK] @ Linv.T
-        B[s:s + _CHUNK] = _gram(C)
+        # C_i = L^-1 A_i^T: then A_i M^-1 A_i^T = C_i^T C_i (one product for the chunk's rows)
+        B[s:s + _CHUNK] = _gram(_rows_times(A[s:s + _CHUNK], Linv.T))
     return B
+
+
+def _rows_times(Ac: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Ac_i @ Y for a chunk of blocks Ac (c, k, r) and Y (r, r), as one product of the (c k, r)
+    rows: each entry the same length-r dot product as in the stacked product (the same values
+    with OpenBLAS), at half its cost."""
+    c, k, r = Ac.shape
+    return (Ac.reshape(c * k, r) @ Y).reshape(c, k, -1)
 
 
 def _leverages_t(A: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -97,7 +104,7 @@ def _leverages_t(A: np.ndarray, M: np.ndarray) -> np.ndarray:
     Linv = np.linalg.inv(np.linalg.cholesky(M))
     Bt = np.empty((k, k, N))
     for s in range(0, N, _CHUNK):
-        Bt[:, :, s:s + _CHUNK] = _gram(A[s:s + _CHUNK] @ Linv.T).transpose(1, 2, 0)
+        Bt[:, :, s:s + _CHUNK] = _gram(_rows_times(A[s:s + _CHUNK], Linv.T)).transpose(1, 2, 0)
     return Bt
 
 
