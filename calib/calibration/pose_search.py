@@ -323,8 +323,8 @@ def exchange_pass(A: np.ndarray, sel: list[int], criterion: str, limit: int | No
         j = sel[t]
         if t == have:
             # this removal's bound and the next few at this M (few just after a swap, when the
-            # next swap, which loosens them, is likely)
-            have = t + min(_BOUND_BATCH, 1 + t - first, n - t)
+            # next swap, which loosens them, is likely; none past the limit before a swap)
+            have = t + min(_BOUND_BATCH, 1 + t - first, (limit if swaps == 0 else n) - t)
             _exact_bounds(A, sel, Minv, root, R_of, range(t, have))
             exact[t:have] = True
         Mj = M - A[j].T @ A[j]
