@@ -244,12 +244,40 @@ def _growth(Ac: np.ndarray, X: np.ndarray, m: int) -> np.ndarray:
 
 
 def _exact_bounds(A: np.ndarray, sel: list[int], Minv: np.ndarray, root: np.ndarray, R_of: list,
-                  cols: range) -> None:
+                  cols: range, low=None) -> None:
     """``root[:, c] = |A_i X_c|_F`` for the removals c in ``cols`` at M (``Minv``), and ``R_of[c]``
-    their factors R, in place (one product over the pool)."""
+    their factors R, in place (one product over the pool); with ``low`` (:func:`low_precision`)
+    an upper bound of it from the single-precision blocks (:func:`_low_roots`)."""
     ups = [_RankUpdate.of(Minv, A[sel[c]], -1.0) for c in cols]
-    root[:, cols.start:cols.stop] = np.sqrt(_removal_bounds(A, ups))
+    root[:, cols.start:cols.stop] = np.sqrt(_removal_bounds(A, ups)) if low is None else _low_roots(low, ups)
     R_of[cols.start:cols.stop] = [u.R for u in ups]
+
+
+def low_precision(A: np.ndarray) -> tuple:
+    """What :func:`exchange_pass` computes its growth bounds from: the blocks A (N, k, r) in
+    single precision and their Frobenius norms (N,) (half the memory of A)."""
+    return A.astype(np.float32), np.sqrt(np.einsum("nkr,nkr->n", A, A))
+
+
+def _low_roots(low: tuple, ups: list) -> np.ndarray:
+    """(N, m) upper bounds of ``|A_i X_u|_F`` for the removals ``ups`` from single precision:
+    each entry of A_i X_u is a length-r dot product, in error by at most about (r + 2) u
+    (|A_i| |X_u|) (u = 2^-24: the rounding of A, of X and of the products and sums), so
+    ``|A_i X_u|_F <= (1 + e) |fl(A_i X_u)|_F + e |A_i|_F |X_u|_F`` with e = (r + 40) 2^-23 (twice
+    that, and the 36 squares' sum and root)."""
+    A32, anorm = low
+    N, k, r = A32.shape
+    m = len(ups)
+    X32 = np.concatenate([u.X for u in ups], axis=1).astype(np.float32)
+    xnorm = np.array([np.linalg.norm(u.X) for u in ups])
+    out = np.empty((N, m))
+    for s in range(0, N, _CHUNK):
+        out[s:s + _CHUNK] = _growth(A32[s:s + _CHUNK], X32, m)
+    e = (r + 40) * 2.0 ** -23
+    np.sqrt(out, out=out)
+    out *= 1 + e
+    out += e * anorm[:, None] * xnorm[None, :]
+    return out
 
 
 def _shift_bounds(A: np.ndarray, sel: list[int], root: np.ndarray, R_of: list, cols: range,
@@ -278,12 +306,14 @@ def _shift_bounds(A: np.ndarray, sel: list[int], root: np.ndarray, R_of: list, c
     block += np.sqrt(norms[1])[:, None] * (ku * slack)
 
 
-def exchange_pass(A: np.ndarray, sel: list[int], criterion: str, limit: int | None = None) -> int:
+def exchange_pass(A: np.ndarray, sel: list[int], criterion: str, limit: int | None = None,
+                  low: tuple | None = None) -> int:
     """One Fedorov exchange pass over the selected blocks ``sel`` of A (N, k, r), in place;
     returns the swaps made. Each selected block j in turn is replaced by the candidate that
     maximises the criterion of the set with it for j, if that improves the criterion by more
     than a relative ``_SWAP_TOL``. ``limit``: when no swap has been made after this many
-    removals, stop (the previous pass scored the later ones at this M without a swap).
+    removals, stop (the previous pass scored the later ones at this M without a swap). ``low``:
+    :func:`low_precision` of A, to compute the growth bounds from (else from A).
 
     For D and O1 only the candidates that could beat the current value are scored exactly:
     with block j out, ``log det(I + B_i + E_i E_i^T) <= log det(I + B_i) + |E_i|_F^2`` (the
@@ -325,7 +355,7 @@ def exchange_pass(A: np.ndarray, sel: list[int], criterion: str, limit: int | No
             # this removal's bound and the next few at this M (few just after a swap, when the
             # next swap, which loosens them, is likely; none past the limit before a swap)
             have = t + min(_BOUND_BATCH, 1 + t - first, (limit if swaps == 0 else n) - t)
-            _exact_bounds(A, sel, Minv, root, R_of, range(t, have))
+            _exact_bounds(A, sel, Minv, root, R_of, range(t, have), low)
             exact[t:have] = True
         Mj = M - A[j].T @ A[j]
         down = _RankUpdate.of(Minv, A[j], -1.0)
@@ -338,7 +368,7 @@ def exchange_pass(A: np.ndarray, sel: list[int], criterion: str, limit: int | No
         if cand.size > _SHIFTED_CAP * N and not exact[t]:
             # the bounds carried over the swaps are loose: computed afresh
             have = t + min(_BOUND_BATCH, 1 + t - first, n - t)
-            _exact_bounds(A, sel, Minv, root, R_of, range(t, have))
+            _exact_bounds(A, sel, Minv, root, R_of, range(t, have), low)
             exact[t:have] = True
             cand = np.flatnonzero((extra + gains_M + root[:, t] ** 2 > floor) & ~taken)
         if cand.size == 0:

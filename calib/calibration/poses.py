@@ -95,7 +95,7 @@ from calib.errors import DataError, ParameterError
 from calib.model.identifiability import (SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability,
                                          observability_indices, weighted_jacobian)
 from calib.model.jacobian import MEASURES
-from calib.calibration.pose_search import exchange_pass, greedy_d
+from calib.calibration.pose_search import exchange_pass, greedy_d, low_precision
 from calib.model.robot import RobotModel
 
 __all__ = ["CRITERIA", "PoseDesign", "design_poses", "select_poses"]
@@ -245,10 +245,11 @@ def design_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion
     tick(2, total)
     passes = swaps = 0
     limit = None
+    low = low_precision(A) if exchange_passes and crit != "O4" else None
     for _ in range(exchange_passes):
         passes += 1
         before = list(sel)
-        made = exchange_pass(A, sel, crit, limit)
+        made = exchange_pass(A, sel, crit, limit, low)
         swaps += made
         tick(2 + passes, total)
         if made == 0:

@@ -145,3 +145,19 @@ def test_a_pass_limited_to_the_last_swap_selects_what_full_passes_select(criteri
     assert counts[-1] == 0 and sum(counts) > 0 and limit is not None and limit < 12
     design = design_poses(robot, 12, candidates=600, seed=13, criterion=criterion)
     assert design.indices.tolist() == full and design.swaps == sum(counts)
+
+
+def test_single_precision_growth_bounds_hold_and_are_tight():
+    from calib.calibration.pose_search import _low_roots, low_precision
+
+    rng = np.random.default_rng(8)
+    A = rng.normal(size=(3000, 6, 30)) * rng.uniform(0.01, 3.0, size=(3000, 1, 1))
+    M = sum(A[i].T @ A[i] for i in range(12)) + 1e-6 * np.eye(30)
+    ups = [_RankUpdate.of(np.linalg.inv(M), A[j], -1.0) for j in range(5)]
+    exact = np.sqrt(_removal_bounds(A, ups))
+    bound = _low_roots(low_precision(A), ups)
+    assert (bound >= exact).all()
+    # within 1e-4 of the exact root relative to |A_i| |X| (float32 rounding, widened 16 times)
+    slack = (bound - exact) / (np.linalg.norm(A, axis=(1, 2))[:, None]
+                               * np.array([np.linalg.norm(u.X) for u in ups])[None, :])
+    assert slack.max() < 1e-4
