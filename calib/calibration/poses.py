@@ -102,8 +102,8 @@ __all__ = ["CRITERIA", "PoseDesign", "design_poses", "select_poses"]
 
 #: Selection criteria of :func:`select_poses` (see the module docstring).
 CRITERIA = POSE_CRITERIA
-#: The largest candidate pool (each candidate holds a Jacobian block: 1,000,000 six-joint poses
-#: take about 1.5 GB).
+#: The largest candidate pool (each candidate holds a Jacobian block: 1,000,000 six-joint poses take
+#: about 1.5 GB, and the exchange passes' single-precision copy 0.7 GB more).
 MAX_CANDIDATES = 1_000_000
 #: Configurations per chunk of the pool's Jacobian.
 _JACOBIAN_CHUNK = 4096
