@@ -311,8 +311,8 @@ def _scaled_blocks(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: fl
     for s in range(0, len(Q), step):
         Qc = Q[s:s + step]
         targets = np.tile(np.arange(K), len(Qc)) if robot.targets else None
-        J[s * k:(s + len(Qc)) * k] = weighted_jacobian(robot, np.repeat(Qc, K, axis=0), measure, sigma_pos,
-                                                       sigma_rot, targets)[:, cols]
+        np.take(weighted_jacobian(robot, np.repeat(Qc, K, axis=0), measure, sigma_pos, sigma_rot, targets),
+                cols, axis=1, out=J[s * k:(s + len(Qc)) * k])
     if scale is None:
         # each column's sum of squares as numpy adds a contiguous column (pairwise)
         scale = np.sqrt(np.array([np.sum(np.ascontiguousarray(J[:, c]) ** 2) for c in range(len(cols))])
