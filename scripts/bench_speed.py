@@ -38,9 +38,11 @@ memory after it in a fresh process, then the whole ``calib calibrate --report`` 
 time, peak resident memory).
 
 With ``--startup-only`` only the process figures of item 3 (a few seconds; issue 27 item 2).
+With ``--select-only REPEATS`` only the select_poses figure: the median of REPEATS runs, wall and
+CPU, and the process's peak resident memory (issue 27 item 5).
 
 Run: python scripts/bench_speed.py [--max-poses 100000] [--study] [--figaroh PYTHON] [--end-to-end N]
-     [--startup-only]
+     [--startup-only] [--select-only REPEATS]
 """
 from __future__ import annotations
 
@@ -178,14 +180,23 @@ def iiwa_real(repeats: int = 5) -> dict | str:
     return out
 
 
-def select_100k(n: int = 30, candidates: int = 100_000) -> dict:
-    """calib.select_poses: n poses of the bundled robot from 100k candidates (one run: wall, CPU)."""
+def select_100k(n: int = 30, candidates: int = 100_000, repeats: int = 1) -> dict:
+    """calib.select_poses: n poses of the bundled robot from 100k candidates (medians of
+    ``repeats`` runs after a small one that loads what it needs: wall, CPU; the process's peak
+    resident memory, MB)."""
     import calib
 
     robot = calib.load_robot(URDF)
-    t, c = time.perf_counter(), time.process_time()
-    calib.select_poses(robot, n, candidates=candidates, seed=1)
-    return {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
+    calib.select_poses(robot, n, candidates=200, seed=0)
+    walls, cpus = [], []
+    for _ in range(repeats):
+        t, c = time.perf_counter(), time.process_time()
+        calib.select_poses(robot, n, candidates=candidates, seed=1)
+        walls.append(time.perf_counter() - t)
+        cpus.append(time.process_time() - c)
+    with open("/proc/self/status") as f:
+        peak = next(int(line.split()[1]) / 1024 for line in f if line.startswith("VmHWM:"))
+    return {"wall_s": statistics.median(walls), "cpu_s": statistics.median(cpus), "peak_mb": peak}
 
 
 # ---------------------------------------------------------------------- 1d. rows end to end
@@ -471,7 +482,16 @@ def main(argv=None) -> int:
                          "import numpy: issue 27 item 2)")
     ap.add_argument("--small-only", action="store_true",
                     help="only the first two figures: calibrate() on 100 and on 25 poses (issue 27 item 1)")
+    ap.add_argument("--select-only", type=int, metavar="REPEATS",
+                    help="only the select_poses figure (issue 27 item 5), median of REPEATS runs")
     args = ap.parse_args(argv)
+    if args.select_only:
+        sel = select_100k(repeats=args.select_only)
+        print(f"select_poses, 30 of 100,000 candidates: median of {args.select_only}: {sel['wall_s']:.2f} s wall, "
+              f"{sel['cpu_s']:.2f} s CPU, process peak {sel['peak_mb']:.0f} MB; load average "
+              f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (before {BEFORE_27['select_100k_s']:g} s, "
+              f"target <= {TARGET_27['select_100k_s']:g} s)")
+        return 0
     if args.end_to_end_child:
         print(json.dumps(end_to_end_child(*args.end_to_end_child)))
         return 0

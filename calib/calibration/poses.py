@@ -30,7 +30,8 @@ candidate i (k = 6 rows for pose measurements, 3 for positions; r identifiable p
 
 Algorithm and cost (M candidates, n poses to select, k rows per pose, r parameters)
 ------------------------------------------------------------------------------------
-1. Pool Jacobian: M Pinocchio regressor evaluations (about 5 us each), O(M k r) memory.
+1. Pool Jacobian: M Pinocchio regressor evaluations (about 5 us each), O(M k r) memory (computed
+   in chunks of configurations into the one array of blocks).
 2. Greedy D-optimal start (for every criterion): starting from ``M_0 = eps I`` (eps = 1e-6, the pool's per-pose
    information being 1 per column after scaling), add at each step the candidate with the
    largest ``log det(M + A_i^T A_i) - log det M = log det(I_k + A_i M^-1 A_i^T)`` (the matrix
@@ -49,9 +50,13 @@ Algorithm and cost (M candidates, n poses to select, k rows per pose, r paramete
    ``M_-j`` and after a swap follow from them by Woodbury's identity, a rank-k change
    ``E_i E_i^T`` with ``E_i = A_i (M^-1 A_j^T R)`` (one (k, r) x (r, k) product per candidate;
    the greedy start updates them the same way once its poses span the parameters). The log dets
-   are a Cholesky factorisation written over the pool, in chunks that stay in the cache. Passes
-   stop when one makes no swap, after at most ``exchange_passes`` (default 10; they usually stop
-   after 3 to 8).
+   are a Cholesky factorisation written over the pool, in chunks that stay in the cache. Only the
+   candidates whose upper bound ``log det(I + B_i) + |E_i|^2`` can beat the current value are
+   scored; the growths ``|E_i|^2`` computed for the later removals stay upper bounds over a swap
+   (:func:`calib.calibration.pose_search._shift_bounds`) until they grow loose. Passes stop when
+   one makes no swap, after at most ``exchange_passes`` (default 10; they usually stop after 3
+   to 8); a pass after the first stops at the previous pass's last swap when it has made none
+   (the later removals were scored at the same M without a swap), with the same result.
 
    For n = 50 of M = 2000 candidates with r = 30 and k = 6 this is about 0.1 s per pass on one
    core, and the whole selection (pool Jacobian and identifiability included) well under two
@@ -90,21 +95,18 @@ from calib.errors import DataError, ParameterError
 from calib.model.identifiability import (SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability,
                                          observability_indices, weighted_jacobian)
 from calib.model.jacobian import MEASURES
+from calib.calibration.pose_search import exchange_pass, greedy_d, low_precision
 from calib.model.robot import RobotModel
 
 __all__ = ["CRITERIA", "PoseDesign", "design_poses", "select_poses"]
 
 #: Selection criteria of :func:`select_poses` (see the module docstring).
 CRITERIA = POSE_CRITERIA
-#: The largest candidate pool (each candidate holds a Jacobian block: 1,000,000 six-joint poses
-#: take about 1.5 GB).
+#: The largest candidate pool (each candidate holds a Jacobian block: 1,000,000 six-joint poses take
+#: about 1.5 GB, and the exchange passes' single-precision copy 0.7 GB more).
 MAX_CANDIDATES = 1_000_000
-#: Regularisation of the information matrix, relative to the per-pose information of the pool.
-_EPS = 1e-6
-#: Relative improvement below which an exchange is not made.
-_SWAP_TOL = 1e-10
-#: Shortlist size (per list) of the exact O4 evaluation in the exchange passes.
-_O4_SHORTLIST = 16
+#: Configurations per chunk of the pool's Jacobian.
+_JACOBIAN_CHUNK = 4096
 #: Random subsets of the pool drawn for the baseline of :attr:`PoseDesign.random_criteria`.
 _RANDOM_SUBSETS = 20
 
@@ -239,16 +241,21 @@ def design_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion
     A, scale = _scaled_blocks(robot, pool, measure, sigma_pos, sigma_rot, cols, None)
     tick(1, total)
 
-    sel = _greedy_d(A, n)
+    sel = greedy_d(A, n)
     tick(2, total)
     passes = swaps = 0
+    limit = None
+    low = low_precision(A) if exchange_passes and crit != "O4" else None
     for _ in range(exchange_passes):
         passes += 1
-        made = _exchange_pass(A, sel, crit)
+        before = list(sel)
+        made = exchange_pass(A, sel, crit, limit, low)
         swaps += made
         tick(2 + passes, total)
         if made == 0:
             break
+        # the removals after the pass's last swap were scored at the final M without a swap
+        limit = 1 + max(t for t in range(n) if sel[t] != before[t])
     tick(total, total)
 
     S = A[sel].reshape(-1, r)
@@ -293,13 +300,23 @@ def _scaled_blocks(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: fl
                    sigma_rot: float, cols: np.ndarray, scale: np.ndarray | None):
     """(blocks (N, k, r), scale (r,)): the noise-weighted Jacobian of configurations Q restricted
     to ``cols``, columns divided by ``scale`` (default: computed from Q, the RMS per pose).
-    With K targets each configuration's block holds every target's rows (k = 6 K or 3 K)."""
+    With K targets each configuration's block holds every target's rows (k = 6 K or 3 K).
+    Computed in chunks of configurations written into the one (N k, r) array (the Jacobian of
+    all the parameters and its weighted copy stay the size of a chunk; the values are those of
+    one evaluation of the whole pool)."""
     K = robot.n_targets
     k = (6 if measure == "pose" else 3) * K
-    targets = np.tile(np.arange(K), len(Q)) if robot.targets else None
-    J = weighted_jacobian(robot, np.repeat(Q, K, axis=0), measure, sigma_pos, sigma_rot, targets)[:, cols]
+    J = np.empty((len(Q) * k, len(cols)))
+    step = max(1, _JACOBIAN_CHUNK // K)
+    for s in range(0, len(Q), step):
+        Qc = Q[s:s + step]
+        targets = np.tile(np.arange(K), len(Qc)) if robot.targets else None
+        np.take(weighted_jacobian(robot, np.repeat(Qc, K, axis=0), measure, sigma_pos, sigma_rot, targets),
+                cols, axis=1, out=J[s * k:(s + len(Qc)) * k])
     if scale is None:
-        scale = np.sqrt(np.sum(J ** 2, axis=0) / len(Q))
+        # each column's sum of squares as numpy adds a contiguous column (pairwise)
+        scale = np.sqrt(np.array([np.sum(np.ascontiguousarray(J[:, c]) ** 2) for c in range(len(cols))])
+                        / len(Q))
     J /= scale                           # (in place: the pool's Jacobian is the largest array)
     return J.reshape(len(Q), k, len(cols)), np.array(scale, float)
 
@@ -313,278 +330,3 @@ def _criteria(S: np.ndarray) -> dict[str, float]:
     idx = observability_indices(S / norms)
     return {"D": float(logdet) if sign > 0 else -math.inf, "O1": idx["O1"], "O3": idx["O3"],
             "O4": idx["O4"], "condition_number": idx["condition_number"]}
-
-
-#: Candidates per chunk of the pool-wide evaluations (their arrays stay in the cache).
-_CHUNK = 2048
-
-
-def _logdet_eye_plus(S: np.ndarray) -> np.ndarray:
-    """log det(I_k + S_i) for a stack of symmetric positive semi-definite S (N, k, k): a Cholesky
-    factorisation written over the stack (k (k + 1) / 2 array operations of length N instead of
-    N LAPACK calls of a k x k matrix)."""
-    k, n = S.shape[1], S.shape[0]
-    St = np.ascontiguousarray(np.transpose(S, (1, 2, 0)))   # (k, k, N)
-    L = np.empty_like(St)
-    out = np.zeros(n)
-    for j in range(k):
-        d = 1.0 + St[j, j]
-        for p in range(j):
-            d -= L[j, p] * L[j, p]
-        out += np.log(d)
-        inv = 1.0 / np.sqrt(d)
-        for i in range(j + 1, k):
-            v = St[i, j].copy()
-            for p in range(j):
-                v -= L[i, p] * L[j, p]
-            v *= inv
-            L[i, j] = v
-    return out
-
-
-def _gram(C: np.ndarray) -> np.ndarray:
-    """C_i C_i^T for a stack C (N, k, m): (N, k, k) (a view). For small m (the rank-k updates'
-    m = k) the products are summed with the stack laid out last (a stacked matmul of 6 x 6
-    blocks is slower; for m = r it is faster)."""
-    if C.shape[2] > 8:
-        return np.matmul(C, np.transpose(C, (0, 2, 1)))
-    Ct = np.ascontiguousarray(np.transpose(C, (1, 2, 0)))       # (k, m, N)
-    return np.einsum("ikn,jkn->ijn", Ct, Ct).transpose(2, 0, 1)
-
-
-def _leverages(A: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """B_i = A_i M^-1 A_i^T (N, k, k) for every block A_i (N, k, r), from one Cholesky of M."""
-    N, k, r = A.shape
-    Linv = np.linalg.inv(np.linalg.cholesky(M))
-    B = np.empty((N, k, k))
-    for s in range(0, N, _CHUNK):
-        # C_i = L^-1 A_i^T: then A_i M^-1 A_i^T = C_i^T C_i
-        C = A[s:s + _CHUNK] @ Linv.T
-        B[s:s + _CHUNK] = _gram(C)
-    return B
-
-
-def _logdet_gains(A: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """log det(M + A_i^T A_i) - log det M for every block A_i (N, k, r), by the determinant
-    lemma: log det(I_k + A_i M^-1 A_i^T)."""
-    return _logdet_eye_plus(_leverages(A, M))
-
-
-@dataclass(frozen=True)
-class _RankUpdate:
-    """The information M' = M + sign a^T a of a block ``a`` (k, r) added (sign +1) or removed
-    (sign -1). By Woodbury's identity, with P = M^-1 a^T and V = (I_k + sign a P)^-1 = R R^T,
-    M'^-1 = M^-1 - sign P V P^T and every block's leverage changes as
-    A_i M'^-1 A_i^T = A_i M^-1 A_i^T - sign E_i E_i^T, E_i = A_i (P R): a (k, r) x (r, k)
-    product per block instead of the (k, r) x (r, r) one of a fresh evaluation."""
-
-    X: np.ndarray          # (r, k): P R
-    sign: float
-    Minv: np.ndarray       # (r, r): M'^-1
-    dlogdet: float         # log det M' - log det M
-
-    @classmethod
-    def of(cls, Minv: np.ndarray, a: np.ndarray, sign: float) -> "_RankUpdate":
-        k = a.shape[0]
-        P = Minv @ a.T
-        K = np.eye(k) + sign * (a @ P)
-        V = np.linalg.inv(K)
-        R = np.linalg.cholesky((V + V.T) / 2)
-        Minv_new = Minv - sign * (P @ V @ P.T)
-        return cls(P @ R, sign, (Minv_new + Minv_new.T) / 2, float(np.linalg.slogdet(K)[1]))
-
-    def apply(self, A: np.ndarray, B: np.ndarray, gains: bool) -> np.ndarray:
-        """The updated leverages (N, k, k), or with ``gains`` their log det(I_k + B'_i) (N,)."""
-        N = A.shape[0]
-        out = np.empty(N) if gains else np.empty_like(B)
-        for s in range(0, N, _CHUNK):
-            E = A[s:s + _CHUNK] @ self.X
-            Bc = B[s:s + _CHUNK] - self.sign * _gram(E)
-            out[s:s + _CHUNK] = _logdet_eye_plus(Bc) if gains else Bc
-        return out
-
-
-def _update_leverages(A: np.ndarray, B: np.ndarray, updates, gains: bool = True, removals=()):
-    """Apply the :class:`_RankUpdate` s ``updates`` to the leverages B (N, k, k) in place, in one
-    pass over the pool; with ``gains`` return the new log det(I_k + B_i) (N,) as well, and with
-    ``removals`` (:class:`_RankUpdate` s, sign -1, at the updated M) also their
-    :func:`_removal_bounds` from the same pass (the pool is read once: it does not fit in the
-    cache), as ``(gains, bounds)``."""
-    N = A.shape[0]
-    out = np.empty(N) if gains else None
-    X = np.concatenate([u.X for u in removals], axis=1) if removals else None
-    growth = np.empty((N, len(removals))) if removals else None
-    for s in range(0, N, _CHUNK):
-        Ac, Bc = A[s:s + _CHUNK], B[s:s + _CHUNK]
-        for u in updates:
-            Bc -= u.sign * _gram(Ac @ u.X)
-        if gains:
-            out[s:s + _CHUNK] = _logdet_eye_plus(Bc)
-        if X is not None:
-            growth[s:s + _CHUNK] = _growth(Ac, X, len(removals))
-    return (out, growth) if removals else out
-
-
-def _greedy_d(A: np.ndarray, n: int) -> list[int]:
-    """Greedy D-optimal selection of n blocks (see the module docstring, step 2). The leverages
-    are evaluated afresh while the selected blocks do not yet span the parameters (M is then
-    dominated by its regularisation and an update would cancel), then updated by the rank-k
-    change of each selected block (:class:`_RankUpdate`)."""
-    N, k, r = A.shape
-    M = _EPS * np.eye(r)
-    taken = np.zeros(N, bool)
-    sel: list[int] = []
-    B = Minv = None
-    for step in range(n):
-        if B is None:
-            B = _leverages(A, M)
-            Minv = np.linalg.inv(M)
-            gain = _logdet_eye_plus(B)
-        gain[taken] = -np.inf
-        i = int(np.argmax(gain))
-        sel.append(i)
-        taken[i] = True
-        if (step + 1) * k < r + k:
-            M += A[i].T @ A[i]
-            B = None
-        elif step + 1 < n:
-            up = _RankUpdate.of(Minv, A[i], +1.0)
-            M += A[i].T @ A[i]
-            gain = _update_leverages(A, B, [up])
-            Minv = up.Minv
-    return sel
-
-
-def _normalised_o4(M: np.ndarray) -> np.ndarray:
-    """O4 = lambda_min / sqrt(lambda_max) of D^-1/2 M D^-1/2 for a stack of matrices (..., r, r)."""
-    d = 1.0 / np.sqrt(np.diagonal(M, axis1=-2, axis2=-1))
-    lam = np.linalg.eigvalsh(M * d[..., :, None] * d[..., None, :])
-    return lam[..., 0] / np.sqrt(lam[..., -1])
-
-
-def _value(M: np.ndarray, criterion: str) -> float:
-    """Criterion value of an information matrix M (r, r): log det (D), log det of the
-    column-normalised matrix (O1, monotone in O1), or O4."""
-    if criterion == "O4":
-        return float(_normalised_o4(M))
-    logdet = float(np.linalg.slogdet(M)[1])
-    if criterion == "O1":
-        logdet -= float(np.log(np.diag(M)).sum())
-    return logdet
-
-
-def _removal_bounds(A: np.ndarray, ups: list) -> np.ndarray:
-    """(N, m) ``|E_i|_F^2`` of every block under each removal of ``ups`` (m :class:`_RankUpdate`
-    with sign -1): the growth of block i's leverage when that block leaves M, all at once (one
-    (k, r) x (r, m k) product per block), in chunks."""
-    N, k, _ = A.shape
-    X = np.concatenate([u.X for u in ups], axis=1)             # (r, m k)
-    out = np.empty((N, len(ups)))
-    for s in range(0, N, _CHUNK):
-        out[s:s + _CHUNK] = _growth(A[s:s + _CHUNK], X, len(ups))
-    return out
-
-
-def _growth(Ac: np.ndarray, X: np.ndarray, m: int) -> np.ndarray:
-    """(c, m) ``|A_i X_j|_F^2`` of the blocks Ac (c, k, r) for the m removals whose X (r, k) are
-    the column blocks of X (r, m k)."""
-    G = Ac @ X                                                 # (c, k, m k)
-    return np.einsum("iax,iax->ix", G, G).reshape(len(G), m, -1).sum(axis=2)
-
-
-#: Removals whose bounds are computed together at most (one product; recomputed after a swap).
-_BOUND_BATCH = 8
-
-
-def _exchange_pass(A: np.ndarray, sel: list[int], criterion: str) -> int:
-    """One Fedorov exchange pass over the selected blocks, in place; returns the swaps made.
-
-    The leverages B_i = A_i M^-1 A_i^T of the pool are evaluated once per pass; those under M
-    without block j, and after a swap, follow by the rank-k updates of :class:`_RankUpdate`.
-    For D and O1 only the candidates that could beat the current value are scored exactly:
-    with block j out, ``log det(I + B_i + E_i E_i^T) <= log det(I + B_i) + |E_i|_F^2`` (the
-    determinant lemma and log det(I + X) <= tr X), and for O1 ``log((M_-j)_cc + |A_i[:, c]|^2)
-    >= log (M_-j)_cc + log(1 + |A_i[:, c]|^2 / M_cc)``; a candidate whose bound does not exceed
-    the current value by the swap tolerance cannot be the swap (in practice 99.9 % of the pool),
-    so the swaps made are those of scoring every candidate."""
-    N, k, r = A.shape
-    # (N, r): |A_i[:, c]|^2, for O1 and O4 (a temporary the size of the pool, not made for D)
-    colsq = np.sum(A ** 2, axis=1) if criterion != "D" else None
-    M = _EPS * np.eye(r) + sum(A[i].T @ A[i] for i in sel)
-    taken = np.zeros(N, bool)
-    taken[sel] = True
-    current = _value(M, criterion)
-    swaps = 0
-    B = bounds = gains_M = None
-    for t in range(len(sel)):
-        j = sel[t]
-        if B is None:
-            B = _leverages(A, M)
-            Minv = np.linalg.inv(M)
-            Minv = (Minv + Minv.T) / 2
-            logdet_M = float(np.linalg.slogdet(M)[1])
-        Mj = M - A[j].T @ A[j]
-        down = _RankUpdate.of(Minv, A[j], -1.0)
-        base = logdet_M + down.dlogdet
-        threshold = current + _SWAP_TOL * max(1.0, abs(current))
-        if criterion != "O4":
-            if bounds is None:
-                # at this M: log det(I + B_i) (after a swap: computed with the update) and O1's
-                # column term
-                if gains_M is None:
-                    gains_M = _logdet_eye_plus(B)
-                col_M = (np.log1p(colsq / np.diag(M)).sum(axis=1) if criterion == "O1" else 0.0)
-                bounds, first, growth = True, t, np.empty((N, 0))
-            if t - first >= growth.shape[1]:
-                # the growth of each leverage under this removal and the next few at this M
-                # (few just after a swap, when the next swap, which makes them stale, is likely)
-                size = min(_BOUND_BATCH, 1 + t - first)
-                later = [down] + [_RankUpdate.of(Minv, A[jj], -1.0) for jj in sel[t + 1:t + size]]
-                growth, first = _removal_bounds(A, later), t
-            ub = base + gains_M + growth[:, t - first]
-            if criterion == "O1":
-                ub = ub - np.log(np.diag(Mj)).sum() - col_M
-            # (the bound holds exactly; the margin covers its rounding)
-            cand = np.flatnonzero((ub > threshold - 1e-9 * max(1.0, abs(threshold))) & ~taken)
-            if cand.size == 0:
-                continue
-            score = base + down.apply(A[cand], B[cand], gains=True)
-            if criterion == "O1":
-                score -= np.log(np.diag(Mj)[None, :] + colsq[cand]).sum(axis=1)
-            best = int(np.argmax(score))
-            i, value = int(cand[best]), float(score[best])
-        else:
-            score = base + down.apply(A, B, gains=True)
-            score -= np.log(np.diag(Mj)[None, :] + colsq).sum(axis=1)
-            score[taken] = -np.inf
-            d = 1.0 / np.sqrt(np.diag(Mj))
-            _, V = np.linalg.eigh(Mj * d[:, None] * d[None, :])
-            weak = np.sum((A @ (d * V[:, 0])) ** 2, axis=1)
-            weak[taken] = -np.inf
-            short = np.unique(np.concatenate([np.argsort(score)[-_O4_SHORTLIST:],
-                                              np.argsort(weak)[-_O4_SHORTLIST:]]))
-            short = short[~taken[short]]
-            trial = Mj[None] + np.transpose(A[short], (0, 2, 1)) @ A[short]
-            o4 = _normalised_o4(trial)
-            best = int(np.argmax(o4))
-            i, value = int(short[best]), float(o4[best])
-        if value > threshold:
-            sel[t] = i
-            taken[j], taken[i] = False, True
-            M = Mj + A[i].T @ A[i]
-            current = _value(M, criterion)
-            swaps += 1
-            up = _RankUpdate.of(down.Minv, A[i], +1.0)
-            Minv = up.Minv
-            logdet_M += down.dlogdet + up.dlogdet
-            bounds = None
-            if criterion == "O4" or t + 1 == len(sel):
-                gains_M = _update_leverages(A, B, [down, up], gains=criterion != "O4")
-                continue
-            # the next removal's bound from the same pass over the pool (as the loop would
-            # compute it at the new M, for that removal alone)
-            nxt = _RankUpdate.of(Minv, A[sel[t + 1]], -1.0)
-            gains_M, growth = _update_leverages(A, B, [down, up], removals=[nxt])
-            col_M = (np.log1p(colsq / np.diag(M)).sum(axis=1) if criterion == "O1" else 0.0)
-            bounds, first = True, t + 1
-    return swaps
