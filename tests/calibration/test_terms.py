@@ -78,6 +78,14 @@ def test_choose_terms_finds_the_periodic_errors(ur5_loop):
     geo, per = choice.table[0], next(t for t in choice.table if t.label == "+periodic")
     assert per.position_rms < 0.5 * geo.position_rms
     assert "+periodic" in choice.format() and choice.to_dict()["chosen"] == choice.label
+    # calibrate's fit of the chosen model starts from the candidate's Gauss-Newton step at the
+    # geometric solution, without the rows the geometric fit flagged: it ends where a fit of that
+    # model from the nominal one (search-lm, its own outlier check) ends
+    auto = calib.calibrate(robot, m)
+    cold = calib.calibrate(robot, m, periodic=True, terms="none")
+    assert auto.free == cold.free and auto.sigma_pos == pytest.approx(cold.sigma_pos, rel=1e-6)
+    z = [(auto.parameter(n).identified - cold.parameter(n).identified) / cold.parameter(n).std for n in cold.free]
+    assert np.max(np.abs(z)) < 1e-4 and auto.iterations < cold.iterations
 
 
 def test_many_rows_are_judged_on_an_evenly_spaced_subset(ur5_loop, monkeypatch):
@@ -259,3 +267,21 @@ def test_terms_are_not_judged_on_a_geometric_fit_stuck_in_a_local_minimum(bundle
     assert res.status == "local_minimum" and not res.success
     assert "joint terms not judged: the geometric fit did not converge (local_minimum)" in res.notes
     assert res.sigma_rot > 1.0                               # rad: what the stuck fit's residuals give
+
+
+def test_terms_chosen_on_data_with_gross_rows_flag_them_in_the_final_fit(ur5_loop):
+    """The fit of the chosen terms starts without the rows the geometric fit's outlier check
+    left out and judges them again against its own model: the same rows flagged, the same
+    estimates as a fit of that model from the nominal one with its own outlier check."""
+    from dataclasses import replace
+
+    robot, _, m, _, _ = ur5_loop
+    pos = m.position.copy()
+    pos[[7, 150]] += [[3e-3, 0.0, 0.0], [0.0, -4e-3, 2e-3]]
+    bad = replace(m, position=pos)
+    auto = calib.calibrate(robot, bad)
+    cold = calib.calibrate(robot, bad, periodic=True, terms="none")
+    assert auto.robot.has_periodic and sorted(o.row for o in auto.outliers) == sorted(o.row for o in cold.outliers)
+    assert sorted(o.row for o in auto.outliers) == sorted(int(r) for r in bad.rows[[7, 150]])
+    z = [(auto.parameter(n).identified - cold.parameter(n).identified) / cold.parameter(n).std for n in cold.free]
+    assert np.max(np.abs(z)) < 1e-4
