@@ -209,16 +209,10 @@ def main_entry() -> None:
     the libraries already loaded, limited none: the commands ran with one BLAS thread per core).
     When numpy is already loaded (main_entry called from a Python program) threadpoolctl does it."""
     import contextlib
-    import os
 
-    from calib.threads import THREAD_VARS, one_blas_thread
+    from calib.threads import one_blas_thread, set_before_numpy
 
-    if "numpy" in sys.modules:
-        limit = one_blas_thread()
-    else:
-        for var in THREAD_VARS:
-            os.environ[var] = "1"
-        limit = contextlib.nullcontext()
+    limit = contextlib.nullcontext() if set_before_numpy() else one_blas_thread()
     # (main's handlers on both sides of main: a signal before it stops with the one line, one
     # after it is recorded when the outputs are in place; then ignored while Python exits, so
     # that the exit code stays the command's)
