@@ -76,7 +76,9 @@ TARGET = {"calibrate_100_ms": 15.0, "figaroh_ratio": 30.0, "process_ratio": 2.0,
 
 #: Issue 27's figures before its speed work (the last session's note, same machine).
 BEFORE_27 = {"calibrate_100_cpu_ms": 9.1, "calibrate_25_ms": 31.6, "first_25_ms": 69.0, "process_ratio": 1.84,
-             "select_100k_s": 63.0, "iiwa_ms": 393.0, "iiwa_compliance_ms": 878.0}
+             "select_100k_s": 63.0, "iiwa_ms": 393.0, "iiwa_compliance_ms": 878.0,
+             # the default with terms='auto' (issue 22, after issue 27 was filed), at the end of session 8
+             "iiwa_auto_ms": 412.0}
 TARGET_27 = {"calibrate_100_ms": 7.0, "calibrate_25_ms": 25.0, "first_ratio": 3.0, "process_ratio": 1.3,
              "help_ratio": 1.5, "select_100k_s": 10.0, "iiwa_ms": 100.0, "iiwa_compliance_ms": 200.0}
 REALDATA = ROOT.parent / "shared" / "realdata" / "iiwa7_optical"
@@ -550,7 +552,8 @@ def main(argv=None) -> int:
     real = iiwa_real()
     if isinstance(real, dict):
         print(f"calibrate(), {real['rows']:,} real iiwa rows: median {real['default_ms']:.0f} ms warm with the "
-              f"defaults (terms='auto': cross-validated choice of the joint terms), {real['geometry_ms']:.0f} ms "
+              f"defaults (terms='auto': cross-validated choice of the joint terms; {BEFORE_27['iiwa_auto_ms']:g} ms "
+              f"when it became the default), {real['geometry_ms']:.0f} ms "
               f"with terms='none' (before {BEFORE_27['iiwa_ms']:g}, target <= {TARGET_27['iiwa_ms']:g}); compliance=True "
               f"{real['compliance_ms']:.0f} ms (before {BEFORE_27['iiwa_compliance_ms']:g}, "
               f"target <= {TARGET_27['iiwa_compliance_ms']:g})")
