@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +47,11 @@ class UrdfChain:
     base_frame_id: int
     tool_frame_id: int
     document: UrdfDocument | None = None
+
+    def __getstate__(self):
+        """Pickled with its fields only: what is kept on it for reuse (the gravity models and
+        their torque memos, :meth:`calib.model.compliance.GravityModel.from_chain`) stays behind."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
     def configuration(self, q: np.ndarray) -> np.ndarray:
         """Pinocchio configuration of the whole URDF model for chain joint values q (n,).

@@ -87,6 +87,34 @@ def test_torques_are_cached_by_content_and_shared(ur10):
     assert ChainKinematics(rc).compliance.gravity_model is ChainKinematics(rc).compliance.gravity_model
 
 
+
+def test_gravity_models_are_shared_per_chain_payload_and_gravity_and_go_with_the_chain(tmp_path):
+    """from_chain returns the model it made for the same chain, payload and gravity (the joint-term
+    candidates and the final fit share its torques), another for a payload of the same mass with
+    another centre of mass; the models are kept on the chain: dropping the robot frees them and
+    their torque memos (a process-wide table held them, 95 MB for 400k rows), and a pickled robot
+    does not carry them."""
+    import gc
+    import pickle
+    import weakref
+
+    robot = calib.load_robot("ur10")
+    gm = GravityModel.for_robot(robot, payload=PAYLOAD)
+    assert GravityModel.for_robot(robot, payload=Payload(10.0, np.array([0.0, 0.03, 0.1]))) is gm
+    other = GravityModel.for_robot(robot, payload=Payload(10.0, np.array([0.0, 0.03, 0.2])))
+    Q = robot.random_configurations(20, 3)
+    assert np.max(np.abs(other.torques(Q) - gm.torques(Q))) > 0.1          # N m: another load
+    assert GravityModel.for_robot(robot, payload=PAYLOAD, gravity=[0.0, 0.0, -9.0]) is not gm
+    size = len(pickle.dumps(robot))
+    gm.torques(robot.random_configurations(2000, 4))                       # (a memo of 2,000 rows)
+    assert len(pickle.dumps(robot)) == size
+    chain = weakref.ref(robot.source)
+    del robot, gm, other
+    calib.load_robot("panda")       # (the reader keeps its last chain)
+    gc.collect()
+    assert chain() is None
+
+
 def test_compliance_jacobian_matches_finite_differences(ur10_c):
     Q = ur10_c.random_configurations(6, 11)
     kin = ChainKinematics(ur10_c)
