@@ -38,6 +38,15 @@ def bundled_robot():
     return load_robot(BUNDLED_URDF)
 
 
+def bundled_or_ur5(name: str):
+    """The robots the pose-selection tests run on: "bundled" (BRTIRUS0707A) or UR5 (tool0)."""
+    from calib import load_robot
+
+    if name == "bundled":
+        return load_robot(BUNDLED_URDF)
+    return load_robot(erd_urdf("ur5"), tool_frame="tool0")
+
+
 def fd_pose_column(robot, Q, k: int, h: float = 1e-6):
     """(N, 6) central differences of the exact forward model (RobotModel.T_meas_tool: Eq. 1
     products, no batch kinematics) in parameter k at configurations Q: position (m) and the

@@ -7,20 +7,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib import analyze_identifiability, load_robot
+from calib import analyze_identifiability
 from calib.calibration import pose_search
 from calib.calibration.pose_search import (_RankUpdate, _exact_bounds, _leverages, _logdet_gains,
                                            _removal_bounds, _shift_bounds, _update_leverages,
                                            exchange_pass, greedy_d)
 from calib.calibration.poses import _scaled_blocks, design_poses
 
-from conftest import BUNDLED_URDF, erd_urdf
+from conftest import bundled_or_ur5
 
 
-def _robot(name):
-    if name == "bundled":
-        return load_robot(BUNDLED_URDF)
-    return load_robot(erd_urdf("ur5"), tool_frame="tool0")
+_robot = bundled_or_ur5
 
 
 @pytest.fixture(scope="module", params=["bundled", "ur5"])

@@ -6,19 +6,16 @@ import numpy as np
 import pytest
 
 from calib import (CalibError, DataError, MeasurementFormatError, ParameterError, PAPER_DEVIATIONS,
-                   analyze_identifiability, apply_deviations, calibrate, load_robot,
+                   analyze_identifiability, apply_deviations, calibrate,
                    random_deviations, read_measurements, simulate_measurements)
 from calib.model.identifiability import weighted_jacobian
 from calib.io.specs import read_poses, write_poses
 from calib.calibration.poses import design_poses, select_poses
 
-from conftest import BUNDLED_URDF, erd_urdf
+from conftest import bundled_or_ur5
 
 
-def _robot(name):
-    if name == "bundled":
-        return load_robot(BUNDLED_URDF)
-    return load_robot(erd_urdf("ur5"), tool_frame="tool0")
+_robot = bundled_or_ur5
 
 
 @pytest.fixture(scope="module", params=["bundled", "ur5"])
