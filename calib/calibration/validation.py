@@ -180,20 +180,25 @@ def fold_normal_equations(blocks, fold_of: np.ndarray, folds: int) -> tuple[np.n
 
 
 def newton_held_out(blocks, fold_of: np.ndarray, folds: int, *, prior=None, check_rank: bool = True,
-                    cols: np.ndarray | None = None, fold_ne=None) -> tuple[np.ndarray, np.ndarray]:
+                    cols: np.ndarray | None = None, fold_ne=None,
+                    shift: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Each row's whitened squared held-out error, (position (n,), rotation (n,)), predicted by one
     Gauss-Newton step from the linearisation ``blocks()`` (a function that returns an iterable of
     (r (n_b, k), Jw (n_b, k, m)), the whitened residuals and Jacobian of the rows in order) with
     its fold's rows taken out of the normal equations (exact for a model linear in its
     parameters). prior : None or (precision (m,), x0 - prior mean (m,)) of a regularised fit,
     kept in every refit. cols : the model's columns of Jw (default all: a smaller model
-    linearised with a larger one's Jacobian); fold_ne : the blocks' :func:`fold_normal_equations`
-    when already made. A fold without which the rows cannot identify the parameters raises
+    linearised with a larger one's Jacobian); shift : with cols, the step (all columns, zero on
+    cols) that takes the other columns to the model's values (a smaller model linearised where
+    the larger one's extra parameters are not at its values); fold_ne : the blocks'
+    :func:`fold_normal_equations` when already made. A fold without which the rows cannot identify the parameters raises
     DataError when ``check_rank``."""
     n = len(fold_of)
     A_fold, g_fold = fold_ne if fold_ne is not None else fold_normal_equations(blocks, fold_of, folds)
     m_all = A_fold.shape[1]
     if cols is not None:
+        if shift is not None:       # (the rows' residuals after the shift: r + J shift)
+            g_fold = g_fold + A_fold @ shift
         A_fold, g_fold = A_fold[:, cols][:, :, cols], g_fold[:, cols]
     m = A_fold.shape[1]
     A_all, g_all = A_fold.sum(axis=0), g_fold.sum(axis=0)
@@ -211,7 +216,7 @@ def newton_held_out(blocks, fold_of: np.ndarray, folds: int, *, prior=None, chec
                         f"{n - int(np.sum(fold_of == f))} rows cannot identify the {m} parameters")
     dx = -np.einsum("fij,fj->fi", A_inv, g_all[None] - g_fold)       # (folds, m)
     if cols is not None:
-        dx_all = np.zeros((folds, m_all))
+        dx_all = np.zeros((folds, m_all)) if shift is None else np.tile(shift, (folds, 1))
         dx_all[:, cols] = dx
         dx = dx_all
     # each row's whitened residual at its fold's refit, r + Jw dx
