@@ -144,7 +144,7 @@ class CompensationResult:
         c = self.counts()
         kind = self.targets or self.measure
         matched = f" (their nominal tool {self.measure})" if kind == "joint" else ""
-        lines = [f"Compensated {self.n_targets} {kind} targets{matched}: "
+        lines = [f"Compensated {self.n_targets} {kind} target{'' if self.n_targets == 1 else 's'}{matched}: "
                  + ", ".join(f"{v} {k}" for k, v in c.items())]
         ok = self.ok
         if ok.any():

@@ -180,6 +180,9 @@ def test_pose_targets_with_and_without_a_start(bundled, paper_true):
     # a UR5: a whole turn of wrapping plus the seed's distance, a change of nothing); with starts it does
     assert free.seeded and "joint change" not in free.format()
     assert not with_start.seeded and "largest joint change" in with_start.format()
+    assert with_start.format().startswith("Compensated 2 pose targets: ")
+    one = compensate_poses(paper_true, T_meas_tool=T[:1], q_start=Q[:1])
+    assert one.format().startswith("Compensated 1 pose target: ")          # (it said "1 pose targets")
     e_p, e_r = _pose_errors(paper_true, free.q, R, p)
     assert e_p.max() < TOL and e_r.max() < TOL
     pos = compensate_poses(paper_true, p_meas_tool=p, q_start=Q)
