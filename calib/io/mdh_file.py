@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.errors import CalibError, MeasurementFormatError
-from calib.model.chain import JOINT_KINDS, ChainJoint
+from calib.model.chain import JOINT_KINDS, U_NAMES, ChainJoint, v_names
 from calib.model.robot import RobotModel
 from calib.model.spatial import inverse, zyx_parameters, zyx_transform
 
@@ -58,7 +58,6 @@ REPORT_MATCH_TOL = 1e-8
 #: The units a report's parameter values may be given in, and their factor to SI.
 REPORT_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "rad": 1.0, "mrad": 1e-3, "urad": 1e-6,
                 "deg": math.pi / 180}
-_U_KINDS = ("x", "y", "z", "alpha", "beta", "gamma")
 #: The names of geometry parameters (joint MDH values, u, v of every target).
 _GEOMETRY = re.compile(r"(theta|d|a|alpha|beta)[0-9]+|[uv]_(x|y|z|alpha|beta|gamma)(@.+)?")
 
@@ -89,7 +88,7 @@ def mdh_csv_text(robot: RobotModel, *, std: dict[str, float] | None = None, comm
             row += [""] * n_j + [_cell(std.get(p), u) for p, (_, u) in zip(names, _FRAME_COLS)]
         w.writerow(row)
 
-    frame_row("base", robot.base_frame, robot.T_meas_base(), [f"u_{k}" for k in _U_KINDS])
+    frame_row("base", robot.base_frame, robot.T_meas_base(), list(U_NAMES))
     for i, joint in enumerate(robot.joints, start=1):
         vals = [t[k][i - 1] for k in ("theta", "d", "a", "alpha", "beta")]
         row = ["joint", joint.name, joint.kind] + [_cell(v, u) for v, (_, u) in zip(vals, _JOINT_COLS)] + [""] * n_f
@@ -229,17 +228,17 @@ def model_from_report(report_path: str | Path, urdf_model: RobotModel) -> tuple[
 
     cols = {k: np.array([need(f"{k}{i}") for i in range(1, n + 1)]) for k in ("theta", "d", "a", "alpha")}
     beta = np.array([values.get(f"beta{i}", math.nan) for i in range(1, n + 1)])
-    u = [need(f"u_{k}") for k in _U_KINDS]
+    u = [need(name) for name in U_NAMES]
     targets = urdf_model.targets
     kw = dict(base_frame=urdf_model.base_frame, tool_frame=urdf_model.tool_frame)
     if targets:
         model = RobotModel.from_mdh(urdf_model.joints, cols["theta"], cols["d"], cols["a"], cols["alpha"], beta,
                                     u=u, **kw)
-        refs = [zyx_transform(*[need(f"v_{k}@{t}") for k in _U_KINDS]) for t in targets]
+        refs = [zyx_transform(*[need(name) for name in v_names(t)]) for t in targets]
         model = model.with_targets(targets, np.array(refs))
     else:
         model = RobotModel.from_mdh(urdf_model.joints, cols["theta"], cols["d"], cols["a"], cols["alpha"], beta,
-                                    u=u, v=[need(f"v_{k}") for k in _U_KINDS], **kw)
+                                    u=u, v=[need(name) for name in v_names()], **kw)
     dp, dr = kinematics_difference(model, urdf_model, relative=True)
     if dp > REPORT_MATCH_TOL or dr > REPORT_MATCH_TOL:
         raise CalibError(f"{path}: its parameters do not describe {urdf_model.urdf_path or 'the URDF'}: the "
