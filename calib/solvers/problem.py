@@ -310,31 +310,19 @@ class Problem:
             return self._compute_robust_normal_equations(x, parts), None
         keep_blocks = parts == "pose" and self.n_poses <= CHUNK_POSES
         blocks = None
-        self.kin.set_values(self.full(x))
         m = len(self.free)
         use_pos = parts in ("pose", "position")
         use_rot = self.has_orientation and parts != "position"
         A_pos, A_rot = np.zeros((m, m)), (np.zeros((m, m)) if use_rot else None)
         g_pos, g_rot = np.zeros(m), np.zeros(m)
         rss = [0.0, 0.0]
-        for sl in self._chunks():
-            # the Jacobian as Jt (m, 6, N): its position block is the transposed stacked Jacobian
-            # of the position rows (m, 3 N) as it is, no copy; residuals laid out (3, N) to match
-            R, p, Jt = pose_jacobian(self.kin, self.Q[sl], self.free, transposed=True,
-                                     targets=self._targets(sl))
-            n = len(p)
+        for Jt, Jp, rp, Jr, rr in self._transposed_blocks(x, parts):
             if use_pos:
-                Jp = Jt[:, :3].reshape(m, 3 * n)
-                rp = (p - self.p_meas[sl]).T.reshape(-1)
+                rp = rp.reshape(-1)
                 A_pos += Jp @ Jp.T
                 g_pos += Jp @ rp
                 rss[0] += float(rp @ rp)
             if use_rot:
-                rr = log3_batch(R @ self.R_meas_T[sl])
-                # d log(R R_meas^T) = Jl^-1(r) dw, pose by pose
-                # (3, 3, N), contiguous: einsum on the transposed view is ten times slower
-                L = np.ascontiguousarray(left_jacobian_inverse_batch(rr).transpose(1, 2, 0))
-                Jr = np.einsum("ijn,cjn->cin", L, Jt[:, 3:]).reshape(m, 3 * n)
                 rr = rr.T.reshape(-1)
                 A_rot += Jr @ Jr.T
                 g_rot += Jr @ rr
@@ -362,7 +350,6 @@ class Problem:
         reweighted least squares, sum rho'(z_i) J_i^T J_i (the same sums as the rows of
         :func:`robust_scaling` give, made on the transposed Jacobian as the least-squares ones
         are: a third of the time of the per-pose blocks on 1,402 iiwa rows)."""
-        self.kin.set_values(self.full(x))
         m = len(self.free)
         use_pos = parts in ("pose", "position")
         use_rot = self.has_orientation and parts != "position"
@@ -371,30 +358,23 @@ class Problem:
         g = np.zeros(m)
         rss = [0.0, 0.0]
         wp, wr = 1.0 / self.sigma_pos ** 2, 1.0 / self.sigma_rot ** 2
-        for sl in self._chunks():
-            R, p, Jt = pose_jacobian(self.kin, self.Q[sl], self.free, transposed=True, targets=self._targets(sl))
-            n = len(p)
-            z = np.zeros(n)
+        for Jt, Jp, rp, Jr, rr in self._transposed_blocks(x, parts):
+            z = np.zeros(Jt.shape[2])
             if use_pos:
-                rp = (p - self.p_meas[sl]).T            # (3, N), component first as Jt's rows
                 zp = np.einsum("kn,kn->n", rp, rp) * wp
                 z += zp
             if use_rot:
-                rr = log3_batch(R @ self.R_meas_T[sl])
                 zr = np.einsum("nk,nk->n", rr, rr) * wr
                 z += zr
             rho, drho = robust_rho(z, self.loss, self.loss_scale)
             with np.errstate(invalid="ignore", divide="ignore"):
                 f2 = np.where(z > 0, rho / np.where(z > 0, z, 1.0), 1.0)   # |r~_i|^2 = f2 z_i
             if use_pos:
-                Jp = Jt[:, :3].reshape(m, 3 * n)
                 w = np.tile(drho * wp, 3)
                 A_pos += (Jp * w) @ Jp.T
                 g += Jp @ (rp.reshape(-1) * w)
                 rss[0] += float(f2 @ zp)
             if use_rot:
-                L = np.ascontiguousarray(left_jacobian_inverse_batch(rr).transpose(1, 2, 0))
-                Jr = np.einsum("ijn,cjn->cin", L, Jt[:, 3:]).reshape(m, 3 * n)
                 w = np.tile(drho * wr, 3)
                 A_rot += (Jr * w) @ Jr.T
                 g += Jr @ (rr.T.reshape(-1) * w)
@@ -404,6 +384,33 @@ class Problem:
         n_rot = 3 * N if A_rot is not None else 0
         A = A_pos + (A_rot if A_rot is not None else 0.0)
         return NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1], n_pos, n_rot)
+
+    def _transposed_blocks(self, x: np.ndarray, parts: str):
+        """Per chunk of poses, the unweighted pieces both kinds of normal equations are summed
+        from, on the Jacobian as Jt (m, 6, n) (its position block is the transposed stacked
+        Jacobian of the position rows (m, 3 n) as it is, no copy): (Jt, Jp (m, 3 n), rp (3, n),
+        Jr (m, 3 n), rr (n, 3)), the position rows and residuals (laid out component first, as
+        Jt's rows) and the rotation rows Jl^-1 Jt and residuals, None where ``parts`` leaves
+        them out."""
+        self.kin.set_values(self.full(x))
+        m = len(self.free)
+        use_pos = parts in ("pose", "position")
+        use_rot = self.has_orientation and parts != "position"
+        for sl in self._chunks():
+            R, p, Jt = pose_jacobian(self.kin, self.Q[sl], self.free, transposed=True,
+                                     targets=self._targets(sl))
+            n = len(p)
+            Jp = rp = Jr = rr = None
+            if use_pos:
+                Jp = Jt[:, :3].reshape(m, 3 * n)
+                rp = (p - self.p_meas[sl]).T
+            if use_rot:
+                rr = log3_batch(R @ self.R_meas_T[sl])
+                # d log(R R_meas^T) = Jl^-1(r) dw, pose by pose
+                # (3, 3, N), contiguous: einsum on the transposed view is ten times slower
+                L = np.ascontiguousarray(left_jacobian_inverse_batch(rr).transpose(1, 2, 0))
+                Jr = np.einsum("ijn,cjn->cin", L, Jt[:, 3:]).reshape(m, 3 * n)
+            yield Jt, Jp, rp, Jr, rr
 
     def whitened_blocks(self, x: np.ndarray, raw: bool = False):
         """Per chunk of poses: (r (n, k), Jw (n, k, m)), the weighted residual and Jacobian blocks
