@@ -8,10 +8,10 @@ joint terms (gravity compliance, periodic joint errors) by cross-validated held-
 * :func:`choose_terms`: for data with many residual components per parameter, the geometric
   model, + compliance (when the URDF has real link masses), + periodic, + both, each fitted at
   the noise levels and kept rows of the geometric fit (one Gauss-Newton step from its solution)
-  and scored by K-fold cross-validated held-out error on the same rows and folds; a term group is kept only when its held-out score
-  beats the geometric model's by more than ``TERMS_MIN_SE`` standard errors of their paired
-  row-by-row difference. Returns the chosen groups and the table of scores
-  (:class:`TermsChoice`).
+  and scored by K-fold cross-validated held-out error on the same rows and folds; a term group
+  is kept only when its held-out score beats the geometric model's by more than
+  ``TERMS_MIN_SE`` standard errors of their paired row-by-row difference. Returns the chosen
+  groups and the table of scores (:class:`TermsChoice`).
 """
 from __future__ import annotations
 
@@ -300,7 +300,7 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     has_rot = big.measure == "pose"
     cols = {label: np.array([union.index(n) for n in free], int) for (label, _, _), free in zip(cands, frees)}
     blocks = [(r, Jw) for r, Jw in lin.whitened_blocks(x0)]
-    scored, x_u, per_row = _linear_scores(blocks, x0, x0, cols, fold_of, folds, (sp, sr, has_rot), lin,
+    scored, x_u, per_row = _linear_scores(blocks, x0, x0, union, cols, fold_of, folds, (sp, sr, has_rot), lin,
                                           required=cands[0][0])
     table, rows = _table(cands, frees, scored)
     if _close_call(table, rows, per_row):
@@ -309,7 +309,7 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         # candidates are scored again linearised at that step (where the terms a candidate
         # lacks are near zero when it holds the truth's: periodic errors of 10 mrad and
         # compliances of 400 urad/(N m) made +both win over the true +compliance by 6e-5)
-        scored.update(_linear_scores([(r, Jw) for r, Jw in lin.whitened_blocks(x_u)], x_u, x0,
+        scored.update(_linear_scores([(r, Jw) for r, Jw in lin.whitened_blocks(x_u)], x_u, x0, union,
                                      {k: v for k, v in cols.items() if k != cands[0][0]}, fold_of, folds,
                                      (sp, sr, has_rot), None)[0])
         table, rows = _table(cands, frees, scored)
@@ -319,21 +319,20 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     if judged_rows is not None:
         reason += f"; judged on {judged_rows:,} evenly spaced of the {cal.n_poses:,} calibration rows"
     return TermsChoice(best.compliance, best.periodic, tuple(table), folds, reason, judged_rows,
-                       dict(zip(frees[[lab for lab, _, _ in cands].index(best.label)], scored[best.label][1])),
-                       tuple(o.row for o in fit.outliers))
+                       scored[best.label][1], tuple(o.row for o in fit.outliers))
 
 
-def _linear_scores(blocks, x, x_held, cols: dict, fold_of, folds: int, whitening, lin: Problem | None,
-                   required: str | None = None):
-    """Each candidate (label -> its columns of the union's Jacobian) scored on the linearisation
-    ``blocks`` at x (the union's parameter values; the columns a candidate lacks are moved to
-    their values in ``x_held``, the geometric solution with the terms at zero, first): label ->
-    (its K-fold
+def _linear_scores(blocks, x, x_held, union: list, cols: dict, fold_of, folds: int, whitening,
+                   lin: Problem | None, required: str | None = None):
+    """Each candidate (label -> its columns of the union's Jacobian; ``union`` the columns'
+    names) scored on the linearisation ``blocks`` at x (the union's parameter values; the columns
+    a candidate lacks are moved to their values in ``x_held``, the geometric solution with the
+    terms at zero, first): label -> (its K-fold
     :class:`~calib.calibration.validation.CrossValidation`, its Gauss-Newton step as name ->
-    value; a candidate without which a fold's rows cannot identify it is left out, the
-    ``required`` one raises DataError). With ``lin``
-    (the union's problem) also the union's step x_u and the curvature per row: the cost at x_u
-    less the linearisation's prediction, over the rows (whitened units), else (None, 0)."""
+    value). A candidate without which a fold's rows cannot identify it is left out; the
+    ``required`` one raises DataError. With ``lin`` (the union's problem) also the union's step
+    x_u and the curvature per row: the cost at x_u less the linearisation's prediction, over the
+    rows (whitened units); else (None, 0)."""
     sp, sr, has_rot = whitening
     fold_ne = fold_normal_equations(lambda: blocks, fold_of, folds)
     A_all, g_all = fold_ne[0].sum(axis=0), fold_ne[1].sum(axis=0)
@@ -349,7 +348,7 @@ def _linear_scores(blocks, x, x_held, cols: dict, fold_of, folds: int, whitening
             continue
         cv = held_out_summary(fold_of, folds, w_p * sp ** 2, w_r * sr ** 2 if has_rot else None, sp, sr)
         step = normal_inverse(A_all[np.ix_(c, c)])[0] @ (g_all + A_all @ shift)[c]
-        out[label] = (cv, x[c] - step)
+        out[label] = (cv, dict(zip((union[k] for k in c), x[c] - step)))
     if lin is None:
         return out, None, 0.0
     dx = -normal_inverse(A_all)[0] @ g_all
@@ -374,18 +373,9 @@ def _table(cands, frees, scored) -> tuple[list, dict]:
 
 
 def _close_call(table, rows: dict, per_row: float) -> bool:
-    """Whether a comparison of :func:`pick_terms` (the same chain of comparisons) is decided by a
-    margin (mean paired difference less TERMS_MIN_SE standard errors) within twice the
+    """Whether a comparison of :func:`pick_terms` is decided by a margin within twice the
     linearisation's curvature per row ``per_row`` of either side."""
-    best = table[0]
-    for t in sorted(table[1:], key=lambda t: t.n_free):
-        d = rows[best.label] - rows[t.label]
-        margin = float(np.mean(d)) - TERMS_MIN_SE * _standard_error(d)
-        if abs(margin) <= 2.0 * per_row:
-            return True
-        if margin > 0:
-            best = t
-    return False
+    return any(abs(margin) <= 2.0 * per_row for _, margin in _comparisons(table, rows))
 
 
 def warm_start(start: RobotModel, values: dict, free) -> RobotModel:
@@ -405,11 +395,23 @@ def pick_terms(table, row_scores: dict) -> TermScore:
     than TERMS_MIN_SE standard errors of their paired row-by-row difference (``row_scores``: label ->
     (n,) whitened squared held-out errors on the same rows)."""
     best = table[0]
-    for t in sorted(table[1:], key=lambda t: t.n_free):
-        d = row_scores[best.label] - row_scores[t.label]
-        if np.mean(d) > TERMS_MIN_SE * _standard_error(d):
+    for t, margin in _comparisons(table, row_scores):
+        if margin > 0:
             best = t
     return best
+
+
+def _comparisons(table, row_scores: dict):
+    """The comparisons of :func:`pick_terms` in its order: (candidate, margin), the margin its
+    mean row score's lead over the current choice less TERMS_MIN_SE standard errors of their
+    paired difference; the choice moves to the candidate when the margin is positive."""
+    best = table[0]
+    for t in sorted(table[1:], key=lambda t: t.n_free):
+        d = row_scores[best.label] - row_scores[t.label]
+        margin = float(np.mean(d) - TERMS_MIN_SE * _standard_error(d))
+        yield t, margin
+        if margin > 0:
+            best = t
 
 
 #: The values of calibrate's ``terms`` option.

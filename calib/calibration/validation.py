@@ -191,8 +191,8 @@ def newton_held_out(blocks, fold_of: np.ndarray, folds: int, *, prior=None, chec
     linearised with a larger one's Jacobian); shift : with cols, the step (all columns, zero on
     cols) that takes the other columns to the model's values (a smaller model linearised where
     the larger one's extra parameters are not at its values); fold_ne : the blocks'
-    :func:`fold_normal_equations` when already made. A fold without which the rows cannot identify the parameters raises
-    DataError when ``check_rank``."""
+    :func:`fold_normal_equations` when already made. A fold without which the rows cannot
+    identify the parameters raises DataError when ``check_rank``."""
     n = len(fold_of)
     A_fold, g_fold = fold_ne if fold_ne is not None else fold_normal_equations(blocks, fold_of, folds)
     m_all = A_fold.shape[1]
