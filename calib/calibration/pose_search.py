@@ -306,6 +306,27 @@ def _shift_bounds(A: np.ndarray, sel: list[int], root: np.ndarray, R_of: list, c
     block += np.sqrt(norms[1])[:, None] * (ku * slack)
 
 
+def _pass_start(A: np.ndarray, sel: list[int], criterion: str) -> tuple:
+    """The state an exchange pass starts from: (M, taken (N,) bool, the criterion's value,
+    the leverages (k, k, N), M^-1 (symmetrised), log det M)."""
+    M = _EPS * np.eye(A.shape[2]) + sum(A[i].T @ A[i] for i in sel)
+    taken = np.zeros(len(A), bool)
+    taken[sel] = True
+    Minv = np.linalg.inv(M)
+    return (M, taken, _value(M, criterion), _leverages_t(A, M), (Minv + Minv.T) / 2,
+            float(np.linalg.slogdet(M)[1]))
+
+
+def _swap(A: np.ndarray, sel: list[int], taken: np.ndarray, t: int, i: int, Mj: np.ndarray,
+          down: "_RankUpdate", criterion: str) -> tuple:
+    """Candidate i in place of the selected block at position t (``Mj``: M without it, ``down``
+    its removal): (the new M, its criterion value, the rank-one update that added A_i)."""
+    taken[sel[t]], taken[i] = False, True
+    sel[t] = i
+    M = Mj + A[i].T @ A[i]
+    return M, _value(M, criterion), _RankUpdate.of(down.Minv, A[i], +1.0)
+
+
 def exchange_pass(A: np.ndarray, sel: list[int], criterion: str, limit: int | None = None,
                   low: tuple | None = None) -> int:
     """One Fedorov exchange pass over the selected blocks ``sel`` of A (N, k, r), in place;
@@ -327,17 +348,10 @@ def exchange_pass(A: np.ndarray, sel: list[int], criterion: str, limit: int | No
     limit = n if limit is None else limit
     if criterion == "O4":
         return _exchange_pass_o4(A, sel, limit)
-    N, k, r = A.shape
+    N = len(A)
     # (N, r): |A_i[:, c]|^2, for O1 (a temporary the size of the pool, not made for D)
     colsq = np.sum(A ** 2, axis=1) if criterion == "O1" else None
-    M = _EPS * np.eye(r) + sum(A[i].T @ A[i] for i in sel)
-    taken = np.zeros(N, bool)
-    taken[sel] = True
-    current = _value(M, criterion)
-    B = _leverages_t(A, M)                                     # (k, k, N)
-    Minv = np.linalg.inv(M)
-    Minv = (Minv + Minv.T) / 2
-    logdet_M = float(np.linalg.slogdet(M)[1])
+    M, taken, current, B, Minv, logdet_M = _pass_start(A, sel, criterion)      # (B: (k, k, N))
     gains_M = _logdet_eye_plus_t(B)
     col_M = np.log1p(colsq / np.diag(M)).sum(axis=1) if criterion == "O1" else 0.0
     # root[:, t]: an upper bound of |E_i|_F under removal t (exact when computed at this M:
@@ -379,12 +393,8 @@ def exchange_pass(A: np.ndarray, sel: list[int], criterion: str, limit: int | No
         best = int(np.argmax(score))
         i, value = int(cand[best]), float(score[best])
         if value > threshold:
-            sel[t] = i
-            taken[j], taken[i] = False, True
-            M = Mj + A[i].T @ A[i]
-            current = _value(M, criterion)
+            M, current, up = _swap(A, sel, taken, t, i, Mj, down, criterion)
             swaps += 1
-            up = _RankUpdate.of(down.Minv, A[i], +1.0)
             Minv = up.Minv
             logdet_M += down.dlogdet + up.dlogdet
             if t + 1 == n:
@@ -411,16 +421,9 @@ def _exchange_pass_o4(A: np.ndarray, sel: list[int], limit: int) -> int:
     leverages of the whole pool kept up to date), then the exact O4 of a shortlist of the
     ``_O4_SHORTLIST`` candidates with the best score and as many that add most along the weakest
     direction of ``M_-j``."""
-    N, k, r = A.shape
+    N = len(A)
     colsq = np.sum(A ** 2, axis=1)
-    M = _EPS * np.eye(r) + sum(A[i].T @ A[i] for i in sel)
-    taken = np.zeros(N, bool)
-    taken[sel] = True
-    current = _value(M, "O4")
-    B = _leverages_t(A, M)                                     # (k, k, N)
-    Minv = np.linalg.inv(M)
-    Minv = (Minv + Minv.T) / 2
-    logdet_M = float(np.linalg.slogdet(M)[1])
+    M, taken, current, B, Minv, logdet_M = _pass_start(A, sel, "O4")           # (B: (k, k, N))
     swaps = 0
     for t in range(len(sel)):
         if t >= limit and swaps == 0:
@@ -445,12 +448,8 @@ def _exchange_pass_o4(A: np.ndarray, sel: list[int], limit: int) -> int:
         best = int(np.argmax(o4))
         i, value = int(short[best]), float(o4[best])
         if value > threshold:
-            sel[t] = i
-            taken[j], taken[i] = False, True
-            M = Mj + A[i].T @ A[i]
-            current = _value(M, "O4")
+            M, current, up = _swap(A, sel, taken, t, i, Mj, down, "O4")
             swaps += 1
-            up = _RankUpdate.of(down.Minv, A[i], +1.0)
             Minv = up.Minv
             logdet_M += down.dlogdet + up.dlogdet
             if t + 1 < len(sel):               # (after the last removal the leverages are not read)
