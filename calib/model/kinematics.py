@@ -91,6 +91,8 @@ _I4.setflags(write=False)
 #: forward kinematics, and the Jacobian (smaller: its scratch is 36 values per pose and joint).
 CHUNK = 2048
 JACOBIAN_CHUNK = 256
+#: Rows of configurations whose joint cosines and sines a kinematics object keeps (about 2 MB).
+JOINT_TERM_MEMO_ROWS = 8192
 #: (i, j) of the rotation block entries c, -s (at (i, j)), s (at (j, i)) about axis x, y, z.
 _ROT_IJ = np.array([(1, 2), (2, 0), (0, 1)])
 
@@ -264,7 +266,7 @@ class ChainKinematics:
         self._pin = None
         self._pin_values = None
         self._plans: dict = {}
-        self._last_joint_terms = None
+        self._joint_term_memo: OrderedDict = OrderedDict()
         self.compliance = compliance_term(robot)   # None without compliance (calib.model.compliance)
         # the joint terms: deviations of the joint values before the chain (compliance, periodic)
         self.joint_terms = tuple(t for t in (self.compliance, periodic_term(robot)) if t is not None)
@@ -391,18 +393,26 @@ class ChainKinematics:
     def _joint_terms(self, Q: np.ndarray):
         """(Qt (n, N), c2, s2 (n, 2, 1, N)) of configurations Q (N, n) for :meth:`_walk`: the
         joint values and the cosines and sines that turn a rotation's first two columns,
-        ``R Rz(q)``: column 0 <- c col0 + s col1, column 1 <- c col1 - s col0. Those of the last
-        Q are kept: an LM run walks the same configurations at every evaluation."""
+        ``R Rz(q)``: column 0 <- c col0 + s col1, column 1 <- c col1 - s col0. Kept by content
+        for the last JOINT_TERM_MEMO_ROWS rows: an LM run walks the same chunks of
+        configurations at every evaluation (the 1,402 iiwa rows: six Jacobian chunks and one
+        chunk of poses, 137 walks per calibration)."""
         Q = np.asarray(Q, float)
-        last = self._last_joint_terms
-        if last is not None and last[0].shape == Q.shape and np.array_equal(last[0], Q):
-            return last[1]
+        key = (Q.shape, Q.tobytes())
+        memo = self._joint_term_memo
+        hit = memo.get(key)
+        if hit is not None:
+            memo.move_to_end(key)
+            return hit
         Qt = np.ascontiguousarray(Q.T)
         cos_q, sin_q = np.cos(Qt), np.sin(Qt)
         terms = (Qt, np.stack((cos_q, cos_q), axis=1)[:, :, None], np.stack((sin_q, -sin_q), axis=1)[:, :, None])
         for a in terms:
             a.setflags(write=False)
-        self._last_joint_terms = (Q.copy(), terms)
+        memo[key] = terms
+        rows = sum(k[0][0] for k in memo)
+        while rows > JOINT_TERM_MEMO_ROWS and len(memo) > 1:
+            rows -= memo.popitem(last=False)[0][0][0]
         return terms
 
     @staticmethod

@@ -111,3 +111,28 @@ def test_chunked_evaluation_equals_one_pass(monkeypatch):
     np.testing.assert_allclose(J2, J1, rtol=0, atol=1e-15 * np.abs(J1).max())
     np.testing.assert_allclose(Jt2, Jt1, rtol=0, atol=1e-15 * np.abs(J1).max())
     assert J2.shape == (23, 6, robot.n_params) and Jt2.shape == (3, 6, 23)
+
+
+def test_joint_cosines_kept_per_chunk_and_bounded(monkeypatch):
+    """The joint cosines and sines of each chunk walked are kept by content (an LM run walks the
+    same chunks at every evaluation), up to JOINT_TERM_MEMO_ROWS rows: a second Jacobian pass
+    over 23 rows in chunks of 4 computes none, and gives the same Jacobian bit for bit."""
+    import calib.model.kinematics as km
+
+    robot, rng = _robot("bundled", None, 8)
+    kin = ChainKinematics(robot)
+    Q = robot.random_configurations(23, rng)
+    monkeypatch.setattr(km, "JACOBIAN_CHUNK", 4)
+    _, _, J1 = pose_jacobian(kin, Q)
+    assert len(kin._joint_term_memo) == 6                  # 5 chunks of 4, one of 3
+    calls = []
+    cos = np.cos
+    monkeypatch.setattr(km.np, "cos", lambda a: calls.append(a.shape) or cos(a))
+    _, _, J2 = pose_jacobian(kin, Q)
+    monkeypatch.setattr(km.np, "cos", cos)
+    assert calls == [] and np.array_equal(J1, J2)
+    # other configurations: computed, the oldest chunks dropped beyond the bound
+    monkeypatch.setattr(km, "JOINT_TERM_MEMO_ROWS", 10)
+    _, _, J3 = pose_jacobian(kin, Q[::-1])
+    assert sum(k[0][0] for k in kin._joint_term_memo) <= 10
+    np.testing.assert_array_equal(J3, pose_jacobian(ChainKinematics(robot), Q[::-1])[2])
