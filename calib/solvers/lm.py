@@ -150,7 +150,9 @@ def _last_step(problem: Problem, x, step, cost: float, predicted: float, parts: 
     if options.last_step:
         x_new = x + step
         trace.evaluations += 1
-        cost_new = _trial_cost(problem, x_new, parts, fuse)
+        # (a robust loss's normal equations at the end are not asked for again: the stages that
+        # follow a robust fit judge its rows by their residuals, or fit by least squares)
+        cost_new = _trial_cost(problem, x_new, parts, fuse and getattr(problem, "loss", "linear") == "linear")
         kept = cost_new <= cost * (1.0 + max(options.ftol, COST_RTOL))
         if log.isEnabledFor(logging.INFO):     # calib -v
             log.info("LM iteration %d: the last step (predicted decrease %.3g) %s, cost %.6g, %.1f ms",

@@ -125,6 +125,33 @@ def test_lm_stop_on_the_predicted_decrease():
         assert np.max(np.abs(taken.x - stopped.x)) > 0.0
 
 
+
+def test_robust_lm_evaluates_its_last_step_by_the_residuals_alone(monkeypatch):
+    """A robust fit's normal equations at its end are not asked for again (the stages judge its
+    rows by their residuals, or refit by least squares): the last step is evaluated by the
+    residuals, not by a Jacobian pass; every accepted step before it computes the normal
+    equations with its cost (few poses), and the result is that of the unfused path."""
+    robot, meas, _ = _data("bundled", False)
+    gross = meas.position + np.where(np.arange(25) == 3, 5e-3, 0.0)[:, None]      # (one row 5 mm off)
+    prob = Problem(ChainKinematics(robot), meas.q, gross, meas.rotation, robot.values, np.arange(robot.n_params),
+                   2e-5, 2e-3, loss="huber", loss_scale=3.0)
+    counts = {"ne": 0, "res": 0}
+    ne_real, res_real = Problem._compute_normal_equations, Problem.residuals
+    monkeypatch.setattr(Problem, "_compute_normal_equations",
+                        lambda self, *a: counts.__setitem__("ne", counts["ne"] + 1) or ne_real(self, *a))
+    monkeypatch.setattr(Problem, "residuals",
+                        lambda self, *a: counts.__setitem__("res", counts["res"] + 1) or res_real(self, *a))
+    x0 = robot.values.copy()
+    sol = levenberg_marquardt(prob, x0, "pose", LMOptions())
+    assert "predicted decrease is below tolerance" in sol.message
+    assert counts["res"] == 1 and counts["ne"] == sol.iterations
+    monkeypatch.setattr(lm_module, "FUSE_BELOW_POSES", 0)
+    fresh = Problem(ChainKinematics(robot), meas.q, gross, meas.rotation, robot.values, np.arange(robot.n_params),
+                    2e-5, 2e-3, loss="huber", loss_scale=3.0)
+    unfused = levenberg_marquardt(fresh, x0, "pose", LMOptions())
+    np.testing.assert_array_equal(unfused.x, sol.x)
+
+
 class _Curved:
     """A one-parameter least-squares problem, r(x) = (x, 1 + k x^2), duck-typed as a Problem:
     near x = 0 the Gauss-Newton model predicts almost no decrease while a step raises the
