@@ -259,3 +259,27 @@ print('scipy.special' in sys.modules)
                          capture_output=True, text=True, env=env, cwd=root)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.splitlines() == ["[]", "True"]
+
+
+def test_frame_estimate_kept_for_the_same_rows_and_kinematics(bundled_robot, monkeypatch):
+    """The closed-form frames are estimated once for the same rows and kinematics: a model whose
+    joint terms are all zero (calibrate's prepare of the chosen terms, after the choice of terms
+    prepared the geometry) takes the geometric estimate; non-zero terms or other rows estimate
+    again, and the result is the one a fresh estimate gives."""
+    import calib.calibration.prepare as prep
+
+    calls = []
+    real = prep.estimate_frames_robust
+    monkeypatch.setattr(prep, "estimate_frames_robust", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(prep, "_ROBOT_MEMO", type(prep._ROBOT_MEMO)())
+    meas = simulate_measurements(bundled_robot, bundled_robot.random_configurations(30, 4), rng=5)
+    geo, _ = prepare(bundled_robot, meas, None, True)
+    periodic = bundled_robot.with_periodic()
+    zero, _ = prepare(periodic, meas, None, True)
+    assert len(calls) == 1 and zero.rebased == geo.rebased == ("measurement->base", "flange->tool")
+    np.testing.assert_array_equal(zero.start.T_meas_base_ref, geo.start.T_meas_base_ref)
+    np.testing.assert_array_equal(zero.start.T_flange_tool_ref, geo.start.T_flange_tool_ref)
+    moved = periodic.with_periodic(np.full(len(periodic.periodic_names), 1e-3))
+    prepare(moved, meas, None, True)
+    prepare(bundled_robot, meas.subset(np.arange(25)), None, True)
+    assert len(calls) == 3
