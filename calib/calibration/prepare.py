@@ -238,6 +238,8 @@ def _distinct(Q: np.ndarray, tol: float) -> int:
 #: Results that depend only on the robot model (structure, values, frames, limits, gravity) and
 #: options, kept for the next calibrations of the same model: see :func:`_robot_memo`.
 _ROBOT_MEMO: OrderedDict = OrderedDict()
+#: The most calibration rows whose closed-form frame estimate is kept (:func:`_frame_estimate`).
+FRAME_MEMO_MAX_ROWS = 10_000
 
 
 def _robot_key(robot: RobotModel) -> tuple:
@@ -394,12 +396,16 @@ def _frame_estimate(robot: RobotModel, m: Measurements, kin: ChainKinematics | N
     """:func:`estimate_frames_robust` of the rows of ``m``, kept by content (:func:`_robot_memo`).
     A model whose joint terms are all zero has its geometry's kinematics and the same estimate:
     the choice of joint terms prepares the geometric model, calibrate then the chosen one on the
-    same rows (the 1,402 iiwa rows: one estimate instead of two)."""
+    same rows (the 1,402 iiwa rows: one estimate instead of two). Kept up to
+    FRAME_MEMO_MAX_ROWS rows (the choice of joint terms judges at most 10,000: more rows are not
+    prepared twice, and their residuals would stay in memory)."""
+    rows = target_rows(robot, m)
+    if m.n_poses > FRAME_MEMO_MAX_ROWS:
+        return estimate_frames_robust(robot, m.q, m.position, m.rotation, rows, kin=kin)
     geo = robot.geometry()
     terms = np.concatenate([robot.compliances(), robot.periodic_values()])
     if np.any(terms != 0.0):
         geo = robot
-    rows = target_rows(robot, m)
     h = hashlib.blake2b(digest_size=20)
     for a in (m.q, m.position, m.rotation, rows):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())

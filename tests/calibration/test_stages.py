@@ -283,3 +283,7 @@ def test_frame_estimate_kept_for_the_same_rows_and_kinematics(bundled_robot, mon
     prepare(moved, meas, None, True)
     prepare(bundled_robot, meas.subset(np.arange(25)), None, True)
     assert len(calls) == 3
+    # more rows than FRAME_MEMO_MAX_ROWS: not kept (their residuals would stay in memory)
+    monkeypatch.setattr(prep, "FRAME_MEMO_MAX_ROWS", 29)
+    prepare(bundled_robot, meas, None, True)
+    assert len(calls) == 4
