@@ -17,6 +17,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from calib.errors import DataError
+from calib.model.draws import uniform
 from calib.model.jacobian import pose_jacobian
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -104,7 +105,7 @@ def workspace_configurations(robot: RobotModel, n: int = WORKSPACE_CONFIGURATION
     key = (lo.tobytes(), hi.tobytes(), int(n), int(seed))
     Q = _DRAWS.get(key)
     if Q is None:
-        Q = np.random.default_rng(seed).uniform(lo, hi, size=(n, robot.n_joints))
+        Q = uniform(seed, lo, hi, n)
         Q.setflags(write=False)
         _DRAWS[key] = Q
         while len(_DRAWS) > 8:

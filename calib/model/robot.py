@@ -37,6 +37,7 @@ from calib.checks import (check_array, check_configurations, check_instance, che
 from calib.errors import ParameterError
 from calib.model.chain import (U_NAMES, ChainJoint, Parameter, UrdfSource,
                                make_parameters, v_names)
+from calib.model.draws import TABLE_SEED, uniform
 from calib.model.mdh import PARALLEL_THRESHOLD_RAD, link_transform
 from calib.model.periodic import PERIODIC_GROUP, PERIODIC_KINDS, periodic_name, periodic_offsets
 from calib.model.spatial import zyx_parameters, zyx_transform
@@ -520,10 +521,13 @@ class RobotModel:
         or metres for an unlimited prismatic joint). n : at most MAX_CONFIGURATIONS.
         """
         n = check_int(n, "n", maximum=MAX_CONFIGURATIONS)
-        rng = check_rng(rng)
+        table = type(rng) is int and rng == TABLE_SEED      # (drawn from a table: calib.model.draws)
+        rng = rng if table else check_rng(rng)
         unlimited_range = check_number(unlimited_range, "unlimited_range", minimum=0.0)
         lo = np.where(np.isfinite(self.lower), self.lower, -unlimited_range)
         hi = np.where(np.isfinite(self.upper), self.upper, unlimited_range)
+        if table:
+            return uniform(rng, lo, hi, n)
         return rng.uniform(lo, hi, size=(n, self.n_joints))
 
     def describe(self) -> str:
