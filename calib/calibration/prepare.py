@@ -4,12 +4,16 @@ frames; plus what depends only on the robot model, kept for the next calibration
 """
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
+
+try:        # hashlib's own blake2b, without hashlib loading OpenSSL's libcrypto (11M instructions)
+    from _blake2 import blake2b
+except ImportError:                                                 # pragma: no cover
+    from hashlib import blake2b
 
 from calib.calibration.accuracy import target_rows, with_measured_targets
 from calib.calibration.frames import estimate_frames_robust
@@ -321,7 +325,7 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
 
     # both ranks are kept per model (and data): a calibration repeated on the same data, e.g.
     # with another method, does not redo them
-    h = hashlib.blake2b(np.ascontiguousarray(Q, float).tobytes(), digest_size=20)
+    h = blake2b(np.ascontiguousarray(Q, float).tobytes(), digest_size=20)
     if rows is not None:
         h.update(np.ascontiguousarray(rows, np.int64).tobytes())
     kept_d = _robot_memo("data rank", robot, options + (Q.shape, h.hexdigest()), data_rank)

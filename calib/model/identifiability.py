@@ -28,12 +28,16 @@ Nahvi and Hollerbach), and the condition number sigma_1 / sigma_r.
 """
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+
+try:        # hashlib's own blake2b, without hashlib loading OpenSSL's libcrypto (11M instructions)
+    from _blake2 import blake2b
+except ImportError:                                                 # pragma: no cover
+    from hashlib import blake2b
 
 from calib.checks import check_configurations, check_int, check_number, check_rng, check_target_indices
 from calib.model.robot import MAX_CONFIGURATIONS, check_robot
@@ -304,7 +308,7 @@ def _cache_key(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma
                sigma_rot: float, priority, targets) -> tuple:
     """What the analysis depends on: the chain's structure and values, the configurations, the
     options (a digest of the arrays, so that large data are not held by the cache)."""
-    h = hashlib.blake2b(digest_size=20)
+    h = blake2b(digest_size=20)
     refs = robot.T_flange_target_refs if robot.T_flange_target_refs is not None else robot.T_flange_tool_ref
     for a in (robot.values, robot.T_meas_base_ref, refs, Q, np.zeros(0) if targets is None else targets):
         a = np.ascontiguousarray(a, float)
