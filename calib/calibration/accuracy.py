@@ -21,7 +21,7 @@ from calib.model.spatial import log3_batch
 
 
 # ====================================================================== accuracy
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class AccuracyStats:
     """Pose errors of a model against measurements (or the truth).
 
@@ -186,7 +186,7 @@ class TargetAccuracy:
                     "before": self.validation_before.to_dict(), "after": self.validation_after.to_dict()}}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class BeforeAfter:
     """Accuracy of a calibration on its rows (see :class:`AccuracyStats`): ``before`` (the nominal
     model) and ``after`` (the calibrated one) on the calibration rows, ``validation_before`` /

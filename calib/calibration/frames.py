@@ -240,7 +240,7 @@ def _estimate(robot: RobotModel, R_f, p_f, p_meas, R_meas, rows):
     return X, Y
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class FrameEstimate:
     """A robust closed-form frame estimate (:func:`estimate_frames_robust`).
 

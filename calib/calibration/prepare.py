@@ -38,7 +38,7 @@ from calib.model.robot import RobotModel
 from calib.model.spatial import inverse, log3_batch, zyx_transform
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class Setup:
     """The prepare stage: what the fit works on.
 

@@ -49,7 +49,7 @@ class ParameterEstimate:
         return d
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class CalibrationResult:
     """What :func:`calibrate` returns (compare scipy's ``OptimizeResult``).
 

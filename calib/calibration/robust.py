@@ -47,7 +47,7 @@ class Outlier:
     sigmas: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class Judgement:
     """The outlier check of one pass: ``outliers`` newly flagged (empty when ``too_many``);
     too_many : more rows above the threshold than outliers can be (the noise levels too small,

@@ -17,7 +17,7 @@ from calib.calibration.workspace import predict_workspace, propagate_covariance,
 from calib.solvers.problem import Problem, normal_inverse
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class Statistics:
     """The statistics stage.
 

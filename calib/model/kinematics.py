@@ -46,7 +46,7 @@ from calib.model.robot import RobotModel
 from calib.model.spatial import to_se3
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class _Factor:
     kind: str                       # tx, ty, tz, rx, ry, rz, or "const"
     param: int | None = None        # index into the parameter vector
@@ -204,7 +204,7 @@ def _chain(matrices: np.ndarray) -> np.ndarray:
     return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class _Structure:
     """What a ChainKinematics needs that depends only on the robot's structure and reference
     frames, not on its parameter values (shared by every workspace of the same robot)."""

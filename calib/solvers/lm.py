@@ -57,7 +57,7 @@ def options_with(options: LMOptions, **changes) -> LMOptions:
     return replace(options, **changes)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class SolverResult:
     """What every solver returns (compare scipy's ``OptimizeResult``).
 
