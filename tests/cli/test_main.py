@@ -176,3 +176,21 @@ def test_the_console_ends_without_the_teardown_and_keeps_every_line(tmp_path):
     bad = subprocess.run([sys.executable, "-c", code, "calibrate", str(BUNDLED_URDF)], capture_output=True,
                          text=True, env=env, cwd=tmp_path, timeout=300)
     assert (bad.returncode, bad.stdout, len(bad.stderr.splitlines())) == (2, "exit handler\n", 2)   # usage, error
+
+
+def test_the_console_command_runs_with_the_larger_first_gc_generation(monkeypatch):
+    """calib._entry.main sets the first generation's threshold to GC_THRESHOLD (50,000) before
+    the imports and the command (start-up without repeated collections), the older ones kept."""
+    import gc
+
+    import calib._entry as entry
+    import calib.cli.main as cli_main
+
+    seen = []
+    monkeypatch.setattr(cli_main, "main_entry", lambda: seen.append(gc.get_threshold()))
+    before = gc.get_threshold()
+    try:
+        entry.main()
+    finally:
+        gc.set_threshold(*before)
+    assert seen == [(50_000, *before[1:])]
