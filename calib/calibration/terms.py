@@ -27,7 +27,6 @@ from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.validation import (_standard_error, fold_labels, fold_normal_equations, held_out_summary,
                                           newton_held_out)
 from calib.errors import DataError, ParameterError
-from calib.model.compliance import GravityModel, Payload
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
@@ -110,6 +109,8 @@ def payload_sensitivity(model: RobotModel, problem: Problem, step: float = PAYLO
     gm = model.gravity
     if not model.has_compliance or gm.payload is None or gm.payload.mass <= 0:
         return {}
+    from calib.model.compliance import GravityModel, Payload
+
     heavier = GravityModel.from_chain(gm.chain, payload=Payload(gm.payload.mass * (1 + step), gm.payload.com_tool),
                                       gravity=gm.gravity)
     other = model.with_compliance(heavier, model.compliances())

@@ -249,7 +249,6 @@ def compliance_options(args):
     :class:`calib.ParameterError` naming the option for bad values."""
     import numpy as np
 
-    from calib.model.compliance import Payload
     from calib.errors import ParameterError
 
     payload = None
@@ -262,6 +261,8 @@ def compliance_options(args):
             raise ParameterError(f"--payload-kg {args.payload_kg}: expected a finite mass >= 0 kg")
         com = (np.zeros(3) if args.payload_com_mm is None
                else parse_triple(args.payload_com_mm, "--payload-com-mm", 1e-3))
+        from calib.model.compliance import Payload
+
         payload = Payload(mass, com)
     elif args.payload_com_mm is not None:
         raise ParameterError("--payload-com-mm without --payload-kg: give the payload mass too")

@@ -15,14 +15,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from calib.errors import ParameterError
 from calib.io.fileio import atomic_write_text
-from calib.model.compliance import URDF_NOTE, GravityModel, Payload, _finite_vector
 from calib.model.robot import RobotModel
+
+if TYPE_CHECKING:       # (calib.model.compliance loads where a record is made, read or applied)
+    from calib.model.compliance import GravityModel, Payload
 
 #: Format tag of the compliance sidecar file (compliance only), and of one with periodic terms.
 SIDECAR_FORMAT = "calib-compliance/1"
@@ -37,6 +39,8 @@ def compliance_record(robot: RobotModel, std: dict[str, float] | None = None) ->
     """The JSON-ready record of a model's joint terms (compliance, periodic): values in SI units
     (rad/(N m), m/N; rad), their std (SI, None when fixed), the payload and gravity the
     compliances were identified with, and the note that the URDF holds the geometry only."""
+    from calib.model.compliance import URDF_NOTE
+
     gm: GravityModel | None = robot.gravity
     std = std or {}
 
@@ -92,6 +96,8 @@ def read_compliance(path: str | Path) -> ComplianceRecord:
     and what was expected."""
     import json
 
+    from calib.model.compliance import Payload, _finite_vector
+
     path = Path(path)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
@@ -138,6 +144,8 @@ def apply_record(robot: RobotModel, record: ComplianceRecord, *, payload: Payloa
     computes them on the nominal URDF; pass the nominal model to reproduce the calibrated model
     exactly (the calibrated URDF's slightly different geometry changes the torques by ~1e-3 of
     themselves, sub-micrometre at the tool)."""
+    from calib.model.compliance import GravityModel
+
     if tuple(record.joints) != robot.joint_names:
         raise ParameterError(f"{source}: the compliances are for joints {list(record.joints)}, the "
                              f"robot has {list(robot.joint_names)}")

@@ -40,7 +40,6 @@ import numpy as np
 import pinocchio as pin
 
 from calib.model.chain import U_NAMES
-from calib.model.compliance import compliance_term
 from calib.model.periodic import periodic_term
 from calib.model.robot import RobotModel
 from calib.model.spatial import to_se3
@@ -267,7 +266,11 @@ class ChainKinematics:
         self._pin_values = None
         self._plans: dict = {}
         self._joint_term_memo: OrderedDict = OrderedDict()
-        self.compliance = compliance_term(robot)   # None without compliance (calib.model.compliance)
+        self.compliance = None      # (calib.model.compliance loads for a model with compliance only)
+        if robot.has_compliance:
+            from calib.model.compliance import compliance_term
+
+            self.compliance = compliance_term(robot)
         # the joint terms: deviations of the joint values before the chain (compliance, periodic)
         self.joint_terms = tuple(t for t in (self.compliance, periodic_term(robot)) if t is not None)
         self.n_targets = robot.n_targets
