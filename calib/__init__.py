@@ -26,7 +26,7 @@ _HOME = {
     "model.robot": ("RobotModel",),
     "io.urdf_reader": ("load_robot", "robot_path"),
     "model.jacobian": ("identification_jacobian",),
-    "model.identifiability": ("IdentifiabilityReport", "analyze_identifiability"),
+    "model.identifiability_report": ("IdentifiabilityReport", "analyze_identifiability"),
     "model.measurements": ("Measurements",),
     "io.csv_layer": ("ReadOptions",),
     "io.specs": ("CompensationTargets", "read_measurements", "read_poses", "read_targets",

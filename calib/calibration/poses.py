@@ -93,8 +93,8 @@ from calib.choices import POSE_CRITERIA
 from calib.model.robot import check_robot
 from calib.threads import with_one_blas_thread
 from calib.errors import DataError, ParameterError
-from calib.model.identifiability import (SIGMA_POS_M, SIGMA_ROT_RAD, analyze_identifiability,
-                                         observability_indices, weighted_jacobian)
+from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, observability_indices, weighted_jacobian
+from calib.model.identifiability_report import analyze_identifiability
 from calib.model.jacobian import MEASURES
 from calib.calibration.pose_search import exchange_pass, greedy_d, low_precision
 from calib.model.robot import RobotModel

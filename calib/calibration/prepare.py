@@ -28,7 +28,6 @@ from calib.errors import DataError, ParameterError
 from calib.model.identifiability import (
     SIGMA_POS_M,
     SIGMA_ROT_RAD,
-    analyze_identifiability,
     select_identifiable,
     weighted_jacobian,
 )
@@ -109,6 +108,8 @@ def _check_enough_rows(start: RobotModel, cal: Measurements, measure: str, sourc
     distinct = distinct_measured_points(cal.q, rows)
     if distinct * rows_per_pose >= start.n_params:
         return
+    from calib.model.identifiability_report import analyze_identifiability
+
     spread = _distinct_targets(start)
     needed = analyze_identifiability(spread, start.random_configurations(50, 0), measure=measure).rank
     if distinct * rows_per_pose >= needed:

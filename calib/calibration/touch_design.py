@@ -26,7 +26,8 @@ import numpy as np
 from calib.calibration.parameters import _idealised
 from calib.checks import check_instance
 from calib.errors import DataError, ParameterError
-from calib.model.identifiability import RANK_TOL, Relation, no_effect, select_identifiable
+from calib.model.identifiability import RANK_TOL, no_effect, select_identifiable
+from calib.model.identifiability_report import Relation
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel, check_robot
 from calib.model.touch import FeatureStart, TouchData, feature_parameter_names, initial_features

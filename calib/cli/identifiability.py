@@ -59,7 +59,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Run ``calib identifiability`` with parsed arguments; returns the exit code."""
     from calib.units import DISPLAY_UNITS
-    from calib.model.identifiability import analyze_identifiability
+    from calib.model.identifiability_report import analyze_identifiability
 
     if args.touch is not None:
         from calib.calibration.touch import touch_identifiability

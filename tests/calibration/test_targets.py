@@ -15,7 +15,7 @@ from calib.calibration.accuracy import evaluate
 from calib.cli.main import main
 from calib.errors import DataError, ParameterError
 from calib.calibration.frames import estimate_target_frames
-from calib.model.identifiability import analyze_identifiability
+from calib.model.identifiability_report import analyze_identifiability
 from calib.model.kinematics import ChainKinematics
 from calib.model.simulate import apply_deviations, random_deviations, simulate_measurements
 from calib.model.spatial import log3_batch, zyx_transform
