@@ -29,6 +29,7 @@ def test_uniform_equals_numpy_bit_for_bit(n, k):
     assert np.array_equal(got.view(np.int64), want.view(np.int64))
 
 
+@pytest.mark.filterwarnings("ignore:overflow encountered in subtract")
 def test_beyond_the_table_and_other_seeds_ask_numpy():
     lo, hi = -np.ones(20), np.ones(20)
     assert np.array_equal(draws.uniform(0, lo, hi, 300), np.random.default_rng(0).uniform(lo, hi, size=(300, 20)))
