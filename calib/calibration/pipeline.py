@@ -14,7 +14,7 @@ values, so that a script or a test can call them one after the other:
 2. **parameter set** (:func:`calib.calibration.parameters.choose_parameters`): the identifiable set
    of :mod:`calib.model.identifiability` (``"base"``), the paper's set, all, a list of names, or
    ``"auto"``: nested candidate sets compared by cross-validated held-out error
-   (:func:`calib.calibration.validation.select_and_fit`, :func:`~calib.calibration.validation.select_model`
+   (:func:`calib.calibration.selection.select_and_fit`, :func:`~calib.calibration.selection.select_model`
    with its selection rule passed in).
 3. **fit** (:func:`calib.calibration.fit.fit_stage` -> :class:`~calib.calibration.fit.Fit`):
    identification by search-lm, C-LM or LM (:func:`calib.solvers.dispatch.solve`), noise-weighted.
@@ -52,7 +52,7 @@ from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.result import CalibrationResult, _parameter_table
 from calib.calibration.statistics import statistics_notes, statistics_stage
 from calib.calibration.terms import compliance_notes, payload_note, resolve_terms, warm_start
-from calib.calibration.validation import held_out_error, select_and_fit
+from calib.calibration.validation import held_out_error
 from calib.errors import ParameterError
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
@@ -234,6 +234,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     selection, label, estimator = None, choice.label, None
     stages.start("fit")
     if choice.auto:
+        from calib.calibration.selection import select_and_fit
+
         selection, fit, problem = select_and_fit(setup, choice.free, opts, kin)
         label = f"auto: {selection.chosen}"
     elif choice.label == "map":

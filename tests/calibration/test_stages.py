@@ -15,7 +15,8 @@ from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare
 from calib.calibration.statistics import statistics_stage
-from calib.calibration.validation import _held_out_traces, cross_validate, one_standard_error, select_and_fit
+from calib.calibration.selection import one_standard_error, select_and_fit
+from calib.calibration.validation import _held_out_traces, cross_validate
 from calib.model.kinematics import ChainKinematics
 from calib.solvers.problem import normal_inverse
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
