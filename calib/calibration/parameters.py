@@ -47,7 +47,7 @@ def _set_rank_deficit(setup: Setup, free: Sequence[str], weights: tuple[float, f
 def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
                      sigma_rot: float = SIGMA_ROT_RAD, targets: np.ndarray | None = None) -> tuple[str, ...]:
     """The identifiable parameter names at configurations Q (N, n) (see
-    :func:`calib.model.identifiability.analyze_identifiability`), chosen start-independently: the
+    :func:`calib.model.identifiability_report.analyze_identifiability`), chosen start-independently: the
     partners to hold fixed are picked on the idealised model (:func:`_idealised`) and kept when
     they are also a valid choice at ``robot``; the rank is ``robot``'s. targets: (N,) each
     row's target index for a multi-target model.
@@ -102,7 +102,7 @@ def select_parameters(robot: RobotModel, params, Q: np.ndarray, measure: str, si
 def _maximal_subset(robot: RobotModel, names: Sequence[str], Q: np.ndarray, measure: str, sigma_pos: float,
                     sigma_rot: float, targets: np.ndarray | None) -> tuple[str, ...]:
     """A maximal identifiable subset of the parameters ``names`` at configurations Q: the
-    rank-revealing selection of :func:`calib.model.identifiability.analyze_identifiability` with
+    rank-revealing selection of :func:`calib.model.identifiability_report.analyze_identifiability` with
     ``names`` first, frames first among them (the targets' v, then u, then the structural
     parameters in the default order), so that a tied pair loses its structural partner, never
     the frame parameter a smaller set needs to place the tool. The partners are picked on the
