@@ -411,7 +411,7 @@ def _frame_estimate(robot: RobotModel, m: Measurements, kin: ChainKinematics | N
     terms = np.concatenate([robot.compliances(), robot.periodic_values()])
     if np.any(terms != 0.0):
         geo = robot
-    h = hashlib.blake2b(digest_size=20)
+    h = blake2b(digest_size=20)
     for a in (m.q, m.position, m.rotation, rows):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
     return _robot_memo("frames", geo, (h.hexdigest(),),

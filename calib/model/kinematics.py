@@ -269,7 +269,6 @@ class ChainKinematics:
         self.compliance = None      # (calib.model.compliance loads for a model with compliance only)
         if robot.has_compliance:
             from calib.model.compliance import compliance_term
-
             self.compliance = compliance_term(robot)
         # the joint terms: deviations of the joint values before the chain (compliance, periodic)
         self.joint_terms = tuple(t for t in (self.compliance, periodic_term(robot)) if t is not None)
