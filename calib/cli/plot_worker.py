@@ -26,6 +26,7 @@ the worker answers on its stdout with pickles ``("progress", k, n)`` as plots ar
 """
 from __future__ import annotations
 
+import gc
 import os
 import pickle
 import signal
@@ -136,7 +137,12 @@ class _Forked:
         job_read, job_write = os.pipe()
         answer_read, answer_write = os.pipe()
         self.returncode = None
+        # the command's objects set apart from the worker's garbage collections, which would
+        # otherwise write into (and so copy) every page holding them (Python's gc.freeze advice)
+        gc.freeze()
         self.pid = os.fork()
+        if self.pid:
+            gc.unfreeze()
         if self.pid == 0:                 # the worker: never returns into the command's code
             code = 1
             try:
@@ -271,8 +277,11 @@ def serve(stdin, stdout) -> int:
 
     from calib.calibration.report_plots import plot_names, plot_rows, warm_up
 
+    gc.disable()              # (no garbage worth a collection while importing)
     _without_property_docs()
     warm_up()                 # matplotlib imported while the command calibrates
+    gc.freeze()               # (its modules out of the collections, here and in the fork drawing half)
+    gc.enable()
     try:
         rows, tolerance_m, columns = pickle.load(stdin)
     except EOFError:          # the command needs no plots after all
