@@ -67,6 +67,34 @@ def test_an_output_staged_in_chunks_is_written_in_order(tmp_path):
     assert out.read_bytes() == b"a,b\n1,2\n3,4\n"
 
 
+def test_several_outputs_written_at_once_or_none(tmp_path):
+    """The files of a set are written in threads (their fsyncs overlap): each has its bytes;
+    when one cannot be written (its folder is gone, the 3rd of 6) the error names the first such
+    path in the order staged, and no file and no temporary file is left in any folder."""
+    import threading
+
+    from calib.io.fileio import OutputSet
+
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    s = OutputSet()
+    paths = [a / "0.bin", b / "1.bin", a / "2.bin", b / "3.bin", a / "4.bin", b / "5.bin"]
+    for k, path in enumerate(paths):
+        s.stage(path, bytes([k]) * (k * 100_000 + 1) if k % 2 else [b"x" * k, bytes([k]) * 1000])
+    assert s.commit() == paths
+    assert [len(p.read_bytes()) for p in paths] == [1000, 100_001, 1002, 300_001, 1004, 500_001]
+    assert threading.active_count() == 1            # (the writers joined: a fork may follow)
+    s = OutputSet()
+    for k, path in enumerate(paths):
+        s.stage(path.with_name(f"new{k}.bin") if k != 2 else tmp_path / "gone" / "x.bin",
+                bytes(10) if k != 5 else [bytes(10)] * 3)
+    with pytest.raises(OutputError, match=r"gone.x\.bin.*does not exist"):
+        s.commit()
+    assert sorted(p.name for p in a.iterdir()) == ["0.bin", "2.bin", "4.bin"]
+    assert sorted(p.name for p in b.iterdir()) == ["1.bin", "3.bin", "5.bin"]
+
+
 def test_a_geometry_only_calibration_removes_an_earlier_sidecar(tmp_path, capsys):
     """An earlier calibration with joint terms left CALIBRATED.compliance.json; a calibration
     without them into the same URDF removes it (it would be read with the new URDF), and says so."""
