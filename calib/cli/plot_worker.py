@@ -140,9 +140,11 @@ class _Forked:
         # the command's objects set apart from the worker's garbage collections, which would
         # otherwise write into (and so copy) every page holding them (Python's gc.freeze advice)
         gc.freeze()
-        self.pid = os.fork()
-        if self.pid:
-            gc.unfreeze()
+        try:
+            self.pid = os.fork()
+        finally:
+            if getattr(self, "pid", None) != 0:       # (this process, also when fork() failed)
+                gc.unfreeze()
         if self.pid == 0:                 # the worker: never returns into the command's code
             code = 1
             try:

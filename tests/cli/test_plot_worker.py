@@ -84,6 +84,20 @@ def test_worker_imports_matplotlib_without_the_property_docstrings():
     assert int(out["full"][0]) > 2000 and out["full"][1] == "True"
 
 
+@pytest.mark.skipif(not calib.cli.plot_worker._can_fork(), reason="the worker is forked on Linux only")
+def test_the_command_collects_its_garbage_again_after_forking_the_worker(monkeypatch):
+    """gc.freeze() around the fork: the command's objects are unfrozen again at once (0 frozen),
+    also when the fork fails (the error is the command's to report)."""
+    import gc
+
+    with PlotWorker() as worker:
+        assert isinstance(worker._proc, calib.cli.plot_worker._Forked) and gc.get_freeze_count() == 0
+    monkeypatch.setattr("os.fork", lambda: (_ for _ in ()).throw(BlockingIOError(11, "fork refused")))
+    with pytest.raises(BlockingIOError):
+        calib.cli.plot_worker._Forked()
+    assert gc.get_freeze_count() == 0
+
+
 def test_worker_failure_is_raised_and_closing_stops_it():
     with PlotWorker() as worker:
         worker.submit(replace(_rows(50), point_base=np.zeros((3, 3))))    # 3 points for 50 rows
