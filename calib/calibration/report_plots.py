@@ -48,13 +48,17 @@ def warm_up() -> None:
 
 
 def _png(fig) -> bytes:
+    from matplotlib import rc_context
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     FigureCanvasAgg(fig)
     for ax in fig.axes:          # fewer ticks: each is a Line2D and a Text, most of a plot's cost
         ax.locator_params(nbins=6)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": 1})   # (level 6: +40 ms a plot)
+    # glyphs rendered without the font's hinting program (FreeType's TrueType interpreter ran
+    # for every glyph drawn: 14 % of drawing a plot); the text is as legible, a little softer
+    with rc_context({"text.hinting": "no_hinting"}):
+        fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": 1})   # (level 6: +40 ms a plot)
     return buf.getvalue()
 
 
