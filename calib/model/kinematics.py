@@ -281,15 +281,28 @@ class ChainKinematics:
                 and np.array_equal(values, last)):
             return      # already there (an LM step's Jacobian after its trial residuals needs twists)
         M, E, ftw = self._table.factor_products(values, twists)
-        n = self.n_joints
         self.placements = M          # (n + K, 4, 4): joint placements, then each target's tool mount
         self._rot_T = np.ascontiguousarray(M[:, :3, :3].transpose(0, 2, 1))   # (for _walk)
         self._trans = np.ascontiguousarray(M[:, :3, 3])
-        self.flange_placement = _chain(E[n, :self._flange_at])   # relative to joint n
-        self.base_placement = _chain(E[0, :self._base_at])       # T_meas_base
+        self._factors = E            # (the flange and base placements are made when asked)
+        self._flange_placement = self._base_placement = None
         self._factor_twists = ftw
         self._dense_twists = None
         self.values = values
+
+    @property
+    def flange_placement(self) -> np.ndarray:
+        """(4, 4) the flange frame relative to the last joint's frame at the current values."""
+        if self._flange_placement is None:
+            self._flange_placement = _chain(self._factors[self.n_joints, :self._flange_at])
+        return self._flange_placement
+
+    @property
+    def base_placement(self) -> np.ndarray:
+        """(4, 4) T_meas_base at the current values."""
+        if self._base_placement is None:
+            self._base_placement = _chain(self._factors[0, :self._base_at])
+        return self._base_placement
 
     @property
     def placement_twists(self) -> np.ndarray | None:
