@@ -265,6 +265,7 @@ class ChainKinematics:
         self._pin_values = None
         self._plans: dict = {}
         self._last_joint_terms = None
+        self._last_walk = None
         self.compliance = compliance_term(robot)   # None without compliance (calib.model.compliance)
         # the joint terms: deviations of the joint values before the chain (compliance, periodic)
         self.joint_terms = tuple(t for t in (self.compliance, periodic_term(robot)) if t is not None)
@@ -378,9 +379,13 @@ class ChainKinematics:
         (Rt (3, 3, N), p (3, N)); with ``frames`` = (Rt_F (n + 1, 3, 3, N), p_F (n + 1, 3, N))
         also store the frame of each joint placement (before the joint's motion) in its first
         n entries."""
-        Qt, c2, s2 = self._joint_terms(Q)
-        N = Qt.shape[1]
+        terms = self._joint_terms(Q)
         rot_T, trans = self._rot_T, self._trans
+        last = self._last_walk
+        if frames is None and last is not None and last[0] is rot_T and last[1] is terms:
+            return last[2], last[3]     # (the same values and configurations as the last walk)
+        Qt, c2, s2 = terms
+        N = Qt.shape[1]
         Rt = np.empty((3, 3, N))
         Rt[:] = rot_T[0, :, :, None]
         p = np.empty((3, N))
@@ -399,6 +404,10 @@ class ChainKinematics:
                 mixed = Rt[1::-1] * s2[k]
                 Rt[:2] *= c2[k]
                 Rt[:2] += mixed
+        if frames is None:
+            Rt.setflags(write=False)
+            p.setflags(write=False)
+            self._last_walk = (rot_T, terms, Rt, p)
         return Rt, p
 
     def _joint_terms(self, Q: np.ndarray):
