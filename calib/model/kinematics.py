@@ -570,15 +570,18 @@ class ChainKinematics:
         Rt, p = self._attach(*self._walk(Q, (RtF, pF)), self.placements[self.n_joints + target])
         RtF[-1], pF[-1] = Rt, p
         D = (pF - p)[:, None]                                                # (P, 1, 3, N)
-        slot, rows, out_col, width, m = plan
+        slot, rows, out_col, width, m, turning = plan
         TW = np.zeros((P * width, 6))
         TW[slot] = self._factor_twists[rows]
         # (R v, R w) of every slot: (R x)[i] = sum_j x[j] Rt[j, i]
         X = np.matmul(TW.reshape(P, 2 * width, 3), RtF.reshape(P, 3, 3 * N)).reshape(P, width, 6, N)
-        Rw = X[:, :, 3:]
-        X[:, :, 0] += D[:, :, 1] * Rw[:, :, 2] - D[:, :, 2] * Rw[:, :, 1]
-        X[:, :, 1] += D[:, :, 2] * Rw[:, :, 0] - D[:, :, 0] * Rw[:, :, 2]
-        X[:, :, 2] += D[:, :, 0] * Rw[:, :, 1] - D[:, :, 1] * Rw[:, :, 0]
+        # the D x R w terms, for the slots that turn (each placement's first ``turning``: a
+        # translation's w is zero)
+        Xt = X[:, :turning]
+        Rw = Xt[:, :, 3:]
+        Xt[:, :, 0] += D[:, :, 1] * Rw[:, :, 2] - D[:, :, 2] * Rw[:, :, 1]
+        Xt[:, :, 1] += D[:, :, 2] * Rw[:, :, 0] - D[:, :, 0] * Rw[:, :, 2]
+        Xt[:, :, 2] += D[:, :, 0] * Rw[:, :, 1] - D[:, :, 1] * Rw[:, :, 0]
         Jt = np.empty((m, 6, N)) if len(slot) == m else np.zeros((m, 6, N))   # other targets: 0
         Jt[out_col] = X.reshape(P * width, 6, N)[slot]
         return Rt, p, Jt
@@ -586,7 +589,8 @@ class ChainKinematics:
     def _column_plan(self, columns, target: int = 0):
         """Where each wanted parameter sits: (slot = placement * width + place in it, its row of
         the factor twists, output column, width = most wanted parameters of one placement, number
-        of columns).
+        of columns, turning = most wanted rotation parameters of one placement: a placement's
+        come first).
         The plans of the last few column sets are kept (an LM run asks for the same ones)."""
         columns = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
         key = (columns.tobytes(), target)
@@ -601,10 +605,15 @@ class ChainKinematics:
         out_col = np.full(self.n_params, -1)
         out_col[columns] = np.arange(len(columns))
         used = list(range(self.n_joints)) + [self.n_joints + target]   # joints, this target's tool
-        params = [self._params_of[k][out_col[self._params_of[k]] >= 0] for k in used]
+        row_of = self._table.factor_row
+        n_trans = len(self._table.trans)        # (the factor rows of translations come first)
+        # each placement's wanted parameters, those of rotation factors first
+        params = [sorted(self._params_of[k][out_col[self._params_of[k]] >= 0].tolist(),
+                         key=lambda p, k=k: row_of[(k, p)] < n_trans) for k in used]
         width = max(1, max(len(ps) for ps in params))
+        turning = max(sum(row_of[(k, p)] >= n_trans for p in ps) for k, ps in zip(used, params))
         slot = np.concatenate([k * width + np.arange(len(ps)) for k, ps in enumerate(params)])
-        param = np.concatenate(params)
+        param = np.array([p for ps in params for p in ps], int)
         # each slot's row of the factor twists (its placement's factor of that parameter)
-        rows = np.array([self._table.factor_row[(k, int(p))] for k, ps in zip(used, params) for p in ps], int)
-        return slot, rows, out_col[param], width, len(columns)
+        rows = np.array([row_of[(k, p)] for k, ps in zip(used, params) for p in ps], int)
+        return slot, rows, out_col[param], width, len(columns), turning
