@@ -393,11 +393,15 @@ class ChainKinematics:
         for k in range(self.n_joints):
             if k:
                 flat = Rt.reshape(3, 3 * N)
-                p = p + np.dot(trans[k], flat).reshape(3, N)
+                if frames is not None:      # (the sum made where the frame is kept)
+                    p = np.add(p, np.dot(trans[k], flat).reshape(3, N), out=frames[1][k])
+                else:
+                    p = p + np.dot(trans[k], flat).reshape(3, N)
                 Rt = np.dot(rot_T[k], flat).reshape(3, 3, N)
             if frames is not None:
                 frames[0][k] = Rt
-                frames[1][k] = p
+                if not k:
+                    frames[1][k] = p
             if self.prismatic[k]:
                 p = p + Qt[k] * Rt[2]
             else:
