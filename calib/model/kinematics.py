@@ -35,53 +35,16 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import pinocchio as pin
 
-from calib.model.chain import U_NAMES
 from calib.model.compliance import compliance_term
+from calib.model.factors import placement_factors
 from calib.model.periodic import periodic_term
 from calib.model.robot import RobotModel
 from calib.model.spatial import to_se3
-
-
-@dataclass(frozen=True)
-class _Factor:
-    kind: str                       # tx, ty, tz, rx, ry, rz, or "const"
-    param: int | None = None        # index into the parameter vector
-    const: np.ndarray | None = None  # 4x4 for "const"
-
-
-def _frame_factors(robot: RobotModel, names) -> list[_Factor]:
-    kinds = ("tx", "ty", "tz", "rz", "ry", "rx")     # x, y, z, alpha, beta, gamma
-    return [_Factor(k, robot.index(name)) for k, name in zip(kinds, names)]
-
-
-def _post_factors(robot: RobotModel, joint: int) -> list[_Factor]:
-    f = [_Factor("tx", robot.index(f"a{joint}")), _Factor("rx", robot.index(f"alpha{joint}"))]
-    if robot.has_beta(joint):
-        f.append(_Factor("ry", robot.index(f"beta{joint}")))
-    return f
-
-
-def _pre_factors(robot: RobotModel, joint: int) -> list[_Factor]:
-    return [_Factor("rz", robot.index(f"theta{joint}")), _Factor("tz", robot.index(f"d{joint}"))]
-
-
-def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
-    """Factors of the n joint placements, then the tool-frame placement of each target
-    (relative to joint n)."""
-    n = robot.n_joints
-    out = [[_Factor("const", const=robot.T_meas_base_ref),
-            *_frame_factors(robot, list(U_NAMES)),
-            *_pre_factors(robot, 1)]]
-    for i in range(2, n + 1):
-        out.append([*_post_factors(robot, i - 1), *_pre_factors(robot, i)])
-    for k in range(robot.n_targets):
-        out.append([*_post_factors(robot, n), *_frame_factors(robot, robot.v_names(k)),
-                    _Factor("const", const=robot.T_flange_tool_ref_of(k))])
-    return tuple(tuple(f) for f in out)
 
 
 _AXIS = {"x": 0, "y": 1, "z": 2}
@@ -286,24 +249,21 @@ class ChainKinematics:
         self._rot_T = np.ascontiguousarray(M[:, :3, :3].transpose(0, 2, 1))   # (for _walk)
         self._trans = np.ascontiguousarray(M[:, :3, 3])
         self._factors = E            # (the flange and base placements are made when asked)
-        self._flange_placement = self._base_placement = None
+        for name in ("flange_placement", "base_placement"):
+            self.__dict__.pop(name, None)
         self._factor_twists = ftw
         self._dense_twists = None
         self.values = values
 
-    @property
+    @cached_property
     def flange_placement(self) -> np.ndarray:
         """(4, 4) the flange frame relative to the last joint's frame at the current values."""
-        if self._flange_placement is None:
-            self._flange_placement = _chain(self._factors[self.n_joints, :self._flange_at])
-        return self._flange_placement
+        return _chain(self._factors[self.n_joints, :self._flange_at])
 
-    @property
+    @cached_property
     def base_placement(self) -> np.ndarray:
         """(4, 4) T_meas_base at the current values."""
-        if self._base_placement is None:
-            self._base_placement = _chain(self._factors[0, :self._base_at])
-        return self._base_placement
+        return _chain(self._factors[0, :self._base_at])
 
     @property
     def placement_twists(self) -> np.ndarray | None:
@@ -390,18 +350,15 @@ class ChainKinematics:
         Rt[:] = rot_T[0, :, :, None]
         p = np.empty((3, N))
         p[:] = trans[0, :, None]
+        if frames is not None:
+            frames[1][0] = p
         for k in range(self.n_joints):
-            if k:
+            if k:           # (with frames, each position summed where the frame is kept)
                 flat = Rt.reshape(3, 3 * N)
-                if frames is not None:      # (the sum made where the frame is kept)
-                    p = np.add(p, np.dot(trans[k], flat).reshape(3, N), out=frames[1][k])
-                else:
-                    p = p + np.dot(trans[k], flat).reshape(3, N)
+                p = np.add(p, np.dot(trans[k], flat).reshape(3, N), out=None if frames is None else frames[1][k])
                 Rt = np.dot(rot_T[k], flat).reshape(3, 3, N)
             if frames is not None:
                 frames[0][k] = Rt
-                if not k:
-                    frames[1][k] = p
             if self.prismatic[k]:
                 p = p + Qt[k] * Rt[2]
             else:
@@ -409,8 +366,8 @@ class ChainKinematics:
                 Rt[:2] *= c2[k]
                 Rt[:2] += mixed
         if frames is None:
-            Rt.setflags(write=False)
-            p.setflags(write=False)
+            for a in (Rt, p):
+                a.setflags(write=False)
             self._last_walk = (rot_T, terms, Rt, p)
         return Rt, p
 

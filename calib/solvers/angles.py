@@ -17,7 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
-from calib.model.kinematics import placement_factors
+from calib.model.factors import placement_factors
 from calib.model.robot import RobotModel
 
 _AXIS = {"x": 0, "y": 1, "z": 2}

@@ -156,10 +156,8 @@ class Problem:
     def derived(self, *, free=None, values=None, sigma_pos=None, sigma_rot=None, loss=None,
                 keep: np.ndarray | None = None) -> "Problem":
         """The same data with some settings changed (and ``keep``: a row mask)."""
-        if keep is not None:
-            k = np.asarray(keep)
-            if k.dtype == bool and k.shape == (self.n_poses,) and k.all():
-                keep = None     # (every row: the same rows, and the results computed on them)
+        if keep is not None and np.asarray(keep).dtype == bool and len(keep) == self.n_poses and np.all(keep):
+            keep = None     # (every row: the same rows, and the results computed on them)
         if (free is None and values is None and keep is None
                 and (sigma_pos is None or float(sigma_pos) == self.sigma_pos)
                 and (sigma_rot is None or float(sigma_rot) == self.sigma_rot)
@@ -319,8 +317,7 @@ class Problem:
         use_rot = self.has_orientation and parts != "position"
         A_pos, A_rot = np.zeros((m, m)), (np.zeros((m, m)) if use_rot else None)
         g_pos, g_rot = np.zeros(m), np.zeros(m)
-        rss = [0.0, 0.0]
-        residuals = None
+        rss, residuals = [0.0, 0.0], None
         for Jt, Jp, rp, Jr, rr in self._transposed_blocks(x, parts):
             if keep_blocks:
                 residuals = (rp, rr)
@@ -353,15 +350,12 @@ class Problem:
         return ne, blocks
 
     def _share_residuals(self, x: np.ndarray, rp: np.ndarray, rr: np.ndarray | None) -> None:
-        """Keep the unweighted residuals a normal equations' pass computed at x (rp (3, N), rr
-        (N, 3) or None) as :meth:`pose_residuals` would return them, for the problems of the same
-        rows (the outlier check and the noise levels ask at the fit's solution): the same values,
-        computed by the same kinematics, when the rows are one chunk of one target."""
+        """Keep the residuals a normal equations' pass made at x (rp (3, N), rr (N, 3) or None)
+        for :meth:`pose_residuals` of the same rows (the outlier check asks at the solution):
+        the same values by the same kinematics when the rows are one chunk of one target."""
         shared = self._shared_cache()
-        if shared is None or self.targets is not None or self.n_poses > JACOBIAN_CHUNK:
-            return
         key = ("residuals", self.full(x).tobytes(), getattr(self, "_rows_key", None))
-        if key in shared:
+        if shared is None or self.targets is not None or self.n_poses > JACOBIAN_CHUNK or key in shared:
             return
         dp = np.ascontiguousarray(rp.T)
         for a in (dp, rr):
