@@ -60,13 +60,14 @@ def _solve_translations(R_X, R_f, p_f, p_meas, rows, K):
         r = rows[a:a + CHUNK]
         g[:3] += b.sum(axis=0)
         for k in range(K):
-            on = r == k
-            S = M[on].sum(axis=0)
+            on = slice(None) if K == 1 else (r == k)    # (one target: every row, no copies)
+            Mk, bk = M[on], b[on]
+            S = Mk.sum(axis=0)
             blk = slice(3 + 3 * k, 6 + 3 * k)
             A[:3, blk] += S
             A[blk, :3] += S.T
-            A[blk, blk] += on.sum() * np.eye(3)
-            g[blk] += np.einsum("nji,nj->i", M[on], b[on])
+            A[blk, blk] += len(Mk) * np.eye(3)
+            g[blk] += Mk.reshape(-1, 3).T @ bk.reshape(-1)      # sum_n M_n^T b_n
     sol, *_ = np.linalg.lstsq(A, g, rcond=None)
     return sol[:3], sol[3:].reshape(K, 3)
 
@@ -127,18 +128,22 @@ def _rotations(R_f, R_meas, rows, K):
     S_f, S_fm, S_m = np.zeros((3, 3)), np.zeros((K, 3, 3, 3, 3)), np.zeros((K, 3, 3))
     for a in range(0, N, CHUNK):
         Rf, Rm, r = R_f[a:a + CHUNK], R_meas[a:a + CHUNK], rows[a:a + CHUNK]
-        S_f += np.einsum("nab,ncb->ac", Rf, Rf)
+        # (the sums over the poses as matrix products: sum_n R_n R_n^T, sum_n R_n[a, c] Rm_n[b, d],
+        # sum_n Rm_n^T Rm_n)
+        Rt = np.ascontiguousarray(Rf.transpose(0, 2, 1)).reshape(-1, 3)
+        S_f += Rt.T @ Rt
         for k in range(K):
-            on = r == k
-            S_fm[k] += np.einsum("nac,nbd->abcd", Rf[on], Rm[on])
-            S_m[k] += np.einsum("nab,nac->bc", Rm[on], Rm[on])
+            on = slice(None) if K == 1 else (r == k)    # (one target: every row, no copies)
+            F, G = Rf[on].reshape(-1, 9), Rm[on].reshape(-1, 9)
+            S_fm[k] += (F.T @ G).reshape(3, 3, 3, 3).transpose(0, 2, 1, 3)
+            S_m[k] += G.reshape(-1, 3).T @ G.reshape(-1, 3)
     normal = np.zeros((9 + 9 * K, 9 + 9 * K))
-    normal[:9, :9] = np.einsum("ac,bd->abcd", S_f, I3).reshape(9, 9)
+    normal[:9, :9] = (S_f[:, None, :, None] * I3[None, :, None, :]).reshape(9, 9)     # S_f kron I
     for k in range(K):
         blk = slice(9 + 9 * k, 18 + 9 * k)
         normal[:9, blk] = -S_fm[k].reshape(9, 9)
         normal[blk, :9] = -S_fm[k].reshape(9, 9).T
-        normal[blk, blk] = np.einsum("ac,bd->abcd", I3, S_m[k]).reshape(9, 9)
+        normal[blk, blk] = (I3[:, None, :, None] * S_m[k][None, :, None, :]).reshape(9, 9)   # I kron S_m
     w, V = np.linalg.eigh(normal)
     if w[1] < 1e-10 * w[-1]:
         raise DataError("the poses do not determine the measurement frame orientation "
@@ -311,8 +316,8 @@ def estimate_frames_robust(robot: RobotModel, Q: np.ndarray, p_meas: np.ndarray,
     for _ in range(TRIM_ROUNDS):
         X, Y = _estimate(robot, R_f[keep], p_f[keep], p_meas[keep],
                          None if R_meas is None else R_meas[keep], rows[keep])
-        Yr = Y[rows]
-        p_est = X[:3, 3] + (p_f + np.einsum("nij,nj->ni", R_f, Yr[:, :3, 3])) @ X[:3, :3].T
+        Yr = Y[0][None] if len(Y) == 1 else Y[rows]      # (one target: broadcast, no copies)
+        p_est = X[:3, 3] + (p_f + (R_f @ Yr[:, :3, 3, None])[..., 0]) @ X[:3, :3].T
         e_pos = np.linalg.norm(p_est - p_meas, axis=1)
         thr_p, thr_r, e_rot = _threshold(e_pos[keep], TRIM_FLOOR_M), None, None
         new = e_pos <= thr_p

@@ -493,7 +493,7 @@ def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> 
     the tool away from the flange: a marker measured by position only, held x and z, free beta
     and gamma, was shown as "fixed" in x and z; the measurement frame's angles mix when its
     reference is rotated)."""
-    std = dict(zip(free, np.sqrt(np.maximum(np.diag(cov), 0.0))))
+    std = dict(zip(free, np.sqrt(np.maximum(np.diag(cov), 0.0)).tolist()))
     fitted = set(free)
     frame_vals = {("u", None): (zyx_parameters(nominal.T_meas_base()), zyx_parameters(calibrated.T_meas_base()))}
     std.update(_frame_std(calibrated.T_meas_base_ref, calibrated.u(), np.eye(4), U_NAMES, free, cov))
@@ -501,16 +501,18 @@ def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> 
         frame_vals["v", t] = (zyx_parameters(nominal.T_flange_tool(t)), zyx_parameters(calibrated.T_flange_tool(t)))
         std.update(_frame_std(np.eye(4), calibrated.v(t), calibrated.T_flange_tool_ref_of(t), calibrated.v_names(t),
                               free, cov))
-    kinds = ("x", "y", "z", "alpha", "beta", "gamma")
+    kinds = {k: i for i, k in enumerate(("x", "y", "z", "alpha", "beta", "gamma"))}
+    # (Python floats once: indexing numpy arrays per parameter costs more than the table)
+    frame_vals = {key: (a.tolist(), b.tolist()) for key, (a, b) in frame_vals.items()}
+    nominal_values, calibrated_values = nominal.values.tolist(), calibrated.values.tolist()
     rows = []
     for k, p in enumerate(nominal.parameters):
         if p.group in ("u", "v"):
-            i = kinds.index(p.kind)
+            i = kinds[p.kind]
             nom, ide = frame_vals[p.group, p.target][0][i], frame_vals[p.group, p.target][1][i]
         else:
-            nom, ide = nominal.values[k], calibrated.values[k]
-        rows.append(ParameterEstimate(p.name, p.unit, float(nom), float(ide), p.name in fitted,
-                                      float(std.get(p.name, math.nan))))
+            nom, ide = nominal_values[k], calibrated_values[k]
+        rows.append(ParameterEstimate(p.name, p.unit, nom, ide, p.name in fitted, std.get(p.name, math.nan)))
     return tuple(rows)
 
 

@@ -35,52 +35,15 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import pinocchio as pin
 
-from calib.model.chain import U_NAMES
+from calib.model.factors import placement_factors
 from calib.model.periodic import periodic_term
 from calib.model.robot import RobotModel
 from calib.model.spatial import to_se3
-
-
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
-class _Factor:
-    kind: str                       # tx, ty, tz, rx, ry, rz, or "const"
-    param: int | None = None        # index into the parameter vector
-    const: np.ndarray | None = None  # 4x4 for "const"
-
-
-def _frame_factors(robot: RobotModel, names) -> list[_Factor]:
-    kinds = ("tx", "ty", "tz", "rz", "ry", "rx")     # x, y, z, alpha, beta, gamma
-    return [_Factor(k, robot.index(name)) for k, name in zip(kinds, names)]
-
-
-def _post_factors(robot: RobotModel, joint: int) -> list[_Factor]:
-    f = [_Factor("tx", robot.index(f"a{joint}")), _Factor("rx", robot.index(f"alpha{joint}"))]
-    if robot.has_beta(joint):
-        f.append(_Factor("ry", robot.index(f"beta{joint}")))
-    return f
-
-
-def _pre_factors(robot: RobotModel, joint: int) -> list[_Factor]:
-    return [_Factor("rz", robot.index(f"theta{joint}")), _Factor("tz", robot.index(f"d{joint}"))]
-
-
-def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
-    """Factors of the n joint placements, then the tool-frame placement of each target
-    (relative to joint n)."""
-    n = robot.n_joints
-    out = [[_Factor("const", const=robot.T_meas_base_ref),
-            *_frame_factors(robot, list(U_NAMES)),
-            *_pre_factors(robot, 1)]]
-    for i in range(2, n + 1):
-        out.append([*_post_factors(robot, i - 1), *_pre_factors(robot, i)])
-    for k in range(robot.n_targets):
-        out.append([*_post_factors(robot, n), *_frame_factors(robot, robot.v_names(k)),
-                    _Factor("const", const=robot.T_flange_tool_ref_of(k))])
-    return tuple(tuple(f) for f in out)
 
 
 _AXIS = {"x": 0, "y": 1, "z": 2}
@@ -266,6 +229,7 @@ class ChainKinematics:
         self._pin_values = None
         self._plans: dict = {}
         self._joint_term_memo: OrderedDict = OrderedDict()
+        self._last_walk = None
         self.compliance = None      # (calib.model.compliance loads for a model with compliance only)
         if robot.has_compliance:
             from calib.model.compliance import compliance_term
@@ -285,15 +249,25 @@ class ChainKinematics:
                 and np.array_equal(values, last)):
             return      # already there (an LM step's Jacobian after its trial residuals needs twists)
         M, E, ftw = self._table.factor_products(values, twists)
-        n = self.n_joints
         self.placements = M          # (n + K, 4, 4): joint placements, then each target's tool mount
         self._rot_T = np.ascontiguousarray(M[:, :3, :3].transpose(0, 2, 1))   # (for _walk)
         self._trans = np.ascontiguousarray(M[:, :3, 3])
-        self.flange_placement = _chain(E[n, :self._flange_at])   # relative to joint n
-        self.base_placement = _chain(E[0, :self._base_at])       # T_meas_base
+        self._factors = E            # (the flange and base placements are made when asked)
+        for name in ("flange_placement", "base_placement"):
+            self.__dict__.pop(name, None)
         self._factor_twists = ftw
         self._dense_twists = None
         self.values = values
+
+    @cached_property
+    def flange_placement(self) -> np.ndarray:
+        """(4, 4) the flange frame relative to the last joint's frame at the current values."""
+        return _chain(self._factors[self.n_joints, :self._flange_at])
+
+    @cached_property
+    def base_placement(self) -> np.ndarray:
+        """(4, 4) T_meas_base at the current values."""
+        return _chain(self._factors[0, :self._base_at])
 
     @property
     def placement_twists(self) -> np.ndarray | None:
@@ -369,27 +343,36 @@ class ChainKinematics:
         (Rt (3, 3, N), p (3, N)); with ``frames`` = (Rt_F (n + 1, 3, 3, N), p_F (n + 1, 3, N))
         also store the frame of each joint placement (before the joint's motion) in its first
         n entries."""
-        Qt, c2, s2 = self._joint_terms(Q)
-        N = Qt.shape[1]
+        terms = self._joint_terms(Q)
         rot_T, trans = self._rot_T, self._trans
+        last = self._last_walk
+        if frames is None and last is not None and last[0] is rot_T and last[1] is terms:
+            return last[2], last[3]     # (the same values and configurations as the last walk)
+        Qt, c2, s2 = terms
+        N = Qt.shape[1]
         Rt = np.empty((3, 3, N))
         Rt[:] = rot_T[0, :, :, None]
         p = np.empty((3, N))
         p[:] = trans[0, :, None]
+        if frames is not None:
+            frames[1][0] = p
         for k in range(self.n_joints):
-            if k:
+            if k:           # (with frames, each position summed where the frame is kept)
                 flat = Rt.reshape(3, 3 * N)
-                p = p + np.dot(trans[k], flat).reshape(3, N)
+                p = np.add(p, np.dot(trans[k], flat).reshape(3, N), out=None if frames is None else frames[1][k])
                 Rt = np.dot(rot_T[k], flat).reshape(3, 3, N)
             if frames is not None:
                 frames[0][k] = Rt
-                frames[1][k] = p
             if self.prismatic[k]:
                 p = p + Qt[k] * Rt[2]
             else:
                 mixed = Rt[1::-1] * s2[k]
                 Rt[:2] *= c2[k]
                 Rt[:2] += mixed
+        if frames is None:
+            for a in (Rt, p):
+                a.setflags(write=False)
+            self._last_walk = (rot_T, terms, Rt, p)
         return Rt, p
 
     def _joint_terms(self, Q: np.ndarray):
@@ -560,15 +543,18 @@ class ChainKinematics:
         Rt, p = self._attach(*self._walk(Q, (RtF, pF)), self.placements[self.n_joints + target])
         RtF[-1], pF[-1] = Rt, p
         D = (pF - p)[:, None]                                                # (P, 1, 3, N)
-        slot, rows, out_col, width, m = plan
+        slot, rows, out_col, width, m, turning = plan
         TW = np.zeros((P * width, 6))
         TW[slot] = self._factor_twists[rows]
         # (R v, R w) of every slot: (R x)[i] = sum_j x[j] Rt[j, i]
         X = np.matmul(TW.reshape(P, 2 * width, 3), RtF.reshape(P, 3, 3 * N)).reshape(P, width, 6, N)
-        Rw = X[:, :, 3:]
-        X[:, :, 0] += D[:, :, 1] * Rw[:, :, 2] - D[:, :, 2] * Rw[:, :, 1]
-        X[:, :, 1] += D[:, :, 2] * Rw[:, :, 0] - D[:, :, 0] * Rw[:, :, 2]
-        X[:, :, 2] += D[:, :, 0] * Rw[:, :, 1] - D[:, :, 1] * Rw[:, :, 0]
+        # the D x R w terms, for the slots that turn (each placement's first ``turning``: a
+        # translation's w is zero)
+        Xt = X[:, :turning]
+        Rw = Xt[:, :, 3:]
+        Xt[:, :, 0] += D[:, :, 1] * Rw[:, :, 2] - D[:, :, 2] * Rw[:, :, 1]
+        Xt[:, :, 1] += D[:, :, 2] * Rw[:, :, 0] - D[:, :, 0] * Rw[:, :, 2]
+        Xt[:, :, 2] += D[:, :, 0] * Rw[:, :, 1] - D[:, :, 1] * Rw[:, :, 0]
         Jt = np.empty((m, 6, N)) if len(slot) == m else np.zeros((m, 6, N))   # other targets: 0
         Jt[out_col] = X.reshape(P * width, 6, N)[slot]
         return Rt, p, Jt
@@ -576,7 +562,8 @@ class ChainKinematics:
     def _column_plan(self, columns, target: int = 0):
         """Where each wanted parameter sits: (slot = placement * width + place in it, its row of
         the factor twists, output column, width = most wanted parameters of one placement, number
-        of columns).
+        of columns, turning = most wanted rotation parameters of one placement: a placement's
+        come first).
         The plans of the last few column sets are kept (an LM run asks for the same ones)."""
         columns = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
         key = (columns.tobytes(), target)
@@ -591,10 +578,15 @@ class ChainKinematics:
         out_col = np.full(self.n_params, -1)
         out_col[columns] = np.arange(len(columns))
         used = list(range(self.n_joints)) + [self.n_joints + target]   # joints, this target's tool
-        params = [self._params_of[k][out_col[self._params_of[k]] >= 0] for k in used]
+        row_of = self._table.factor_row
+        n_trans = len(self._table.trans)        # (the factor rows of translations come first)
+        # each placement's wanted parameters, those of rotation factors first
+        params = [sorted(self._params_of[k][out_col[self._params_of[k]] >= 0].tolist(),
+                         key=lambda p, k=k: row_of[(k, p)] < n_trans) for k in used]
         width = max(1, max(len(ps) for ps in params))
+        turning = max(sum(row_of[(k, p)] >= n_trans for p in ps) for k, ps in zip(used, params))
         slot = np.concatenate([k * width + np.arange(len(ps)) for k, ps in enumerate(params)])
-        param = np.concatenate(params)
+        param = np.array([p for ps in params for p in ps], int)
         # each slot's row of the factor twists (its placement's factor of that parameter)
-        rows = np.array([self._table.factor_row[(k, int(p))] for k, ps in zip(used, params) for p in ps], int)
-        return slot, rows, out_col[param], width, len(columns)
+        rows = np.array([row_of[(k, p)] for k, ps in zip(used, params) for p in ps], int)
+        return slot, rows, out_col[param], width, len(columns), turning

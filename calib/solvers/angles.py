@@ -17,7 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
-from calib.model.kinematics import placement_factors
+from calib.model.factors import placement_factors
 from calib.model.robot import RobotModel
 
 _AXIS = {"x": 0, "y": 1, "z": 2}
@@ -82,22 +82,6 @@ def spread_subset(R: np.ndarray, size: int = SEARCH_POSES) -> np.ndarray:
     return np.sort(pool[chosen])
 
 
-def _right_rz(X: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """X Rz(q) for X (N, 3, 3), in place, with c, s (N, 1) the cosines and sines of q."""
-    x0 = X[:, :, 0].copy()
-    X[:, :, 0] = x0 * c + X[:, :, 1] * s
-    X[:, :, 1] = X[:, :, 1] * c - x0 * s
-    return X
-
-
-def _left_rz(X: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Rz(q) X for X (N, 3, 3), in place."""
-    x0 = X[:, 0].copy()
-    X[:, 0] = x0 * c - X[:, 1] * s
-    X[:, 1] = x0 * s + X[:, 1] * c
-    return X
-
-
 class RotationChain:
     """The tool orientation of a TM-MDH model as a product of elementary rotations.
 
@@ -152,35 +136,62 @@ class RotationChain:
         return prefix, suffix[::-1]
 
     # ------------------------------------------------------------------ per-pose parts
+    # The per-pose products of all segments live in two stacked arrays, so that the search's
+    # sums over the poses are two batched products per step, not two per segment:
+    # A (m + 1, N, 3, 3), A[i][n] = A_i(n) (A[0] the identity); Bt (m + 1, 3, N, 3),
+    # Bt[i][:, n] = B_i(n) (rows first: a joint's Rz mixes two contiguous blocks and a constant
+    # factor acts on all poses in one matrix product; B_m the identity).
     def _joint_trig(self, Q: np.ndarray):
+        """Per revolute joint (cos q (N, 1), sin q (N, 1), (-sin q, sin q) (2, N, 1)): what turns
+        a pose's first two columns, X Rz(q), and its first two rows, Rz(q) X."""
         Q = np.asarray(Q, float)
-        return [(np.cos(Q[:, j])[:, None], np.sin(Q[:, j])[:, None]) for j in self.joints]
+        c, s = np.cos(Q[:, self.joints].T)[:, :, None], np.sin(Q[:, self.joints].T)[:, :, None]
+        s2 = np.stack((-s, s), axis=1)
+        return [(c[k], s[k], s2[k]) for k in range(len(self.joints))]
+
+    def _stacks(self, N: int):
+        """(A, Bt) of N poses with A_0 and B_m set to the identity (see above)."""
+        m = len(self.joints)
+        A = np.empty((m + 1, N, 3, 3))
+        A[0] = _I3
+        Bt = np.empty((m + 1, 3, N, 3))
+        Bt[m] = _I3[:, None, :]
+        return A, Bt
 
     def _forward(self, C, trig, A, start: int) -> None:
-        """A_i for i > start from A_start (A_0 = None: the identity)."""
-        N = len(trig[0][0]) if trig else 0
+        """A_i for i > start from A_start (A_0 the identity)."""
         for i in range(start, len(self.joints)):
-            if A[i] is None:
-                X = np.broadcast_to(C[i], (N, 3, 3)).copy()
+            X = A[i + 1]
+            if i == 0:
+                X[:] = C[0]
             else:
-                X = (A[i].reshape(-1, 3) @ C[i]).reshape(N, 3, 3)
-            A[i + 1] = _right_rz(X, *trig[i])
+                np.dot(A[i].reshape(-1, 3), C[i], out=X.reshape(-1, 3))
+            c, s, _ = trig[i]           # X Rz(q): columns 0 and 1 mixed
+            x0 = X[:, :, 0].copy()
+            X[:, :, 0] = x0 * c + X[:, :, 1] * s
+            X[:, :, 1] = X[:, :, 1] * c - x0 * s
 
-    def _backward(self, C, trig, B, stop: int) -> None:
-        """B_i for i < stop from B_stop (B_m = None: the identity)."""
-        N = len(trig[0][0]) if trig else 0
+    def _backward(self, C, trig, Bt, stop: int) -> None:
+        """B_i for i < stop from B_stop (B_m the identity)."""
+        m = len(self.joints)
         for i in range(stop, 0, -1):
-            X = np.broadcast_to(C[i], (N, 3, 3)).copy() if B[i] is None else np.matmul(C[i], B[i])
-            B[i - 1] = _left_rz(X, *trig[i - 1])
+            X = Bt[i - 1]
+            if i == m:
+                X[:] = C[m][:, None, :]
+            else:
+                N = X.shape[1]
+                np.dot(C[i], Bt[i].reshape(3, 3 * N), out=X.reshape(3, 3 * N))
+            c, _, s = trig[i - 1]       # Rz(q) X: rows 0 and 1 mixed
+            mixed = X[1::-1] * s
+            X[:2] *= c
+            X[:2] += mixed
 
     @staticmethod
-    def _sum(B, R_meas_T, A) -> np.ndarray:
-        """W = sum_n B_n R_meas_n^T A_n (3x3); None stands for the identity."""
-        G = R_meas_T if A is None else np.matmul(R_meas_T, A)
-        if B is None:
-            return G.sum(axis=0)
-        N = len(G)
-        return B.transpose(1, 0, 2).reshape(3, 3 * N) @ G.reshape(3 * N, 3)
+    def _sums(Bt, R_meas_T, A) -> np.ndarray:
+        """W_i = sum_n B_i(n) R_meas_n^T A_i(n) of every segment, (m + 1, 3, 3)."""
+        M, _, N, _ = Bt.shape
+        G = np.matmul(R_meas_T, A)                                   # (m + 1, N, 3, 3)
+        return np.matmul(Bt.reshape(M, 3, 3 * N), G.reshape(M, 3 * N, 3))
 
     def search(self, values: np.ndarray, Q: np.ndarray, R_meas: np.ndarray, free: Sequence[int],
                sigma_rot: float, *, max_steps: int = 40, max_flips: int = 5,
@@ -212,42 +223,50 @@ class RotationChain:
         m = len(self.joints)
         segs = [self._segment(i, values) for i in range(m + 1)]
         C = [pre[-1] for pre, _ in segs]
-        A: list = [None] * (m + 1)
-        B: list = [None] * (m + 1)
+        A, Bt = self._stacks(N)
         self._forward(C, trig, A, 0)
-        self._backward(C, trig, B, m)
+        self._backward(C, trig, Bt, m)
         # the chordal cost of a small rotation error e is about 2 |e|^2
         floor = 2.0 * N * (5.0 * sigma_rot) ** 2
         flips = 0
         by_segment: dict[int, list[int]] = {}
         for idx in sorted(free_set):
             by_segment.setdefault(self.where[idx][0], []).append(idx)
+        # the free parameters in the order they are tried, and per parameter its segment, its
+        # factor's axis and the segment's products before (prefix) and after (suffix) the factor
+        order = [idx for params in by_segment.values() for idx in params]
+        seg_of = np.array([self.where[idx][0] for idx in order], int)
+        axis = np.array([self.where[idx][2] for idx in order], int)
+        a1, a2 = (axis + 1) % 3, (axis + 2) % 3
+        rows = np.arange(len(order))
+        pre, suf = np.empty((len(order), 3, 3)), np.empty((len(order), 3, 3))
+
+        def factors(segments) -> None:
+            for r, idx in enumerate(order):
+                i, j, _ = self.where[idx]
+                if i in segments:
+                    pre[r], suf[r] = segs[i][0][j], segs[i][1][j]
+
+        factors(set(seg_of.tolist()))
         for _ in range(max_steps):
-            W = [self._sum(B[i], R_meas_T, A[i]) for i in range(m + 1)]
+            W = self._sums(Bt, R_meas_T, A)
             cost = 6.0 * N - 2.0 * float(np.trace(C[0] @ W[0]))
             if cost <= floor or not free_set:
                 break
             # each coordinate's global minimum: tr(E(v) M) = c0 + a sin v + b cos v
-            best_gain, best = 0.0, None
-            for i, params in by_segment.items():
-                prefix, suffix = segs[i]
-                for idx in params:
-                    _, j, axis = self.where[idx]
-                    M = (suffix[j] @ W[i] @ prefix[j]).tolist()     # (Python floats: faster scalars)
-                    a = M[(axis + 1) % 3][(axis + 2) % 3] - M[(axis + 2) % 3][(axis + 1) % 3]
-                    b = (M[0][0] + M[1][1] + M[2][2]) - M[axis][axis]
-                    v = math.atan2(a, b)
-                    current = a * math.sin(values[idx]) + b * math.cos(values[idx])
-                    gain = 2.0 * (math.hypot(a, b) - current)
-                    if gain > best_gain:
-                        best_gain, best = gain, (idx, v)
-            if best is not None and best_gain > 1e-3 * cost:
-                values[best[0]] = best[1]
-                changed = [self.where[best[0]][0]]
+            M = suf @ W[seg_of] @ pre
+            a = M[rows, a1, a2] - M[rows, a2, a1]
+            b = np.trace(M, axis1=1, axis2=2) - M[rows, axis, axis]
+            v = values[order]
+            gain = 2.0 * (np.hypot(a, b) - (a * np.sin(v) + b * np.cos(v)))
+            k = int(np.argmax(gain))        # (the first of equal gains, as a scan keeping the best)
+            if gain[k] > 0.0 and gain[k] > 1e-3 * cost:
+                values[order[k]] = math.atan2(a[k], b[k])
+                changed = [int(seg_of[k])]
             else:
                 if flips >= max_flips:
                     break
-                pair = self._best_flip(values, segs, A, B, R_meas_T, sorted(free_set), cost)
+                pair = self._best_flip(values, segs, A, Bt, R_meas_T, sorted(free_set), cost)
                 if pair is None:
                     break
                 values[pair[0]] += math.pi
@@ -257,18 +276,20 @@ class RotationChain:
             for i in changed:
                 segs[i] = self._segment(i, values)
                 C[i] = segs[i][0][-1]
+            factors(set(changed))
             self._forward(C, trig, A, changed[0])
-            self._backward(C, trig, B, changed[-1])
-        W0 = self._sum(B[0], R_meas_T, A[0])
+            self._backward(C, trig, Bt, changed[-1])
+        W0 = self._sums(Bt[:1], R_meas_T, A[:1])[0]
         return values, 6.0 * N - 2.0 * float(np.trace(C[0] @ W0))
 
-    def _best_flip(self, values, segs, A, B, R_meas_T, keys, cost):
+    def _best_flip(self, values, segs, A, Bt, R_meas_T, keys, cost):
         """The pair of free parameters whose turning by pi lowers the cost most, or None.
 
         With P the per-pose product up to and including a factor and S the product after it,
         turning factors s1 < s2 by pi (D = diag of +-1) gives  P1 D1 P1^T P2 D2 S2.
         """
         N = len(R_meas_T)
+        m = len(self.joints)
         keys = sorted(keys, key=self._position)
         parts = {}
         for k in keys:
@@ -276,8 +297,9 @@ class RotationChain:
             prefix, suffix = segs[i]
             E = _rotations(axis, values[k])
             L = prefix[j] @ E
-            P = np.broadcast_to(L, (N, 3, 3)) if A[i] is None else np.matmul(A[i], L)
-            S = np.broadcast_to(suffix[j], (N, 3, 3)) if B[i] is None else np.matmul(suffix[j], B[i])
+            P = np.broadcast_to(L, (N, 3, 3)) if i == 0 else np.matmul(A[i], L)
+            S = (np.broadcast_to(suffix[j], (N, 3, 3)) if i == m
+                 else np.matmul(suffix[j], Bt[i].transpose(1, 0, 2)))
             parts[k] = (axis, P, S)
         turned = {k: P @ _FLIP[axis] @ np.transpose(P, (0, 2, 1)) for k, (axis, P, S) in parts.items()}
         # tr(T1 P2 D2 S2 Rm^T) = sum_ij T1_ij Z2_ji with Z2 = P2 D2 S2 Rm^T
@@ -299,7 +321,7 @@ class RotationChain:
         values = np.asarray(values, float)
         m = len(self.joints)
         C = [self._segment(i, values)[0][-1] for i in range(m + 1)]
-        A: list = [None] * (m + 1)
+        A, _ = self._stacks(len(Q))
         self._forward(C, self._joint_trig(Q), A, 0)
         R_meas_T = np.transpose(R_meas, (0, 2, 1))
-        return 6.0 * len(Q) - 2.0 * float(np.trace(C[m] @ self._sum(None, R_meas_T, A[m])))
+        return 6.0 * len(Q) - 2.0 * float(np.trace(C[m] @ np.matmul(R_meas_T, A[m]).sum(axis=0)))

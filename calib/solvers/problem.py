@@ -41,7 +41,7 @@ import numpy as np
 from calib.choices import LOSSES
 
 from calib.model.jacobian import NO_EFFECT_RTOL, pose_jacobian
-from calib.model.kinematics import ChainKinematics
+from calib.model.kinematics import JACOBIAN_CHUNK, ChainKinematics
 from calib.model.spatial import left_jacobian_inverse_batch, log3_batch
 from calib.solvers.losses import robust_rho, robust_scaling
 
@@ -156,6 +156,8 @@ class Problem:
     def derived(self, *, free=None, values=None, sigma_pos=None, sigma_rot=None, loss=None,
                 keep: np.ndarray | None = None) -> "Problem":
         """The same data with some settings changed (and ``keep``: a row mask)."""
+        if keep is not None and np.asarray(keep).dtype == bool and len(keep) == self.n_poses and np.all(keep):
+            keep = None     # (every row: the same rows, and the results computed on them)
         if (free is None and values is None and keep is None
                 and (sigma_pos is None or float(sigma_pos) == self.sigma_pos)
                 and (sigma_rot is None or float(sigma_rot) == self.sigma_rot)
@@ -315,8 +317,10 @@ class Problem:
         use_rot = self.has_orientation and parts != "position"
         A_pos, A_rot = np.zeros((m, m)), (np.zeros((m, m)) if use_rot else None)
         g_pos, g_rot = np.zeros(m), np.zeros(m)
-        rss = [0.0, 0.0]
+        rss, residuals = [0.0, 0.0], None
         for Jt, Jp, rp, Jr, rr in self._transposed_blocks(x, parts):
+            if keep_blocks:
+                residuals = (rp, rr)
             if use_pos:
                 rp = rp.reshape(-1)
                 A_pos += Jp @ Jp.T
@@ -341,7 +345,23 @@ class Problem:
         N = self.n_poses
         ne = NormalEquations(A, g, A_pos if use_pos else None, A_rot, rss[0], rss[1],
                              3 * N if use_pos else 0, 3 * N if use_rot else 0, g_pos if use_pos else None)
+        if residuals is not None and use_pos and use_rot == self.has_orientation:
+            self._share_residuals(x, *residuals)
         return ne, blocks
+
+    def _share_residuals(self, x: np.ndarray, rp: np.ndarray, rr: np.ndarray | None) -> None:
+        """Keep the residuals a normal equations' pass made at x (rp (3, N), rr (N, 3) or None)
+        for :meth:`pose_residuals` of the same rows (the outlier check asks at the solution):
+        the same values by the same kinematics when the rows are one chunk of one target."""
+        shared = self._shared_cache()
+        key = ("residuals", self.full(x).tobytes(), getattr(self, "_rows_key", None))
+        if shared is None or self.targets is not None or self.n_poses > JACOBIAN_CHUNK or key in shared:
+            return
+        dp = np.ascontiguousarray(rp.T)
+        for a in (dp, rr):
+            if a is not None:
+                a.setflags(write=False)
+        _remember(shared, key, (dp, rr))
 
     def _compute_robust_normal_equations(self, x: np.ndarray, parts: str) -> NormalEquations:
         """:meth:`_compute_normal_equations` of a robust loss: with z_i the whitened squared

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from calib import identification_jacobian, load_robot
-from calib.model.kinematics import _Factor, _FactorTable
+from calib.model.factors import _Factor
+from calib.model.kinematics import _FactorTable
 
 
 def _product_and_twists(factors, values, n_params):
