@@ -2,11 +2,8 @@
 (issue 14), on the bundled robot with a fixed-seed simulation, are reproduced to 1e-9 relative.
 
 The reference values in tests/data/speed_baseline.json were written by ``compute_baseline`` with
-the code of commit d51ca26 and re-recorded once, for one deliberate change of results: LM's
-default ftol 1e-12 -> 1e-10 (issue 27), which moved the search-lm and c-lm estimates by at most
-3.1e-8 standard deviations (1.6e-8 relative; lm and position-only within 3e-11 std) and saved one
-LM iteration of search-lm and two of c-lm. ``python tests/scenarios/test_estimates_baseline.py
---record`` rewrites them; do that only for a deliberate change of results, and say so here.
+the code of commit d51ca26 (``python tests/test_speed_baseline.py --record`` rewrites them; do
+that only for a deliberate change of results).
 """
 from __future__ import annotations
 
