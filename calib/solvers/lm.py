@@ -27,10 +27,7 @@ class LMOptions:
     max_iterations: int = 100
     mu0: float = 1e-3
     lam: float = 10.0
-    #: stop when the cost drops (or is predicted to) by less than ftol * cost: 1e-10, the rounding
-    #: of a cost (COST_RTOL's comment); the last step is still taken, so the estimate is within about
-    #: 1e-7 standard deviations of the minimum's (1e-12 cost one Jacobian pass more per fit)
-    ftol: float = 1e-10
+    ftol: float = 1e-12            # stop when the cost drops (or is predicted to) by less than ftol * cost
     xtol: float = 1e-12            # ... or the scaled step is below xtol
     gtol: float = 1e-14            # ... or the scaled gradient is below gtol
     max_mu: float = 1e16

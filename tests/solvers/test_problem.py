@@ -152,22 +152,6 @@ def test_robust_lm_evaluates_its_last_step_by_the_residuals_alone(monkeypatch):
     np.testing.assert_array_equal(unfused.x, sol.x)
 
 
-
-def test_default_ftol_ends_within_a_tiny_fraction_of_a_standard_deviation():
-    """The default ftol (1e-10 of the cost, the cost's own rounding) stops where the estimate is
-    within 1e-5 standard deviations of LM run to 1e-14, in fewer or as many iterations."""
-    robot, meas, _ = _data("compliance", False)
-    free = robot.indices(calib.analyze_identifiability(robot.geometry(), meas.q).identifiable)
-    x0 = robot.values[free] + np.random.default_rng(1).normal(size=len(free)) * 1e-4
-    prob = Problem(ChainKinematics(robot), meas.q, meas.position, meas.rotation, robot.values, free, 2e-5, 2e-3)
-    loose = levenberg_marquardt(prob, x0, "pose", LMOptions())
-    tight = levenberg_marquardt(prob, x0, "pose", LMOptions(ftol=1e-14))
-    A = prob.normal_equations(tight.x).A
-    std = np.sqrt(np.diag(np.linalg.inv(A)))
-    assert loose.status == tight.status == "converged" and loose.iterations <= tight.iterations
-    assert np.max(np.abs(loose.x - tight.x) / std) < 1e-5
-
-
 class _Curved:
     """A one-parameter least-squares problem, r(x) = (x, 1 + k x^2), duck-typed as a Problem:
     near x = 0 the Gauss-Newton model predicts almost no decrease while a step raises the
