@@ -161,34 +161,50 @@ def _write_temporaries(items: list[tuple[Path, bytes | list[bytes]]]) -> list[tu
     if len(items) < 2:
         return [(_write_temporary(path, data), path) for path, data in items]
     done: list[tuple[str | None, BaseException | None]] = [(None, None)] * len(items)
+    mode = 0o666 & ~_umask()            # (read once, here: os.umask is process-wide, not per thread)
 
     def write(k: int, path: Path, data) -> None:
         try:
-            done[k] = (_write_temporary(path, data), None)
+            done[k] = (_write_temporary(path, data, mode), None)
         except BaseException as exc:  # noqa: BLE001 - raised again in the calling thread
             done[k] = (None, exc)
     threads = [threading.Thread(target=write, args=(k, path, data), name="calib-write", daemon=True)
                for k, (path, data) in enumerate(items)]
     try:
-        for t in threads:
-            t.start()
+        with _signals_held():           # (every thread started, or none: no writer left unjoined)
+            for t in threads:
+                t.start()
         for t in threads:
             t.join()
         failed = next((exc for _, exc in done if exc is not None), None)
         if failed is not None:
             raise failed
     except BaseException:
-        for t in threads:               # (after an interruption: the files still being written too)
-            if t.ident is not None:
-                t.join()
-        for tmp, _ in done:
-            if tmp is not None:
-                _unlink(tmp)
+        with _signals_held():           # (a second Ctrl-C does not cut the clean-up short)
+            for t in threads:           # (after an interruption: the files still being written too)
+                if t.ident is not None:
+                    t.join()
+            for tmp, _ in done:
+                if tmp is not None:
+                    _unlink(tmp)
         raise
     return [(tmp, path) for (tmp, _), (path, _) in zip(done, items)]
 
 
-def _write_temporary(path: Path, data: bytes | list[bytes]) -> str:
+@contextlib.contextmanager
+def _signals_held():
+    """SIGINT and SIGTERM held back (in the main thread) for the block, delivered after it."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    blocked = threading.current_thread() is threading.main_thread() and hasattr(signal, "pthread_sigmask")
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held) if blocked else None
+    try:
+        yield
+    finally:
+        if blocked:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def _write_temporary(path: Path, data: bytes | list[bytes], mode: int | None = None) -> str:
     """``data`` (bytes, or chunks of bytes written in order) in a new temporary file beside
     ``path`` (flushed to disk); its name."""
     folder = path.parent if str(path.parent) else Path(".")
@@ -204,7 +220,7 @@ def _write_temporary(path: Path, data: bytes | list[bytes]) -> str:
                 fh.write(chunk)
             fh.flush()
             os.fsync(fh.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual permissions
+        os.chmod(tmp, 0o666 & ~_umask() if mode is None else mode)  # mkstemp: 0600; the usual permissions
     except OSError as exc:
         _unlink(tmp)
         raise OutputError(path, f"cannot be written: {_reason(exc)}") from None
@@ -230,46 +246,41 @@ def _rename_all(temps: list[tuple[str, Path]], on_renamed=None, removals=()) -> 
     aside, signals held back; on a failure put back the targets already replaced or moved (from
     hard-linked copies) and raise OutputError. ``on_renamed`` (paths) is called after the last
     rename, before the signals are released; the files moved aside are deleted at the end."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    blocked = threading.current_thread() is threading.main_thread() and hasattr(signal, "pthread_sigmask")
-    if blocked:
-        old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, held)
     backups: list[tuple[Path, str | None]] = []
-    try:
-        for tmp, path in temps:
-            backup = None
-            if path.exists():
-                backup = f"{tmp}.old"
+    with _signals_held():
+        try:
+            for tmp, path in temps:
+                backup = None
+                if path.exists():
+                    backup = f"{tmp}.old"
+                    try:
+                        os.link(path, backup)
+                    except OSError:
+                        backup = None
                 try:
-                    os.link(path, backup)
-                except OSError:
-                    backup = None
-            try:
-                os.replace(tmp, path)
-            except OSError as exc:
-                if backup:
-                    _unlink(backup)
-                _put_back(backups)
-                raise OutputError(path, f"cannot be replaced: {_reason(exc)}") from None
-            backups.append((path, backup))
-        for path in removals:
-            if not os.path.lexists(path):
-                continue
-            aside = str(path.parent / f".{path.name}.removed.tmp")
-            try:
-                os.replace(path, aside)
-            except OSError as exc:
-                _put_back(backups)
-                raise OutputError(path, f"cannot be removed: {_reason(exc)}") from None
-            backups.append((path, aside))
-        if on_renamed is not None:
-            on_renamed([path for _, path in temps])
-    finally:
-        for _, saved in backups:
-            if saved is not None:
-                _unlink(saved)
-        if blocked:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
+                    os.replace(tmp, path)
+                except OSError as exc:
+                    if backup:
+                        _unlink(backup)
+                    _put_back(backups)
+                    raise OutputError(path, f"cannot be replaced: {_reason(exc)}") from None
+                backups.append((path, backup))
+            for path in removals:
+                if not os.path.lexists(path):
+                    continue
+                aside = str(path.parent / f".{path.name}.removed.tmp")
+                try:
+                    os.replace(path, aside)
+                except OSError as exc:
+                    _put_back(backups)
+                    raise OutputError(path, f"cannot be removed: {_reason(exc)}") from None
+                backups.append((path, aside))
+            if on_renamed is not None:
+                on_renamed([path for _, path in temps])
+        finally:
+            for _, saved in backups:
+                if saved is not None:
+                    _unlink(saved)
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
