@@ -10,11 +10,6 @@ from typing import Sequence
 
 import numpy as np
 
-try:        # hashlib's own blake2b, without hashlib loading OpenSSL's libcrypto (11M instructions)
-    from _blake2 import blake2b
-except ImportError:                                                 # pragma: no cover
-    from hashlib import blake2b
-
 from calib.calibration.accuracy import target_rows, with_measured_targets
 from calib.calibration.frames import estimate_frames_robust
 from calib.calibration.options import (
@@ -25,7 +20,8 @@ from calib.calibration.options import (
     _check_compatible,
 )
 from calib.errors import DataError, ParameterError
-from calib.model.identifiability import (
+from calib.model.identifiability import (  # (blake2b: the content digests' one import)
+    blake2b,
     SIGMA_POS_M,
     SIGMA_ROT_RAD,
     select_identifiable,
@@ -413,7 +409,8 @@ def _frame_estimate(robot: RobotModel, m: Measurements, kin: ChainKinematics | N
         geo = robot
     h = blake2b(digest_size=20)
     for a in (m.q, m.position, m.rotation, rows):
-        h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
+        a = None if a is None else np.ascontiguousarray(a)
+        h.update(b"-" if a is None else f"{a.shape}{a.dtype.str}".encode() + a.tobytes())
     return _robot_memo("frames", geo, (h.hexdigest(),),
                        lambda: estimate_frames_robust(robot, m.q, m.position, m.rotation, rows, kin=kin))
 

@@ -117,15 +117,16 @@ def cross_validate(setup: Setup, fit: Fit, problem: Problem, folds: int = CV_FOL
 def fold_labels(n: int, folds: int, seed: int = 0) -> np.ndarray:
     """(n,) the fold of each of n rows: a random permutation (``seed``) dealt into ``folds``
     (the labels of the last few (n, folds, seed) kept: a generator costs more than the deal)."""
-    key = (int(n), int(folds), int(seed))
+    key = (int(n), int(folds), seed) if type(seed) is int else None     # (a Generator, None: drawn)
     fold_of = _FOLD_LABELS.get(key)
     if fold_of is None:
         fold_of = np.empty(n, int)
         fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
         fold_of.setflags(write=False)
-        _FOLD_LABELS[key] = fold_of
-        while len(_FOLD_LABELS) > 8:
-            _FOLD_LABELS.pop(next(iter(_FOLD_LABELS)))
+        if key is not None:
+            _FOLD_LABELS[key] = fold_of
+            while len(_FOLD_LABELS) > 8:
+                _FOLD_LABELS.pop(next(iter(_FOLD_LABELS)))
     return fold_of.copy()
 
 

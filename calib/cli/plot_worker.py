@@ -139,11 +139,15 @@ class _Forked:
         self.returncode = None
         # the command's objects set apart from the worker's garbage collections, which would
         # otherwise write into (and so copy) every page holding them (Python's gc.freeze advice)
-        gc.freeze()
+        # (only when nothing is frozen yet: unfreezing would also release what a program that
+        # runs the command in its own process had frozen for itself)
+        ours = gc.get_freeze_count() == 0
+        if ours:
+            gc.freeze()
         try:
             self.pid = os.fork()
         finally:
-            if getattr(self, "pid", None) != 0:       # (this process, also when fork() failed)
+            if ours and getattr(self, "pid", None) != 0:       # (this process, also when fork() failed)
                 gc.unfreeze()
         if self.pid == 0:                 # the worker: never returns into the command's code
             code = 1

@@ -288,3 +288,17 @@ def test_frame_estimate_kept_for_the_same_rows_and_kinematics(bundled_robot, mon
     monkeypatch.setattr(prep, "FRAME_MEMO_MAX_ROWS", 29)
     prepare(bundled_robot, meas, None, True)
     assert len(calls) == 4
+
+
+def test_fold_labels_take_a_seed_or_a_generator():
+    """fold_labels keeps the labels of integer seeds (the same labels again, a copy each time) and
+    draws them from a Generator or None as numpy does, not refusing them."""
+    import numpy as np
+
+    from calib.calibration.validation import fold_labels
+
+    a, b = fold_labels(23, 5, 3), fold_labels(23, 5, 3)
+    assert a is not b and np.array_equal(a, b) and np.bincount(a).tolist() == [5, 5, 5, 4, 4]
+    g = fold_labels(23, 5, np.random.default_rng(3))
+    assert np.array_equal(g, a)          # (the generator of seed 3: the same permutation)
+    assert sorted(np.bincount(fold_labels(23, 5, None)).tolist()) == [4, 4, 5, 5, 5]

@@ -96,6 +96,17 @@ def test_the_command_collects_its_garbage_again_after_forking_the_worker(monkeyp
     with pytest.raises(BlockingIOError):
         calib.cli.plot_worker._Forked()
     assert gc.get_freeze_count() == 0
+    monkeypatch.undo()
+    # a program that runs the command in its own process and froze objects itself keeps them frozen
+    keep = [object() for _ in range(100)]
+    gc.freeze()
+    try:
+        frozen = gc.get_freeze_count()
+        with PlotWorker():
+            assert gc.get_freeze_count() == frozen > 100
+    finally:
+        gc.unfreeze()
+    del keep
 
 
 def test_worker_failure_is_raised_and_closing_stops_it():
