@@ -3,6 +3,7 @@ uniform draws bit for bit (the default calibration's random configurations uncha
 from __future__ import annotations
 
 import math
+import platform
 
 import numpy as np
 import pytest
@@ -26,7 +27,10 @@ def test_uniform_equals_numpy_bit_for_bit(n, k):
     got = draws.uniform(0, lo, hi, n)
     want = np.random.default_rng(0).uniform(lo, hi, size=(n, k))
     assert got.shape == (n, k)
-    assert np.array_equal(got.view(np.int64), want.view(np.int64))
+    if platform.machine() in ("x86_64", "AMD64"):
+        assert np.array_equal(got.view(np.int64), want.view(np.int64))
+    else:       # (numpy's lo + range * u may be one fused multiply-add there: 1 ulp apart)
+        np.testing.assert_array_max_ulp(got, want, maxulp=1)
 
 
 @pytest.mark.filterwarnings("ignore:overflow encountered in subtract")

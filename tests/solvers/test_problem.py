@@ -125,7 +125,6 @@ def test_lm_stop_on_the_predicted_decrease():
         assert np.max(np.abs(taken.x - stopped.x)) > 0.0
 
 
-
 def test_robust_lm_evaluates_its_last_step_by_the_residuals_alone(monkeypatch):
     """A robust fit's normal equations at its end are not asked for again (the stages judge its
     rows by their residuals, or refit by least squares): the last step is evaluated by the
