@@ -34,7 +34,8 @@ from calib.model.robot import RobotModel
 from calib.solvers import dispatch
 from calib.solvers.angles import RotationChain
 from calib.solvers.lm import LMOptions, LMTrace, SolverResult, options_with
-from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem, normal_inverse
+from calib.solvers.inverse import normal_inverse
+from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem
 
 log = logging.getLogger(__name__)
 

@@ -33,7 +33,8 @@ from calib.calibration.options import (
     TRIMMED_MAX_OUTLIER_SHARE,
 )
 from calib.solvers.lm import LMOptions, LMTrace, levenberg_marquardt, options_with
-from calib.solvers.problem import Problem, normal_inverse
+from calib.solvers.inverse import normal_inverse
+from calib.solvers.problem import Problem
 
 
 @dataclass(frozen=True)

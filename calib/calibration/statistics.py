@@ -14,7 +14,8 @@ from calib.calibration.fit import Fit
 from calib.calibration.prepare import Setup
 from calib.calibration.validation import _held_out_traces
 from calib.calibration.workspace import predict_workspace, propagate_covariance, propagated, workspace_notes
-from calib.solvers.problem import Problem, normal_inverse
+from calib.solvers.inverse import normal_inverse
+from calib.solvers.problem import Problem
 
 
 @dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)

@@ -30,7 +30,8 @@ from calib.errors import DataError, ParameterError
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
-from calib.solvers.problem import Problem, normal_inverse
+from calib.solvers.inverse import normal_inverse
+from calib.solvers.problem import Problem
 
 #: Calibration rows the choice of the joint terms is judged on at most: above, an evenly spaced
 #: subset of this many (10,000 full-pose rows hold 60,000 residual components for at most a few

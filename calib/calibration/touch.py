@@ -40,7 +40,8 @@ from calib.model.robot import RobotModel, check_robot
 from calib.model.spatial import best_fit_motion
 from calib.model.touch import FeatureStart, TouchData, initial_features, plane_normals
 from calib.solvers.lm import LMOptions, SolverResult, levenberg_marquardt
-from calib.solvers.problem import CHI2_ESCAPE, normal_inverse
+from calib.solvers.inverse import normal_inverse
+from calib.solvers.problem import CHI2_ESCAPE
 from calib.solvers.touch_problem import TouchProblem
 
 #: Rows whose residual exceeds this many robust standard deviations are dropped (as calibrate's

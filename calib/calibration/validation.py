@@ -15,7 +15,8 @@ from calib.calibration.options import CV_FOLDS
 from calib.calibration.prepare import Setup
 from calib.errors import DataError, ParameterError
 from calib.solvers.lm import LMOptions, levenberg_marquardt
-from calib.solvers.problem import Problem, normal_inverse
+from calib.solvers.inverse import normal_inverse
+from calib.solvers.problem import Problem
 
 if TYPE_CHECKING:
     from calib.calibration.selection import ModelSelection

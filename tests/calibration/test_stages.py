@@ -18,7 +18,7 @@ from calib.calibration.statistics import statistics_stage
 from calib.calibration.selection import one_standard_error, select_and_fit
 from calib.calibration.validation import _held_out_traces, cross_validate
 from calib.model.kinematics import ChainKinematics
-from calib.solvers.problem import normal_inverse
+from calib.solvers.inverse import normal_inverse
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
 
 
