@@ -87,7 +87,7 @@ class NoiseEstimate:
                     "reduced_chi2_position": self.chi2_pos, "reduced_chi2_rotation": self.chi2_rot}}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class Fit:
     """The fit stage: the identified model and how it was reached.
 
@@ -131,7 +131,7 @@ class Fit:
 
 
 # ---------------------------------------------------------------- fit
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class _Linearised:
     """The least-squares normal equations ``ne`` of a problem's rows at a solution, their
     (pseudo-)inverse ``inverse`` (the covariance of the free parameters, SI units; ``full_rank``
@@ -210,7 +210,7 @@ def _chi2_p_value(chi2: float, dof: float) -> float:
     return float(min(1.0, 2.0 * min(gammaincc(k, chi2 / 2.0), gammainc(k, chi2 / 2.0))))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class Solver:
     """How the fit stage solves: method, options, and the search-lm ingredients."""
 

@@ -456,7 +456,7 @@ def _mdh_poses(robot: RobotModel) -> dict:
             "base": kin.data.oMf[kin.base_frame_id].homogeneous}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; a dict field: nothing compares or prints it)
 class _Plan:
     """What to change in the document: new joint origins (joint name -> 4x4 ``T_parent_child``
     at q = 0), the tool link to add (with its fixed joint), and the frames to record."""

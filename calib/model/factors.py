@@ -12,7 +12,7 @@ from calib.model.chain import U_NAMES
 from calib.model.robot import RobotModel
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class _Factor:
     kind: str                       # tx, ty, tz, rx, ry, rz, or "const"
     param: int | None = None        # index into the parameter vector
