@@ -168,7 +168,7 @@ def register_measurement_frame(robot: RobotModel, measurements: Measurements) ->
     return replace(robot, T_meas_base_ref=T @ robot.T_meas_base_ref)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (AccuracyStats fields, themselves compared by identity; nothing compares them)
 class TargetAccuracy:
     """Accuracy on the rows of one target of a multi-target calibration (see
     :class:`AccuracyStats`): before / after on the calibration rows, and on the validation rows

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from calib.calibration.selection import ModelSelection
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (an array field: compared by identity; nothing compares them)
 class CrossValidation:
     """K-fold cross-validated held-out error of a fit: each fold's rows predicted by the model
     fitted on the other folds. position_rms (m) and rotation_rms (rad, None position only) pooled

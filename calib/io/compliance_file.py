@@ -76,7 +76,7 @@ def write_sidecar(path: str | Path, record: dict) -> None:
     atomic_write_text(path, json.dumps(record, indent=2, allow_nan=False) + "\n")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class ComplianceRecord:
     """Joint terms read from a sidecar or a JSON report: compliance ``values`` (n,) SI, in joint
     order (None when the record has none), the joint names, the payload and gravity of the
