@@ -285,8 +285,9 @@ def _prepare(robot: RobotModel, nominal: RobotModel | None):
         nominal = robot_from_chain(chain, robot.parallel_threshold).for_target(0)
     _check_compatible(robot, nominal)
     doc = _UrdfDocument(chain.document.path, chain.document.tree)
-    _check_nominal_matches_urdf(nominal, chain)
-    return doc, _plan_edits(robot, nominal, chain, doc)
+    nom = _mdh_poses(nominal)       # (one Pinocchio model of the nominal for the check and the plan)
+    _check_nominal_matches_urdf(nominal, chain, nom)
+    return doc, _plan_edits(robot, nominal, chain, doc, nom)
 
 
 # ====================================================================== checks
@@ -309,13 +310,12 @@ def _check_compatible(robot: RobotModel, nominal: RobotModel) -> None:
                              f"model's {b!r}")
 
 
-def _check_nominal_matches_urdf(nominal: RobotModel, chain) -> None:
-    """The nominal MDH z axes must be the URDF joint axes, and the tool frames equal, at q = 0."""
+def _check_nominal_matches_urdf(nominal: RobotModel, chain, nom: dict) -> None:
+    """The nominal MDH z axes (``nom``: its _mdh_poses) must be the URDF joint axes, the tool frames equal, at q = 0."""
     pts, dirs, T_meas_tool = chain_axes(chain)
-    X = _mdh_poses(nominal)["X"]
     worst = 0.0
     for i, joint in enumerate(nominal.joints):
-        z, o = X[i][:3, 2], X[i][:3, 3]
+        z, o = nom["X"][i][:3, 2], nom["X"][i][:3, 3]
         err = float(np.linalg.norm(z - dirs[i]))
         if not joint.is_prismatic:
             w = o - pts[i]
@@ -488,7 +488,7 @@ class _Plan:
         return " ".join(parts)
 
 
-def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocument) -> _Plan:
+def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocument, nom: dict) -> _Plan:
     """The new origins, from the nominal URDF poses and the two models' MDH frames at q = 0."""
     model = chain.model
     data = model.createData()
@@ -500,7 +500,7 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
         """Nominal pose of a URDF link in the meas (base) frame at q = 0."""
         return oMb.actInv(data.oMf[body[link]]).homogeneous
 
-    nom, cal = _mdh_poses(nominal), _mdh_poses(robot)
+    cal = nom if robot is nominal else _mdh_poses(robot)    # (check_writable: the nominal itself)
     base_link = doc.link_of(robot.base_frame)
     tool_link = doc.link_of(robot.tool_frame)
     chain_joints = [doc.joints[j.name] for j in robot.joints]
