@@ -47,7 +47,7 @@ _NEAR_MISS_CUTOFF = 0.75
 _OTHER_UNITS = {"cm", "dm", "um", "km", "in", "ft", "mrad", "urad", "grad", "gon", "rev", "turn"}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (the header parser's records, kept by quantity: nothing compares them)
 class Column:
     index: int
     name: str             # as written (after a rename)
