@@ -163,7 +163,7 @@ class ReadOptions:
             check_join_options(self)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (the file kinds' constants: nothing compares them)
 class Spec:
     """The columns of one file kind.
 
