@@ -49,6 +49,8 @@ _OTHER_UNITS = {"cm", "dm", "um", "km", "in", "ft", "mrad", "urad", "grad", "gon
 
 @dataclass(frozen=True, eq=False)     # (the header parser's records, kept by quantity: nothing compares them)
 class Column:
+    """One column of a CSV header: its index (from 0), name, what it holds and the factor to SI units."""
+
     index: int
     name: str             # as written (after a rename)
     quantity: object      # joint index, "x", "qw", "rz", "e1", "r11", a label name
