@@ -1,5 +1,5 @@
 """The fit stage (:class:`Fit`): the noise-weighted identification, variance-component estimation of
-the noise levels (:class:`NoiseEstimate`), and the outlier check (:class:`Outlier`).
+the noise levels (:class:`NoiseEstimate`), and the outlier check (:class:`~calib.calibration.outlier.Outlier`).
 """
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -26,8 +26,8 @@ from calib.calibration.options import (
     CalibrationOptions,
 )
 from calib.calibration.prepare import Setup, _reach, _robot_memo
-from calib.calibration.robust import (Outlier, can_trim, flag_outliers, judge_rows, leftover_gross,
-                                      robust_sigmas, too_many_gross)
+from calib.calibration.robust import (can_trim, flag_outliers, judge_rows, leftover_gross, robust_sigmas,
+                                      too_many_gross)
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -36,6 +36,9 @@ from calib.solvers.angles import RotationChain
 from calib.solvers.lm import LMOptions, LMTrace, SolverResult, options_with
 from calib.solvers.inverse import normal_inverse
 from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem
+
+if TYPE_CHECKING:      # (built when the outlier check flags rows)
+    from calib.calibration.outlier import Outlier
 
 log = logging.getLogger(__name__)
 
