@@ -171,7 +171,7 @@ def register_measurement_frame(robot: RobotModel, measurements: Measurements) ->
     return replace(robot, T_meas_base_ref=T @ robot.T_meas_base_ref)
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class BeforeAfter:
     """Accuracy of a calibration on its rows (see :class:`AccuracyStats`): ``before`` (the nominal
     model) and ``after`` (the calibrated one) on the calibration rows, ``validation_before`` /

@@ -40,7 +40,7 @@ if TYPE_CHECKING:      # (built when rows are flagged: calib.calibration.outlier
     from calib.calibration.outlier import Outlier
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class Judgement:
     """The outlier check of one pass: ``outliers`` newly flagged (empty when ``too_many``);
     too_many : more rows above the threshold than outliers can be (the noise levels too small,

@@ -199,7 +199,7 @@ class Spec:
         return key in self.lengths or key in self.extras or (self.sparse_pose and not isinstance(key, int))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class Table:
     """A file read by :func:`read_table`, SI units, one entry per data row.
 

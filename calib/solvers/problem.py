@@ -71,7 +71,7 @@ WEAK_RCOND = 1e-4
 PARTS = ("pose", "position", "rotation")
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class NormalEquations:
     """``J^T J`` and ``J^T r`` of the weighted residuals, with each group's share.
 
