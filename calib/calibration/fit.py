@@ -213,7 +213,7 @@ def _chi2_p_value(chi2: float, dof: float) -> float:
     return float(min(1.0, 2.0 * min(gammaincc(k, chi2 / 2.0), gammainc(k, chi2 / 2.0))))
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class Solver:
     """How the fit stage solves: method, options, and the search-lm ingredients."""
 

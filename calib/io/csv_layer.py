@@ -163,7 +163,7 @@ class ReadOptions:
             check_join_options(self)
 
 
-@dataclass(frozen=True, eq=False)     # (the file kinds' constants: nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (the file kinds' constants: nothing compares or prints them)
 class Spec:
     """The columns of one file kind.
 
