@@ -37,7 +37,6 @@ import numpy as np
 from calib.errors import MeasurementFormatError, ParameterError
 from calib.io.csv_lines import (READ_BYTES_PER_FILE_BYTE, WHITESPACE, _records, available_memory,  # noqa: F401
                                 check_size, parse_number, read_lines, split_fields)
-from calib.io.csv_literals import joint_literals, pose_literals
 from calib.io.csv_header import ANGLE_UNITS, LENGTH_UNITS, ORIENTATIONS, POSITION_COLUMNS, Column, Header
 
 __all__ = ["ANGLE_UNITS", "LENGTH_UNITS", "ORIENTATIONS", "ReadOptions", "Spec", "Table",
@@ -290,12 +289,16 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     orientation = header.orientation
     names_out = {k: c.name for k, c in cols.items()}
     if "joint_literal" in cols:
+        from calib.io.csv_literals import joint_literals     # (URScript/RAPID cells only)
+
         c = cols["joint_literal"]
         qv = joint_literals(path, robot, c.name, labels.pop("joint_literal"), rows)
         for i in range(robot.n_joints):
             values[i] = qv[:, i]
             names_out[i] = c.name
     if "pose_literal" in cols:
+        from calib.io.csv_literals import pose_literals
+
         c = cols["pose_literal"]
         orientation, pv = pose_literals(path, c.name, labels.pop("pose_literal"), rows)
         for k, v in zip(POSITION_COLUMNS + ORIENTATIONS[orientation][0], pv.T):
