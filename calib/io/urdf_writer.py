@@ -69,7 +69,6 @@ from calib.io.urdf import (FRAMES_TAG, ROUND_TRIP_TOL, SIGNIFICANT_DIGITS, Recor
 from calib.io.urdf import origin_attributes as _origin_attrib
 from calib.io.urdf import target_link_name as _target_link_name
 from calib.io.urdf import unique_name as _unique_name
-from calib.io.urdf_minimal import minimal_urdf
 from calib.model.spatial import inverse
 
 __all__ = ["calibrated_urdf_text", "check_writable", "format_number", "rpy_nearest", "write_calibrated_urdf"]
@@ -155,6 +154,8 @@ def calibrated_urdf_text(robot: RobotModel, *, nominal: RobotModel | None = None
     if not isinstance(orientation_measured, bool):
         raise CalibError(f"orientation_measured must be True or False, got {orientation_measured!r}")
     if robot.source is None:      # a model built in code: a minimal URDF of its kinematics
+        from calib.io.urdf_minimal import minimal_urdf
+
         if nominal is not None:
             _check_compatible(robot, nominal)
         if measurement_link:
@@ -253,10 +254,9 @@ def _joint_origin(doc, name: str, plan) -> np.ndarray:
 
 def check_writable(robot: RobotModel) -> RecordedFrames:
     """Check, before a fit, that a calibration of ``robot`` (a model from :func:`calib.load_robot`)
-    can be written into its URDF; returns the frames the output will record.
-
-    Raises what :func:`write_calibrated_urdf` would raise for this URDF and these frames.
-    """
+    can be written into its URDF; returns the frames the output will record. Raises what
+    :func:`write_calibrated_urdf` would raise for this URDF and these frames."""
+    from calib.io.urdf_minimal import minimal_urdf
     from calib.model.robot import check_robot
 
     if check_robot(robot).source is None:
