@@ -90,7 +90,7 @@ class NoiseEstimate:
                     "reduced_chi2_position": self.chi2_pos, "reduced_chi2_rotation": self.chi2_rot}}
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (a model and arrays: nothing compares or prints it)
 class Fit:
     """The fit stage: the identified model and how it was reached.
 
