@@ -256,10 +256,10 @@ def check_writable(robot: RobotModel) -> RecordedFrames:
     """Check, before a fit, that a calibration of ``robot`` (a model from :func:`calib.load_robot`)
     can be written into its URDF; returns the frames the output will record. Raises what
     :func:`write_calibrated_urdf` would raise for this URDF and these frames."""
-    from calib.io.urdf_minimal import minimal_urdf
     from calib.model.robot import check_robot
 
-    if check_robot(robot).source is None:
+    if check_robot(robot).source is None:     # (a model built in code)
+        from calib.io.urdf_minimal import minimal_urdf
         return minimal_urdf(robot)[1]
     return _prepare(robot, None)[1].frames
 
