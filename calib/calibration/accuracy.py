@@ -4,7 +4,7 @@ table, the rows' targets, and the best-fit registration of the measurement frame
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -18,6 +18,9 @@ from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.model.spatial import log3_batch
+
+if TYPE_CHECKING:      # (built for multi-target calibrations only: calib.calibration.target_accuracy)
+    from calib.calibration.target_accuracy import TargetAccuracy
 
 
 # ====================================================================== accuracy
@@ -168,25 +171,7 @@ def register_measurement_frame(robot: RobotModel, measurements: Measurements) ->
     return replace(robot, T_meas_base_ref=T @ robot.T_meas_base_ref)
 
 
-@dataclass(frozen=True)
-class TargetAccuracy:
-    """Accuracy on the rows of one target of a multi-target calibration (see
-    :class:`AccuracyStats`): before / after on the calibration rows, and on the validation rows
-    (None without validation data)."""
-
-    target: str
-    before: AccuracyStats = field(repr=False)
-    after: AccuracyStats = field(repr=False)
-    validation_before: AccuracyStats | None = field(default=None, repr=False)
-    validation_after: AccuracyStats | None = field(default=None, repr=False)
-
-    def to_dict(self) -> dict:
-        return {"before": self.before.to_dict(), "after": self.after.to_dict(),
-                "validation": None if self.validation_after is None else {
-                    "before": self.validation_before.to_dict(), "after": self.validation_after.to_dict()}}
-
-
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class BeforeAfter:
     """Accuracy of a calibration on its rows (see :class:`AccuracyStats`): ``before`` (the nominal
     model) and ``after`` (the calibrated one) on the calibration rows, ``validation_before`` /
@@ -240,6 +225,8 @@ def accuracy_after(before: BeforeAfter, calibrated: RobotModel, after: AccuracyS
     va = None
     if val is not None:
         va = pose_errors(calibrated, val.q, val.position, val.rotation, kin, before.val_rows)
+    if targets:
+        from calib.calibration.target_accuracy import TargetAccuracy
     per_target = tuple(
         TargetAccuracy(t, before.before.subset(before.cal_rows == k), after.subset(before.cal_rows == k),
                        None if val is None else before.validation_before.subset(before.val_rows == k),

@@ -1,5 +1,5 @@
 """The fit stage (:class:`Fit`): the noise-weighted identification, variance-component estimation of
-the noise levels (:class:`NoiseEstimate`), and the outlier check (:class:`Outlier`).
+the noise levels (:class:`NoiseEstimate`), and the outlier check (:class:`~calib.calibration.outlier.Outlier`).
 """
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -26,8 +26,8 @@ from calib.calibration.options import (
     CalibrationOptions,
 )
 from calib.calibration.prepare import Setup, _reach, _robot_memo
-from calib.calibration.robust import (Outlier, can_trim, flag_outliers, judge_rows, leftover_gross,
-                                      robust_sigmas, too_many_gross)
+from calib.calibration.robust import (can_trim, flag_outliers, judge_rows, leftover_gross, robust_sigmas,
+                                      too_many_gross)
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -36,6 +36,9 @@ from calib.solvers.angles import RotationChain
 from calib.solvers.lm import LMOptions, LMTrace, SolverResult, options_with
 from calib.solvers.inverse import normal_inverse
 from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem
+
+if TYPE_CHECKING:      # (built when the outlier check flags rows)
+    from calib.calibration.outlier import Outlier
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +90,7 @@ class NoiseEstimate:
                     "reduced_chi2_position": self.chi2_pos, "reduced_chi2_rotation": self.chi2_rot}}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (a model and arrays: nothing compares or prints it)
 class Fit:
     """The fit stage: the identified model and how it was reached.
 
@@ -131,7 +134,7 @@ class Fit:
 
 
 # ---------------------------------------------------------------- fit
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class _Linearised:
     """The least-squares normal equations ``ne`` of a problem's rows at a solution, their
     (pseudo-)inverse ``inverse`` (the covariance of the free parameters, SI units; ``full_rank``
@@ -210,7 +213,7 @@ def _chi2_p_value(chi2: float, dof: float) -> float:
     return float(min(1.0, 2.0 * min(gammaincc(k, chi2 / 2.0), gammainc(k, chi2 / 2.0))))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class Solver:
     """How the fit stage solves: method, options, and the search-lm ingredients."""
 

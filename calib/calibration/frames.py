@@ -245,7 +245,7 @@ def _estimate(robot: RobotModel, R_f, p_f, p_meas, R_meas, rows):
     return X, Y
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class FrameEstimate:
     """A robust closed-form frame estimate (:func:`estimate_frames_robust`).
 

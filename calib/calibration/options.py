@@ -112,7 +112,7 @@ def _check_compatible(robot: RobotModel, m: Measurements) -> None:
                         f"{robot.n_joints} joints ({', '.join(robot.joint_names)})")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (checked once, passed down: nothing compares, hashes or prints them)
 class CalibrationOptions:
     """The options of :func:`calib.calibrate`, checked once (:func:`resolve_options`); see its
     docstring for each. sigma_pos (m) / sigma_rot (rad): given noise levels, None to estimate.

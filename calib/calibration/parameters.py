@@ -179,7 +179,7 @@ def _compliance_filter(robot: RobotModel, free: Sequence[str], options: Calibrat
     return tuple(n for n in free if n not in drop)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal, read by the pipeline: nothing compares or prints them)
 class ParameterChoice:
     """The parameter-set choice of :func:`choose_parameters`.
 

@@ -33,7 +33,7 @@ from calib.model.robot import RobotModel
 from calib.model.spatial import inverse, log3_batch, zyx_transform
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class Setup:
     """The prepare stage: what the fit works on.
 

@@ -10,10 +10,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calib.calibration.accuracy import AccuracyStats, TargetAccuracy, format_accuracy_table
+from calib.calibration.accuracy import AccuracyStats, format_accuracy_table
 from calib.units import display_unit, display_value
-from calib.calibration.fit import NoiseEstimate, Outlier
-from calib.calibration.validation import CrossValidation
+from calib.calibration.fit import NoiseEstimate
 from calib.errors import ParameterError
 from calib.model.chain import U_NAMES
 from calib.model.robot import RobotModel
@@ -21,6 +20,9 @@ from calib.model.spatial import zyx_parameters
 
 if TYPE_CHECKING:           # (calib.calibration.base_frame is loaded when a calibration reports the frame)
     from calib.calibration.base_frame import MeasurementFrame
+    from calib.calibration.cross_validation import CrossValidation
+    from calib.calibration.outlier import Outlier
+    from calib.calibration.target_accuracy import TargetAccuracy
     from calib.calibration.selection import ModelSelection
 
 

@@ -1,4 +1,4 @@
-"""The outlier check of the fit stage: which calibration rows are gross (:class:`Outlier`),
+"""The outlier check of the fit stage: which calibration rows are gross (:class:`~calib.calibration.outlier.Outlier`),
 judged against a fit that they cannot drag (:func:`judge_rows`).
 
 A least-squares fit spreads gross rows over the others until none stands out, and inflates
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -36,19 +36,11 @@ from calib.solvers.lm import LMOptions, LMTrace, levenberg_marquardt, options_wi
 from calib.solvers.inverse import normal_inverse
 from calib.solvers.problem import Problem
 
-
-@dataclass(frozen=True)
-class Outlier:
-    """A calibration row left out of the fit: its line in the file, its errors after the fit
-    (metres, radians; rotation NaN for position-only data) and its residual RMS in sigma."""
-
-    row: int
-    position_error: float
-    rotation_error: float
-    sigmas: float
+if TYPE_CHECKING:      # (built when rows are flagged: calib.calibration.outlier)
+    from calib.calibration.outlier import Outlier
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class Judgement:
     """The outlier check of one pass: ``outliers`` newly flagged (empty when ``too_many``);
     too_many : more rows above the threshold than outliers can be (the noise levels too small,
@@ -90,7 +82,11 @@ def flag_outliers(problem: Problem, x: np.ndarray, rows: np.ndarray, keep: np.nd
     predicted by a fit of other rows errs by its noise and the fit's prediction error)."""
     rms, dp, rot = row_rms(problem, x, sigma_pos, sigma_rot)
     bad = np.flatnonzero(keep & (rms > k * (1.0 if spread is None else spread)))
-    found = [Outlier(int(rows[i]), float(np.linalg.norm(dp[i])), float(rot[i]), float(rms[i])) for i in bad]
+    found = []
+    if len(bad):
+        from calib.calibration.outlier import Outlier
+
+        found = [Outlier(int(rows[i]), float(np.linalg.norm(dp[i])), float(rot[i]), float(rms[i])) for i in bad]
     return found, len(bad) > max_share * keep.sum()
 
 

@@ -16,7 +16,8 @@ from calib.calibration.fit import Fit, Solver, fit_stage, fit_with, solver_for
 from calib.calibration.options import LOO_BELOW_ROWS, CalibrationOptions
 from calib.calibration.parameters import candidate_sets
 from calib.calibration.prepare import Setup
-from calib.calibration.validation import CrossValidation, _standard_error, cross_validate
+from calib.calibration.cross_validation import CrossValidation
+from calib.calibration.validation import _standard_error, cross_validate
 from calib.errors import DataError
 from calib.model.kinematics import ChainKinematics
 from calib.solvers.lm import LMOptions

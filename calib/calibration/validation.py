@@ -1,11 +1,11 @@
-"""Cross-validation (:class:`CrossValidation`, :func:`cross_validate`, :func:`held_out_error`) and
-the held-out quantities the statistics and the choice of joint terms use. The choice among
-candidate parameter sets (``params="auto"``) is :mod:`calib.calibration.selection`.
+"""Cross-validation (:func:`cross_validate`; its result, :class:`CrossValidation`, is in
+:mod:`calib.calibration.cross_validation`), :func:`held_out_error` and the held-out quantities
+the statistics and the choice of joint terms use. The choice among candidate parameter sets
+(``params="auto"``) is :mod:`calib.calibration.selection`.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -14,36 +14,14 @@ from calib.calibration.fit import Fit
 from calib.calibration.options import CV_FOLDS
 from calib.calibration.prepare import Setup
 from calib.errors import DataError, ParameterError
+from calib.model.draws import permutation
 from calib.solvers.lm import LMOptions, levenberg_marquardt
 from calib.solvers.inverse import normal_inverse
 from calib.solvers.problem import Problem
 
 if TYPE_CHECKING:
+    from calib.calibration.cross_validation import CrossValidation
     from calib.calibration.selection import ModelSelection
-
-
-@dataclass(frozen=True)
-class CrossValidation:
-    """K-fold cross-validated held-out error of a fit: each fold's rows predicted by the model
-    fitted on the other folds. position_rms (m) and rotation_rms (rad, None position only) pooled
-    over every held-out row; per_fold : per fold (rows, position_rms, rotation_rms);
-    row_scores : (n,) whitened squared held-out error of each kept row (position and rotation,
-    weighted by the fit's noise levels; rows in the order of the calibration rows);
-    score / score_se : their mean and its standard error."""
-
-    folds: int
-    position_rms: float
-    rotation_rms: float | None
-    per_fold: tuple[tuple[int, float, float | None], ...]
-    score: float
-    score_se: float
-    row_scores: np.ndarray = field(repr=False, default=None)
-
-    def to_dict(self) -> dict:
-        return {"folds": self.folds, "position_rms_mm": self.position_rms * 1e3,
-                "rotation_rms_rad": self.rotation_rms,
-                "per_fold": [{"rows": n, "position_rms_mm": p * 1e3, "rotation_rms_rad": r}
-                             for n, p, r in self.per_fold]}
 
 
 def _held_out_factors(Jw: np.ndarray, C: np.ndarray) -> np.ndarray:
@@ -122,7 +100,7 @@ def fold_labels(n: int, folds: int, seed: int = 0) -> np.ndarray:
     fold_of = _FOLD_LABELS.get(key)
     if fold_of is None:
         fold_of = np.empty(n, int)
-        fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
+        fold_of[permutation(seed, n)] = np.arange(n) % folds
         fold_of.setflags(write=False)
         if key is not None:
             _FOLD_LABELS[key] = fold_of
@@ -212,6 +190,8 @@ def held_out_summary(fold_of: np.ndarray, folds: int, e_p: np.ndarray, e_r: np.n
     per_fold = [(int(np.sum(fold_of == f)), math.sqrt(float(np.mean(e_p[fold_of == f]))),
                  math.sqrt(float(np.mean(e_r[fold_of == f]))) if has_rot else None) for f in range(folds)]
     score = e_p / sigma_pos ** 2 + (e_r / sigma_rot ** 2 if has_rot else 0.0)
+    from calib.calibration.cross_validation import CrossValidation
+
     return CrossValidation(folds, math.sqrt(float(np.mean(e_p))),
                            math.sqrt(float(np.mean(e_r))) if has_rot else None, tuple(per_fold),
                            float(np.mean(score)), _standard_error(score), score)

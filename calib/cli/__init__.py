@@ -5,5 +5,5 @@ One module per subcommand (``identifiability``, ``simulate``, ``calibrate``, ``e
 :mod:`calib.cli.main` assembles them (``main(argv)``, the signals, the one-line errors),
 :mod:`calib.cli.output` is the one output policy, :mod:`calib.cli.args` the shared options and
 :mod:`calib.cli.progress` the progress line. A new subcommand is a new module listed in
-:data:`calib.cli.main.COMMANDS`.
+:data:`calib.cli.main.COMMAND_NAMES`.
 """

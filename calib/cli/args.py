@@ -463,3 +463,20 @@ def check_measurement_link(name, robot) -> None:
     if name in links:
         raise ParameterError(f"--measurement-link {name}: {robot.urdf_path} has a link of that name already; "
                              f"choose a new name")
+
+
+def is_touch_input(args: argparse.Namespace) -> bool:
+    """Whether ``calibrate``'s measurement file is a touch file (its header names point, plane or
+    sphere); False for a file that cannot be read (the measurement reader then says why)."""
+    from pathlib import Path
+
+    from calib.errors import CalibError
+    from calib.io.touch_file import is_touch_file
+
+    if getattr(args, "tracker", None) is not None or not Path(args.measurements).is_file():
+        return False
+    try:
+        return is_touch_file(args.measurements, getattr(args, "header_line", None),
+                             read_options(args, joined=False).rename)
+    except CalibError:
+        return False

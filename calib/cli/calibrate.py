@@ -172,9 +172,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calib calibrate`` with parsed arguments; returns the exit code."""
-    from calib.cli.touch import is_touch_input, run_touch
+    from calib.cli.args import is_touch_input
 
     if is_touch_input(args):        # rows naming the point, plane or sphere touched (issue 24)
+        from calib.cli.touch import run_touch
+
         return run_touch(args)
     if not (args.plots or args.html):
         return _calibrate(args, None)

@@ -171,7 +171,7 @@ def _evaluate(args: argparse.Namespace, plots) -> int:
     if out_html is None and (args.meta is not None or args.tolerance_mm is not None):
         raise ParameterError("--meta and --tolerance-mm apply to the report: give --html REPORT.html")
     robot = _evaluate_compliance(_in_measurement_frame(load(args), args), args)
-    from calib.cli.touch import is_touch_input
+    from calib.cli.args import is_touch_input
 
     if args.key is None and is_touch_input(args):     # (a joint file's key column may be named point)
         raise ParameterError(f"{args.measurements}: a touch file (rows naming a point, plane or sphere): evaluate "

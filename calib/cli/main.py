@@ -20,7 +20,7 @@ Outputs are produced in memory first and written only when everything succeeded,
 (:mod:`calib.cli.output`); an output path that names an input is refused.
 
 Each subcommand is one module of this package exposing ``add_parser(subparsers)`` and
-``run(args) -> int`` (:data:`COMMANDS`); this module assembles the parser and runs the command
+``run(args) -> int`` (:data:`COMMAND_NAMES`); this module assembles the parser and runs the command
 with the signals and errors handled once. numpy, scipy and Pinocchio are imported by the
 subcommands when they run, not when this module is imported.
 """
@@ -36,22 +36,27 @@ import warnings
 from pathlib import Path
 from typing import Sequence
 
-from calib.cli import calibrate, compensate, evaluate, export, formats, identifiability, select_poses, simulate
 from calib.cli.args import ArgumentParser, HelpFormatter, add_verbose
 from calib.cli.output import EXIT_INPUT, PROG, forget_written, written
 from calib.errors import CalibError
 
-__all__ = ["main", "main_entry", "build_parser", "COMMANDS"]
+__all__ = ["main", "main_entry", "build_parser", "COMMAND_NAMES", "command_module"]
 
 log = logging.getLogger(__name__)
 
-#: The subcommand modules, in the order ``calib --help`` lists them.
-COMMANDS = (identifiability, simulate, calibrate, evaluate, select_poses, compensate, export, formats)
+#: The subcommands, in the order ``calib --help`` lists them: each is the module
+#: ``calib.cli.<name>`` (``select-poses``: ``select_poses``), imported when its parser is built
+#: (a command line that names one loads that one only).
+COMMAND_NAMES = ("identifiability", "simulate", "calibrate", "evaluate", "select-poses", "compensate", "export",
+                 "formats")
 
 
-def _name(command) -> str:
-    """The subcommand's name on the command line (``select_poses``: ``select-poses``)."""
-    return command.__name__.rsplit(".", 1)[1].replace("_", "-")
+def command_module(name: str):
+    """The module of subcommand ``name`` (one of :data:`COMMAND_NAMES`), with its ``add_parser``
+    and ``run``."""
+    import importlib
+
+    return importlib.import_module("calib.cli." + name.replace("-", "_"))
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
@@ -69,16 +74,16 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {ver}")
     add_verbose(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in COMMANDS:
-        if command is None or _name(module) == command:
-            module.add_parser(sub)
+    for name in COMMAND_NAMES:
+        if command is None or name == command:
+            command_module(name).add_parser(sub)
     return parser
 
 
 def _named_command(argv: Sequence[str]) -> str | None:
     """The subcommand ``argv`` names when only -v / --verbose come before it; otherwise None (the
     whole parser then parses: help, version, usage errors, unknown commands)."""
-    names = {_name(module) for module in COMMANDS}
+    names = set(COMMAND_NAMES)
     for arg in argv:
         if arg in names:
             return arg

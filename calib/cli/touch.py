@@ -3,7 +3,7 @@ file whose rows name the point, plane or sphere the tool touched (:mod:`calib.io
 and ``calib simulate ... --constraint point:N,plane:N,sphere:RADIUS_MM``.
 
 :func:`run_touch` is what ``calibrate`` runs for such a file (it routes there when the header
-has a ``point``, ``plane`` or ``sphere`` column, :func:`is_touch_input`).
+has a ``point``, ``plane`` or ``sphere`` column, :func:`calib.cli.args.is_touch_input`).
 """
 from __future__ import annotations
 
@@ -27,22 +27,6 @@ _NOT_FOR_TOUCH = (("tracker", None), ("validate", None), ("compliance", False), 
                   ("gravity", None), ("key", None), ("target_column", None), ("target_from", None),
                   ("join", "key"), ("time", None), ("time_unit", None), ("max_gap", None),
                   ("residuals", "auto"))
-
-
-def is_touch_input(args: argparse.Namespace) -> bool:
-    """Whether ``calibrate``'s measurement file is a touch file (its header names point, plane or
-    sphere); False for a file that cannot be read (the measurement reader then says why)."""
-    from pathlib import Path
-
-    from calib.io.touch_file import is_touch_file
-
-    if getattr(args, "tracker", None) is not None or not Path(args.measurements).is_file():
-        return False
-    try:
-        return is_touch_file(args.measurements, getattr(args, "header_line", None),
-                             read_options(args, joined=False).rename)
-    except CalibError:
-        return False
 
 
 def run_touch(args: argparse.Namespace) -> int:

@@ -13,7 +13,6 @@ rad; ``"compliance"`` null without compliance); one with compliance alone keeps
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
@@ -24,6 +23,7 @@ from calib.io.fileio import atomic_write_text
 from calib.model.robot import RobotModel
 
 if TYPE_CHECKING:       # (calib.model.compliance loads where a record is made, read or applied)
+    from calib.io.compliance_record import ComplianceRecord
     from calib.model.compliance import GravityModel, Payload
 
 #: Format tag of the compliance sidecar file (compliance only), and of one with periodic terms.
@@ -76,20 +76,6 @@ def write_sidecar(path: str | Path, record: dict) -> None:
     atomic_write_text(path, json.dumps(record, indent=2, allow_nan=False) + "\n")
 
 
-@dataclass(frozen=True)
-class ComplianceRecord:
-    """Joint terms read from a sidecar or a JSON report: compliance ``values`` (n,) SI, in joint
-    order (None when the record has none), the joint names, the payload and gravity of the
-    calibration (None / (3,) m/s^2, None without compliance), and ``periodic``: the periodic
-    coefficients by name (rad; None without them)."""
-
-    joints: tuple[str, ...]
-    values: np.ndarray | None
-    payload: Payload | None
-    gravity: np.ndarray | None
-    periodic: dict[str, float] | None = None
-
-
 def read_compliance(path: str | Path) -> ComplianceRecord:
     """Read compliances from a sidecar JSON (:func:`write_sidecar`) or a ``calib calibrate
     --report`` JSON (its ``"compliance"`` entry). Raises :class:`ParameterError` naming the file
@@ -130,6 +116,8 @@ def read_compliance(path: str | Path) -> ComplianceRecord:
         raise ParameterError(f"{path}: compliance and periodic values must be finite numbers")
     if values is None and periodic is None:
         raise ParameterError(f"{path}: the record holds neither compliances nor periodic terms")
+    from calib.io.compliance_record import ComplianceRecord
+
     return ComplianceRecord(joints, values, payload, gravity, periodic)
 
 

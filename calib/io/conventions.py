@@ -21,7 +21,7 @@ __all__ = ["Convention", "CONVENTIONS", "CONVENTION_NAMES", "UR_JOINT_NAMES", "O
 UR_JOINT_NAMES = ("base", "shoulder", "elbow", "wrist1", "wrist2", "wrist3")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (table rows, looked up by name: nothing compares or prints them)
 class Convention:
     """One vendor's column names.
 

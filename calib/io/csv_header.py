@@ -47,8 +47,10 @@ _NEAR_MISS_CUTOFF = 0.75
 _OTHER_UNITS = {"cm", "dm", "um", "km", "in", "ft", "mrad", "urad", "grad", "gon", "rev", "turn"}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (the header parser's records: nothing compares or prints them)
 class Column:
+    """One column of a CSV header: its index (from 0), name, what it holds and the factor to SI units."""
+
     index: int
     name: str             # as written (after a rename)
     quantity: object      # joint index, "x", "qw", "rz", "e1", "r11", a label name

@@ -37,7 +37,6 @@ import numpy as np
 from calib.errors import MeasurementFormatError, ParameterError
 from calib.io.csv_lines import (READ_BYTES_PER_FILE_BYTE, WHITESPACE, _records, available_memory,  # noqa: F401
                                 check_size, parse_number, read_lines, split_fields)
-from calib.io.csv_literals import joint_literals, pose_literals
 from calib.io.csv_header import ANGLE_UNITS, LENGTH_UNITS, ORIENTATIONS, POSITION_COLUMNS, Column, Header
 
 __all__ = ["ANGLE_UNITS", "LENGTH_UNITS", "ORIENTATIONS", "ReadOptions", "Spec", "Table",
@@ -163,7 +162,7 @@ class ReadOptions:
             check_join_options(self)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (the file kinds' constants: nothing compares or prints them)
 class Spec:
     """The columns of one file kind.
 
@@ -199,7 +198,7 @@ class Spec:
         return key in self.lengths or key in self.extras or (self.sparse_pose and not isinstance(key, int))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class Table:
     """A file read by :func:`read_table`, SI units, one entry per data row.
 
@@ -290,12 +289,16 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     orientation = header.orientation
     names_out = {k: c.name for k, c in cols.items()}
     if "joint_literal" in cols:
+        from calib.io.csv_literals import joint_literals     # (URScript/RAPID cells only)
+
         c = cols["joint_literal"]
         qv = joint_literals(path, robot, c.name, labels.pop("joint_literal"), rows)
         for i in range(robot.n_joints):
             values[i] = qv[:, i]
             names_out[i] = c.name
     if "pose_literal" in cols:
+        from calib.io.csv_literals import pose_literals
+
         c = cols["pose_literal"]
         orientation, pv = pose_literals(path, c.name, labels.pop("pose_literal"), rows)
         for k, v in zip(POSITION_COLUMNS + ORIENTATIONS[orientation][0], pv.T):

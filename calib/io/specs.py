@@ -49,8 +49,8 @@ there), or a position ``x, y, z`` with an optional orientation as in measurement
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -60,8 +60,11 @@ from calib.model.measurements import Measurements
 from calib.io.csv_layer import (ANGLE_UNITS, LENGTH_UNITS, POSITION_COLUMNS, ORIENTATIONS, ReadOptions, Spec,
                                 Table, csv_text, joint_columns, read_table)
 
+if TYPE_CHECKING:      # (read_targets builds it: calib.io.compensation_targets)
+    from calib.io.compensation_targets import CompensationTargets
+
 __all__ = ["MEASUREMENT", "POSES", "TARGETS", "JOINT_SIDE", "TRACKER_SIDE", "read_measurements",
-           "write_measurements", "read_poses", "write_poses", "CompensationTargets", "read_targets",
+           "write_measurements", "read_poses", "write_poses", "read_targets",
            "write_compensation"]
 
 MEASUREMENT = Spec("measurement", joints="required", position="required", orientation=True,
@@ -288,37 +291,6 @@ def read_poses(path: str | Path, robot, *, options: ReadOptions | None = None) -
 
 
 # ====================================================================== compensation targets
-@dataclass(frozen=True, eq=False)
-class CompensationTargets:
-    """Targets read by :func:`read_targets` (SI units, meas frame).
-
-    q : (N, n) rad / m, the nominal joints (or the start for pose targets), or None.
-    position : (N, 3) metres, target tool positions, or None for joint targets.
-    rotation : (N, 3, 3) target tool orientations, or None (joint or position targets).
-    rows : (N,) line numbers in the file; source : the file.
-    ignored_columns, notes : as in :class:`calib.Measurements`.
-    """
-
-    q: np.ndarray | None
-    position: np.ndarray | None
-    rotation: np.ndarray | None
-    rows: np.ndarray
-    source: Path | None = None
-    ignored_columns: tuple[str, ...] = ()
-    notes: tuple[str, ...] = ()
-
-    @property
-    def kind(self) -> str:
-        """"joints", "pose" or "position"."""
-        if self.position is None:
-            return "joints"
-        return "pose" if self.rotation is not None else "position"
-
-    @property
-    def n_targets(self) -> int:
-        return len(self.rows)
-
-
 def read_targets(path: str | Path, nominal, *, options: ReadOptions | None = None) -> CompensationTargets:
     """Read a compensation targets CSV for the nominal model.
 
@@ -349,6 +321,8 @@ def read_targets(path: str | Path, nominal, *, options: ReadOptions | None = Non
     options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
         or ReadOptions()
     t = read_table(path, TARGETS, nominal, options)
+    from calib.io.compensation_targets import CompensationTargets
+
     return CompensationTargets(q=t.q, position=t.position, rotation=t.rotation, rows=t.rows,
                                source=t.path, ignored_columns=t.ignored_columns,
                                notes=t.notes + _rename_notes(options, [t]))

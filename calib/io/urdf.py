@@ -55,7 +55,7 @@ TARGET_TAG = f"{{{FRAMES_NAMESPACE}}}target"
 MEASUREMENT_TAG = f"{{{FRAMES_NAMESPACE}}}measurement"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (the document's joints, by name: nothing compares or prints them)
 class UrdfJoint:
     """A ``<joint>`` of a URDF: name, type, parent and child link, whether it has ``<mimic>``
     and ``<limit lower/upper>``."""

@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 
 
 # ====================================================================== URDF reading
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)   # (Pinocchio's model, the XML tree: nothing compares or prints them)
 class UrdfChain:
     """A serial chain found in a URDF, with the Pinocchio model of the whole file.
 

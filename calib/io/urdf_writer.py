@@ -69,7 +69,6 @@ from calib.io.urdf import (FRAMES_TAG, ROUND_TRIP_TOL, SIGNIFICANT_DIGITS, Recor
 from calib.io.urdf import origin_attributes as _origin_attrib
 from calib.io.urdf import target_link_name as _target_link_name
 from calib.io.urdf import unique_name as _unique_name
-from calib.io.urdf_minimal import minimal_urdf
 from calib.model.spatial import inverse
 
 __all__ = ["calibrated_urdf_text", "check_writable", "format_number", "rpy_nearest", "write_calibrated_urdf"]
@@ -155,6 +154,8 @@ def calibrated_urdf_text(robot: RobotModel, *, nominal: RobotModel | None = None
     if not isinstance(orientation_measured, bool):
         raise CalibError(f"orientation_measured must be True or False, got {orientation_measured!r}")
     if robot.source is None:      # a model built in code: a minimal URDF of its kinematics
+        from calib.io.urdf_minimal import minimal_urdf
+
         if nominal is not None:
             _check_compatible(robot, nominal)
         if measurement_link:
@@ -253,13 +254,12 @@ def _joint_origin(doc, name: str, plan) -> np.ndarray:
 
 def check_writable(robot: RobotModel) -> RecordedFrames:
     """Check, before a fit, that a calibration of ``robot`` (a model from :func:`calib.load_robot`)
-    can be written into its URDF; returns the frames the output will record.
-
-    Raises what :func:`write_calibrated_urdf` would raise for this URDF and these frames.
-    """
+    can be written into its URDF; returns the frames the output will record. Raises what
+    :func:`write_calibrated_urdf` would raise for this URDF and these frames."""
     from calib.model.robot import check_robot
 
-    if check_robot(robot).source is None:
+    if check_robot(robot).source is None:     # (a model built in code)
+        from calib.io.urdf_minimal import minimal_urdf
         return minimal_urdf(robot)[1]
     return _prepare(robot, None)[1].frames
 
@@ -285,8 +285,9 @@ def _prepare(robot: RobotModel, nominal: RobotModel | None):
         nominal = robot_from_chain(chain, robot.parallel_threshold).for_target(0)
     _check_compatible(robot, nominal)
     doc = _UrdfDocument(chain.document.path, chain.document.tree)
-    _check_nominal_matches_urdf(nominal, chain)
-    return doc, _plan_edits(robot, nominal, chain, doc)
+    nom = _mdh_poses(nominal)       # (one Pinocchio model of the nominal for the check and the plan)
+    _check_nominal_matches_urdf(nominal, chain, nom)
+    return doc, _plan_edits(robot, nominal, chain, doc, nom)
 
 
 # ====================================================================== checks
@@ -309,13 +310,12 @@ def _check_compatible(robot: RobotModel, nominal: RobotModel) -> None:
                              f"model's {b!r}")
 
 
-def _check_nominal_matches_urdf(nominal: RobotModel, chain) -> None:
-    """The nominal MDH z axes must be the URDF joint axes, and the tool frames equal, at q = 0."""
+def _check_nominal_matches_urdf(nominal: RobotModel, chain, nom: dict) -> None:
+    """The nominal MDH z axes (``nom``: its _mdh_poses) must be the URDF joint axes, the tool frames equal, at q = 0."""
     pts, dirs, T_meas_tool = chain_axes(chain)
-    X = _mdh_poses(nominal)["X"]
     worst = 0.0
     for i, joint in enumerate(nominal.joints):
-        z, o = X[i][:3, 2], X[i][:3, 3]
+        z, o = nom["X"][i][:3, 2], nom["X"][i][:3, 3]
         err = float(np.linalg.norm(z - dirs[i]))
         if not joint.is_prismatic:
             w = o - pts[i]
@@ -456,7 +456,7 @@ def _mdh_poses(robot: RobotModel) -> dict:
             "base": kin.data.oMf[kin.base_frame_id].homogeneous}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; a dict field: nothing compares or prints it)
 class _Plan:
     """What to change in the document: new joint origins (joint name -> 4x4 ``T_parent_child``
     at q = 0), the tool link to add (with its fixed joint), and the frames to record."""
@@ -488,7 +488,7 @@ class _Plan:
         return " ".join(parts)
 
 
-def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocument) -> _Plan:
+def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocument, nom: dict) -> _Plan:
     """The new origins, from the nominal URDF poses and the two models' MDH frames at q = 0."""
     model = chain.model
     data = model.createData()
@@ -500,7 +500,7 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
         """Nominal pose of a URDF link in the meas (base) frame at q = 0."""
         return oMb.actInv(data.oMf[body[link]]).homogeneous
 
-    nom, cal = _mdh_poses(nominal), _mdh_poses(robot)
+    cal = nom if robot is nominal else _mdh_poses(robot)    # (check_writable: the nominal itself)
     base_link = doc.link_of(robot.base_frame)
     tool_link = doc.link_of(robot.tool_frame)
     chain_joints = [doc.joints[j.name] for j in robot.joints]

@@ -11,6 +11,12 @@ bit for bit (``tests/model/test_draws.py`` checks the table against the generato
 against ``uniform``). Other seeds, and draws longer than the table, ask numpy. Bit for bit
 on x86-64; where numpy's C code fuses ``lo + range * u`` into one multiply-add (some arm64
 builds), the draws may differ from numpy's by 1 ulp.
+
+Cross-validation deals rows into folds by ``np.random.default_rng(0).permutation(n)`` (the
+fit's choice of joint terms, 100 poses: the only use of ``numpy.random`` left on that run, 31M
+instructions). :data:`PERMUTATION_FILE` holds those permutations for n = 1 ...
+:data:`PERMUTATION_MAX` one after the other (integers: exact; written by the same script and
+checked against the generator by the same test); :func:`permutation` takes them from there.
 """
 from __future__ import annotations
 
@@ -48,3 +54,21 @@ def uniform(seed: int, lo: np.ndarray, hi: np.ndarray, n: int) -> np.ndarray:
     if type(seed) is int and seed == TABLE_SEED and n * k <= TABLE_SIZE and np.isfinite(span).all():
         return lo + span * _table()[:n * k].reshape(n, k)
     return np.random.default_rng(seed).uniform(lo, hi, size=(n, k))
+
+
+#: ``np.random.default_rng(0).permutation(n)`` for n = 1 ... PERMUTATION_MAX, concatenated (uint8).
+PERMUTATION_MAX = 256
+PERMUTATION_FILE = Path(__file__).with_name("permutations_seed0.npy")
+
+_PERMUTATIONS: list = []
+
+
+def permutation(seed: int, n: int) -> np.ndarray:
+    """(n,) int ``np.random.default_rng(seed).permutation(n)``: from the stored permutations for
+    seed 0 and n <= :data:`PERMUTATION_MAX`, else from numpy."""
+    if type(seed) is int and seed == TABLE_SEED and 0 < n <= PERMUTATION_MAX:
+        if not _PERMUTATIONS:
+            _PERMUTATIONS.append(np.load(PERMUTATION_FILE))
+        start = n * (n - 1) // 2
+        return _PERMUTATIONS[0][start:start + n].astype(np.int64)
+    return np.random.default_rng(seed).permutation(n)

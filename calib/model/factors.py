@@ -12,8 +12,11 @@ from calib.model.chain import U_NAMES
 from calib.model.robot import RobotModel
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class _Factor:
+    """One elementary factor: a translation or rotation by parameter ``param`` (m or rad), or a
+    constant 4x4 transform ``const``."""
+
     kind: str                       # tx, ty, tz, rx, ry, rz, or "const"
     param: int | None = None        # index into the parameter vector
     const: np.ndarray | None = None  # 4x4 for "const"

@@ -166,7 +166,7 @@ def _chain(matrices: np.ndarray) -> np.ndarray:
     return out
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class _Structure:
     """What a ChainKinematics needs that depends only on the robot's structure and reference
     frames, not on its parameter values (shared by every workspace of the same robot)."""

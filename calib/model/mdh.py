@@ -49,7 +49,7 @@ _MIN_PARALLEL_RAD = 1e-9
 _EPS_LENGTH = 1e-9
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (derive_mdh's arrays for from_mdh: nothing compares or prints them)
 class MDHGeometry:
     """The result of :func:`derive_mdh`.
 

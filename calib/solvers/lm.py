@@ -77,7 +77,7 @@ class SolverResult:
         return self.status == "converged"
 
 
-@dataclass
+@dataclass(eq=False, repr=False)     # (a record filled in by the solver: nothing compares or prints them)
 class LMTrace:
     """What the iterations did: per accepted step the cost; counts of evaluations."""
 

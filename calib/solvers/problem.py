@@ -44,7 +44,6 @@ from calib.model.jacobian import NO_EFFECT_RTOL, pose_jacobian
 from calib.model.kinematics import JACOBIAN_CHUNK, ChainKinematics
 from calib.model.spatial import left_jacobian_inverse_batch, log3_batch
 from calib.solvers.inverse import RANK_RCOND, normal_inverse
-from calib.solvers.losses import robust_rho, robust_scaling
 
 log = logging.getLogger("calib.solvers.problem")
 
@@ -71,7 +70,7 @@ WEAK_RCOND = 1e-4
 PARTS = ("pose", "position", "rotation")
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class NormalEquations:
     """``J^T J`` and ``J^T r`` of the weighted residuals, with each group's share.
 
@@ -366,6 +365,8 @@ class Problem:
         reweighted least squares, sum rho'(z_i) J_i^T J_i (the same sums as the rows of
         :func:`robust_scaling` give, made on the transposed Jacobian as the least-squares ones
         are: a third of the time of the per-pose blocks on 1,402 iiwa rows)."""
+        from calib.solvers.losses import robust_rho     # (robust losses only)
+
         m = len(self.free)
         use_pos = parts in ("pose", "position")
         use_rot = self.has_orientation and parts != "position"
@@ -504,6 +505,8 @@ class Problem:
         r = np.concatenate(res, axis=1)
         J_all = None if J is None else np.concatenate(jac, axis=1)
         if self.loss != "linear":
+            from calib.solvers.losses import robust_scaling
+
             r, J_all = robust_scaling(r, J_all, self.loss, self.loss_scale)
         if not flat:
             return r, J_all

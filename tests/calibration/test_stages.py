@@ -302,3 +302,13 @@ def test_fold_labels_take_a_seed_or_a_generator():
     g = fold_labels(23, 5, np.random.default_rng(3))
     assert np.array_equal(g, a)          # (the generator of seed 3: the same permutation)
     assert sorted(np.bincount(fold_labels(23, 5, None)).tolist()) == [4, 4, 5, 5, 5]
+
+
+def test_fold_labels_unchanged():
+    """The folds dealt from the stored seed-0 permutations (n <= 256) are numpy's."""
+    from calib.calibration.validation import fold_labels
+
+    for n, folds in ((100, 5), (7, 5), (256, 10), (300, 5)):
+        want = np.empty(n, int)
+        want[np.random.default_rng(0).permutation(n)] = np.arange(n) % folds
+        assert np.array_equal(fold_labels(n, folds, 0), want)

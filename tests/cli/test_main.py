@@ -11,7 +11,7 @@ import sys
 import pytest
 
 import calib.calibration.poses
-from calib.cli.main import COMMANDS, build_parser, main
+from calib.cli.main import COMMAND_NAMES, build_parser, command_module, main
 
 from conftest import BUNDLED_URDF, ROOT
 
@@ -26,18 +26,19 @@ def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentP
 
 def test_each_subcommand_module_registers_itself_and_runs_its_own_run():
     subs = _subparsers(build_parser())
-    assert list(subs) == NAMES
-    for module, name in zip(COMMANDS, NAMES):
+    assert list(subs) == NAMES and list(COMMAND_NAMES) == NAMES
+    for name in NAMES:
+        module = command_module(name)
         assert module.__name__ == "calib.cli." + name.replace("-", "_")
         assert subs[name].get_default("func") is module.run
 
 
 def test_each_subcommand_module_adds_one_parser_to_any_subparsers():
     """``add_parser`` works on subparsers it did not make (a script's own parser)."""
-    for module, name in zip(COMMANDS, NAMES):
+    for name in NAMES:
         parser = argparse.ArgumentParser(prog="x")
         sub = parser.add_subparsers(dest="command")
-        returned = module.add_parser(sub)
+        returned = command_module(name).add_parser(sub)
         assert list(_subparsers(parser)) == [name]
         assert _subparsers(parser)[name] is returned
 

@@ -50,3 +50,15 @@ def test_random_configurations_seed0_unchanged(robot_name):
         hi = np.where(np.isfinite(robot.upper), robot.upper, math.pi)
         want = np.random.default_rng(0).uniform(lo, hi, size=(n, robot.n_joints))
         assert np.array_equal(robot.random_configurations(n, 0), want)
+
+
+def test_permutations_are_the_seed0_generators():
+    table = np.load(draws.PERMUTATION_FILE)
+    assert table.dtype == np.uint8 and table.shape == (draws.PERMUTATION_MAX * (draws.PERMUTATION_MAX + 1) // 2,)
+    for n in range(1, draws.PERMUTATION_MAX + 1):
+        got = draws.permutation(0, n)
+        assert got.dtype == np.int64
+        assert np.array_equal(got, np.random.default_rng(0).permutation(n)), n
+    for seed, n in ((0, 0), (0, draws.PERMUTATION_MAX + 1), (0, 1000), (5, 100)):     # numpy's own
+        assert np.array_equal(draws.permutation(seed, n), np.random.default_rng(seed).permutation(n))
+
