@@ -113,30 +113,25 @@ class OutputSet:
         delivered the moment they are released is not taken for one that stopped the work."""
         made: list[Path] = []
         temps: list[tuple[str, Path]] = []
-        # SIGINT and SIGTERM held back for the whole commit (folders, writes, renames): an
-        # interruption takes effect once the set is in place or undone, never in between (a
-        # second Ctrl-C during the clean-up of the first left the temporary files; the writes
-        # are a few fsyncs long)
-        with _signals_held():
-            try:
-                for folder in self.folders:
-                    if not folder.is_dir():
-                        try:
-                            folder.mkdir()
-                        except OSError as exc:
-                            raise OutputError(folder, f"cannot create the folder: {_reason(exc)}") from None
-                        made.append(folder)
-                temps = _write_temporaries(list(self.data.items()))
-                _rename_all(temps, on_renamed, self.removals)
-            except BaseException:
-                for tmp, _ in temps:
-                    _unlink(tmp)
-                for folder in reversed(made):
+        try:
+            for folder in self.folders:
+                if not folder.is_dir():
                     try:
-                        folder.rmdir()
-                    except OSError:
-                        pass
-                raise
+                        folder.mkdir()
+                    except OSError as exc:
+                        raise OutputError(folder, f"cannot create the folder: {_reason(exc)}") from None
+                    made.append(folder)
+            temps = _write_temporaries(list(self.data.items()))
+            _rename_all(temps, on_renamed, self.removals)
+        except BaseException:
+            for tmp, _ in temps:
+                _unlink(tmp)
+            for folder in reversed(made):
+                try:
+                    folder.rmdir()
+                except OSError:
+                    pass
+            raise
         return [path for _, path in temps]
 
 
@@ -161,8 +156,8 @@ def _write_temporaries(items: list[tuple[Path, bytes | list[bytes]]]) -> list[tu
     for the disk, and the waits overlap (the 7 files of ``calibrate --report --html --plots``:
     28-43 ms one after the other, 5-11 ms at once on the benchmark machine). Returns
     (temporary file, path) in the order given. On a failure (the first in that order is raised,
-    as when they were written in turn), every temporary file written is removed before the
-    exception goes on. (Called with the signals held: :meth:`OutputSet.commit`.)"""
+    as when they were written in turn) or an interruption, every temporary file written is
+    removed before the exception goes on."""
     if len(items) < 2:
         return [(_write_temporary(path, data), path) for path, data in items]
     done: list[tuple[str | None, BaseException | None]] = [(None, None)] * len(items)
@@ -176,20 +171,22 @@ def _write_temporaries(items: list[tuple[Path, bytes | list[bytes]]]) -> list[tu
     threads = [threading.Thread(target=write, args=(k, path, data), name="calib-write", daemon=True)
                for k, (path, data) in enumerate(items)]
     try:
-        for t in threads:
-            t.start()
+        with _signals_held():           # (every thread started, or none: no writer left unjoined)
+            for t in threads:
+                t.start()
         for t in threads:
             t.join()
         failed = next((exc for _, exc in done if exc is not None), None)
         if failed is not None:
             raise failed
     except BaseException:
-        for t in threads:               # (a thread that could not start: the others finish first)
-            if t.ident is not None:
-                t.join()
-        for tmp, _ in done:
-            if tmp is not None:
-                _unlink(tmp)
+        with _signals_held():           # (a second Ctrl-C does not cut the clean-up short)
+            for t in threads:           # (after an interruption: the files still being written too)
+                if t.ident is not None:
+                    t.join()
+            for tmp, _ in done:
+                if tmp is not None:
+                    _unlink(tmp)
         raise
     return [(tmp, path) for (tmp, _), (path, _) in zip(done, items)]
 
