@@ -124,13 +124,15 @@ class OutputSet:
             temps = _write_temporaries(list(self.data.items()))
             _rename_all(temps, on_renamed, self.removals)
         except BaseException:
-            for tmp, _ in temps:
-                _unlink(tmp)
-            for folder in reversed(made):
-                try:
-                    folder.rmdir()
-                except OSError:
-                    pass
+            def undo() -> None:
+                for tmp, _ in temps:
+                    _unlink(tmp)
+                for folder in reversed(made):
+                    try:
+                        folder.rmdir()
+                    except OSError:
+                        pass
+            _to_the_end(undo)
             raise
         return [path for _, path in temps]
 
@@ -180,15 +182,29 @@ def _write_temporaries(items: list[tuple[Path, bytes | list[bytes]]]) -> list[tu
         if failed is not None:
             raise failed
     except BaseException:
-        with _signals_held():           # (a second Ctrl-C does not cut the clean-up short)
+        def undo() -> None:
             for t in threads:           # (after an interruption: the files still being written too)
                 if t.ident is not None:
                     t.join()
             for tmp, _ in done:
                 if tmp is not None:
                     _unlink(tmp)
+        _to_the_end(undo)
         raise
     return [(tmp, path) for (tmp, _), (path, _) in zip(done, items)]
+
+
+def _to_the_end(undo: Callable[[], None], attempts: int = 10) -> None:
+    """Run the (repeatable) clean-up ``undo`` to its end, signals held: a second Ctrl-C does not
+    cut it short, and one that arrived just before they were held (its handler runs at the
+    next bytecode, mask or not) starts it again; the exception being handled goes on after."""
+    for _ in range(attempts):
+        try:
+            with _signals_held():
+                undo()
+            return
+        except BaseException:       # noqa: BLE001 - (the first interruption is the one raised)
+            continue
 
 
 @contextlib.contextmanager

@@ -144,7 +144,9 @@ def test_interrupts_while_the_files_are_written_leave_nothing(tmp_path):
     out.mkdir()
     subprocess.run([sys.executable, str(script), str(out)], cwd=ROOT, timeout=60,
                    env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True)
-    assert sorted(p.name for p in out.iterdir()) == []
+    # no temporary file; no output (or, when a loaded machine delays the signals past the
+    # writes, the whole set: the renames hold them)
+    assert sorted(p.name for p in out.iterdir()) in ([], [f"out{k}.txt" for k in range(4)])
 
 
 def test_the_umask_is_read_once_per_set(tmp_path, monkeypatch):
