@@ -136,28 +136,30 @@ class RotationChain:
         return prefix, suffix[::-1]
 
     # ------------------------------------------------------------------ per-pose parts
-    # The per-pose products of all segments live in two stacked arrays with the pose index last,
-    # so that the search's sums over the poses are elementwise products of contiguous rows and
-    # one batched matrix product per step, not 3x3 products pose by pose:
-    # A (m + 1, 3, 3, N), A[i][c, r, n] = A_i(n)[r, c] (columns first: a joint's Rz mixes two
-    # contiguous blocks and a constant factor acts on all poses in one matrix product; A[0] the
-    # identity); B (m + 1, 3, 3, N), B[i][r, c, n] = B_i(n)[r, c] (rows first; B_m the identity).
+    # The per-pose products of all segments live in two stacked arrays, so that the search's
+    # sums over the poses are elementwise products of contiguous rows and one batched matrix
+    # product per step, not 3x3 products pose by pose:
+    # A (m + 1, 3, 3, N), A[i][c, r, n] = A_i(n)[r, c] (columns first, the pose index last: a
+    # joint's Rz mixes two contiguous blocks and a constant factor acts on all poses in one
+    # matrix product; A[0] the identity); Bt (m + 1, 3, N, 3), Bt[i][:, n] = B_i(n) (rows first,
+    # likewise; B_m the identity).
     def _joint_trig(self, Q: np.ndarray):
-        """Per revolute joint (cos q (N,), sin q (N,), (-sin q, sin q) (2, 1, N)): what turns a
-        pose's first two columns, X Rz(q), and its first two rows, Rz(q) X."""
+        """Per revolute joint (cos q (N,), sin q (N,), cos q (N, 1), (-sin q, sin q) (2, N, 1)): what
+        turns a pose's first two columns in A's layout, X Rz(q), and its first two rows in Bt's,
+        Rz(q) X (see :meth:`_stacks`)."""
         Q = np.asarray(Q, float)
         c, s = np.cos(Q[:, self.joints].T), np.sin(Q[:, self.joints].T)
-        s2 = np.stack((-s, s), axis=1)[:, :, None]
-        return [(c[k], s[k], s2[k]) for k in range(len(self.joints))]
+        s2 = np.stack((-s, s), axis=1)[:, :, :, None]
+        return [(c[k], s[k], c[k][:, None], s2[k]) for k in range(len(self.joints))]
 
     def _stacks(self, N: int):
-        """(A, B) of N poses with A_0 and B_m set to the identity (see above)."""
+        """(A, Bt) of N poses with A_0 and B_m set to the identity (see above)."""
         m = len(self.joints)
         A = np.empty((m + 1, 3, 3, N))
         A[0] = _I3[:, :, None]
-        B = np.empty((m + 1, 3, 3, N))
-        B[m] = _I3[:, :, None]
-        return A, B
+        Bt = np.empty((m + 1, 3, N, 3))
+        Bt[m] = _I3[:, None, :]
+        return A, Bt
 
     def _forward(self, C, trig, A, start: int) -> None:
         """A_i for i > start from A_start (A_0 the identity)."""
@@ -168,37 +170,38 @@ class RotationChain:
             else:                      # (A C)^T = C^T A^T
                 N = X.shape[2]
                 np.dot(C[i].T, A[i].reshape(3, 3 * N), out=X.reshape(3, 3 * N))
-            c, s, _ = trig[i]           # X Rz(q): columns 0 and 1 mixed
+            c, s, _, _ = trig[i]        # X Rz(q): columns 0 and 1 mixed
             x0 = X[0].copy()
             X[0] = x0 * c + X[1] * s
             X[1] = X[1] * c - x0 * s
 
-    def _backward(self, C, trig, B, stop: int) -> None:
+    def _backward(self, C, trig, Bt, stop: int) -> None:
         """B_i for i < stop from B_stop (B_m the identity)."""
         m = len(self.joints)
         for i in range(stop, 0, -1):
-            X = B[i - 1]
+            X = Bt[i - 1]
             if i == m:
-                X[:] = C[m][:, :, None]
+                X[:] = C[m][:, None, :]
             else:
-                N = X.shape[2]
-                np.dot(C[i], B[i].reshape(3, 3 * N), out=X.reshape(3, 3 * N))
-            c, _, s = trig[i - 1]       # Rz(q) X: rows 0 and 1 mixed
+                N = X.shape[1]
+                np.dot(C[i], Bt[i].reshape(3, 3 * N), out=X.reshape(3, 3 * N))
+            _, _, c, s = trig[i - 1]    # Rz(q) X: rows 0 and 1 mixed
             mixed = X[1::-1] * s
             X[:2] *= c
             X[:2] += mixed
 
     @staticmethod
-    def _sums(B, R_meas_cols, A) -> np.ndarray:
+    def _sums(Bt, R_meas_cols, A) -> np.ndarray:
         """W_i = sum_n B_i(n) R_meas_n^T A_i(n) of every segment, (m + 1, 3, 3); R_meas_cols
         (3, 3, N) the measured rotations with the pose index last (R_meas_n[c, r] at [c, r, n])."""
-        M, N = len(B), B.shape[3]
+        M, _, N, _ = Bt.shape
         # G_i(n) = R_meas_n^T A_i(n), columns first: G[i][d, r, n] = sum_c A_i(n)[c, d] R_meas_n[c, r]
         G = A[:, :, 0, None] * R_meas_cols[0]
         G += A[:, :, 1, None] * R_meas_cols[1]
         G += A[:, :, 2, None] * R_meas_cols[2]
-        # W_i[a, d] = sum over r and n of B_i(n)[a, r] G_i(n)[r, d]
-        return np.matmul(B.reshape(M, 3, 3 * N), G.reshape(M, 3, 3 * N).transpose(0, 2, 1))
+        # W_i[a, d] = sum over n and r of B_i(n)[a, r] G_i(n)[r, d] (G pose by pose, (N, 3, 3))
+        G = np.ascontiguousarray(G.transpose(0, 3, 2, 1))
+        return np.matmul(Bt.reshape(M, 3, 3 * N), G.reshape(M, 3 * N, 3))
 
     def search(self, values: np.ndarray, Q: np.ndarray, R_meas: np.ndarray, free: Sequence[int],
                sigma_rot: float, *, max_steps: int = 40, max_flips: int = 5,
@@ -307,7 +310,7 @@ class RotationChain:
             L = prefix[j] @ E
             P = np.broadcast_to(L, (N, 3, 3)) if i == 0 else np.matmul(A[i].transpose(2, 1, 0), L)
             S = (np.broadcast_to(suffix[j], (N, 3, 3)) if i == m
-                 else np.matmul(suffix[j], Bt[i].transpose(2, 0, 1)))
+                 else np.matmul(suffix[j], Bt[i].transpose(1, 0, 2)))
             parts[k] = (axis, P, S)
         turned = {k: P @ _FLIP[axis] @ np.transpose(P, (0, 2, 1)) for k, (axis, P, S) in parts.items()}
         # tr(T1 P2 D2 S2 Rm^T) = sum_ij T1_ij Z2_ji with Z2 = P2 D2 S2 Rm^T
