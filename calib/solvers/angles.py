@@ -142,7 +142,8 @@ class RotationChain:
     # A (m + 1, 3, 3, N), A[i][c, r, n] = A_i(n)[r, c] (columns first, the pose index last: a
     # joint's Rz mixes two contiguous blocks and a constant factor acts on all poses in one
     # matrix product; A[0] the identity); Bt (m + 1, 3, N, 3), Bt[i][:, n] = B_i(n) (rows first,
-    # likewise; B_m the identity).
+    # for the same reasons; B_m the identity; pose by pose within a row, so that the sums over
+    # the poses add in the order of a pose-by-pose product).
     def _joint_trig(self, Q: np.ndarray):
         """Per revolute joint (cos q (N,), sin q (N,), cos q (N, 1), (-sin q, sin q) (2, N, 1)): what
         turns a pose's first two columns in A's layout, X Rz(q), and its first two rows in Bt's,
@@ -335,4 +336,5 @@ class RotationChain:
         A, _ = self._stacks(len(Q))
         self._forward(C, self._joint_trig(Q), A, 0)
         R_meas_T = np.transpose(R_meas, (0, 2, 1))
-        return 6.0 * len(Q) - 2.0 * float(np.trace(C[m] @ np.matmul(R_meas_T, A[m].transpose(2, 1, 0)).sum(axis=0)))
+        A_m = A[m].transpose(2, 1, 0)           # (N, 3, 3), pose by pose
+        return 6.0 * len(Q) - 2.0 * float(np.trace(C[m] @ np.matmul(R_meas_T, A_m).sum(axis=0)))
