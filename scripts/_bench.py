@@ -83,3 +83,19 @@ tasks:
       source_file: {data}
       number_of_samples: {n}
 """
+
+
+#: Bytecode cache of the benchmarks' subprocesses: compiled once, as after an install (the
+#: environment may set PYTHONDONTWRITEBYTECODE, which would make every run compile calib again).
+PYCACHE = os.path.join(__import__("tempfile").gettempdir(), "calib-bench-pycache")
+
+
+def child_env(root) -> dict:
+    """The environment of a benchmark's subprocess: the checkout ``root`` first on PYTHONPATH,
+    the bytecode cache PYCACHE, one BLAS thread."""
+    env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               PYTHONPYCACHEPREFIX=PYCACHE)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[var] = "1"
+    return env

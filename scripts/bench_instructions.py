@@ -12,26 +12,19 @@ Run: python scripts/bench_instructions.py [--poses 100 25] [--calls 5]
 """
 from __future__ import annotations
 
+import _bench
+
 import argparse
 import os
 import re
 import shutil
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PYCACHE = Path(tempfile.gettempdir()) / "calib-bench-pycache"
-
-
 def _env() -> dict:
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
-               PYTHONPYCACHEPREFIX=str(PYCACHE))
-    env.pop("PYTHONDONTWRITEBYTECODE", None)
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        env[var] = "1"
-    return env
+    return _bench.child_env(ROOT)
 
 
 def child(n: int, calls: int) -> None:

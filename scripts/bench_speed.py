@@ -83,18 +83,8 @@ TARGET_27 = {"calibrate_100_ms": 7.0, "calibrate_25_ms": 25.0, "first_ratio": 3.
              "help_ratio": 1.5, "select_100k_s": 10.0, "iiwa_ms": 100.0, "iiwa_compliance_ms": 200.0}
 REALDATA = ROOT.parent / "shared" / "realdata" / "iiwa7_optical"
 
-#: Bytecode cache of the subprocesses: compiled once, as after an install (the environment may
-#: set PYTHONDONTWRITEBYTECODE, which would make every run compile calib from source).
-PYCACHE = Path(tempfile.gettempdir()) / "calib-bench-pycache"
-
-
 def _env() -> dict:
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
-               PYTHONPYCACHEPREFIX=str(PYCACHE))
-    env.pop("PYTHONDONTWRITEBYTECODE", None)
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        env[var] = "1"
-    return env
+    return _bench.child_env(ROOT)
 
 
 def problem(n: int, seed: int = 1):
