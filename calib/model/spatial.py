@@ -72,25 +72,21 @@ def zyx_parameters_jacobian(T_left: np.ndarray, p: np.ndarray, T_right: np.ndarr
     parameters p (6,) change with p (a reference frame and its deviation parameters, as the
     measurement and tool frames are modelled). Rows of the result's angles are NaN at its gimbal
     lock (its beta = +-pi/2: alpha and gamma are not separately defined there)."""
-    x, y, z, alpha, beta, gamma = np.asarray(p, float).tolist()
-    Z = zyx_transform(x, y, z, alpha, beta, gamma)
+    p = np.asarray(p, float)
+    Z = zyx_transform(*p)
     F = T_left @ Z @ T_right
     L = T_left[:3, :3]
-    E = zyx_axes(alpha, beta)
+    E = zyx_axes(p[3], p[4])
     J = np.zeros((6, 6))
     J[:3, :3] = L
-    ax, ay, az = (Z[:3, :3] @ T_right[:3, 3]).tolist()      # the right transform's origin, turned by Z
-    arm_x = np.array([[0.0, -az, ay], [az, 0.0, -ax], [-ay, ax, 0.0]])     # skew(arm)
-    J[:3, 3:] = -L @ arm_x @ E                             # d t = L (e_k x arm) d theta_k
-    a_F, b_F = zyx_from_rotation(F[:3, :3])[:2].tolist()
-    cb = math.cos(b_F)
-    if abs(cb) < 1e-9:
+    arm = Z[:3, :3] @ T_right[:3, 3]                    # the right transform's origin, turned by Z
+    J[:3, 3:] = -L @ skew(arm) @ E                        # d t = L (e_k x arm) d theta_k
+    angles = zyx_from_rotation(F[:3, :3])
+    E_F = zyx_axes(angles[0], angles[1])
+    if abs(math.cos(angles[1])) < 1e-9:
         J[3:, 3:] = np.nan
     else:
-        # omega = L E d theta = E_F d theta_F, solved by E_F's inverse in closed form
-        ca, sa, tb = math.cos(a_F), math.sin(a_F), math.sin(b_F) / cb
-        E_F_inv = np.array([[ca * tb, sa * tb, 1.0], [-sa, ca, 0.0], [ca / cb, sa / cb, 0.0]])
-        J[3:, 3:] = E_F_inv @ (L @ E)
+        J[3:, 3:] = np.linalg.solve(E_F, L @ E)            # omega = L E d theta = E_F d theta_F
     return J
 
 
@@ -121,14 +117,14 @@ def zyx_from_rotation(R: np.ndarray) -> np.ndarray:
     textbook atan2(R21, R22) are each off by ~1e-16 / cos(beta) (1.7e-5 rad at 1e-11 from it).
     """
     R = np.asarray(R, float)
-    if R.ndim == 2:         # one rotation, in scalar math (on Python floats: indexing costs more)
-        (r00, r01, r02), (r10, r11, r12), (r20, _, _) = R[:3, :3].tolist()
-        c = math.hypot(r00, r10)
+    if R.ndim == 2:         # one rotation, in scalar math
+        c = math.hypot(R[0, 0], R[1, 0])
         if c < 1e-12:
-            return np.array([math.atan2(-r01, r11), math.atan2(-r20, c), 0.0])
-        alpha = math.atan2(r10, r00)
+            return np.array([math.atan2(-R[0, 1], R[1, 1]), math.atan2(-R[2, 0], c), 0.0])
+        alpha = math.atan2(R[1, 0], R[0, 0])
         sa, ca = math.sin(alpha), math.cos(alpha)
-        return np.array([alpha, math.atan2(-r20, c), math.atan2(sa * r02 - ca * r12, ca * r11 - sa * r01)])
+        return np.array([alpha, math.atan2(-R[2, 0], c),
+                         math.atan2(sa * R[0, 2] - ca * R[1, 2], ca * R[1, 1] - sa * R[0, 1])])
     c = np.hypot(R[..., 0, 0], R[..., 1, 0])   # |cos beta|
     beta = np.arctan2(-R[..., 2, 0], c)
     lock = c < 1e-12
@@ -277,35 +273,16 @@ def left_jacobian_inverse_batch(r: np.ndarray) -> np.ndarray:
     If ``R' = exp(dw) R`` (a small rotation ``dw`` applied on the left, in the fixed frame)
     then ``log(R') = log(R) + Jl^-1(log R) dw`` to first order.
     """
-    return left_jacobian_inverse_columns(r).transpose(2, 0, 1)
-
-
-def left_jacobian_inverse_columns(r: np.ndarray) -> np.ndarray:
-    """:func:`left_jacobian_inverse_batch` with the pose index last: (3, 3, n), ``L[i, j, k]``
-    the (i, j) element of row k's matrix (r (n, 3), rad). ``I - S / 2 + c2 S^2``, S = [r]x,
-    element by element over the rows (the n products of 3x3 matrices cost more than the sums)."""
-    r0, r1, r2 = np.asarray(r, float).T
-    q0, q1, q2 = r0 * r0, r1 * r1, r2 * r2
-    th = np.sqrt(q0 + q1 + q2)
+    th = np.linalg.norm(r, axis=-1)
+    S = skew(r)
+    S2 = S @ S
     small = th < 1e-6
+    ths = np.where(small, 1.0, th)
     # coefficient of S^2: 1/th^2 - (1 + cos th) / (2 th sin th); series 1/12 + th^2/720
-    if small.any():
-        ths = np.where(small, 1.0, th)
-        with np.errstate(all="ignore"):
-            c2 = 1.0 / ths**2 - (1.0 + np.cos(ths)) / (2.0 * ths * np.sin(ths))
-        c2 = np.where(small, 1.0 / 12.0 + th**2 / 720.0, c2)
-    else:
-        c2 = 1.0 / th**2 - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))
-    L = np.empty((3, 3, len(r0)))
-    h0, h1, h2 = 0.5 * r0, 0.5 * r1, 0.5 * r2
-    a01, a02, a12 = c2 * (r1 * r0), c2 * (r2 * r0), c2 * (r2 * r1)     # c2 S^2 off the diagonal
-    L[0, 0] = 1.0 + c2 * (-q2 - q1)
-    L[1, 1] = 1.0 + c2 * (-q2 - q0)
-    L[2, 2] = 1.0 + c2 * (-q1 - q0)
-    L[0, 1], L[1, 0] = h2 + a01, a01 - h2
-    L[0, 2], L[2, 0] = a02 - h1, h1 + a02
-    L[1, 2], L[2, 1] = h0 + a12, a12 - h0
-    return L
+    with np.errstate(all="ignore"):
+        c2 = 1.0 / ths**2 - (1.0 + np.cos(ths)) / (2.0 * ths * np.sin(ths))
+    c2 = np.where(small, 1.0 / 12.0 + th**2 / 720.0, c2)
+    return np.eye(3) - 0.5 * S + c2[..., None, None] * S2
 
 
 def best_fit_motion(p: np.ndarray, p_ref: np.ndarray, registration: str = "rigid"):

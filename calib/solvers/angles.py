@@ -137,27 +137,23 @@ class RotationChain:
 
     # ------------------------------------------------------------------ per-pose parts
     # The per-pose products of all segments live in two stacked arrays, so that the search's
-    # sums over the poses are elementwise products of contiguous rows and one batched matrix
-    # product per step, not 3x3 products pose by pose:
-    # A (m + 1, 3, 3, N), A[i][c, r, n] = A_i(n)[r, c] (columns first, the pose index last: a
-    # joint's Rz mixes two contiguous blocks and a constant factor acts on all poses in one
-    # matrix product; A[0] the identity); Bt (m + 1, 3, N, 3), Bt[i][:, n] = B_i(n) (rows first,
-    # for the same reasons; B_m the identity; pose by pose within a row, so that the sums over
-    # the poses add in the order of a pose-by-pose product).
+    # sums over the poses are two batched products per step, not two per segment:
+    # A (m + 1, N, 3, 3), A[i][n] = A_i(n) (A[0] the identity); Bt (m + 1, 3, N, 3),
+    # Bt[i][:, n] = B_i(n) (rows first: a joint's Rz mixes two contiguous blocks and a constant
+    # factor acts on all poses in one matrix product; B_m the identity).
     def _joint_trig(self, Q: np.ndarray):
-        """Per revolute joint (cos q (N,), sin q (N,), cos q (N, 1), (-sin q, sin q) (2, N, 1)): what
-        turns a pose's first two columns in A's layout, X Rz(q), and its first two rows in Bt's,
-        Rz(q) X (see :meth:`_stacks`)."""
+        """Per revolute joint (cos q (N, 1), sin q (N, 1), (-sin q, sin q) (2, N, 1)): what turns
+        a pose's first two columns, X Rz(q), and its first two rows, Rz(q) X."""
         Q = np.asarray(Q, float)
-        c, s = np.cos(Q[:, self.joints].T), np.sin(Q[:, self.joints].T)
-        s2 = np.stack((-s, s), axis=1)[:, :, :, None]
-        return [(c[k], s[k], c[k][:, None], s2[k]) for k in range(len(self.joints))]
+        c, s = np.cos(Q[:, self.joints].T)[:, :, None], np.sin(Q[:, self.joints].T)[:, :, None]
+        s2 = np.stack((-s, s), axis=1)
+        return [(c[k], s[k], s2[k]) for k in range(len(self.joints))]
 
     def _stacks(self, N: int):
         """(A, Bt) of N poses with A_0 and B_m set to the identity (see above)."""
         m = len(self.joints)
-        A = np.empty((m + 1, 3, 3, N))
-        A[0] = _I3[:, :, None]
+        A = np.empty((m + 1, N, 3, 3))
+        A[0] = _I3
         Bt = np.empty((m + 1, 3, N, 3))
         Bt[m] = _I3[:, None, :]
         return A, Bt
@@ -165,16 +161,15 @@ class RotationChain:
     def _forward(self, C, trig, A, start: int) -> None:
         """A_i for i > start from A_start (A_0 the identity)."""
         for i in range(start, len(self.joints)):
-            X = A[i + 1]               # (columns first: X[c] is column c, (3, N))
+            X = A[i + 1]
             if i == 0:
-                X[:] = C[0].T[:, :, None]
-            else:                      # (A C)^T = C^T A^T
-                N = X.shape[2]
-                np.dot(C[i].T, A[i].reshape(3, 3 * N), out=X.reshape(3, 3 * N))
-            c, s, _, _ = trig[i]        # X Rz(q): columns 0 and 1 mixed
-            x0 = X[0].copy()
-            X[0] = x0 * c + X[1] * s
-            X[1] = X[1] * c - x0 * s
+                X[:] = C[0]
+            else:
+                np.dot(A[i].reshape(-1, 3), C[i], out=X.reshape(-1, 3))
+            c, s, _ = trig[i]           # X Rz(q): columns 0 and 1 mixed
+            x0 = X[:, :, 0].copy()
+            X[:, :, 0] = x0 * c + X[:, :, 1] * s
+            X[:, :, 1] = X[:, :, 1] * c - x0 * s
 
     def _backward(self, C, trig, Bt, stop: int) -> None:
         """B_i for i < stop from B_stop (B_m the identity)."""
@@ -186,22 +181,16 @@ class RotationChain:
             else:
                 N = X.shape[1]
                 np.dot(C[i], Bt[i].reshape(3, 3 * N), out=X.reshape(3, 3 * N))
-            _, _, c, s = trig[i - 1]    # Rz(q) X: rows 0 and 1 mixed
+            c, _, s = trig[i - 1]       # Rz(q) X: rows 0 and 1 mixed
             mixed = X[1::-1] * s
             X[:2] *= c
             X[:2] += mixed
 
     @staticmethod
-    def _sums(Bt, R_meas_cols, A) -> np.ndarray:
-        """W_i = sum_n B_i(n) R_meas_n^T A_i(n) of every segment, (m + 1, 3, 3); R_meas_cols
-        (3, 3, N) the measured rotations with the pose index last (R_meas_n[c, r] at [c, r, n])."""
+    def _sums(Bt, R_meas_T, A) -> np.ndarray:
+        """W_i = sum_n B_i(n) R_meas_n^T A_i(n) of every segment, (m + 1, 3, 3)."""
         M, _, N, _ = Bt.shape
-        # G_i(n) = R_meas_n^T A_i(n), columns first: G[i][d, r, n] = sum_c A_i(n)[c, d] R_meas_n[c, r]
-        G = A[:, :, 0, None] * R_meas_cols[0]
-        G += A[:, :, 1, None] * R_meas_cols[1]
-        G += A[:, :, 2, None] * R_meas_cols[2]
-        # W_i[a, d] = sum over n and r of B_i(n)[a, r] G_i(n)[r, d] (G pose by pose, (N, 3, 3))
-        G = np.ascontiguousarray(G.transpose(0, 3, 2, 1))
+        G = np.matmul(R_meas_T, A)                                   # (m + 1, N, 3, 3)
         return np.matmul(Bt.reshape(M, 3, 3 * N), G.reshape(M, 3 * N, 3))
 
     def search(self, values: np.ndarray, Q: np.ndarray, R_meas: np.ndarray, free: Sequence[int],
@@ -229,8 +218,7 @@ class RotationChain:
             Q, R_meas = np.asarray(Q)[keep], np.asarray(R_meas)[keep]
         free_set = {int(i) for i in free if int(i) in self.where}
         N = len(Q)
-        R_meas_T = np.transpose(R_meas, (0, 2, 1))
-        R_meas_cols = np.ascontiguousarray(np.transpose(R_meas, (1, 2, 0)))
+        R_meas_T = np.ascontiguousarray(np.transpose(R_meas, (0, 2, 1)))
         trig = self._joint_trig(Q)
         m = len(self.joints)
         segs = [self._segment(i, values) for i in range(m + 1)]
@@ -261,7 +249,7 @@ class RotationChain:
 
         factors(set(seg_of.tolist()))
         for _ in range(max_steps):
-            W = self._sums(Bt, R_meas_cols, A)
+            W = self._sums(Bt, R_meas_T, A)
             cost = 6.0 * N - 2.0 * float(np.trace(C[0] @ W[0]))
             if cost <= floor or not free_set:
                 break
@@ -291,7 +279,7 @@ class RotationChain:
             factors(set(changed))
             self._forward(C, trig, A, changed[0])
             self._backward(C, trig, Bt, changed[-1])
-        W0 = self._sums(Bt[:1], R_meas_cols, A[:1])[0]
+        W0 = self._sums(Bt[:1], R_meas_T, A[:1])[0]
         return values, 6.0 * N - 2.0 * float(np.trace(C[0] @ W0))
 
     def _best_flip(self, values, segs, A, Bt, R_meas_T, keys, cost):
@@ -309,7 +297,7 @@ class RotationChain:
             prefix, suffix = segs[i]
             E = _rotations(axis, values[k])
             L = prefix[j] @ E
-            P = np.broadcast_to(L, (N, 3, 3)) if i == 0 else np.matmul(A[i].transpose(2, 1, 0), L)
+            P = np.broadcast_to(L, (N, 3, 3)) if i == 0 else np.matmul(A[i], L)
             S = (np.broadcast_to(suffix[j], (N, 3, 3)) if i == m
                  else np.matmul(suffix[j], Bt[i].transpose(1, 0, 2)))
             parts[k] = (axis, P, S)
@@ -336,5 +324,4 @@ class RotationChain:
         A, _ = self._stacks(len(Q))
         self._forward(C, self._joint_trig(Q), A, 0)
         R_meas_T = np.transpose(R_meas, (0, 2, 1))
-        A_m = A[m].transpose(2, 1, 0)           # (N, 3, 3), pose by pose
-        return 6.0 * len(Q) - 2.0 * float(np.trace(C[m] @ np.matmul(R_meas_T, A_m).sum(axis=0)))
+        return 6.0 * len(Q) - 2.0 * float(np.trace(C[m] @ np.matmul(R_meas_T, A[m]).sum(axis=0)))

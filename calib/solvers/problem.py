@@ -42,7 +42,7 @@ from calib.choices import LOSSES
 
 from calib.model.jacobian import NO_EFFECT_RTOL, pose_jacobian
 from calib.model.kinematics import JACOBIAN_CHUNK, ChainKinematics
-from calib.model.spatial import left_jacobian_inverse_batch, left_jacobian_inverse_columns, log3_batch
+from calib.model.spatial import left_jacobian_inverse_batch, log3_batch
 from calib.solvers.inverse import RANK_RCOND, normal_inverse
 
 log = logging.getLogger("calib.solvers.problem")
@@ -425,7 +425,7 @@ class Problem:
                 rr = log3_batch(R @ self.R_meas_T[sl])
                 # d log(R R_meas^T) = Jl^-1(r) dw, pose by pose
                 # (3, 3, N), contiguous: einsum on the transposed view is ten times slower
-                L = left_jacobian_inverse_columns(rr)
+                L = np.ascontiguousarray(left_jacobian_inverse_batch(rr).transpose(1, 2, 0))
                 Jr = np.einsum("ijn,cjn->cin", L, Jt[:, 3:]).reshape(m, 3 * n)
             yield Jt, Jp, rp, Jr, rr
 
