@@ -497,6 +497,7 @@ def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> 
     reference is rotated)."""
     std = dict(zip(free, np.sqrt(np.maximum(np.diag(cov), 0.0)).tolist()))
     fitted = set(free)
+    free = {n: k for k, n in enumerate(free)}      # (name -> row of cov, for both frames)
     frame_vals = {("u", None): (zyx_parameters(nominal.T_meas_base()), zyx_parameters(calibrated.T_meas_base()))}
     std.update(_frame_std(calibrated.T_meas_base_ref, calibrated.u(), np.eye(4), U_NAMES, free, cov))
     for t in nominal.targets or (None,):
@@ -525,11 +526,11 @@ def _frame_std(T_left: np.ndarray, p: np.ndarray, T_right: np.ndarray, names, fr
     frame does not move or its angles are at gimbal lock."""
     from calib.model.spatial import zyx_parameters_jacobian
 
-    where = {n: k for k, n in enumerate(free)}
+    where = free if isinstance(free, dict) else {n: k for k, n in enumerate(free)}
     cols = [k for k, n in enumerate(names) if n in where]
     if not cols:
         return {}
     idx = [where[names[k]] for k in cols]
     J = zyx_parameters_jacobian(T_left, p, T_right)[:, cols]
-    var = np.einsum("ij,jk,ik->i", J, np.asarray(cov)[np.ix_(idx, idx)], J)
-    return {n: float(math.sqrt(v)) for n, v in zip(names, var) if np.isfinite(v) and v > 0.0}
+    var = ((J @ np.asarray(cov)[idx][:, idx]) * J).sum(axis=1).tolist()    # diag(J C J^T)
+    return {n: math.sqrt(v) for n, v in zip(names, var) if math.isfinite(v) and v > 0.0}

@@ -72,21 +72,25 @@ def zyx_parameters_jacobian(T_left: np.ndarray, p: np.ndarray, T_right: np.ndarr
     parameters p (6,) change with p (a reference frame and its deviation parameters, as the
     measurement and tool frames are modelled). Rows of the result's angles are NaN at its gimbal
     lock (its beta = +-pi/2: alpha and gamma are not separately defined there)."""
-    p = np.asarray(p, float)
-    Z = zyx_transform(*p)
+    x, y, z, alpha, beta, gamma = np.asarray(p, float).tolist()
+    Z = zyx_transform(x, y, z, alpha, beta, gamma)
     F = T_left @ Z @ T_right
     L = T_left[:3, :3]
-    E = zyx_axes(p[3], p[4])
+    E = zyx_axes(alpha, beta)
     J = np.zeros((6, 6))
     J[:3, :3] = L
-    arm = Z[:3, :3] @ T_right[:3, 3]                    # the right transform's origin, turned by Z
-    J[:3, 3:] = -L @ skew(arm) @ E                        # d t = L (e_k x arm) d theta_k
-    angles = zyx_from_rotation(F[:3, :3])
-    E_F = zyx_axes(angles[0], angles[1])
-    if abs(math.cos(angles[1])) < 1e-9:
+    ax, ay, az = (Z[:3, :3] @ T_right[:3, 3]).tolist()      # the right transform's origin, turned by Z
+    arm_x = np.array([[0.0, -az, ay], [az, 0.0, -ax], [-ay, ax, 0.0]])     # skew(arm)
+    J[:3, 3:] = -L @ arm_x @ E                             # d t = L (e_k x arm) d theta_k
+    a_F, b_F = zyx_from_rotation(F[:3, :3])[:2].tolist()
+    cb = math.cos(b_F)
+    if abs(cb) < 1e-9:
         J[3:, 3:] = np.nan
     else:
-        J[3:, 3:] = np.linalg.solve(E_F, L @ E)            # omega = L E d theta = E_F d theta_F
+        # omega = L E d theta = E_F d theta_F, solved by E_F's inverse in closed form
+        ca, sa, tb = math.cos(a_F), math.sin(a_F), math.sin(b_F) / cb
+        E_F_inv = np.array([[ca * tb, sa * tb, 1.0], [-sa, ca, 0.0], [ca / cb, sa / cb, 0.0]])
+        J[3:, 3:] = E_F_inv @ (L @ E)
     return J
 
 
@@ -117,14 +121,14 @@ def zyx_from_rotation(R: np.ndarray) -> np.ndarray:
     textbook atan2(R21, R22) are each off by ~1e-16 / cos(beta) (1.7e-5 rad at 1e-11 from it).
     """
     R = np.asarray(R, float)
-    if R.ndim == 2:         # one rotation, in scalar math
-        c = math.hypot(R[0, 0], R[1, 0])
+    if R.ndim == 2:         # one rotation, in scalar math (on Python floats: indexing costs more)
+        (r00, r01, r02), (r10, r11, r12), (r20, _, _) = R[:3, :3].tolist()
+        c = math.hypot(r00, r10)
         if c < 1e-12:
-            return np.array([math.atan2(-R[0, 1], R[1, 1]), math.atan2(-R[2, 0], c), 0.0])
-        alpha = math.atan2(R[1, 0], R[0, 0])
+            return np.array([math.atan2(-r01, r11), math.atan2(-r20, c), 0.0])
+        alpha = math.atan2(r10, r00)
         sa, ca = math.sin(alpha), math.cos(alpha)
-        return np.array([alpha, math.atan2(-R[2, 0], c),
-                         math.atan2(sa * R[0, 2] - ca * R[1, 2], ca * R[1, 1] - sa * R[0, 1])])
+        return np.array([alpha, math.atan2(-r20, c), math.atan2(sa * r02 - ca * r12, ca * r11 - sa * r01)])
     c = np.hypot(R[..., 0, 0], R[..., 1, 0])   # |cos beta|
     beta = np.arctan2(-R[..., 2, 0], c)
     lock = c < 1e-12
