@@ -123,8 +123,14 @@ def fold_normal_equations(blocks, fold_of: np.ndarray, folds: int) -> tuple[np.n
             A_fold, g_fold = np.zeros((folds, m, m)), np.zeros((folds, m))
         lab = fold_of[start:start + len(r)]
         start += len(r)
-        for f in range(folds):
-            Jf, rf = Jw[lab == f].reshape(-1, m), r[lab == f].reshape(-1)
+        # the rows gathered fold by fold once (a stable sort keeps their order within a fold):
+        # each fold's rows are then a slice, the same values as a mask would pick
+        order = np.argsort(lab, kind="stable")
+        ends = np.cumsum(np.bincount(lab, minlength=folds)).tolist()
+        Jw_f, r_f = Jw[order].reshape(-1, m), r[order].reshape(-1)
+        k = Jw.shape[1]
+        for f, (a, b) in enumerate(zip([0] + ends[:-1], ends)):
+            Jf, rf = Jw_f[a * k:b * k], r_f[a * k:b * k]
             A_fold[f] += Jf.T @ Jf
             g_fold[f] += Jf.T @ rf
     return A_fold, g_fold
