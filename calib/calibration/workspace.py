@@ -67,7 +67,8 @@ def propagated(jacobians, n: int, C: np.ndarray) -> tuple[float, float]:
     of chunks of shape (k, 6, m); m the rows of C)."""
     tr_p = tr_r = 0.0
     for Jf in jacobians:
-        JC = Jf @ C
+        # (one (6 k, m) x (m, m) product: a stack of k products calls BLAS k times)
+        JC = (Jf.reshape(-1, Jf.shape[2]) @ C).reshape(Jf.shape)
         tr_p += float(np.einsum("nij,nij->", JC[:, :3], Jf[:, :3]))
         tr_r += float(np.einsum("nij,nij->", JC[:, 3:], Jf[:, 3:]))
     n = max(n, 1)
