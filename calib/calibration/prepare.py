@@ -20,8 +20,8 @@ from calib.calibration.options import (
     _check_compatible,
 )
 from calib.errors import DataError, ParameterError
-from calib.model.identifiability import (  # (blake2b: the content digests' one import)
-    blake2b,
+from calib.model.identifiability import (
+    content_digest,
     SIGMA_POS_M,
     SIGMA_ROT_RAD,
     select_identifiable,
@@ -322,10 +322,8 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
 
     # both ranks are kept per model (and data): a calibration repeated on the same data, e.g.
     # with another method, does not redo them
-    h = blake2b(np.ascontiguousarray(Q, float).tobytes(), digest_size=20)
-    if rows is not None:
-        h.update(np.ascontiguousarray(rows, np.int64).tobytes())
-    kept_d = _robot_memo("data rank", robot, options + (Q.shape, h.hexdigest()), data_rank)
+    digest = content_digest(np.asarray(Q, float), None if rows is None else np.asarray(rows, np.int64))
+    kept_d = _robot_memo("data rank", robot, options + (digest,), data_rank)
 
     # the targets these rows measure (a target measured only in validation rows is not calibrated:
     # its frame is not asked of the calibration rows)
@@ -407,11 +405,7 @@ def _frame_estimate(robot: RobotModel, m: Measurements, kin: ChainKinematics | N
     terms = np.concatenate([robot.compliances(), robot.periodic_values()])
     if np.any(terms != 0.0):
         geo = robot
-    h = blake2b(digest_size=20)
-    for a in (m.q, m.position, m.rotation, rows):
-        a = None if a is None else np.ascontiguousarray(a)
-        h.update(b"-" if a is None else f"{a.shape}{a.dtype.str}".encode() + a.tobytes())
-    return _robot_memo("frames", geo, (h.hexdigest(),),
+    return _robot_memo("frames", geo, (content_digest(m.q, m.position, m.rotation, rows),),
                        lambda: estimate_frames_robust(robot, m.q, m.position, m.rotation, rows, kin=kin))
 
 

@@ -188,16 +188,27 @@ def _checked_rows(robot: RobotModel, Q, measure: str, n_poses: int, seed, tol: f
     return Q, targets
 
 
+def content_digest(*arrays) -> str:
+    """A digest of arrays' shapes, types and values (None: a marker of its own), for cache keys
+    that must not hold large data: the one place calib hashes array content."""
+    h = blake2b(digest_size=20)
+    for a in arrays:
+        if a is None:
+            h.update(b"-")
+        else:
+            a = np.ascontiguousarray(a)
+            h.update(f"{a.shape}{a.dtype.str}".encode())
+            h.update(a.tobytes())
+    return h.hexdigest()
+
+
 def _cache_key(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,
                sigma_rot: float, priority, targets) -> tuple:
     """What the analysis depends on: the chain's structure and values, the configurations, the
     options (a digest of the arrays, so that large data are not held by the cache)."""
-    h = blake2b(digest_size=20)
     refs = robot.T_flange_target_refs if robot.T_flange_target_refs is not None else robot.T_flange_tool_ref
-    for a in (robot.values, robot.T_meas_base_ref, refs, Q, np.zeros(0) if targets is None else targets):
-        a = np.ascontiguousarray(a, float)
-        h.update(str(a.shape).encode())
-        h.update(a.tobytes())
+    digest = content_digest(*(np.asarray(a, float) for a in (robot.values, robot.T_meas_base_ref, refs, Q,
+                                                              np.zeros(0) if targets is None else targets)))
     structure = (robot.names, tuple((j.name, j.kind) for j in robot.joints), robot.targets)
-    return (h.hexdigest(), structure, measure, float(tol), float(sigma_pos), float(sigma_rot),
+    return (digest, structure, measure, float(tol), float(sigma_pos), float(sigma_rot),
             None if priority is None else tuple(priority))
