@@ -20,6 +20,7 @@ checked against the generator by the same test); :func:`permutation` takes them 
 """
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -31,15 +32,12 @@ TABLE_FILE = Path(__file__).with_name("uniform_seed0.npy")
 #: The seed the table stands for.
 TABLE_SEED = 0
 
-_TABLE: list = []
-
-
-def _table() -> np.ndarray:
-    if not _TABLE:
-        t = np.load(TABLE_FILE)
-        t.setflags(write=False)
-        _TABLE.append(t)
-    return _TABLE[0]
+@functools.cache
+def _stored(file: Path) -> np.ndarray:
+    """A stored table (read-only), loaded on first use."""
+    t = np.load(file)
+    t.setflags(write=False)
+    return t
 
 
 def uniform(seed: int, lo: np.ndarray, hi: np.ndarray, n: int) -> np.ndarray:
@@ -52,7 +50,7 @@ def uniform(seed: int, lo: np.ndarray, hi: np.ndarray, n: int) -> np.ndarray:
     with np.errstate(over="ignore"):            # (numpy warns below, as before)
         span = hi - lo
     if type(seed) is int and seed == TABLE_SEED and n * k <= TABLE_SIZE and np.isfinite(span).all():
-        return lo + span * _table()[:n * k].reshape(n, k)
+        return lo + span * _stored(TABLE_FILE)[:n * k].reshape(n, k)
     return np.random.default_rng(seed).uniform(lo, hi, size=(n, k))
 
 
@@ -60,15 +58,11 @@ def uniform(seed: int, lo: np.ndarray, hi: np.ndarray, n: int) -> np.ndarray:
 PERMUTATION_MAX = 256
 PERMUTATION_FILE = Path(__file__).with_name("permutations_seed0.npy")
 
-_PERMUTATIONS: list = []
-
 
 def permutation(seed: int, n: int) -> np.ndarray:
     """(n,) int ``np.random.default_rng(seed).permutation(n)``: from the stored permutations for
     seed 0 and n <= :data:`PERMUTATION_MAX`, else from numpy."""
     if type(seed) is int and seed == TABLE_SEED and 0 < n <= PERMUTATION_MAX:
-        if not _PERMUTATIONS:
-            _PERMUTATIONS.append(np.load(PERMUTATION_FILE))
         start = n * (n - 1) // 2
-        return _PERMUTATIONS[0][start:start + n].astype(np.int64)
+        return _stored(PERMUTATION_FILE)[start:start + n].astype(np.int64)
     return np.random.default_rng(seed).permutation(n)
