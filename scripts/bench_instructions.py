@@ -7,7 +7,10 @@ R calls after three warm ones and once with none, and prints (difference) / R: t
 one warm call (Python, numpy, BLAS and Pinocchio together). The bytecode is cached before the
 counted runs (the environment may set PYTHONDONTWRITEBYTECODE).
 
-Run: python scripts/bench_instructions.py [--poses 100 25] [--calls 5]
+With ``--iiwa`` also the 1,402 real rows of ../shared/realdata/iiwa7_optical (the defaults, and any
+``--iiwa-kwargs`` such as ``"terms='none'"``), skipped with a note when that folder is absent.
+
+Run: python scripts/bench_instructions.py [--poses 100 25] [--calls 5] [--iiwa]
 (about a minute per size; needs valgrind)
 """
 from __future__ import annotations
@@ -27,9 +30,19 @@ def _env() -> dict:
     return _bench.child_env(ROOT)
 
 
-def child(n: int, calls: int) -> None:
+IIWA = ROOT.parent / "shared" / "realdata" / "iiwa7_optical"
+
+
+def child(n: int, calls: int, kwargs: str = "") -> None:
     sys.path.insert(0, str(ROOT))
     import calib
+    if n == 0:         # the real iiwa rows
+        robot = calib.load_robot(IIWA / "iiwa7_optical_inertial.urdf")
+        meas = calib.read_measurements(IIWA / "iiwa7_optical.csv", robot)
+        kw = eval(f"dict({kwargs})")
+        for _ in range(2 + calls):
+            calib.calibrate(robot, meas, **kw)
+        return
     from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
 
     robot = calib.load_robot(ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
@@ -39,9 +52,10 @@ def child(n: int, calls: int) -> None:
         calib.calibrate(robot, meas)
 
 
-def instructions(n: int, calls: int) -> float:
-    """Instructions of one warm calibrate() call on n poses (callgrind, difference of two runs)."""
-    cmd = [sys.executable, __file__, "--child", str(n)]
+def instructions(n: int, calls: int, kwargs: str = "") -> float:
+    """Instructions of one warm calibrate() call on n poses (0: the real iiwa rows with ``kwargs``)
+    (callgrind, difference of two runs)."""
+    cmd = [sys.executable, __file__, "--kwargs", kwargs, "--child", str(n)]
     subprocess.run(cmd + ["0"], env=_env(), check=True)          # (the bytecode cached)
     total = []
     for k in (0, calls):
@@ -53,12 +67,15 @@ def instructions(n: int, calls: int) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--poses", type=int, nargs="+", default=[100, 25])
+    ap.add_argument("--poses", type=int, nargs="*", default=[100, 25])
     ap.add_argument("--calls", type=int, default=5, help="counted calls per size (default 5)")
+    ap.add_argument("--iiwa", action="store_true", help="also the 1,402 real iiwa rows (2 counted calls)")
+    ap.add_argument("--iiwa-kwargs", default="", help="calibrate()'s keywords for the iiwa rows, e.g. \"terms='none'\"")
+    ap.add_argument("--kwargs", default="", help=argparse.SUPPRESS)
     ap.add_argument("--child", type=int, nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
-        child(*args.child)
+        child(*args.child, args.kwargs)
         return 0
     if shutil.which("valgrind") is None:
         print("valgrind not found: no instruction counts")
@@ -66,6 +83,12 @@ def main(argv=None) -> int:
     for n in args.poses:
         print(f"calibrate(), {n} poses, defaults: {instructions(n, args.calls) / 1e6:.2f}M instructions per warm call "
               f"(callgrind, {args.calls} calls)")
+    if args.iiwa:
+        if not IIWA.is_dir():
+            print(f"{IIWA} not found: no iiwa figure")
+        else:
+            print(f"calibrate(), 1,402 real iiwa rows, {args.iiwa_kwargs or 'defaults'}: "
+                  f"{instructions(0, 2, args.iiwa_kwargs) / 1e6:.1f}M instructions per warm call (callgrind, 2 calls)")
     return 0
 
 

@@ -31,6 +31,7 @@ from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.solvers.inverse import normal_inverse
+from calib.solvers.lm import options_with
 from calib.solvers.problem import Problem
 
 #: Calibration rows the choice of the joint terms is judged on at most: above, an evenly spaced
@@ -50,6 +51,14 @@ TERMS_MIN_COMPONENTS_PER_PARAM = 20.0
 #: standard errors of the paired row-by-row difference (one-sided: a chance win of two standard
 #: errors happens ~2 % of the time).
 TERMS_MIN_SE = 2.0
+#: The LM tolerance of choose_terms' geometric fit (calibrate's default 1e-12), which stops before
+#: its last step (LMOptions.last_step False): that fit gives the noise levels, the rows kept and the
+#: point the candidates are linearised at, not the estimates (calibrate's own fit of the chosen model
+#: converges at its own tolerance from the chosen candidate's step). Stopped where the next step
+#: would lower the cost by less than 1e-9 of it (a step of ~0.003 standard deviations on the real
+#: iiwa rows, whose scores are linear in it to far below their margins): 4 of its 14 Jacobian passes
+#: fewer there, the calibrated values within 1.5e-10 standard deviations of a full convergence's.
+TERMS_FIT_FTOL = 1e-9
 #: The candidates of choose_terms, smallest first: (label, compliance, periodic).
 TERM_CANDIDATES = (("geometry", False, False), ("+compliance", True, False), ("+periodic", False, True),
                    ("+compliance+periodic", True, True))
@@ -276,7 +285,9 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
             setup, _ = prepare(model, measurements, None, False)
         setups.append(setup)
         frees.append(choose_parameters(setup, opts).free)
-    # the geometric fit: noise levels and outlier check
+    # the geometric fit: noise levels and outlier check, its LM stopped at TERMS_FIT_FTOL (see there)
+    geo_opts = replace(geo_opts, lm=options_with(geo_opts.lm, ftol=max(geo_opts.lm.ftol, TERMS_FIT_FTOL),
+                                                 last_step=False))
     fit, problem = fit_with(setups[0], frees[0], geo_opts, outlier_k=geo_opts.outlier_k, kin=setups[0].kin)
     if fit.solver.status != "converged":
         # (its noise levels and rows would whiten every candidate: a fit stuck in a local
