@@ -312,10 +312,13 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     fold_of = fold_labels(int(keep.sum()), folds, seed)
     has_rot = big.measure == "pose"
     cols = {label: np.array([union.index(n) for n in free], int) for (label, _, _), free in zip(cands, frees)}
+    # (the normal equations first: each group's share of them re-weights the chosen step below, and
+    # the whitened blocks of up to CHUNK_POSES rows are then made from the same pass)
+    ne0 = lin.normal_equations(x0)
     blocks = [(r, Jw) for r, Jw in lin.whitened_blocks(x0)]
     scored, x_u, per_row = _linear_scores(blocks, x0, x0, union, cols, fold_of, folds, (sp, sr, has_rot), lin,
                                           required=cands[0][0])
-    linearised_at = dict.fromkeys(scored, (blocks, x0))
+    linearised_at = dict.fromkeys(scored, (ne0, x0))
     table, rows = _table(cands, frees, scored)
     if _close_call(table, rows, per_row):
         # the model's curvature (the cost at the Gauss-Newton step of every term, against the
@@ -323,11 +326,12 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         # candidates are scored again linearised at that step (where the terms a candidate
         # lacks are near zero when it holds the truth's: periodic errors of 10 mrad and
         # compliances of 400 urad/(N m) made +both win over the true +compliance by 6e-5)
-        blocks_u = [(r, Jw) for r, Jw in lin.whitened_blocks(x_u)]
-        again = _linear_scores(blocks_u, x_u, x0, union, {k: v for k, v in cols.items() if k != cands[0][0]},
-                               fold_of, folds, (sp, sr, has_rot), None)[0]
+        ne_u = lin.normal_equations(x_u)
+        again = _linear_scores([(r, Jw) for r, Jw in lin.whitened_blocks(x_u)], x_u, x0, union,
+                               {k: v for k, v in cols.items() if k != cands[0][0]}, fold_of, folds,
+                               (sp, sr, has_rot), None)[0]
         scored.update(again)
-        linearised_at.update(dict.fromkeys(again, (blocks_u, x_u)))
+        linearised_at.update(dict.fromkeys(again, (ne_u, x_u)))
         table, rows = _table(cands, frees, scored)
     best = pick_terms(table, rows)
     start_values = scored[best.label][1]
@@ -342,35 +346,28 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
                        start_values, tuple(o.row for o in fit.outliers))
 
 
-def _step_at_own_levels(blocks, x, x_held, union: list, c: np.ndarray, levels: tuple[float, float],
-                        free: tuple[bool, bool]) -> dict:
-    """The Gauss-Newton step of the candidate with columns ``c`` of the linearisation ``blocks``
-    at x (whitened at the geometric fit's noise levels ``levels``; the columns it lacks moved to
-    their values in ``x_held`` first), re-weighted to the noise levels where the variance-component
-    estimation of that candidate stops (:func:`~calib.calibration.fit._vce_fixed_point`; ``free``:
+def _step_at_own_levels(ne: NormalEquations, x, x_held, union: list, c: np.ndarray,
+                        levels: tuple[float, float], free: tuple[bool, bool]) -> dict:
+    """The Gauss-Newton step of the candidate with columns ``c`` of the union's normal equations
+    ``ne`` at x (whitened at the geometric fit's noise levels ``levels``; the columns it lacks
+    moved to their values in ``x_held`` first), re-weighted to the noise levels where the
+    variance-component estimation of that candidate stops (:func:`~calib.calibration.fit._vce_fixed_point`; ``free``:
     which levels are estimated), as name -> value: where calibrate's fit of the chosen model
     starts. Its scores are the step at the geometric levels (every candidate on the same
     weights); its fit re-weights to its own residuals (the real iiwa rows with the joint terms:
     0.34 -> 0.26 mm, 1.51 -> 0.90 mrad), and from the step at the geometric levels its LM took
     one iteration (one Jacobian pass of 68 parameters) more."""
     sp, sr = levels
+    # the columns it lacks moved by ``shift`` (the residuals r + J shift), then its columns only
     shift = x_held - x
     shift[c] = 0.0
-    m = len(c)
-    A_p, A_r, g_p, g_r, rss, n = np.zeros((m, m)), np.zeros((m, m)), np.zeros(m), np.zeros(m), [0.0, 0.0], 0
-    for r, Jw in blocks:
-        r = r + Jw @ shift                       # (the residuals after the shift)
-        J = Jw[:, :, c]
-        Jp, Jr = J[:, :3].reshape(-1, m), J[:, 3:].reshape(-1, m)
-        rp, rr = r[:, :3].reshape(-1), r[:, 3:].reshape(-1)
-        A_p += Jp.T @ Jp
-        A_r += Jr.T @ Jr
-        g_p += Jp.T @ rp
-        g_r += Jr.T @ rr
-        rss[0] += float(rp @ rp)
-        rss[1] += float(rr @ rr)
-        n += len(r)
-    ne = NormalEquations(A_p + A_r, g_p + g_r, A_p, A_r, rss[0], rss[1], 3 * n, 3 * n, g_p)
+    A_p, A_r, g_p = ne.A_pos, ne.A_rot, ne.g_pos
+    g_r = ne.g - g_p
+    rss = [ne.rss_pos + 2.0 * g_p @ shift + shift @ A_p @ shift,
+           ne.rss_rot + 2.0 * g_r @ shift + shift @ A_r @ shift]
+    g_p, g_r = (g_p + A_p @ shift)[c], (g_r + A_r @ shift)[c]
+    A_p, A_r = A_p[np.ix_(c, c)], A_r[np.ix_(c, c)]
+    ne = NormalEquations(A_p + A_r, g_p + g_r, A_p, A_r, rss[0], rss[1], ne.n_pos, ne.n_rot, g_p)
     own_p, own_r = _vce_fixed_point(ne, levels, levels, free)
     f_p, f_r = (sp / own_p) ** 2, (sr / own_r) ** 2
     step = normal_inverse(f_p * A_p + f_r * A_r)[0] @ (f_p * g_p + f_r * g_r)
