@@ -12,7 +12,7 @@ from calib.calibration.accuracy import target_rows
 from calib.calibration.consistency import data_consistency
 from calib.calibration.fit import Fit
 from calib.calibration.prepare import Setup
-from calib.calibration.validation import _held_out_traces
+from calib.calibration.validation import row_traces
 from calib.calibration.workspace import predict_workspace, propagate_covariance, propagated, workspace_notes
 from calib.solvers.inverse import normal_inverse
 from calib.solvers.problem import Problem
@@ -62,7 +62,12 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
         # at the calibration rows: the Jacobian of the fit's rows at its solution, computed once
         return propagated((J for _, _, J in problem.derived(loss="linear").whitened_blocks(x, raw=True)), len(Q), cov)
 
-    pos, rot = propagate(C)
+    if setup.val is None:
+        # at the calibration rows, with the held-out traces below (one product J C for both)
+        t_p, t_r, e_p, e_r = row_traces(problem.derived(loss="linear"), x, C)
+        pos, rot = math.sqrt(max(e_p, 0.0)), math.sqrt(max(e_r, 0.0))
+    else:
+        pos, rot = propagate(C)
     nz = fit.noise
     has_rot = setup.measure == "pose"
     # misfit: a group whose residuals exceed the given noise inflates both the parameter
@@ -88,7 +93,6 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
         # new rows like the calibration rows: a row's error when it is held out of the fit is
         # (I - H_ii)^-1 times its residual, H_ii its block of the hat matrix, so its expected
         # square is sigma^2 tr (I - H_ii)^-1 - on few rows far above sigma^2 (1 + tr H_ii)
-        t_p, t_r = _held_out_traces(problem.derived(loss="linear"), x, C)
         holdout_p = math.sqrt(nz.position ** 2 * infl_p * t_p)
         holdout_r = math.sqrt(nz.rotation ** 2 * infl_r * t_r) if has_rot else None
     predicted = {"position_rms": pos, "rotation_rms": rot if has_rot else None, "where": where}

@@ -24,13 +24,15 @@ if TYPE_CHECKING:
     from calib.calibration.selection import ModelSelection
 
 
-def _held_out_factors(Jw: np.ndarray, C: np.ndarray) -> np.ndarray:
+def _held_out_factors(Jw: np.ndarray, C: np.ndarray, H: np.ndarray | None = None) -> np.ndarray:
     """(n, k, k): (I - H_ii)^-1 for each row's whitened Jacobian block Jw (n, k, m), H_ii = Jw_i C
-    Jw_i^T its block of the hat matrix: a kept row's held-out (leave-one-out) residual is this
-    times its residual. A leverage reaching 1 (the row alone determines a parameter) counts as 0.99."""
+    Jw_i^T its block of the hat matrix (``H`` when already made): a kept row's held-out
+    (leave-one-out) residual is this times its residual. A leverage reaching 1 (the row alone
+    determines a parameter) counts as 0.99."""
     n, k, m = Jw.shape
-    # (Jw C as one (n k, m) x (m, m) product: the same values, one BLAS call instead of n)
-    H = (Jw.reshape(n * k, m) @ C).reshape(n, k, m) @ np.transpose(Jw, (0, 2, 1))     # (n, k, k)
+    if H is None:
+        # (Jw C as one (n k, m) x (m, m) product: the same values, one BLAS call instead of n)
+        H = (Jw.reshape(n * k, m) @ C).reshape(n, k, m) @ np.transpose(Jw, (0, 2, 1))     # (n, k, k)
     M = np.empty_like(H)                                         # (I - H)^-1
     # H is positive semi-definite: a leverage can reach 0.99 only where its trace does
     high = np.trace(H, axis1=1, axis2=2) >= 0.99
@@ -46,14 +48,34 @@ def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[fl
     """Means over the rows of tr (I - H_ii)^-1 over the position and the rotation components
     (whitened units), H_ii = Jw_i C Jw_i^T the row's block of the hat matrix. A row whose
     leverage reaches 1 (it alone determines a parameter) counts as leverage 0.99."""
-    t_p = t_r = 0.0
+    return row_traces(problem, x, C)[:2]
+
+
+def row_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, float, float, float]:
+    """(t_p, t_r, e_p, e_r) over the rows of ``problem`` at x: t_p / t_r the means of
+    tr (I - H_ii)^-1 (:func:`_held_out_traces`), e_p / e_r the means of tr (J_i C J_i^T) over the
+    position (m^2) and the rotation (rad^2) block of each row's pose Jacobian J_i (the pose error a
+    parameter error of covariance C causes, as :func:`~calib.calibration.workspace.propagated`
+    gives it), from one product Jw C: a row's position block of J C J^T is sigma_pos^2 times
+    H_ii's, and the rotation blocks sum to tr (C sum J_r^T J_r) (Jw's rotation rows carry the
+    log map's Jacobian, the pose error's do not)."""
+    t_p = t_r = e_p = 0.0
+    m = C.shape[0]
+    A_r = np.zeros((m, m))
     n = 0
-    for _, Jw, _ in problem.whitened_blocks(x, raw=True):
-        d = np.diagonal(_held_out_factors(Jw, C), axis1=1, axis2=2)
+    for _, Jw, J in problem.whitened_blocks(x, raw=True):
+        k = Jw.shape[1]
+        H = (Jw.reshape(-1, m) @ C).reshape(Jw.shape) @ np.transpose(Jw, (0, 2, 1))     # (n, k, k)
+        d = np.diagonal(_held_out_factors(Jw, C, H), axis1=1, axis2=2)
         t_p += float(d[:, :3].sum())
         t_r += float(d[:, 3:].sum())
+        e_p += float(np.trace(H[:, :3, :3], axis1=1, axis2=2).sum())
+        if k == 6:
+            J_r = J[:, 3:].reshape(-1, m)
+            A_r += J_r.T @ J_r
         n += len(Jw)
-    return t_p / max(n, 1), t_r / max(n, 1)
+    n = max(n, 1)
+    return t_p / n, t_r / n, e_p * problem.sigma_pos ** 2 / n, float(np.sum(C * A_r)) / n
 
 
 # ---------------------------------------------------------------- cross-validation
