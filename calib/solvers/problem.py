@@ -288,11 +288,12 @@ class Problem:
             shared.pop(next(iter(shared)))
         return ne
 
-    def _kept_blocks(self, x: np.ndarray):
+    def _kept_blocks(self, x: np.ndarray, any_loss: bool = False):
         """The unweighted blocks of the least-squares normal equations last computed at x for
-        these rows (one chunk only; see _compute_normal_equations), or None."""
+        these rows (one chunk only; see _compute_normal_equations), or None (with a robust loss
+        too when ``any_loss``: its normal equations are summed from the same blocks)."""
         shared = getattr(self, "_shared", None)
-        if self.loss != "linear" or shared is None or self.n_poses > CHUNK_POSES:
+        if (self.loss != "linear" and not any_loss) or shared is None or self.n_poses > CHUNK_POSES:
             return None
         hit = shared.get((self.full(x).tobytes(), self.free.tobytes(), "pose", getattr(self, "_rows_key", None)))
         return None if hit is None else hit[3]
@@ -375,7 +376,17 @@ class Problem:
         g = np.zeros(m)
         rss = [0.0, 0.0]
         wp, wr = 1.0 / self.sigma_pos ** 2, 1.0 / self.sigma_rot ** 2
-        for Jt, Jp, rp, Jr, rr in self._transposed_blocks(x, parts):
+        kept = self._kept_blocks(x, any_loss=True) if parts == "pose" else None
+        if kept is not None:
+            # the least-squares pass at x on these rows (the outlier check's Huber fit starts at
+            # the least-squares solution): its blocks, without another Jacobian
+            Jt, Jr, rp, rr = kept
+            m_, _, n = Jt.shape
+            blocks = [(Jt, Jt[:, :3].reshape(m_, 3 * n), rp.reshape(3, n), Jr,
+                       None if rr is None else rr.reshape(3, n).T)]
+        else:
+            blocks = self._transposed_blocks(x, parts)
+        for Jt, Jp, rp, Jr, rr in blocks:
             z = np.zeros(Jt.shape[2])
             if use_pos:
                 zp = np.einsum("kn,kn->n", rp, rp) * wp
