@@ -447,21 +447,24 @@ class Problem:
         blocks = self._kept_blocks(x)
         if blocks is not None:      # from the normal equations' pass at x (the last result kept)
             last = getattr(self, "_last_wb", None)
-            if last is not None and last[0] is blocks:
+            if last is not None and last[0] is blocks and (not raw or last[1][2] is not None):
                 yield last[1] if raw else last[1][:2]
                 return
             Jt, Jr, rp, rr = blocks
             m, _, n = Jt.shape
-            J = np.ascontiguousarray(Jt.transpose(2, 1, 0))
+            J = np.ascontiguousarray(Jt.transpose(2, 1, 0)) if raw else None
             k = 3 if rr is None else 6
             r, Jw = np.empty((n, k)), np.empty((n, k, m))
-            r[:, :3] = rp.reshape(3, n).T / self.sigma_pos
-            Jw[:, :3] = J[:, :3] / self.sigma_pos
+            # (each block divided into its place in one pass: "x.transpose() / s" makes its
+            # quotient in x's memory order and then copies it across, 7x the time on 1,402 rows)
+            np.divide(rp.reshape(3, n).T, self.sigma_pos, out=r[:, :3])
+            np.divide(Jt[:, :3].transpose(2, 1, 0) if J is None else J[:, :3], self.sigma_pos, out=Jw[:, :3])
             if rr is not None:
-                r[:, 3:] = rr.reshape(3, n).T / self.sigma_rot
-                Jw[:, 3:] = Jr.reshape(m, 3, n).transpose(2, 1, 0) / self.sigma_rot
+                np.divide(rr.reshape(3, n).T, self.sigma_rot, out=r[:, 3:])
+                np.divide(Jr.reshape(m, 3, n).transpose(2, 1, 0), self.sigma_rot, out=Jw[:, 3:])
             for a in (r, Jw, J):
-                a.setflags(write=False)
+                if a is not None:
+                    a.setflags(write=False)
             self._last_wb = (blocks, (r, Jw, J))
             yield (r, Jw, J) if raw else (r, Jw)
             return
