@@ -18,6 +18,7 @@ from calib.calibration.options import (
     IMPLAUSIBLE_ROT_RAD,
     LOCAL_MINIMUM_RATIO,
     ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM,
+    STEP_START_MU0,
     TRIMMED_MAX_OUTLIER_SHARE,
     VCE_FIRST_FTOL,
     VCE_MAX_ITERATIONS,
@@ -228,16 +229,17 @@ class Solver:
     lm_variant: str = "calib"
 
     def __call__(self, problem: Problem, x: np.ndarray, trace: LMTrace, first: bool, *,
-                 loose: bool = False) -> SolverResult:
+                 loose: bool = False, mu0: float = WARM_MU0) -> SolverResult:
         """The first fit (``first``: the method's own scheme) or a re-fit from a near solution
-        (LM started with damping WARM_MU0); ``loose``: stop at VCE_FIRST_FTOL (calib's LM only)."""
+        (LM started with damping ``mu0``, at most the options'); ``loose``: stop at
+        VCE_FIRST_FTOL (calib's LM only)."""
         if self.lm_variant == "paper":
             return self._paper(problem, x, trace)
         opts = self.options
         if loose:   # (stopping at its last evaluated point, whose normal equations the estimate uses)
             opts = options_with(opts, ftol=max(opts.ftol, VCE_FIRST_FTOL), last_step=False)
         if not first:
-            return dispatch.solve(problem, x, "lm", options=options_with(opts, mu0=min(opts.mu0, WARM_MU0)), trace=trace)
+            return dispatch.solve(problem, x, "lm", options=options_with(opts, mu0=min(opts.mu0, mu0)), trace=trace)
         method = "lm" if self.measure == "position" else self.method
         return dispatch.solve(problem, x, method, angular=self.angular, chain=self.chain, options=opts,
                               trace=trace, max_rounds=self.max_rounds, fixed_rounds=self.fixed_rounds)
@@ -286,8 +288,9 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     with noise levels that outliers cannot inflate) are removed and the fit repeated.
     rank_deficit : how many directions ``free`` leaves undetermined at the nominal model on these
     rows (0 for an identifiable set; see :meth:`calib.solvers.problem.Problem.set_rank_deficit`).
-    warm : ``setup.start`` is already near the solution (a fit of a nested model's): LM from it
-    with the damping of a re-fit, not the method's scheme from a nominal start.
+    warm : ``setup.start`` is already near the solution (a Gauss-Newton step of the same model,
+    or a fit of a nested model's): LM from it with damping STEP_START_MU0, not the method's scheme
+    from a nominal start.
     Returns the :class:`Fit` and the final weighted problem on the kept rows.
     """
     cal, start = setup.cal, setup.start
@@ -316,6 +319,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     notes: list[str] = []
     refusals: list[str] = []
     first = not warm
+    start_mu0 = STEP_START_MU0 if warm else WARM_MU0      # (the first solve's damping, when not first)
     stuck = None
     # (a warm start is a nested model's fit, which may itself have stopped in a local minimum: the
     # warm fit's first converged solution is judged as a first fit's is)
@@ -348,7 +352,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
             problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
             # (pose data: the weights change the fit, so a re-weighted fit follows the first)
             loose = first and estimate and two_groups
-            sol = _solve_logged(solve, problem, x, trace, first, loose=loose)
+            sol = _solve_logged(solve, problem, x, trace, first, loose=loose, mu0=start_mu0)
+            start_mu0 = WARM_MU0
             if first or (unjudged and sol.status == "converged"):
                 # judged at the starting weights, before they adapt to a stuck fit's residuals;
                 # a first fit that stopped unconverged (the paper's LM at its iteration limit) is
@@ -444,9 +449,10 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     return fit, problem
 
 
-def _solve_logged(solve: Solver, problem: Problem, x, trace, first, loose: bool = False) -> SolverResult:
+def _solve_logged(solve: Solver, problem: Problem, x, trace, first, loose: bool = False,
+                  mu0: float = WARM_MU0) -> SolverResult:
     t = time.perf_counter()
-    sol = solve(problem, x, trace, first, loose=loose)
+    sol = solve(problem, x, trace, first, loose=loose, mu0=mu0)
     log.info("fit (%s%s): %s, cost %.6g, %d iterations, %.1f ms", solve.method if first else "lm",
              "" if first else " re-weighted", sol.status, sol.cost, sol.iterations,
              (time.perf_counter() - t) * 1e3)
