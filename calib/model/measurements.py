@@ -24,7 +24,7 @@ ROTATION_TOLERANCE = 1e-6
 
 
 # ====================================================================== data
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, repr=False)     # (its own __repr__ below: the generated one was built and discarded)
 class Measurements:
     """Measured tool poses with the joint values they were taken at (immutable, SI units).
 
