@@ -160,10 +160,12 @@ def kept_weighted_jacobian(robot: RobotModel, Q: np.ndarray, measure: str, sigma
     """:func:`weighted_jacobian`, or the one the last :func:`identifiable_names` computed for
     the same model values, configurations, targets, measure and noise levels (the same array:
     read it, do not write it). A calibration's data-rank check asks for the Jacobian its
-    identifiable set was just chosen with (the start model at the calibration rows)."""
-    key = _cache_key(robot, Q, measure, RANK_TOL, sigma_pos, sigma_rot, None, targets)[:-1]
-    if _last_jacobian[0] == key:
-        return _last_jacobian[1]
+    identifiable set was just chosen with (the start model at the calibration rows). Not for a
+    model with compliance, whose Jacobian depends on the gravity load too, which the key omits."""
+    if not robot.has_compliance:
+        key = _cache_key(robot, Q, measure, RANK_TOL, sigma_pos, sigma_rot, None, targets)[:-1]
+        if _last_jacobian[0] == key:
+            return _last_jacobian[1]
     return weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot, targets)
 
 
