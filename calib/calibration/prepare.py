@@ -22,6 +22,7 @@ from calib.calibration.options import (
 from calib.errors import DataError, ParameterError
 from calib.model.identifiability import (
     content_digest,
+    kept_weighted_jacobian,
     SIGMA_POS_M,
     SIGMA_ROT_RAD,
     select_identifiable,
@@ -316,7 +317,7 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
     options = (measure, float(sigma_pos), float(sigma_rot), tuple(cols))
 
     def data_rank():
-        Jd = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot, rows)[:, cols]
+        Jd = kept_weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot, rows)[:, cols]
         finite = np.isfinite(Jd).all(axis=0)
         if not finite.all():
             names = [robot.names[cols[k]] for k in np.flatnonzero(~finite)]

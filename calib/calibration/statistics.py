@@ -18,7 +18,7 @@ from calib.solvers.inverse import normal_inverse
 from calib.solvers.problem import Problem
 
 
-@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
+@dataclass(frozen=True, eq=False, repr=False)     # (array fields, an internal stage value: nothing compares or prints it)
 class Statistics:
     """The statistics stage.
 

@@ -26,9 +26,9 @@ subcommands when they run, not when this module is imported.
 """
 from __future__ import annotations
 
+import _signal      # (signal's C core: the signal module's enums cost 2.8M instructions of every start)
 import argparse
 import logging
-import signal
 import sys
 import threading
 import time
@@ -125,9 +125,16 @@ def _raise_interrupted(signum, frame):
     if written():
         _LATE.append(signum)
         return
-    if signum == signal.SIGINT:
+    if signum == _signal.SIGINT:
         raise KeyboardInterrupt
     raise Interrupted(signum)
+
+
+def _signal_name(signum: int) -> str:
+    """The name of a signal (SIGINT, SIGTERM), for the messages of an interruption."""
+    from signal import Signals
+
+    return Signals(signum).name
 
 
 def _one_line(text) -> str:
@@ -159,7 +166,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     forget_written()
     _LATE.clear()
     if threading.current_thread() is threading.main_thread():
-        previous = {s: signal.signal(s, _raise_interrupted) for s in (signal.SIGINT, signal.SIGTERM)}
+        previous = {s: _signal.signal(s, _raise_interrupted) for s in (_signal.SIGINT, _signal.SIGTERM)}
     try:
         # the parser's choices and defaults come from the library: building it imports numpy
         # and Pinocchio, so a signal may land here too
@@ -188,16 +195,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INPUT
     except KeyboardInterrupt:
         sys.stderr.write(f"{PROG}: interrupted by SIGINT\n")
-        return 128 + signal.SIGINT
+        return 128 + _signal.SIGINT
     except Interrupted as exc:
-        name = signal.Signals(exc.signum).name
+        name = _signal_name(exc.signum)
         sys.stderr.write(f"{PROG}: interrupted by {name}\n")
         return 128 + exc.signum
     finally:
         for s, h in previous.items():
-            signal.signal(s, h)
+            _signal.signal(s, h)
         if _LATE:
-            sys.stderr.write(f"{PROG}: {signal.Signals(_LATE[0]).name} received after the outputs were written "
+            sys.stderr.write(f"{PROG}: {_signal_name(_LATE[0])} received after the outputs were written "
                              f"({', '.join(str(p) for p in written())}): they are complete\n")
         if handler is not None:
             root_log.removeHandler(handler)
@@ -221,15 +228,15 @@ def main_entry() -> None:
     # (main's handlers on both sides of main: a signal before it stops with the one line, one
     # after it is recorded when the outputs are in place; then ignored while Python exits, so
     # that the exit code stays the command's)
-    for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, _raise_interrupted)
+    for s in (_signal.SIGINT, _signal.SIGTERM):
+        _signal.signal(s, _raise_interrupted)
     try:
         with limit:
             code = main()
     except (Interrupted, KeyboardInterrupt) as exc:     # (outside main's run: nothing written)
-        signum = getattr(exc, "signum", signal.SIGINT)
-        sys.stderr.write(f"{PROG}: interrupted by {signal.Signals(signum).name}\n")
+        signum = getattr(exc, "signum", _signal.SIGINT)
+        sys.stderr.write(f"{PROG}: interrupted by {_signal_name(signum)}\n")
         code = 128 + signum
-    for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, signal.SIG_IGN)
+    for s in (_signal.SIGINT, _signal.SIGTERM):
+        _signal.signal(s, _signal.SIG_IGN)
     sys.exit(code)

@@ -33,7 +33,7 @@ def available_memory() -> int | None:
     """Bytes of memory available to this process: MemAvailable of /proc/meminfo (Linux), else
     the free physical pages; None when unknown."""
     try:
-        with open("/proc/meminfo", encoding="ascii") as fh:
+        with open("/proc/meminfo", encoding="utf-8") as fh:     # (ASCII text; utf-8: a codec already loaded)
             for line in fh:
                 if line.startswith("MemAvailable:"):
                     return int(line.split()[1]) * 1024

@@ -17,11 +17,12 @@ import numpy as np
 import pinocchio as pin
 
 from calib.checks import check_number, check_path
-from calib.errors import ChainError, FrameNotFound, ParameterError, URDFError
+from calib.errors import CalibError, ChainError, FrameNotFound, ParameterError, URDFError
 from calib.io.fileio import captured_c_output
 from calib.model.mdh import PARALLEL_THRESHOLD_RAD, derive_mdh
 from calib.io.urdf import UrdfDocument, UrdfJoint
 from calib.model.chain import JOINT_KINDS, ChainJoint
+from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
 from calib.model.spatial import cross3
 
@@ -379,3 +380,66 @@ def _derived(chain: UrdfChain, parallel_threshold: float) -> RobotModel:
                 for _, link in rec.targets]
         robot = robot.with_targets([t for t, _ in rec.targets], np.array(refs))
     return robot
+
+
+# ====================================================================== the nominal model against its URDF
+#: Tolerance (metres, radians) for the check that a ``nominal`` model describes the URDF's joint
+#: axes and tool frame. A model derived by :func:`calib.load_robot` matches to rounding (1e-15).
+NOMINAL_MATCH_TOL = 1e-9
+
+
+def mdh_poses(robot: RobotModel) -> dict:
+    """MDH frames of a model at q = 0 in the meas frame: moving frames X_i (list of 4x4),
+    the flange and the tool (4x4)."""
+    kin = ChainKinematics(robot)
+    pin.forwardKinematics(kin.model, kin.data, np.zeros(kin.model.nq))
+    pin.updateFramePlacements(kin.model, kin.data)
+    X = [kin.data.oMi[i].homogeneous for i in range(1, robot.n_joints + 1)]
+    return {"X": X, "flange": kin.data.oMf[kin.flange_frame_id].homogeneous,
+            "tool": kin.data.oMf[kin.tool_frame_id].homogeneous,
+            "base": kin.data.oMf[kin.base_frame_id].homogeneous}
+
+
+#: (nominal model, chain, its MDH frames at q = 0) of the last nominal checked against its URDF:
+#: the writer's check before a fit (check_writable) and its write after it ask it of the same model.
+_LAST_NOMINAL: list = []
+
+
+def checked_nominal_poses(nominal: RobotModel, chain: UrdfChain) -> dict:
+    """:func:`mdh_poses` of ``nominal`` (one Pinocchio model of it), checked against the URDF of
+    ``chain`` (the writer's nominal: its MDH z axes are the URDF joint axes, its tool frame the
+    URDF's, at q = 0); CalibError otherwise. The last model's are kept (the same objects: both
+    are immutable)."""
+    for kept, kept_chain, nom in _LAST_NOMINAL:
+        if kept is nominal and kept_chain is chain:
+            return nom
+    nom = mdh_poses(nominal)
+    _check_nominal_matches_urdf(nominal, chain, nom)
+    for T in nom["X"] + [nom["flange"], nom["tool"], nom["base"]]:
+        T.setflags(write=False)        # (kept: read, never written)
+    _LAST_NOMINAL[:] = [(nominal, chain, nom)]
+    return nom
+
+
+def _check_nominal_matches_urdf(nominal: RobotModel, chain, nom: dict) -> None:
+    """The nominal MDH z axes (``nom``: its mdh_poses) must be the URDF joint axes, the tool frames equal, at q = 0."""
+    pts, dirs, T_meas_tool = chain_axes(chain)
+    worst = 0.0
+    for i, joint in enumerate(nominal.joints):
+        z, o = nom["X"][i][:3, 2], nom["X"][i][:3, 3]
+        err = float(np.linalg.norm(z - dirs[i]))
+        if not joint.is_prismatic:
+            w = o - pts[i]
+            err = max(err, float(np.linalg.norm(w - (w @ dirs[i]) * dirs[i])))
+        worst = max(worst, err)
+        if err > NOMINAL_MATCH_TOL:
+            raise CalibError(f"{chain.path}: the nominal model's axis of joint {joint.name!r} is "
+                             f"{err:.3g} (m or rad) away from the URDF's; pass the model derived from "
+                             f"this URDF (calib.load_robot) as nominal")
+    T_nom = nominal.T_meas_tool(np.zeros(nominal.n_joints))
+    err = max(float(np.abs(T_nom[:3, 3] - T_meas_tool[:3, 3]).max()),
+              float(np.abs(T_nom[:3, :3] - T_meas_tool[:3, :3]).max()))
+    if err > NOMINAL_MATCH_TOL:
+        raise CalibError(f"{chain.path}: the nominal model's tool pose at q = 0 differs from the "
+                         f"URDF's by {err:.3g} (m or rad); pass the model derived from this URDF "
+                         f"(calib.load_robot) as nominal")

@@ -63,7 +63,7 @@ from calib.errors import CalibError
 from calib.io.fileio import atomic_write_text, check_not_input
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
-from calib.io.urdf_reader import chain_axes, robot_from_chain
+from calib.io.urdf_reader import checked_nominal_poses, mdh_poses, robot_from_chain
 from calib.io.urdf import (FRAMES_TAG, ROUND_TRIP_TOL, SIGNIFICANT_DIGITS, RecordedFrames,  # noqa: F401
                             UrdfDocument, format_number, rpy_nearest)
 from calib.io.urdf import origin_attributes as _origin_attrib
@@ -72,10 +72,6 @@ from calib.io.urdf import unique_name as _unique_name
 from calib.model.spatial import inverse
 
 __all__ = ["calibrated_urdf_text", "check_writable", "format_number", "rpy_nearest", "write_calibrated_urdf"]
-
-#: Tolerance (metres, radians) for the check that a ``nominal`` model describes the URDF's joint
-#: axes and tool frame. A model derived by :func:`calib.load_robot` matches to rounding (1e-15).
-NOMINAL_MATCH_TOL = 1e-9
 
 #: Origins whose entries change by less than this (metres; rotation-matrix entries) are left as
 #: written in the input file.
@@ -285,9 +281,7 @@ def _prepare(robot: RobotModel, nominal: RobotModel | None):
         nominal = robot_from_chain(chain, robot.parallel_threshold).for_target(0)
     _check_compatible(robot, nominal)
     doc = _UrdfDocument(chain.document.path, chain.document.tree)
-    nom = _mdh_poses(nominal)       # (one Pinocchio model of the nominal for the check and the plan)
-    _check_nominal_matches_urdf(nominal, chain, nom)
-    return doc, _plan_edits(robot, nominal, chain, doc, nom)
+    return doc, _plan_edits(robot, nominal, chain, doc, checked_nominal_poses(nominal, chain))
 
 
 # ====================================================================== checks
@@ -308,30 +302,6 @@ def _check_compatible(robot: RobotModel, nominal: RobotModel) -> None:
         if a != b:
             raise CalibError(f"the nominal model's {label} frame {a!r} differs from the calibrated "
                              f"model's {b!r}")
-
-
-def _check_nominal_matches_urdf(nominal: RobotModel, chain, nom: dict) -> None:
-    """The nominal MDH z axes (``nom``: its _mdh_poses) must be the URDF joint axes, the tool frames equal, at q = 0."""
-    pts, dirs, T_meas_tool = chain_axes(chain)
-    worst = 0.0
-    for i, joint in enumerate(nominal.joints):
-        z, o = nom["X"][i][:3, 2], nom["X"][i][:3, 3]
-        err = float(np.linalg.norm(z - dirs[i]))
-        if not joint.is_prismatic:
-            w = o - pts[i]
-            err = max(err, float(np.linalg.norm(w - (w @ dirs[i]) * dirs[i])))
-        worst = max(worst, err)
-        if err > NOMINAL_MATCH_TOL:
-            raise CalibError(f"{chain.path}: the nominal model's axis of joint {joint.name!r} is "
-                             f"{err:.3g} (m or rad) away from the URDF's; pass the model derived from "
-                             f"this URDF (calib.load_robot) as nominal")
-    T_nom = nominal.T_meas_tool(np.zeros(nominal.n_joints))
-    err = max(float(np.abs(T_nom[:3, 3] - T_meas_tool[:3, 3]).max()),
-              float(np.abs(T_nom[:3, :3] - T_meas_tool[:3, :3]).max()))
-    if err > NOMINAL_MATCH_TOL:
-        raise CalibError(f"{chain.path}: the nominal model's tool pose at q = 0 differs from the "
-                         f"URDF's by {err:.3g} (m or rad); pass the model derived from this URDF "
-                         f"(calib.load_robot) as nominal")
 
 
 # ====================================================================== the URDF document
@@ -444,18 +414,6 @@ def _sanitize_comment(text: str) -> str:
 
 
 # ====================================================================== the kinematics
-def _mdh_poses(robot: RobotModel) -> dict:
-    """MDH frames of a model at q = 0 in the meas frame: moving frames X_i (list of 4x4),
-    the flange and the tool (4x4)."""
-    kin = ChainKinematics(robot)
-    pin.forwardKinematics(kin.model, kin.data, np.zeros(kin.model.nq))
-    pin.updateFramePlacements(kin.model, kin.data)
-    X = [kin.data.oMi[i].homogeneous for i in range(1, robot.n_joints + 1)]
-    return {"X": X, "flange": kin.data.oMf[kin.flange_frame_id].homogeneous,
-            "tool": kin.data.oMf[kin.tool_frame_id].homogeneous,
-            "base": kin.data.oMf[kin.base_frame_id].homogeneous}
-
-
 @dataclass(frozen=True, eq=False, repr=False)     # (internal; a dict field: nothing compares or prints it)
 class _Plan:
     """What to change in the document: new joint origins (joint name -> 4x4 ``T_parent_child``
@@ -500,7 +458,7 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
         """Nominal pose of a URDF link in the meas (base) frame at q = 0."""
         return oMb.actInv(data.oMf[body[link]]).homogeneous
 
-    cal = nom if robot is nominal else _mdh_poses(robot)    # (check_writable: the nominal itself)
+    cal = nom if robot is nominal else mdh_poses(robot)    # (check_writable: the nominal itself)
     base_link = doc.link_of(robot.base_frame)
     tool_link = doc.link_of(robot.tool_frame)
     chain_joints = [doc.joints[j.name] for j in robot.joints]
