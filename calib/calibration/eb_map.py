@@ -158,7 +158,7 @@ def map_fit(problem: Problem, x0: np.ndarray, mu: np.ndarray, lam: np.ndarray,
                 continue
             predicted = -float(g @ step) - 0.5 * float(step @ A @ step)
             x_new = x + step
-            r = problem.residuals(x_new)
+            r = _weighted_residuals(problem, x_new)
             cost_new = 0.5 * float(r @ r) + 0.5 * float(np.sum(lam * (x_new - mu) ** 2))
             if np.isfinite(cost_new) and cost_new <= cost:
                 accepted = True
@@ -195,9 +195,20 @@ def map_fit(problem: Problem, x0: np.ndarray, mu: np.ndarray, lam: np.ndarray,
 
 def _map_cost(problem: Problem, x: np.ndarray, mu: np.ndarray, lam: np.ndarray) -> float:
     """1/2 |r_w(x)|^2 + 1/2 sum lambda_j (x_j - mu_j)^2 (inf where the model cannot be evaluated)."""
-    r = problem.residuals(x)
+    r = _weighted_residuals(problem, x)
     cost = 0.5 * float(r @ r) + 0.5 * float(np.sum(lam * (x - mu) ** 2))
     return cost if np.isfinite(cost) else math.inf
+
+
+def _weighted_residuals(problem: Problem, x: np.ndarray) -> np.ndarray:
+    """``problem.residuals(x)`` (least squares, every part) from its unweighted residuals at x
+    (:meth:`Problem.pose_residuals`, kept for the problems of the same rows): the same values by
+    the same arithmetic, without walking the chain again where a Jacobian pass or another trial
+    of the same rows was made at x (the MAP fit's last point is the next pass's start)."""
+    dp, dr = problem.pose_residuals(x)
+    if dr is None:
+        return (dp / problem.sigma_pos).reshape(-1)
+    return np.concatenate((dp / problem.sigma_pos, dr / problem.sigma_rot), axis=1).reshape(-1)
 
 
 # ---------------------------------------------------------------- free set
