@@ -425,11 +425,13 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
                 x0 = x_gn
             x_new, _, _ = map_fit(weighted, x0, mu, lam, max_iterations)
             change = float(np.max(np.abs(x_new - x) * scale))
+            moved = not np.array_equal(x_new, x)
             x = x_new
             if change < tol:
                 break
-        # statistics at the estimate, with the final hyper-parameters
-        final = evidence(linearise(problem, x, mu), group_index, log_h)
+        # statistics at the estimate, with the final hyper-parameters (the last pass's own when
+        # its MAP fit stayed where it was linearised: the same linearisation and hyper-parameters)
+        final = evidence(linearise(problem, x, mu), group_index, log_h) if moved else ev
         return x, final, done, problem
 
     rounds = 3 if outlier_k is not None else 1
