@@ -31,11 +31,12 @@ import numpy as np
 from calib.calibration.accuracy import target_rows
 from calib.calibration.evidence import (SIGMA_POS_BOUNDS, SIGMA_ROT_BOUNDS, TAU_BOUNDS, Evidence, evidence,
                                         linearise, maximise_evidence)
-from calib.calibration.prepare import Setup, prepare
+from calib.calibration.prepare import FRAME_MEMO_MAX_ROWS, Setup, _robot_memo, prepare
 from calib.calibration.robust import robust_sigmas, row_rms
 from calib.calibration.workspace import propagate_covariance
 from calib.checks import check_instance, check_int, check_number
 from calib.errors import DataError, ParameterError
+from calib.model.identifiability import content_digest
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.solvers.lm import LMOptions, levenberg_marquardt
@@ -241,6 +242,18 @@ def _free_set(problem_all: Problem, robot: RobotModel, candidates: np.ndarray) -
     return candidates[keep], notes
 
 
+def _free_set_of(problem_all: Problem, robot: RobotModel, candidates: np.ndarray, Q: np.ndarray,
+                 targets: np.ndarray | None) -> tuple[np.ndarray, list[str]]:
+    """:func:`_free_set`, kept by content for up to FRAME_MEMO_MAX_ROWS rows (it depends on the
+    model and the configurations Q (N, n) with their targets only, not on the measured poses:
+    the same model and rows calibrated again ask for it again, as for their identifiable set)."""
+    if len(Q) > FRAME_MEMO_MAX_ROWS:
+        return _free_set(problem_all, robot, candidates)
+    free, notes = _robot_memo("eb-map free set", robot, (content_digest(Q, targets), candidates.tobytes()),
+                              lambda: _free_set(problem_all, robot, candidates))
+    return free.copy(), list(notes)
+
+
 def _pivoted_rank(G: np.ndarray, tol: float) -> tuple[int, np.ndarray]:
     """(rank, pivot order) of the Gram matrix G (k, k) of unit columns: greedy pivoted Cholesky,
     the column with the largest remaining squared norm first, stopping when its norm |R_kk|
@@ -354,7 +367,7 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
     candidates = np.array([i for i, p in enumerate(start.parameters) if p.group not in ("compliance", "periodic")], int)
     everything = Problem(kin, cal.q, cal.position, cal.rotation, mu_all, candidates, START_SIGMA_POS,
                          START_SIGMA_ROT, targets=rows_t)
-    free, free_notes = _free_set(everything, start, candidates)
+    free, free_notes = _free_set_of(everything, start, candidates, cal.q, rows_t)
     notes += free_notes
     names = tuple(start.names[i] for i in free)
     groups = tuple("frame" if start.parameters[i].group in ("u", "v") else GROUP_OF_KIND[start.parameters[i].kind]
