@@ -203,9 +203,13 @@ def _map_cost(problem: Problem, x: np.ndarray, mu: np.ndarray, lam: np.ndarray) 
 
 def _weighted_residuals(problem: Problem, x: np.ndarray) -> np.ndarray:
     """``problem.residuals(x)`` (least squares, every part) from its unweighted residuals at x
-    (:meth:`Problem.pose_residuals`, kept for the problems of the same rows): the same values by
-    the same arithmetic, without walking the chain again where a Jacobian pass or another trial
-    of the same rows was made at x (the MAP fit's last point is the next pass's start)."""
+    (:meth:`Problem.pose_residuals`, kept for the problems of the same rows): the same arithmetic,
+    without walking the chain again where a Jacobian pass or another trial of the same rows was
+    made at x (the MAP fit's last point is the next pass's start). (A Jacobian pass's placements
+    are multiplied in another order than a residual pass's: its residuals may differ from them
+    by rounding, ~1e-16 relative.)"""
+    if problem.loss != "linear":
+        return problem.residuals(x)
     dp, dr = problem.pose_residuals(x)
     if dr is None:
         return (dp / problem.sigma_pos).reshape(-1)
