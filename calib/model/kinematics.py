@@ -175,6 +175,7 @@ class _Structure:
     table: _FactorTable
     params_of: list          # per placement: indices of its parameters
     prismatic: np.ndarray
+    plans: dict              # the Jacobian's column plans (see ChainKinematics._column_plan)
 
 
 _STRUCTURES: OrderedDict = OrderedDict()
@@ -196,8 +197,7 @@ def _structure(robot: RobotModel) -> _Structure:
         raise ValueError("a parameter belongs to no placement")
     prismatic = robot.prismatic
     prismatic.setflags(write=False)
-    st = _Structure(factors, _FactorTable(factors, robot.n_params),
-                    params_of, prismatic)
+    st = _Structure(factors, _FactorTable(factors, robot.n_params), params_of, prismatic, {})
     _STRUCTURES[key] = st
     while len(_STRUCTURES) > 32:
         _STRUCTURES.popitem(last=False)
@@ -227,7 +227,7 @@ class ChainKinematics:
         self._base_at = 7
         self._pin = None
         self._pin_values = None
-        self._plans: dict = {}
+        self._plans = st.plans      # (shared by the workspaces of this structure)
         self._joint_term_memo: OrderedDict = OrderedDict()
         self._last_walk = None
         self.compliance = None      # (calib.model.compliance loads for a model with compliance only)
