@@ -31,11 +31,12 @@ import numpy as np
 from calib.calibration.accuracy import target_rows
 from calib.calibration.evidence import (SIGMA_POS_BOUNDS, SIGMA_ROT_BOUNDS, TAU_BOUNDS, Evidence, evidence,
                                         linearise, maximise_evidence)
-from calib.calibration.prepare import Setup, prepare
+from calib.calibration.prepare import FRAME_MEMO_MAX_ROWS, Setup, _robot_memo, prepare
 from calib.calibration.robust import robust_sigmas, row_rms
 from calib.calibration.workspace import propagate_covariance
 from calib.checks import check_instance, check_int, check_number
 from calib.errors import DataError, ParameterError
+from calib.model.identifiability import content_digest
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.solvers.lm import LMOptions, levenberg_marquardt
@@ -158,7 +159,7 @@ def map_fit(problem: Problem, x0: np.ndarray, mu: np.ndarray, lam: np.ndarray,
                 continue
             predicted = -float(g @ step) - 0.5 * float(step @ A @ step)
             x_new = x + step
-            r = problem.residuals(x_new)
+            r = _weighted_residuals(problem, x_new)
             cost_new = 0.5 * float(r @ r) + 0.5 * float(np.sum(lam * (x_new - mu) ** 2))
             if np.isfinite(cost_new) and cost_new <= cost:
                 accepted = True
@@ -195,9 +196,24 @@ def map_fit(problem: Problem, x0: np.ndarray, mu: np.ndarray, lam: np.ndarray,
 
 def _map_cost(problem: Problem, x: np.ndarray, mu: np.ndarray, lam: np.ndarray) -> float:
     """1/2 |r_w(x)|^2 + 1/2 sum lambda_j (x_j - mu_j)^2 (inf where the model cannot be evaluated)."""
-    r = problem.residuals(x)
+    r = _weighted_residuals(problem, x)
     cost = 0.5 * float(r @ r) + 0.5 * float(np.sum(lam * (x - mu) ** 2))
     return cost if np.isfinite(cost) else math.inf
+
+
+def _weighted_residuals(problem: Problem, x: np.ndarray) -> np.ndarray:
+    """``problem.residuals(x)`` (least squares, every part) from its unweighted residuals at x
+    (:meth:`Problem.pose_residuals`, kept for the problems of the same rows): the same arithmetic,
+    without walking the chain again where a Jacobian pass or another trial of the same rows was
+    made at x (the MAP fit's last point is the next pass's start). (A Jacobian pass's placements
+    are multiplied in another order than a residual pass's: its residuals may differ from them
+    by rounding, ~1e-16 relative.)"""
+    if problem.loss != "linear":
+        return problem.residuals(x)
+    dp, dr = problem.pose_residuals(x)
+    if dr is None:
+        return (dp / problem.sigma_pos).reshape(-1)
+    return np.concatenate((dp / problem.sigma_pos, dr / problem.sigma_rot), axis=1).reshape(-1)
 
 
 # ---------------------------------------------------------------- free set
@@ -228,6 +244,18 @@ def _free_set(problem_all: Problem, robot: RobotModel, candidates: np.ndarray) -
     if inert:
         notes.append(f"parameters without effect on these data held: {', '.join(inert)}")
     return candidates[keep], notes
+
+
+def _free_set_of(problem_all: Problem, robot: RobotModel, candidates: np.ndarray, Q: np.ndarray,
+                 targets: np.ndarray | None) -> tuple[np.ndarray, list[str]]:
+    """:func:`_free_set`, kept by content for up to FRAME_MEMO_MAX_ROWS rows (it depends on the
+    model and the configurations Q (N, n) with their targets only, not on the measured poses:
+    the same model and rows calibrated again ask for it again, as for their identifiable set)."""
+    if len(Q) > FRAME_MEMO_MAX_ROWS:
+        return _free_set(problem_all, robot, candidates)
+    free, notes = _robot_memo("eb-map free set", robot, (content_digest(Q, targets), candidates.tobytes()),
+                              lambda: _free_set(problem_all, robot, candidates))
+    return free.copy(), list(notes)
 
 
 def _pivoted_rank(G: np.ndarray, tol: float) -> tuple[int, np.ndarray]:
@@ -343,7 +371,7 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
     candidates = np.array([i for i, p in enumerate(start.parameters) if p.group not in ("compliance", "periodic")], int)
     everything = Problem(kin, cal.q, cal.position, cal.rotation, mu_all, candidates, START_SIGMA_POS,
                          START_SIGMA_ROT, targets=rows_t)
-    free, free_notes = _free_set(everything, start, candidates)
+    free, free_notes = _free_set_of(everything, start, candidates, cal.q, rows_t)
     notes += free_notes
     names = tuple(start.names[i] for i in free)
     groups = tuple("frame" if start.parameters[i].group in ("u", "v") else GROUP_OF_KIND[start.parameters[i].kind]
@@ -414,11 +442,13 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
                 x0 = x_gn
             x_new, _, _ = map_fit(weighted, x0, mu, lam, max_iterations)
             change = float(np.max(np.abs(x_new - x) * scale))
+            moved = not np.array_equal(x_new, x)
             x = x_new
             if change < tol:
                 break
-        # statistics at the estimate, with the final hyper-parameters
-        final = evidence(linearise(problem, x, mu), group_index, log_h)
+        # statistics at the estimate, with the final hyper-parameters (the last pass's own when
+        # its MAP fit stayed where it was linearised: the same linearisation and hyper-parameters)
+        final = evidence(linearise(problem, x, mu), group_index, log_h) if moved else ev
         return x, final, done, problem
 
     rounds = 3 if outlier_k is not None else 1

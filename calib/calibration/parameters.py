@@ -17,9 +17,9 @@ from calib.calibration.options import (
     PARAM_SETS,
     CalibrationOptions,
 )
-from calib.calibration.prepare import Setup, check_data_rank
+from calib.calibration.prepare import FRAME_MEMO_MAX_ROWS, Setup, _robot_memo, check_data_rank
 from calib.errors import DataError, ParameterError
-from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, identifiable_names
+from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, content_digest, identifiable_names
 from calib.model.robot import RobotModel
 
 
@@ -61,6 +61,19 @@ def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: 
                                targets=targets, priority=first)
     return identifiable_names(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
                               priority=ideal, targets=targets)
+
+
+def _identifiable_set_of(robot: RobotModel, Q: np.ndarray, measure: str, weights: tuple[float, float],
+                         targets: np.ndarray | None) -> tuple[str, ...]:
+    """:func:`identifiable_set`, kept by content for up to FRAME_MEMO_MAX_ROWS rows with the
+    model's other results (:func:`calib.calibration.prepare._robot_memo`): asked again for the same
+    model and configurations it costs a digest of the configurations, not the idealised model
+    and two keyed look-ups of the identifiability cache."""
+    if len(Q) > FRAME_MEMO_MAX_ROWS:
+        return identifiable_set(robot, Q, measure, *weights, targets)
+    options = (content_digest(np.asarray(Q, float), targets), measure, float(weights[0]), float(weights[1]))
+    return _robot_memo("identifiable set", robot, options,
+                       lambda: identifiable_set(robot, Q, measure, *weights, targets))
 
 
 def select_parameters(robot: RobotModel, params, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
@@ -215,8 +228,8 @@ def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) ->
     weights = options.weights
     want, ident = params, None
     if params is None or (isinstance(params, str) and params.strip().lower() == "auto"):
-        ident = _compliance_filter(start, identifiable_set(start, cal.q, setup.measure, *weights,
-                                                          target_rows(start, cal)), options, notes)
+        ident = _compliance_filter(start, _identifiable_set_of(start, cal.q, setup.measure, weights,
+                                                               target_rows(start, cal)), options, notes)
         per_param = cal.n_poses * setup.components_per_pose / max(len(ident), 1)
         if params is None and options.estimator == "map":
             want = "map"

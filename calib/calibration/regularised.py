@@ -56,8 +56,13 @@ def map_fit_stage(setup: Setup, ident: Sequence[str], options: CalibrationOption
     idx = start.indices(est.names)
     rot = setup.measure == "pose"
     sr = est.sigma_rot if rot else (options.sigma_rot or pre.noise.rotation or 1.0)
-    all_rows = Problem(setup.kin or kin, setup.cal.q, setup.cal.position, setup.cal.rotation, est.robot.values, idx,
-                       est.sigma_pos, sr, targets=pre.all_rows.targets)
+    if est.problem is not None and est.keep.all() and np.array_equal(est.problem.free, idx):
+        # (the estimate's problem holds every row: its kept results at the estimate, the
+        # residuals of its last normal equations, serve the errors after calibration)
+        all_rows = est.problem.derived(values=est.robot.values, sigma_pos=est.sigma_pos, sigma_rot=sr)
+    else:
+        all_rows = Problem(setup.kin or kin, setup.cal.q, setup.cal.position, setup.cal.rotation, est.robot.values,
+                           idx, est.sigma_pos, sr, targets=pre.all_rows.targets)
     # (the estimate's own problem when it has these weights: its normal equations at the
     # estimate are already made)
     own = est.problem

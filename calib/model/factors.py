@@ -4,6 +4,7 @@ parameter, the form the batch kinematics (:mod:`calib.model.kinematics`) and the
 (:mod:`calib.solvers.angles`) compute with."""
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,9 +39,29 @@ def _pre_factors(robot: RobotModel, joint: int) -> list[_Factor]:
     return [_Factor("rz", robot.index(f"theta{joint}")), _Factor("tz", robot.index(f"d{joint}"))]
 
 
+#: The factors of the last few chain structures (see :func:`placement_factors`).
+_FACTORS: OrderedDict = OrderedDict()
+
+
 def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
     """Factors of the n joint placements, then the tool-frame placement of each target
-    (relative to joint n)."""
+    (relative to joint n). They depend on the chain's structure and reference frames only, not
+    on its values: kept for the last 32 structures (a calibration asks for them for its
+    kinematics and again for its angle search; the factors are immutable)."""
+    refs = robot.T_flange_target_refs if robot.T_flange_target_refs is not None else robot.T_flange_tool_ref
+    key = (robot.names, tuple((j.name, j.kind) for j in robot.joints), robot.T_meas_base_ref.tobytes(),
+           np.ascontiguousarray(refs).tobytes())
+    hit = _FACTORS.get(key)
+    if hit is not None:
+        _FACTORS.move_to_end(key)
+        return hit
+    hit = _FACTORS[key] = _placement_factors(robot)
+    while len(_FACTORS) > 32:
+        _FACTORS.popitem(last=False)
+    return hit
+
+
+def _placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
     n = robot.n_joints
     out = [[_Factor("const", const=robot.T_meas_base_ref),
             *_frame_factors(robot, list(U_NAMES)),

@@ -175,6 +175,7 @@ class _Structure:
     table: _FactorTable
     params_of: list          # per placement: indices of its parameters
     prismatic: np.ndarray
+    plans: dict              # the Jacobian's column plans (see ChainKinematics._column_plan)
 
 
 _STRUCTURES: OrderedDict = OrderedDict()
@@ -196,8 +197,7 @@ def _structure(robot: RobotModel) -> _Structure:
         raise ValueError("a parameter belongs to no placement")
     prismatic = robot.prismatic
     prismatic.setflags(write=False)
-    st = _Structure(factors, _FactorTable(factors, robot.n_params),
-                    params_of, prismatic)
+    st = _Structure(factors, _FactorTable(factors, robot.n_params), params_of, prismatic, {})
     _STRUCTURES[key] = st
     while len(_STRUCTURES) > 32:
         _STRUCTURES.popitem(last=False)
@@ -227,7 +227,7 @@ class ChainKinematics:
         self._base_at = 7
         self._pin = None
         self._pin_values = None
-        self._plans: dict = {}
+        self._plans = st.plans      # (shared by the workspaces of this structure)
         self._joint_term_memo: OrderedDict = OrderedDict()
         self._last_walk = None
         self.compliance = None      # (calib.model.compliance loads for a model with compliance only)
@@ -543,7 +543,7 @@ class ChainKinematics:
         Rt, p = self._attach(*self._walk(Q, (RtF, pF)), self.placements[self.n_joints + target])
         RtF[-1], pF[-1] = Rt, p
         D = (pF - p)[:, None]                                                # (P, 1, 3, N)
-        slot, rows, out_col, width, m, turning = plan
+        slot, rows, out_col, width, m, turning, gather = plan
         TW = np.zeros((P * width, 6))
         TW[slot] = self._factor_twists[rows]
         # (R v, R w) of every slot: (R x)[i] = sum_j x[j] Rt[j, i]
@@ -555,7 +555,9 @@ class ChainKinematics:
         Xt[:, :, 0] += D[:, :, 1] * Rw[:, :, 2] - D[:, :, 2] * Rw[:, :, 1]
         Xt[:, :, 1] += D[:, :, 2] * Rw[:, :, 0] - D[:, :, 0] * Rw[:, :, 2]
         Xt[:, :, 2] += D[:, :, 0] * Rw[:, :, 1] - D[:, :, 1] * Rw[:, :, 0]
-        Jt = np.empty((m, 6, N)) if len(slot) == m else np.zeros((m, 6, N))   # other targets: 0
+        if gather is not None:      # (every column is a slot: one gather, no scatter of a copy)
+            return Rt, p, X.reshape(P * width, 6, N)[gather]
+        Jt = np.zeros((m, 6, N))    # (the columns of other targets' tool parameters: 0)
         Jt[out_col] = X.reshape(P * width, 6, N)[slot]
         return Rt, p, Jt
 
@@ -563,7 +565,7 @@ class ChainKinematics:
         """Where each wanted parameter sits: (slot = placement * width + place in it, its row of
         the factor twists, output column, width = most wanted parameters of one placement, number
         of columns, turning = most wanted rotation parameters of one placement: a placement's
-        come first).
+        come first, gather = the slot of each output column, or None when a column has none).
         The plans of the last few column sets are kept (an LM run asks for the same ones)."""
         columns = np.arange(self.n_params) if columns is None else np.asarray(columns, int)
         key = (columns.tobytes(), target)
@@ -589,4 +591,9 @@ class ChainKinematics:
         param = np.array([p for ps in params for p in ps], int)
         # each slot's row of the factor twists (its placement's factor of that parameter)
         rows = np.array([row_of[(k, p)] for k, ps in zip(used, params) for p in ps], int)
-        return slot, rows, out_col[param], width, len(columns), turning
+        gather = None
+        if len(slot) == len(columns):
+            # the slot of each output column (every column has one): Jt = X[gather]
+            gather = np.empty(len(columns), int)
+            gather[out_col[param]] = slot
+        return slot, rows, out_col[param], width, len(columns), turning, gather

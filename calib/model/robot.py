@@ -254,6 +254,7 @@ class RobotModel:
         out = object.__new__(type(self))
         out.__dict__.update(self.__dict__)
         out.__dict__.pop("_memo_key", None)
+        out.__dict__.pop("_frame_memo", None)
         object.__setattr__(out, "values", _checked_values(values, self.parameters))
         return out
 
@@ -480,11 +481,25 @@ class RobotModel:
     # ------------------------------------------------------------------ kinematics (reference)
     def T_meas_base(self) -> np.ndarray:
         """(4, 4) pose of MDH frame 0 (base) in the meas frame."""
-        return self.T_meas_base_ref @ zyx_transform(*self.u())
+        frames = self._frames()
+        if "base" not in frames:
+            frames["base"] = self.T_meas_base_ref @ zyx_transform(*self.u())
+        return frames["base"].copy()
 
     def T_flange_tool(self, target: str | int | None = None) -> np.ndarray:
         """(4, 4) pose of the tool frame (of one target, default the first) in MDH frame n (flange)."""
-        return zyx_transform(*self.v(target)) @ self.T_flange_tool_ref_of(target)
+        frames, k = self._frames(), self.target_index(target)
+        if k not in frames:
+            frames[k] = zyx_transform(*self.v(k)) @ self.T_flange_tool_ref_of(k)
+        return frames[k].copy()
+
+    def _frames(self) -> dict:
+        """The frames computed from this (immutable) model's values, kept on it
+        (:meth:`with_values` makes a model without them)."""
+        frames = self.__dict__.get("_frame_memo")
+        if frames is None:
+            frames = self.__dict__["_frame_memo"] = {}
+        return frames
 
     def T_base_flange(self, q: np.ndarray) -> np.ndarray:
         """(4, 4) pose of the flange in the base frame at one commanded configuration q (n,),

@@ -82,6 +82,11 @@ def spread_subset(R: np.ndarray, size: int = SEARCH_POSES) -> np.ndarray:
     return np.sort(pool[chosen])
 
 
+#: The chain structure of the last few factor sequences (placement_factors keeps them by the
+#: robot's structure): a RotationChain of the same structure shares it (nothing changes it).
+_CHAINS: dict = {}
+
+
 class RotationChain:
     """The tool orientation of a TM-MDH model as a product of elementary rotations.
 
@@ -100,8 +105,13 @@ class RotationChain:
     """
 
     def __init__(self, robot: RobotModel):
+        chain = placement_factors(robot)
+        hit = _CHAINS.get(id(chain))
+        if hit is not None and hit[0] is chain:     # (the same structure: read-only after this)
+            self.items, self.joints, self.segments, self.where = hit[1:]
+            return
         items = []  # ("const", R), ("param", (axis, index)), ("joint", joint index)
-        for k, factors in enumerate(placement_factors(robot)):
+        for k, factors in enumerate(chain):
             for f in factors:
                 if f.kind == "const":
                     items.append(("const", np.array(f.const[:3, :3])))
@@ -121,6 +131,9 @@ class RotationChain:
             if kind == "param":
                 self.where[arg[1]] = (len(self.segments) - 1, len(self.segments[-1]), arg[0])
             self.segments[-1].append((kind, arg))
+        _CHAINS[id(chain)] = (chain, self.items, self.joints, self.segments, self.where)
+        while len(_CHAINS) > 32:
+            _CHAINS.pop(next(iter(_CHAINS)))
 
     # ------------------------------------------------------------------ constant parts
     def _segment(self, i: int, values: np.ndarray):

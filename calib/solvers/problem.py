@@ -225,6 +225,7 @@ class Problem:
         key = ("residuals", v.tobytes(), getattr(self, "_rows_key", None))
         hit = None if shared is None else shared.get(key)
         if hit is not None:     # (a problem of the same rows with other weights asked at v)
+            shared[key] = shared.pop(key)       # (the latest asked stays longest)
             self._last_pr = (v,) + hit
             return hit
         self.kin.set_values(v, twists=False)
@@ -488,6 +489,11 @@ class Problem:
                     if a is not None:
                         a.setflags(write=False)
                 _remember(shared, key, hit)
+                if self.targets is None and self.n_poses <= JACOBIAN_CHUNK:
+                    # (the residuals of this pass for pose_residuals at v, as a normal
+                    # equations' pass keeps them: see _share_residuals)
+                    _remember(shared, ("residuals", v.tobytes(), getattr(self, "_rows_key", None)),
+                              (np.ascontiguousarray(dp), rr))
             dp, Jp, rr, LJ, J = hit
             # (the arithmetic of _assemble: each block divided by its noise level)
             res, jac = [dp / self.sigma_pos], [Jp / self.sigma_pos]
