@@ -253,11 +253,7 @@ def _robot_key(robot: RobotModel) -> tuple:
         from calib.model.identifiability import _cache_key
 
         limits = np.stack([robot.lower, robot.upper])
-        # the gravity model by its content (its repr printed the arrays: ~1 ms per new model)
-        gm = getattr(robot, "gravity", None)
-        load = None if gm is None or gm.payload is None else (gm.payload.mass, gm.payload.com_tool.tobytes())
-        key = (_cache_key(robot, limits, "pose", 1.0, 1.0, 1.0, None, None),
-               None if gm is None else (load, np.asarray(gm.gravity, float).tobytes(), gm.link_mass))
+        key = _cache_key(robot, limits, "pose", 1.0, 1.0, 1.0, None, None)
         robot.__dict__["_memo_key"] = key
     return key
 

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
@@ -213,6 +214,15 @@ class GravityModel:
             while len(models) > _MODELS_KEPT:
                 models.pop(next(iter(models)))
         return gm
+
+    @cached_property
+    def content_key(self) -> tuple:
+        """What the torques depend on beyond the configurations, as a hashable tuple for cache
+        keys: the payload, the gravity vector and the URDF's inertias (mass and centre of mass of
+        every body: two URDFs of one kinematics may weigh differently)."""
+        load = None if self.payload is None else (self.payload.mass, self.payload.com_tool.tobytes())
+        bodies = np.array([[i.mass, *np.asarray(i.lever, float)] for i in self.model.inertias], float)
+        return load, np.asarray(self.gravity, float).tobytes(), bodies.tobytes()
 
     @classmethod
     def for_robot(cls, robot: RobotModel, *, payload: Payload | None = None,

@@ -160,12 +160,11 @@ def kept_weighted_jacobian(robot: RobotModel, Q: np.ndarray, measure: str, sigma
     """:func:`weighted_jacobian`, or the one the last :func:`identifiable_names` computed for
     the same model values, configurations, targets, measure and noise levels (the same array:
     read it, do not write it). A calibration's data-rank check asks for the Jacobian its
-    identifiable set was just chosen with (the start model at the calibration rows). Not for a
-    model with compliance, whose Jacobian depends on the gravity load too, which the key omits."""
-    if not robot.has_compliance:
-        key = _cache_key(robot, Q, measure, RANK_TOL, sigma_pos, sigma_rot, None, targets)[:-1]
-        if _last_jacobian[0] == key:
-            return _last_jacobian[1]
+    identifiable set was just chosen with (the start model at the calibration rows; the key holds
+    the gravity load of a model with compliance, whose torques its Jacobian depends on)."""
+    key = _cache_key(robot, Q, measure, RANK_TOL, sigma_pos, sigma_rot, None, targets)[:-1]
+    if _last_jacobian[0] == key:
+        return _last_jacobian[1]
     return weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot, targets)
 
 
@@ -221,11 +220,14 @@ def content_digest(*arrays) -> str:
 
 def _cache_key(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,
                sigma_rot: float, priority, targets) -> tuple:
-    """What the analysis depends on: the chain's structure and values, the configurations, the
-    options (a digest of the arrays, so that large data are not held by the cache)."""
+    """What the analysis depends on: the chain's structure and values, the gravity load of a model
+    with compliance, the configurations, the options (a digest of the arrays, so that large data
+    are not held by the cache)."""
     refs = robot.T_flange_target_refs if robot.T_flange_target_refs is not None else robot.T_flange_tool_ref
     digest = content_digest(*(np.asarray(a, float) for a in (robot.values, robot.T_meas_base_ref, refs, Q,
                                                               np.zeros(0) if targets is None else targets)))
     structure = (robot.names, tuple((j.name, j.kind) for j in robot.joints), robot.targets)
-    return (digest, structure, measure, float(tol), float(sigma_pos), float(sigma_rot),
-            None if priority is None else tuple(priority))
+    # a model with compliance: its columns are the torques', which the gravity load sets
+    gm = getattr(robot, "gravity", None)
+    return (digest, structure, None if gm is None else gm.content_key, measure, float(tol), float(sigma_pos),
+            float(sigma_rot), None if priority is None else tuple(priority))

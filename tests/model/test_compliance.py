@@ -370,3 +370,17 @@ def test_placeholder_link_masses_do_not_bound_the_payload(tmp_path):
     path.write_text(text)
     robot = calib.load_robot(path)
     assert 0 < with_gravity(robot, payload=Payload(20.0)).gravity.link_mass < 1.0
+
+
+def test_identifiability_cache_tells_payloads_apart():
+    """The identifiable set of a model with compliance is kept by content: the content includes
+    the gravity load (the same values and configurations, no payload: no torque, no compliance
+    seen; 5 kg: c2..c5 seen), not the first answer for both."""
+    from calib.model.identifiability import identifiable_names
+
+    robot = calib.load_robot("robots/brtirus0707a/brtirus0707a.urdf")     # (no link inertias)
+    Q = robot.random_configurations(60, 0)
+    unloaded = identifiable_names(with_gravity(robot, payload=Payload(0.0)), Q)
+    loaded = identifiable_names(with_gravity(robot, payload=Payload(5.0, np.array([0.0, 0.0, 0.1]))), Q)
+    assert [n for n in unloaded if n.startswith("c")] == []
+    assert [n for n in loaded if n.startswith("c")] == ["c2", "c3", "c4", "c5"]
