@@ -278,7 +278,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
               sigma_rot: float | None, loss: str = "linear", loss_scale: float = 3.0,
               outlier_k: float | None = 5.0, keep: np.ndarray | None = None,
               kin: ChainKinematics | None = None, rank_deficit: int = 0,
-              warm: bool = False) -> tuple[Fit, Problem]:
+              warm: bool = False, refit: bool = True) -> tuple[Fit, Problem]:
     """The fit stage: identify ``free`` on the calibration rows of ``setup``.
 
     sigma_pos (m) / sigma_rot (rad): the noise per axis, or None to estimate it from the residuals
@@ -291,6 +291,11 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     warm : ``setup.start`` is already near the solution (a Gauss-Newton step of the same model,
     or a fit of a nested model's): LM from it with damping STEP_START_MU0, not the method's scheme
     from a nominal start.
+    refit : False for a fit that is a means (the noise levels, the rows kept and a point near the
+    solution: the joint terms' choice): once the outlier check removed rows, the levels of the rows
+    now kept at the robust fit's solution are its result, without the least-squares re-fit and
+    the check again (the choice's candidates are Gauss-Newton steps from there; calibrate's own
+    fit judges the rows again), nor the check for gross rows left over.
     Returns the :class:`Fit` and the final weighted problem on the kept rows.
     """
     cal, start = setup.cal, setup.start
@@ -348,6 +353,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
             # from their linearisation at x (whose normal equations the re-fit starts from)
             sp, sr = _vce_fixed_point(linearised(everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr), x).ne,
                                       (sp, sr), (sp, sr), (sigma_pos is None, sigma_rot is None))
+        if outlier_pass and not refit:
+            break       # (the rows now kept and their levels, at the robust solution: see ``refit``)
         for _ in range(VCE_MAX_ITERATIONS):
             problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
             # (pose data: the weights change the fit, so a re-weighted fit follows the first)
@@ -424,14 +431,16 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     if suspect is not None:   # never judged (the fit diverged or ran out of passes): outliers
         outliers += flag_outliers(everything, x, cal.rows, suspect, -1.0, sp, sr)[0]
     problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
-    if sol.x is not x:   # the last change of x was not solved at these weights (robust start)
+    if sol.x is not x and refit:   # the last change of x was not solved at these weights (robust start)
         sol = _solve_logged(solve, problem, x, trace, False)
         x = sol.x
+    sol = replace(sol, x=x) if sol.x is not x else sol
     if stuck is not None:
         sol = replace(sol, status=stuck.status, message=stuck.message)
     lin = linearised(problem, x)
     noise = _noise_estimate(problem, lin, estimate, vce_total)
-    if estimate and outlier_k is not None and loss == "linear" and not refusals and can_trim(everything, keep, len(x)):
+    if estimate and outlier_k is not None and loss == "linear" and not refusals and refit \
+            and can_trim(everything, keep, len(x)):
         # (where half of the rows cannot determine the parameters, the median residual cannot say
         # what the noise is either: the real TIAGo marker rows, 27 for 33 parameters, were
         # refused as inconsistent, the least-squares noise 2.2x the median residual's)
@@ -520,16 +529,16 @@ def length_notes(nominal: RobotModel, fit: Fit) -> list[str]:
 def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, outlier_k: float | None,
              keep: np.ndarray | None = None, kin: ChainKinematics | None = None, rank_deficit: int = 0,
              sigma_pos: float | None = None, sigma_rot: float | None = None,
-             warm: bool = False) -> tuple[Fit, Problem]:
+             warm: bool = False, refit: bool = True) -> tuple[Fit, Problem]:
     """:func:`fit_stage` of ``free`` with the solver, loss and noise levels of ``options``
-    (sigma_pos / sigma_rot: given instead of the options' ones when not None; warm: see
+    (sigma_pos / sigma_rot: given instead of the options' ones when not None; warm, refit: see
     :func:`fit_stage`)."""
     solve = solver_for(setup, free, options.method, options.lm, options.max_rounds, options.fixed_rounds,
                         options.lm_variant)
     return fit_stage(setup, free, solve, sigma_pos=options.sigma_pos if sigma_pos is None else sigma_pos,
                      sigma_rot=options.sigma_rot if sigma_rot is None else sigma_rot, loss=options.loss,
                      loss_scale=options.loss_scale, outlier_k=outlier_k, keep=keep, kin=kin,
-                     rank_deficit=rank_deficit, warm=warm)
+                     rank_deficit=rank_deficit, warm=warm, refit=refit)
 
 
 def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]:

@@ -290,7 +290,8 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     # the geometric fit: noise levels and outlier check, its LM stopped at TERMS_FIT_FTOL (see there)
     geo_opts = replace(geo_opts, lm=options_with(geo_opts.lm, ftol=max(geo_opts.lm.ftol, TERMS_FIT_FTOL),
                                                  last_step=False))
-    fit, problem = fit_with(setups[0], frees[0], geo_opts, outlier_k=geo_opts.outlier_k, kin=setups[0].kin)
+    fit, problem = fit_with(setups[0], frees[0], geo_opts, outlier_k=geo_opts.outlier_k, kin=setups[0].kin,
+                            refit=False)
     if fit.solver.status != "converged":
         # (its noise levels and rows would whiten every candidate: a fit stuck in a local
         # minimum gave sigma_rot 1.03 rad, refused as a given level, a ParameterError
