@@ -161,14 +161,22 @@ def register_measurement_frame(robot: RobotModel, measurements: Measurements) ->
     """``robot`` with its measurement frame moved by the rigid transform that best fits its tool
     positions to the measured ones (least squares over the positions only; the convention of
     tracker software for "before calibration" errors)."""
-    _, p_nom = ChainKinematics(robot).frame_poses(measurements.q, targets=target_rows(robot, measurements))
+    return _registered(robot, measurements, target_rows(robot, measurements))[0]
+
+
+def _registered(robot: RobotModel, measurements: Measurements, targets):
+    """(the registered ``robot`` of :func:`register_measurement_frame`, its tool rotations
+    (N, 3, 3) and positions (N, 3) at the measured rows): the registration moves the poses the fit
+    was made on, so their errors need no other pass over the rows."""
+    R_nom, p_nom = ChainKinematics(robot).frame_poses(measurements.q, targets=targets)
     c_nom, c_meas = p_nom.mean(axis=0), measurements.position.mean(axis=0)
     # the rotation R minimising sum |a_i - R b_i|^2: the one closest to sum a_i b_i^T (Kabsch;
     # scipy's Rotation.align_vectors, whose import costs 0.4 s)
     T = np.eye(4)
     T[:3, :3] = project_to_so3((measurements.position - c_meas).T @ (p_nom - c_nom))
     T[:3, 3] = c_meas - T[:3, :3] @ c_nom
-    return replace(robot, T_meas_base_ref=T @ robot.T_meas_base_ref)
+    return (replace(robot, T_meas_base_ref=T @ robot.T_meas_base_ref), T[:3, :3] @ R_nom,
+            p_nom @ T[:3, :3].T + T[:3, 3])
 
 
 @dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
@@ -210,8 +218,9 @@ def accuracy_before(nominal: RobotModel, start: RobotModel, cal: Measurements, v
     if rebased:
         ref = nominal if tuple(rebased) == ("measurement->base",) else replace(
             nominal, T_flange_tool_ref=start.T_flange_tool_ref, T_flange_target_refs=start.T_flange_target_refs)
-        registered = register_measurement_frame(ref, cal)
-        breg = pose_errors(registered, cal.q, cal.position, cal.rotation, targets=cal_rows)
+        registered, R, p = _registered(ref, cal, cal_rows)
+        dr = None if cal.rotation is None else log3_batch(R @ np.transpose(cal.rotation, (0, 2, 1)))
+        breg = AccuracyStats.from_residuals(p - cal.position, dr)
         if val is not None:
             vbreg = pose_errors(registered, val.q, val.position, val.rotation, targets=val_rows)
     return BeforeAfter(before, vb, breg, vbreg, cal_rows, val_rows)
