@@ -176,7 +176,22 @@ def iiwa_real(repeats: int = 5) -> dict | str:
     out = {"rows": m.n_poses}
     for key, kwargs in (("default", {}), ("geometry", {"terms": "none"}), ("compliance", {"compliance": True})):
         out[key + "_ms"] = _bench.median_time(lambda: calib.calibrate(robot, m, **kwargs), repeats) * 1e3
+        out[key + "_cpu_ms"] = _bench.median_time(lambda: calib.calibrate(robot, m, **kwargs), repeats,
+                                                  clock=time.process_time) * 1e3
     return out
+
+
+def print_iiwa(real) -> None:
+    if isinstance(real, dict):
+        print(f"calibrate(), {real['rows']:,} real iiwa rows: median {real['default_ms']:.0f} ms warm "
+              f"(CPU {real['default_cpu_ms']:.0f} ms) with the defaults (terms='auto': cross-validated choice of "
+              f"the joint terms; {BEFORE_27['iiwa_auto_ms']:g} ms when it became the default; target <= "
+              f"{TARGET_27['iiwa_ms']:g}), {real['geometry_ms']:.0f} ms (CPU {real['geometry_cpu_ms']:.0f}) with "
+              f"terms='none' (before {BEFORE_27['iiwa_ms']:g}); compliance=True {real['compliance_ms']:.0f} ms (CPU "
+              f"{real['compliance_cpu_ms']:.0f}; before {BEFORE_27['iiwa_compliance_ms']:g}, target <= "
+              f"{TARGET_27['iiwa_compliance_ms']:g})")
+    else:
+        print(f"calibrate(), real iiwa rows: {real}")
 
 
 def select_100k(n: int = 30, candidates: int = 100_000, repeats: int = 1) -> dict:
@@ -479,6 +494,8 @@ def main(argv=None) -> int:
     ap.add_argument("--startup-only", action="store_true",
                     help="only the process figures (calib calibrate over import pinocchio, calib --help over "
                          "import numpy: issue 27 item 2)")
+    ap.add_argument("--real-only", action="store_true",
+                    help="only the 1,402 real iiwa rows (issue 27 item 1): defaults, terms='none', compliance")
     ap.add_argument("--small-only", action="store_true",
                     help="only the first two figures: calibrate() on 100 and on 25 poses (issue 27 item 1)")
     ap.add_argument("--select-only", type=int, metavar="REPEATS",
@@ -519,6 +536,9 @@ def main(argv=None) -> int:
         return 0
 
     print(f"machine: {_bench.machine()}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    if args.real_only:
+        print_iiwa(iiwa_real())
+        return 0
     c = calibrate_100()
     print(f"calibrate(), 100 poses: median {c['calibrate_ms']:.2f} ms wall, {c['calibrate_cpu_ms']:.2f} ms CPU; "
           f"search-lm solver alone {c['solver_ms']:.2f} ms (issue 27: before {BEFORE_27['calibrate_100_cpu_ms']:g} ms "
@@ -540,16 +560,7 @@ def main(argv=None) -> int:
               f"calib {fig['calib_val_rms_mm']:.4f} mm")
     else:
         print(f"FIGAROH: {fig}")
-    real = iiwa_real()
-    if isinstance(real, dict):
-        print(f"calibrate(), {real['rows']:,} real iiwa rows: median {real['default_ms']:.0f} ms warm with the "
-              f"defaults (terms='auto': cross-validated choice of the joint terms; {BEFORE_27['iiwa_auto_ms']:g} ms "
-              f"when it became the default), {real['geometry_ms']:.0f} ms "
-              f"with terms='none' (before {BEFORE_27['iiwa_ms']:g}, target <= {TARGET_27['iiwa_ms']:g}); compliance=True "
-              f"{real['compliance_ms']:.0f} ms (before {BEFORE_27['iiwa_compliance_ms']:g}, "
-              f"target <= {TARGET_27['iiwa_compliance_ms']:g})")
-    else:
-        print(f"calibrate(), real iiwa rows: {real}")
+    print_iiwa(iiwa_real())
     sel = select_100k()
     print(f"select_poses, 30 of 100,000 candidates: {sel['wall_s']:.1f} s wall, {sel['cpu_s']:.1f} s CPU "
           f"(before {BEFORE_27['select_100k_s']:g} s, target <= {TARGET_27['select_100k_s']:g} s)")
