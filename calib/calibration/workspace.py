@@ -17,6 +17,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from calib.errors import DataError
+from calib.memo import kept
 from calib.model.draws import uniform
 from calib.model.jacobian import pose_jacobian
 from calib.model.kinematics import ChainKinematics
@@ -103,15 +104,12 @@ def workspace_configurations(robot: RobotModel, n: int = WORKSPACE_CONFIGURATION
         q = np.asarray(calibration_q, float)
         lo[open_], hi[open_] = q[:, open_].min(axis=0), q[:, open_].max(axis=0)
     # (the same draw for the same ranges: kept for the next calibrations)
-    key = (lo.tobytes(), hi.tobytes(), int(n), int(seed))
-    Q = _DRAWS.get(key)
-    if Q is None:
+    def draw():
         Q = uniform(seed, lo, hi, n)
         Q.setflags(write=False)
-        _DRAWS[key] = Q
-        while len(_DRAWS) > 8:
-            _DRAWS.pop(next(iter(_DRAWS)))
-    return Q.copy()
+        return Q
+
+    return kept(_DRAWS, (lo.tobytes(), hi.tobytes(), int(n), int(seed)), draw).copy()
 
 
 _DRAWS: dict = {}

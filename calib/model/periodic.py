@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib.memo import kept
+
 #: The four harmonic coefficients of a joint, in parameter order.
 PERIODIC_KINDS = ("sin1", "cos1", "sin2", "cos2")
 #: Parameter group of the coefficients.
@@ -50,16 +52,15 @@ def harmonic_basis(q: np.ndarray) -> np.ndarray:
     """(..., 4) sin q, cos q, sin 2q, cos 2q of joint angles q (...), radians (read-only: kept
     by content for the next call with the same angles)."""
     q = np.ascontiguousarray(q, float)
-    key = (q.shape, q.tobytes()) if q.size <= _BASES_MAX_ANGLES else None
-    B = _BASES.get(key)
-    if B is None:
+
+    def basis():
         B = np.stack((np.sin(q), np.cos(q), np.sin(2 * q), np.cos(2 * q)), axis=-1)
         B.setflags(write=False)
-        if key is not None:
-            _BASES[key] = B
-            while len(_BASES) > _BASES_KEPT:
-                _BASES.pop(next(iter(_BASES)))
-    return B
+        return B
+
+    if q.size > _BASES_MAX_ANGLES:
+        return basis()
+    return kept(_BASES, (q.shape, q.tobytes()), basis, _BASES_KEPT)
 
 
 def periodic_offsets(Q: np.ndarray, joints: np.ndarray, coefficients: np.ndarray, n_joints: int) -> np.ndarray:

@@ -18,6 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from calib.model.factors import placement_factors
+from calib.memo import kept
 from calib.model.identifiability import content_digest
 from calib.model.robot import RobotModel
 
@@ -69,14 +70,7 @@ def spread_subset(R: np.ndarray, size: int = SEARCH_POSES) -> np.ndarray:
     # (kept by content: a calibration searches the same rows again, search-lm's escape from its
     # LM solution; ~1 ms of 200 steps on 1,402 rows)
     key = (content_digest(R), int(size))
-    kept = _SPREAD.get(key)
-    if kept is None:
-        kept = _spread_subset(np.asarray(R, float), n, size)
-        kept.setflags(write=False)
-        _SPREAD[key] = kept
-        while len(_SPREAD) > 8:
-            _SPREAD.pop(next(iter(_SPREAD)))
-    return kept.copy()
+    return kept(_SPREAD, key, lambda: _spread_subset(np.asarray(R, float), n, size)).copy()
 
 
 _SPREAD: dict = {}
@@ -98,7 +92,9 @@ def _spread_subset(R: np.ndarray, n: int, size: int) -> np.ndarray:
         k = int(np.argmax(d))
         chosen.append(k)
         np.minimum(d, sq + sq[k] - 2.0 * (X @ X[k]), out=d)
-    return np.sort(pool[chosen])
+    out = np.sort(pool[chosen])
+    out.setflags(write=False)
+    return out
 
 
 #: The chain structure of the last few factor sequences (placement_factors keeps them by the
