@@ -122,6 +122,7 @@ def trimmed_fit(problem: Problem, starts: Sequence[np.ndarray], keep: np.ndarray
     options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it ranks rows)
     h = min(max(-(-n // 3), -(-2 * len(starts[0]) // per_row) + 1), (n + 1) // 2)
     best, best_cost = None, np.inf
+    apart = _apart(problem)
     for x in starts:
         chosen = None
         for _ in range(TRIMMED_FIT_STEPS):
@@ -131,11 +132,19 @@ def trimmed_fit(problem: Problem, starts: Sequence[np.ndarray], keep: np.ndarray
             if chosen is not None and np.array_equal(best_rows, chosen):
                 break
             chosen = best_rows
-            x = levenberg_marquardt(problem.derived(keep=chosen), x, "pose", options, trace).x
+            x = levenberg_marquardt(apart.derived(keep=chosen), x, "pose", options, trace).x
         cost = float(np.sum(np.sort(np.where(keep, row_rms(problem, x, sigma_pos, sigma_rot)[0], np.inf))[:h] ** 2))
         if cost < best_cost:
             best, best_cost = x, cost
     return best
+
+
+def _apart(problem: Problem) -> Problem:
+    """``problem``'s rows (as an index: the problems derived from it for subsets of them keep
+    their results in caches of their own): the many passes of the trimmed fit's subsets do not
+    push out of the shared cache the normal equations of the kept rows at the fit's solution, where
+    the refit of the rows it keeps starts (a Jacobian pass saved)."""
+    return problem.derived(keep=np.arange(problem.n_poses))
 
 
 #: The trimmed route's flags stand only when the least-squares refit of the rows it keeps has at
@@ -225,26 +234,41 @@ def _huber(everything, problem, x, keep, red, given, levels, options, trace, jud
     return x, fsp, fsr
 
 
+def _fit_covariance(everything: Problem, x: np.ndarray, fitted: np.ndarray, sigma_pos: float, sigma_rot: float):
+    """The normal equations at x of the least-squares fit of the rows ``fitted`` (whitened at
+    the noise levels given) and its covariance C."""
+    pr = everything.derived(sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss="linear")
+    ne = pr.derived(keep=fitted).normal_equations(x)
+    return pr, ne, normal_inverse(ne.A)[0]
+
+
+def _fit_redundancy(everything: Problem, x: np.ndarray, fitted: np.ndarray, sigma_pos: float,
+                    sigma_rot: float) -> tuple[float, float]:
+    """Each group's redundancy in the least-squares fit at x of the rows ``fitted`` (its
+    components less its share of the parameters, tr(C A_group)), at least 1."""
+    _, ne, C = _fit_covariance(everything, x, fitted, sigma_pos, sigma_rot)
+    red_p = ne.n_pos - float(np.sum(C * ne.A_pos)) if ne.A_pos is not None else 0.0
+    red_r = ne.n_rot - float(np.sum(C * ne.A_rot)) if ne.A_rot is not None else 0.0
+    return max(red_p, 1.0), max(red_r, 1.0)
+
+
 def _prediction_spread(everything: Problem, x: np.ndarray, fitted: np.ndarray, sigma_pos: float,
-                       sigma_rot: float) -> np.ndarray:
+                       sigma_rot: float, judged: np.ndarray) -> np.ndarray:
     """(N,) each row's expected residual RMS per component in sigma at x, the least-squares fit
     of the rows ``fitted``: 1 for those, sqrt(1 + tr(Jw_i C Jw_i^T) / k) for the others, C the
     fit's covariance (whitened at the noise levels given): a fit of 8 of 15 full-pose rows of a
     6-axis arm (30 parameters) predicts the other 7 to 2-12 sigma, and judged by the noise alone
-    they were flagged as gross."""
-    pr = everything.derived(sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss="linear")
-    ne = pr.derived(keep=fitted).normal_equations(x)
-    C, _ = normal_inverse(ne.A)
+    they were flagged as gross. judged : (N,) bool, the rows whose spread is asked (1 for the
+    others too when every one of them was fitted: nothing to compute)."""
+    if not np.any(judged & ~fitted):
+        return np.ones(len(fitted))
+    pr, _, C = _fit_covariance(everything, x, fitted, sigma_pos, sigma_rot)
     out, start = np.ones(len(fitted)), 0
     for _, Jw in pr.whitened_blocks(x):
         h = np.einsum("nkm,ml,nkl->n", Jw, C, Jw) / Jw.shape[1]
         out[start:start + len(Jw)] = np.sqrt(1.0 + h)
         start += len(Jw)
-    # each group's redundancy in the fit of the rows ``fitted`` (its components less its share
-    # of the parameters, tr(C A_group))
-    red_p = ne.n_pos - float(np.sum(C * ne.A_pos)) if ne.A_pos is not None else 0.0
-    red_r = ne.n_rot - float(np.sum(C * ne.A_rot)) if ne.A_rot is not None else 0.0
-    return np.where(fitted, 1.0, out), (max(red_p, 1.0), max(red_r, 1.0))
+    return np.where(fitted, 1.0, out)
 
 
 def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, options, trace) -> Judgement:
@@ -273,10 +297,10 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
             fsp, fsr = _levels(everything, x_t, inliers, (red[0] * share, red[1] * share), given, fsp, fsr)
             spread = None
         else:
-            _, red_fit = _prediction_spread(everything, x_t, fitted, fsp, fsr)
+            red_fit = _fit_redundancy(everything, x_t, fitted, fsp, fsr)
             last_red[0] = red_fit[0]
             fsp, fsr = _levels(everything, x_t, fitted, red_fit, given, fsp, fsr)
-            spread, _ = _prediction_spread(everything, x_t, fitted, fsp, fsr)
+            spread = _prediction_spread(everything, x_t, fitted, fsp, fsr, keep)
         new, too_many = flag_outliers(everything, x_t, rows, keep, k, fsp, fsr, TRIMMED_MAX_OUTLIER_SHARE,
                                       spread=spread)
         return fsp, fsr, new, too_many, keep & ~np.isin(rows, [o.row for o in new])
@@ -291,7 +315,10 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
         # rows: its predictions for the others scatter more than the noise, and would flag
         # good rows among few), every row judged again against it (a Huber fit from the
         # trimmed solution is dragged away by 40 % gross rows)
-        x_t = levenberg_marquardt(everything.derived(keep=inliers, sigma_pos=fsp, sigma_rot=fsr), x_t, "pose",
+        # (from x when the rows are all the kept ones: x is their least-squares fit at the fit's
+        # noise levels, nearer than the trimmed fit of a third of them)
+        start = x if np.array_equal(inliers, keep) else x_t
+        x_t = levenberg_marquardt(everything.derived(keep=inliers, sigma_pos=fsp, sigma_rot=fsr), start, "pose",
                                   options, trace).x
         fsp, fsr, new, too_many, now = judged(x_t, inliers, fsp, fsr, inliers)
         if too_many or np.array_equal(now, inliers):
