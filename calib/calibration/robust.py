@@ -278,7 +278,10 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
     are many), then a Huber fit from its solution at those levels (the trimmed fit fits half of
     the rows: its predictions for the others scatter more than the noise)."""
     fsp, fsr = levels
-    options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it judges rows)
+    # (it judges rows; its fits stop before a last step whose predicted decrease is below ftol,
+    # at the point whose normal equations are at hand: that step's Jacobian pass served nothing,
+    # the steps rank the rows by a residual pass of all of them)
+    options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL), last_step=False)
     starts = (x, everything.values[everything.free])    # (the fit's solution, the nominal values)
     x_t = trimmed_fit(everything.derived(sigma_pos=fsp, sigma_rot=fsr), starts, keep, fsp, fsr, options, trace)
     inliers, n = keep, keep.sum()
