@@ -31,6 +31,7 @@ from calib.calibration.options import (
     ROBUST_CHECK_ITERATIONS,
     TRIMMED_FIT_STEPS,
     TRIMMED_MAX_OUTLIER_SHARE,
+    WARM_MU0,
 )
 from calib.solvers.lm import LMOptions, LMTrace, levenberg_marquardt, options_with
 from calib.solvers.inverse import normal_inverse
@@ -116,23 +117,28 @@ def trimmed_fit(problem: Problem, starts: Sequence[np.ndarray], keep: np.ndarray
     them (with h a half, 50 of 100 rows 5 mm off were missed in 2 of 5 runs). ``problem`` holds all
     calibration rows (its weights: the robust noise levels); starts : free-parameter vectors (SI
     units), e.g. the least-squares solution and the nominal values (a least-squares fit dragged
-    by many gross rows can lead the steps to a half that holds some of them)."""
+    by many gross rows can lead the steps to a half that holds some of them). LM starts at the
+    re-fits' damping WARM_MU0 where it starts near a solution (from the first start, a fit of
+    these rows, and from the last step's fit), at the options' from the others (1 to 2 Jacobian
+    passes fewer per fit on 25 full-pose rows)."""
     n = int(keep.sum())
     per_row = 6 if problem.has_orientation else 3
     options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it ranks rows)
     h = min(max(-(-n // 3), -(-2 * len(starts[0]) // per_row) + 1), (n + 1) // 2)
     best, best_cost = None, np.inf
     apart = _apart(problem)
-    for x in starts:
+    warm = options_with(options, mu0=min(options.mu0, WARM_MU0))
+    for i, x in enumerate(starts):
         chosen = None
-        for _ in range(TRIMMED_FIT_STEPS):
+        for step in range(TRIMMED_FIT_STEPS):
             rms = np.where(keep, row_rms(problem, x, sigma_pos, sigma_rot)[0], np.inf)
             best_rows = np.zeros(len(rms), bool)
             best_rows[np.argsort(rms, kind="stable")[:h]] = True
             if chosen is not None and np.array_equal(best_rows, chosen):
                 break
             chosen = best_rows
-            x = levenberg_marquardt(apart.derived(keep=chosen), x, "pose", options, trace).x
+            x = levenberg_marquardt(apart.derived(keep=chosen), x, "pose", warm if (i == 0 or step) else options,
+                                    trace).x
         cost = float(np.sum(np.sort(np.where(keep, row_rms(problem, x, sigma_pos, sigma_rot)[0], np.inf))[:h] ** 2))
         if cost < best_cost:
             best, best_cost = x, cost
@@ -320,9 +326,9 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
         # trimmed solution is dragged away by 40 % gross rows)
         # (from x when the rows are all the kept ones: x is their least-squares fit at the fit's
         # noise levels, nearer than the trimmed fit of a third of them)
-        start = x if np.array_equal(inliers, keep) else x_t
+        start = x if np.array_equal(inliers, keep) else x_t        # (near: a re-fit's damping)
         x_t = levenberg_marquardt(everything.derived(keep=inliers, sigma_pos=fsp, sigma_rot=fsr), start, "pose",
-                                  options, trace).x
+                                  options_with(options, mu0=min(options.mu0, WARM_MU0)), trace).x
         fsp, fsr, new, too_many, now = judged(x_t, inliers, fsp, fsr, inliers)
         if too_many or np.array_equal(now, inliers):
             break
