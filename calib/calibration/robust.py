@@ -281,8 +281,9 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
     """The rows judged against a high-breakdown fit from x (MM-style): the trimmed fit (the half
     of the rows it explains best), noise levels from the residuals of the rows it does not flag
     (re-taken until that set settles: the median over every row sits high when the gross ones
-    are many), then a Huber fit from its solution at those levels (the trimmed fit fits half of
-    the rows: its predictions for the others scatter more than the noise)."""
+    are many), then the least-squares fit of the rows it does not flag at those levels, every
+    row judged again against it (the trimmed fit fits a third of the rows: its predictions for
+    the others scatter more than the noise)."""
     fsp, fsr = levels
     # (it judges rows; its fits stop before a last step whose predicted decrease is below ftol,
     # at the point whose normal equations are at hand: that step's Jacobian pass served nothing,
