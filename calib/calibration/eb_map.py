@@ -253,8 +253,12 @@ def _free_set_of(problem_all: Problem, robot: RobotModel, candidates: np.ndarray
     the same model and rows calibrated again ask for it again, as for their identifiable set)."""
     if len(Q) > FRAME_MEMO_MAX_ROWS:
         return _free_set(problem_all, robot, candidates)
-    free, notes = _robot_memo("eb-map free set", robot, (content_digest(Q, targets), candidates.tobytes()),
-                              lambda: _free_set(problem_all, robot, candidates))
+    # (the rows' measure and weights in the key: the same configurations measured by position
+    # only leave the tool's rotation without effect, and the full-pose rows' set freed it: a
+    # position-only calibration after a full-pose one of the same joints crashed in the evidence)
+    options = (content_digest(Q, targets), candidates.tobytes(), problem_all.has_orientation,
+               problem_all.sigma_pos, problem_all.sigma_rot)
+    free, notes = _robot_memo("eb-map free set", robot, options, lambda: _free_set(problem_all, robot, candidates))
     return free.copy(), list(notes)
 
 

@@ -31,6 +31,7 @@ from calib.calibration.options import (
     ROBUST_CHECK_ITERATIONS,
     TRIMMED_FIT_STEPS,
     TRIMMED_MAX_OUTLIER_SHARE,
+    WARM_MU0,
 )
 from calib.solvers.lm import LMOptions, LMTrace, levenberg_marquardt, options_with
 from calib.solvers.inverse import normal_inverse
@@ -116,26 +117,40 @@ def trimmed_fit(problem: Problem, starts: Sequence[np.ndarray], keep: np.ndarray
     them (with h a half, 50 of 100 rows 5 mm off were missed in 2 of 5 runs). ``problem`` holds all
     calibration rows (its weights: the robust noise levels); starts : free-parameter vectors (SI
     units), e.g. the least-squares solution and the nominal values (a least-squares fit dragged
-    by many gross rows can lead the steps to a half that holds some of them)."""
+    by many gross rows can lead the steps to a half that holds some of them). LM starts at the
+    re-fits' damping WARM_MU0 where it starts near a solution (from the first start, a fit of
+    these rows, and from the last step's fit), at the options' from the others (1 to 2 Jacobian
+    passes fewer per fit on 25 full-pose rows)."""
     n = int(keep.sum())
     per_row = 6 if problem.has_orientation else 3
     options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it ranks rows)
     h = min(max(-(-n // 3), -(-2 * len(starts[0]) // per_row) + 1), (n + 1) // 2)
     best, best_cost = None, np.inf
-    for x in starts:
+    apart = _apart(problem)
+    warm = options_with(options, mu0=min(options.mu0, WARM_MU0))
+    for i, x in enumerate(starts):
         chosen = None
-        for _ in range(TRIMMED_FIT_STEPS):
+        for step in range(TRIMMED_FIT_STEPS):
             rms = np.where(keep, row_rms(problem, x, sigma_pos, sigma_rot)[0], np.inf)
             best_rows = np.zeros(len(rms), bool)
             best_rows[np.argsort(rms, kind="stable")[:h]] = True
             if chosen is not None and np.array_equal(best_rows, chosen):
                 break
             chosen = best_rows
-            x = levenberg_marquardt(problem.derived(keep=chosen), x, "pose", options, trace).x
+            x = levenberg_marquardt(apart.derived(keep=chosen), x, "pose", warm if (i == 0 or step) else options,
+                                    trace).x
         cost = float(np.sum(np.sort(np.where(keep, row_rms(problem, x, sigma_pos, sigma_rot)[0], np.inf))[:h] ** 2))
         if cost < best_cost:
             best, best_cost = x, cost
     return best
+
+
+def _apart(problem: Problem) -> Problem:
+    """``problem``'s rows (as an index: the problems derived from it for subsets of them keep
+    their results in caches of their own): the many passes of the trimmed fit's subsets do not
+    push out of the shared cache the normal equations of the kept rows at the fit's solution, where
+    the refit of the rows it keeps starts (a Jacobian pass saved)."""
+    return problem.derived(keep=np.arange(problem.n_poses))
 
 
 #: The trimmed route's flags stand only when the least-squares refit of the rows it keeps has at
@@ -225,36 +240,55 @@ def _huber(everything, problem, x, keep, red, given, levels, options, trace, jud
     return x, fsp, fsr
 
 
+def _fit_covariance(everything: Problem, x: np.ndarray, fitted: np.ndarray, sigma_pos: float, sigma_rot: float):
+    """The normal equations at x of the least-squares fit of the rows ``fitted`` (whitened at
+    the noise levels given) and its covariance C."""
+    pr = everything.derived(sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss="linear")
+    ne = pr.derived(keep=fitted).normal_equations(x)
+    return pr, ne, normal_inverse(ne.A)[0]
+
+
+def _fit_redundancy(everything: Problem, x: np.ndarray, fitted: np.ndarray, sigma_pos: float,
+                    sigma_rot: float) -> tuple[float, float]:
+    """Each group's redundancy in the least-squares fit at x of the rows ``fitted`` (its
+    components less its share of the parameters, tr(C A_group)), at least 1."""
+    _, ne, C = _fit_covariance(everything, x, fitted, sigma_pos, sigma_rot)
+    red_p = ne.n_pos - float(np.sum(C * ne.A_pos)) if ne.A_pos is not None else 0.0
+    red_r = ne.n_rot - float(np.sum(C * ne.A_rot)) if ne.A_rot is not None else 0.0
+    return max(red_p, 1.0), max(red_r, 1.0)
+
+
 def _prediction_spread(everything: Problem, x: np.ndarray, fitted: np.ndarray, sigma_pos: float,
-                       sigma_rot: float) -> np.ndarray:
+                       sigma_rot: float, judged: np.ndarray) -> np.ndarray:
     """(N,) each row's expected residual RMS per component in sigma at x, the least-squares fit
     of the rows ``fitted``: 1 for those, sqrt(1 + tr(Jw_i C Jw_i^T) / k) for the others, C the
     fit's covariance (whitened at the noise levels given): a fit of 8 of 15 full-pose rows of a
     6-axis arm (30 parameters) predicts the other 7 to 2-12 sigma, and judged by the noise alone
-    they were flagged as gross."""
-    pr = everything.derived(sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss="linear")
-    ne = pr.derived(keep=fitted).normal_equations(x)
-    C, _ = normal_inverse(ne.A)
+    they were flagged as gross. judged : (N,) bool, the rows whose spread is asked (1 for the
+    others too when every one of them was fitted: nothing to compute)."""
+    if not np.any(judged & ~fitted):
+        return np.ones(len(fitted))
+    pr, _, C = _fit_covariance(everything, x, fitted, sigma_pos, sigma_rot)
     out, start = np.ones(len(fitted)), 0
     for _, Jw in pr.whitened_blocks(x):
         h = np.einsum("nkm,ml,nkl->n", Jw, C, Jw) / Jw.shape[1]
         out[start:start + len(Jw)] = np.sqrt(1.0 + h)
         start += len(Jw)
-    # each group's redundancy in the fit of the rows ``fitted`` (its components less its share
-    # of the parameters, tr(C A_group))
-    red_p = ne.n_pos - float(np.sum(C * ne.A_pos)) if ne.A_pos is not None else 0.0
-    red_r = ne.n_rot - float(np.sum(C * ne.A_rot)) if ne.A_rot is not None else 0.0
-    return np.where(fitted, 1.0, out), (max(red_p, 1.0), max(red_r, 1.0))
+    return np.where(fitted, 1.0, out)
 
 
 def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, options, trace) -> Judgement:
     """The rows judged against a high-breakdown fit from x (MM-style): the trimmed fit (the half
     of the rows it explains best), noise levels from the residuals of the rows it does not flag
     (re-taken until that set settles: the median over every row sits high when the gross ones
-    are many), then a Huber fit from its solution at those levels (the trimmed fit fits half of
-    the rows: its predictions for the others scatter more than the noise)."""
+    are many), then the least-squares fit of the rows it does not flag at those levels, every
+    row judged again against it (the trimmed fit fits a third of the rows: its predictions for
+    the others scatter more than the noise)."""
     fsp, fsr = levels
-    options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it judges rows)
+    # (it judges rows; its fits stop before a last step whose predicted decrease is below ftol,
+    # at the point whose normal equations are at hand: that step's Jacobian pass served nothing,
+    # the steps rank the rows by a residual pass of all of them)
+    options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL), last_step=False)
     starts = (x, everything.values[everything.free])    # (the fit's solution, the nominal values)
     x_t = trimmed_fit(everything.derived(sigma_pos=fsp, sigma_rot=fsr), starts, keep, fsp, fsr, options, trace)
     inliers, n = keep, keep.sum()
@@ -273,10 +307,10 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
             fsp, fsr = _levels(everything, x_t, inliers, (red[0] * share, red[1] * share), given, fsp, fsr)
             spread = None
         else:
-            _, red_fit = _prediction_spread(everything, x_t, fitted, fsp, fsr)
+            red_fit = _fit_redundancy(everything, x_t, fitted, fsp, fsr)
             last_red[0] = red_fit[0]
             fsp, fsr = _levels(everything, x_t, fitted, red_fit, given, fsp, fsr)
-            spread, _ = _prediction_spread(everything, x_t, fitted, fsp, fsr)
+            spread = _prediction_spread(everything, x_t, fitted, fsp, fsr, keep)
         new, too_many = flag_outliers(everything, x_t, rows, keep, k, fsp, fsr, TRIMMED_MAX_OUTLIER_SHARE,
                                       spread=spread)
         return fsp, fsr, new, too_many, keep & ~np.isin(rows, [o.row for o in new])
@@ -291,8 +325,11 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
         # rows: its predictions for the others scatter more than the noise, and would flag
         # good rows among few), every row judged again against it (a Huber fit from the
         # trimmed solution is dragged away by 40 % gross rows)
-        x_t = levenberg_marquardt(everything.derived(keep=inliers, sigma_pos=fsp, sigma_rot=fsr), x_t, "pose",
-                                  options, trace).x
+        # (from x when the rows are all the kept ones: x is their least-squares fit at the fit's
+        # noise levels, nearer than the trimmed fit of a third of them)
+        start = x if np.array_equal(inliers, keep) else x_t        # (near: a re-fit's damping)
+        x_t = levenberg_marquardt(everything.derived(keep=inliers, sigma_pos=fsp, sigma_rot=fsr), start, "pose",
+                                  options_with(options, mu0=min(options.mu0, WARM_MU0)), trace).x
         fsp, fsr, new, too_many, now = judged(x_t, inliers, fsp, fsr, inliers)
         if too_many or np.array_equal(now, inliers):
             break

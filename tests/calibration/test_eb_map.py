@@ -228,6 +228,30 @@ def test_position_only_and_outliers(ur5):
     assert res.sigma_pos == pytest.approx(1e-3, rel=0.35)
 
 
+def test_free_set_kept_by_content_depends_on_the_measure(bundled_robot):
+    """The free set kept by content depends on the measure: 40 position-only rows calibrated
+    after 40 full-pose rows at the same joints, and the other way round, get the free set and
+    estimates of a fresh process (the full-pose set, the tool's rotation freed, made the
+    position-only evidence NaN and the calibration raise; the position-only set held the tool's
+    rotation of the full-pose rows)."""
+    from calib.calibration.prepare import _ROBOT_MEMO
+
+    true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
+    q = bundled_robot.random_configurations(40, np.random.default_rng(5000))
+    data = {rot: simulate_measurements(true, q, sigma_pos=2e-5, sigma_rot=2e-3, position_only=not rot,
+                                       rng=np.random.default_rng(1)) for rot in (True, False)}
+    fresh = {}
+    for rot in (True, False):
+        _ROBOT_MEMO.clear()
+        fresh[rot] = calib.calibrate(bundled_robot, data[rot])
+    for first in (True, False):
+        _ROBOT_MEMO.clear()
+        calib.calibrate(bundled_robot, data[first])
+        after = calib.calibrate(bundled_robot, data[not first])
+        assert after.free == fresh[not first].free
+        assert np.max(np.abs(np.array(after.robot.values) - fresh[not first].robot.values)) == 0.0
+
+
 def test_bad_arguments(bundled_robot):
     m = simulate_measurements(bundled_robot, bundled_robot.random_configurations(20, 0))
     with pytest.raises(calib.ParameterError, match="robot"):
