@@ -248,16 +248,17 @@ def _free_set(problem_all: Problem, robot: RobotModel, candidates: np.ndarray) -
 
 def _free_set_of(problem_all: Problem, robot: RobotModel, candidates: np.ndarray, Q: np.ndarray,
                  targets: np.ndarray | None) -> tuple[np.ndarray, list[str]]:
-    """:func:`_free_set`, kept by content for up to FRAME_MEMO_MAX_ROWS rows (it depends on the
-    model and the configurations Q (N, n) with their targets only, not on the measured poses:
-    the same model and rows calibrated again ask for it again, as for their identifiable set)."""
+    """:func:`_free_set`, kept by content for up to FRAME_MEMO_MAX_ROWS rows: the model, the
+    configurations Q (N, n) with their targets, the measure and weights, and the measured
+    rotations (the whitened rotation rows carry the log map's Jacobian at the start's residuals):
+    the same model and rows calibrated again ask for it again, as for their identifiable set."""
     if len(Q) > FRAME_MEMO_MAX_ROWS:
         return _free_set(problem_all, robot, candidates)
     # (the rows' measure and weights in the key: the same configurations measured by position
     # only leave the tool's rotation without effect, and the full-pose rows' set freed it: a
     # position-only calibration after a full-pose one of the same joints crashed in the evidence)
-    options = (content_digest(Q, targets), candidates.tobytes(), problem_all.has_orientation,
-               problem_all.sigma_pos, problem_all.sigma_rot)
+    options = (content_digest(Q, targets, problem_all.R_meas_T), candidates.tobytes(),
+               problem_all.has_orientation, problem_all.sigma_pos, problem_all.sigma_rot)
     free, notes = _robot_memo("eb-map free set", robot, options, lambda: _free_set(problem_all, robot, candidates))
     return free.copy(), list(notes)
 
