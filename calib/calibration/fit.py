@@ -288,14 +288,18 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     with noise levels that outliers cannot inflate) are removed and the fit repeated.
     rank_deficit : how many directions ``free`` leaves undetermined at the nominal model on these
     rows (0 for an identifiable set; see :meth:`calib.solvers.problem.Problem.set_rank_deficit`).
-    warm : ``setup.start`` is already near the solution (a Gauss-Newton step of the same model,
-    or a fit of a nested model's): LM from it with damping STEP_START_MU0, not the method's scheme
+    warm : ``setup.start`` is already near the solution (a Gauss-Newton step of the same model:
+    the joint terms' chosen model): LM from it with damping STEP_START_MU0, not the method's scheme
     from a nominal start.
     refit : False for a fit that is a means (the noise levels, the rows kept and a point near the
-    solution: the joint terms' choice): once the outlier check removed rows, the levels of the rows
-    now kept at the robust fit's solution are its result, without the least-squares re-fit and
-    the check again (the choice's candidates are Gauss-Newton steps from there; calibrate's own
-    fit judges the rows again), nor the check for gross rows left over.
+    solution: the joint terms' choice): once the outlier check removed rows, the rows now kept
+    (the frame estimate's suspect rows judged there), at the robust fit's solution, are its
+    result, without the least-squares re-fit and the check again (the choice's candidates are
+    Gauss-Newton steps from there; calibrate's own fit judges the rows again), nor the check for
+    gross rows left over. Its Fit is then not a least-squares solution: the status is the
+    least-squares fit's before the check (the message says so), the noise levels (re-estimated
+    from a linearisation there for pose data), the noise estimate and covariance are those at
+    the robust solution.
     Returns the :class:`Fit` and the final weighted problem on the kept rows.
     """
     cal, start = setup.cal, setup.start
@@ -326,8 +330,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     first = not warm
     start_mu0 = STEP_START_MU0 if warm else WARM_MU0      # (the first solve's damping, when not first)
     stuck = None
-    # (a warm start is a nested model's fit, which may itself have stopped in a local minimum: the
-    # warm fit's first converged solution is judged as a first fit's is)
+    # (a warm start comes from a fit of the geometry, which may itself have stopped in a local
+    # minimum: the warm fit's first converged solution is judged as a first fit's is)
     unjudged = warm
     unremoved: tuple[Outlier, ...] = ()
     vce_total = 0
@@ -354,7 +358,16 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
             sp, sr = _vce_fixed_point(linearised(everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr), x).ne,
                                       (sp, sr), (sp, sr), (sigma_pos is None, sigma_rot is None))
         if outlier_pass and not refit:
-            break       # (the rows now kept and their levels, at the robust solution: see ``refit``)
+            # (the rows now kept and their levels, at the robust solution: see ``refit``; the frame
+            # estimate's suspect rows judged there, as below)
+            if suspect is not None:
+                still, _ = flag_outliers(everything, x, cal.rows, suspect, outlier_k, fsp, fsr)
+                back = suspect & ~np.isin(cal.rows, [o.row for o in still])
+                outliers += still
+                suspect = None
+                # (the levels stay those of the rows without them: calibrate's fit estimates its own)
+                keep |= back
+            break
         for _ in range(VCE_MAX_ITERATIONS):
             problem = everything.derived(keep=keep, sigma_pos=sp, sigma_rot=sr)
             # (pose data: the weights change the fit, so a re-weighted fit follows the first)
@@ -434,7 +447,9 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     if sol.x is not x and refit:   # the last change of x was not solved at these weights (robust start)
         sol = _solve_logged(solve, problem, x, trace, False)
         x = sol.x
-    sol = replace(sol, x=x) if sol.x is not x else sol
+    if sol.x is not x:      # (refit False: the robust solution, not refitted)
+        sol = replace(sol, x=x, message=f"{sol.message}; then the outlier check's robust solution, not "
+                                        f"refitted without the rows it flagged (refit=False)")
     if stuck is not None:
         sol = replace(sol, status=stuck.status, message=stuck.message)
     lin = linearised(problem, x)

@@ -32,7 +32,7 @@ from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.solvers.inverse import normal_inverse
 from calib.solvers.lm import options_with
-from calib.solvers.problem import NormalEquations, Problem
+from calib.solvers.problem import CHUNK_POSES, NormalEquations, Problem
 
 #: Calibration rows the choice of the joint terms is judged on at most: above, an evenly spaced
 #: subset of this many (10,000 full-pose rows hold 60,000 residual components for at most a few
@@ -188,10 +188,11 @@ class TermsChoice:
     folds: int = 0
     reason: str = ""
     rows: int | None = None
-    #: The chosen candidate's fit on the judged rows, at the geometric fit's noise levels and
-    #: kept rows (one Gauss-Newton step from the geometric solution), name -> value of its free
-    #: parameters: where calibrate's own fit of the chosen model starts (None when nothing was
-    #: judged).
+    #: The chosen candidate's fit on the judged rows, the geometric fit's kept rows (one
+    #: Gauss-Newton step from the geometric solution; for pose data with estimated noise levels,
+    #: at the levels where the candidate's own estimation stops: _step_at_own_levels), name ->
+    #: value of its free parameters: where calibrate's own fit of the chosen model starts (None
+    #: when nothing was judged).
     start: dict | None = field(default=None, repr=False, compare=False)
     #: The line numbers of the rows the geometric fit's outlier check left out (calibrate's fit of
     #: the chosen model starts without them and takes back those it explains).
@@ -315,10 +316,12 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     fold_of = fold_labels(int(keep.sum()), folds, seed)
     has_rot = big.measure == "pose"
     cols = {label: np.array([union.index(n) for n in free], int) for (label, _, _), free in zip(cands, frees)}
-    # (the normal equations first: each group's share of them re-weights the chosen step below, and
-    # the whitened blocks of up to CHUNK_POSES rows are then made from the same pass)
-    ne0 = lin.normal_equations(x0)
+    # each group's share of the normal equations re-weights the chosen step below: made first where
+    # the whitened blocks (up to CHUNK_POSES rows) then come from the same pass, else from the blocks
+    reweigh = has_rot and (base.sigma_pos is None or base.sigma_rot is None)
+    ne0 = lin.normal_equations(x0) if reweigh and lin.n_poses <= CHUNK_POSES else None
     blocks = [(r, Jw) for r, Jw in lin.whitened_blocks(x0)]
+    ne0 = _group_sums(blocks) if reweigh and ne0 is None else ne0
     scored, x_u, per_row = _linear_scores(blocks, x0, x0, union, cols, fold_of, folds, (sp, sr, has_rot), lin,
                                           required=cands[0][0])
     linearised_at = dict.fromkeys(scored, (ne0, x0))
@@ -329,8 +332,10 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         # candidates are scored again linearised at that step (where the terms a candidate
         # lacks are near zero when it holds the truth's: periodic errors of 10 mrad and
         # compliances of 400 urad/(N m) made +both win over the true +compliance by 6e-5)
-        ne_u = lin.normal_equations(x_u)
-        again = _linear_scores([(r, Jw) for r, Jw in lin.whitened_blocks(x_u)], x_u, x0, union,
+        ne_u = lin.normal_equations(x_u) if reweigh and lin.n_poses <= CHUNK_POSES else None
+        blocks_u = [(r, Jw) for r, Jw in lin.whitened_blocks(x_u)]
+        ne_u = _group_sums(blocks_u) if reweigh and ne_u is None else ne_u
+        again = _linear_scores(blocks_u, x_u, x0, union,
                                {k: v for k, v in cols.items() if k != cands[0][0]}, fold_of, folds,
                                (sp, sr, has_rot), None)[0]
         scored.update(again)
@@ -338,7 +343,7 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         table, rows = _table(cands, frees, scored)
     best = pick_terms(table, rows)
     start_values = scored[best.label][1]
-    if has_rot and (base.sigma_pos is None or base.sigma_rot is None):
+    if reweigh:
         start_values = _step_at_own_levels(*linearised_at[best.label], x0, union, cols[best.label], (sp, sr),
                                            (base.sigma_pos is None, base.sigma_rot is None))
     reason = (f"{best.label} beat the smaller candidates by more than {TERMS_MIN_SE:g} paired standard errors"
@@ -347,6 +352,24 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         reason += f"; judged on {judged_rows:,} evenly spaced of the {cal.n_poses:,} calibration rows"
     return TermsChoice(best.compliance, best.periodic, tuple(table), folds, reason, judged_rows,
                        start_values, tuple(o.row for o in fit.outliers))
+
+
+def _group_sums(blocks) -> NormalEquations:
+    """The normal equations of whitened pose blocks (r (n, 6), Jw (n, 6, m)) with each group's
+    share (position rows 0-2, rotation rows 3-5): those of a pass too large to keep its blocks."""
+    m = blocks[0][1].shape[2]
+    A_p, A_r, g_p, g_r, rss, n = np.zeros((m, m)), np.zeros((m, m)), np.zeros(m), np.zeros(m), [0.0, 0.0], 0
+    for r, Jw in blocks:
+        Jp, Jr = Jw[:, :3].reshape(-1, m), Jw[:, 3:].reshape(-1, m)
+        rp, rr = r[:, :3].reshape(-1), r[:, 3:].reshape(-1)
+        A_p += Jp.T @ Jp
+        A_r += Jr.T @ Jr
+        g_p += Jp.T @ rp
+        g_r += Jr.T @ rr
+        rss[0] += float(rp @ rp)
+        rss[1] += float(rr @ rr)
+        n += len(r)
+    return NormalEquations(A_p + A_r, g_p + g_r, A_p, A_r, rss[0], rss[1], 3 * n, 3 * n, g_p)
 
 
 def _step_at_own_levels(ne: NormalEquations, x, x_held, union: list, c: np.ndarray,
