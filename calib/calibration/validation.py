@@ -44,21 +44,16 @@ def _held_out_factors(Jw: np.ndarray, C: np.ndarray, H: np.ndarray | None = None
     return M
 
 
-def _held_out_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, float]:
-    """Means over the rows of tr (I - H_ii)^-1 over the position and the rotation components
-    (whitened units), H_ii = Jw_i C Jw_i^T the row's block of the hat matrix. A row whose
-    leverage reaches 1 (it alone determines a parameter) counts as leverage 0.99."""
-    return row_traces(problem, x, C)[:2]
-
-
 def row_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, float, float, float]:
     """(t_p, t_r, e_p, e_r) over the rows of ``problem`` at x: t_p / t_r the means of
-    tr (I - H_ii)^-1 (:func:`_held_out_traces`), e_p / e_r the means of tr (J_i C J_i^T) over the
-    position (m^2) and the rotation (rad^2) block of each row's pose Jacobian J_i (the pose error a
+    tr (I - H_ii)^-1 over the position and the rotation components (whitened units), H_ii = Jw_i C
+    Jw_i^T the row's block of the hat matrix (a row whose leverage reaches 1, alone determining a
+    parameter, counts as leverage 0.99); e_p / e_r the means of tr (J_i C J_i^T) over the position
+    (m^2) and the rotation (rad^2) block of each row's pose Jacobian J_i (the pose error a
     parameter error of covariance C causes, as :func:`~calib.calibration.workspace.propagated`
-    gives it), from one product Jw C: a row's position block of J C J^T is sigma_pos^2 times
-    H_ii's, and the rotation blocks sum to tr (C sum J_r^T J_r) (Jw's rotation rows carry the
-    log map's Jacobian, the pose error's do not)."""
+    gives it; t_r and e_r 0 for position rows only), from one product Jw C: a row's position block
+    of J C J^T is sigma_pos^2 times H_ii's, and the rotation blocks sum to tr (C sum J_r^T J_r)
+    (Jw's rotation rows carry the log map's Jacobian, the pose error's do not)."""
     t_p = t_r = e_p = 0.0
     m = C.shape[0]
     A_r = np.zeros((m, m))

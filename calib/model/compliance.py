@@ -217,9 +217,10 @@ class GravityModel:
 
     @cached_property
     def content_key(self) -> tuple:
-        """What the torques depend on beyond the configurations, as a hashable tuple for cache
-        keys: the payload, the gravity vector and the URDF's inertias (mass and centre of mass of
-        every body: two URDFs of one kinematics may weigh differently)."""
+        """What the torques depend on beyond the configurations and the URDF's joint placements,
+        as a hashable tuple for cache keys: the payload, the gravity vector and the URDF's inertias
+        (mass and centre of mass of every body: two URDFs of one kinematics may weigh
+        differently). The placements are the model's: the keys it joins hold its values."""
         load = None if self.payload is None else (self.payload.mass, self.payload.com_tool.tobytes())
         bodies = np.array([[i.mass, *np.asarray(i.lever, float)] for i in self.model.inertias], float)
         return load, np.asarray(self.gravity, float).tobytes(), bodies.tobytes()

@@ -141,6 +141,7 @@ def identifiable_names(robot: RobotModel, Q: np.ndarray, *, measure: str = "pose
     J = _last_jacobian[1] if _last_jacobian[0] == key[:-1] else None
     if J is None:
         J = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot, targets)
+        J.setflags(write=False)         # (kept: handed out again by kept_weighted_jacobian)
         _last_jacobian = (key[:-1], J)
     order = list(robot.indices(priority)) if priority else []
     order += [k for k in range(robot.n_params) if k not in order]
@@ -229,5 +230,7 @@ def _cache_key(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma
     structure = (robot.names, tuple((j.name, j.kind) for j in robot.joints), robot.targets)
     # a model with compliance: its columns are the torques', which the gravity load sets
     gm = getattr(robot, "gravity", None)
-    return (digest, structure, None if gm is None else gm.content_key, measure, float(tol), float(sigma_pos),
-            float(sigma_rot), None if priority is None else tuple(priority))
+    # (a torque model of another kind, which RobotModel.with_compliance accepts: by identity, held)
+    load = None if gm is None else getattr(gm, "content_key", ("object", gm))
+    return (digest, structure, load, measure, float(tol), float(sigma_pos), float(sigma_rot),
+            None if priority is None else tuple(priority))
