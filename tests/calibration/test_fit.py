@@ -278,3 +278,35 @@ def test_noise_estimate_of_the_papers_lm_stops_at_its_residuals_levels(bundled_r
         nz = calib.calibrate(bundled_robot, m, method=method, lm_variant="paper", params="paper", cv=0).noise
         assert nz.iterations <= 3, method
         assert abs(nz.chi2_pos - 1) < 2 * VCE_RTOL and abs(nz.chi2_rot - 1) < 2 * VCE_RTOL, method
+
+
+def test_a_means_fit_judges_the_suspect_rows_and_keeps_the_clean_ones():
+    """fit_stage(refit=False), the joint terms' geometric fit: it stops at the robust solution
+    once the outlier check removed rows, but judges the frame estimate's suspect rows there
+    first (it left 3 clean suspect rows out with the 6 gross ones)."""
+    from dataclasses import replace
+
+    from calib.calibration.fit import fit_with
+    from calib.calibration.options import resolve_options
+    from calib.calibration.parameters import choose_parameters
+    from calib.calibration.prepare import prepare
+
+    robot = calib.load_robot("robots/brtirus0707a/brtirus0707a.urdf")
+    m = simulate_measurements(apply_deviations(robot, PAPER_DEVIATIONS), robot.random_configurations(300, 4),
+                              rng=5, sigma_pos=5e-5, sigma_rot=1e-4)
+    pos = np.array(m.position)
+    rng = np.random.default_rng(0)
+    bad = rng.choice(300, 6, replace=False)
+    pos[bad] += rng.normal(0, 2e-3, (6, 3))
+    m = Measurements.from_arrays(m.q, pos, m.rotation)
+    opts = resolve_options(robot, m, cv=0)
+    setup, _ = prepare(robot, m, None, opts.init_frames)
+    free = choose_parameters(setup, opts).free
+    suspect = np.zeros(300, bool)
+    suspect[:3] = True                  # (clean rows the frame estimate would have left out)
+    setup = replace(setup, suspect=suspect)
+    full, _ = fit_with(setup, free, opts, outlier_k=opts.outlier_k, kin=setup.kin)
+    means, _ = fit_with(setup, free, opts, outlier_k=opts.outlier_k, kin=setup.kin, refit=False)
+    assert sorted(o.row for o in means.outliers) == sorted(o.row for o in full.outliers) == sorted(bad + 1)
+    assert means.keep.sum() == full.keep.sum() == 294
+    assert "not refitted" in means.solver.message

@@ -329,3 +329,39 @@ def test_terms_far_beyond_the_linear_range_are_scored_again_where_they_are(monke
     assert choose_terms(robot, m).label == "+compliance"
     monkeypatch.setattr(terms, "_close_call", lambda *a: False)
     assert choose_terms(robot, m).label == "+compliance+periodic"       # (what one linearisation chose)
+
+
+def test_the_chosen_step_is_the_candidates_own_noise_estimated_linear_fit():
+    """_step_at_own_levels (the union's normal equations, whitened at the geometric levels, a
+    candidate's columns, the others shifted): the Gauss-Newton solution at the levels where a
+    plain variance-component estimation of that candidate's linear problem stops."""
+    from calib.calibration.terms import _step_at_own_levels
+    from calib.solvers.problem import NormalEquations
+
+    rng = np.random.default_rng(0)
+    n, m, sp, sr = 400, 10, 1e-3, 2e-3
+    Wp, Wr = rng.normal(size=(3 * n, m)), rng.normal(size=(3 * n, m)) * 2.0     # whitened at sp, sr
+    wp, wr = rng.normal(size=3 * n) * 2.0, rng.normal(size=3 * n) * 0.5
+    ne = NormalEquations(Wp.T @ Wp + Wr.T @ Wr, Wp.T @ wp + Wr.T @ wr, Wp.T @ Wp, Wr.T @ Wr,
+                         float(wp @ wp), float(wr @ wr), 3 * n, 3 * n, Wp.T @ wp)
+    x = rng.normal(size=m)
+    x_held = x + rng.normal(size=m) * 0.1
+    c = np.array([0, 1, 2, 4, 6, 7])
+    union = [f"p{k}" for k in range(m)]
+    got = _step_at_own_levels(ne, x, x_held, union, c, (sp, sr), (True, True))
+    shift = x_held - x
+    shift[c] = 0.0
+    Rp, Rr = (wp + Wp @ shift) * sp, (wr + Wr @ shift) * sr          # unweighted, after the shift
+    Ap, Ar = Wp[:, c] * sp, Wr[:, c] * sr
+    s_p, s_r = sp, sr
+    for _ in range(300):
+        J, r = np.vstack([Ap / s_p, Ar / s_r]), np.concatenate([Rp / s_p, Rr / s_r])
+        dx = -np.linalg.lstsq(J, r, rcond=None)[0]
+        C = np.linalg.inv(J.T @ J)
+        red_p = 3 * n - np.trace(C @ (Ap / s_p).T @ (Ap / s_p))
+        red_r = 3 * n - np.trace(C @ (Ar / s_r).T @ (Ar / s_r))
+        ep, er = Rp + Ap @ dx, Rr + Ar @ dx
+        s_p, s_r = np.sqrt(ep @ ep / red_p), np.sqrt(er @ er / red_r)
+    assert abs((s_r / s_p) / (sr / sp) - 1.0) > 0.5     # (the levels' ratio moved: re-weighting matters)
+    direct = (x + shift)[c] + dx
+    np.testing.assert_allclose([got[union[k]] for k in c], direct, rtol=0, atol=1e-8 * np.abs(dx).max())

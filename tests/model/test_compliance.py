@@ -384,3 +384,23 @@ def test_identifiability_cache_tells_payloads_apart():
     loaded = identifiable_names(with_gravity(robot, payload=Payload(5.0, np.array([0.0, 0.0, 0.1]))), Q)
     assert [n for n in unloaded if n.startswith("c")] == []
     assert [n for n in loaded if n.startswith("c")] == ["c2", "c3", "c4", "c5"]
+
+
+def test_a_torque_model_of_another_kind_keys_the_cache_by_identity():
+    """RobotModel.with_compliance takes any object with torques(Q): identifiability keys it by
+    identity (it has no content_key), with the same answer as the gravity model it wraps."""
+    from calib.model.compliance import GravityModel
+    from calib.model.identifiability import identifiable_names
+
+    robot = calib.load_robot("ur10")
+
+    class Torques:
+        def __init__(self, gm):
+            self.gm = gm
+
+        def torques(self, Q):
+            return self.gm.torques(Q)
+
+    gm = GravityModel.for_robot(robot, payload=PAYLOAD)
+    Q = robot.random_configurations(60, 0)
+    assert identifiable_names(robot.with_compliance(Torques(gm)), Q) == identifiable_names(robot.with_compliance(gm), Q)

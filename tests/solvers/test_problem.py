@@ -365,3 +365,27 @@ def test_calibrate_from_a_far_start_is_not_held_by_its_singularity():
     val = robot.random_configurations(50, 2024)
     err = np.abs(ChainKinematics(res.robot).frame_poses(val)[1] - ChainKinematics(true).frame_poses(val)[1]).max()
     assert res.status == "converged" and err < 1e-6
+
+
+@pytest.mark.parametrize("orientation", [True, False])
+def test_robust_normal_equations_from_a_least_squares_pass_kept_blocks(orientation):
+    """A Huber problem of the same rows asked at the point of a least-squares pass sums its
+    normal equations from that pass's kept blocks (no Jacobian): the same as a fresh problem's."""
+    robot = calib.load_robot("robots/brtirus0707a/brtirus0707a.urdf")
+    m = simulate_measurements(apply_deviations(robot, PAPER_DEVIATIONS), robot.random_configurations(300, 2),
+                              rng=3, sigma_pos=1e-3, sigma_rot=3e-3)
+    R = m.rotation if orientation else None
+    idx = np.arange(0, robot.n_params, 2)
+    keep = np.ones(300, bool)
+    keep[::7] = False
+    ls = Problem(ChainKinematics(robot), m.q, m.position, R, robot.values, idx, 1e-3, 2e-3).derived(keep=keep)
+    x = robot.values[idx] + 1e-4
+    ls.normal_equations(x)
+    hub = ls.derived(loss="huber", sigma_pos=5e-4, sigma_rot=1e-3)
+    assert hub._kept_blocks(x, any_loss=True) is not None
+    a = hub.normal_equations(x)
+    b = Problem(ChainKinematics(robot), m.q[keep], m.position[keep], None if R is None else R[keep], robot.values,
+                idx, 5e-4, 1e-3, loss="huber").normal_equations(x)
+    np.testing.assert_allclose(a.A, b.A, rtol=0, atol=1e-12 * np.abs(b.A).max())
+    np.testing.assert_allclose(a.g, b.g, rtol=0, atol=1e-12 * np.abs(b.g).max())
+    np.testing.assert_allclose([a.rss_pos, a.rss_rot], [b.rss_pos, b.rss_rot], rtol=1e-12)
