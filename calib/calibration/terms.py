@@ -319,7 +319,8 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     # each group's share of the normal equations re-weights the chosen step below: made first where
     # the whitened blocks (up to CHUNK_POSES rows) then come from the same pass, else from the blocks
     reweigh = has_rot and (base.sigma_pos is None or base.sigma_rot is None)
-    ne0 = lin.normal_equations(x0) if reweigh and lin.n_poses <= CHUNK_POSES else None
+    given = _union_blocks(problem, fit, lin, union, start, x0)
+    ne0 = lin.normal_equations(x0, blocks=given) if given or (reweigh and lin.n_poses <= CHUNK_POSES) else None
     blocks = [(r, Jw) for r, Jw in lin.whitened_blocks(x0)]
     ne0 = _group_sums(blocks) if reweigh and ne0 is None else ne0
     scored, x_u, per_row = _linear_scores(blocks, x0, x0, union, cols, fold_of, folds, (sp, sr, has_rot), lin,
@@ -352,6 +353,54 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         reason += f"; judged on {judged_rows:,} evenly spaced of the {cal.n_poses:,} calibration rows"
     return TermsChoice(best.compliance, best.periodic, tuple(table), folds, reason, judged_rows,
                        start_values, tuple(o.row for o in fit.outliers))
+
+
+def _union_blocks(problem: Problem, fit, lin: Problem, union: list, start: RobotModel,
+                  x0: np.ndarray) -> list | None:
+    """The union's pass at the geometric solution (the terms at zero) from the geometric fit's
+    last pass there, which its problem kept (one chunk of the same rows, pose data): the
+    geometric columns are that pass's, each term's column is its joint's theta (d) column times
+    its factor (as ChainKinematics.poses_and_jacobian makes them); as a list of the one
+    (Jt, Jp, rp, Jr, rr) of Problem._transposed_blocks. None where the pass was not kept, or a
+    term's joint column is not a geometric one, or the union's start (``start``, its free values
+    ``x0``) is not the fit's geometry with the terms at zero: the union's own pass then."""
+    x = fit.model.values[fit.model.indices(fit.free)]
+    kept = problem._kept_blocks(x)
+    kin = lin.kin
+    if kept is None or kept[1] is None or not kin.joint_terms or list(union[:len(fit.free)]) != list(fit.free):
+        return None
+    # (the same geometry: every geometric parameter and reference frame at the fit's values, the
+    # terms at zero)
+    geo, names = fit.model, start.names
+    v = lin.full(x0)
+    at = [names.index(n) for n in geo.names]
+    rest = np.setdiff1d(np.arange(len(names)), at)
+    refs = [(geo.T_meas_base_ref, start.T_meas_base_ref), (geo.T_flange_tool_ref, start.T_flange_tool_ref),
+            (geo.T_flange_target_refs, start.T_flange_target_refs)]
+    if not (np.array_equal(v[at], geo.values) and not np.any(v[rest]) and all(
+            (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b)) for a, b in refs)):
+        return None
+    Jt_g, Jr_g, rp, rr = kept
+    m_g, _, n = Jt_g.shape
+    col_of = {name: c for c, name in enumerate(fit.free)}
+    terms = {}                  # union column -> (geometric column, factor (n,))
+    for term in kin.joint_terms:
+        factors = term.factors(lin.Q)
+        for j, (k, q_col) in enumerate(zip(term.idx, term.q_cols)):
+            terms[names[k]] = (col_of.get(names[q_col]), factors[:, j])
+    extra = union[len(fit.free):]
+    if any(terms.get(name, (None,))[0] is None for name in extra):
+        return None
+    m = len(union)
+    Jt = np.empty((m, 6, n))
+    Jt[:m_g] = Jt_g
+    Jr = np.empty((m, 3 * n))
+    Jr[:m_g] = Jr_g
+    for c, name in enumerate(extra, start=m_g):
+        g, f = terms[name]
+        Jt[c] = Jt_g[g] * f
+        Jr[c] = (Jr_g[g].reshape(3, n) * f).reshape(-1)
+    return [(Jt, Jt[:, :3].reshape(m, 3 * n), rp.reshape(3, n), Jr, rr.reshape(3, n).T)]
 
 
 def _group_sums(blocks) -> NormalEquations:

@@ -256,24 +256,26 @@ class Problem:
             return out[0]
         return np.concatenate(out) if out else np.zeros(0)
 
-    def normal_equations(self, x: np.ndarray, parts: str = "pose") -> NormalEquations:
+    def normal_equations(self, x: np.ndarray, parts: str = "pose", blocks=None) -> NormalEquations:
         """J^T J and J^T r at x, accumulated over chunks of poses (memory independent of N).
-        The last result is kept: asking again at the same x costs nothing."""
+        The last result is kept: asking again at the same x costs nothing. ``blocks``: the pass's
+        unweighted pieces when the caller has them (least squares, "pose", the rows one chunk: a
+        list of the one (Jt, Jp, rp, Jr, rr) that _transposed_blocks would yield), kept as a pass's."""
         key = (np.asarray(x, float).tobytes(), parts)
         last = getattr(self, "_last_ne", None)
         if last is not None and last[0] == key:
             return last[1]
-        ne = self._normal_equations(x, parts)
+        ne = self._normal_equations(x, parts, blocks)
         self._last_ne = (key, ne)
         return ne
 
-    def _normal_equations(self, x: np.ndarray, parts: str) -> NormalEquations:
+    def _normal_equations(self, x: np.ndarray, parts: str, given=None) -> NormalEquations:
         """The normal equations at x. Least squares (loss "linear"): those of the same rows at
         the same parameter values under other weights (a problem derived with other noise
         levels: the re-weighted fits and the statistics) are re-scaled instead of recomputed."""
         shared = getattr(self, "_shared", None)
         if self.loss != "linear" or shared is None:
-            return self._compute_normal_equations(x, parts)[0]
+            return self._compute_normal_equations(x, parts, given)[0]
         key = (self.full(x).tobytes(), self.free.tobytes(), parts, getattr(self, "_rows_key", None))
         hit = shared.get(key)
         if hit is not None:
@@ -281,7 +283,7 @@ class Problem:
             if sp == self.sigma_pos and sr == self.sigma_rot:
                 return ne
             return _reweighted(ne, (sp / self.sigma_pos) ** 2, (sr / self.sigma_rot) ** 2)
-        ne, blocks = self._compute_normal_equations(x, parts)
+        ne, blocks = self._compute_normal_equations(x, parts, given)
         for k, hit in shared.items():      # (the blocks of the latest point only: bounded memory)
             shared[k] = hit[:3] + (None,)
         shared[key] = (ne, self.sigma_pos, self.sigma_rot, blocks)
@@ -299,7 +301,7 @@ class Problem:
         hit = shared.get((self.full(x).tobytes(), self.free.tobytes(), "pose", getattr(self, "_rows_key", None)))
         return None if hit is None else hit[3]
 
-    def _compute_normal_equations(self, x: np.ndarray, parts: str):
+    def _compute_normal_equations(self, x: np.ndarray, parts: str, given=None):
         """(normal equations, blocks): the blocks are the
         unweighted ones the least-squares sums were made of when the rows are one chunk and
         ``parts`` is "pose" (Jt (m, 6, N), the rotation rows Jl^-1 Jt (m, 3 N) or None, residuals
@@ -315,7 +317,7 @@ class Problem:
         A_pos, A_rot = np.zeros((m, m)), (np.zeros((m, m)) if use_rot else None)
         g_pos, g_rot = np.zeros(m), np.zeros(m)
         rss, residuals = [0.0, 0.0], None
-        for Jt, Jp, rp, Jr, rr in self._transposed_blocks(x, parts):
+        for Jt, Jp, rp, Jr, rr in (self._transposed_blocks(x, parts) if given is None else given):
             if keep_blocks:
                 residuals = (rp, rr)
             if use_pos:

@@ -365,3 +365,37 @@ def test_the_chosen_step_is_the_candidates_own_noise_estimated_linear_fit():
     assert abs((s_r / s_p) / (sr / sp) - 1.0) > 0.5     # (the levels' ratio moved: re-weighting matters)
     direct = (x + shift)[c] + dx
     np.testing.assert_allclose([got[union[k]] for k in c], direct, rtol=0, atol=1e-8 * np.abs(dx).max())
+
+
+def test_the_union_pass_from_the_geometric_pass_is_the_unions_own(monkeypatch):
+    """choose_terms linearises the union of the candidates (UR10: compliance and periodic terms)
+    from the geometric fit's last pass, the terms' columns as their joints' columns times their
+    factors (_union_blocks): the same normal equations as the union's own pass."""
+    import calib.calibration.terms as terms
+    from calib.model.kinematics import ChainKinematics
+    from calib.solvers.problem import Problem
+
+    seen = []
+    original = terms._union_blocks
+
+    def recording(problem, fit, lin, union, start, x0):
+        given = original(problem, fit, lin, union, start, x0)
+        seen.append((lin, start, x0, given))
+        return given
+
+    monkeypatch.setattr(terms, "_union_blocks", recording)
+    robot = calib.load_robot("ur10")
+    rng = np.random.default_rng(11)
+    true = with_gravity(robot.with_changes(d2=2e-4, theta4=1e-3), payload=Payload(5.0),
+                        values=[0, 4e-6, 5e-6, 5e-6, 4e-6, 4e-6])
+    m = calib.simulate_measurements(true, robot.random_configurations(300, rng), sigma_pos=SIGMA_POS,
+                                    sigma_rot=SIGMA_ROT, rng=rng)
+    choose_terms(robot, m)
+    (lin, start, x0, given), = seen
+    assert given is not None and len(x0) > 40
+    ours = lin.normal_equations(x0)
+    own = Problem(ChainKinematics(start), lin.Q, lin.p_meas, np.transpose(lin.R_meas_T, (0, 2, 1)), start.values,
+                  lin.free, lin.sigma_pos, lin.sigma_rot).normal_equations(x0)
+    np.testing.assert_allclose(ours.A, own.A, rtol=0, atol=1e-14 * np.abs(own.A).max())
+    np.testing.assert_allclose(ours.g, own.g, rtol=0, atol=1e-14 * np.abs(own.g).max())
+    np.testing.assert_allclose([ours.rss_pos, ours.rss_rot], [own.rss_pos, own.rss_rot], rtol=1e-12)
