@@ -426,9 +426,9 @@ def _step_at_own_levels(ne: NormalEquations, x, x_held, union: list, c: np.ndarr
     """The Gauss-Newton step of the candidate with columns ``c`` of the union's normal equations
     ``ne`` at x (whitened at the geometric fit's noise levels ``levels``; the columns it lacks
     moved to their values in ``x_held`` first), re-weighted to the noise levels where the
-    variance-component estimation of that candidate stops (:func:`~calib.calibration.fit._vce_fixed_point`; ``free``:
-    which levels are estimated), as name -> value: where calibrate's fit of the chosen model
-    starts. Its scores are the step at the geometric levels (every candidate on the same
+    variance-component estimation of that candidate stops
+    (:func:`~calib.calibration.fit._vce_fixed_point`; ``free``: which levels are estimated), as
+    name -> value: where calibrate's fit of the chosen model starts. Its scores are the step at the geometric levels (every candidate on the same
     weights); its fit re-weights to its own residuals (the real iiwa rows with the joint terms:
     0.34 -> 0.26 mm, 1.51 -> 0.90 mrad), and from the step at the geometric levels its LM took
     one iteration (one Jacobian pass of 68 parameters) more."""
