@@ -32,7 +32,7 @@ from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.solvers.inverse import normal_inverse
 from calib.solvers.lm import options_with
-from calib.solvers.problem import CHUNK_POSES, NormalEquations, Problem
+from calib.solvers.problem import CHUNK_POSES, NormalEquations, Problem, pass_blocks
 
 #: Calibration rows the choice of the joint terms is judged on at most: above, an evenly spaced
 #: subset of this many (10,000 full-pose rows hold 60,000 residual components for at most a few
@@ -316,13 +316,18 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     fold_of = fold_labels(int(keep.sum()), folds, seed)
     has_rot = big.measure == "pose"
     cols = {label: np.array([union.index(n) for n in free], int) for (label, _, _), free in zip(cands, frees)}
-    # each group's share of the normal equations re-weights the chosen step below: made first where
-    # the whitened blocks (up to CHUNK_POSES rows) then come from the same pass, else from the blocks
     reweigh = has_rot and (base.sigma_pos is None or base.sigma_rot is None)
-    given = _union_blocks(problem, fit, lin, union, start, x0)
-    ne0 = lin.normal_equations(x0, blocks=given) if given or (reweigh and lin.n_poses <= CHUNK_POSES) else None
-    blocks = [(r, Jw) for r, Jw in lin.whitened_blocks(x0)]
-    ne0 = _group_sums(blocks) if reweigh and ne0 is None else ne0
+
+    def linearise(x, given=None):
+        """(the union's normal equations at x when the chosen step is re-weighted below, None
+        otherwise; its whitened blocks): the normal equations first where the blocks (up to
+        CHUNK_POSES rows, or ``given``, a pass the caller has) then come from the same pass, else
+        each group summed from the blocks."""
+        ne = lin.normal_equations(x, blocks=given) if given or (reweigh and lin.n_poses <= CHUNK_POSES) else None
+        blocks = [(r, Jw) for r, Jw in lin.whitened_blocks(x)]
+        return (_group_sums(blocks) if reweigh and ne is None else ne), blocks
+
+    ne0, blocks = linearise(x0, _union_blocks(problem, fit, lin, union, start, x0))
     scored, x_u, per_row = _linear_scores(blocks, x0, x0, union, cols, fold_of, folds, (sp, sr, has_rot), lin,
                                           required=cands[0][0])
     linearised_at = dict.fromkeys(scored, (ne0, x0))
@@ -333,9 +338,7 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         # candidates are scored again linearised at that step (where the terms a candidate
         # lacks are near zero when it holds the truth's: periodic errors of 10 mrad and
         # compliances of 400 urad/(N m) made +both win over the true +compliance by 6e-5)
-        ne_u = lin.normal_equations(x_u) if reweigh and lin.n_poses <= CHUNK_POSES else None
-        blocks_u = [(r, Jw) for r, Jw in lin.whitened_blocks(x_u)]
-        ne_u = _group_sums(blocks_u) if reweigh and ne_u is None else ne_u
+        ne_u, blocks_u = linearise(x_u)
         again = _linear_scores(blocks_u, x_u, x0, union,
                                {k: v for k, v in cols.items() if k != cands[0][0]}, fold_of, folds,
                                (sp, sr, has_rot), None)[0]
@@ -360,14 +363,13 @@ def _union_blocks(problem: Problem, fit, lin: Problem, union: list, start: Robot
     """The union's pass at the geometric solution (the terms at zero) from the geometric fit's
     last pass there, which its problem kept (one chunk of the same rows, pose data): the
     geometric columns are that pass's, each term's column is its joint's theta (d) column times
-    its factor (as ChainKinematics.poses_and_jacobian makes them); as a list of the one
-    (Jt, Jp, rp, Jr, rr) of Problem._transposed_blocks. None where the pass was not kept, or a
+    its factor (as ChainKinematics.poses_and_jacobian makes them), as
+    :func:`~calib.solvers.problem.pass_blocks`. None where the pass was not kept, or a
     term's joint column is not a geometric one, or the union's start (``start``, its free values
     ``x0``) is not the fit's geometry with the terms at zero: the union's own pass then."""
-    x = fit.model.values[fit.model.indices(fit.free)]
-    kept = problem._kept_blocks(x)
+    kept = problem.kept_pass(fit.model.values[fit.model.indices(fit.free)])
     kin = lin.kin
-    if kept is None or kept[1] is None or not kin.joint_terms or list(union[:len(fit.free)]) != list(fit.free):
+    if kept is None or kept[0][3] is None or not kin.joint_terms or list(union[:len(fit.free)]) != list(fit.free):
         return None
     # (the same geometry: every geometric parameter and reference frame at the fit's values, the
     # terms at zero)
@@ -377,10 +379,10 @@ def _union_blocks(problem: Problem, fit, lin: Problem, union: list, start: Robot
     rest = np.setdiff1d(np.arange(len(names)), at)
     refs = [(geo.T_meas_base_ref, start.T_meas_base_ref), (geo.T_flange_tool_ref, start.T_flange_tool_ref),
             (geo.T_flange_target_refs, start.T_flange_target_refs)]
-    if not (np.array_equal(v[at], geo.values) and not np.any(v[rest]) and all(
-            (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b)) for a, b in refs)):
+    same_refs = all(a is b or (a is not None and b is not None and np.array_equal(a, b)) for a, b in refs)
+    if not (same_refs and np.array_equal(v[at], geo.values) and not np.any(v[rest])):
         return None
-    Jt_g, Jr_g, rp, rr = kept
+    (Jt_g, _, rp, Jr_g, rr), = kept
     m_g, _, n = Jt_g.shape
     col_of = {name: c for c, name in enumerate(fit.free)}
     terms = {}                  # union column -> (geometric column, factor (n,))
@@ -400,7 +402,7 @@ def _union_blocks(problem: Problem, fit, lin: Problem, union: list, start: Robot
         g, f = terms[name]
         Jt[c] = Jt_g[g] * f
         Jr[c] = (Jr_g[g].reshape(3, n) * f).reshape(-1)
-    return [(Jt, Jt[:, :3].reshape(m, 3 * n), rp.reshape(3, n), Jr, rr.reshape(3, n).T)]
+    return pass_blocks(Jt, rp, Jr, rr)
 
 
 def _group_sums(blocks) -> NormalEquations:
@@ -428,10 +430,11 @@ def _step_at_own_levels(ne: NormalEquations, x, x_held, union: list, c: np.ndarr
     moved to their values in ``x_held`` first), re-weighted to the noise levels where the
     variance-component estimation of that candidate stops
     (:func:`~calib.calibration.fit._vce_fixed_point`; ``free``: which levels are estimated), as
-    name -> value: where calibrate's fit of the chosen model starts. Its scores are the step at the geometric levels (every candidate on the same
-    weights); its fit re-weights to its own residuals (the real iiwa rows with the joint terms:
-    0.34 -> 0.26 mm, 1.51 -> 0.90 mrad), and from the step at the geometric levels its LM took
-    one iteration (one Jacobian pass of 68 parameters) more."""
+    name -> value: where calibrate's fit of the chosen model starts. Its scores are the step at
+    the geometric levels (every candidate on the same weights); its fit re-weights to its own
+    residuals (the real iiwa rows with the joint terms: 0.34 -> 0.26 mm, 1.51 -> 0.90 mrad), and
+    from the step at the geometric levels its LM took one iteration (one Jacobian pass of 68
+    parameters) more."""
     sp, sr = levels
     # the columns it lacks moved by ``shift`` (the residuals r + J shift), then its columns only
     shift = x_held - x

@@ -24,15 +24,19 @@ if TYPE_CHECKING:
     from calib.calibration.selection import ModelSelection
 
 
+def _hat_blocks(Jw: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """(n, k, k) each row's block of the hat matrix, Jw_i C Jw_i^T, of whitened Jacobian blocks
+    Jw (n, k, m) (Jw C as one (n k, m) x (m, m) product: one BLAS call instead of n)."""
+    n, k, m = Jw.shape
+    return (Jw.reshape(n * k, m) @ C).reshape(n, k, m) @ np.transpose(Jw, (0, 2, 1))
+
+
 def _held_out_factors(Jw: np.ndarray, C: np.ndarray, H: np.ndarray | None = None) -> np.ndarray:
     """(n, k, k): (I - H_ii)^-1 for each row's whitened Jacobian block Jw (n, k, m), H_ii = Jw_i C
     Jw_i^T its block of the hat matrix (``H`` when already made): a kept row's held-out
     (leave-one-out) residual is this times its residual. A leverage reaching 1 (the row alone
     determines a parameter) counts as 0.99."""
-    n, k, m = Jw.shape
-    if H is None:
-        # (Jw C as one (n k, m) x (m, m) product: the same values, one BLAS call instead of n)
-        H = (Jw.reshape(n * k, m) @ C).reshape(n, k, m) @ np.transpose(Jw, (0, 2, 1))     # (n, k, k)
+    H = _hat_blocks(Jw, C) if H is None else H
     M = np.empty_like(H)                                         # (I - H)^-1
     # H is positive semi-definite: a leverage can reach 0.99 only where its trace does
     high = np.trace(H, axis1=1, axis2=2) >= 0.99
@@ -60,7 +64,7 @@ def row_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, f
     n = 0
     for _, Jw, J in problem.whitened_blocks(x, raw=True):
         k = Jw.shape[1]
-        H = (Jw.reshape(-1, m) @ C).reshape(Jw.shape) @ np.transpose(Jw, (0, 2, 1))     # (n, k, k)
+        H = _hat_blocks(Jw, C)
         d = np.diagonal(_held_out_factors(Jw, C, H), axis1=1, axis2=2)
         t_p += float(d[:, :3].sum())
         t_r += float(d[:, 3:].sum())

@@ -259,8 +259,8 @@ class Problem:
     def normal_equations(self, x: np.ndarray, parts: str = "pose", blocks=None) -> NormalEquations:
         """J^T J and J^T r at x, accumulated over chunks of poses (memory independent of N).
         The last result is kept: asking again at the same x costs nothing. ``blocks``: the pass's
-        unweighted pieces when the caller has them (least squares, "pose", the rows one chunk: a
-        list of the one (Jt, Jp, rp, Jr, rr) that _transposed_blocks would yield), kept as a pass's."""
+        unweighted pieces when the caller has them (least squares, "pose", the rows one chunk:
+        :func:`pass_blocks`), kept as a pass's."""
         key = (np.asarray(x, float).tobytes(), parts)
         last = getattr(self, "_last_ne", None)
         if last is not None and last[0] == key:
@@ -300,6 +300,17 @@ class Problem:
             return None
         hit = shared.get((self.full(x).tobytes(), self.free.tobytes(), "pose", getattr(self, "_rows_key", None)))
         return None if hit is None else hit[3]
+
+    def kept_pass(self, x: np.ndarray, any_loss: bool = False) -> list | None:
+        """The least-squares pass last made at x on these rows (see :meth:`_kept_blocks`) as
+        :meth:`_transposed_blocks` yields it (:func:`pass_blocks`), or None: its Jacobian and
+        residuals serve other sums at the same point (a robust loss's, a larger model's)."""
+        kept = self._kept_blocks(x, any_loss)
+        if kept is None:
+            return None
+        Jt, Jr, rp, rr = kept
+        n = Jt.shape[2]
+        return pass_blocks(Jt, rp.reshape(3, n), Jr, None if rr is None else rr.reshape(3, n).T)
 
     def _compute_normal_equations(self, x: np.ndarray, parts: str, given=None):
         """(normal equations, blocks): the blocks are the
@@ -379,17 +390,10 @@ class Problem:
         g = np.zeros(m)
         rss = [0.0, 0.0]
         wp, wr = 1.0 / self.sigma_pos ** 2, 1.0 / self.sigma_rot ** 2
-        kept = self._kept_blocks(x, any_loss=True) if parts == "pose" else None
-        if kept is not None:
-            # the least-squares pass at x on these rows (the outlier check's Huber fit starts at
-            # the least-squares solution): its blocks, without another Jacobian
-            Jt, Jr, rp, rr = kept
-            m_, _, n = Jt.shape
-            blocks = [(Jt, Jt[:, :3].reshape(m_, 3 * n), rp.reshape(3, n), Jr,
-                       None if rr is None else rr.reshape(3, n).T)]
-        else:
-            blocks = self._transposed_blocks(x, parts)
-        for Jt, Jp, rp, Jr, rr in blocks:
+        # the least-squares pass at x on these rows when there is one (the outlier check's Huber
+        # fit starts at the least-squares solution): its blocks, without another Jacobian
+        kept = self.kept_pass(x, any_loss=True) if parts == "pose" else None
+        for Jt, Jp, rp, Jr, rr in (self._transposed_blocks(x, parts) if kept is None else kept):
             z = np.zeros(Jt.shape[2])
             if use_pos:
                 zp = np.einsum("kn,kn->n", rp, rp) * wp
@@ -543,6 +547,14 @@ def _remember(cache: dict, key, value, size: int = 4) -> None:
     cache[key] = value
     while len(cache) > size:
         cache.pop(next(iter(cache)))
+
+
+def pass_blocks(Jt: np.ndarray, rp: np.ndarray, Jr: np.ndarray | None, rr: np.ndarray | None) -> list:
+    """A one-chunk pass as Problem._transposed_blocks yields it, [(Jt, Jp, rp, Jr, rr)], from the
+    pose Jacobian Jt (m, 6, n), the position residuals rp (3, n), the rotation rows Jr (m, 3 n) and
+    residuals rr (n, 3) (None without orientation): Jp is Jt's position block as (m, 3 n)."""
+    m, _, n = Jt.shape
+    return [(Jt, Jt[:, :3].reshape(m, 3 * n), rp, Jr, rr)]
 
 
 def _reweighted(ne: NormalEquations, f_pos: float, f_rot: float) -> NormalEquations:
