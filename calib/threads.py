@@ -24,6 +24,8 @@ THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 _CONTROLLER: list = []
 #: Set when the environment asked for one thread before numpy loaded (set_before_numpy).
 _FROM_START: list = []
+#: Whether calib.heap has been asked (once per process).
+_HEAP: list = []
 
 
 def set_before_numpy() -> bool:
@@ -55,10 +57,15 @@ def one_blas_thread():
 
 
 def with_one_blas_thread(function):
-    """``function`` run under :func:`one_blas_thread` (its signature and docstring kept)."""
+    """``function`` run under :func:`one_blas_thread` (its signature and docstring kept), the C
+    heap kept between calls (:func:`calib.heap.keep_freed_heap`, once per process)."""
 
     @functools.wraps(function)
     def wrapper(*args, **kwargs):
+        if not _HEAP:
+            from calib.heap import keep_freed_heap
+
+            _HEAP.append(keep_freed_heap())
         with one_blas_thread():
             return function(*args, **kwargs)
 
