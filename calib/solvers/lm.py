@@ -15,7 +15,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calib.solvers.inverse import RANK_RCOND
-from calib.solvers.problem import COST_RTOL, FUSE_BELOW_POSES, Problem, WEAK_RCOND, _without_inert
+from calib.solvers.normal_equations import _without_inert
+from calib.solvers.problem import COST_RTOL, FUSE_BELOW_POSES, Problem, WEAK_RCOND
 
 log = logging.getLogger("calib.solvers.problem")
 STATUSES = ("converged", "max_iterations", "diverged", "local_minimum")

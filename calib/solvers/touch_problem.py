@@ -36,7 +36,7 @@ from calib.model.jacobian import pose_jacobian
 from calib.model.kinematics import ChainKinematics
 from calib.model.spatial import left_jacobian_inverse_batch, log3_batch
 from calib.model.touch import TouchData, plane_normals
-from calib.solvers.problem import NormalEquations, _rank_deficit, _without_inert
+from calib.solvers.normal_equations import NormalEquations, _rank_deficit, _without_inert
 
 
 class TouchProblem:
