@@ -295,6 +295,8 @@ class Problem:
         if self.loss != "linear":
             return self._compute_robust_normal_equations(x, parts), None
         keep_blocks = parts == "pose" and self.n_poses <= CHUNK_POSES
+        if given is None and keep_blocks:
+            given = self._pass_of_rows(x)
         blocks = None
         m = len(self.free)
         use_pos = parts in ("pose", "position")
@@ -333,6 +335,40 @@ class Problem:
             self._share_residuals(x, *residuals)
         return ne, blocks
 
+    def _row_mask(self) -> np.ndarray | None:
+        """(n,) bool: this problem's rows among those of its shared caches' data (None when its
+        rows were picked by index)."""
+        key = getattr(self, "_rows_key", None)
+        if key is None:
+            return np.ones(self.n_poses, bool)
+        return np.frombuffer(key[2], bool) if key[0] == "|b1" else None
+
+    def _keep_pass(self, x: np.ndarray, Jt, rp, Jr, rr) -> None:
+        """Keep a robust loss's one-chunk pass at x (its unweighted blocks, as
+        :meth:`_transposed_blocks` yields them) for the least-squares normal equations of these
+        rows or some of them at x (:meth:`_pass_of_rows`): the outlier check's Huber fit ends at
+        the point where the rows it keeps are linearised next. The latest one only."""
+        shared, mask = self._shared_cache(), self._row_mask()
+        if shared is None or mask is None:
+            return
+        for k in [k for k in shared if k[0] == "pass"]:
+            del shared[k]
+        _remember(shared, ("pass", self.full(x).tobytes(), self.free.tobytes()), (mask, (Jt, rp, Jr, rr)))
+
+    def _pass_of_rows(self, x: np.ndarray) -> list | None:
+        """The pass at x that :meth:`_keep_pass` kept for these rows or more of the same data,
+        cut to these rows (as :func:`pass_blocks`), or None."""
+        shared = self._shared_cache()
+        hit = None if shared is None else shared.get(("pass", self.full(x).tobytes(), self.free.tobytes()))
+        mine = None if hit is None else self._row_mask()
+        if mine is None or len(mine) != len(hit[0]) or np.any(mine & ~hit[0]):
+            return None
+        Jt, rp, Jr, rr = hit[1]
+        sel = np.flatnonzero(mine[hit[0]])
+        m, _, n = Jt.shape
+        return pass_blocks(Jt[:, :, sel], rp[:, sel], None if Jr is None else Jr.reshape(m, 3, n)[:, :, sel].reshape(m, -1),
+                           None if rr is None else rr[sel])
+
     def _share_residuals(self, x: np.ndarray, rp: np.ndarray, rr: np.ndarray | None) -> None:
         """Keep the residuals a normal equations' pass made at x (rp (3, N), rr (N, 3) or None)
         for :meth:`pose_residuals` of the same rows (the outlier check asks at the solution):
@@ -368,6 +404,8 @@ class Problem:
         # fit starts at the least-squares solution): its blocks, without another Jacobian
         kept = self.kept_pass(x, any_loss=True) if parts == "pose" else None
         for Jt, Jp, rp, Jr, rr in (self._transposed_blocks(x, parts) if kept is None else kept):
+            if kept is None and parts == "pose" and self.n_poses <= CHUNK_POSES:
+                self._keep_pass(x, Jt, rp, Jr, rr)
             z = np.zeros(Jt.shape[2])
             if use_pos:
                 zp = np.einsum("kn,kn->n", rp, rp) * wp

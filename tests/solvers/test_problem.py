@@ -389,3 +389,38 @@ def test_robust_normal_equations_from_a_least_squares_pass_kept_blocks(orientati
     np.testing.assert_allclose(a.A, b.A, rtol=0, atol=1e-12 * np.abs(b.A).max())
     np.testing.assert_allclose(a.g, b.g, rtol=0, atol=1e-12 * np.abs(b.g).max())
     np.testing.assert_allclose([a.rss_pos, a.rss_rot], [b.rss_pos, b.rss_rot], rtol=1e-12)
+
+
+@pytest.mark.parametrize("orientation", [True, False])
+def test_least_squares_normal_equations_of_fewer_rows_from_a_robust_pass(orientation, monkeypatch):
+    """The least-squares normal equations of some of a Huber problem's rows, asked at the point
+    of its last pass (the outlier check's Huber fit ends where the rows it keeps are linearised
+    next), are summed from that pass cut to those rows (no Jacobian): the same as a fresh
+    problem's, and with the blocks that serve the next sums at that point."""
+    import calib.solvers.problem as problem_module
+
+    robot = calib.load_robot("robots/brtirus0707a/brtirus0707a.urdf")
+    m = simulate_measurements(apply_deviations(robot, PAPER_DEVIATIONS), robot.random_configurations(300, 2),
+                              rng=3, sigma_pos=1e-3, sigma_rot=3e-3)
+    R = m.rotation if orientation else None
+    idx = np.arange(0, robot.n_params, 2)
+    keep, fewer = np.ones(300, bool), np.ones(300, bool)
+    keep[::7] = False
+    fewer[::5] = False
+    fewer &= keep
+    base = Problem(ChainKinematics(robot), m.q, m.position, R, robot.values, idx, 1e-3, 2e-3)
+    x = robot.values[idx] + 1e-4
+    base.derived(keep=keep, loss="huber").normal_equations(x)
+    passes = []
+    original = problem_module.pose_jacobian
+    monkeypatch.setattr(problem_module, "pose_jacobian", lambda *a, **k: passes.append(1) or original(*a, **k))
+    ls = base.derived(keep=fewer, sigma_pos=5e-4, sigma_rot=1e-3)
+    a = ls.normal_equations(x)
+    assert passes == [] and ls._kept_blocks(x) is not None
+    # rows the pass did not hold: a pass of their own
+    assert base.derived(keep=fewer | ~keep)._pass_of_rows(x) is None
+    b = Problem(ChainKinematics(robot), m.q[fewer], m.position[fewer], None if R is None else R[fewer],
+                robot.values, idx, 5e-4, 1e-3).normal_equations(x)
+    np.testing.assert_allclose(a.A, b.A, rtol=0, atol=1e-12 * np.abs(b.A).max())
+    np.testing.assert_allclose(a.g, b.g, rtol=0, atol=1e-12 * np.abs(b.g).max())
+    np.testing.assert_allclose([a.rss_pos, a.rss_rot], [b.rss_pos, b.rss_rot], rtol=1e-12)
