@@ -263,6 +263,10 @@ def _free_set_of(problem_all: Problem, robot: RobotModel, candidates: np.ndarray
     return free.copy(), list(notes)
 
 
+#: Remaining squared norms within this relative distance of the largest tie in _pivoted_rank.
+PIVOT_TIE_RTOL = 1e-9
+
+
 def _pivoted_rank(G: np.ndarray, tol: float) -> tuple[int, np.ndarray]:
     """(rank, pivot order) of the Gram matrix G (k, k) of unit columns: greedy pivoted Cholesky,
     the column with the largest remaining squared norm first, stopping when its norm |R_kk|
@@ -272,7 +276,12 @@ def _pivoted_rank(G: np.ndarray, tol: float) -> tuple[int, np.ndarray]:
     piv = np.arange(k)
     d = np.diag(G).astype(float).copy()
     for j in range(k):
-        p = j + int(np.argmax(d[piv[j:]]))
+        # (columns whose remaining norms tie within rounding: the first in G's order, not the
+        # one rounding favours; a nominal model derived again with other rounding (1e-16) held
+        # M2's x, z instead of its beta, gamma of the TIAGo markers)
+        rest = d[piv[j:]]
+        near = np.flatnonzero(rest >= rest.max() - PIVOT_TIE_RTOL * abs(rest.max()))
+        p = j + int(near[np.argmin(piv[j:][near])])
         piv[[j, p]] = piv[[p, j]]
         if d[piv[j]] <= tol ** 2:
             return j, piv
