@@ -150,8 +150,18 @@ def derive_mdh(axis_points: np.ndarray, axis_dirs: np.ndarray, T_meas_tool: np.n
             foot_i, foot_next = o + s * z, p_next + t * z_next
             w = foot_next - foot_i
             dist = np.linalg.norm(w)
-            normal = w / dist if dist > _EPS_LENGTH else _unit(cross3(z, z_next))
-            x_i = _closest_sign(normal, x_prev)
+            normal = _unit(cross3(z, z_next))
+            if dist > _EPS_LENGTH:
+                # the common normal's direction is the axes' cross product's, its sense w's: w,
+                # from the feet of axes a metre or so from the base, has the direction of its
+                # rounding when the axes nearly meet (a = 9e-9 m of a calibrated URDF turned the
+                # next axis by 1e-9 rad); x_i's sense is decided by w as before (x_prev can be
+                # perpendicular to the normal: TIAGo's convention of its markers' frames)
+                w_dir = w / dist
+                normal = normal if normal @ w_dir >= 0.0 else -normal
+                x_i = normal if w_dir @ x_prev >= 0.0 else -normal
+            else:
+                x_i = _closest_sign(normal, x_prev)
             theta[i] = _signed_angle(x_prev, x_i, z)
             d[i] = s
             a[i] = w @ x_i
