@@ -24,6 +24,9 @@ import sys
 #: The variables the BLAS libraries numpy loads read their thread count from.
 THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
+#: Thread variables of other BLAS libraries (BLIS), which may be absent, but not above 1.
+OTHER_THREAD_VARS = ("BLIS_NUM_THREADS",)
+
 #: Modules that change a loaded BLAS library's thread count at run time (threadpoolctl, which
 #: scikit-learn and others use; mkl-service; numexpr's VML; PyTorch's set_num_threads): while one
 #: is loaded, the environment the process started with does not tell the count. (A direct ctypes
@@ -51,18 +54,19 @@ def set_before_numpy() -> bool:
 
 
 def started_with_one_thread(environ_file: str = "/proc/self/environ") -> bool:
-    """True when this process started (exec) with each of :data:`THREAD_VARS` at "1": the
-    environment the BLAS libraries read when numpy loads them, as the kernel keeps it
-    (``environ_file``; later changes of ``os.environ`` do not show there). False where that file
-    does not exist (not Linux) or cannot be read."""
+    """True when this process started (exec) with each of :data:`THREAD_VARS` at "1" (and
+    :data:`OTHER_THREAD_VARS` absent or at "1"): the environment the BLAS libraries read when
+    numpy loads them, as the kernel keeps it (``environ_file``; later changes of ``os.environ``
+    do not show there). False where that file does not exist (not Linux) or cannot be read."""
     try:
         with open(environ_file, "rb") as f:
             start = f.read().split(b"\0")
     except OSError:
         return False
-    for var in THREAD_VARS:
+    for var in THREAD_VARS + OTHER_THREAD_VARS:
         prefix = var.encode() + b"="
-        if [entry for entry in start if entry.startswith(prefix)] != [prefix + b"1"]:
+        given = [entry for entry in start if entry.startswith(prefix)]
+        if given != [prefix + b"1"] and (var in THREAD_VARS or given):
             return False
     return True
 
@@ -75,6 +79,7 @@ def _one_thread_already() -> bool:
     if not _STARTED:
         _STARTED.append(started_with_one_thread())
     return (_STARTED[0] and all(os.environ.get(var) == "1" for var in THREAD_VARS)
+            and all(os.environ.get(var, "1") == "1" for var in OTHER_THREAD_VARS)
             and not any(name in sys.modules for name in RUNTIME_CHANGERS))
 
 

@@ -77,8 +77,9 @@ def test_pose_selection_and_compensation_run_with_one_blas_thread(monkeypatch):
 
 
 def test_started_with_one_thread_reads_the_starting_environment(tmp_path):
-    """Each variable once, at 1, in the environment the process started with; anything else
-    (missing, another count, given twice) leaves one_blas_thread to threadpoolctl."""
+    """Each variable once, at 1, in the environment the process started with (BLIS's absent or
+    at 1); anything else (missing, another count, given twice) leaves one_blas_thread to
+    threadpoolctl."""
     from calib.threads import started_with_one_thread
 
     def started(*entries: str) -> bool:
@@ -92,6 +93,8 @@ def test_started_with_one_thread_reads_the_starting_environment(tmp_path):
     assert not started(ones[0], ones[1], THREAD_VARS[2] + "=2")
     assert not started(*ones, THREAD_VARS[0] + "=4")
     assert not started(*ones[:2], THREAD_VARS[2] + "=10")
+    assert started(*ones, "BLIS_NUM_THREADS=1")
+    assert not started(*ones, "BLIS_NUM_THREADS=4")
     assert not started_with_one_thread(str(tmp_path / "absent"))
 
 
