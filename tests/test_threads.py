@@ -3,6 +3,8 @@ is loaded, and leaves the caller's thread count as it found it."""
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -120,14 +122,12 @@ print(loaded[0], min(seen), max(seen), blas_threads())
 """
 
 
-def _child(env_threads: str | None, before: str = "", after: str = "") -> list[str]:
-    import os
-    import subprocess
-    import sys
-
+def _child(env_threads: str, before: str = "", after: str = "") -> list[str]:
+    """(threadpoolctl loaded at the first progress report, the fewest and most BLAS threads seen
+    in the reports, the count after the call) of a calibrate() in a process started with each of
+    THREAD_VARS at ``env_threads``, ``before`` and ``after`` run around its import of numpy."""
     env = {k: v for k, v in os.environ.items() if k not in THREAD_VARS}
-    if env_threads is not None:
-        env.update({var: env_threads for var in THREAD_VARS})
+    env.update({var: env_threads for var in THREAD_VARS})
     env["PYTHONPATH"] = str(BUNDLED_URDF.parents[2])
     code = _CHILD.format(before=before, after=after, urdf=str(BUNDLED_URDF))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
@@ -147,8 +147,9 @@ def test_a_count_raised_at_run_time_or_before_numpy_is_limited():
     before numpy loads (and left so): calibrate limits the library to one thread and restores
     the caller's count after; likewise a process started with two that asks for one once numpy
     is loaded (tests/test_threads.py's first test, in a process of its own)."""
-    if os.cpu_count() < 2:
-        pytest.skip("one core: OpenBLAS runs one thread at most")
+    with threadpool_limits(limits=2, user_api="blas"):
+        if _blas_threads() < 2:
+            pytest.skip("this BLAS runs one thread at most")
     raised = "from threadpoolctl import threadpool_limits\nthreadpool_limits(limits=2, user_api='blas')"
     assert _child("1", after=raised)[1:] == ["1", "1", "2"]
     env2 = "for v in {!r}: os.environ[v] = '2'".format(THREAD_VARS)
