@@ -9,7 +9,10 @@ a Python program that calls the API gets :func:`one_blas_thread` around the call
 limits the BLAS libraries already loaded for its duration and restores them after (threadpoolctl:
 4 ms on the first call, 8 us a call after). The environment alone does not tell: a program that
 sets OPENBLAS_NUM_THREADS=1 after importing numpy runs with OpenBLAS's threads (the iiwa rows
-took 370 ms of CPU instead of 190).
+took 370 ms of CPU instead of 190). What the process started with does (:func:`started_with_one_thread`):
+every BLAS library read that environment when it loaded, so while no module that changes their
+thread count at run time is loaded (:data:`RUNTIME_CHANGERS`) and the environment still says one
+thread, :func:`one_blas_thread` has nothing to do either.
 """
 from __future__ import annotations
 
@@ -21,11 +24,23 @@ import sys
 #: The variables the BLAS libraries numpy loads read their thread count from.
 THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
+#: Thread variables of other BLAS libraries (BLIS), which may be absent, but not above 1.
+OTHER_THREAD_VARS = ("BLIS_NUM_THREADS",)
+
+#: Modules that change a loaded BLAS library's thread count at run time (threadpoolctl, which
+#: scikit-learn and others use; mkl-service; numexpr's VML; PyTorch's set_num_threads): while one
+#: is loaded, the environment the process started with does not tell the count. (A direct ctypes
+#: call of openblas_set_num_threads does not show; nor does a program that changes the
+#: environment before numpy loads and restores it after.)
+RUNTIME_CHANGERS = ("threadpoolctl", "mkl", "numexpr", "torch")
+
 _CONTROLLER: list = []
 #: Set when the environment asked for one thread before numpy loaded (set_before_numpy).
 _FROM_START: list = []
 #: Whether calib.heap has been asked (once per process).
 _HEAP: list = []
+#: started_with_one_thread()'s answer, read once (the starting environment does not change).
+_STARTED: list = []
 
 
 def set_before_numpy() -> bool:
@@ -40,12 +55,43 @@ def set_before_numpy() -> bool:
     return True
 
 
+def started_with_one_thread(environ_file: str = "/proc/self/environ") -> bool:
+    """True when this process started (exec) with each of :data:`THREAD_VARS` at "1" (and
+    :data:`OTHER_THREAD_VARS` absent or at "1"): the environment the BLAS libraries read when
+    numpy loads them, as the kernel keeps it (``environ_file``; later changes of ``os.environ``
+    do not show there). False where that file does not exist (not Linux) or cannot be read."""
+    try:
+        with open(environ_file, "rb") as f:
+            start = f.read().split(b"\0")
+    except OSError:
+        return False
+    for var in THREAD_VARS + OTHER_THREAD_VARS:
+        prefix = var.encode() + b"="
+        given = [entry for entry in start if entry.startswith(prefix)]
+        if given != [prefix + b"1"] and (var in THREAD_VARS or given):
+            return False
+    return True
+
+
+def _one_thread_already() -> bool:
+    """Whether every BLAS library numpy loaded runs one thread without being told: the process
+    started with one thread in the environment, the environment still says so (a program that
+    raised it before importing numpy does not) and no module that changes the count at run time
+    is loaded."""
+    if not _STARTED:
+        _STARTED.append(started_with_one_thread())
+    return (_STARTED[0] and all(os.environ.get(var) == "1" for var in THREAD_VARS)
+            and all(os.environ.get(var, "1") == "1" for var in OTHER_THREAD_VARS)
+            and not any(name in sys.modules for name in RUNTIME_CHANGERS))
+
+
 @contextlib.contextmanager
 def one_blas_thread():
     """Run the block with one BLAS thread (restored after it; nothing done after
-    :func:`set_before_numpy`). Not for blocks running concurrently in several Python threads:
-    the last to leave restores the count."""
-    if _FROM_START:
+    :func:`set_before_numpy`, nor while :func:`_one_thread_already`: threadpoolctl's inspection
+    of the loaded libraries, 4-8 ms, is then not needed). Not for blocks running concurrently in
+    several Python threads: the last to leave restores the count."""
+    if _FROM_START or _one_thread_already():
         yield
         return
     if not _CONTROLLER:

@@ -7,10 +7,15 @@ R calls after three warm ones and once with none, and prints (difference) / R: t
 one warm call (Python, numpy, BLAS and Pinocchio together). The bytecode is cached before the
 counted runs (the environment may set PYTHONDONTWRITEBYTECODE).
 
+With ``--first-call N`` the first call of a process instead (issue 27 item 1: at most 3x a warm one),
+as scripts/bench_speed.py's first-call figure times it: N simulated poses made before the count,
+then the first ``calibrate()`` (the import of its modules on the attribute's first use included)
+and the second, each counted as the difference of two runs, and their ratio.
+
 With ``--iiwa`` also the 1,402 real rows of ../shared/realdata/iiwa7_optical (the defaults, and any
 ``--iiwa-kwargs`` such as ``"terms='none'"``), skipped with a note when that folder is absent.
 
-Run: python scripts/bench_instructions.py [--poses 100 25] [--calls 5] [--iiwa]
+Run: python scripts/bench_instructions.py [--poses 100 25] [--calls 5] [--iiwa] [--first-call 25]
 (about a minute per size; needs valgrind)
 """
 from __future__ import annotations
@@ -33,7 +38,7 @@ def _env() -> dict:
 IIWA = ROOT.parent / "shared" / "realdata" / "iiwa7_optical"
 
 
-def child(n: int, calls: int, kwargs: str = "") -> None:
+def child(n: int, calls: int, kwargs: str = "", first: bool = False) -> None:
     sys.path.insert(0, str(ROOT))
     import calib
     if n == 0:         # the real iiwa rows
@@ -48,7 +53,7 @@ def child(n: int, calls: int, kwargs: str = "") -> None:
     robot = calib.load_robot(ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
     true = apply_deviations(robot, PAPER_DEVIATIONS)
     meas = simulate_measurements(true, robot.random_configurations(n, 1), rng=2)
-    for _ in range(3 + calls):
+    for _ in range((0 if first else 3) + calls):
         calib.calibrate(robot, meas)
 
 
@@ -65,21 +70,43 @@ def instructions(n: int, calls: int, kwargs: str = "") -> float:
     return (total[1] - total[0]) / calls
 
 
+def first_call_instructions(n: int) -> tuple[float, float]:
+    """(instructions of the first calibrate() of a process on n poses, of the second), each the
+    difference of two callgrind runs (0, 1 and 2 calls after the data are made)."""
+    cmd = [sys.executable, __file__, "--first", "--child", str(n)]
+    subprocess.run(cmd + ["1"], env=_env(), check=True)          # (the bytecode of what the call imports cached)
+    total = []
+    for k in (0, 1, 2):
+        out = subprocess.run(["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + cmd + [str(k)],
+                             env=_env(), capture_output=True, text=True, check=True).stderr
+        total.append(int(re.search(r"Collected : (\d+)", out).group(1)))
+    return total[1] - total[0], total[2] - total[1]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--poses", type=int, nargs="*", default=[100, 25])
     ap.add_argument("--calls", type=int, default=5, help="counted calls per size (default 5)")
     ap.add_argument("--iiwa", action="store_true", help="also the 1,402 real iiwa rows (2 counted calls)")
     ap.add_argument("--iiwa-kwargs", default="", help="calibrate()'s keywords for the iiwa rows, e.g. \"terms='none'\"")
+    ap.add_argument("--first-call", type=int, metavar="N",
+                    help="only the first call of a process on N poses and the second (issue 27 item 1)")
+    ap.add_argument("--first", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--kwargs", default="", help=argparse.SUPPRESS)
     ap.add_argument("--child", type=int, nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
-        child(*args.child, args.kwargs)
+        child(*args.child, args.kwargs, first=args.first)
         return 0
     if shutil.which("valgrind") is None:
         print("valgrind not found: no instruction counts")
         return 1
+    if args.first_call:
+        first, second = first_call_instructions(args.first_call)
+        print(f"calibrate(), {args.first_call} poses, defaults: first call of a process {first / 1e6:.1f}M "
+              f"instructions (the import of its modules included), the second {second / 1e6:.1f}M: "
+              f"{first / second:.2f}x (callgrind; issue 27: first <= 3x warm)")
+        return 0
     for n in args.poses:
         print(f"calibrate(), {n} poses, defaults: {instructions(n, args.calls) / 1e6:.2f}M instructions per warm call "
               f"(callgrind, {args.calls} calls)")

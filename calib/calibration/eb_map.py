@@ -62,7 +62,7 @@ MIN_REDUNDANCY = 6
 POLISH_STEPS = 2
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
 class EBMapResult:
     """What :func:`eb_map` returns (values SI: m, rad).
 

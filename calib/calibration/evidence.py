@@ -19,7 +19,7 @@ TAU_BOUNDS = (1e-7, 0.5)                # m or rad
 
 
 # ---------------------------------------------------------------- linearisation and evidence
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class Linearisation:
     """Sufficient statistics of the model linearised at x (free parameters) about the prior
     mean mu: with z = x - mu and y = J (x_L - mu) - r0, r(x) ~ J z - y. Unweighted: JpJp (m, m)
@@ -64,7 +64,7 @@ def linearise(problem: Problem, x: np.ndarray, mu: np.ndarray) -> Linearisation:
     return Linearisation(JpJp, Jpy, max(yyp, 0.0), 3 * n, JrJr, Jry, max(yyr or 0.0, 0.0), 3 * n if rot else 0)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
 class Evidence:
     """The linearised model's log evidence at log hyper-parameters ``log_h`` and what comes
     with it. log_h : (log w_p, [log w_r,] log lambda_g ...) with w = 1 / sigma^2 and

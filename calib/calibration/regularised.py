@@ -32,7 +32,7 @@ from calib.solvers.problem import Problem
 MAP_START = "ls"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)     # (an internal stage value: nothing compares or prints it)
 class MapFit:
     """What the regularised stage returns: the :class:`Fit` (posterior values and covariance),
     its weighted problem on the kept rows, the estimator's own record and the least-squares fit
