@@ -225,14 +225,19 @@ def held_out_summary(fold_of: np.ndarray, folds: int, e_p: np.ndarray, e_r: np.n
     ends = np.cumsum(np.bincount(fold_of, minlength=folds)).tolist()
     ep_f = e_p[order]
     er_f = e_r[order] if has_rot else None
-    per_fold = [(b - a, math.sqrt(float(np.mean(ep_f[a:b]))), math.sqrt(float(np.mean(er_f[a:b]))) if has_rot else None)
+    per_fold = [(b - a, math.sqrt(_mean(ep_f[a:b])), math.sqrt(_mean(er_f[a:b])) if has_rot else None)
                 for a, b in zip([0] + ends[:-1], ends)]
     score = e_p / sigma_pos ** 2 + (e_r / sigma_rot ** 2 if has_rot else 0.0)
     from calib.calibration.cross_validation import CrossValidation
 
-    return CrossValidation(folds, math.sqrt(float(np.mean(e_p))),
-                           math.sqrt(float(np.mean(e_r))) if has_rot else None, tuple(per_fold),
-                           float(np.mean(score)), _standard_error(score), score)
+    return CrossValidation(folds, math.sqrt(_mean(e_p)), math.sqrt(_mean(e_r)) if has_rot else None,
+                           tuple(per_fold), _mean(score), _standard_error(score), score)
+
+
+def _mean(x: np.ndarray) -> float:
+    """np.mean of a 1-D float array (its sum, then the division; nan when empty) without its
+    wrapper's cost: the same value."""
+    return float(np.add.reduce(x)) / len(x) if len(x) else math.nan
 
 
 def _standard_error(values: np.ndarray) -> float:
