@@ -42,7 +42,9 @@ class AccuracyStats:
         radians, the rotation vectors of R_model R_measured^T (None for position-only data)."""
         dp = check_array(dp, "dp", (None, 3), unit="metres")
         dr = None if dr is None else check_array(dr, "dr", (len(dp), 3), unit="radians")
-        return AccuracyStats(np.linalg.norm(dp, axis=1), None if dr is None else np.linalg.norm(dr, axis=1))
+        # (the row norms as np.linalg.norm makes them, sqrt of the summed squares, without its wrapper)
+        return AccuracyStats(np.sqrt(np.add.reduce(dp * dp, axis=1)),
+                             None if dr is None else np.sqrt(np.add.reduce(dr * dr, axis=1)))
 
     @property
     def n_poses(self) -> int:

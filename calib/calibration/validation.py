@@ -241,7 +241,14 @@ def _mean(x: np.ndarray) -> float:
 
 
 def _standard_error(values: np.ndarray) -> float:
-    return float(np.std(values, ddof=1) / math.sqrt(len(values))) if len(values) > 1 else 0.0
+    """The standard error of the mean of ``values`` (1-D): np.std(ddof=1) / sqrt(n), its sums as
+    np.std makes them (the mean, the squared deviations summed, / (n - 1)) without its wrapper."""
+    values = np.asarray(values, float)
+    n = len(values)
+    if n < 2:
+        return 0.0
+    d = values - np.add.reduce(values) / n
+    return float(np.sqrt(np.add.reduce(d * d) / (n - 1)) / math.sqrt(n))
 
 
 def held_out_error(setup: Setup, fit: Fit, problem: Problem, selection: ModelSelection | None, folds: int,
