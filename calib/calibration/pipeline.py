@@ -279,7 +279,8 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     stages.start("cross-validation")
     cross, cv_notes = held_out_error(setup, fit, problem, selection, opts.folds, opts.lm)
     notes += cv_notes
-    accuracy = accuracy_after(accuracy, fit.model, fit.errors, val, robot.targets, kin)
+    errors = fit.errors             # (made from the kept residuals: once for both uses below)
+    accuracy = accuracy_after(accuracy, fit.model, errors, val, robot.targets, kin)
 
     nz = fit.noise
     # a measurement frame estimated from the data is the instrument's: the robot's base frame in
@@ -305,7 +306,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         outliers=fit.outliers, loss=opts.loss, noise=nz, predicted_holdout=stats.predicted_holdout,
         cross_validation=cross, selection=selection, before_registered=accuracy.before_registered,
         validation_before_registered=accuracy.validation_before_registered, targets=accuracy.targets,
-        after_without_outliers=fit.errors.subset(fit.keep) if fit.outliers else None,
+        after_without_outliers=errors.subset(fit.keep) if fit.outliers else None,
         estimated_frames=setup.rebased, predicted_workspace=stats.predicted_workspace,
         consistency=stats.consistency, estimator=estimator or {"kind": "least-squares", "param_set": label},
         measurement_frame=mframe)

@@ -31,7 +31,7 @@ from calib.model.identifiability import (
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
-from calib.model.spatial import inverse, log3_batch, zyx_transform
+from calib.model.spatial import inverse, rotation_angle, zyx_transform
 
 
 @dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
@@ -378,7 +378,7 @@ def _rebase_frames(robot: RobotModel, m: Measurements, notes: list, always: bool
         T_nom, T_est = (robot.T_meas_base(), X) if k is None else (robot.T_flange_tool(k), Y[k])
         dT = inverse(T_nom) @ T_est
         dist = float(np.linalg.norm(dT[:3, 3]))
-        ang = float(np.linalg.norm(log3_batch(dT[None, :3, :3])[0]))
+        ang = rotation_angle(dT)
         if always or dist > FRAME_REBASE_M or ang > FRAME_REBASE_RAD:
             if k is None:
                 out = replace(out, T_meas_base_ref=T_est @ inverse(zyx_transform(*robot.u())))
@@ -402,10 +402,11 @@ def _frame_estimate(robot: RobotModel, m: Measurements, kin: ChainKinematics | N
     rows = target_rows(robot, m)
     if m.n_poses > FRAME_MEMO_MAX_ROWS:
         return estimate_frames_robust(robot, m.q, m.position, m.rotation, rows, kin=kin)
-    geo = robot.geometry()
-    terms = np.concatenate([robot.compliances(), robot.periodic_values()])
-    if np.any(terms != 0.0):
-        geo = robot
+    geo = robot
+    if robot.has_joint_terms:
+        terms = np.concatenate([robot.compliances(), robot.periodic_values()])
+        if not np.any(terms != 0.0):
+            geo = robot.geometry()
     return _robot_memo("frames", geo, (content_digest(m.q, m.position, m.rotation, rows),),
                        lambda: estimate_frames_robust(robot, m.q, m.position, m.rotation, rows, kin=kin))
 

@@ -102,10 +102,12 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
     workspace = predict_workspace(fit.model, fit.free, C_eff, nz.position * math.sqrt(infl_p),
                                   nz.rotation * math.sqrt(infl_r) if has_rot else None,
                                   calibration_q=setup.cal.q[fit.keep], kin=kin)
-    # many flagged rows: what the prediction leaves out
-    consistency = data_consistency(
+    # many flagged rows: what the prediction leaves out (none flagged: nothing to judge, no
+    # problem derived for it)
+    flagged = [o.row for o in fit.outliers + fit.unremoved]
+    consistency = None if not flagged else data_consistency(
         fit.all_rows.derived(sigma_pos=problem.sigma_pos, sigma_rot=problem.sigma_rot, loss="linear"), x,
-        fit.keep, C, holdout, rows=setup.cal.rows, flagged_rows=[o.row for o in fit.outliers + fit.unremoved])
+        fit.keep, C, holdout, rows=setup.cal.rows, flagged_rows=flagged)
     return Statistics(C, full_rank, rank, predicted, holdout, where, workspace, consistency)
 
 

@@ -78,11 +78,11 @@ class _FactorTable:
         self.rot = np.array(rot, int).reshape(-1, 4)
         self.trans = np.array(trans, int).reshape(-1, 4)
         self.rot_i, self.rot_j = _ROT_IJ[self.rot[:, 2]].T
-        # e_k x p = skew(e_k) p for the axis e_k of each rotation factor
-        self.rot_skew = np.zeros((len(self.rot), 3, 3))
-        m = np.arange(len(self.rot))
-        self.rot_skew[m, self.rot_j, self.rot_i] = 1.0
-        self.rot_skew[m, self.rot_i, self.rot_j] = -1.0
+        # e_k x p = skew(e_k) p for the axis e_k of each rotation factor: one entry +-1 per row
+        # of skew(e_k) (the axis's row zero), so component i is sign_i * p[col_i] (a gather)
+        skew_k, m = np.zeros((len(self.rot), 3, 3)), np.arange(len(self.rot))
+        skew_k[m, self.rot_j, self.rot_i], skew_k[m, self.rot_i, self.rot_j] = 1.0, -1.0
+        self._cross_at, self._cross_sign = (m[:, None], np.abs(skew_k).argmax(axis=2)), skew_k.sum(axis=2)
         # a parameter appears once per placement (the flange's a_n, alpha_n, beta_n appear in the
         # tool placement of every target, each with its own twist rows)
         pairs = np.concatenate([self.rot[:, [0, 3]], self.trans[:, [0, 3]]])
@@ -152,7 +152,7 @@ class _FactorTable:
         ftw[:nt, :3] = suffix.reshape(-1)[self._trans_rows]
         S = suffix.reshape(-1, 4, 4)[self._rot_suffix]
         R, p = S[:, :3, :3], S[:, :3, 3]
-        e_x_p = np.einsum("mij,mj->mi", self.rot_skew, p)
+        e_x_p = p[self._cross_at] * self._cross_sign
         ftw[nt:, :3] = np.einsum("mji,mj->mi", R, e_x_p)
         ftw[nt:, 3:] = R[np.arange(len(self.rot)), self._rot_axis]
         return suffix[:, 0], E, ftw

@@ -399,9 +399,14 @@ class RobotModel:
 
     def indices(self, names: Iterable[str]) -> np.ndarray:
         """Positions of the parameters ``names`` (a list of names) in :attr:`values`."""
-        if isinstance(names, (str, bytes)) or not isinstance(names, Iterable):
-            raise ParameterError(f"names must be a list of parameter names, got {names!r:.60}")
-        return np.array([self.index(n) for n in names], dtype=int)
+        if type(names) not in (tuple, list):        # (the usual ones, without the Iterable check's cost)
+            if isinstance(names, (str, bytes)) or not isinstance(names, Iterable):
+                raise ParameterError(f"names must be a list of parameter names, got {names!r:.60}")
+            names = list(names)
+        try:        # (the table itself: a call of index() per name cost more than the rest)
+            return np.array([self._index[n] for n in names], dtype=int)
+        except (KeyError, TypeError):
+            return np.array([self.index(n) for n in names], dtype=int)    # (raises, naming it)
 
     def value(self, name: str) -> float:
         return float(self.values[self.index(name)])

@@ -271,6 +271,15 @@ def log3_batch(R: np.ndarray) -> np.ndarray:
     return v * f[:, None]
 
 
+def rotation_angle(R: np.ndarray) -> float:
+    """The angle of one rotation matrix R (3, 3), radians in [0, pi]: |log3(R)|, in scalar math
+    (the batch call on one matrix costs ~40 us): atan2 of its sine, half the norm of R - R^T as a
+    vector, and its cosine, (tr R - 1) / 2, accurate at every angle."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(R, float)[:3, :3].tolist()
+    s = 0.5 * math.sqrt((r21 - r12) ** 2 + (r02 - r20) ** 2 + (r10 - r01) ** 2)
+    return math.atan2(s, 0.5 * (r00 + r11 + r22 - 1.0))
+
+
 def left_jacobian_inverse_batch(r: np.ndarray) -> np.ndarray:
     """Inverse left Jacobian of SO(3) at rotation vectors r (n, 3): (n, 3, 3).
 
