@@ -1,4 +1,5 @@
-"""One BLAS thread for calib's own computations.
+"""One BLAS thread for calib's own computations (and, for the API's, the C heap kept between
+calls: :func:`api_call`, :mod:`calib.heap`).
 
 calib's matrices are small (tens of columns, a few thousand rows per chunk): threads of a
 multi-threaded BLAS (OpenBLAS's default is one per core) only add start-up and contention. With
@@ -21,24 +22,28 @@ import functools
 import os
 import sys
 
+from calib.environ import starting_environ
+from calib.heap import keep_freed_heap
+
 #: The variables the BLAS libraries numpy loads read their thread count from.
 THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 #: Thread variables of other BLAS libraries (BLIS), which may be absent, but not above 1.
 OTHER_THREAD_VARS = ("BLIS_NUM_THREADS",)
+#: Variables that override those per domain or per loop (MKL, BLIS): absent.
+OVERRIDE_VARS = ("MKL_DOMAIN_NUM_THREADS", "BLIS_JC_NT", "BLIS_IC_NT", "BLIS_JR_NT", "BLIS_IR_NT")
 
 #: Modules that change a loaded BLAS library's thread count at run time (threadpoolctl, which
 #: scikit-learn and others use; mkl-service; numexpr's VML; PyTorch's set_num_threads): while one
 #: is loaded, the environment the process started with does not tell the count. (A direct ctypes
-#: call of openblas_set_num_threads does not show; nor does a program that changes the
-#: environment before numpy loads and restores it after.)
+#: call of openblas_set_num_threads does not show, nor an extension's omp_set_num_threads for a
+#: BLAS built on OpenMP, nor a program that changes the environment before numpy loads and
+#: restores it after.)
 RUNTIME_CHANGERS = ("threadpoolctl", "mkl", "numexpr", "torch")
 
 _CONTROLLER: list = []
 #: Set when the environment asked for one thread before numpy loaded (set_before_numpy).
 _FROM_START: list = []
-#: Whether calib.heap has been asked (once per process).
-_HEAP: list = []
 #: started_with_one_thread()'s answer, read once (the starting environment does not change).
 _STARTED: list = []
 
@@ -55,22 +60,19 @@ def set_before_numpy() -> bool:
     return True
 
 
+def _one_thread_in(environ) -> bool:
+    """Whether the environment ``environ`` asks every BLAS library for one thread (each of
+    :data:`THREAD_VARS` "1", :data:`OTHER_THREAD_VARS` absent or "1", no :data:`OVERRIDE_VARS`)."""
+    return (all(environ.get(var) == "1" for var in THREAD_VARS)
+            and all(environ.get(var, "1") == "1" for var in OTHER_THREAD_VARS)
+            and not any(var in environ for var in OVERRIDE_VARS))
+
+
 def started_with_one_thread(environ_file: str = "/proc/self/environ") -> bool:
-    """True when this process started (exec) with each of :data:`THREAD_VARS` at "1" (and
-    :data:`OTHER_THREAD_VARS` absent or at "1"): the environment the BLAS libraries read when
-    numpy loads them, as the kernel keeps it (``environ_file``; later changes of ``os.environ``
-    do not show there). False where that file does not exist (not Linux) or cannot be read."""
-    try:
-        with open(environ_file, "rb") as f:
-            start = f.read().split(b"\0")
-    except OSError:
-        return False
-    for var in THREAD_VARS + OTHER_THREAD_VARS:
-        prefix = var.encode() + b"="
-        given = [entry for entry in start if entry.startswith(prefix)]
-        if given != [prefix + b"1"] and (var in THREAD_VARS or given):
-            return False
-    return True
+    """True when this process started with one BLAS thread in its environment
+    (:func:`starting_environ`, :func:`_one_thread_in`). False where that cannot be read."""
+    env = starting_environ(environ_file)
+    return env is not None and _one_thread_in(env)
 
 
 def _one_thread_already() -> bool:
@@ -80,8 +82,7 @@ def _one_thread_already() -> bool:
     is loaded."""
     if not _STARTED:
         _STARTED.append(started_with_one_thread())
-    return (_STARTED[0] and all(os.environ.get(var) == "1" for var in THREAD_VARS)
-            and all(os.environ.get(var, "1") == "1" for var in OTHER_THREAD_VARS)
+    return (_STARTED[0] and _one_thread_in(os.environ)
             and not any(name in sys.modules for name in RUNTIME_CHANGERS))
 
 
@@ -102,16 +103,14 @@ def one_blas_thread():
         yield
 
 
-def with_one_blas_thread(function):
-    """``function`` run under :func:`one_blas_thread` (its signature and docstring kept), the C
-    heap kept between calls (:func:`calib.heap.keep_freed_heap`, once per process)."""
+def api_call(function):
+    """An API computation: ``function`` run under :func:`one_blas_thread`, with the C heap kept
+    between calls (:func:`calib.heap.keep_freed_heap`, once per process); its signature and
+    docstring kept."""
 
     @functools.wraps(function)
     def wrapper(*args, **kwargs):
-        if not _HEAP:
-            from calib.heap import keep_freed_heap
-
-            _HEAP.append(keep_freed_heap())
+        keep_freed_heap()
         with one_blas_thread():
             return function(*args, **kwargs)
 

@@ -12,7 +12,7 @@ from threadpoolctl import threadpool_info, threadpool_limits
 
 import calib
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
-from calib.threads import THREAD_VARS
+from calib.threads import OTHER_THREAD_VARS, OVERRIDE_VARS, THREAD_VARS
 
 from conftest import BUNDLED_URDF
 
@@ -97,6 +97,9 @@ def test_started_with_one_thread_reads_the_starting_environment(tmp_path):
     assert not started(*ones[:2], THREAD_VARS[2] + "=10")
     assert started(*ones, "BLIS_NUM_THREADS=1")
     assert not started(*ones, "BLIS_NUM_THREADS=4")
+    # a per-domain or per-loop override of the count (MKL, BLIS)
+    assert not started(*ones, "MKL_DOMAIN_NUM_THREADS=MKL_BLAS=4")
+    assert not started(*ones, "BLIS_JC_NT=2")
     assert not started_with_one_thread(str(tmp_path / "absent"))
 
 
@@ -126,7 +129,7 @@ def _child(env_threads: str, before: str = "", after: str = "") -> list[str]:
     """(threadpoolctl loaded at the first progress report, the fewest and most BLAS threads seen
     in the reports, the count after the call) of a calibrate() in a process started with each of
     THREAD_VARS at ``env_threads``, ``before`` and ``after`` run around its import of numpy."""
-    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARS}
+    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARS + OTHER_THREAD_VARS + OVERRIDE_VARS}
     env.update({var: env_threads for var in THREAD_VARS})
     env["PYTHONPATH"] = str(BUNDLED_URDF.parents[2])
     code = _CHILD.format(before=before, after=after, urdf=str(BUNDLED_URDF))

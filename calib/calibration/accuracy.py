@@ -66,7 +66,9 @@ class AccuracyStats:
     def _stats(e: np.ndarray | None) -> dict[str, float] | None:
         if e is None or len(e) == 0:
             return None
-        # (the reductions np.mean, np.max and np.min make, without their wrappers: the same sums)
+        # (the reductions np.mean, np.max and np.min make, without their wrappers: the same sums;
+        # in float64 whatever the array's type, as np.mean of float64)
+        e = np.asarray(e, float)
         n = len(e)
         return {"mean": float(np.add.reduce(e)) / n, "rms": math.sqrt(float(np.add.reduce(e * e)) / n),
                 "max": float(np.maximum.reduce(e)), "min": float(np.minimum.reduce(e))}

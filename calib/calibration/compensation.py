@@ -65,7 +65,7 @@ import numpy as np
 from calib.checks import check_instance, check_rng
 from calib.choices import SINGULAR_THRESHOLD
 from calib.model.robot import check_robot
-from calib.threads import with_one_blas_thread
+from calib.threads import api_call
 from calib.errors import CalibError, DataError, ParameterError
 from calib.model.jacobian import MEASURES
 from calib.model.kinematics import ChainKinematics
@@ -82,7 +82,7 @@ __all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "compensate",
            "with_frame_uncertainty", "pose_targets_in_base", "flange_link"]
 
 # ====================================================================== public API
-@with_one_blas_thread
+@api_call
 def compensate(calibrated: RobotModel, nominal: RobotModel, q_nominal: np.ndarray, *,
                measure: str = "pose", singular_threshold: float = SINGULAR_THRESHOLD,
                tol_pos: float = TOL_POS_M, tol_rot: float = TOL_ROT_RAD,
@@ -114,7 +114,7 @@ def compensate(calibrated: RobotModel, nominal: RobotModel, q_nominal: np.ndarra
                    targets="joint")
 
 
-@with_one_blas_thread
+@api_call
 def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None = None,
                      p_meas_tool: np.ndarray | None = None, q_start: np.ndarray | None = None,
                      singular_threshold: float = SINGULAR_THRESHOLD, tol_pos: float = TOL_POS_M,

@@ -20,7 +20,6 @@ from calib.calibration.options import (
 from calib.calibration.prepare import FRAME_MEMO_MAX_ROWS, Setup, _robot_memo, check_data_rank
 from calib.errors import DataError, ParameterError
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, content_digest, identifiable_names
-from calib.model.periodic import PERIODIC_GROUP
 from calib.model.robot import RobotModel
 
 
@@ -176,7 +175,7 @@ def _compliance_filter(robot: RobotModel, free: Sequence[str], options: Calibrat
     """``free`` without the joint terms not asked for: the compliance parameters unless
     ``options.compliance``, the periodic ones unless ``options.periodic``; for those asked for, a
     note naming the ones not in ``free`` (the identifiable set leaves out what the data cannot see)."""
-    if not any(p.group in ("compliance", PERIODIC_GROUP) for p in robot.parameters):
+    if not robot.has_joint_terms:
         return tuple(free)      # (no joint terms: nothing to drop, no note)
     drop = set()
     for names, wanted, what in (

@@ -58,7 +58,7 @@ from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.solvers.lm import LMOptions
-from calib.threads import with_one_blas_thread
+from calib.threads import api_call
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +107,7 @@ def _check_progress(progress) -> None:
 
 
 # ====================================================================== calibrate
-@with_one_blas_thread
+@api_call
 def calibrate(robot: RobotModel, measurements: Measurements, method: str = "search-lm",
               params: str | Sequence[str] | None = None, sigma_pos: float | None = None,
               sigma_rot: float | None = None, *, init_frames: bool | str = "auto",

@@ -91,7 +91,7 @@ import numpy as np
 from calib.checks import check_configurations, check_number, check_rng
 from calib.choices import POSE_CRITERIA
 from calib.model.robot import check_robot
-from calib.threads import with_one_blas_thread
+from calib.threads import api_call
 from calib.errors import DataError, ParameterError
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, observability_indices, weighted_jacobian
 from calib.model.identifiability_report import analyze_identifiability
@@ -181,7 +181,7 @@ class PoseDesign:
 
 
 # ====================================================================== selection
-@with_one_blas_thread
+@api_call
 def select_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion: str = "D",
                  measure: str = "pose", seed=None, sigma_pos: float = SIGMA_POS_M,
                  sigma_rot: float = SIGMA_ROT_RAD) -> np.ndarray:
@@ -212,7 +212,7 @@ def select_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion
                         seed=seed, sigma_pos=sigma_pos, sigma_rot=sigma_rot).q
 
 
-@with_one_blas_thread
+@api_call
 def design_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion: str = "D",
                  measure: str = "pose", seed=None, sigma_pos: float = SIGMA_POS_M,
                  sigma_rot: float = SIGMA_ROT_RAD, exchange_passes: int = 10, progress=None) -> PoseDesign:

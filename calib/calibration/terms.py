@@ -72,7 +72,7 @@ def placeholder_masses(robot: RobotModel) -> str | None:
     from a URDF; None for one built in code."""
     if robot.source is None:
         return None
-    m = _link_masses(robot)
+    m = robot.source.link_masses
     if m.sum() <= 0:
         return None             # no inertias at all: GravityModel.note says so
     if len(m) >= 3 and np.ptp(m) <= 1e-9 * m.max():
@@ -223,23 +223,11 @@ class TermsChoice:
                                 "rotation_rms_rad": t.rotation_rms} for t in self.table]}
 
 
-def _link_masses(robot: RobotModel) -> np.ndarray:
-    """(n,) kg: the masses the URDF of ``robot`` (read from one) gives its moving links, kept on
-    its (immutable) source: each calibrate() asks them per candidate model."""
-    source = robot.source
-    m = source.__dict__.get("_link_masses")
-    if m is None:
-        m = np.array([source.model.inertias[j].mass for j in source.joint_ids], float)
-        m.setflags(write=False)
-        source.__dict__["_link_masses"] = m
-    return m
-
-
 def _has_masses(robot: RobotModel) -> bool:
     """Whether the URDF gives real gravity torques: link masses that are not placeholders."""
     if robot.source is None:
         return False
-    return _link_masses(robot).sum() > 0 and placeholder_masses(robot) is None
+    return robot.source.link_masses.sum() > 0 and placeholder_masses(robot) is None
 
 
 def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 5, payload=None,

@@ -11,6 +11,7 @@ import logging
 import math
 import os
 from dataclasses import dataclass, fields
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +54,14 @@ class UrdfChain:
         """Pickled with its fields only: what is kept on it for reuse (the gravity models and
         their torque memos, :meth:`calib.model.compliance.GravityModel.from_chain`) stays behind."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @cached_property
+    def link_masses(self) -> np.ndarray:
+        """(n,) kg, read-only: the masses the URDF gives the chain's moving links (the model is
+        never modified: computed once)."""
+        m = np.array([self.model.inertias[j].mass for j in self.joint_ids], float)
+        m.setflags(write=False)
+        return m
 
     def configuration(self, q: np.ndarray) -> np.ndarray:
         """Pinocchio configuration of the whole URDF model for chain joint values q (n,).

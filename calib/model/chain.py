@@ -102,7 +102,8 @@ class UrdfSource(Protocol):
     ``model`` Pinocchio's model of the whole file (built once, never modified: copy it);
     ``joints`` the chain's :class:`ChainJoint`; ``joint_ids`` their Pinocchio joint ids;
     ``base_frame`` / ``tool_frame`` the frame names and ``base_frame_id`` / ``tool_frame_id``
-    their Pinocchio frame ids. Declared here so that the model needs no import of the reader.
+    their Pinocchio frame ids; ``link_masses`` the moving links' masses. Declared here so that
+    the model needs no import of the reader.
     """
 
     path: Path
@@ -114,5 +115,9 @@ class UrdfSource(Protocol):
     tool_frame: str
     base_frame_id: int
     tool_frame_id: int
+
+    @property
+    def link_masses(self) -> np.ndarray:
+        """(n,) kg: the masses the URDF gives the chain's moving links."""
 
     def configuration(self, q: np.ndarray) -> np.ndarray: ...

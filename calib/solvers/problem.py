@@ -366,6 +366,8 @@ class Problem:
         Jt, rp, Jr, rr = hit[1]
         sel = np.flatnonzero(mine[hit[0]])
         m, _, n = Jt.shape
+        if len(sel) == n:       # (the same rows)
+            return pass_blocks(Jt, rp, Jr, rr)
         return pass_blocks(Jt[:, :, sel], rp[:, sel], None if Jr is None else Jr.reshape(m, 3, n)[:, :, sel].reshape(m, -1),
                            None if rr is None else rr[sel])
 
