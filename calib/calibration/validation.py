@@ -43,10 +43,9 @@ def _held_out_factors(Jw: np.ndarray, C: np.ndarray, H: np.ndarray | None = None
         return np.linalg.inv(np.eye(H.shape[1]) - H)
     M = np.empty_like(H)                                         # (I - H)^-1
     M[~high] = np.linalg.inv(np.eye(H.shape[1]) - H[~high])
-    if high.any():
-        w, V = np.linalg.eigh(H[high])
-        w = np.minimum(w, 0.99)
-        M[high] = (V / (1.0 - w)[:, None, :]) @ np.transpose(V, (0, 2, 1))
+    w, V = np.linalg.eigh(H[high])
+    w = np.minimum(w, 0.99)
+    M[high] = (V / (1.0 - w)[:, None, :]) @ np.transpose(V, (0, 2, 1))
     return M
 
 
@@ -146,19 +145,24 @@ def fold_normal_equations(blocks, fold_of: np.ndarray, folds: int) -> tuple[np.n
         m = Jw.shape[2]
         if A_fold is None:
             A_fold, g_fold = np.zeros((folds, m, m)), np.zeros((folds, m))
-        lab = fold_of[start:start + len(r)]
+        order, bounds = _by_fold(fold_of[start:start + len(r)], folds)
         start += len(r)
-        # the rows gathered fold by fold once (a stable sort keeps their order within a fold):
-        # each fold's rows are then a slice, the same values as a mask would pick
-        order = np.argsort(lab, kind="stable")
-        ends = np.cumsum(np.bincount(lab, minlength=folds)).tolist()
         Jw_f, r_f = Jw[order].reshape(-1, m), r[order].reshape(-1)
         k = Jw.shape[1]
-        for f, (a, b) in enumerate(zip([0] + ends[:-1], ends)):
+        for f, (a, b) in enumerate(bounds):
             Jf, rf = Jw_f[a * k:b * k], r_f[a * k:b * k]
             A_fold[f] += Jf.T @ Jf
             g_fold[f] += Jf.T @ rf
     return A_fold, g_fold
+
+
+def _by_fold(fold_of: np.ndarray, folds: int) -> tuple[np.ndarray, list[tuple[int, int]]]:
+    """(order, bounds): the rows gathered fold by fold (a stable sort keeps their order within a
+    fold) and each fold's (start, end) in that order: a fold's rows are then a slice, the same
+    values in the same order as a mask picks, one gather instead of a mask per fold."""
+    order = np.argsort(fold_of, kind="stable")
+    ends = np.cumsum(np.bincount(fold_of, minlength=folds)).tolist()
+    return order, list(zip([0] + ends[:-1], ends))
 
 
 def newton_held_out(blocks, fold_of: np.ndarray, folds: int, *, prior=None, check_rank: bool = True,
@@ -218,15 +222,11 @@ def held_out_summary(fold_of: np.ndarray, folds: int, e_p: np.ndarray, e_r: np.n
     """The :class:`CrossValidation` of the rows' squared held-out errors e_p (m^2) and e_r (rad^2,
     None for position data), their scores whitened at sigma_pos / sigma_rot."""
     has_rot = e_r is not None
-    # the rows gathered fold by fold once (a stable sort keeps their order within a fold): each
-    # fold's errors a slice, the same values in the same order as a mask picks (one gather
-    # instead of three masks per fold)
-    order = np.argsort(fold_of, kind="stable")
-    ends = np.cumsum(np.bincount(fold_of, minlength=folds)).tolist()
+    order, bounds = _by_fold(fold_of, folds)
     ep_f = e_p[order]
     er_f = e_r[order] if has_rot else None
     per_fold = [(b - a, math.sqrt(_mean(ep_f[a:b])), math.sqrt(_mean(er_f[a:b])) if has_rot else None)
-                for a, b in zip([0] + ends[:-1], ends)]
+                for a, b in bounds]
     score = e_p / sigma_pos ** 2 + (e_r / sigma_rot ** 2 if has_rot else 0.0)
     from calib.calibration.cross_validation import CrossValidation
 
