@@ -12,10 +12,15 @@ as scripts/bench_speed.py's first-call figure times it: N simulated poses made b
 then the first ``calibrate()`` (the import of its modules on the attribute's first use included)
 and the second, each counted as the difference of two runs, and their ratio.
 
+With ``--process`` the whole processes of issue 27 item 2 instead: ``calib calibrate`` on the
+bundled example (its 100 + 200 rows) and ``python -c "import pinocchio"``, each counted R times
+(the interpreter's start-up moves a count by ~1 %), their medians and ratio; ``CALIB_DATACLASS_CACHE=0``
+adds the same command without the dataclass methods' cache (calib.dataclass_code).
+
 With ``--iiwa`` also the 1,402 real rows of ../shared/realdata/iiwa7_optical (the defaults, and any
 ``--iiwa-kwargs`` such as ``"terms='none'"``), skipped with a note when that folder is absent.
 
-Run: python scripts/bench_instructions.py [--poses 100 25] [--calls 5] [--iiwa] [--first-call 25]
+Run: python scripts/bench_instructions.py [--poses 100 25] [--calls 5] [--iiwa] [--first-call 25] [--process 3]
 (about a minute per size; needs valgrind)
 """
 from __future__ import annotations
@@ -83,6 +88,30 @@ def first_call_instructions(n: int) -> tuple[float, float]:
     return total[1] - total[0], total[2] - total[1]
 
 
+def process_instructions(repeats: int) -> dict:
+    """Median callgrind instructions of whole processes: ``calib calibrate`` on the bundled example
+    (with and without the dataclass cache) and ``import pinocchio``, after one uncounted run of
+    each (the bytecode and the dataclass methods cached)."""
+    import statistics
+    import tempfile
+
+    urdf = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
+    example = ROOT / "examples" / "brtirus0707a" / "measurements.csv"
+    with tempfile.TemporaryDirectory() as tmp:
+        calibrate = [sys.executable, "-m", "calib", "calibrate", str(urdf), str(example), "-o", str(Path(tmp) / "c.urdf")]
+        commands = {"calibrate": (calibrate, {}), "no_cache": (calibrate, {"CALIB_DATACLASS_CACHE": "0"}),
+                    "pinocchio": ([sys.executable, "-c", "import pinocchio"], {})}
+        counts = {name: [] for name in commands}
+        for argv, extra in commands.values():
+            subprocess.run(argv, env=dict(_env(), **extra), capture_output=True, cwd=tmp, check=True)
+        for _ in range(repeats):
+            for name, (argv, extra) in commands.items():
+                out = subprocess.run(["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + argv,
+                                     env=dict(_env(), **extra), capture_output=True, text=True, cwd=tmp, check=True)
+                counts[name].append(int(re.search(r"Collected : (\d+)", out.stderr).group(1)))
+    return {name: statistics.median(v) for name, v in counts.items()}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--poses", type=int, nargs="*", default=[100, 25])
@@ -91,6 +120,9 @@ def main(argv=None) -> int:
     ap.add_argument("--iiwa-kwargs", default="", help="calibrate()'s keywords for the iiwa rows, e.g. \"terms='none'\"")
     ap.add_argument("--first-call", type=int, metavar="N",
                     help="only the first call of a process on N poses and the second (issue 27 item 1)")
+    ap.add_argument("--process", type=int, metavar="R",
+                    help="only the whole processes of issue 27 item 2, R counted runs each: calib calibrate on the "
+                         "bundled example over import pinocchio")
     ap.add_argument("--first", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--kwargs", default="", help=argparse.SUPPRESS)
     ap.add_argument("--child", type=int, nargs=2, help=argparse.SUPPRESS)
@@ -101,6 +133,13 @@ def main(argv=None) -> int:
     if shutil.which("valgrind") is None:
         print("valgrind not found: no instruction counts")
         return 1
+    if args.process:
+        c = process_instructions(args.process)
+        print(f"processes (callgrind, median of {args.process}): calib calibrate on the bundled example "
+              f"{c['calibrate'] / 1e6:.1f}M instructions ({c['no_cache'] / 1e6:.1f}M with CALIB_DATACLASS_CACHE=0), "
+              f"import pinocchio {c['pinocchio'] / 1e6:.1f}M: {c['calibrate'] / c['pinocchio']:.3f}x "
+              f"({c['no_cache'] / c['pinocchio']:.3f}x without the cache; issue 27 item 2: <= 1.3x in time)")
+        return 0
     if args.first_call:
         first, second = first_call_instructions(args.first_call)
         print(f"calibrate(), {args.first_call} poses, defaults: first call of a process {first / 1e6:.1f}M "

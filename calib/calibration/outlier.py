@@ -3,7 +3,8 @@ the outlier check flags rows (:func:`calib.calibration.robust.flag_outliers`), n
 calibration (a dataclass costs ~3-5M instructions to build at import)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from calib.dataclass_code import dataclass
+
 
 
 @dataclass(frozen=True)

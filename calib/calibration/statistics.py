@@ -4,10 +4,11 @@ calibrated model (propagation of the covariance through the pose Jacobian).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import field
 
 import numpy as np
 
+from calib.dataclass_code import dataclass
 from calib.calibration.accuracy import target_rows
 from calib.calibration.consistency import data_consistency
 from calib.calibration.fit import Fit

@@ -3,8 +3,10 @@
 only (a dataclass costs ~3M instructions to build at import)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import field
 from typing import TYPE_CHECKING
+
+from calib.dataclass_code import dataclass
 
 if TYPE_CHECKING:
     from calib.calibration.accuracy import AccuracyStats

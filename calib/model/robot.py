@@ -26,12 +26,13 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import field, fields, replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from calib.dataclass_code import dataclass
 from calib.checks import (check_array, check_configurations, check_instance, check_int, check_names, check_number,
                           check_rng)
 from calib.errors import ParameterError
