@@ -12,8 +12,10 @@ creates took 23-24 ms of every run, a third of what calib adds to ``import pinoc
 How: :mod:`dataclasses` looks ``exec`` up in its own module globals before the builtins, and
 :func:`install` puts :func:`_exec` there. For a text that a class of a calib module makes (the
 globals dataclasses passes are that module's), it takes the code compiled from that exact text
-earlier, or compiles it as ``exec`` would and keeps it; every other ``exec`` (another package's
-dataclasses, a code object) goes to the builtin unchanged. The same text compiles to the same
+earlier, or compiles it as ``exec`` would and keeps it; another package's class is compiled as
+``exec`` would compile it there and kept nowhere, and a code object goes to the builtin as it is
+(the builtin called from here would inherit this module's ``__future__`` flags: a text is always
+compiled here first). The same text compiles to the same
 code: ``compile(text, "<string>", "exec", dont_inherit=True)`` is what ``exec(text)`` compiles
 in dataclasses.py, which has no ``__future__`` imports, at the interpreter's optimisation level
 (which names the file). The functions made from it, with the module's globals and the values
@@ -106,19 +108,24 @@ def _module_codes(module: str) -> dict:
     return codes
 
 
-def _exec(source, globals=None, locals=None, /, **kwargs):
-    """``exec`` as :mod:`dataclasses` calls it: a text from a calib module's class runs the code
-    kept for that text; anything else goes to the builtin ``exec``."""
+def _exec(source, *args, **kwargs):
+    """``exec`` as :mod:`dataclasses` calls it (``exec(text, globals, ns)``): a text from a calib
+    module's class runs the code kept for that text; any other text is compiled as dataclasses'
+    own ``exec`` compiles it (no ``__future__`` flags: this module's would be inherited from here),
+    and anything else goes to the builtin ``exec`` as it is."""
+    if type(source) is not str:
+        return _builtin_exec(source, *args, **kwargs)
+    globals = args[0] if args else kwargs.get("globals")
     module = globals.get("__name__") if type(globals) is dict else None
-    if kwargs or type(source) is not str or type(module) is not str or not module.startswith(PREFIX):
-        return _builtin_exec(source, globals, locals, **kwargs)
+    if type(module) is not str or not module.startswith(PREFIX):
+        return _builtin_exec(compile(source, "<string>", "exec", dont_inherit=True), *args, **kwargs)
     codes = _module_codes(module)
     code = codes.get(source)
     if code is None:
         code = codes[source] = compile(source, "<string>", "exec", dont_inherit=True)
         _new.add(module)
     _used.setdefault(module, {})[source] = code
-    return _builtin_exec(code, globals, locals)
+    return _builtin_exec(code, *args, **kwargs)
 
 
 def _write() -> None:
@@ -127,27 +134,36 @@ def _write() -> None:
     if not _new or sys.dont_write_bytecode:
         return
     entries = dict(_read())          # as it is now: another process may have written it
-    for module in _new:
-        entries[module] = marshal.dumps(_used[module])
+    for module in list(_new):
+        if module in _used:
+            entries[module] = marshal.dumps(_used[module])
     path = cache_path()
     tmp = f"{path}.{os.getpid()}.tmp"
     try:
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        with open(tmp, "wb") as f:
-            f.write(_magic() + marshal.dumps(entries))
-        os.replace(tmp, path)
-    except OSError:
+        # (as importlib writes bytecode: the mode of the package's source, a file of our own)
+        mode = os.stat(__file__).st_mode & 0o666
+        fd = os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, mode)
         try:
-            os.unlink(tmp)
+            with open(fd, "wb") as f:
+                f.write(_magic() + marshal.dumps(entries))
+            os.replace(tmp, path)
         except OSError:
-            pass
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+    except OSError:
+        pass
     _new.clear()
 
 
 def install() -> None:
     """Put :func:`_exec` in :mod:`dataclasses`' globals and have the new codes written at exit
-    (once; not with ``CALIB_DATACLASS_CACHE=0``, nor where something else is there already)."""
-    if os.environ.get(ENV_OFF) == "0" or "exec" in vars(dataclasses):
+    (once; not with ``CALIB_DATACLASS_CACHE=0``, nor where something else is there already or the
+    interpreter caches no bytecode)."""
+    if (os.environ.get(ENV_OFF) == "0" or "exec" in vars(dataclasses)
+            or sys.implementation.cache_tag is None):       # (no bytecode cache: nowhere to keep them)
         return
     dataclasses.exec = _exec
     import atexit

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import inspect
 import json
 import marshal
 import os
 import subprocess
 import sys
+import typing
 from pathlib import Path
 
 import calib.dataclass_code as dc
@@ -18,8 +20,11 @@ from conftest import ROOT
 PACKAGE = ROOT / "calib"
 
 #: A process that imports every calib module and prints, for each of calib's dataclasses, the
-#: marshalled code of each generated method (hex), and what the cache did.
+#: marshalled code of each generated method (hex; marshal's version 2 writes no reference flags,
+#: which depend on reference counts), and what the cache did.
 CHILD = """
+import os
+os.umask(int(os.environ.get("CALIB_TEST_UMASK", "0o22"), 8))
 import dataclasses, importlib, json, marshal, pkgutil, sys
 import calib, calib.dataclass_code as dc
 for m in pkgutil.walk_packages(calib.__path__, "calib."):
@@ -32,7 +37,7 @@ for name, module in sorted(sys.modules.items()):
     for cls in vars(module).values():
         if isinstance(cls, type) and cls.__module__ == name and dataclasses.is_dataclass(cls):
             codes[cls.__qualname__ + "@" + name] = {
-                meth: marshal.dumps(getattr(cls, meth).__code__).hex()
+                meth: marshal.dumps(getattr(cls, meth).__code__, 2).hex()
                 for meth in ("__init__", "__repr__", "__eq__", "__hash__", "__setattr__", "__delattr__")
                 if getattr(getattr(cls, meth, None), "__code__", None) is not None
                 and getattr(cls, meth).__code__.co_filename == "<string>"}
@@ -82,26 +87,38 @@ def test_an_edited_class_leaves_no_stale_code_and_a_bad_file_is_ignored(tmp_path
     entries = _entries(path)
     from importlib.util import MAGIC_NUMBER
 
-    # a text no class makes any more, in a module that imports
-    stale = dict(entries["calib.model.chain"], **{"def __create_fn__():\n def f():\n  return 1\n return f":
-                                                  compile("1", "<string>", "exec")})
-    # and a module whose entry lost a text: it compiles it again and writes the module's texts
-    lost = dict(entries["calib.io.urdf"])
-    lost.pop(next(iter(lost)))
+    stale_text = "def __create_fn__():\n def f():\n  return 1\n return f"
+    stale_code = compile(stale_text, "<string>", "exec")
+    # calib.io.urdf's entry: a text no class makes any more, and one of its own lost (an edited
+    # class): it compiles that one again and writes the texts its classes used, the stale one gone
+    urdf = dict(entries["calib.io.urdf"], **{stale_text: stale_code})
+    urdf.pop(next(iter(entries["calib.io.urdf"])))
+    # calib.model.chain's: a text too many, nothing lost: not rewritten
+    chain = dict(entries["calib.model.chain"], **{stale_text: stale_code})
     blob = {m: marshal.dumps(c) for m, c in entries.items()}
-    blob.update({"calib.model.chain": marshal.dumps(stale), "calib.io.urdf": marshal.dumps(lost)})
+    blob.update({"calib.io.urdf": marshal.dumps(urdf), "calib.model.chain": marshal.dumps(chain),
+                 "calib.io.export": b"not marshal"})
     Path(path).write_bytes(MAGIC_NUMBER + marshal.dumps(blob))
     again = _child(tmp_path)
-    assert again["new"] == ["calib.io.urdf"] and again["codes"] == first["codes"]
+    # (calib.io.export's entry unreadable: compiled as before)
+    assert again["new"] == ["calib.io.export", "calib.io.urdf"] and again["codes"] == first["codes"]
     after = _entries(path)
-    assert len(after["calib.io.urdf"]) == len(entries["calib.io.urdf"])
-    assert len(after["calib.model.chain"]) == len(stale)     # (not rewritten: nothing new there)
-    # another interpreter's magic number, or garbage: compiled as before, the file written anew
-    for bad in (b"\0\0\r\n" + Path(path).read_bytes()[4:], b"not marshal"):
+    assert after["calib.io.urdf"].keys() == entries["calib.io.urdf"].keys()
+    assert after["calib.io.export"].keys() == entries["calib.io.export"].keys()
+    assert after["calib.model.chain"].keys() == chain.keys()
+    # another interpreter's magic number, a cut file, or garbage: compiled as before, written anew
+    whole = Path(path).read_bytes()
+    for bad in (b"\0\0\r\n" + whole[4:], whole[:len(whole) // 2], b"not marshal"):
         Path(path).write_bytes(bad)
         run = _child(tmp_path)
         assert run["codes"] == first["codes"] and run["new"] == first["used"]
         assert _entries(path).keys() == entries.keys()
+
+
+def test_the_file_is_as_private_as_the_bytecode_beside_it(tmp_path):
+    run = _child(tmp_path, **{"CALIB_TEST_UMASK": "0"})
+    mode = Path(run["path"]).stat().st_mode & 0o777
+    assert mode == (PACKAGE / "dataclass_code.py").stat().st_mode & 0o666
 
 
 def test_nothing_is_written_where_bytecode_is_not(tmp_path):
@@ -121,6 +138,12 @@ def test_another_packages_dataclass_goes_to_the_builtin_exec():
         y: float = 0.0
 
     assert dc._used == used and Point(1.0) == Point(1.0, 0.0) and repr(Point(2.0)).endswith("Point(x=2.0, y=0.0)")
+    # compiled as dataclasses compiles it, without dataclass_code's __future__ annotations: the
+    # field's annotations (strings here, as this file's), which typing and inspect read, not the
+    # names of the values dataclasses passes ('_type_x')
+    assert Point.__init__.__annotations__ == {"x": "float", "y": "float", "return": None}
+    assert typing.get_type_hints(Point.__init__) == {"x": float, "y": float, "return": type(None)}
+    assert str(inspect.signature(Point)) == "(x: 'float', y: 'float' = 0.0) -> None"
     assert dc.dataclass is dataclasses.dataclass
 
 

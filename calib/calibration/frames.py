@@ -26,7 +26,6 @@ then removes.
 """
 from __future__ import annotations
 
-
 import numpy as np
 
 from calib.dataclass_code import dataclass

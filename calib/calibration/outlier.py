@@ -6,7 +6,6 @@ from __future__ import annotations
 from calib.dataclass_code import dataclass
 
 
-
 @dataclass(frozen=True)
 class Outlier:
     """A calibration row left out of the fit: its line in the file, its errors after the fit

@@ -14,7 +14,6 @@ removals, and one per swap (the leverages updated, with what the later removals'
 """
 from __future__ import annotations
 
-
 import numpy as np
 
 from calib.dataclass_code import dataclass
@@ -221,8 +220,6 @@ def _value(M: np.ndarray, criterion: str) -> float:
     if criterion == "O1":
         logdet -= float(np.log(np.diag(M)).sum())
     return logdet
-
-
 
 
 def _removal_bounds(A: np.ndarray, ups: list) -> np.ndarray:

@@ -50,7 +50,6 @@ SCALE_ADVICE = ("add a sphere of known radius (a ball bar), rows measured by an 
                 "--nominal-scale: the accuracy then holds up to scale)")
 
 
-
 @dataclass(frozen=True)
 class TouchIdentifiability:
     """Which parameters touch rows determine (:func:`touch_identifiability`).

@@ -29,7 +29,6 @@ Choices that the DH rules leave open, made here so that the result is unique:
 """
 from __future__ import annotations
 
-
 import numpy as np
 
 from calib.dataclass_code import dataclass

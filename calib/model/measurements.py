@@ -254,7 +254,6 @@ def finite_array(value, name: str) -> np.ndarray:
     return arr
 
 
-
 def check_measurements(value, name: str = "measurements", *, allow_none: bool = False) -> Measurements | None:
     """``value`` if it is a :class:`Measurements` (or None when ``allow_none``), else
     :class:`calib.ParameterError` naming ``name``."""

@@ -3,7 +3,6 @@ group's share (:class:`NormalEquations`), re-weighted without another pass over 
 their rank (the directions the data leave undetermined)."""
 from __future__ import annotations
 
-
 import numpy as np
 
 from calib.dataclass_code import dataclass

@@ -57,7 +57,6 @@ part of the paper's algorithm: a Problem with a robust loss is refused, its sigm
 """
 from __future__ import annotations
 
-
 import numpy as np
 
 from calib.dataclass_code import dataclass
