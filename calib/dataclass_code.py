@@ -15,9 +15,9 @@ globals dataclasses passes are that module's), it takes the code compiled from t
 earlier, or compiles it as ``exec`` would and keeps it; another package's class is compiled as
 ``exec`` would compile it there and kept nowhere, and a code object goes to the builtin as it is
 (the builtin called from here would inherit this module's ``__future__`` flags: a text is always
-compiled here first). The same text compiles to the same
-code: ``compile(text, "<string>", "exec", dont_inherit=True)`` is what ``exec(text)`` compiles
-in dataclasses.py, which has no ``__future__`` imports, at the interpreter's optimisation level
+compiled here first, by :func:`_compile`). The same text compiles to the same code:
+``compile(text, "<string>", "exec", dont_inherit=True)`` is what ``exec(text)`` compiles in
+dataclasses.py, which has no ``__future__`` imports, at the interpreter's optimisation level
 (which names the file). The functions made from it, with the module's globals and the values
 dataclasses passes, are the ones dataclasses would make. Where a later Python's dataclasses no
 longer calls ``exec`` by that name, nothing changes but the time.
@@ -108,6 +108,11 @@ def _module_codes(module: str) -> dict:
     return codes
 
 
+def _compile(text: str) -> types.CodeType:
+    """The code ``exec(text)`` compiles in dataclasses.py: no ``__future__`` flags inherited."""
+    return compile(text, "<string>", "exec", dont_inherit=True)
+
+
 def _exec(source, *args, **kwargs):
     """``exec`` as :mod:`dataclasses` calls it (``exec(text, globals, ns)``): a text from a calib
     module's class runs the code kept for that text; any other text is compiled as dataclasses'
@@ -118,11 +123,11 @@ def _exec(source, *args, **kwargs):
     globals = args[0] if args else kwargs.get("globals")
     module = globals.get("__name__") if type(globals) is dict else None
     if type(module) is not str or not module.startswith(PREFIX):
-        return _builtin_exec(compile(source, "<string>", "exec", dont_inherit=True), *args, **kwargs)
+        return _builtin_exec(_compile(source), *args, **kwargs)
     codes = _module_codes(module)
     code = codes.get(source)
     if code is None:
-        code = codes[source] = compile(source, "<string>", "exec", dont_inherit=True)
+        code = codes[source] = _compile(source)
         _new.add(module)
     _used.setdefault(module, {})[source] = code
     return _builtin_exec(code, *args, **kwargs)
