@@ -62,16 +62,20 @@ def child(n: int, calls: int, kwargs: str = "", first: bool = False) -> None:
         calib.calibrate(robot, meas)
 
 
+def _counted(argv: list, env: dict | None = None, cwd=None) -> int:
+    """The instructions of one run of ``argv`` under callgrind (the benchmark's environment by
+    default)."""
+    out = subprocess.run(["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + argv,
+                         env=_env() if env is None else env, capture_output=True, text=True, cwd=cwd, check=True)
+    return int(re.search(r"Collected : (\d+)", out.stderr).group(1))
+
+
 def instructions(n: int, calls: int, kwargs: str = "") -> float:
     """Instructions of one warm calibrate() call on n poses (0: the real iiwa rows with ``kwargs``)
     (callgrind, difference of two runs)."""
     cmd = [sys.executable, __file__, "--kwargs", kwargs, "--child", str(n)]
     subprocess.run(cmd + ["0"], env=_env(), check=True)          # (the bytecode cached)
-    total = []
-    for k in (0, calls):
-        out = subprocess.run(["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + cmd + [str(k)],
-                             env=_env(), capture_output=True, text=True, check=True).stderr
-        total.append(int(re.search(r"Collected : (\d+)", out).group(1)))
+    total = [_counted(cmd + [str(k)]) for k in (0, calls)]
     return (total[1] - total[0]) / calls
 
 
@@ -80,11 +84,7 @@ def first_call_instructions(n: int) -> tuple[float, float]:
     difference of two callgrind runs (0, 1 and 2 calls after the data are made)."""
     cmd = [sys.executable, __file__, "--first", "--child", str(n)]
     subprocess.run(cmd + ["1"], env=_env(), check=True)          # (the bytecode of what the call imports cached)
-    total = []
-    for k in (0, 1, 2):
-        out = subprocess.run(["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + cmd + [str(k)],
-                             env=_env(), capture_output=True, text=True, check=True).stderr
-        total.append(int(re.search(r"Collected : (\d+)", out).group(1)))
+    total = [_counted(cmd + [str(k)]) for k in (0, 1, 2)]
     return total[1] - total[0], total[2] - total[1]
 
 
@@ -106,9 +106,7 @@ def process_instructions(repeats: int) -> dict:
             subprocess.run(argv, env=dict(_env(), **extra), capture_output=True, cwd=tmp, check=True)
         for _ in range(repeats):
             for name, (argv, extra) in commands.items():
-                out = subprocess.run(["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + argv,
-                                     env=dict(_env(), **extra), capture_output=True, text=True, cwd=tmp, check=True)
-                counts[name].append(int(re.search(r"Collected : (\d+)", out.stderr).group(1)))
+                counts[name].append(_counted(argv, env=dict(_env(), **extra), cwd=tmp))
     return {name: statistics.median(v) for name, v in counts.items()}
 
 
