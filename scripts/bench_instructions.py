@@ -14,8 +14,7 @@ and the second, each counted as the difference of two runs, and their ratio.
 
 With ``--process`` the whole processes of issue 27 item 2 instead: ``calib calibrate`` on the
 bundled example (its 100 + 200 rows) and ``python -c "import pinocchio"``, each counted R times
-(the interpreter's start-up moves a count by ~1 %), their medians and ratio; ``CALIB_DATACLASS_CACHE=0``
-adds the same command without the dataclass methods' cache (calib.dataclass_code).
+(the interpreter's start-up moves a count by ~1 %), their medians and ratio.
 
 With ``--iiwa`` also the 1,402 real rows of ../shared/realdata/iiwa7_optical (the defaults, and any
 ``--iiwa-kwargs`` such as ``"terms='none'"``), skipped with a note when that folder is absent.
@@ -99,7 +98,7 @@ def process_instructions(repeats: int) -> dict:
     example = ROOT / "examples" / "brtirus0707a" / "measurements.csv"
     with tempfile.TemporaryDirectory() as tmp:
         calibrate = [sys.executable, "-m", "calib", "calibrate", str(urdf), str(example), "-o", str(Path(tmp) / "c.urdf")]
-        commands = {"calibrate": (calibrate, {}), "no_cache": (calibrate, {"CALIB_DATACLASS_CACHE": "0"}),
+        commands = {"calibrate": (calibrate, {}),
                     "pinocchio": ([sys.executable, "-c", "import pinocchio"], {})}
         counts = {name: [] for name in commands}
         for argv, extra in commands.values():
@@ -134,9 +133,9 @@ def main(argv=None) -> int:
     if args.process:
         c = process_instructions(args.process)
         print(f"processes (callgrind, median of {args.process}): calib calibrate on the bundled example "
-              f"{c['calibrate'] / 1e6:.1f}M instructions ({c['no_cache'] / 1e6:.1f}M with CALIB_DATACLASS_CACHE=0), "
+              f"{c['calibrate'] / 1e6:.1f}M instructions, "
               f"import pinocchio {c['pinocchio'] / 1e6:.1f}M: {c['calibrate'] / c['pinocchio']:.3f}x "
-              f"({c['no_cache'] / c['pinocchio']:.3f}x without the cache; issue 27 item 2: <= 1.3x in time)")
+              f"(issue 38 item 4: <= 1.7x in time)")
         return 0
     if args.first_call:
         first, second = first_call_instructions(args.first_call)

@@ -4,12 +4,11 @@ table, the rows' targets, and the best-fit registration of the measurement frame
 from __future__ import annotations
 
 import math
-from dataclasses import field, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.frames import project_to_so3
 from calib.calibration.options import _check_compatible
 from calib.model.measurements import check_measurements

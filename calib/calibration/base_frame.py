@@ -30,12 +30,11 @@ predictions and this fit).
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.checks import check_array, check_names
 from calib.errors import ParameterError
 from calib.model.kinematics import ChainKinematics

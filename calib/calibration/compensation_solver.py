@@ -4,11 +4,10 @@ batch of targets, and the seeds of pose targets without starting joints."""
 from __future__ import annotations
 
 import math
-from dataclasses import field, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.checks import check_int
 from calib.choices import SINGULAR_THRESHOLD
 from calib.model.kinematics import ChainKinematics

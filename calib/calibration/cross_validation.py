@@ -3,11 +3,10 @@
 cross-validates, not by every one (a dataclass costs ~3M instructions to build at import)."""
 from __future__ import annotations
 
-from dataclasses import field
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 
 
 @dataclass(frozen=True, eq=False)     # (an array field: compared by identity; nothing compares them)

@@ -24,11 +24,10 @@ its Jacobian through the inverse left Jacobian of SO(3).
 from __future__ import annotations
 
 import math
-from dataclasses import field, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.accuracy import target_rows
 from calib.calibration.evidence import (SIGMA_POS_BOUNDS, SIGMA_ROT_BOUNDS, TAU_BOUNDS, Evidence, evidence,
                                         linearise, maximise_evidence)

@@ -6,10 +6,10 @@ type-II maximum-likelihood machinery of the EB-MAP estimator (:mod:`calib.calibr
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.solvers.problem import Problem
 
 #: Bounds of the hyper-parameters (design note): noise per axis and prior scales.

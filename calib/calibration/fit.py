@@ -6,12 +6,11 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import field, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.accuracy import AccuracyStats, target_rows
 from calib.calibration.options import (
     IMPLAUSIBLE_LENGTH_FRACTION,

@@ -26,9 +26,10 @@ then removes.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.errors import DataError
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel

@@ -3,11 +3,11 @@ thresholds the stages use, and the checks of every option before any work.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.checks import check_int, check_number
 from calib.choices import ESTIMATORS as _ESTIMATORS, LM_VARIANTS as _VARIANTS, LOSSES, METHODS as _METHODS
 from calib.errors import DataError, ParameterError

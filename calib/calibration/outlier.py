@@ -3,7 +3,8 @@ the outlier check flags rows (:func:`calib.calibration.robust.flag_outliers`), n
 calibration (a dataclass costs ~3-5M instructions to build at import)."""
 from __future__ import annotations
 
-from calib.dataclass_code import dataclass
+from dataclasses import dataclass
+
 
 
 @dataclass(frozen=True)

@@ -4,11 +4,11 @@ model selection, and the compliance filter.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.accuracy import target_rows
 from calib.calibration.options import (
     AUTO_BELOW_COMPONENTS_PER_PARAM,

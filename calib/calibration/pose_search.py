@@ -14,9 +14,10 @@ removals, and one per swap (the leverages updated, with what the later removals'
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from calib.dataclass_code import dataclass
 
 __all__ = ["exchange_pass", "greedy_d"]
 

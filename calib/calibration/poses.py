@@ -83,12 +83,11 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import field
+from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.checks import check_configurations, check_number, check_rng
 from calib.choices import POSE_CRITERIA
 from calib.model.robot import check_robot

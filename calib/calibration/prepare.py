@@ -5,12 +5,11 @@ frames; plus what depends only on the robot model, kept for the next calibration
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import field, replace
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.accuracy import target_rows, with_measured_targets
 from calib.calibration.frames import estimate_frames_robust
 from calib.calibration.options import (

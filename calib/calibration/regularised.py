@@ -14,12 +14,11 @@ stages take it as they take a least-squares fit.
 """
 from __future__ import annotations
 
-from dataclasses import field, replace
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.eb_map import EBMapResult, eb_map_stage
 from calib.calibration.fit import Fit, _Linearised, _noise_estimate, fit_with
 from calib.calibration.options import CalibrationOptions

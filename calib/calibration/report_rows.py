@@ -20,12 +20,11 @@ R_measured R_model^T about the meas frame's x, y, z axes.
 from __future__ import annotations
 
 import math
-from dataclasses import field
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.model.measurements import Measurements
 
 if TYPE_CHECKING:     # Pinocchio is imported where the kinematics run: the plots' worker process

@@ -4,13 +4,12 @@ its text, dict and JSON forms, and the calibrated URDF.
 from __future__ import annotations
 
 import math
-from dataclasses import field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.accuracy import AccuracyStats, format_accuracy_table
 from calib.units import display_unit, display_value
 from calib.calibration.fit import NoiseEstimate

@@ -19,11 +19,11 @@ refuses the result (status "implausible"). scripts/accept_gross_rows.py measures
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.frames import median
 from calib.calibration.options import (
     ROBUST_CHECK_FTOL,

@@ -6,12 +6,11 @@ cross-validated error (:mod:`calib.calibration.validation`), the selection rules
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.accuracy import target_rows
 from calib.calibration.fit import Fit, Solver, fit_stage, fit_with, solver_for
 from calib.calibration.options import LOO_BELOW_ROWS, CalibrationOptions

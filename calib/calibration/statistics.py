@@ -4,11 +4,10 @@ calibrated model (propagation of the covariance through the pose Jacobian).
 from __future__ import annotations
 
 import math
-from dataclasses import field
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.accuracy import target_rows
 from calib.calibration.consistency import data_consistency
 from calib.calibration.fit import Fit

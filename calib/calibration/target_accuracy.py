@@ -3,10 +3,9 @@
 only (a dataclass costs ~3M instructions to build at import)."""
 from __future__ import annotations
 
-from dataclasses import field
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from calib.dataclass_code import dataclass
 
 if TYPE_CHECKING:
     from calib.calibration.accuracy import AccuracyStats

@@ -15,11 +15,10 @@ joint terms (gravity compliance, periodic joint errors) by cross-validated held-
 """
 from __future__ import annotations
 
-from dataclasses import field, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.accuracy import target_rows
 from calib.calibration.fit import _vce_fixed_point, fit_with
 from calib.calibration.options import CalibrationOptions, resolve_options

@@ -22,12 +22,11 @@ Stages, each callable on its own:
 """
 from __future__ import annotations
 
-from dataclasses import field, replace
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.fit import _implausible_length_notes
 from calib.calibration.options import VCE_MAX_ITERATIONS, VCE_RTOL
 from calib.calibration.touch_design import (MEAS_FRAME_MIN_ROWS, MIN_ROWS, PARAM_CHOICES, SCALE_ADVICE, SIGMA_TOUCH_M,  # noqa: F401

@@ -18,12 +18,11 @@
 """
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.calibration.parameters import _idealised
 from calib.checks import check_instance
 from calib.errors import DataError, ParameterError

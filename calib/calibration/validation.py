@@ -14,7 +14,6 @@ from calib.calibration.fit import Fit
 from calib.calibration.options import CV_FOLDS
 from calib.calibration.prepare import Setup
 from calib.errors import DataError, ParameterError
-from calib.model.draws import permutation
 from calib.solvers.lm import LMOptions, levenberg_marquardt
 from calib.solvers.inverse import normal_inverse
 from calib.solvers.problem import Problem
@@ -124,7 +123,7 @@ def fold_labels(n: int, folds: int, seed: int = 0) -> np.ndarray:
     fold_of = _FOLD_LABELS.get(key)
     if fold_of is None:
         fold_of = np.empty(n, int)
-        fold_of[permutation(seed, n)] = np.arange(n) % folds
+        fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
         fold_of.setflags(write=False)
         if key is not None:
             _FOLD_LABELS[key] = fold_of

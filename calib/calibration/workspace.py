@@ -18,7 +18,6 @@ import numpy as np
 
 from calib.errors import DataError
 from calib.memo import kept
-from calib.model.draws import uniform
 from calib.model.jacobian import pose_jacobian
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -105,7 +104,7 @@ def workspace_configurations(robot: RobotModel, n: int = WORKSPACE_CONFIGURATION
         lo[open_], hi[open_] = q[:, open_].min(axis=0), q[:, open_].max(axis=0)
     # (the same draw for the same ranges: kept for the next calibrations)
     def draw():
-        Q = uniform(seed, lo, hi, n)
+        Q = np.random.default_rng(seed).uniform(lo, hi, size=(n, len(lo)))
         Q.setflags(write=False)
         return Q
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import _signal      # (signal's C core: the signal module's enums cost 2.8M instructions of every start)
 import argparse
+import os
 import logging
 import sys
 import threading
@@ -222,9 +223,15 @@ def main_entry() -> None:
     When numpy is already loaded (main_entry called from a Python program) threadpoolctl does it."""
     import contextlib
 
-    from calib.threads import one_blas_thread, set_before_numpy
+    from calib.threads import LIMITER
 
-    limit = contextlib.nullcontext() if set_before_numpy() else one_blas_thread()
+    if "numpy" not in sys.modules:          # (this process's own environment: the command's)
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ[var] = "1"
+        LIMITER.disabled = True
+        limit = contextlib.nullcontext()
+    else:
+        limit = LIMITER.limit()
     # (main's handlers on both sides of main: a signal before it stops with the one line, one
     # after it is recorded when the outputs are in place; then ignored while Python exits, so
     # that the exit code stays the command's)

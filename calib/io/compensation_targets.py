@@ -4,11 +4,11 @@ not by every command that reads measurements (a dataclass costs ~3M instructions
 import)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 
 
 @dataclass(frozen=True, eq=False)

@@ -4,11 +4,11 @@ record is read, not by every ``calib calibrate`` (which names the sidecar beside
 dataclass costs ~3M instructions to build at import)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 
 if TYPE_CHECKING:
     from calib.model.compliance import Payload

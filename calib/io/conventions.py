@@ -12,7 +12,8 @@ This module imports nothing heavy: the command line builds its ``--convention`` 
 """
 from __future__ import annotations
 
-from calib.dataclass_code import dataclass
+from dataclasses import dataclass
+
 
 
 __all__ = ["Convention", "CONVENTIONS", "CONVENTION_NAMES", "UR_JOINT_NAMES", "ORIENTATION_READINGS",

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from calib.dataclass_code import dataclass
 from calib.errors import MeasurementFormatError
 
 if TYPE_CHECKING:

@@ -27,14 +27,13 @@ from __future__ import annotations
 
 import csv
 import math
+from dataclasses import dataclass, field
 from operator import methodcaller
-from dataclasses import field
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.errors import MeasurementFormatError, ParameterError
 from calib.io.csv_lines import (READ_BYTES_PER_FILE_BYTE, WHITESPACE, _records, available_memory,  # noqa: F401
                                 check_size, parse_number, read_lines, split_fields)

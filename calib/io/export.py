@@ -29,11 +29,11 @@ parent and child links.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.checks import check_choice, check_path
 from calib.choices import EXPORT_FORMATS
 from calib.errors import CalibError, OutputError, ParameterError

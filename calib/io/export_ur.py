@@ -49,11 +49,11 @@ from __future__ import annotations
 
 import hashlib
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
-from calib.dataclass_code import dataclass
 from calib.errors import ChainError, FrameNotFound, ParameterError
 from calib.io.urdf import rpy_nearest
 from calib.io.urdf_reader import UrdfChain

@@ -36,11 +36,11 @@ from __future__ import annotations
 import math
 import re
 import warnings
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.choices import JOINS
 from calib.errors import MeasurementFormatError, ParameterError
 

@@ -37,13 +37,13 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 from lxml import etree
 
-from calib.dataclass_code import dataclass
 from calib.errors import ChainError, URDFError
 
 __all__ = ["FRAMES_NAMESPACE", "RecordedFrames", "UrdfDocument", "UrdfJoint"]

@@ -10,14 +10,13 @@ from __future__ import annotations
 import logging
 import math
 import os
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from calib.dataclass_code import dataclass
 from calib.checks import check_number, check_path
 from calib.errors import CalibError, ChainError, FrameNotFound, ParameterError, URDFError
 from calib.io.fileio import captured_c_output

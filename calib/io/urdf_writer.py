@@ -51,7 +51,7 @@ keep their original text.
 from __future__ import annotations
 
 import copy
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -59,7 +59,6 @@ import numpy as np
 import pinocchio as pin
 from lxml import etree
 
-from calib.dataclass_code import dataclass
 from calib.errors import CalibError
 from calib.io.fileio import atomic_write_text, check_not_input
 from calib.model.kinematics import ChainKinematics

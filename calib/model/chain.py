@@ -5,12 +5,12 @@ no import of the reader). :class:`calib.model.robot.RobotModel` is built from th
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 
 JOINT_KINDS = ("revolute", "continuous", "prismatic")
 _STRUCTURAL_KINDS = ("theta", "d", "a", "alpha", "beta")

@@ -44,14 +44,13 @@ report) that is read back for compensation.
 from __future__ import annotations
 
 import math
-from dataclasses import field
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Sequence
 
 import numpy as np
 import pinocchio as pin
 
-from calib.dataclass_code import dataclass
 from calib.checks import check_configurations
 from calib.errors import CalibError, ParameterError
 from calib.model.chain import UrdfSource

@@ -5,10 +5,10 @@ parameter, the form the batch kinematics (:mod:`calib.model.kinematics`) and the
 from __future__ import annotations
 
 from collections import OrderedDict
+from dataclasses import dataclass
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.model.chain import U_NAMES
 from calib.model.robot import RobotModel
 

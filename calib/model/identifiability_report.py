@@ -5,12 +5,11 @@ which holds the selection alone (what every calibration needs) and the cache of 
 """
 from __future__ import annotations
 
-from dataclasses import field
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.model.identifiability import (RANK_TOL, SIGMA_POS_M, SIGMA_ROT_RAD, _cache, _cache_key, _checked_rows,
                                          _keep, no_effect, observability_indices, select_identifiable,
                                          weighted_jacobian)

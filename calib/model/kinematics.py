@@ -34,12 +34,12 @@ Pinocchio's kinematic regressor) by ``dp = R_F xi_v + (R_F xi_w) x (p_tool - p_F
 from __future__ import annotations
 
 from collections import OrderedDict
+from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 import pinocchio as pin
 
-from calib.dataclass_code import dataclass
 from calib.model.factors import placement_factors
 from calib.model.periodic import periodic_term
 from calib.model.robot import RobotModel

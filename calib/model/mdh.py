@@ -29,9 +29,10 @@ Choices that the DH rules leave open, made here so that the result is unique:
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.model.spatial import cross3, elementary, inverse
 
 #: Default threshold (radians) on the angle between consecutive joint axes below which they are

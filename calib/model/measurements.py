@@ -6,13 +6,13 @@ format is described there and in README.md), which this module re-exports.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
 from typing import Mapping, Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.checks import check_instance, check_names, check_path
 from calib.errors import DataError
 

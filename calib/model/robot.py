@@ -26,19 +26,17 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import field, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.checks import (check_array, check_configurations, check_instance, check_int, check_names, check_number,
                           check_rng)
 from calib.errors import ParameterError
 from calib.model.chain import (U_NAMES, ChainJoint, Parameter, UrdfSource,
                                make_parameters, v_names)
-from calib.model.draws import TABLE_SEED, uniform
 from calib.model.mdh import PARALLEL_THRESHOLD_RAD, link_transform
 from calib.model.periodic import PERIODIC_GROUP, PERIODIC_KINDS, periodic_name, periodic_offsets
 from calib.model.spatial import zyx_parameters, zyx_transform
@@ -542,13 +540,10 @@ class RobotModel:
         or metres for an unlimited prismatic joint). n : at most MAX_CONFIGURATIONS.
         """
         n = check_int(n, "n", maximum=MAX_CONFIGURATIONS)
-        table = type(rng) is int and rng == TABLE_SEED      # (drawn from a table: calib.model.draws)
-        rng = rng if table else check_rng(rng)
+        rng = check_rng(rng)
         unlimited_range = check_number(unlimited_range, "unlimited_range", minimum=0.0)
         lo = np.where(np.isfinite(self.lower), self.lower, -unlimited_range)
         hi = np.where(np.isfinite(self.upper), self.upper, unlimited_range)
-        if table:
-            return uniform(rng, lo, hi, n)
         return rng.uniform(lo, hi, size=(n, self.n_joints))
 
     def describe(self) -> str:

@@ -23,11 +23,10 @@ Values are SI; feature parameters are named ``point_<id>_x``, ``plane_<id>_a``, 
 """
 from __future__ import annotations
 
-from dataclasses import field, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.checks import check_array, check_int, check_number
 from calib.choices import FEATURE_KINDS
 from calib.errors import DataError

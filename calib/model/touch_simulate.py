@@ -17,11 +17,11 @@ orientations, differ from row to row.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.checks import check_int, check_number, check_rng
 from calib.errors import DataError
 from calib.model.kinematics import ChainKinematics

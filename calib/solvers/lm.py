@@ -10,11 +10,10 @@ from __future__ import annotations
 import functools
 import logging
 import time
-from dataclasses import field, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.solvers.inverse import RANK_RCOND
 from calib.solvers.normal_equations import _without_inert
 from calib.solvers.problem import COST_RTOL, FUSE_BELOW_POSES, Problem, WEAK_RCOND

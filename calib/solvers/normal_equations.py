@@ -3,9 +3,10 @@ group's share (:class:`NormalEquations`), re-weighted without another pass over 
 their rank (the directions the data leave undetermined)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.model.jacobian import NO_EFFECT_RTOL
 from calib.solvers.inverse import RANK_RCOND, normal_inverse
 

@@ -57,9 +57,10 @@ part of the paper's algorithm: a Problem with a robust loss is refused, its sigm
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from calib.dataclass_code import dataclass
 from calib.checks import check_instance, check_int, check_number
 from calib.errors import ParameterError
 from calib.model.jacobian import pose_jacobian
