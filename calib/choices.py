@@ -8,19 +8,19 @@ METHODS = ("search-lm", "c-lm", "lm")
 LM_VARIANTS = ("calib", "paper")
 #: Losses on each pose's whitened residual (:class:`calib.solvers.problem.Problem`).
 LOSSES = ("linear", "huber", "soft_l1")
-#: How a joint file and a tracker file are joined (:mod:`calib.io.join`), and the units of a
+#: How a joint file and a tracker file are joined (:mod:`calib.io.csv.join`), and the units of a
 #: time column (``--time-unit``).
 JOINS = ("key", "nearest-time")
 TIME_UNITS = ("s", "ms", "us", "ns")
 #: Estimators of :func:`calib.calibrate` (:mod:`calib.calibration.options`).
 ESTIMATORS = ("auto", "map", "ls")
-#: The features a touch row names, each its column (:mod:`calib.model.touch`, :mod:`calib.io.touch_file`);
+#: The features a touch row names, each its column (:mod:`calib.model.touch`, :mod:`calib.io.csv.touch`);
 #: ``calib simulate --constraint`` takes them too.
 FEATURE_KINDS = ("point", "plane", "sphere")
-#: Pose-selection criteria (:mod:`calib.calibration.poses`).
+#: Pose-selection criteria (:mod:`calib.design.poses`).
 POSE_CRITERIA = ("D", "O1", "O4")
 #: Compensation: a configuration whose smallest singular value of the scaled pose Jacobian is
-#: below this is singular (:mod:`calib.calibration.compensation`).
+#: below this is singular (:mod:`calib.compensation.compensate`).
 SINGULAR_THRESHOLD = 1e-2
-#: Formats of ``calib export`` (:func:`calib.io.export.export_calibration`).
+#: Formats of ``calib export`` (:func:`calib.io.exports.export.export_calibration`).
 EXPORT_FORMATS = ("ur-yaml", "joint-origins-yaml", "mdh-csv")

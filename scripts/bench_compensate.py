@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from calib import PAPER_DEVIATIONS, apply_deviations, load_robot  # noqa: E402
-from calib.calibration.compensation import compensate, compensate_poses  # noqa: E402
+from calib.compensation.compensate import compensate, compensate_poses  # noqa: E402
 from calib.model.kinematics import ChainKinematics  # noqa: E402
 
 URDF = Path(__file__).resolve().parents[1] / "robots" / "brtirus0707a" / "brtirus0707a.urdf"

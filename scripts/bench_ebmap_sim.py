@@ -4,7 +4,7 @@ For each case (robot, rows, pose or position-only) and each seed: a true robot w
 deviations of every parameter (``calib.random_deviations(robot, 1e-3)``: 1 mm lengths, 2 mrad
 angles), the instrument 1.7 m from the base, random configurations within the joint limits,
 noise 1 mm and 5 mrad per axis. Fits: least squares on the identifiable set
-(``params="base"``), ``calib.calibrate`` defaults, :func:`calib.calibration.eb_map.eb_map`. Printed per
+(``params="base"``), ``calib.calibrate`` defaults, :func:`calib.calibration.estimators.eb_map.eb_map`. Printed per
 case: the mean over seeds of the RMS tool-position distance to the truth over 300 new random
 configurations (mm), EB-MAP over LS, the share of seeds where EB-MAP is closer, EB-MAP's
 predicted over observed held-out RMS on 300 new measured rows, and the oracle over LS: the same
@@ -51,7 +51,7 @@ def one(robot, n: int, position_only: bool, seed: int) -> tuple[float, ...]:
     """(LS error, defaults error, EB-MAP error (m), EB-MAP predicted / observed, oracle error (m))
     of one seed."""
     import calib
-    from calib.calibration.eb_map import eb_map
+    from calib.calibration.estimators.eb_map import eb_map
     from calib.model.kinematics import ChainKinematics
     from calib.model.simulate import apply_deviations, random_deviations, simulate_measurements
     from calib.model.spatial import zyx_transform

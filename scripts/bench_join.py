@@ -3,7 +3,7 @@
 Prints, for a 100 Hz joint log of the robot stopping 2 s at each pose and moving 1 s between
 them (10,000 and 60,000 rows: about 3 and 17 minutes) and a tracker measuring 3 reflectors at
 each stop, the median time of the join by nearest time alone (the two files already read:
-:func:`calib.io.join.join_tables`) and of the whole ``read_measurements``; and the same for a
+:func:`calib.io.csv.join.join_tables`) and of the whole ``read_measurements``; and the same for a
 tracker export with compound point names (P00001_SMR1 ...) joined to one joint row per pose by
 key with ``target_from``.
 
@@ -18,9 +18,9 @@ import _bench
 import numpy as np
 
 import calib
-from calib.io.csv_layer import read_table
-from calib.io.join import join_tables, sides
-from calib.io.specs import JOINT_SIDE, TRACKER_SIDE
+from calib.io.csv.layer import read_table
+from calib.io.csv.join import join_tables, sides
+from calib.io.csv.specs import JOINT_SIDE, TRACKER_SIDE
 
 ROOT = Path(__file__).resolve().parents[1]
 REGEX = r"(?P<key>P\d+)_(?P<target>SMR\d+)"

@@ -5,7 +5,7 @@ a fresh Python process imports calib, reads the file and runs ``calibrate`` with
 (noise estimation, cross-validation, statistics); the script prints the file size, the peak
 resident memory (VmHWM) after import, after reading, after calibrating, and the growth
 per row above the loaded data, and the estimate calib's reader uses to refuse a file too large
-for the machine (:data:`calib.io.csv_layer.READ_BYTES_PER_FILE_BYTE`, measured by bench_read.py).
+for the machine (:data:`calib.io.csv.layer.READ_BYTES_PER_FILE_BYTE`, measured by bench_read.py).
 
 Run: python scripts/bench_memory.py [N ...]
 """
@@ -21,7 +21,7 @@ import _bench
 import numpy as np
 
 import calib
-from calib.io.csv_layer import READ_BYTES_PER_FILE_BYTE
+from calib.io.csv.layer import READ_BYTES_PER_FILE_BYTE
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"

@@ -1,4 +1,4 @@
-"""Benchmark of pose selection (calib.calibration.poses): accuracy of a calibration on N selected poses
+"""Benchmark of pose selection (calib.design.poses): accuracy of a calibration on N selected poses
 against N random poses, and the time of the selection.
 
 For each robot and N, and for each of --draws draws: a "true" robot (the bundled BRTIRUS0707A
@@ -29,7 +29,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
-from calib.calibration.poses import CRITERIA, design_poses
+from calib.design.poses import CRITERIA, design_poses
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BUNDLED = os.path.join(ROOT, "robots", "brtirus0707a", "brtirus0707a.urdf")
@@ -53,7 +53,7 @@ def accuracy(robot, deviations, n, draws, candidates, criterion):
         true = calib.apply_deviations(robot, deviations(robot, rng))
         val = calib.simulate_measurements(true, robot.random_configurations(200, rng),
                                           sigma_pos=0.0, sigma_rot=0.0)
-        sets = {"selected": calib.calibration.poses.select_poses(robot, n, candidates=candidates,
+        sets = {"selected": calib.design.poses.select_poses(robot, n, candidates=candidates,
                                                      criterion=criterion, seed=draw),
                 "random": robot.random_configurations(n, rng)}
         for label, Q in sets.items():

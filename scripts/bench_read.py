@@ -8,7 +8,7 @@ by ``calib.read_measurements`` in fresh Python processes (``--repeats`` of them)
 prints the medians of: the wall time and the CPU time of the read, the peak resident memory
 (VmHWM) of the process, its growth over the process before the read (numpy, Pinocchio and the
 robot loaded), both per row, and that growth per byte of the file: the figure the reader's
-memory guard uses (:data:`calib.io.csv_layer.READ_BYTES_PER_FILE_BYTE`, printed beside it).
+memory guard uses (:data:`calib.io.csv.layer.READ_BYTES_PER_FILE_BYTE`, printed beside it).
 With ``--rtde`` each size is also read as a space-separated RTDE recording
 (``--convention ur``, 40 columns of which 12 are read: about 420 bytes a row, so the memory per
 row is the wide file's).
@@ -32,7 +32,7 @@ import _bench
 import numpy as np
 
 import calib
-from calib.io.csv_layer import READ_BYTES_PER_FILE_BYTE
+from calib.io.csv.layer import READ_BYTES_PER_FILE_BYTE
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"

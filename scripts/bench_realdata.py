@@ -21,7 +21,7 @@ calib's validation statistics do):
 * ``ls-ident``: ``params="base"`` (least squares on the identifiable set);
 * ``offsets``: the joint offsets (theta of revolute joints, d of prismatic ones) with every
   measurement- and tool-frame parameter, by name (calib holds what they leave undetermined);
-* ``eb-map``: :func:`calib.calibration.eb_map.eb_map` with its defaults (the estimator alone,
+* ``eb-map``: :func:`calib.calibration.estimators.eb_map.eb_map` with its defaults (the estimator alone,
   with its own outlier check; ``calibrate`` runs it behind its least-squares outlier stage);
 * the joint terms (issue 22, item 3): ``compliance`` (``compliance=True``: gravity compliance,
   the torques from the URDF's masses), ``periodic`` (``periodic=True``: sin/cos of q_i and 2 q_i
@@ -135,7 +135,7 @@ def fit(method: str, robot, m):
     import calib
 
     if method in ("eb-map", "eb-map-all-rows"):
-        from calib.calibration.eb_map import eb_map
+        from calib.calibration.estimators.eb_map import eb_map
 
         res = eb_map(robot, m, outlier_k=5.0 if method == "eb-map" else None)
         val = m.validation()

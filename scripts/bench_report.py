@@ -101,12 +101,12 @@ def pairs(base: list[str], extra: list[str], repeats: int, roots: list[Path]) ->
 _STAGE = """
 import json, sys, time
 import calib
-from calib.io.specs import read_measurements
+from calib.io.csv.specs import read_measurements
 robot = calib.load_robot(sys.argv[1])
 meas = read_measurements(sys.argv[2], robot)
 res = calib.calibrate(robot, meas)
 c0, w0 = time.process_time(), time.perf_counter()
-from calib.calibration.report import build_report, render_html, render_plots
+from calib.report.build import build_report, render_html, render_plots
 images = render_plots(res, meas)
 page = render_html(build_report(res, meas), res.format(), images)
 print(json.dumps({"cpu": time.process_time() - c0, "wall": time.perf_counter() - w0}))

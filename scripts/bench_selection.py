@@ -42,7 +42,7 @@ import calib  # noqa: E402
 from calib.calibration.options import resolve_options  # noqa: E402
 from calib.calibration.parameters import choose_parameters  # noqa: E402
 from calib.calibration.prepare import prepare  # noqa: E402
-from calib.calibration.selection import (  # noqa: E402
+from calib.calibration.estimators.selection import (  # noqa: E402
     auto_candidates,
     fit_identifiable,
     lowest_score,

@@ -220,8 +220,8 @@ def end_to_end_child(csv: str, out: str) -> dict:
     --report`` does above 20,000 rows); the seconds of each stage and the peak resident memory
     after each (MB)."""
     import calib
-    from calib.calibration.report import build_report, report_json_text, report_rows_of, residuals_csv_chunks
-    from calib.io.urdf_writer import write_calibrated_urdf
+    from calib.report.build import build_report, report_json_text, report_rows_of, residuals_csv_chunks
+    from calib.io.urdf.writer import write_calibrated_urdf
 
     def peak_mb():
         with open("/proc/self/status") as f:

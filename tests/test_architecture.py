@@ -8,8 +8,11 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "calib"
 
-#: The wings from the bottom up; the package's base modules (errors, checks, ...) are rank 0.
-WINGS = ("model", "solvers", "io", "calibration", "cli")
+#: The wings and their levels from the bottom up; the package's base modules (errors, checks,
+#: ...) are level 0. Wings of one level are peers: neither imports the other.
+LEVELS = {"model": 1, "solvers": 2, "io": 3, "calibration": 4, "design": 5, "compensation": 5, "report": 5,
+          "cli": 6}
+WINGS = tuple(LEVELS)
 #: Modules above every wing: the console entry point starts the CLI.
 TOP = {"calib._entry", "calib.__main__"}
 
@@ -55,11 +58,16 @@ def _imports(path: Path, name: str, known: set[str]) -> set[str]:
 
 def _rank(module: str) -> int:
     if module in TOP:
-        return len(WINGS) + 1
+        return max(LEVELS.values()) + 1
     parts = module.split(".")
     if len(parts) > 1 and parts[1] in WINGS:
-        return WINGS.index(parts[1]) + 1
+        return LEVELS[parts[1]]
     return 0
+
+
+def _wing(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in WINGS else ""
 
 
 def _graph() -> dict[str, set[str]]:
@@ -78,6 +86,13 @@ def test_every_module_is_in_a_wing_or_the_base():
 def test_no_upward_import():
     upward = sorted(f"{m} -> {d}" for m, deps in _graph().items() for d in deps if _rank(d) > _rank(m))
     assert upward == []
+
+
+def test_no_import_between_peer_wings():
+    """design/, compensation/ and report/ stand side by side above calibration/."""
+    across = sorted(f"{m} -> {d}" for m, deps in _graph().items() for d in deps
+                    if _rank(d) == _rank(m) > 0 and _wing(d) != _wing(m))
+    assert across == []
 
 
 def test_no_import_circle():

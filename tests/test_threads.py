@@ -46,8 +46,8 @@ def test_pose_selection_and_compensation_run_with_one_blas_thread(monkeypatch):
     (their batched products are small: compensate_poses of 2,000 targets took 246-328 ms of wall
     and 357-437 ms of CPU with OpenBLAS's two threads here, 210-243 ms with one), the caller's
     count after."""
-    import calib.calibration.compensation as compensation
-    import calib.calibration.poses as poses
+    import calib.compensation.compensate as compensation
+    import calib.design.poses as poses
     from calib.model.kinematics import ChainKinematics
 
     seen = []

@@ -23,7 +23,7 @@ LM_VARIANTS = _VARIANTS
 PARAM_SETS = ("base", "paper", "all", "auto")
 #: The estimators of calibrate: "auto" (the default: "map" for data that do not swamp the model,
 #: least squares on the identifiable set for data that do), "map" (EB-MAP,
-#: :mod:`calib.calibration.regularised`), "ls" (least squares on a parameter set).
+#: :mod:`calib.calibration.estimators.regularised`), "ls" (least squares on a parameter set).
 ESTIMATORS = _ESTIMATORS
 #: Parameters that Section 4.2 of the paper leaves out when the frames are well known.
 PAPER_EXCLUDED = ("u_z", "u_alpha", "v_x", "v_z", "v_alpha", "v_gamma")

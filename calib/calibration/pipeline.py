@@ -14,12 +14,12 @@ values, so that a script or a test can call them one after the other:
 2. **parameter set** (:func:`calib.calibration.parameters.choose_parameters`): the identifiable set
    of :mod:`calib.model.identifiability` (``"base"``), the paper's set, all, a list of names, or
    ``"auto"``: nested candidate sets compared by cross-validated held-out error
-   (:func:`calib.calibration.selection.select_and_fit`, :func:`~calib.calibration.selection.select_model`
+   (:func:`calib.calibration.estimators.selection.select_and_fit`, :func:`~calib.calibration.estimators.selection.select_model`
    with its selection rule passed in).
-3. **fit** (:func:`calib.calibration.fit.fit_stage` -> :class:`~calib.calibration.fit.Fit`):
+3. **fit** (:func:`calib.calibration.estimators.least_squares.fit_stage` -> :class:`~calib.calibration.estimators.least_squares.Fit`):
    identification by search-lm, C-LM or LM (:func:`calib.solvers.dispatch.solve`), noise-weighted.
    Unless the noise levels are given, they are estimated from the residuals by variance-component
-   estimation iterated with the fit (:class:`~calib.calibration.fit.NoiseEstimate`). Outlier rows
+   estimation iterated with the fit (:class:`~calib.calibration.estimators.least_squares.NoiseEstimate`). Outlier rows
    are flagged against a robust fit and the fit repeated without them.
 4. **statistics** (:func:`calib.calibration.statistics.statistics_stage`): parameter covariance,
    the predicted accuracy of the calibrated model against the true poses (``predicted_rms``, the
@@ -45,7 +45,7 @@ import numpy as np
 from calib.calibration.accuracy import accuracy_after, accuracy_before
 from calib.calibration.consistency import consistency_notes
 from calib.calibration.diagnose import misreadings
-from calib.calibration.fit import fit_with, implausibility, length_notes, method_notes
+from calib.calibration.estimators.least_squares import fit_with, implausibility, length_notes, method_notes
 from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
@@ -186,7 +186,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     estimator : "auto" (default): "map" when ``params`` is None, the calibration rows hold fewer
         than AUTO_BELOW_COMPONENTS_PER_PARAM residual components per identifiable parameter, the
         loss is linear, lm_variant "calib" and compliance off; else "ls". "map": the regularised
-        EB-MAP estimate (:mod:`calib.calibration.regularised`: every structural parameter with an
+        EB-MAP estimate (:mod:`calib.calibration.estimators.regularised`: every structural parameter with an
         effect under a Gaussian prior centred on ``robot``, one scale per group chosen with the
         noise levels by the evidence, the frames unconstrained; rows judged for gross errors by
         the least-squares fit first; the result's covariance is the posterior one, its
@@ -234,13 +234,13 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     selection, label, estimator = None, choice.label, None
     stages.start("fit")
     if choice.auto:
-        from calib.calibration.selection import select_and_fit
+        from calib.calibration.estimators.selection import select_and_fit
 
         selection, fit, problem = select_and_fit(setup, choice.free, opts, kin)
         label = f"auto: {selection.chosen}"
     elif choice.label == "map":
         # (imported here: EB-MAP and its evidence are 4 ms of a start-up that does not use them)
-        from calib.calibration.regularised import map_fit_stage
+        from calib.calibration.estimators.regularised import map_fit_stage
 
         regular = map_fit_stage(setup, choice.free, opts, kin, rank_deficit=choice.deficit,
                                 source=measurements.source)

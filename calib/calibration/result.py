@@ -12,7 +12,7 @@ import numpy as np
 
 from calib.calibration.accuracy import AccuracyStats, format_accuracy_table
 from calib.units import display_unit, display_value
-from calib.calibration.fit import NoiseEstimate
+from calib.calibration.estimators.least_squares import NoiseEstimate
 from calib.errors import ParameterError
 from calib.model.chain import U_NAMES
 from calib.model.robot import RobotModel
@@ -21,9 +21,9 @@ from calib.model.spatial import zyx_parameters
 if TYPE_CHECKING:           # (calib.calibration.base_frame is loaded when a calibration reports the frame)
     from calib.calibration.base_frame import MeasurementFrame
     from calib.calibration.cross_validation import CrossValidation
-    from calib.calibration.outlier import Outlier
+    from calib.calibration.estimators.outlier import Outlier
     from calib.calibration.target_accuracy import TargetAccuracy
-    from calib.calibration.selection import ModelSelection
+    from calib.calibration.estimators.selection import ModelSelection
 
 
 # ====================================================================== result
@@ -61,7 +61,7 @@ class CalibrationResult:
     status : "converged", "max_iterations", "diverged", "local_minimum" (an explicit lm / c-lm
     fit that a search from another start beats) or "implausible" (converged, but to a result no
     robot and instrument give, or far above given noise levels:
-    :func:`calib.calibration.fit.implausibility`, ``message`` says why); success : status ==
+    :func:`calib.calibration.estimators.least_squares.implausibility`, ``message`` says why); success : status ==
     "converged".
     before, after : accuracy on the calibration rows (outliers included); after_without_outliers :
     the same without the rows flagged as outliers (None when none were); validation_before/after
@@ -95,9 +95,9 @@ class CalibrationResult:
     (:func:`calib.calibration.consistency.data_consistency`; its note comes first in ``notes``);
     None otherwise.
     estimator : how the parameters were estimated: ``{"kind": "least-squares", "param_set": ...}``
-    or, for the regularised estimate (:mod:`calib.calibration.regularised`), ``{"kind": "eb-map",
+    or, for the regularised estimate (:mod:`calib.calibration.estimators.regularised`), ``{"kind": "eb-map",
     "prior_scales": {group: tau} (theta, twist rad; length mm), "effective_parameters",
-    "log_evidence", ...}`` (:meth:`calib.calibration.eb_map.EBMapResult.to_dict`).
+    "log_evidence", ...}`` (:meth:`calib.calibration.estimators.eb_map.EBMapResult.to_dict`).
     """
 
     robot: RobotModel
@@ -172,10 +172,10 @@ class CalibrationResult:
         raise ParameterError(f"unknown parameter {name!r}")
 
     def write_urdf(self, path: str | Path, *, measurement_link: str | None = None):
-        """Write the calibrated model as a URDF (see :func:`calib.io.urdf_writer.write_calibrated_urdf`),
+        """Write the calibrated model as a URDF (see :func:`calib.io.urdf.writer.write_calibrated_urdf`),
         rooted where the input was: :meth:`base_robot`, with the measurement->base transform
         recorded (and, with ``measurement_link``, added as a fixed link above the root).
-        Returns the frames written (:class:`calib.io.urdf.RecordedFrames`).
+        Returns the frames written (:class:`calib.io.urdf.document.RecordedFrames`).
 
         The URDF holds the geometry; with joint terms (compliance, periodic errors) these go to the
         sidecar :func:`calib.io.compliance_file.sidecar_path` beside it
@@ -191,13 +191,13 @@ class CalibrationResult:
 
     def write_urdf_only(self, path: str | Path, *, measurement_link: str | None = None):
         """The URDF of :meth:`write_urdf` without the compliance sidecar; returns its frames."""
-        from calib.io.urdf_writer import write_calibrated_urdf
+        from calib.io.urdf.writer import write_calibrated_urdf
 
         return write_calibrated_urdf(self.base_robot().geometry(), path, **self._urdf_arguments(measurement_link))
 
     def urdf_text(self, *, measurement_link: str | None = None):
         """(the text :meth:`write_urdf_only` writes, the frames it records), without a file."""
-        from calib.io.urdf_writer import calibrated_urdf_text
+        from calib.io.urdf.writer import calibrated_urdf_text
 
         return calibrated_urdf_text(self.base_robot().geometry(), **self._urdf_arguments(measurement_link))
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calib.calibration.accuracy import target_rows
-from calib.calibration.fit import _vce_fixed_point, fit_with
+from calib.calibration.estimators.least_squares import _vce_fixed_point, fit_with
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
@@ -426,7 +426,7 @@ def _step_at_own_levels(ne: NormalEquations, x, x_held, union: list, c: np.ndarr
     ``ne`` at x (whitened at the geometric fit's noise levels ``levels``; the columns it lacks
     moved to their values in ``x_held`` first), re-weighted to the noise levels where the
     variance-component estimation of that candidate stops
-    (:func:`~calib.calibration.fit._vce_fixed_point`; ``free``: which levels are estimated), as
+    (:func:`~calib.calibration.estimators.least_squares._vce_fixed_point`; ``free``: which levels are estimated), as
     name -> value: where calibrate's fit of the chosen model starts. Its scores are the step at
     the geometric levels (every candidate on the same weights); its fit re-weights to its own
     residuals (the real iiwa rows with the joint terms: 0.34 -> 0.26 mm, 1.51 -> 0.90 mrad), and

@@ -27,7 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
-from calib.calibration.fit import _implausible_length_notes
+from calib.calibration.estimators.least_squares import _implausible_length_notes
 from calib.calibration.options import VCE_MAX_ITERATIONS, VCE_RTOL
 from calib.calibration.touch_design import (MEAS_FRAME_MIN_ROWS, MIN_ROWS, PARAM_CHOICES, SCALE_ADVICE, SIGMA_TOUCH_M,  # noqa: F401
                                             TouchIdentifiability, check_touch_design, consistent_rows,

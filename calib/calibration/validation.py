@@ -1,7 +1,7 @@
 """Cross-validation (:func:`cross_validate`; its result, :class:`CrossValidation`, is in
 :mod:`calib.calibration.cross_validation`), :func:`held_out_error` and the held-out quantities
 the statistics and the choice of joint terms use. The choice among candidate parameter sets
-(``params="auto"``) is :mod:`calib.calibration.selection`.
+(``params="auto"``) is :mod:`calib.calibration.estimators.selection`.
 """
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calib.calibration.fit import Fit
+from calib.calibration.estimators.least_squares import Fit
 from calib.calibration.options import CV_FOLDS
 from calib.calibration.prepare import Setup
 from calib.errors import DataError, ParameterError
@@ -20,7 +20,7 @@ from calib.solvers.problem import Problem
 
 if TYPE_CHECKING:
     from calib.calibration.cross_validation import CrossValidation
-    from calib.calibration.selection import ModelSelection
+    from calib.calibration.estimators.selection import ModelSelection
 
 
 def _hat_blocks(Jw: np.ndarray, C: np.ndarray) -> np.ndarray:

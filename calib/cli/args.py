@@ -105,7 +105,7 @@ def add_frames(p: argparse.ArgumentParser, base_help: str | None = None,
 # ---------------------------------------------------------------------- file-format options
 def _rename(text: str):
     from calib.errors import CalibError
-    from calib.io.csv_layer import parse_rename
+    from calib.io.csv.layer import parse_rename
 
     try:
         return parse_rename(text)
@@ -115,7 +115,7 @@ def _rename(text: str):
 
 def _euler(text: str) -> str:
     from calib.errors import CalibError
-    from calib.io.csv_layer import check_euler_sequence
+    from calib.io.csv.layer import check_euler_sequence
 
     try:
         return check_euler_sequence(text)
@@ -147,7 +147,7 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
     g.add_argument("--euler", metavar="SEQ", type=_euler, default=None,
                    help="axis sequence of the e1, e2, e3 angle columns in scipy's notation: upper "
                         "case intrinsic (ZYX, ZYZ, ...), lower case extrinsic (xyz, ...)")
-    from calib.io.conventions import CONVENTION_NAMES
+    from calib.io.csv.conventions import CONVENTION_NAMES
 
     g.add_argument("--convention", choices=CONVENTION_NAMES, default=None,
                    help="the column names and units a vendor's controller writes (KUKA A1..A6, "
@@ -197,9 +197,9 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
 
 
 def read_options(args: argparse.Namespace, *, joined: bool = True):
-    """The :class:`calib.io.specs.ReadOptions` of parsed file-format options (``joined=False``:
+    """The :class:`calib.io.csv.specs.ReadOptions` of parsed file-format options (``joined=False``:
     without the key, for a file read on its own)."""
-    from calib.io.specs import ReadOptions
+    from calib.io.csv.specs import ReadOptions
 
     join = {}
     if joined:
@@ -407,7 +407,7 @@ def parse_meta(values) -> dict:
 
 def load(args: argparse.Namespace):
     """The robot of ``args.robot`` with the frames of --base-frame / --tool-frame (logged)."""
-    from calib.io.urdf_reader import load_robot
+    from calib.io.urdf.reader import load_robot
 
     log = logging.getLogger("calib.cli")
     robot = load_robot(args.robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
@@ -422,7 +422,7 @@ def read(path, robot, args: argparse.Namespace, tracker=None, *, joined: bool = 
     """The measurements of ``path`` for ``robot``, read with the file-format options (its notes
     on stderr)."""
     from calib.cli.progress import working
-    from calib.io.specs import read_measurements
+    from calib.io.csv.specs import read_measurements
 
     log = logging.getLogger("calib.cli")
     with working(f"reading {path}", logger=log, enabled=progress_enabled(args)):
@@ -471,7 +471,7 @@ def is_touch_input(args: argparse.Namespace) -> bool:
     from pathlib import Path
 
     from calib.errors import CalibError
-    from calib.io.touch_file import is_touch_file
+    from calib.io.csv.touch import is_touch_file
 
     if getattr(args, "tracker", None) is not None or not Path(args.measurements).is_file():
         return False

@@ -191,8 +191,8 @@ def _calibrate(args: argparse.Namespace, plots) -> int:
     """:func:`run` of measured rows; ``plots``: the :class:`calib.cli.plot_worker.PlotWorker` that
     draws the plots of --plots and --html (None without them)."""
     import calib
-    from calib.io.urdf_reader import robot_path
-    from calib.io.urdf_writer import check_writable
+    from calib.io.urdf.reader import robot_path
+    from calib.io.urdf.writer import check_writable
 
     for flag, value in (("--probe-radius-mm", args.probe_radius_mm), ("--sigma-touch-mm", args.sigma_touch_mm),
                         ("--nominal-scale", args.nominal_scale or None)):
@@ -211,7 +211,7 @@ def _calibrate(args: argparse.Namespace, plots) -> int:
     out_html = outputs.add(args.html) if args.html else None
     plot_paths = {}
     if args.plots:
-        from calib.calibration.report import PLOT_FILES
+        from calib.report.build import PLOT_FILES
 
         plot_paths = outputs.add_folder(args.plots, PLOT_FILES, "--plots")
 
@@ -231,7 +231,7 @@ def _calibrate(args: argparse.Namespace, plots) -> int:
     validation = read(args.validate, robot, args, joined=False) if args.validate else None
     out_residuals = None
     if out_report is not None:
-        from calib.calibration.report import INLINE_RESIDUALS_MAX
+        from calib.report.build import INLINE_RESIDUALS_MAX
 
         n_rows = meas.n_poses + (validation.n_poses if validation is not None else 0)
         if args.residuals == "csv" or args.residuals == "auto" and n_rows > INLINE_RESIDUALS_MAX:
@@ -302,7 +302,7 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
     """Stage the plots (drawn by the worker ``plots`` while the JSON report is built), JSON report
     (and its residuals CSV) and HTML page, with a progress line (fraction, time left); fills
     ``images``; returns the verdict line for the printed text ("" without --tolerance-mm)."""
-    from calib.calibration.report import (build_report, render_html, report_json_text, report_rows_of,
+    from calib.report.build import (build_report, render_html, report_json_text, report_rows_of,
                                           residuals_csv_chunks)
     from calib.cli.progress import Progress, stage
 
@@ -337,7 +337,7 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
                        f"position error {tol['max_mm']:.4g} mm over {tol['n']} {tol['rows']}; {tol['beyond']} beyond)")
         if want_plots:
             if out_html is not None:
-                from calib.calibration.report_html import load_template
+                from calib.report.html import load_template
 
                 load_template()          # (while the plots are drawn)
             done = progress.done
@@ -353,6 +353,6 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
 
 
 def robot_path_of(args):
-    from calib.io.urdf_reader import robot_path
+    from calib.io.urdf.reader import robot_path
 
     return robot_path(args.robot)

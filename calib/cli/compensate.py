@@ -1,6 +1,6 @@
 """``calib compensate CALIBRATED.urdf NOMINAL.urdf TARGETS.csv -o CORRECTED.csv``: corrected joint
 values, where to send a calibrated robot so that its tool reaches the targets (a thin layer over
-:mod:`calib.calibration.compensation`). Exit code 3 when some targets are not ``ok``: the output is
+:mod:`calib.compensation.compensate`). Exit code 3 when some targets are not ``ok``: the output is
 written all the same, with the status of each row."""
 from __future__ import annotations
 
@@ -111,9 +111,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calib compensate`` with parsed arguments; returns the exit code."""
-    from calib.calibration.compensation import (check_joint_targets, compensate, compensate_poses,
+    from calib.compensation.compensate import (check_joint_targets, compensate, compensate_poses,
                                                 load_compensation_models)
-    from calib.io.specs import read_targets, write_compensation
+    from calib.io.csv.specs import read_targets, write_compensation
 
     outputs = Outputs([args.calibrated, args.nominal, args.targets])
     out = outputs.add(args.output)
@@ -157,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
                 sys.stderr.write(f"{PROG}: note: {args.calibrated} records no measurement frame (the calibration's "
                                  f"measurements were in the robot's base frame): meas = base\n")
             else:
-                from calib.calibration.compensation import pose_targets_in_base
+                from calib.compensation.compensate import pose_targets_in_base
 
                 if T is not None:
                     T = pose_targets_in_base(T_meas_base=T_meas_base, T_meas_tool=T)
@@ -168,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             result = compensate_poses(calibrated, p_meas_tool=p, q_start=targets.q, **opts)
     if T_meas_base is not None and (targets.kind == "joints" or args.targets_frame == "base"):
-        from calib.calibration.compensation import with_frame_uncertainty
+        from calib.compensation.compensate import with_frame_uncertainty
 
         result = with_frame_uncertainty(result, T_meas_base=T_meas_base, covariance=rec.measurement_covariance)
     frame = (f"the measurement frame of {args.calibrated}" if args.targets_frame == "meas" and
@@ -194,7 +194,7 @@ def _last_link_models(args, calibrated, nominal):
     """The models with the last joint's child link as tool frame, for joint targets after a
     calibration whose tool frame was estimated (a measured point, not the nominal tool): the
     link's pose is compensated, so any tool on it reaches its nominal pose (note on stderr)."""
-    from calib.calibration.compensation import flange_link, load_compensation_models
+    from calib.compensation.compensate import flange_link, load_compensation_models
 
     if args.measure == "position":
         raise ParameterError(f"--measure position: {args.calibrated}'s tool frame is the point the calibration "

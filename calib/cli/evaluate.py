@@ -81,10 +81,10 @@ def _evaluate_compliance(robot, args):
     if args.nominal is not None:
         if args.compliance is None:
             raise ParameterError("--nominal only matters with --compliance (it gives the gravity torques)")
-        from calib.calibration.compensation import nominal_frames
+        from calib.compensation.compensate import nominal_frames
 
         base, tool = nominal_frames(robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
-        from calib.io.urdf_reader import load_robot
+        from calib.io.urdf.reader import load_robot
 
         nominal = load_robot(args.nominal, base_frame=base, tool_frame=tool)
     elif args.compliance is not None and robot.targets:
@@ -158,13 +158,13 @@ def _evaluate(args: argparse.Namespace, plots) -> int:
     import calib
     from calib.calibration.accuracy import format_accuracy_table
     from calib.cli.output import Outputs
-    from calib.io.urdf_reader import robot_path
+    from calib.io.urdf.reader import robot_path
 
     outputs = Outputs([robot_path(args.robot), args.measurements, args.tracker, args.compliance, args.nominal])
     out_html = outputs.add(args.html) if args.html else None
     plot_paths = {}
     if args.plots:
-        from calib.calibration.report_plots import PLOT_FILES
+        from calib.report.plots import PLOT_FILES
 
         plot_paths = outputs.add_folder(args.plots, PLOT_FILES, "--plots")
     meta = parse_meta(args.meta)
@@ -212,11 +212,11 @@ def _write_report(args, robot, meas, outputs, out_html, plot_paths, meta, plots)
     """Plots (drawn by the worker ``plots`` while the report is built) and the HTML accuracy
     report, staged and committed with a progress line; the verdict line and the written paths
     are kept on ``args`` for the printed text."""
-    from calib.calibration.report import build_accuracy_report, render_html
-    from calib.calibration.report_html import load_template
-    from calib.calibration.report_rows import report_rows
+    from calib.report.build import build_accuracy_report, render_html
+    from calib.report.html import load_template
+    from calib.report.rows import report_rows
     from calib.cli.progress import Progress
-    from calib.io.urdf_reader import robot_path
+    from calib.io.urdf.reader import robot_path
 
     from calib.cli.args import progress_enabled
 

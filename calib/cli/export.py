@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
             raise ParameterError(f"{flag} applies to --format {fmt} only, not {args.format}")
     outputs = Outputs([args.robot, args.report])
     out = outputs.add(args.output)
-    from calib.io.export import export_calibration
+    from calib.io.exports.export import export_calibration
 
     result = export_calibration(args.robot, args.format, kinematics_hash=args.hash, report=args.report,
                                 flange_frame=args.flange, base_frame=args.base_frame, tool_frame=args.tool_frame)

@@ -27,7 +27,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Print the help page (or the Markdown table); returns 0."""
-    from calib.io.conventions import format_help, markdown_table
+    from calib.io.csv.conventions import format_help, markdown_table
 
     sys.stdout.write(markdown_table() if args.markdown else format_help())
     return EXIT_OK

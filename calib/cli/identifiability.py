@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.touch is not None:
         from calib.calibration.touch import touch_identifiability
-        from calib.io.touch_file import read_touch
+        from calib.io.csv.touch import read_touch
 
         robot = load(args)
         data = read_touch(args.touch, robot)

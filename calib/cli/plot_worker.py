@@ -13,7 +13,7 @@ command's wall time; the CPU time (the workers', counted in the command's once w
 a little (the fork, the rows pickled, the first figure's set-up in each process). On a machine
 whose cores are busy with other work the wall time gains little.
 
-The images are :func:`calib.calibration.report_plots.plot_rows` of the same rows, byte for byte
+The images are :func:`calib.report.plots.plot_rows` of the same rows, byte for byte
 as drawn in the command's own process, in the same order. Nothing is written by the worker: the
 command stages the images with its other outputs (:mod:`calib.cli.output`), so an error anywhere
 still writes nothing. The worker ignores SIGINT (Ctrl-C reaches the whole process group; the
@@ -68,8 +68,8 @@ class PlotWorker:
         self.close()
 
     def submit(self, rows, *, tolerance_m: float | None = None, columns: Mapping | None = None) -> None:
-        """Send the rows to draw (:class:`calib.calibration.report_rows.ReportRows`, and the
-        arguments of :func:`calib.calibration.report_plots.plot_rows`). Returns at once: a thread
+        """Send the rows to draw (:class:`calib.report.rows.ReportRows`, and the
+        arguments of :func:`calib.report.plots.plot_rows`). Returns at once: a thread
         writes them while the worker may still be importing matplotlib."""
         import threading
 
@@ -281,7 +281,7 @@ def serve(stdin, stdout) -> int:
     import traceback
     import warnings
 
-    from calib.calibration.report_plots import plot_names, plot_rows, warm_up
+    from calib.report.plots import plot_names, plot_rows, warm_up
 
     gc.disable()              # (no garbage worth a collection while importing)
     _without_property_docs()

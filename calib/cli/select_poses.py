@@ -1,5 +1,5 @@
 """``calib select-poses ROBOT.urdf -n N -o POSES.csv``: the configurations worth measuring (a thin
-layer over :mod:`calib.calibration.poses`)."""
+layer over :mod:`calib.design.poses`)."""
 from __future__ import annotations
 
 import argparse
@@ -89,9 +89,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calib select-poses`` with parsed arguments; returns the exit code."""
-    from calib.calibration.poses import design_poses
-    from calib.io.specs import write_poses
-    from calib.io.urdf_reader import load_robot
+    from calib.design.poses import design_poses
+    from calib.io.csv.specs import write_poses
+    from calib.io.urdf.reader import load_robot
 
     outputs = Outputs([args.robot])
     out = outputs.add(args.output)

@@ -176,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from calib.units import DISPLAY_UNITS
-    from calib.io.specs import write_measurements
+    from calib.io.csv.specs import write_measurements
     from calib.model.simulate import apply_deviations, simulate_measurements
 
     dev_file = None if args.deviations == "paper" or args.deviations.startswith("random:") \
@@ -206,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
 
         text = simulate_touch_file(args, robot, measured, rng, outputs, out_csv, described, out_truth)
         if out_truth is not None:
-            from calib.io.urdf_writer import write_calibrated_urdf
+            from calib.io.urdf.writer import write_calibrated_urdf
 
             outputs.stage_from_file(out_truth, lambda p: write_calibrated_urdf(
                 true_robot.geometry(), p, nominal=robot.geometry()))
@@ -246,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
                f"{n_cal} calibration + {n_val} validation poses{per_pose}")
     outputs.stage_from_file(out_csv, lambda p: write_measurements(p, meas, comment=comment))
     if out_truth is not None:
-        from calib.io.urdf_writer import write_calibrated_urdf
+        from calib.io.urdf.writer import write_calibrated_urdf
 
         # several targets: the nominal is the URDF's own tool (the targets' offsets are not in it)
         outputs.stage_from_file(out_truth, lambda p: write_calibrated_urdf(

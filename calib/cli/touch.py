@@ -1,5 +1,5 @@
 """Touch files in the CLI (issue 24): ``calib calibrate ROBOT.urdf TOUCH.csv -o OUT.urdf`` on a
-file whose rows name the point, plane or sphere the tool touched (:mod:`calib.io.touch_file`),
+file whose rows name the point, plane or sphere the tool touched (:mod:`calib.io.csv.touch`),
 and ``calib simulate ... --constraint point:N,plane:N,sphere:RADIUS_MM``.
 
 :func:`run_touch` is what ``calibrate`` runs for such a file (it routes there when the header
@@ -38,9 +38,9 @@ def run_touch(args: argparse.Namespace) -> int:
     from calib.calibration.base_frame import in_base_frame
     from calib.calibration.touch import PARAM_CHOICES, calibrate_touch
     from calib.calibration.touch_accuracy import predicted_tool_error
-    from calib.io.touch_file import read_touch
-    from calib.io.urdf_reader import robot_path
-    from calib.io.urdf_writer import check_writable, write_calibrated_urdf
+    from calib.io.csv.touch import read_touch
+    from calib.io.urdf.reader import robot_path
+    from calib.io.urdf.writer import check_writable, write_calibrated_urdf
 
     for name, default in _NOT_FOR_TOUCH:
         if getattr(args, name, default) not in (default, None):
@@ -57,7 +57,7 @@ def run_touch(args: argparse.Namespace) -> int:
     if getattr(args, "plots", None):
         from pathlib import Path
 
-        from calib.calibration.report_plots import PLOT_FILES
+        from calib.report.plots import PLOT_FILES
 
         plot_paths = {name: outputs.add(Path(args.plots) / name, make_folder=True) for name in PLOT_FILES}
     from calib.cli.args import parse_meta
@@ -148,12 +148,12 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
                         frames) -> str:
     """The touch report's certificate (into ``report``, the JSON), plots and HTML page staged in
     ``outputs``; returns the verdict line for the printed text ("" without --tolerance-mm)."""
-    from calib.calibration.report import _provenance, render_html
-    from calib.calibration.report_plots import plot_rows
-    from calib.calibration.report_touch import measured_deviations, touch_certificate, touch_rows
+    from calib.report.build import _provenance, render_html
+    from calib.report.plots import plot_rows
+    from calib.report.touch import measured_deviations, touch_certificate, touch_rows
     from calib.cli.args import progress_enabled
     from calib.cli.progress import Progress
-    from calib.io.urdf_reader import robot_path
+    from calib.io.urdf.reader import robot_path
     from calib.units import DISPLAY_UNITS
 
     tol_mm = getattr(args, "tolerance_mm", None)
@@ -310,7 +310,7 @@ def simulate_touch_file(args, robot, true_robot, rng, outputs, out_csv, describe
     per feature) in ``outputs``; returns the lines to print."""
     from dataclasses import replace
 
-    from calib.io.touch_file import write_touch
+    from calib.io.csv.touch import write_touch
     from calib.model.simulate import simulate_measurements
     from calib.model.touch_simulate import simulate_touch
 

@@ -97,9 +97,9 @@ def make_parameters(n_joints: int, beta_joints: Iterable[int],
 
 @runtime_checkable
 class UrdfSource(Protocol):
-    """What a model read from a URDF carries: the parse (:class:`calib.io.urdf_reader.UrdfChain`).
+    """What a model read from a URDF carries: the parse (:class:`calib.io.urdf.reader.UrdfChain`).
 
-    ``path`` the URDF file; ``document`` its XML document (:class:`calib.io.urdf.UrdfDocument`);
+    ``path`` the URDF file; ``document`` its XML document (:class:`calib.io.urdf.document.UrdfDocument`);
     ``model`` Pinocchio's model of the whole file (built once, never modified: copy it);
     ``joints`` the chain's :class:`ChainJoint`; ``joint_ids`` their Pinocchio joint ids;
     ``base_frame`` / ``tool_frame`` the frame names and ``base_frame_id`` / ``tool_frame_id``

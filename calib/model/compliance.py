@@ -180,7 +180,7 @@ class GravityModel:
     def from_chain(cls, chain: UrdfSource, *, payload: Payload | None = None,
                    gravity: Sequence[float] | None = None) -> "GravityModel":
         """The gravity model of a URDF chain already parsed (a model's ``source``,
-        :class:`calib.io.urdf_reader.UrdfChain`), from a copy of its Pinocchio model.
+        :class:`calib.io.urdf.reader.UrdfChain`), from a copy of its Pinocchio model.
 
         payload : carried at the chain's tool frame; gravity : (3,) m/s^2 in the URDF root frame
         (default (0, 0, -9.80665)). Raises :class:`calib.CalibError` subclasses.

@@ -1,7 +1,7 @@
 """Measurements: joint values with the measured tool pose, one robot pose per row (SI units).
 
 :class:`Measurements` is the data the calibration takes. Files are read and written by
-:mod:`calib.io.specs` (:func:`calib.read_measurements`, :func:`calib.write_measurements`; the
+:mod:`calib.io.csv.specs` (:func:`calib.read_measurements`, :func:`calib.write_measurements`; the
 format is described there and in README.md), which this module re-exports.
 """
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Rigid transforms used by the error model: elementary screws, the ZYX transform of Eq. (3),
 the model's own vectorised rotation maps (ZYX angles of Eq. 3, rotation vectors for the
 simulated noise, the quaternion inside the SO(3) log) and SO(3) log maps. Rotations read from
-files are converted by Pinocchio / scipy in :mod:`calib.io.specs`.
+files are converted by Pinocchio / scipy in :mod:`calib.io.csv.specs`.
 
 Conventions: 4x4 homogeneous matrices ``T_a_b`` (pose of frame b in frame a), SI units.
 Twists are 6-vectors ``(v, w)``, linear part first, as in Pinocchio's ``Motion``.

@@ -12,9 +12,9 @@ from lxml import etree
 
 from calib import calibrate, load_robot, simulate_measurements
 from calib.calibration.base_frame import in_base_frame, robot_base_frame
-from calib.calibration.compensation import compensate_poses, with_frame_uncertainty
+from calib.compensation.compensate import compensate_poses, with_frame_uncertainty
 from calib.cli.main import main
-from calib.io.urdf import UrdfDocument
+from calib.io.urdf.document import UrdfDocument
 from calib.model.jacobian import pose_jacobian
 from calib.model.kinematics import ChainKinematics
 from calib.model.simulate import apply_deviations, random_deviations
@@ -262,7 +262,7 @@ def test_cli_compensate_targets_frames_and_bad_input(bundled_case, tmp_path, cap
     head, qa = joints(tmp_path / "a.csv")
     _, qb = joints(tmp_path / "b.csv")
     assert "frame_std_mm" in head and np.abs(qa - qb).max() < 1e-6     # degrees
-    from calib.io.specs import write_poses
+    from calib.io.csv.specs import write_poses
     write_poses(tmp_path / "joints.csv", nominal, Q)
     code, out, err = _cli(capsys, "compensate", cal, BUNDLED_URDF, tmp_path / "joints.csv", "-o", tmp_path / "j.csv")
     assert code in (0, 3) and (tmp_path / "j.csv").exists()
@@ -281,7 +281,7 @@ def test_cli_measurement_link_bad_input(tmp_path, capsys):
     """--measurement-link naming a link of the URDF, or given for data in the robot's frame: one
     line, exit 2, nothing written."""
     from calib.model.simulate import PAPER_DEVIATIONS
-    from calib.io.specs import write_measurements
+    from calib.io.csv.specs import write_measurements
 
     nominal = load_robot(BUNDLED_URDF)
     m = simulate_measurements(apply_deviations(nominal, PAPER_DEVIATIONS), nominal.random_configurations(40, 1), rng=1)
@@ -303,7 +303,7 @@ def test_cli_calibrate_then_evaluate_a_tracker_calibration(tmp_path, capsys):
     robot's frame (metres off: the rows are the tracker's)."""
     import json
 
-    from calib.io.specs import write_measurements
+    from calib.io.csv.specs import write_measurements
 
     nominal = load_robot(BUNDLED_URDF)
     devs = {k: v for k, v in random_deviations(nominal, 5e-4, 1).items() if not k.startswith("u_")}

@@ -13,7 +13,7 @@ import pytest
 
 import calib
 from calib.calibration.consistency import INCONSISTENT_SHARE, data_consistency, held_out_residuals
-from calib.calibration.fit import fit_with
+from calib.calibration.estimators.least_squares import fit_with
 from calib.calibration.options import resolve_options
 from calib.calibration.prepare import prepare
 from calib.model.measurements import Measurements

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import calib
-from calib.calibration.eb_map import eb_map
-from calib.calibration.evidence import Linearisation, evidence, linearise
+from calib.calibration.estimators.eb_map import eb_map
+from calib.calibration.estimators.evidence import Linearisation, evidence, linearise
 from calib.model.kinematics import ChainKinematics
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
 from calib.model.spatial import zyx_transform
@@ -74,7 +74,7 @@ def test_evidence_gradient_matches_finite_differences(rot):
 def test_evidence_hessian_matches_finite_differences(rot):
     """The analytic Hessian of the log evidence (the Newton ascent's) against central
     differences of the analytic gradient."""
-    from calib.calibration.evidence import hessian
+    from calib.calibration.estimators.evidence import hessian
 
     rng = np.random.default_rng(5)
     lin = _random_linearisation(rng, rot=rot)
@@ -97,8 +97,8 @@ def test_newton_ascent_stops_at_the_value_resolution(bundled_robot, monkeypatch)
     """25 simulated poses (the paper's deviations, seed 8): near the evidence's maximum the
     value is resolved to ~1e-10 of it; the ascent ends there with the gradient, instead of a
     line search halving steps on rounding noise (321 evidence evaluations before, 11 now)."""
-    import calib.calibration.eb_map as eb
-    import calib.calibration.evidence as evmod
+    import calib.calibration.estimators.eb_map as eb
+    import calib.calibration.estimators.evidence as evmod
     from calib.model.simulate import PAPER_DEVIATIONS
 
     true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
@@ -305,7 +305,7 @@ def test_pivoted_rank_matches_pivoted_qr():
     same |R_kk|, as scipy's column-pivoted QR of the columns (two exact ties among seven)."""
     from scipy.linalg import qr
 
-    from calib.calibration.eb_map import _pivoted_rank
+    from calib.calibration.estimators.eb_map import _pivoted_rank
 
     rng = np.random.default_rng(8)
     J = rng.normal(size=(60, 5))
@@ -321,7 +321,7 @@ def test_pivoted_rank_breaks_ties_by_column_order_not_rounding():
     """Columns whose remaining norms tie (c1, c2 after c0) keep the first in order whichever way
     rounding (1e-15) tips the tie: a nominal model derived again with other rounding held other
     TIAGo marker parameters (and the evidence moved 1394.44 -> 1387.68)."""
-    from calib.calibration.eb_map import _pivoted_rank
+    from calib.calibration.estimators.eb_map import _pivoted_rank
 
     s = 1.0 / np.sqrt(2.0)
     J = np.array([[1.0, s, s], [0.0, s, -s], [0.0, 0.0, 0.0]])
@@ -338,7 +338,7 @@ def test_evidence_maximum_matches_a_general_optimiser(rot):
     scipy's L-BFGS-B finds from the same start, on random linearisations with bounds active."""
     from scipy.optimize import minimize
 
-    from calib.calibration.evidence import _log_bounds, maximise_evidence
+    from calib.calibration.estimators.evidence import _log_bounds, maximise_evidence
 
     for seed in range(6):
         rng = np.random.default_rng(20 + seed)

@@ -155,7 +155,7 @@ def test_many_gross_rows_are_found(bundled_robot, share, seed):
 def test_clean_rows_skip_the_trimmed_fit(bundled_robot, monkeypatch):
     """Clean data (20 seeds of 100 full poses): no row flagged and the trimmed fit never run
     (the least-squares and robust noise levels agree: it would cost the speed budget)."""
-    import calib.calibration.robust as robust
+    import calib.calibration.estimators.robust as robust
 
     calls = []
     trimmed = robust.trimmed_fit
@@ -244,7 +244,7 @@ def test_a_warm_fit_from_a_local_minimum_is_judged_by_the_angle_search(bundled_r
     levels came back 'implausible' with a hint to omit them, not 'local_minimum')."""
     from dataclasses import replace
 
-    from calib.calibration.fit import fit_with
+    from calib.calibration.estimators.least_squares import fit_with
     from calib.calibration.options import resolve_options
     from calib.calibration.parameters import choose_parameters
     from calib.calibration.prepare import prepare
@@ -286,7 +286,7 @@ def test_a_means_fit_judges_the_suspect_rows_and_keeps_the_clean_ones():
     first (it left 3 clean suspect rows out with the 6 gross ones)."""
     from dataclasses import replace
 
-    from calib.calibration.fit import fit_with
+    from calib.calibration.estimators.least_squares import fit_with
     from calib.calibration.options import resolve_options
     from calib.calibration.parameters import choose_parameters
     from calib.calibration.prepare import prepare

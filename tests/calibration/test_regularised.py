@@ -1,4 +1,4 @@
-"""calibrate's regularised estimator (estimator="map", calib.calibration.regularised): the default
+"""calibrate's regularised estimator (estimator="map", calib.calibration.estimators.regularised): the default
 on few rows, least squares on many, given noise levels held, cross-validation refits that keep
 the prior, the report record, option clashes."""
 from __future__ import annotations
@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 import calib
-from calib.calibration.eb_map import map_fit
+from calib.calibration.estimators.eb_map import map_fit
 from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare
-from calib.calibration.regularised import map_fit_stage
+from calib.calibration.estimators.regularised import map_fit_stage
 from calib.calibration.validation import cross_validate
 from calib.errors import ParameterError
 from calib.model.kinematics import ChainKinematics

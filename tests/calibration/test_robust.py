@@ -1,4 +1,4 @@
-"""The outlier check against a high-breakdown fit (calib/calibration/robust.py): the acceptance
+"""The outlier check against a high-breakdown fit (calib/calibration/estimators/robust.py): the acceptance
 test of issue 23 on a few seeds (scripts/accept_gross_rows.py runs 30 seeds of every case)."""
 from __future__ import annotations
 
@@ -90,7 +90,7 @@ def test_the_outlier_passes_together_never_leave_out_more_than_half(acc, world):
     more: 34 of 40 left out, the 6 rows fitted exactly, refused as inconsistent. Later passes
     now judge few rows against the Huber fit (the trimmed fit is for the first judgement), and
     the passes together may never leave out more than half of the rows."""
-    from calib.calibration.robust import too_many_gross
+    from calib.calibration.estimators.robust import too_many_gross
 
     robot, true, truth = world
     run = acc.judge(robot, true, truth[False], 40, False, 0.4, 1022, {"params": "base", "cv": 0})

@@ -15,7 +15,7 @@ from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare
 from calib.calibration.statistics import statistics_stage
-from calib.calibration.selection import one_standard_error, select_and_fit
+from calib.calibration.estimators.selection import one_standard_error, select_and_fit
 from calib.calibration.validation import cross_validate, row_traces
 from calib.calibration.workspace import propagated
 from calib.model.kinematics import ChainKinematics

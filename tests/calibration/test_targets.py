@@ -19,7 +19,7 @@ from calib.model.identifiability_report import analyze_identifiability
 from calib.model.kinematics import ChainKinematics
 from calib.model.simulate import apply_deviations, random_deviations, simulate_measurements
 from calib.model.spatial import log3_batch, zyx_transform
-from calib.io.urdf_writer import write_calibrated_urdf
+from calib.io.urdf.writer import write_calibrated_urdf
 
 from conftest import BUNDLED_URDF, erd_urdf
 

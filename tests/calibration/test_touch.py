@@ -280,7 +280,7 @@ def _mixed_case(name, seed, tmp_path):
 
     from scipy.spatial.transform import Rotation
 
-    from calib.io.touch_file import read_touch, write_touch
+    from calib.io.csv.touch import read_touch, write_touch
     from calib.model.simulate import simulate_measurements
 
     robot = _robot(name)

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-import calib.calibration.poses
+import calib.design.poses
 from calib.cli.main import COMMAND_NAMES, build_parser, command_module, main
 
 from conftest import BUNDLED_URDF, ROOT
@@ -80,7 +80,7 @@ def test_select_poses_refuses_a_bad_output_before_any_work(output, message, caps
     def never(*args, **kwargs):
         raise AssertionError("the poses were selected before the output path was checked")
 
-    monkeypatch.setattr(calib.calibration.poses, "design_poses", never)
+    monkeypatch.setattr(calib.design.poses, "design_poses", never)
     code = main(["select-poses", str(BUNDLED_URDF), "-n", "5", "-o", output])
     out, err = capsys.readouterr()
     assert (code, out) == (2, "")

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import calib.cli.plot_worker
-from calib.calibration.report_plots import plot_rows
-from calib.calibration.report_rows import PoseDeviations, ReportRows
+from calib.report.plots import plot_rows
+from calib.report.rows import PoseDeviations, ReportRows
 from calib.cli.main import main
 from calib.cli.plot_worker import PlotWorker
 

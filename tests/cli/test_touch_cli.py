@@ -85,7 +85,7 @@ def test_degenerate_design_and_bad_input_exit_2_writing_nothing(urdf, tmp_path, 
 
 def test_tool_calibration_from_the_cli(urdf, tmp_path, capsys):
     """--params tool: one point from 6 orientations, the robot nominal (no deviations)."""
-    from calib.io.touch_file import write_touch
+    from calib.io.csv.touch import write_touch
     from calib.model.touch import Feature
     from calib.model.touch_simulate import simulate_touch
 
@@ -125,7 +125,7 @@ def test_a_file_mixing_touch_and_measured_rows(urdf, tmp_path, capsys):
 
     from scipy.spatial.transform import Rotation
 
-    from calib.io.touch_file import write_touch
+    from calib.io.csv.touch import write_touch
     from calib.model.simulate import apply_deviations, random_deviations, simulate_measurements
     from calib.model.touch import Feature
     from calib.model.touch_simulate import simulate_touch
@@ -148,7 +148,7 @@ def test_a_file_mixing_touch_and_measured_rows(urdf, tmp_path, capsys):
     report = json.loads((tmp_path / "report.json").read_text())
     assert [g["name"] for g in report["groups"]] == ["touch", "position"] and report["measured_rows"] == 15
     assert 0.6 < report["groups"][1]["noise_estimated_mm"] / 0.05 < 1.4
-    from calib.io.urdf import UrdfDocument
+    from calib.io.urdf.document import UrdfDocument
 
     cal = calib.load_robot(tmp_path / "cal.urdf")      # rooted at the robot's base, the tracker recorded
     T = UrdfDocument.read(tmp_path / "cal.urdf").frames.measurement_transform
@@ -180,7 +180,7 @@ def test_points_alone_refused_for_the_full_model_unless_the_nominal_scale_is_acc
 
 
 def test_simulate_measured_rows_into_a_touch_file(urdf, tmp_path, capsys):
-    from calib.io.touch_file import read_touch
+    from calib.io.csv.touch import read_touch
 
     code, out, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "m.csv",
                          "--constraint", "point:2,measured:7", "--poses", 5, "--seed", 2, "--position-only")
@@ -197,8 +197,8 @@ def test_touch_file_with_measured_rows_from_a_tracker_keeps_the_urdf_at_the_robo
     frame (it was ignored); calibrate of that file writes the URDF rooted at the robot's base with
     the tracker pose recorded apart, as for a measurement file (it wrote the tracker's metres into
     the base joint), and --measurement-link adds the tracker as the root."""
-    from calib.io.touch_file import read_touch
-    from calib.io.urdf import UrdfDocument
+    from calib.io.csv.touch import read_touch
+    from calib.io.urdf.document import UrdfDocument
     from calib.model.kinematics import ChainKinematics
 
     code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "m.csv",
@@ -237,7 +237,7 @@ def test_touch_file_after_an_instrument_preamble_is_read_as_a_touch_file(urdf, t
     """A touch file whose header follows a preamble (project, instrument lines, as measurement
     files may have) is a touch file: it was routed to the measurement reader and refused as
     'missing column x'."""
-    from calib.io.touch_file import is_touch_file
+    from calib.io.csv.touch import is_touch_file
 
     code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "t.csv",
                        "--constraint", "point:2,sphere:100", "--poses", 6, "--seed", 5)
@@ -259,8 +259,8 @@ def test_touch_certificate_judges_the_measured_rows_too(urdf, tmp_path, capsys):
     touch rows alone)."""
     from dataclasses import replace
 
-    from calib.io.touch_file import read_touch
-    from calib.io.urdf import UrdfDocument
+    from calib.io.csv.touch import read_touch
+    from calib.io.urdf.document import UrdfDocument
     from calib.model.kinematics import ChainKinematics
 
     code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", tmp_path / "m.csv",

@@ -241,7 +241,7 @@ def test_unsuffixed_kuka_joints_name_the_convention(data, tmp_path):
 
 
 def _joint_patterns():
-    from calib.io.conventions import CONVENTIONS
+    from calib.io.csv.conventions import CONVENTIONS
 
     return [(c.name, k) for c in CONVENTIONS.values() for k in range(len(c.joints[0]))]
 
@@ -251,7 +251,7 @@ def test_vendor_joint_names_with_positions_alone_name_the_convention(name, patte
     """A file with a vendor's joint names (UR's base..wrist3 or actual_q_0..5, ABB's rax_1..)
     and x, y, z but no orientation columns got 'the header has 0 joint columns' with no word of
     the convention; with it, it reads the joints."""
-    from calib.io.conventions import CONVENTIONS
+    from calib.io.csv.conventions import CONVENTIONS
 
     robot, m = data
     c = CONVENTIONS[name]
@@ -452,7 +452,7 @@ def test_errors_in_a_late_chunk_name_the_row_the_slow_path_names(bad, message, d
                                                                   monkeypatch):
     """The vectorised path declines a chunk with a bad cell; the line-by-line path then gives the
     exact one-line message (chunks of 4 lines here: the bad row is in the fourth chunk)."""
-    import calib.io.csv_layer as layer
+    import calib.io.csv.layer as layer
 
     monkeypatch.setattr(layer, "CHUNK_ROWS", 4)
     robot, m = data
@@ -485,7 +485,7 @@ def test_the_fast_and_the_slow_path_read_the_same(data, tmp_path, monkeypatch):
 
 # ---------------------------------------------------------------- the help page and README
 def test_readme_table_is_the_codes_table():
-    from calib.io.conventions import markdown_table
+    from calib.io.csv.conventions import markdown_table
 
     readme = (ROOT / "README.md").read_text()
     start = readme.index("<!-- conventions table:")
@@ -494,7 +494,7 @@ def test_readme_table_is_the_codes_table():
 
 
 def test_calib_formats_prints_every_rule_and_every_convention(capsys):
-    from calib.io.conventions import CONVENTIONS
+    from calib.io.csv.conventions import CONVENTIONS
 
     assert main(["formats"]) == 0
     out = capsys.readouterr().out
@@ -539,7 +539,7 @@ def test_calib_formats_names_every_file_format_flag():
     import argparse
 
     from calib.cli.args import add_file_format
-    from calib.io.conventions import format_help
+    from calib.io.csv.conventions import format_help
 
     p = argparse.ArgumentParser()
     add_file_format(p, tracker=True)

@@ -1,4 +1,4 @@
-"""calib/io/csv_header.py: a header matched against a column spec and a robot, on its own (the
+"""calib/io/csv/header.py: a header matched against a column spec and a robot, on its own (the
 reading of whole files is tests/io/test_csv_layer.py)."""
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 
 import calib
 from calib import MeasurementFormatError, ReadOptions
-from calib.io.csv_header import Header
-from calib.io.specs import MEASUREMENT, POSES
+from calib.io.csv.header import Header
+from calib.io.csv.specs import MEASUREMENT, POSES
 
 from conftest import BUNDLED_URDF
 

@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 import calib
 from calib import DataError, MeasurementFormatError, ParameterError, ReadOptions
 from calib.cli.main import main
-from calib.io.specs import read_poses, read_targets
+from calib.io.csv.specs import read_poses, read_targets
 
 from conftest import BUNDLED_URDF
 
@@ -515,7 +515,7 @@ def test_a_file_quoted_field_by_field_reads_as_the_plain_one(tmp_path):
 
 def test_a_header_name_holding_the_delimiter_is_read(tmp_path):
     """A quoted column name that holds a comma (calib's own writer quotes it) is one column."""
-    from calib.io.csv_layer import _records, csv_text
+    from calib.io.csv.layer import _records, csv_text
 
     path = tmp_path / "t.csv"
     path.write_text(csv_text(["wrist, roll_rad", "x_mm"], [[0.5, 1.0]]))
@@ -541,7 +541,7 @@ def test_an_endless_stream_is_refused_past_the_memory_bound(monkeypatch, tmp_pat
     pipe reads as the file."""
     import threading
 
-    import calib.io.csv_lines as layer
+    import calib.io.csv.lines as layer
     from calib import load_robot, read_measurements
     from calib.errors import MeasurementFormatError
 

@@ -1,4 +1,4 @@
-"""Exports of a calibrated URDF (calib.io.export, calib export): each file is read back the way
+"""Exports of a calibrated URDF (calib.io.exports.export, calib export): each file is read back the way
 its consumer reads it and must give the calibrated forward kinematics.
 
 * ur-yaml: the URDF that ur_description's template (urdf/ur_macro.xacro) makes from the YAML
@@ -24,10 +24,10 @@ import yaml
 from lxml import etree
 
 import calib
-from calib.io.export_ur import T_WRIST3_TOOL0, UR_SEGMENTS
-from calib.io.mdh_file import rotation_angle
-from calib.io.urdf_reader import read_urdf_chain
-from calib.io.urdf_writer import write_calibrated_urdf
+from calib.io.exports.ur import T_WRIST3_TOOL0, UR_SEGMENTS
+from calib.io.exports.mdh import rotation_angle
+from calib.io.urdf.reader import read_urdf_chain
+from calib.io.urdf.writer import write_calibrated_urdf
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations
 
 from conftest import BUNDLED_URDF, erd_urdf
@@ -407,7 +407,7 @@ def test_mdh_csv_of_a_calibration_of_several_targets(tmp_path):
     """Three reflectors (targets A, B, C): one tool row per target, named by its id, with the
     report's std; read back, a model of the three targets with the calibrated URDF's kinematics
     (each target's link) to 1e-9 m / rad."""
-    from calib.io.mdh_file import kinematics_difference
+    from calib.io.exports.mdh import kinematics_difference
 
     robot = calib.load_robot(BUNDLED_URDF).with_target_offsets({"A": [0, 0, 0], "B": [0.05, 0, 0.02],
                                                                 "C": [0, 0.05, 0]})

@@ -9,13 +9,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calib import CalibError, DataError, MeasurementFormatError
-from calib.io.specs import ReadOptions
+from calib.io.csv.specs import ReadOptions
 from calib.model.measurements import Measurements
-from calib.io.specs import read_measurements, write_measurements
+from calib.io.csv.specs import read_measurements, write_measurements
 from calib.model.chain import ChainJoint
 from calib.model.robot import RobotModel
 
-import calib.io.specs as measurements_module
+import calib.io.csv.specs as measurements_module
 
 JOINTS_DEG = ",".join(f"joint{i}_deg" for i in range(1, 7))
 HEADER = f"{JOINTS_DEG},x_mm,y_mm,z_mm"

@@ -6,7 +6,7 @@ import pytest
 
 from calib import load_robot
 from calib.errors import CalibError, MeasurementFormatError
-from calib.io.touch_file import is_touch_file, read_touch, write_touch
+from calib.io.csv.touch import is_touch_file, read_touch, write_touch
 from calib.model.touch import Feature, TouchData
 
 from conftest import erd_urdf
@@ -110,7 +110,7 @@ def test_one_sphere_one_radius(ur10, tmp_path):
 def test_touch_check_reads_only_the_header(tmp_path, text, monkeypatch):
     # is_touch_file finds the header in the file's first bytes, as the readers split it; a
     # file whose start does not settle it is read whole (the readers' errors are theirs)
-    from calib.io import csv_layer, touch_file
+    from calib.io.csv import layer as csv_layer, touch as touch_file
 
     path = tmp_path / "f.csv"
     path.write_bytes(text.encode())
@@ -135,7 +135,7 @@ def test_touch_check_of_rows_with_text_splits_only_the_header(tmp_path, monkeypa
     """A measurement file whose rows are not all numbers (a set column) and that names no feature:
     the header is its first line, not searched for over 200 rows (7 ms of every calib calibrate
     start, issue 27 item 2); a header naming a feature is still found, as is a file without one."""
-    from calib.io import csv_lines
+    from calib.io.csv import lines as csv_lines
 
     calls = []
     split = csv_lines.split_fields
@@ -152,7 +152,7 @@ def test_touch_check_of_rows_with_text_splits_only_the_header(tmp_path, monkeypa
 
 
 def test_touch_check_of_a_large_file_does_not_read_it(tmp_path, monkeypatch):
-    from calib.io import touch_file
+    from calib.io.csv import touch as touch_file
 
     path = tmp_path / "m.csv"
     path.write_text("joint1_deg,x_mm\n" + "1,2\n" * 50_000)

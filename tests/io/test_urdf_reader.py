@@ -1,4 +1,4 @@
-"""The URDF reader (calib.io.urdf_reader): a URDF is parsed and built in Pinocchio once per run,
+"""The URDF reader (calib.io.urdf.reader): a URDF is parsed and built in Pinocchio once per run,
 and the model carries what was parsed (issue 21: "the source read once")."""
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import pytest
 
 import calib
 from calib.cli.main import main
-from calib.io.urdf import UrdfDocument
-from calib.io.urdf_reader import read_urdf_chain, robot_from_chain
+from calib.io.urdf.document import UrdfDocument
+from calib.io.urdf.reader import read_urdf_chain, robot_from_chain
 
 ROOT = Path(__file__).resolve().parents[2]
 BUNDLED = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
@@ -134,7 +134,7 @@ def test_a_model_beyond_the_dof_bound_is_refused_before_pinocchio_builds_its_wor
     """A 1,000-joint URDF took 18 GB in 30 s, then a MemoryError; beyond MAX_MODEL_DOF the reader
     refuses it with one message (exit 2 from the CLI)."""
     from calib import URDFError, load_robot
-    from calib.io.urdf_reader import MAX_MODEL_DOF
+    from calib.io.urdf.reader import MAX_MODEL_DOF
 
     n = MAX_MODEL_DOF + 1
     parts = ['<robot name="snake">', '<link name="l0"/>']

@@ -1,4 +1,4 @@
-"""Round trips of calib.io.urdf_writer: a calibrated model written into its URDF, read back.
+"""Round trips of calib.io.urdf.writer: a calibrated model written into its URDF, read back.
 
 Kinematics are checked with Pinocchio's own URDF parser (independent of the writer's XML code),
 content with yourdfpy and with a canonical XML comparison of every element the writer must keep.
@@ -18,7 +18,7 @@ from lxml import etree
 from calib import CalibError, RobotModel, load_robot
 from calib.errors import ChainError
 from calib.model.kinematics import ChainKinematics
-from calib.io.urdf_writer import write_calibrated_urdf
+from calib.io.urdf.writer import write_calibrated_urdf
 
 BUNDLED = Path(__file__).resolve().parents[2] / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
 
@@ -434,7 +434,7 @@ def test_model_built_in_code_is_written_as_a_minimal_urdf(tmp_path, targets):
     kinematics: read back, the same tool (and target) poses to 1e-12 m / rad (12 written digits),
     the same joints and limits (an unlimited revolute joint becomes continuous), no other file."""
     from calib import ChainJoint
-    from calib.io.urdf_writer import check_writable
+    from calib.io.urdf.writer import check_writable
 
     nominal = _perturbed(load_robot(BUNDLED), seed=4)
     t = nominal.mdh_table()
@@ -502,7 +502,7 @@ def test_base_frame_above_the_first_joint_via_a_parent_joint(tmp_path):
 def test_text_is_what_the_writer_writes(tmp_path):
     """calibrated_urdf_text (what calib calibrate stages in memory) gives the bytes and frames
     write_calibrated_urdf writes, with and without a measurement frame recorded apart."""
-    from calib.io.urdf_writer import calibrated_urdf_text
+    from calib.io.urdf.writer import calibrated_urdf_text
 
     robot = load_robot(BUNDLED)
     calibrated = robot.with_changes(d1=robot.value("d1") + 1e-3, alpha2=2e-3)

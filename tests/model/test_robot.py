@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from calib import ChainError, FrameNotFound, URDFError, load_robot
-from calib.io.urdf_reader import read_urdf_chain
+from calib.io.urdf.reader import read_urdf_chain
 from calib.model.spatial import log3_batch
 
 from conftest import BUNDLED_URDF, ERD_ARMS, erd_urdf

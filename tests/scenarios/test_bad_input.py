@@ -531,7 +531,7 @@ def test_distinct_configurations_counts_repeats_once():
 
 
 def test_file_too_large_for_the_memory_is_refused_before_reading(sim, monkeypatch):
-    import calib.io.csv_lines as layer     # (the text of files: calib.io.csv_lines)
+    import calib.io.csv.lines as layer     # (the text of files: calib.io.csv.lines)
 
     d, robot, _ = sim
     size = (d / "cal.csv").stat().st_size

@@ -267,7 +267,7 @@ def test_cli_prints_noise_prediction_and_exit_3_for_a_stuck_lm(tmp_path, bundled
     rng = np.random.default_rng(41)
     calib.write_measurements(tmp_path / "m60.csv",
                              simulate_measurements(true, bundled_robot.random_configurations(60, rng), rng=rng))
-    from calib.io.urdf_writer import write_calibrated_urdf
+    from calib.io.urdf.writer import write_calibrated_urdf
     write_calibrated_urdf(bundled_robot.with_changes(alpha1=1.38, theta1=-1.95, theta5=2.18),
                           tmp_path / "stuck.urdf", nominal=bundled_robot)
     capsys.readouterr()
