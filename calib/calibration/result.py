@@ -12,7 +12,7 @@ import numpy as np
 
 from calib.calibration.accuracy import AccuracyStats, format_accuracy_table
 from calib.units import display_unit, display_value
-from calib.calibration.estimators.least_squares import NoiseEstimate
+from calib.calibration.estimators.base import NoiseEstimate
 from calib.errors import ParameterError
 from calib.model.chain import U_NAMES
 from calib.model.robot import RobotModel
@@ -487,7 +487,7 @@ def _consistency_dict(c: dict | None) -> dict | None:
             "causes": list(c["causes"])}
 
 
-def _parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> tuple[ParameterEstimate, ...]:
+def parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> tuple[ParameterEstimate, ...]:
     """One row per parameter of ``nominal``: the joint parameters' values, the measurement and
     tool frames' as the ZYX parameters of the whole transform (reference and deviation), with
     the standard deviations of what is shown: a frame's are propagated from the covariance of its

@@ -10,7 +10,7 @@ import numpy as np
 
 from calib.calibration.accuracy import target_rows
 from calib.calibration.consistency import data_consistency
-from calib.calibration.estimators.least_squares import Fit
+from calib.calibration.estimators.base import Fit
 from calib.calibration.prepare import Setup
 from calib.calibration.validation import row_traces
 from calib.calibration.workspace import predict_workspace, propagate_covariance, propagated, workspace_notes

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calib.calibration.accuracy import target_rows
-from calib.calibration.estimators.least_squares import _vce_fixed_point, fit_with
+from calib.calibration.estimators.base import vce_fixed_point
+from calib.calibration.estimators.least_squares import fit_with
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
@@ -426,7 +427,7 @@ def _step_at_own_levels(ne: NormalEquations, x, x_held, union: list, c: np.ndarr
     ``ne`` at x (whitened at the geometric fit's noise levels ``levels``; the columns it lacks
     moved to their values in ``x_held`` first), re-weighted to the noise levels where the
     variance-component estimation of that candidate stops
-    (:func:`~calib.calibration.estimators.least_squares._vce_fixed_point`; ``free``: which levels are estimated), as
+    (:func:`~calib.calibration.estimators.least_squares.vce_fixed_point`; ``free``: which levels are estimated), as
     name -> value: where calibrate's fit of the chosen model starts. Its scores are the step at
     the geometric levels (every candidate on the same weights); its fit re-weights to its own
     residuals (the real iiwa rows with the joint terms: 0.34 -> 0.26 mm, 1.51 -> 0.90 mrad), and
@@ -443,7 +444,7 @@ def _step_at_own_levels(ne: NormalEquations, x, x_held, union: list, c: np.ndarr
     g_p, g_r = (g_p + A_p @ shift)[c], (g_r + A_r @ shift)[c]
     A_p, A_r = A_p[np.ix_(c, c)], A_r[np.ix_(c, c)]
     ne = NormalEquations(A_p + A_r, g_p + g_r, A_p, A_r, rss[0], rss[1], ne.n_pos, ne.n_rot, g_p)
-    own_p, own_r = _vce_fixed_point(ne, levels, levels, free)
+    own_p, own_r = vce_fixed_point(ne, levels, levels, free)
     f_p, f_r = (sp / own_p) ** 2, (sr / own_r) ** 2
     step = normal_inverse(f_p * A_p + f_r * A_r)[0] @ (f_p * g_p + f_r * g_r)
     return dict(zip((union[k] for k in c), (x + shift)[c] - step))

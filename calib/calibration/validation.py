@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calib.calibration.estimators.least_squares import Fit
+from calib.calibration.estimators.base import Fit
 from calib.calibration.options import CV_FOLDS
 from calib.calibration.prepare import Setup
 from calib.errors import DataError, ParameterError

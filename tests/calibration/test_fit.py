@@ -218,7 +218,7 @@ def test_given_position_noise_is_judged_on_position_only_data():
 @pytest.mark.parametrize("scale_rot", [1.0, 30.0])
 def test_noise_estimate_reaches_its_fixed_point_in_two_reweighted_fits(bundled_robot, scale_rot):
     """Variance-component estimation: the levels found on the first fit's linearisation
-    (fit._vce_fixed_point) are confirmed by one re-weighted fit. Its residuals give back the noise
+    (estimators.base.vce_fixed_point) are confirmed by one re-weighted fit. Its residuals give back the noise
     levels it was weighted with (to VCE_RTOL), and the simulated noise is found (to the spread of
     a 300-row estimate); before, each re-weighted fit moved the levels one step (4-7 fits on the
     real iiwa rows)."""
@@ -265,7 +265,7 @@ def test_a_warm_fit_from_a_local_minimum_is_judged_by_the_angle_search(bundled_r
 
 def test_noise_estimate_of_the_papers_lm_stops_at_its_residuals_levels(bundled_robot):
     """The paper's LM as printed ignores the noise weights, so the fixed point found on a
-    linearisation (fit._vce_fixed_point) is never confirmed by its re-fit: the estimation ran to
+    linearisation (estimators.base.vce_fixed_point) is never confirmed by its re-fit: the estimation ran to
     its limit of 12 re-weighted fits and ended at levels not its residuals' own (reduced chi^2
     1.006 for orientation; from the paper LM's local minimum, 0.06 mm estimated for residuals of
     11.6 mm RMS: reduced chi^2 1.3e4). Each re-fit now re-sets the levels from its residuals."""

@@ -20,7 +20,8 @@ from typing import Sequence
 import numpy as np
 
 from calib.calibration.estimators.eb_map import EBMapResult, eb_map_stage
-from calib.calibration.estimators.least_squares import Fit, _Linearised, _noise_estimate, fit_with
+from calib.calibration.estimators.base import Estimate, Fit, Linearised, noise_estimate
+from calib.calibration.estimators.least_squares import fit_with
 from calib.calibration.options import CalibrationOptions
 from calib.calibration.prepare import Setup
 from calib.model.kinematics import ChainKinematics
@@ -73,9 +74,9 @@ def map_fit_stage(setup: Setup, ident: Sequence[str], options: CalibrationOption
     C = est.covariance
     share_p = float(np.sum(C * ne.A_pos)) if ne.A_pos is not None else 0.0
     share_r = float(np.sum(C * ne.A_rot)) if ne.A_rot is not None else 0.0
-    lin = _Linearised(ne, C, True, ne.n_pos - share_p, ne.n_rot - share_r)
+    lin = Linearised(ne, C, True, ne.n_pos - share_p, ne.n_rot - share_r)
     estimated = options.sigma_pos is None or (rot and options.sigma_rot is None)
-    noise = _noise_estimate(problem, lin, estimated, est.passes)
+    noise = noise_estimate(problem, lin, estimated, est.passes)
     prior_cost = 0.5 * float(np.sum(est.prior_precision * (x - est.prior_mean) ** 2))
     solver = SolverResult(x, ne.cost + prior_cost, "converged",
                           f"EB-MAP: {est.passes} linearisation(s), effective parameters "
@@ -86,3 +87,16 @@ def map_fit_stage(setup: Setup, ident: Sequence[str], options: CalibrationOption
     if pre.solver.status != "converged":
         fit = replace(fit, solver=replace(solver, status=pre.solver.status, message=pre.solver.message))
     return MapFit(fit, problem, est, pre)
+
+
+@dataclass(frozen=True)
+class EBMap:
+    """The regularised estimator (EB-MAP, :func:`map_fit_stage`); ``source`` the measurements'
+    file, named in its errors."""
+
+    source: object = None
+    name: str = "eb-map"
+
+    def fit(self, setup: Setup, choice, options: CalibrationOptions, kin: ChainKinematics) -> Estimate:
+        regular = map_fit_stage(setup, choice.free, options, kin, rank_deficit=choice.deficit, source=self.source)
+        return Estimate(regular.fit, regular.problem, "eb-map", regular.estimate.to_dict())

@@ -6,15 +6,16 @@ cross-validated error (:mod:`calib.calibration.validation`), the selection rules
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
 
 from calib.calibration.accuracy import target_rows
-from calib.calibration.estimators.least_squares import Fit, Solver, fit_stage, fit_with, solver_for
+from calib.calibration.estimators.base import Estimate, Estimator, Fit
+from calib.calibration.estimators.least_squares import LeastSquares
 from calib.calibration.options import LOO_BELOW_ROWS, CalibrationOptions
-from calib.calibration.parameters import candidate_sets
+from calib.calibration.parameters import ParameterChoice, candidate_sets
 from calib.calibration.prepare import Setup
 from calib.calibration.cross_validation import CrossValidation
 from calib.calibration.validation import _standard_error, cross_validate
@@ -92,23 +93,17 @@ def _rule_name(rule) -> str:
 
 
 def select_model(setup: Setup, candidates: Sequence[tuple[str, tuple[str, ...]]], full: Fit,
-                 full_problem: Problem, solve: Solver, folds: int, kin: ChainKinematics,
+                 full_problem: Problem, refit: Callable[[tuple[str, ...]], tuple[Fit, Problem]], folds: int,
                  options: LMOptions, *, rule: Callable[[Sequence[Candidate]], Candidate] = lowest_score,
                  ) -> tuple[ModelSelection, dict[str, tuple[Fit, Problem]]]:
-    """Cross-validate each candidate set (label, names), smallest first, at the noise levels and
-    kept rows of ``full`` (the fit of the largest set) and choose by ``rule`` (a function of the
-    scored candidates returning one of them; default :func:`lowest_score`, as scikit-learn's
-    ``GridSearchCV(refit=callable)``). Returns the selection and the candidates' fits."""
-    sp, sr = full_problem.sigma_pos, full_problem.sigma_rot
+    """Cross-validate each candidate set (label, names), smallest first, fitted by ``refit(free)``
+    (the wrapped estimator at the noise levels and kept rows of ``full``, the fit of the largest
+    set), and choose by ``rule`` (a function of the scored candidates returning one of them;
+    default :func:`lowest_score`, as scikit-learn's ``GridSearchCV(refit=callable)``). Returns the
+    selection and the candidates' fits."""
     fits, cands = {}, []
     for label, free in candidates:
-        if tuple(free) == full.free:
-            fit, problem = full, full_problem
-        else:
-            s = solver_for(setup, free, solve.method, options, solve.max_rounds, solve.fixed_rounds,
-                            solve.lm_variant)
-            fit, problem = fit_stage(setup, free, s, sigma_pos=sp, sigma_rot=sr, outlier_k=None,
-                                     keep=full.keep, kin=kin)
+        fit, problem = (full, full_problem) if tuple(free) == full.free else refit(tuple(free))
         fits[label] = (fit, problem)
         try:
             cands.append(Candidate(label, tuple(free), cross_validate(setup, fit, problem, folds, options=options)))
@@ -134,18 +129,6 @@ def auto_candidates(setup: Setup, ident: Sequence[str], full: Fit,
                           None if rows is None else rows[keep])
 
 
-def fit_identifiable(setup: Setup, ident: Sequence[str], options: CalibrationOptions,
-                     kin: ChainKinematics) -> tuple[Fit, Problem, Solver]:
-    """The fit of the identifiable set ``ident`` that model selection starts from (noise
-    estimate, outlier check), its problem and its solver."""
-    solve = solver_for(setup, ident, options.method, options.lm, options.max_rounds, options.fixed_rounds,
-                       options.lm_variant)
-    full, problem = fit_stage(setup, ident, solve, sigma_pos=options.sigma_pos, sigma_rot=options.sigma_rot,
-                              loss=options.loss, loss_scale=options.loss_scale, outlier_k=options.outlier_k,
-                              kin=kin)
-    return full, problem, solve
-
-
 def selection_folds(full: Fit, options: CalibrationOptions) -> int:
     """The folds of model selection: leave-one-out on small sets (far less noisy than K folds at
     a few ms per refit), else the options' folds."""
@@ -153,22 +136,48 @@ def selection_folds(full: Fit, options: CalibrationOptions) -> int:
     return n if n <= LOO_BELOW_ROWS else options.folds
 
 
+@dataclass(frozen=True, eq=False)
+class SelectBest:
+    """Model selection (``params="auto"``) wrapping an estimator, as scikit-learn's
+    ``GridSearchCV`` wraps one: the estimator's fit of the identifiable set (its noise levels and
+    outlier check), each nested candidate set (:func:`auto_candidates`) refitted by the estimator
+    at those levels and kept rows and cross-validated (:func:`select_model`), the one ``rule``
+    chooses, fitted again at the options' noise levels (the full fit when it is the largest).
+
+    estimator : any estimator with ``fit`` and ``refit(setup, free, options, kin, *, keep,
+    levels)`` (:class:`~calib.calibration.estimators.least_squares.LeastSquares`)."""
+
+    estimator: Estimator = field(default_factory=LeastSquares)
+    rule: Callable[[Sequence[Candidate]], Candidate] = lowest_score
+    name: str = "select"
+
+    def fit(self, setup: Setup, choice: ParameterChoice, options: CalibrationOptions,
+            kin: ChainKinematics) -> Estimate:
+        inner = self.estimator
+        full = inner.fit(setup, choice, options, kin)
+        levels = (full.problem.sigma_pos, full.problem.sigma_rot)
+
+        def refit(free):
+            return inner.refit(setup, free, options, kin, keep=full.fit.keep, levels=levels)
+
+        selection, _ = select_model(setup, auto_candidates(setup, choice.free, full.fit, options), full.fit,
+                                    full.problem, refit, selection_folds(full.fit, options), options.lm,
+                                    rule=self.rule)
+        free = next(c.free for c in selection.candidates if c.label == selection.chosen)
+        fit, problem = full.fit, full.problem
+        if free != full.fit.free:
+            fit, problem = inner.refit(setup, free, options, kin, keep=full.fit.keep)
+            fit = replace(fit, outliers=full.fit.outliers, notes=full.fit.notes + fit.notes,
+                          unremoved=full.fit.unremoved, refusals=full.fit.refusals)
+        log.info("model selection: %s", selection.chosen)
+        label = f"auto: {selection.chosen}"
+        return Estimate(fit, problem, label, {"kind": inner.name, "param_set": label}, selection)
+
+
 def select_and_fit(setup: Setup, ident: Sequence[str], options: CalibrationOptions, kin: ChainKinematics, *,
                    rule: Callable[[Sequence[Candidate]], Candidate] = lowest_score,
                    ) -> tuple[ModelSelection, Fit, Problem]:
-    """Model selection ("auto"): the fit of the identifiable set ``ident``
-    (:func:`fit_identifiable`), :func:`select_model` among the nested :func:`auto_candidates` at
-    its noise levels and kept rows, and the fit of the chosen set (the full fit when it is the
-    largest)."""
-    full, full_problem, full_solve = fit_identifiable(setup, ident, options, kin)
-    selection, _ = select_model(setup, auto_candidates(setup, ident, full, options), full, full_problem,
-                                full_solve, selection_folds(full, options), kin, options.lm, rule=rule)
-    free = next(c.free for c in selection.candidates if c.label == selection.chosen)
-    if free == full.free:
-        fit, problem = full, full_problem
-    else:
-        fit, problem = fit_with(setup, free, options, outlier_k=None, keep=full.keep, kin=kin)
-        fit = replace(fit, outliers=full.outliers, notes=full.notes + fit.notes, unremoved=full.unremoved,
-                      refusals=full.refusals)
-    log.info("model selection: %s", selection.chosen)
-    return selection, fit, problem
+    """:class:`SelectBest` of least squares over the identifiable set ``ident``: the selection,
+    the fit of the chosen set and its problem."""
+    est = SelectBest(rule=rule).fit(setup, ParameterChoice("auto", tuple(ident)), options, kin)
+    return est.selection, est.fit, est.problem
