@@ -32,8 +32,7 @@ _HOME = {
     "io.csv.targets": ("CompensationTargets",),
     "io.csv.specs": ("read_measurements", "read_poses", "read_targets",
                  "write_compensation", "write_measurements", "write_poses"),
-    "calibration.accuracy": ("AccuracyStats", "evaluate"),
-    "calibration.target_accuracy": ("TargetAccuracy",),
+    "calibration.accuracy": ("AccuracyStats", "TargetAccuracy", "evaluate"),
     "calibration.result": ("CalibrationResult", "ParameterEstimate"),
     "calibration.pipeline": ("calibrate",),
     "model.simulate": ("PAPER_DEVIATIONS", "apply_deviations", "random_deviations", "simulate_measurements"),
@@ -52,6 +51,7 @@ _HOME = {
     "calibration.touch": ("TouchResult", "calibrate_touch"),
     "io.exports.export": ("ExportResult", "export_calibration"),
     "io.exports.mdh": ("read_mdh_csv",),
+    "memo": ("clear_caches",),
 }
 _MODULE_OF = {name: module for module, names in _HOME.items() for name in names}
 
@@ -88,5 +88,5 @@ __all__ = [
     "GravityModel", "Payload",
     "PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm",
     "Feature", "TouchData", "TouchResult", "calibrate_touch", "read_touch", "simulate_touch", "write_touch",
-    "ExportResult", "export_calibration", "read_mdh_csv",
+    "ExportResult", "export_calibration", "read_mdh_csv", "clear_caches",
 ]

@@ -171,3 +171,15 @@ def check_target_ids(targets: Any, n_rows: int, name: str = "targets") -> tuple[
     if len(ids) != n_rows or not all(isinstance(t, str) for t in ids):
         raise ParameterError(f"{name} must hold {n_rows} target ids (strings), one per row")
     return ids
+
+
+def check_transform(value: Any, name: str) -> np.ndarray:
+    """``value`` as a finite (4, 4) float array (a homogeneous transform), else
+    :class:`calib.ParameterError` naming ``name``."""
+    try:
+        T = np.array(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        T = None
+    if T is None or T.shape != (4, 4) or not np.isfinite(T).all():
+        raise ParameterError(f"{name} must be a finite (4, 4) homogeneous transform, got {value!r:.60}")
+    return T

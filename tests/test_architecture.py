@@ -27,9 +27,9 @@ def _modules() -> dict[str, Path]:
     return {_module_name(p): p for p in PACKAGE.rglob("*.py")}
 
 
-def _imports(path: Path, name: str, known: set[str]) -> set[str]:
+def _imports(path: Path, name: str, known: set[str], typing: bool = False) -> set[str]:
     """The calib modules ``path`` imports (``from calib.x import y`` counts calib.x.y when that
-    is a module), at any depth but those under ``if TYPE_CHECKING:``."""
+    is a module), at any depth; those under ``if TYPE_CHECKING:`` only with ``typing``."""
     is_pkg = path.name == "__init__.py"
     out = set()
     tree = ast.parse(path.read_text())
@@ -38,7 +38,7 @@ def _imports(path: Path, name: str, known: set[str]) -> set[str]:
                    and getattr(block.test, "id", getattr(block.test, "attr", None)) == "TYPE_CHECKING"
                    for stmt in block.body for n in ast.walk(stmt)}
     for node in ast.walk(tree):
-        if id(node) in typing_only:
+        if id(node) in typing_only and not typing:
             continue
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names if a.name.startswith("calib")}
@@ -70,11 +70,12 @@ def _wing(module: str) -> str:
     return parts[1] if len(parts) > 1 and parts[1] in WINGS else ""
 
 
-def _graph() -> dict[str, set[str]]:
+def _graph(typing: bool = False) -> dict[str, set[str]]:
+    """Module -> the calib modules it imports (with ``typing``, its TYPE_CHECKING imports too)."""
     mods = _modules()
     known = set(mods)
     # calib/__init__.py loads the public names lazily by name (PEP 562), not by import statements
-    return {m: _imports(p, m, known) - {"calib"} for m, p in mods.items()}
+    return {m: _imports(p, m, known, typing) - {"calib"} for m, p in mods.items()}
 
 
 def test_every_module_is_in_a_wing_or_the_base():
@@ -96,7 +97,9 @@ def test_no_import_between_peer_wings():
 
 
 def test_no_import_circle():
-    graph = _graph()
+    """No circle, TYPE_CHECKING imports included: a circle closed for the type checker only is
+    still two modules that cannot be read apart."""
+    graph = _graph(typing=True)
     index, low, stack, on, circles = {}, {}, [], set(), []
 
     def visit(v):        # Tarjan's strongly connected components
@@ -138,3 +141,86 @@ def test_the_checker_sees_an_upward_import(tmp_path):
 def test_no_module_exceeds_600_lines():
     long = sorted(f"{m}: {n}" for m, p in _modules().items() if (n := len(p.read_text().splitlines())) > 600)
     assert long == []
+
+
+def test_no_function_exceeds_100_lines():
+    long = []
+    for m, p in _modules().items():
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 100:
+                long.append(f"{m}.{node.name}: {node.end_lineno - node.lineno + 1}")
+    assert sorted(long) == []
+
+
+def test_no_folder_exceeds_16_modules_or_5000_lines():
+    """Each folder of the package, its own modules (not its subfolders'): a wing a reader can hold."""
+    big = []
+    for folder in [PACKAGE, *(d for d in PACKAGE.rglob("*") if d.is_dir() and d.name != "__pycache__")]:
+        mods = [p for p in folder.glob("*.py") if p.name != "__init__.py"]
+        lines = sum(len(p.read_text().splitlines()) for p in mods)
+        if len(mods) > 16 or lines > 5000:
+            big.append(f"{folder.relative_to(PACKAGE.parent)}: {len(mods)} modules, {lines} lines")
+    assert big == []
+
+
+#: Private names that one module may import from another (at most a handful, each with a reason).
+PRIVATE_IMPORTS_ALLOWED: set[tuple[str, str]] = set()
+
+
+def test_no_private_name_is_imported_across_modules():
+    """A leading underscore says "mine": another module importing it reaches into a module's
+    inside (dunders such as __version__ are public)."""
+    found = []
+    for m, p in _modules().items():
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("calib"):
+                for a in node.names:
+                    if a.name.startswith("_") and not a.name.startswith("__") \
+                            and (node.module, a.name) not in PRIVATE_IMPORTS_ALLOWED:
+                        found.append(f"{m}: {node.module}.{a.name}")
+    assert sorted(found) == []
+
+
+def test_frozen_instances_are_written_in_post_init_only():
+    """``object.__setattr__`` (the way around a frozen dataclass) only inside ``__post_init__``;
+    values computed from an immutable instance are cached properties, not writes into it."""
+    found = []
+    for m, p in _modules().items():
+        tree = ast.parse(p.read_text())
+        for fn in ast.walk(tree):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)) or fn.name == "__post_init__":
+                continue
+            for node in ast.walk(fn):
+                if isinstance(node, ast.Call) and ast.unparse(node.func) == "object.__setattr__":
+                    found.append(f"{m}.{fn.name}")
+                if isinstance(node, ast.Subscript) and isinstance(node.ctx, ast.Store) \
+                        and ast.unparse(node.value).endswith(".__dict__"):
+                    found.append(f"{m}.{fn.name}")
+    assert sorted(set(found)) == []
+
+
+def test_module_level_caches_are_memos():
+    """Module-level tables that a function fills are :class:`calib.memo.Memo` instances, owned
+    by ``calib.memo.MEMOS`` (one ``clear()``): no bare dict, list or OrderedDict filled at run
+    time, no functools cache. (The CLI's module state is a command's run state, reset by each
+    ``main()``: the signal received late, the files written.)"""
+    found = []
+    for m, p in _modules().items():
+        if _wing(m) == "cli":
+            continue
+        tree = ast.parse(p.read_text())
+        for node in tree.body:
+            target = node.targets[0] if isinstance(node, ast.Assign) else node.target if isinstance(node, ast.AnnAssign) else None
+            value = getattr(node, "value", None)
+            if target is None or value is None:
+                continue
+            text = ast.unparse(value)
+            if text in ("{}", "[]", "dict()", "list()", "set()", "OrderedDict()") or text.startswith("[None"):
+                found.append(f"{m}.{ast.unparse(target)}")
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                for d in node.decorator_list:
+                    if any(k in ast.unparse(d) for k in ("lru_cache", "functools.cache", "cache")) \
+                            and "cached_property" not in ast.unparse(d):
+                        found.append(f"{m}.{node.name} (@{ast.unparse(d)})")
+    assert sorted(found) == []

@@ -1,16 +1,17 @@
 """Pose errors of a model against measured poses (:class:`AccuracyStats`, :func:`evaluate`), their
-table, the rows' targets, and the best-fit registration of the measurement frame.
+table, the accuracy on each target's rows (:class:`TargetAccuracy`), the rows' targets, and the
+best-fit registration of the measurement frame.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from calib.calibration.frames import project_to_so3
-from calib.calibration.options import _check_compatible
+from calib.calibration.options import check_compatible
 from calib.model.measurements import check_measurements
 from calib.model.robot import check_robot
 from calib.checks import check_array
@@ -19,10 +20,6 @@ from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.model.spatial import log3_batch
-
-if TYPE_CHECKING:      # (built for multi-target calibrations only: calib.calibration.target_accuracy)
-    from calib.calibration.target_accuracy import TargetAccuracy
-
 
 # ====================================================================== accuracy
 @dataclass(frozen=True, eq=False)     # (array fields: compared by identity; nothing compares them)
@@ -91,6 +88,25 @@ class AccuracyStats:
                 "rotation_rad": self.rotation}
 
 
+
+
+@dataclass(frozen=True, eq=False)     # (AccuracyStats fields, themselves compared by identity; nothing compares them)
+class TargetAccuracy:
+    """Accuracy on the rows of one target of a multi-target calibration (see
+    :class:`AccuracyStats`): before / after on the calibration rows, and on the validation rows
+    (None without validation data)."""
+
+    target: str
+    before: AccuracyStats = field(repr=False)
+    after: AccuracyStats = field(repr=False)
+    validation_before: AccuracyStats | None = field(default=None, repr=False)
+    validation_after: AccuracyStats | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict:
+        return {"before": self.before.to_dict(), "after": self.after.to_dict(),
+                "validation": None if self.validation_after is None else {
+                    "before": self.validation_before.to_dict(), "after": self.validation_after.to_dict()}}
+
 def pose_errors(robot: RobotModel, Q: np.ndarray, position: np.ndarray,
                 rotation: np.ndarray | None, kin: ChainKinematics | None = None,
                 targets: np.ndarray | None = None) -> AccuracyStats:
@@ -112,7 +128,7 @@ def evaluate(robot: RobotModel, measurements: Measurements) -> AccuracyStats:
     """
     check_robot(robot)
     check_measurements(measurements)
-    _check_compatible(robot, measurements)
+    check_compatible(robot, measurements)
     robot = with_measured_targets(robot, measurements)
     return pose_errors(robot, measurements.q, measurements.position, measurements.rotation,
                        targets=target_rows(robot, measurements))
@@ -204,6 +220,8 @@ class BeforeAfter:
     val_rows: np.ndarray | None = field(default=None, repr=False)
     after: AccuracyStats | None = None
     validation_after: AccuracyStats | None = None
+    #: the nominal model those ``*_registered`` errors are of (None unless the frames were estimated)
+    registered: RobotModel | None = field(default=None, repr=False)
     targets: tuple[TargetAccuracy, ...] = ()
 
 
@@ -221,7 +239,7 @@ def accuracy_before(nominal: RobotModel, start: RobotModel, cal: Measurements, v
     if val is not None:
         val_rows = target_rows(nominal, val)
         vb = pose_errors(nominal, val.q, val.position, val.rotation, kin, val_rows)
-    breg = vbreg = None
+    breg = vbreg = registered = None
     if rebased:
         ref = nominal if tuple(rebased) == ("measurement->base",) else replace(
             nominal, T_flange_tool_ref=start.T_flange_tool_ref, T_flange_target_refs=start.T_flange_target_refs)
@@ -230,7 +248,7 @@ def accuracy_before(nominal: RobotModel, start: RobotModel, cal: Measurements, v
         breg = AccuracyStats.from_residuals(p - cal.position, dr)
         if val is not None:
             vbreg = pose_errors(registered, val.q, val.position, val.rotation, targets=val_rows)
-    return BeforeAfter(before, vb, breg, vbreg, cal_rows, val_rows)
+    return BeforeAfter(before, vb, breg, vbreg, cal_rows, val_rows, registered=registered)
 
 
 def accuracy_after(before: BeforeAfter, calibrated: RobotModel, after: AccuracyStats, val: Measurements | None,
@@ -241,8 +259,6 @@ def accuracy_after(before: BeforeAfter, calibrated: RobotModel, after: AccuracyS
     va = None
     if val is not None:
         va = pose_errors(calibrated, val.q, val.position, val.rotation, kin, before.val_rows)
-    if targets:
-        from calib.calibration.target_accuracy import TargetAccuracy
     per_target = tuple(
         TargetAccuracy(t, before.before.subset(before.cal_rows == k), after.subset(before.cal_rows == k),
                        None if val is None else before.validation_before.subset(before.val_rows == k),

@@ -15,7 +15,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from calib.calibration.validation import _held_out_factors
+from calib.calibration.validation import held_out_factors
 from calib.solvers.problem import Problem
 
 __all__ = ["INCONSISTENT_SHARE", "MOVED_FRAME_FACTOR", "held_out_residuals", "data_consistency",
@@ -52,7 +52,7 @@ def held_out_residuals(problem: Problem, x: np.ndarray, keep: np.ndarray,
         kept = keep[sl]
         e[sl] = r
         if kept.any():
-            e[sl][kept] = np.einsum("nij,nj->ni", _held_out_factors(Jw[kept], covariance), r[kept])
+            e[sl][kept] = np.einsum("nij,nj->ni", held_out_factors(Jw[kept], covariance), r[kept])
         start += len(r)
     dp = e[:, :3] * problem.sigma_pos
     return dp, (e[:, 3:] * problem.sigma_rot if k == 6 else None)

@@ -1,12 +1,12 @@
-"""The result of a cross-validation (:class:`CrossValidation`, made by
-:mod:`calib.calibration.validation`), in a module of its own: loaded when a calibration
-cross-validates, not by every one (a dataclass costs ~3M instructions to build at import)."""
+"""The results of a cross-validation (:class:`CrossValidation`, made by
+:mod:`calib.calibration.validation`) and of a model selection among candidate parameter sets
+(:class:`Candidate`, :class:`ModelSelection`, made by
+:mod:`calib.calibration.estimators.selection`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
-
 
 
 @dataclass(frozen=True, eq=False)     # (an array field: compared by identity; nothing compares them)
@@ -31,3 +31,41 @@ class CrossValidation:
                 "rotation_rms_rad": self.rotation_rms,
                 "per_fold": [{"rows": n, "position_rms_mm": p * 1e3, "rotation_rms_rad": r}
                              for n, p, r in self.per_fold]}
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate parameter set of the model selection and its cross-validated error."""
+
+    label: str
+    free: tuple[str, ...]
+    cv: CrossValidation
+
+
+@dataclass(frozen=True)
+class ModelSelection:
+    """``params="auto"``: the candidates (smallest first), the chosen one, the one of lowest
+    cross-validated score (``best``) and the selection rule's name (by default
+    :func:`lowest_score`: ``chosen`` is ``best``)."""
+
+    candidates: tuple[Candidate, ...]
+    chosen: str
+    best: str
+    rule: str = "lowest score"
+
+    def to_dict(self) -> dict:
+        return {"chosen": self.chosen, "best": self.best, "rule": self.rule,
+                "candidates": [{"label": c.label, "n_free": len(c.free), "score": c.cv.score,
+                                "score_se": c.cv.score_se, "position_rms_mm": c.cv.position_rms * 1e3,
+                                "rotation_rms_rad": c.cv.rotation_rms} for c in self.candidates]}
+
+    def format(self) -> str:
+        lines = [f"model selection ({self.candidates[0].cv.folds}-fold cross-validation, rule: {self.rule}; "
+                 f"score: mean noise-weighted squared held-out error per row):",
+                 f"  {'candidate':<26}{'params':>7}{'score':>10}{'+-se':>9}{'pos rms/mm':>12}{'rot rms/rad':>13}"]
+        for c in self.candidates:
+            rot = "-" if c.cv.rotation_rms is None else f"{c.cv.rotation_rms:.3e}"
+            mark = "  <- chosen" if c.label == self.chosen else ("  (lowest)" if c.label == self.best else "")
+            lines.append(f"  {c.label:<26}{len(c.free):>7}{c.cv.score:>10.3f}{c.cv.score_se:>9.3f}"
+                         f"{c.cv.position_rms * 1e3:>12.4f}{rot:>13}{mark}")
+        return "\n".join(lines)

@@ -112,7 +112,7 @@ LOO_BELOW_ROWS = 80
 
 
 # ====================================================================== stages
-def _check_compatible(robot: RobotModel, m: Measurements) -> None:
+def check_compatible(robot: RobotModel, m: Measurements) -> None:
     if m.n_joints != robot.n_joints:
         raise DataError(f"the measurements have {m.n_joints} joint values per pose, the robot "
                         f"{robot.n_joints} joints ({', '.join(robot.joint_names)})")

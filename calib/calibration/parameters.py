@@ -17,14 +17,15 @@ from calib.calibration.options import (
     PARAM_SETS,
     CalibrationOptions,
 )
-from calib.calibration.prepare import FRAME_MEMO_MAX_ROWS, Setup, _robot_memo, check_data_rank
+from calib.calibration.prepare import FRAME_MEMO_MAX_ROWS, Setup, robot_memo, check_data_rank
 from calib.errors import DataError, ParameterError
-from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, content_digest, identifiable_names
+from calib.memo import content_digest
+from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, identifiable_names
 from calib.model.robot import RobotModel
 
 
 # ---------------------------------------------------------------- parameter sets
-def _idealised(robot: RobotModel) -> RobotModel:
+def idealised(robot: RobotModel) -> RobotModel:
     """The model with its small deviations removed: angles within 0.05 rad of a multiple of pi/2
     and lengths within 1 mm of zero snapped there. Which parameters tie to which is decided on
     this model, so that it does not depend on where a perturbed model happens to be linearised."""
@@ -48,7 +49,7 @@ def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: 
                      sigma_rot: float = SIGMA_ROT_RAD, targets: np.ndarray | None = None) -> tuple[str, ...]:
     """The identifiable parameter names at configurations Q (N, n) (see
     :func:`calib.model.identifiability_report.analyze_identifiability`), chosen start-independently: the
-    partners to hold fixed are picked on the idealised model (:func:`_idealised`) and kept when
+    partners to hold fixed are picked on the idealised model (:func:`idealised`) and kept when
     they are also a valid choice at ``robot``; the rank is ``robot``'s. targets: (N,) each
     row's target index for a multi-target model.
 
@@ -57,7 +58,7 @@ def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: 
     target's v absorbs exactly), never coordinates of single targets (a gauge that turns singular
     as the fit moves)."""
     first = [p.name for p in robot.parameters if p.group == "v"] if robot.targets else None
-    ideal = identifiable_names(_idealised(robot), Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
+    ideal = identifiable_names(idealised(robot), Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
                                targets=targets, priority=first)
     return identifiable_names(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
                               priority=ideal, targets=targets)
@@ -66,13 +67,13 @@ def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: 
 def _identifiable_set_of(robot: RobotModel, Q: np.ndarray, measure: str, weights: tuple[float, float],
                          targets: np.ndarray | None) -> tuple[str, ...]:
     """:func:`identifiable_set`, kept by content for up to FRAME_MEMO_MAX_ROWS rows with the
-    model's other results (:func:`calib.calibration.prepare._robot_memo`): asked again for the same
+    model's other results (:func:`calib.calibration.prepare.robot_memo`): asked again for the same
     model and configurations it costs a digest of the configurations, not the idealised model
     and two keyed look-ups of the identifiability cache."""
     if len(Q) > FRAME_MEMO_MAX_ROWS:
         return identifiable_set(robot, Q, measure, *weights, targets)
     options = (content_digest(np.asarray(Q, float), targets), measure, float(weights[0]), float(weights[1]))
-    return _robot_memo("identifiable set", robot, options,
+    return robot_memo("identifiable set", robot, options,
                        lambda: identifiable_set(robot, Q, measure, *weights, targets))
 
 
@@ -119,14 +120,14 @@ def _maximal_subset(robot: RobotModel, names: Sequence[str], Q: np.ndarray, meas
     ``names`` first, frames first among them (the targets' v, then u, then the structural
     parameters in the default order), so that a tied pair loses its structural partner, never
     the frame parameter a smaller set needs to place the tool. The partners are picked on the
-    idealised model (:func:`_idealised`, as :func:`identifiable_set` does) and kept when they are
+    idealised model (:func:`idealised`, as :func:`identifiable_set` does) and kept when they are
     also a valid choice at ``robot``. Returns the kept names in ``robot.names`` order."""
     group = {p.name: p.group for p in robot.parameters}
     want = set(names)
     order = ([n for n in robot.names if n in want and group[n] == "v"]
              + [n for n in robot.names if n in want and group[n] == "u"]
              + [n for n in robot.names if n in want and group[n] not in ("u", "v")])
-    ideal = set(identifiable_names(_idealised(robot), Q, measure=measure, sigma_pos=sigma_pos,
+    ideal = set(identifiable_names(idealised(robot), Q, measure=measure, sigma_pos=sigma_pos,
                                    sigma_rot=sigma_rot, targets=targets, priority=order))
     first = [n for n in order if n in ideal]
     kept = set(identifiable_names(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,

@@ -227,4 +227,5 @@ def make_result(setup: Setup, est: Estimate, stats: Statistics, opts: Calibratio
         validation_before_registered=accuracy.validation_before_registered, targets=accuracy.targets,
         after_without_outliers=errors.subset(fit.keep) if fit.outliers else None,
         estimated_frames=setup.rebased, predicted_workspace=stats.predicted_workspace,
-        consistency=stats.consistency, estimator=est.record, measurement_frame=mframe)
+        consistency=stats.consistency, estimator=est.record, measurement_frame=mframe,
+        nominal_registered=accuracy.registered)

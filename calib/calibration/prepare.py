@@ -4,7 +4,6 @@ frames; plus what depends only on the robot model, kept for the next calibration
 """
 from __future__ import annotations
 
-from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
@@ -17,11 +16,11 @@ from calib.calibration.options import (
     FRAME_REBASE_M,
     FRAME_REBASE_RAD,
     TRACKER_RANGE_M,
-    _check_compatible,
+    check_compatible,
 )
 from calib.errors import DataError, ParameterError
+from calib.memo import Memo, content_digest
 from calib.model.identifiability import (
-    content_digest,
     kept_weighted_jacobian,
     SIGMA_POS_M,
     SIGMA_ROT_RAD,
@@ -67,13 +66,13 @@ def prepare(robot: RobotModel, measurements: Measurements, validation: Measureme
     """The prepare stage: rows, what is measured, closed-form frames (see the module docstring).
     Returns the :class:`Setup` and notes for the user. Data of several targets give the nominal
     model one flange->target transform per target (:func:`with_measured_targets`)."""
-    _check_compatible(robot, measurements)
+    check_compatible(robot, measurements)
     robot = with_measured_targets(robot, measurements, validation)
     notes: list[str] = []
     cal = measurements.calibration()
     val = measurements.validation()
     if validation is not None:
-        _check_compatible(robot, validation)
+        check_compatible(robot, validation)
         if val is not None and val.n_poses:
             notes.append(f"the {val.n_poses} 'val' rows of the measurements are held out; the "
                          f"validation statistics use the separate validation set")
@@ -213,7 +212,7 @@ def _duplicate_row_notes(cal: Measurements, val: Measurements | None) -> list[st
     return notes
 
 
-_DISTINCT_LAST: list = [None, 0]
+DISTINCT_LAST = Memo("distinct configurations", 1)
 
 
 def distinct_configurations(Q: np.ndarray, tol: float = DISTINCT_Q_TOL) -> int:
@@ -223,10 +222,9 @@ def distinct_configurations(Q: np.ndarray, tol: float = DISTINCT_Q_TOL) -> int:
         return 0
     Q = np.ascontiguousarray(Q, float)
     key = (Q.shape, hash(Q.tobytes()), tol)       # (as the torque cache keys its arrays)
-    if _DISTINCT_LAST[0] == key:
-        return _DISTINCT_LAST[1]
-    _DISTINCT_LAST[:] = [key, _distinct(Q, tol)]
-    return _DISTINCT_LAST[1]
+    if key in DISTINCT_LAST:
+        return DISTINCT_LAST.get(key)
+    return DISTINCT_LAST.put(key, _distinct(Q, tol))
 
 
 def _distinct(Q: np.ndarray, tol: float) -> int:
@@ -238,40 +236,23 @@ def _distinct(Q: np.ndarray, tol: float) -> int:
 
 
 #: Results that depend only on the robot model (structure, values, frames, limits, gravity) and
-#: options, kept for the next calibrations of the same model: see :func:`_robot_memo`.
-_ROBOT_MEMO: OrderedDict = OrderedDict()
+#: options, kept for the next calibrations of the same model: see :func:`robot_memo`.
+ROBOT_RESULTS = Memo("robot results", 64, lru=True)
 #: The most calibration rows whose closed-form frame estimate is kept (:func:`_frame_estimate`).
 FRAME_MEMO_MAX_ROWS = 10_000
 
 
-def _robot_key(robot: RobotModel) -> tuple:
-    """What the results of :func:`_robot_memo` depend on: the model's structure, values, frames,
-    limits and gravity (a digest); kept on the (immutable) model, so that asking again costs
-    nothing (:meth:`RobotModel.with_values` makes a model without it)."""
-    key = robot.__dict__.get("_memo_key")
-    if key is None:
-        from calib.model.identifiability import _cache_key
-
-        limits = np.stack([robot.lower, robot.upper])
-        key = _cache_key(robot, limits, "pose", 1.0, 1.0, 1.0, None, None)
-        robot.__dict__["_memo_key"] = key
-    return key
+def robot_memo(kind: str, robot: RobotModel, options: tuple, compute):
+    """``compute()``, or its value from an earlier call with the same ``kind``, model (its
+    :attr:`~calib.model.robot.RobotModel.content_key`: structure, values, frames, limits and
+    gravity) and ``options`` (the last 64 kept)."""
+    key = (kind, robot.content_key, options)
+    if key in ROBOT_RESULTS:
+        return ROBOT_RESULTS.get(key)
+    return ROBOT_RESULTS.put(key, compute())
 
 
-def _robot_memo(kind: str, robot: RobotModel, options: tuple, compute):
-    """``compute()``, or its value from an earlier call with the same ``kind``, model and
-    ``options`` (the last 64 kept)."""
-    key = (kind, _robot_key(robot), options)
-    if key in _ROBOT_MEMO:
-        _ROBOT_MEMO.move_to_end(key)
-        return _ROBOT_MEMO[key]
-    value = _ROBOT_MEMO[key] = compute()
-    while len(_ROBOT_MEMO) > 64:
-        _ROBOT_MEMO.popitem(last=False)
-    return value
-
-
-def _reach(robot: RobotModel) -> float:
+def robot_reach(robot: RobotModel) -> float:
     """The farthest tool position from the meas frame's origin over 256 random configurations
     (seed 0), metres."""
     _, p = ChainKinematics(robot).frame_poses(robot.random_configurations(256, 0))
@@ -282,7 +263,7 @@ def _check_plausible_positions(robot: RobotModel, m: Measurements) -> None:
     """Refuse positions no tracker could have measured of this robot: farther from the meas
     frame's origin than the robot's reach (the farthest tool position over random
     configurations, from the nominal meas frame) plus :data:`TRACKER_RANGE_M`."""
-    reach = _robot_memo("reach", robot, (), lambda: _reach(robot))
+    reach = robot_memo("reach", robot, (), lambda: robot_reach(robot))
     bound = reach + TRACKER_RANGE_M
     dist = np.linalg.norm(m.position, axis=1)
     bad = np.flatnonzero(~(dist <= bound))
@@ -324,7 +305,7 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
     # both ranks are kept per model (and data): a calibration repeated on the same data, e.g.
     # with another method, does not redo them
     digest = content_digest(np.asarray(Q, float), None if rows is None else np.asarray(rows, np.int64))
-    kept_d = _robot_memo("data rank", robot, options + (digest,), data_rank)
+    kept_d = robot_memo("data rank", robot, options + (digest,), data_rank)
 
     # the targets these rows measure (a target measured only in validation rows is not calibrated:
     # its frame is not asked of the calibration rows)
@@ -337,7 +318,7 @@ def check_data_rank(robot: RobotModel, m: Measurements, measure: str, free: Sequ
         Jr = weighted_jacobian(robot, np.repeat(Qr, K, axis=0), measure, sigma_pos, sigma_rot, every)[:, cols]
         return tuple(select_identifiable(Jr, range(len(cols)))[0])
 
-    kept_r = _robot_memo("random rank", robot, options + (present,), random_rank)
+    kept_r = robot_memo("random rank", robot, options + (present,), random_rank)
     if len(kept_d) < len(kept_r):
         lost = [robot.names[cols[k]] for k in kept_r if k not in set(kept_d)]
         n_q = distinct_configurations(m.q)
@@ -393,7 +374,7 @@ def _rebase_frames(robot: RobotModel, m: Measurements, notes: list, always: bool
 
 
 def _frame_estimate(robot: RobotModel, m: Measurements, kin: ChainKinematics | None):
-    """:func:`estimate_frames_robust` of the rows of ``m``, kept by content (:func:`_robot_memo`).
+    """:func:`estimate_frames_robust` of the rows of ``m``, kept by content (:func:`robot_memo`).
     A model whose joint terms are all zero has its geometry's kinematics and the same estimate:
     the choice of joint terms prepares the geometric model, calibrate then the chosen one on the
     same rows (the 1,402 iiwa rows: one estimate instead of two). Kept up to
@@ -407,7 +388,7 @@ def _frame_estimate(robot: RobotModel, m: Measurements, kin: ChainKinematics | N
         terms = np.concatenate([robot.compliances(), robot.periodic_values()])
         if not np.any(terms != 0.0):
             geo = robot.geometry()
-    return _robot_memo("frames", geo, (content_digest(m.q, m.position, m.rotation, rows),),
+    return robot_memo("frames", geo, (content_digest(m.q, m.position, m.rotation, rows),),
                        lambda: estimate_frames_robust(robot, m.q, m.position, m.rotation, rows, kin=kin))
 
 

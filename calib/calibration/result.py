@@ -20,10 +20,9 @@ from calib.model.spatial import zyx_parameters
 
 if TYPE_CHECKING:           # (calib.calibration.base_frame is loaded when a calibration reports the frame)
     from calib.calibration.base_frame import MeasurementFrame
-    from calib.calibration.cross_validation import CrossValidation
+    from calib.calibration.cross_validation import CrossValidation, ModelSelection
     from calib.calibration.estimators.outlier import Outlier
-    from calib.calibration.target_accuracy import TargetAccuracy
-    from calib.calibration.estimators.selection import ModelSelection
+    from calib.calibration.accuracy import TargetAccuracy
 
 
 # ====================================================================== result
@@ -80,6 +79,9 @@ class CalibrationResult:
     frame in it with its covariance (:class:`calib.calibration.base_frame.MeasurementFrame`):
     ``robot`` predicts tool poses in the meas frame; :meth:`base_robot` in the robot's base frame,
     which is what the calibrated URDF holds; None otherwise (meas frame = base frame).
+    nominal_registered : the nominal model that ``before_registered`` is of: its measurement
+    frame registered by a best fit, its tool or targets where the closed-form estimate put them
+    (None unless the frames were estimated).
     estimated_frames : the frames estimated in closed form because the data put them far from the
     nominal ones ("measurement->base", "flange->tool" or "flange-><id>" per target; () if none):
     the calibrated model's base frame is then the instrument's, its tool the measured point.
@@ -137,6 +139,7 @@ class CalibrationResult:
     consistency: dict | None = field(default=None, repr=False)
     estimator: dict | None = None
     measurement_frame: MeasurementFrame | None = field(default=None, repr=False)
+    nominal_registered: RobotModel | None = field(default=None, repr=False)
 
     def base_robot(self) -> RobotModel:
         """The calibrated model with its tool poses in the robot's base frame: ``robot`` itself,

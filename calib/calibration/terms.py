@@ -25,7 +25,7 @@ from calib.calibration.estimators.least_squares import fit_with
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
-from calib.calibration.validation import (_standard_error, fold_labels, fold_normal_equations, held_out_summary,
+from calib.calibration.validation import (standard_error, fold_labels, fold_normal_equations, held_out_summary,
                                           newton_held_out)
 from calib.errors import DataError, ParameterError
 from calib.model.kinematics import ChainKinematics
@@ -496,7 +496,7 @@ def _table(cands, frees, scored) -> tuple[list, dict]:
             cv = scored[label][0]
             rows[label] = cv.row_scores
             table.append(TermScore(label, c, p, len(free), cv.position_rms, cv.rotation_rms, cv.score,
-                                   _standard_error(cv.row_scores - geo)))
+                                   standard_error(cv.row_scores - geo)))
     return table, rows
 
 
@@ -536,7 +536,7 @@ def _comparisons(table, row_scores: dict):
     best = table[0]
     for t in sorted(table[1:], key=lambda t: t.n_free):
         d = row_scores[best.label] - row_scores[t.label]
-        margin = float(np.mean(d) - TERMS_MIN_SE * _standard_error(d))
+        margin = float(np.mean(d) - TERMS_MIN_SE * standard_error(d))
         yield t, margin
         if margin > 0:
             best = t

@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from calib.calibration.parameters import _idealised
+from calib.calibration.parameters import idealised
 from calib.checks import check_instance
 from calib.errors import DataError, ParameterError
 from calib.model.identifiability import RANK_TOL, no_effect, select_identifiable
@@ -155,7 +155,7 @@ def touch_identifiability(robot: RobotModel, data: TouchData, *, params: str = "
     if robot.targets:
         raise ParameterError("touch data calibrate a robot with one tool point; this model has several "
                              f"targets ({', '.join(robot.targets)})")
-    model = _idealised(robot)
+    model = idealised(robot)
     if params == "tool":
         candidates = [model.index(n) for n in model.v_names()[:3]]
         if data.n_measured:     # (the instrument's frame is unknown: the measured rows need u)

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from calib.memo import Memo
 from calib.calibration.estimators.base import Fit
 from calib.calibration.options import CV_FOLDS
 from calib.calibration.prepare import Setup
@@ -19,8 +20,7 @@ from calib.solvers.inverse import normal_inverse
 from calib.solvers.problem import Problem
 
 if TYPE_CHECKING:
-    from calib.calibration.cross_validation import CrossValidation
-    from calib.calibration.estimators.selection import ModelSelection
+    from calib.calibration.cross_validation import CrossValidation, ModelSelection
 
 
 def _hat_blocks(Jw: np.ndarray, C: np.ndarray) -> np.ndarray:
@@ -30,7 +30,7 @@ def _hat_blocks(Jw: np.ndarray, C: np.ndarray) -> np.ndarray:
     return (Jw.reshape(n * k, m) @ C).reshape(n, k, m) @ np.transpose(Jw, (0, 2, 1))
 
 
-def _held_out_factors(Jw: np.ndarray, C: np.ndarray, H: np.ndarray | None = None) -> np.ndarray:
+def held_out_factors(Jw: np.ndarray, C: np.ndarray, H: np.ndarray | None = None) -> np.ndarray:
     """(n, k, k): (I - H_ii)^-1 for each row's whitened Jacobian block Jw (n, k, m), H_ii = Jw_i C
     Jw_i^T its block of the hat matrix (``H`` when already made): a kept row's held-out
     (leave-one-out) residual is this times its residual. A leverage reaching 1 (the row alone
@@ -65,7 +65,7 @@ def row_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, f
     for _, Jw, J in problem.whitened_blocks(x, raw=True):
         k = Jw.shape[1]
         H = _hat_blocks(Jw, C)
-        d = np.diagonal(_held_out_factors(Jw, C, H), axis1=1, axis2=2)
+        d = np.diagonal(held_out_factors(Jw, C, H), axis1=1, axis2=2)
         t_p += float(d[:, :3].sum())
         t_r += float(d[:, 3:].sum())
         e_p += float(np.trace(H[:, :3, :3], axis1=1, axis2=2).sum())
@@ -120,19 +120,17 @@ def fold_labels(n: int, folds: int, seed: int = 0) -> np.ndarray:
     """(n,) the fold of each of n rows: a random permutation (``seed``) dealt into ``folds``
     (the labels of the last few (n, folds, seed) kept: a generator costs more than the deal)."""
     key = (int(n), int(folds), seed) if type(seed) is int else None     # (a Generator, None: drawn)
-    fold_of = _FOLD_LABELS.get(key)
+    fold_of = None if key is None else FOLD_LABELS.get(key)
     if fold_of is None:
         fold_of = np.empty(n, int)
         fold_of[np.random.default_rng(seed).permutation(n)] = np.arange(n) % folds
         fold_of.setflags(write=False)
         if key is not None:
-            _FOLD_LABELS[key] = fold_of
-            while len(_FOLD_LABELS) > 8:
-                _FOLD_LABELS.pop(next(iter(_FOLD_LABELS)))
+            FOLD_LABELS.put(key, fold_of)
     return fold_of.copy()
 
 
-_FOLD_LABELS: dict = {}
+FOLD_LABELS = Memo("fold labels", 8)
 
 
 def fold_normal_equations(blocks, fold_of: np.ndarray, folds: int) -> tuple[np.ndarray, np.ndarray]:
@@ -230,7 +228,7 @@ def held_out_summary(fold_of: np.ndarray, folds: int, e_p: np.ndarray, e_r: np.n
     from calib.calibration.cross_validation import CrossValidation
 
     return CrossValidation(folds, math.sqrt(_mean(e_p)), math.sqrt(_mean(e_r)) if has_rot else None,
-                           tuple(per_fold), _mean(score), _standard_error(score), score)
+                           tuple(per_fold), _mean(score), standard_error(score), score)
 
 
 def _mean(x: np.ndarray) -> float:
@@ -239,7 +237,7 @@ def _mean(x: np.ndarray) -> float:
     return float(np.add.reduce(x)) / len(x) if len(x) else math.nan
 
 
-def _standard_error(values: np.ndarray) -> float:
+def standard_error(values: np.ndarray) -> float:
     """The standard error of the mean of ``values`` (1-D): np.std(ddof=1) / sqrt(n), its sums as
     np.std makes them (the mean, the squared deviations summed, / (n - 1)) without its wrapper."""
     values = np.asarray(values, float)

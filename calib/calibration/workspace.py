@@ -17,7 +17,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from calib.errors import DataError
-from calib.memo import kept
+from calib.memo import Memo
 from calib.model.jacobian import pose_jacobian
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -108,10 +108,10 @@ def workspace_configurations(robot: RobotModel, n: int = WORKSPACE_CONFIGURATION
         Q.setflags(write=False)
         return Q
 
-    return kept(_DRAWS, (lo.tobytes(), hi.tobytes(), int(n), int(seed)), draw).copy()
+    return DRAWS.kept((lo.tobytes(), hi.tobytes(), int(n), int(seed)), draw).copy()
 
 
-_DRAWS: dict = {}
+DRAWS = Memo("workspace draws", 8)
 
 
 #: Bins of the circle when measuring the arc that angles cover (in O(N), not a sort: a 1M-row

@@ -82,7 +82,7 @@ def read_compliance(path: str | Path) -> ComplianceRecord:
     and what was expected."""
     import json
 
-    from calib.model.compliance import Payload, _finite_vector
+    from calib.model.compliance import Payload, finite_vector
 
     path = Path(path)
     try:
@@ -104,7 +104,7 @@ def read_compliance(path: str | Path) -> ComplianceRecord:
             values = np.array([float(v) for v in vals])
             pl = rec.get("payload")
             payload = None if pl is None else Payload(pl["mass_kg"], np.asarray(pl["com_mm"], float) * 1e-3)
-            gravity = _finite_vector(rec["gravity_m_s2"], "gravity_m_s2")
+            gravity = finite_vector(rec["gravity_m_s2"], "gravity_m_s2")
         if rec["format"] == SIDECAR_FORMAT_PERIODIC:
             periodic = {str(k): float(v) for k, v in rec["periodic"].items()}
     except (KeyError, TypeError, ValueError, AttributeError) as exc:

@@ -121,4 +121,8 @@ class UrdfSource(Protocol):
     def link_masses(self) -> np.ndarray:
         """(n,) kg: the masses the URDF gives the chain's moving links."""
 
+    @property
+    def gravity_models(self) -> dict:
+        """The gravity models kept with the chain (payload and gravity -> model)."""
+
     def configuration(self, q: np.ndarray) -> np.ndarray: ...

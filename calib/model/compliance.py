@@ -69,27 +69,21 @@ _CACHE_SIZE = 16
 _ROW_MEMO_SIZE = 200_000
 #: Gravity models kept for the next request of the same chain, payload and gravity (with their
 #: torque caches): the joint-term candidates and the final fit of one calibration, and the next
-#: calibrations of the same arm, compute the torques of a data set once. Kept on the chain itself
-#: (_KEPT_ON), so that they go with it: a process-wide table held every data set's torque memo
-#: (~0.24 KB a row: 95 MB for 400k rows) after the caller had dropped the robot and the result.
+#: calibrations of the same arm, compute the torques of a data set once. Kept with the chain itself
+#: (its ``gravity_models``, :class:`calib.model.chain.UrdfSource`), so that they go with it: a
+#: process-wide table held every data set's torque memo (~0.24 KB a row: 95 MB for 400k rows)
+#: after the caller had dropped the robot and the result.
 _MODELS_KEPT = 8
-_KEPT_ON = "_calib_gravity_models"
 
 
 def _kept_models(chain) -> dict | None:
-    """The gravity models kept on ``chain`` (payload and gravity -> model), made on first use;
-    None for a chain that cannot hold them (then nothing is kept)."""
-    kept = getattr(chain, _KEPT_ON, None)
-    if kept is None:
-        kept = {}
-        try:
-            object.__setattr__(chain, _KEPT_ON, kept)     # (a frozen dataclass: its own cache)
-        except (AttributeError, TypeError):
-            return None
-    return kept
+    """The gravity models kept with ``chain`` (payload and gravity -> model); None for a source
+    that keeps none (then nothing is kept)."""
+    kept = getattr(chain, "gravity_models", None)
+    return kept if isinstance(kept, dict) else None
 
 
-def _finite_vector(value, name: str, size: int = 3) -> np.ndarray:
+def finite_vector(value, name: str, size: int = 3) -> np.ndarray:
     try:
         v = np.asarray(value, float).reshape(-1)
     except (TypeError, ValueError):
@@ -114,7 +108,7 @@ class Payload:
                 or not math.isfinite(m) or m < 0:
             raise ParameterError(f"payload mass must be a finite number of kg >= 0, got {m!r}")
         object.__setattr__(self, "mass", float(m))
-        c = _finite_vector(self.com_tool, "payload centre of mass")
+        c = finite_vector(self.com_tool, "payload centre of mass")
         c.setflags(write=False)
         object.__setattr__(self, "com_tool", c)
 
@@ -190,7 +184,7 @@ class GravityModel:
                                  f"got {type(chain).__name__}")
         if payload is not None and not isinstance(payload, Payload):
             raise ParameterError(f"payload must be a calib.model.compliance.Payload, got {type(payload).__name__}")
-        g = np.array([0.0, 0.0, -STANDARD_GRAVITY]) if gravity is None else _finite_vector(gravity, "gravity")
+        g = np.array([0.0, 0.0, -STANDARD_GRAVITY]) if gravity is None else finite_vector(gravity, "gravity")
         first = chain.joint_ids[0]
         link_mass = float(sum(chain.model.inertias[j].mass for j in chain.model.subtrees[first]))
         _check_physical(payload, g, link_mass)

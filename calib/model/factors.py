@@ -4,11 +4,11 @@ parameter, the form the batch kinematics (:mod:`calib.model.kinematics`) and the
 (:mod:`calib.solvers.angles`) compute with."""
 from __future__ import annotations
 
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 
+from calib.memo import Memo
 from calib.model.chain import U_NAMES
 from calib.model.robot import RobotModel
 
@@ -40,7 +40,7 @@ def _pre_factors(robot: RobotModel, joint: int) -> list[_Factor]:
 
 
 #: The factors of the last few chain structures (see :func:`placement_factors`).
-_FACTORS: OrderedDict = OrderedDict()
+FACTORS = Memo("placement factors", 32, lru=True)
 
 
 def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
@@ -51,14 +51,7 @@ def placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:
     refs = robot.T_flange_target_refs if robot.T_flange_target_refs is not None else robot.T_flange_tool_ref
     key = (robot.names, tuple((j.name, j.kind) for j in robot.joints), robot.T_meas_base_ref.tobytes(),
            np.ascontiguousarray(refs).tobytes())
-    hit = _FACTORS.get(key)
-    if hit is not None:
-        _FACTORS.move_to_end(key)
-        return hit
-    hit = _FACTORS[key] = _placement_factors(robot)
-    while len(_FACTORS) > 32:
-        _FACTORS.popitem(last=False)
-    return hit
+    return FACTORS.kept(key, lambda: _placement_factors(robot))
 
 
 def _placement_factors(robot: RobotModel) -> tuple[tuple[_Factor, ...], ...]:

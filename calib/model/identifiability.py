@@ -34,19 +34,14 @@ This module holds the selection every calibration makes (:func:`select_identifia
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 from typing import Sequence
 
 import numpy as np
 
-try:        # hashlib's own blake2b, without hashlib loading OpenSSL's libcrypto (11M instructions)
-    from _blake2 import blake2b
-except ImportError:                                                 # pragma: no cover
-    from hashlib import blake2b
-
 from calib.checks import check_configurations, check_int, check_number, check_rng, check_target_indices
 from calib.model.robot import MAX_CONFIGURATIONS, check_robot
 from calib.errors import DataError, ParameterError
+from calib.memo import Memo, content_digest
 from calib.model.jacobian import MEASURES, identification_jacobian
 from calib.model.robot import RobotModel
 from calib.model.jacobian import NO_EFFECT_RTOL
@@ -58,7 +53,11 @@ SIGMA_ROT_RAD = 0.002
 RANK_TOL = 1e-6
 #: How many analyses :func:`analyze_identifiability` keeps for repeated calls.
 CACHE_SIZE = 64
-_cache: OrderedDict = OrderedDict()
+#: The reports (and identifiable names) of the last CACHE_SIZE analyses.
+ANALYSES = Memo("identifiability", CACHE_SIZE, lru=True)
+#: (the cache key of a Jacobian without the priority, the noise-weighted Jacobian) of the last
+#: :func:`identifiable_names` that computed one.
+LAST_JACOBIAN = Memo("identifiability jacobian", 1)
 
 
 def weighted_jacobian(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float,
@@ -126,34 +125,26 @@ def identifiable_names(robot: RobotModel, Q: np.ndarray, *, measure: str = "pose
     report: the rank-revealing selection alone. The names are kept by content as the reports
     are, and the last noise-weighted Jacobian is reused for a call that differs from the one
     that computed it only by ``priority`` (the same model values, configurations and options)."""
-    global _last_jacobian
-    Q, targets = _checked_rows(robot, Q, measure, 100, 0, tol, sigma_pos, sigma_rot, priority, max_poses, targets)
-    key = _cache_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
-    report = _cache.get(key)
+    Q, targets = checked_rows(robot, Q, measure, 100, 0, tol, sigma_pos, sigma_rot, priority, max_poses, targets)
+    key = analysis_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
+    report = ANALYSES.get(key)
     if report is not None:
-        _cache.move_to_end(key)
         return report.identifiable
     names_key = ("names",) + key
-    names = _cache.get(names_key)
+    names = ANALYSES.get(names_key)
     if names is not None:
-        _cache.move_to_end(names_key)
         return names
-    J = _last_jacobian[1] if _last_jacobian[0] == key[:-1] else None
+    J = LAST_JACOBIAN.get(key[:-1])
     if J is None:
         J = weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot, targets)
         J.setflags(write=False)         # (kept: handed out again by kept_weighted_jacobian)
-        _last_jacobian = (key[:-1], J)
+        LAST_JACOBIAN.put(key[:-1], J)
     order = list(robot.indices(priority)) if priority else []
     order += [k for k in range(robot.n_params) if k not in order]
     kept, _ = select_identifiable(J, order, tol)
     names = tuple(robot.names[k] for k in sorted(kept))
-    _keep(names_key, names)
+    ANALYSES.put(names_key, names)
     return names
-
-
-#: (the cache key of a Jacobian without the priority, the noise-weighted Jacobian) of the last
-#: :func:`identifiable_names` that computed one.
-_last_jacobian: tuple = (None, None)
 
 
 def kept_weighted_jacobian(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float,
@@ -163,19 +154,13 @@ def kept_weighted_jacobian(robot: RobotModel, Q: np.ndarray, measure: str, sigma
     read it, do not write it). A calibration's data-rank check asks for the Jacobian its
     identifiable set was just chosen with (the start model at the calibration rows; the key holds
     the gravity load of a model with compliance, whose torques its Jacobian depends on)."""
-    key = _cache_key(robot, Q, measure, RANK_TOL, sigma_pos, sigma_rot, None, targets)[:-1]
-    if _last_jacobian[0] == key:
-        return _last_jacobian[1]
+    J = LAST_JACOBIAN.get(analysis_key(robot, Q, measure, RANK_TOL, sigma_pos, sigma_rot, None, targets)[:-1])
+    if J is not None:
+        return J
     return weighted_jacobian(robot, Q, measure, sigma_pos, sigma_rot, targets)
 
 
-def _keep(key: tuple, value) -> None:
-    _cache[key] = value
-    while len(_cache) > CACHE_SIZE:
-        _cache.popitem(last=False)
-
-
-def _checked_rows(robot: RobotModel, Q, measure: str, n_poses: int, seed, tol: float, sigma_pos: float,
+def checked_rows(robot: RobotModel, Q, measure: str, n_poses: int, seed, tol: float, sigma_pos: float,
                   sigma_rot: float, priority, max_poses: int | None, targets) -> tuple:
     """The arguments of :func:`analyze_identifiability` checked, and the (configurations, target
     of each row) it analyses: random ones when Q is None, at most ``max_poses`` evenly spaced,
@@ -205,32 +190,13 @@ def _checked_rows(robot: RobotModel, Q, measure: str, n_poses: int, seed, tol: f
     return Q, targets
 
 
-def content_digest(*arrays) -> str:
-    """A digest of arrays' shapes, types and values (None: a marker of its own), for cache keys
-    that must not hold large data: the one place calib hashes array content."""
-    h = blake2b(digest_size=20)
-    for a in arrays:
-        if a is None:
-            h.update(b"-")
-        else:
-            a = np.ascontiguousarray(a)
-            h.update(f"{a.shape}{a.dtype.str}".encode())
-            h.update(a.tobytes())
-    return h.hexdigest()
-
-
-def _cache_key(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,
+def analysis_key(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,
                sigma_rot: float, priority, targets) -> tuple:
     """What the analysis depends on: the chain's structure and values, the gravity load of a model
     with compliance, the configurations, the options (a digest of the arrays, so that large data
     are not held by the cache)."""
-    refs = robot.T_flange_target_refs if robot.T_flange_target_refs is not None else robot.T_flange_tool_ref
-    digest = content_digest(*(np.asarray(a, float) for a in (robot.values, robot.T_meas_base_ref, refs, Q,
-                                                              np.zeros(0) if targets is None else targets)))
-    structure = (robot.names, tuple((j.name, j.kind) for j in robot.joints), robot.targets)
-    # a model with compliance: its columns are the torques', which the gravity load sets
-    gm = getattr(robot, "gravity", None)
-    # (a torque model of another kind, which RobotModel.with_compliance accepts: by identity, held)
-    load = None if gm is None else getattr(gm, "content_key", ("object", gm))
-    return (digest, structure, load, measure, float(tol), float(sigma_pos), float(sigma_rot),
+    # (the model's content key holds the gravity load of a model with compliance: its columns are
+    # the torques', which the load sets)
+    rows = content_digest(np.asarray(Q, float), np.zeros(0) if targets is None else np.asarray(targets, float))
+    return (robot.content_key, rows, measure, float(tol), float(sigma_pos), float(sigma_rot),
             None if priority is None else tuple(priority))

@@ -10,8 +10,8 @@ from typing import Sequence
 
 import numpy as np
 
-from calib.model.identifiability import (RANK_TOL, SIGMA_POS_M, SIGMA_ROT_RAD, _cache, _cache_key, _checked_rows,
-                                         _keep, no_effect, observability_indices, select_identifiable,
+from calib.model.identifiability import (RANK_TOL, SIGMA_POS_M, SIGMA_ROT_RAD, ANALYSES, analysis_key, checked_rows,
+                                         no_effect, observability_indices, select_identifiable,
                                          weighted_jacobian)
 from calib.model.robot import RobotModel
 
@@ -124,16 +124,10 @@ def analyze_identifiability(robot: RobotModel, Q: np.ndarray | None = None, *, m
     model values, configurations and options (as a calibration repeated on the same data makes)
     returns the same report without recomputing it.
     """
-    Q, targets = _checked_rows(robot, Q, measure, n_poses, seed, tol, sigma_pos, sigma_rot, priority, max_poses,
+    Q, targets = checked_rows(robot, Q, measure, n_poses, seed, tol, sigma_pos, sigma_rot, priority, max_poses,
                                targets)
-    key = _cache_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
-    report = _cache.get(key)
-    if report is None:
-        report = _analyze(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
-        _keep(key, report)
-    else:
-        _cache.move_to_end(key)
-    return report
+    key = analysis_key(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets)
+    return ANALYSES.kept(key, lambda: _analyze(robot, Q, measure, tol, sigma_pos, sigma_rot, priority, targets))
 
 
 def _analyze(robot: RobotModel, Q: np.ndarray, measure: str, tol: float, sigma_pos: float,

@@ -40,6 +40,7 @@ from functools import cached_property
 import numpy as np
 import pinocchio as pin
 
+from calib.memo import Memo
 from calib.model.factors import placement_factors
 from calib.model.periodic import periodic_term
 from calib.model.robot import RobotModel
@@ -178,16 +179,16 @@ class _Structure:
     plans: dict              # the Jacobian's column plans (see ChainKinematics._column_plan)
 
 
-_STRUCTURES: OrderedDict = OrderedDict()
+#: The chain structures of the last 32 models' structures and reference frames.
+STRUCTURES = Memo("chain structures", 32, lru=True)
 
 
 def _structure(robot: RobotModel) -> _Structure:
     refs = robot.T_flange_target_refs if robot.T_flange_target_refs is not None else robot.T_flange_tool_ref
     key = (robot.names, tuple((j.name, j.kind) for j in robot.joints),
            robot.T_meas_base_ref.tobytes(), np.ascontiguousarray(refs).tobytes())
-    st = _STRUCTURES.get(key)
+    st = STRUCTURES.get(key)
     if st is not None:
-        _STRUCTURES.move_to_end(key)
         return st
     factors = placement_factors(robot)
     params_of = [np.array(sorted({f.param for f in fs if f.param is not None}), int) for fs in factors]
@@ -198,10 +199,7 @@ def _structure(robot: RobotModel) -> _Structure:
     prismatic = robot.prismatic
     prismatic.setflags(write=False)
     st = _Structure(factors, _FactorTable(factors, robot.n_params), params_of, prismatic, {})
-    _STRUCTURES[key] = st
-    while len(_STRUCTURES) > 32:
-        _STRUCTURES.popitem(last=False)
-    return st
+    return STRUCTURES.put(key, st)
 
 
 class ChainKinematics:

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.memo import kept
+from calib.memo import Memo
 
 #: The four harmonic coefficients of a joint, in parameter order.
 PERIODIC_KINDS = ("sin1", "cos1", "sin2", "cos2")
@@ -43,9 +43,8 @@ def periodic_name(joint: int, kind: str) -> str:
 #: Harmonic bases kept by content (the calibration rows and their chunks are evaluated at every
 #: step of every fit, and the basis depends on the joint angles only), of at most
 #: _BASES_MAX_ANGLES angles each.
-_BASES_KEPT = 16
 _BASES_MAX_ANGLES = 100_000
-_BASES: dict = {}
+BASES = Memo("harmonic bases", 16)
 
 
 def harmonic_basis(q: np.ndarray) -> np.ndarray:
@@ -60,7 +59,7 @@ def harmonic_basis(q: np.ndarray) -> np.ndarray:
 
     if q.size > _BASES_MAX_ANGLES:
         return basis()
-    return kept(_BASES, (q.shape, q.tobytes()), basis, _BASES_KEPT)
+    return BASES.kept((q.shape, q.tobytes()), basis)
 
 
 def periodic_offsets(Q: np.ndarray, joints: np.ndarray, coefficients: np.ndarray, n_joints: int) -> np.ndarray:

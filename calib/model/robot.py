@@ -27,14 +27,16 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field, fields, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
 from calib.checks import (check_array, check_configurations, check_instance, check_int, check_names, check_number,
-                          check_rng)
+                          check_rng, check_transform)
 from calib.errors import ParameterError
+from calib.memo import content_digest
 from calib.model.chain import (U_NAMES, ChainJoint, Parameter, UrdfSource,
                                make_parameters, v_names)
 from calib.model.mdh import PARALLEL_THRESHOLD_RAD, link_transform
@@ -64,6 +66,10 @@ def _checked_values(values, parameters) -> np.ndarray:
                              f"{'is' if len(bad) == 1 else 'are'} not")
     vals.setflags(write=False)
     return vals
+
+
+#: The cached properties of a :class:`RobotModel` computed from its parameter values.
+_VALUE_CACHES = ("frame_memo", "content_key")
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,7 +141,7 @@ class RobotModel:
         object.__setattr__(self, "T_flange_target_refs", refs)
         object.__setattr__(self, "values", _checked_values(self.values, self.parameters))
         for name in ("T_meas_base_ref", "T_flange_tool_ref"):
-            T = _transform(getattr(self, name), name)
+            T = check_transform(getattr(self, name), name)
             T.setflags(write=False)
             object.__setattr__(self, name, T)
         object.__setattr__(self, "_index", {p.name: k for k, p in enumerate(self.parameters)})
@@ -250,11 +256,10 @@ class RobotModel:
         """A copy of this model with other parameter values (full vector, same order, finite)."""
         # (everything else was checked when this model was made and is immutable: only the
         # values are checked again, not the joints, parameters and transforms)
-        out = object.__new__(type(self))
-        out.__dict__.update(self.__dict__)
-        out.__dict__.pop("_memo_key", None)
-        out.__dict__.pop("_frame_memo", None)
-        object.__setattr__(out, "values", _checked_values(values, self.parameters))
+        state = {k: v for k, v in self.__dict__.items() if k not in _VALUE_CACHES}   # (of the old values)
+        state["values"] = _checked_values(values, self.parameters)
+        out = object.__new__(type(self))        # (a new instance's state, as copy.copy sets it)
+        out.__dict__.update(state)
         return out
 
     def with_changes(self, **deltas: float) -> "RobotModel":
@@ -485,25 +490,35 @@ class RobotModel:
     # ------------------------------------------------------------------ kinematics (reference)
     def T_meas_base(self) -> np.ndarray:
         """(4, 4) pose of MDH frame 0 (base) in the meas frame."""
-        frames = self._frames()
+        frames = self.frame_memo
         if "base" not in frames:
             frames["base"] = self.T_meas_base_ref @ zyx_transform(*self.u())
         return frames["base"].copy()
 
     def T_flange_tool(self, target: str | int | None = None) -> np.ndarray:
         """(4, 4) pose of the tool frame (of one target, default the first) in MDH frame n (flange)."""
-        frames, k = self._frames(), self.target_index(target)
+        frames, k = self.frame_memo, self.target_index(target)
         if k not in frames:
             frames[k] = zyx_transform(*self.v(k)) @ self.T_flange_tool_ref_of(k)
         return frames[k].copy()
 
-    def _frames(self) -> dict:
-        """The frames computed from this (immutable) model's values, kept on it
-        (:meth:`with_values` makes a model without them)."""
-        frames = self.__dict__.get("_frame_memo")
-        if frames is None:
-            frames = self.__dict__["_frame_memo"] = {}
-        return frames
+    @cached_property
+    def frame_memo(self) -> dict:
+        """The flange->target frames of this (immutable) model's values, by target index."""
+        return {}
+
+    @cached_property
+    def content_key(self) -> tuple:
+        """What results computed from this model depend on (memo keys): a digest of its values,
+        frames and joint limits, its structure and the gravity load of a model with compliance."""
+        refs = self.T_flange_target_refs if self.T_flange_target_refs is not None else self.T_flange_tool_ref
+        digest = content_digest(np.asarray(self.values, float), np.asarray(self.T_meas_base_ref, float),
+                                np.asarray(refs, float), np.stack([self.lower, self.upper]))
+        structure = (self.names, tuple((j.name, j.kind) for j in self.joints), self.targets)
+        gm = getattr(self, "gravity", None)
+        # (a torque model of another kind, which with_compliance accepts: by identity, held)
+        load = None if gm is None else getattr(gm, "content_key", ("object", gm))
+        return digest, structure, load
 
     def T_base_flange(self, q: np.ndarray) -> np.ndarray:
         """(4, 4) pose of the flange in the base frame at one commanded configuration q (n,),
@@ -569,17 +584,6 @@ class RobotModel:
             lines.append("periodic joint errors/urad: " + ", ".join(
                 f"{n} {v * 1e6:.4g}" for n, v in zip(self.periodic_names, self.periodic_values())))
         return "\n".join(lines)
-
-
-def _transform(value: Any, name: str) -> np.ndarray:
-    """``value`` as a finite (4, 4) float array, else :class:`calib.ParameterError` naming ``name``."""
-    try:
-        T = np.array(value, dtype=float)
-    except (TypeError, ValueError, OverflowError):
-        T = None
-    if T is None or T.shape != (4, 4) or not np.isfinite(T).all():
-        raise ParameterError(f"{name} must be a finite (4, 4) homogeneous transform, got {value!r:.60}")
-    return T
 
 
 def check_robot(value: Any, name: str = "robot") -> RobotModel:

@@ -26,7 +26,7 @@ import numpy as np
 
 from calib.report.plots import PLOT_FILES, plot_rows
 from calib.report.rows import (PoseDeviations, ReportRows, axis_table, drift_columns, error_stats, iso9283,
-                                           pose_deviations, registered_nominal, repeated_groups, report_rows,
+                                           pose_deviations, repeated_groups, report_rows,
                                            tolerance_verdict)
 from calib.calibration.result import CalibrationResult
 from calib.checks import check_instance
@@ -55,8 +55,8 @@ def report_rows_of(result: CalibrationResult, measurements: Measurements,
     check_measurements(measurements)
     check_measurements(validation, "validation", allow_none=True)
     reference, label = result.nominal, "nominal model"
-    if result.before_registered is not None:
-        reference = registered_nominal(result.nominal, result.estimated_frames, measurements.calibration())
+    if result.nominal_registered is not None:
+        reference = result.nominal_registered
         label = "nominal model, frames registered"
     return report_rows(result.robot, measurements, validation, reference=reference, reference_label=label,
                        outlier_rows={int(o.row) for o in result.outliers})

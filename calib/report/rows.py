@@ -31,7 +31,7 @@ if TYPE_CHECKING:     # Pinocchio is imported where the kinematics run: the plot
     from calib.model.robot import RobotModel     # (calib.cli.plot_worker) unpickles ReportRows without it
 
 __all__ = ["PoseDeviations", "pose_deviations", "ReportRows", "report_rows", "axis_table", "iso9283", "error_stats",
-           "tolerance_verdict", "registered_nominal", "repeated_groups", "drift_columns"]
+           "tolerance_verdict", "repeated_groups", "drift_columns"]
 
 _DEG = 180.0 / math.pi
 
@@ -128,26 +128,6 @@ class ReportRows:
     def x_label(self) -> str:
         return "file row" if not (self.file == "validation").any() else \
             "file row (measurement file; validation file rows marked apart)"
-
-
-def registered_nominal(nominal: RobotModel, estimated_frames, cal: Measurements) -> RobotModel:
-    """The nominal model as the text report's ``before, frame registered`` measures it (see the
-    module docstring): ``nominal`` (with the measured targets) with the tool or target frames
-    re-estimated in closed form when ``estimated_frames`` names them, and the measurement frame
-    registered by a best fit of the positions of the calibration rows ``cal``."""
-    from calib.calibration.accuracy import register_measurement_frame
-    from calib.calibration.prepare import _rebase_frames
-
-    ref = nominal
-    if tuple(estimated_frames) != ("measurement->base",):
-        labels = {"measurement->base"} | {f"flange->{t}" if nominal.targets else "flange->tool"
-                                          for t in (nominal.targets or ("tool",))}
-        ref, _, _ = _rebase_frames(nominal, cal, [], always=set(estimated_frames) >= labels)
-        from dataclasses import replace
-
-        ref = replace(nominal, T_flange_tool_ref=ref.T_flange_tool_ref,
-                      T_flange_target_refs=ref.T_flange_target_refs)
-    return register_measurement_frame(ref, cal)
 
 
 def report_rows(model: RobotModel, measurements: Measurements, validation: Measurements | None = None, *,

@@ -18,8 +18,8 @@ from typing import Sequence
 import numpy as np
 
 from calib.model.factors import placement_factors
-from calib.memo import kept
-from calib.model.identifiability import content_digest
+from calib.memo import Memo
+from calib.memo import content_digest
 from calib.model.robot import RobotModel
 
 _AXIS = {"x": 0, "y": 1, "z": 2}
@@ -70,10 +70,10 @@ def spread_subset(R: np.ndarray, size: int = SEARCH_POSES) -> np.ndarray:
     # (kept by content: a calibration searches the same rows again, search-lm's escape from its
     # LM solution; ~1 ms of 200 steps on 1,402 rows)
     key = (content_digest(R), int(size))
-    return kept(_SPREAD, key, lambda: _spread_subset(np.asarray(R, float), n, size)).copy()
+    return SPREAD.kept(key, lambda: _spread_subset(np.asarray(R, float), n, size)).copy()
 
 
-_SPREAD: dict = {}
+SPREAD = Memo("spread subsets", 8)
 
 
 def _spread_subset(R: np.ndarray, n: int, size: int) -> np.ndarray:
@@ -99,7 +99,7 @@ def _spread_subset(R: np.ndarray, n: int, size: int) -> np.ndarray:
 
 #: The chain structure of the last few factor sequences (placement_factors keeps them by the
 #: robot's structure): a RotationChain of the same structure shares it (nothing changes it).
-_CHAINS: dict = {}
+CHAINS = Memo("rotation chains", 32)
 
 
 class RotationChain:
@@ -121,7 +121,7 @@ class RotationChain:
 
     def __init__(self, robot: RobotModel):
         chain = placement_factors(robot)
-        hit = _CHAINS.get(id(chain))
+        hit = CHAINS.get(id(chain))
         if hit is not None and hit[0] is chain:     # (the same structure: read-only after this)
             self.items, self.joints, self.segments, self.where = hit[1:]
             return
@@ -146,9 +146,7 @@ class RotationChain:
             if kind == "param":
                 self.where[arg[1]] = (len(self.segments) - 1, len(self.segments[-1]), arg[0])
             self.segments[-1].append((kind, arg))
-        _CHAINS[id(chain)] = (chain, self.items, self.joints, self.segments, self.where)
-        while len(_CHAINS) > 32:
-            _CHAINS.pop(next(iter(_CHAINS)))
+        CHAINS.put(id(chain), (chain, self.items, self.joints, self.segments, self.where))
 
     # ------------------------------------------------------------------ constant parts
     def _segment(self, i: int, values: np.ndarray):

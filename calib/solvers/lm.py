@@ -7,7 +7,6 @@ Options (:class:`LMOptions`) and the result every solver returns (:class:`Solver
 """
 from __future__ import annotations
 
-import functools
 import logging
 import time
 from dataclasses import dataclass, field, replace
@@ -15,7 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calib.solvers.inverse import RANK_RCOND
-from calib.solvers.normal_equations import _without_inert
+from calib.solvers.normal_equations import without_inert
 from calib.solvers.problem import COST_RTOL, FUSE_BELOW_POSES, Problem, WEAK_RCOND
 
 log = logging.getLogger("calib.solvers.problem")
@@ -48,11 +47,9 @@ class LMOptions:
         check_instance(self.last_step, "LMOptions.last_step", bool, "True or False")
 
 
-@functools.lru_cache(maxsize=64)
 def options_with(options: LMOptions, **changes) -> LMOptions:
-    """``dataclasses.replace(options, **changes)``, kept: the fit stage derives the same few
-    variants (a looser ftol, a re-fit's damping) in every calibration, and each new one is
-    checked again by LMOptions."""
+    """``dataclasses.replace(options, **changes)``: the options with ``changes`` (checked again
+    by LMOptions)."""
     return replace(options, **changes)
 
 
@@ -200,7 +197,7 @@ def levenberg_marquardt(problem: Problem, x0: np.ndarray, parts: str = "pose",
         trace.iterations += 1
         fuse = fuse_next
         fuse_next = few_poses
-        A, g, d = _without_inert(ne)
+        A, g, d = without_inert(ne)
         if np.max(np.abs(g) / np.sqrt(d), initial=0.0) <= options.gtol * max(np.sqrt(2 * cost), 1e-300):
             return SolverResult(x, cost, "converged", f"gradient below tolerance after {it} iterations",
                                 trace.iterations - it0)

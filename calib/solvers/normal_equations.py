@@ -49,8 +49,8 @@ def reweighted(ne: NormalEquations, f_pos: float, f_rot: float) -> NormalEquatio
                            None if A_pos is None else ne.g_pos * f_pos)
 
 
-def _rank_deficit(system: tuple[np.ndarray, np.ndarray, np.ndarray]) -> int:
-    """How many directions of the normal matrix A of ``system`` (A, g, d from _without_inert)
+def rank_deficit(system: tuple[np.ndarray, np.ndarray, np.ndarray]) -> int:
+    """How many directions of the normal matrix A of ``system`` (A, g, d from without_inert)
     the data do not determine: its eigenvalues, scaled to diag(d) = 1, at most RANK_RCOND times
     the largest (0 without an eigendecomposition when :func:`normal_inverse` proves full rank)."""
     A, _, d = system
@@ -61,7 +61,7 @@ def _rank_deficit(system: tuple[np.ndarray, np.ndarray, np.ndarray]) -> int:
     return int(np.sum(w <= RANK_RCOND * max(w[-1], 0.0)))
 
 
-def _without_inert(ne: NormalEquations) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def without_inert(ne: NormalEquations) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(A, g, d = diag(A)) of the normal equations with the parameters that have no effect
     (NO_EFFECT_RTOL: a Jacobian column of rounding noise) taken out: their rows and columns of
     A and entries of g zero, d one. Marquardt's scaling would blow such a column up to the size

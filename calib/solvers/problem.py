@@ -41,7 +41,7 @@ from calib.choices import LOSSES
 from calib.model.jacobian import pose_jacobian
 from calib.model.kinematics import JACOBIAN_CHUNK, ChainKinematics
 from calib.model.spatial import left_jacobian_inverse_batch, log3_batch
-from calib.solvers.normal_equations import (NormalEquations, _rank_deficit, _without_inert,
+from calib.solvers.normal_equations import (NormalEquations, rank_deficit, without_inert,
                                              reweighted)
 
 log = logging.getLogger("calib.solvers.problem")
@@ -159,14 +159,14 @@ class Problem:
 
     def rank_deficit(self, ne: NormalEquations, parts: str = "pose") -> int:
         """How many directions the free parameters' normal matrix ``ne`` of the residuals
-        ``parts`` leaves undetermined (see _rank_deficit), counted at the first point asked and
+        ``parts`` leaves undetermined (see rank_deficit), counted at the first point asked and
         kept for this free set and these parts by the problem and those derived from it: the LM
         runs of one calibration (its noise re-weighted re-fits, its row subsets) hold the
         directions that were undetermined where the first one started (see _DampedSystem).
         (C-LM's rotation steps and its pose fits may have the same free set, not the same ties.)"""
         key = (parts, self.free.tobytes())
         if key not in self._rank_deficits:
-            self._rank_deficits[key] = (_rank_deficit(_without_inert(ne)), False)
+            self._rank_deficits[key] = (rank_deficit(without_inert(ne)), False)
         return self._rank_deficits[key][0]
 
     def set_rank_deficit(self, n: int, parts: str = "pose") -> None:

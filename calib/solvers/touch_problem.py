@@ -36,7 +36,7 @@ from calib.model.jacobian import pose_jacobian
 from calib.model.kinematics import ChainKinematics
 from calib.model.spatial import left_jacobian_inverse_batch, log3_batch
 from calib.model.touch import TouchData, plane_normals
-from calib.solvers.normal_equations import NormalEquations, _rank_deficit, _without_inert
+from calib.solvers.normal_equations import NormalEquations, rank_deficit, without_inert
 
 
 class TouchProblem:
@@ -270,7 +270,7 @@ class TouchProblem:
     def rank_deficit(self, ne: NormalEquations, parts: str = "pose") -> int:
         key = (parts, self.free.tobytes())
         if key not in self._rank_deficits:
-            self._rank_deficits[key] = (_rank_deficit(_without_inert(ne)), False)
+            self._rank_deficits[key] = (rank_deficit(without_inert(ne)), False)
         return self._rank_deficits[key][0]
 
     def set_rank_deficit(self, n: int, parts: str = "pose") -> None:

@@ -234,7 +234,7 @@ def test_free_set_kept_by_content_depends_on_the_measure(bundled_robot):
     estimates of a fresh process (the full-pose set, the tool's rotation freed, made the
     position-only evidence NaN and the calibration raise; the position-only set held the tool's
     rotation of the full-pose rows)."""
-    from calib.calibration.prepare import _ROBOT_MEMO
+    from calib.calibration.prepare import ROBOT_RESULTS
 
     true = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
     q = bundled_robot.random_configurations(40, np.random.default_rng(5000))
@@ -242,10 +242,10 @@ def test_free_set_kept_by_content_depends_on_the_measure(bundled_robot):
                                        rng=np.random.default_rng(1)) for rot in (True, False)}
     fresh = {}
     for rot in (True, False):
-        _ROBOT_MEMO.clear()
+        ROBOT_RESULTS.clear()
         fresh[rot] = calib.calibrate(bundled_robot, data[rot])
     for first in (True, False):
-        _ROBOT_MEMO.clear()
+        ROBOT_RESULTS.clear()
         calib.calibrate(bundled_robot, data[first])
         after = calib.calibrate(bundled_robot, data[not first])
         assert after.free == fresh[not first].free

@@ -289,7 +289,7 @@ def test_frame_estimate_kept_for_the_same_rows_and_kinematics(bundled_robot, mon
     calls = []
     real = prep.estimate_frames_robust
     monkeypatch.setattr(prep, "estimate_frames_robust", lambda *a, **k: calls.append(1) or real(*a, **k))
-    monkeypatch.setattr(prep, "_ROBOT_MEMO", type(prep._ROBOT_MEMO)())
+    prep.ROBOT_RESULTS.clear()
     meas = simulate_measurements(bundled_robot, bundled_robot.random_configurations(30, 4), rng=5)
     geo, _ = prepare(bundled_robot, meas, None, True)
     periodic = bundled_robot.with_periodic()

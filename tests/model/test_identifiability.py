@@ -89,7 +89,7 @@ def test_repeated_analysis_comes_from_the_cache(bundled_robot):
     assert analyze_identifiability(bundled_robot, Q, sigma_rot=0.004) is not first
     assert analyze_identifiability(bundled_robot, Q, measure="position").rank == 25
     # and the cached report is the one a fresh analysis gives
-    identifiability._cache.clear()
+    identifiability.ANALYSES.clear()
     fresh = analyze_identifiability(bundled_robot, Q)
     assert fresh is not first and fresh.identifiable == first.identifiable
     np.testing.assert_array_equal(fresh.singular_values, first.singular_values)
@@ -109,10 +109,10 @@ def test_identifiable_names_are_the_reports(bundled_robot, measure):
     priorities = (None, ["v_x", "v_z", "u_z", "u_alpha"], list(reversed(bundled_robot.names)))
     for robot in (bundled_robot, perturbed, bundled_robot.with_changes(v_x=0.1)):
         for priority in priorities:
-            identifiability._cache.clear()
+            identifiability.ANALYSES.clear()
             names = identifiable_names(robot, Q, measure=measure, priority=priority)
             assert identifiable_names(robot, Q, measure=measure, priority=priority) is names      # cached
-            identifiability._cache.clear()
+            identifiability.ANALYSES.clear()
             report = analyze_identifiability(robot, Q, measure=measure, priority=priority)
             assert names == report.identifiable
             assert identifiable_names(robot, Q, measure=measure, priority=priority) is report.identifiable

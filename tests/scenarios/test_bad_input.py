@@ -424,14 +424,14 @@ def test_data_that_do_not_fit_the_robot_get_a_note_not_silence(sim):
     stopped at the iteration limit (UR5: converged, exit 0). A clean fit gets no such note.
     Quaternions in x, y, z, w order read as w, x, y, z: 1.4 rad RMS left (UR5: converged, exit 0,
     nothing said); the note names the orientation columns."""
-    from calib.calibration.prepare import _reach
+    from calib.calibration.prepare import robot_reach
 
     _, robot, meas = sim
     res = calib.calibrate(robot, replace(meas, q=np.radians(meas.q)), params="base", cv=0,
                           outlier_k=None)
     pos_rms = res.after.position["rms"]
     assert pos_rms > 0.05                                   # metres: nothing like a calibration
-    reach = _reach(robot)                                   # metres: 1.225 m for this robot
+    reach = robot_reach(robot)                                # metres: 1.225 m for this robot
     bad = [n for n in res.notes if n.startswith("the calibrated model does not describe")]
     assert bad == [f"the calibrated model does not describe these measurements: on the calibration "
                    f"rows it leaves a position RMS error of {pos_rms * 1e3:.4g} mm "
@@ -461,11 +461,11 @@ def test_positions_in_metres_named_mm_get_a_note(sim):
     """Positions in metres in _mm columns: 1000 times too small, the fit shrinks the robot (a2
     by 350 mm, d4 by 364 mm) and converges at 3e-5 mm, exit 0 and nothing said. The identified
     link lengths are now named; a clean fit names none."""
-    from calib.calibration.prepare import _reach
+    from calib.calibration.prepare import robot_reach
 
     _, robot, meas = sim
     res = calib.calibrate(robot, replace(meas, position=meas.position / 1000), params="base", cv=0)
-    reach = _reach(robot)
+    reach = reach(robot)
     far = [n for n in res.notes if n.startswith("identified link lengths far from the URDF's")]
     assert len(far) == 1 and far[0].endswith(
         f"(more than 10 % of the robot's reach {reach * 1e3:.0f} mm); check the length unit of the "

@@ -31,12 +31,12 @@ import numpy as np
 from calib.calibration.accuracy import target_rows
 from calib.calibration.estimators.evidence import (SIGMA_POS_BOUNDS, SIGMA_ROT_BOUNDS, TAU_BOUNDS, Evidence, evidence,
                                         linearise, maximise_evidence)
-from calib.calibration.prepare import FRAME_MEMO_MAX_ROWS, Setup, _robot_memo, prepare
+from calib.calibration.prepare import FRAME_MEMO_MAX_ROWS, Setup, robot_memo, prepare
 from calib.calibration.estimators.robust import robust_sigmas, row_rms
 from calib.calibration.workspace import propagate_covariance
 from calib.checks import check_instance, check_int, check_number
 from calib.errors import DataError, ParameterError
-from calib.model.identifiability import content_digest
+from calib.memo import content_digest
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
 from calib.solvers.lm import LMOptions, levenberg_marquardt
@@ -259,7 +259,7 @@ def _free_set_of(problem_all: Problem, robot: RobotModel, candidates: np.ndarray
     # position-only calibration after a full-pose one of the same joints crashed in the evidence)
     options = (content_digest(Q, targets, problem_all.R_meas_T), candidates.tobytes(),
                problem_all.has_orientation, problem_all.sigma_pos, problem_all.sigma_rot)
-    free, notes = _robot_memo("eb-map free set", robot, options, lambda: _free_set(problem_all, robot, candidates))
+    free, notes = robot_memo("eb-map free set", robot, options, lambda: _free_set(problem_all, robot, candidates))
     return free.copy(), list(notes)
 
 

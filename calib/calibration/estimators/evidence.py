@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib.memo import Memo
 from calib.solvers.problem import Problem
 
 #: Bounds of the hyper-parameters (design note): noise per axis and prior scales.
@@ -141,7 +142,7 @@ def evidence(lin: Linearisation, group_index: np.ndarray, log_h: np.ndarray, *, 
     return Evidence(np.array(log_h, float), float(value), grad, z, C, A_data, red_p, red_r)
 
 
-_GROUPS: dict = {}
+GROUPS = Memo("prior groups", 8)
 
 
 def _groups(group_index: np.ndarray, n_groups: int):
@@ -149,13 +150,10 @@ def _groups(group_index: np.ndarray, n_groups: int):
     ``group_index`` (see :func:`evidence`), kept for the last few index vectors: the evidence is
     evaluated many times with one."""
     key = (group_index.tobytes(), n_groups)
-    hit = _GROUPS.get(key)
+    hit = GROUPS.get(key)
     if hit is None:
         prior = group_index >= 0
-        hit = (prior, group_index[prior], [np.flatnonzero(group_index == g) for g in range(n_groups)])
-        if len(_GROUPS) >= 8:
-            _GROUPS.pop(next(iter(_GROUPS)))
-        _GROUPS[key] = hit
+        hit = GROUPS.put(key, (prior, group_index[prior], [np.flatnonzero(group_index == g) for g in range(n_groups)]))
     return hit
 
 

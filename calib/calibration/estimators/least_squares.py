@@ -26,7 +26,7 @@ from calib.calibration.options import (
     WARM_MU0,
     CalibrationOptions,
 )
-from calib.calibration.prepare import Setup, _reach, _robot_memo
+from calib.calibration.prepare import Setup, robot_memo, robot_reach
 from calib.calibration.estimators.base import Estimate, Fit, Linearised, linearised, noise_estimate, vce_fixed_point
 from calib.calibration.estimators.outlier import Outlier
 from calib.calibration.estimators.robust import (can_trim, flag_outliers, judge_rows, leftover_gross, robust_sigmas,
@@ -481,7 +481,7 @@ def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]
     """A note when the calibrated model leaves errors on its calibration rows that no robot and
     instrument give (:data:`IMPLAUSIBLE_REACH_FRACTION` of the reach, :data:`IMPLAUSIBLE_ROT_RAD`):
     the fit ran, but on data that do not belong to this robot as read."""
-    reach = _robot_memo("reach", robot, (), lambda: _reach(robot))
+    reach = robot_memo("reach", robot, (), lambda: robot_reach(robot))
     pos = after.position["rms"]
     rot = after.rotation["rms"] if after.rotation is not None else 0.0
     what, check = [], []
@@ -505,7 +505,7 @@ def _implausible_length_notes(nominal: RobotModel, calibrated: RobotModel) -> li
     :data:`IMPLAUSIBLE_LENGTH_FRACTION` of the reach from their nominal values: no robot is built
     that far from its drawing (positions in metres named _mm shrink a UR5's 425 mm link to
     0.6 mm and the fit converges at the noise; the URDF of another robot model)."""
-    reach = _robot_memo("reach", nominal, (), lambda: _reach(nominal))
+    reach = robot_memo("reach", nominal, (), lambda: robot_reach(nominal))
     far = [(p.name, b - a) for p, a, b in zip(nominal.parameters, nominal.values, calibrated.values)
            if p.group == "joint" and p.unit == "m" and abs(b - a) > IMPLAUSIBLE_LENGTH_FRACTION * reach
            and not (p.kind == "d" and nominal.prismatic[p.joint - 1])]   # (a slide's offset: any)

@@ -17,52 +17,14 @@ from calib.calibration.estimators.least_squares import LeastSquares
 from calib.calibration.options import LOO_BELOW_ROWS, CalibrationOptions
 from calib.calibration.parameters import ParameterChoice, candidate_sets
 from calib.calibration.prepare import Setup
-from calib.calibration.cross_validation import CrossValidation
-from calib.calibration.validation import _standard_error, cross_validate
+from calib.calibration.cross_validation import Candidate, CrossValidation, ModelSelection
+from calib.calibration.validation import standard_error, cross_validate
 from calib.errors import DataError
 from calib.model.kinematics import ChainKinematics
 from calib.solvers.lm import LMOptions
 from calib.solvers.problem import Problem
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """One candidate parameter set of the model selection and its cross-validated error."""
-
-    label: str
-    free: tuple[str, ...]
-    cv: CrossValidation
-
-
-@dataclass(frozen=True)
-class ModelSelection:
-    """``params="auto"``: the candidates (smallest first), the chosen one, the one of lowest
-    cross-validated score (``best``) and the selection rule's name (by default
-    :func:`lowest_score`: ``chosen`` is ``best``)."""
-
-    candidates: tuple[Candidate, ...]
-    chosen: str
-    best: str
-    rule: str = "lowest score"
-
-    def to_dict(self) -> dict:
-        return {"chosen": self.chosen, "best": self.best, "rule": self.rule,
-                "candidates": [{"label": c.label, "n_free": len(c.free), "score": c.cv.score,
-                                "score_se": c.cv.score_se, "position_rms_mm": c.cv.position_rms * 1e3,
-                                "rotation_rms_rad": c.cv.rotation_rms} for c in self.candidates]}
-
-    def format(self) -> str:
-        lines = [f"model selection ({self.candidates[0].cv.folds}-fold cross-validation, rule: {self.rule}; "
-                 f"score: mean noise-weighted squared held-out error per row):",
-                 f"  {'candidate':<26}{'params':>7}{'score':>10}{'+-se':>9}{'pos rms/mm':>12}{'rot rms/rad':>13}"]
-        for c in self.candidates:
-            rot = "-" if c.cv.rotation_rms is None else f"{c.cv.rotation_rms:.3e}"
-            mark = "  <- chosen" if c.label == self.chosen else ("  (lowest)" if c.label == self.best else "")
-            lines.append(f"  {c.label:<26}{len(c.free):>7}{c.cv.score:>10.3f}{c.cv.score_se:>9.3f}"
-                         f"{c.cv.position_rms * 1e3:>12.4f}{rot:>13}{mark}")
-        return "\n".join(lines)
 
 
 def lowest_score(candidates: Sequence[Candidate]) -> Candidate:
@@ -80,7 +42,7 @@ def one_standard_error(candidates: Sequence[Candidate]) -> Candidate:
     correlated and the difference is what is uncertain)."""
     best = min(candidates, key=lambda c: c.cv.score)
     return next(c for c in candidates
-                if np.mean(c.cv.row_scores - best.cv.row_scores) <= _standard_error(c.cv.row_scores - best.cv.row_scores))
+                if np.mean(c.cv.row_scores - best.cv.row_scores) <= standard_error(c.cv.row_scores - best.cv.row_scores))
 
 
 #: The printed names of the selection rules of this module (a rule passed in without one is

@@ -20,6 +20,7 @@ import pinocchio as pin
 from calib.checks import check_number, check_path
 from calib.errors import CalibError, ChainError, FrameNotFound, ParameterError, URDFError
 from calib.io.fileio import captured_c_output
+from calib.memo import Memo
 from calib.model.mdh import PARALLEL_THRESHOLD_RAD, derive_mdh
 from calib.io.urdf.document import UrdfDocument, UrdfJoint
 from calib.model.chain import JOINT_KINDS, ChainJoint
@@ -62,6 +63,12 @@ class UrdfChain:
         m = np.array([self.model.inertias[j].mass for j in self.joint_ids], float)
         m.setflags(write=False)
         return m
+
+    @cached_property
+    def gravity_models(self) -> dict:
+        """The gravity models made for this chain (payload and gravity -> model, with their torque
+        caches: :mod:`calib.model.compliance`), kept with the chain so that they go with it."""
+        return {}
 
     def configuration(self, q: np.ndarray) -> np.ndarray:
         """Pinocchio configuration of the whole URDF model for chain joint values q (n,).
@@ -354,18 +361,19 @@ def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame:
 
 #: (chain, parallel threshold, model) of the last :func:`robot_from_chain`: the writer derives
 #: the nominal model again from the chain the loader read (check_writable, before a fit).
-_LAST_DERIVED: list = []
+LAST_DERIVED = Memo("derived model", 1)
 
 
 def robot_from_chain(chain: UrdfChain, parallel_threshold: float = PARALLEL_THRESHOLD_RAD) -> RobotModel:
     """The TM-MDH model of a chain already read (:func:`read_urdf_chain`), carrying it as its
     ``source``: no file is read and nothing is rebuilt. See :func:`load_robot`. (The model of the
     last chain is kept: both are immutable.)"""
-    for kept, threshold, robot in _LAST_DERIVED:
-        if kept is chain and threshold == parallel_threshold:
-            return robot
+    key = (id(chain), parallel_threshold)
+    hit = LAST_DERIVED.get(key)
+    if hit is not None and hit[0] is chain:
+        return hit[1]
     robot = _derived(chain, parallel_threshold)
-    _LAST_DERIVED[:] = [(chain, parallel_threshold, robot)]
+    LAST_DERIVED.put(key, (chain, robot))
     return robot
 
 
@@ -411,7 +419,7 @@ def mdh_poses(robot: RobotModel) -> dict:
 
 #: (nominal model, chain, its MDH frames at q = 0) of the last nominal checked against its URDF:
 #: the writer's check before a fit (check_writable) and its write after it ask it of the same model.
-_LAST_NOMINAL: list = []
+LAST_NOMINAL = Memo("checked nominal", 1)
 
 
 def checked_nominal_poses(nominal: RobotModel, chain: UrdfChain) -> dict:
@@ -419,14 +427,15 @@ def checked_nominal_poses(nominal: RobotModel, chain: UrdfChain) -> dict:
     ``chain`` (the writer's nominal: its MDH z axes are the URDF joint axes, its tool frame the
     URDF's, at q = 0); CalibError otherwise. The last model's are kept (the same objects: both
     are immutable)."""
-    for kept, kept_chain, nom in _LAST_NOMINAL:
-        if kept is nominal and kept_chain is chain:
-            return nom
+    key = (id(nominal), id(chain))
+    hit = LAST_NOMINAL.get(key)
+    if hit is not None and hit[0] is nominal and hit[1] is chain:
+        return hit[2]
     nom = mdh_poses(nominal)
     _check_nominal_matches_urdf(nominal, chain, nom)
     for T in nom["X"] + [nom["flange"], nom["tool"], nom["base"]]:
         T.setflags(write=False)        # (kept: read, never written)
-    _LAST_NOMINAL[:] = [(nominal, chain, nom)]
+    LAST_NOMINAL.put(key, (nominal, chain, nom))
     return nom
 
 

@@ -153,7 +153,7 @@ def calibrated_urdf_text(robot: RobotModel, *, nominal: RobotModel | None = None
         from calib.io.urdf.minimal import minimal_urdf
 
         if nominal is not None:
-            _check_compatible(robot, nominal)
+            check_compatible(robot, nominal)
         if measurement_link:
             raise CalibError("measurement_link needs a model read from a URDF (this one was built in code)")
         text, frames = minimal_urdf(robot, estimated=tuple(e for e in estimated if measurement is None
@@ -279,13 +279,13 @@ def _prepare(robot: RobotModel, nominal: RobotModel | None):
                          f"({chain.base_frame!r} -> {chain.tool_frame!r}); load it with these frames")
     if nominal is None:
         nominal = robot_from_chain(chain, robot.parallel_threshold).for_target(0)
-    _check_compatible(robot, nominal)
+    check_compatible(robot, nominal)
     doc = _UrdfDocument(chain.document.path, chain.document.tree)
     return doc, _plan_edits(robot, nominal, chain, doc, checked_nominal_poses(nominal, chain))
 
 
 # ====================================================================== checks
-def _check_compatible(robot: RobotModel, nominal: RobotModel) -> None:
+def check_compatible(robot: RobotModel, nominal: RobotModel) -> None:
     if nominal.names != robot.names:
         missing = [n for n in nominal.names if n not in robot.names]
         extra = [n for n in robot.names if n not in nominal.names]
