@@ -201,7 +201,8 @@ def _ur_yaml(urdf_path, kinematics_hash, flange_frame, base_frame, tool_frame):
     link, t_m, r_m = ur.mount
     if link and link != chain.base_frame and (t_m > MOUNT_NOTE_M or r_m > MOUNT_NOTE_RAD):
         notes.append(f"base_link of the export is {chain.base_frame!r}, {t_m * 1e3:.4g} mm / {r_m:.4g} rad from "
-                     f"{link!r} (the parent link of the first joint): the shoulder entry includes that offset; if "
+                     f"{link!r} (the robot's own base, where its first joint hangs from): the shoulder entry "
+                     f"includes that offset; if "
                      f"your xacro mounts the robot there, export with --base-frame {link}")
     t_off, r_off = ur.flange_offset
     if t_off > 1e-9 or r_off > 1e-9:
@@ -209,7 +210,7 @@ def _ur_yaml(urdf_path, kinematics_hash, flange_frame, base_frame, tool_frame):
                      f"tool0 is its projection onto the axis (tool_in_tool0 gives the tool exactly)")
     p = float(np.linalg.norm(T[:3, 3]))
     if ur.tool_frame != ur.flange_frame or p > 1e-9:
-        notes.append(f"the calibration's tool frame {ur.tool_frame!r} is {p * 1e3:.4g} mm from tool0: the kinematics "
+        notes.append(f"the calibration's tool frame {ur.tool_frame!r} is {p * 1e3:.4g} mm from the template's tool0: the kinematics "
                      f"block holds the arm up to tool0, calib.tool_in_tool0 in the file the tool frame in tool0 "
                      f"(the controller's TCP, if that frame is the tool)")
     return text, notes, (dp, dr)

@@ -132,9 +132,10 @@ class UrKinematics:
     T_tool0_tool : (4, 4) the tool frame in the template's tool0 (identity when they coincide).
     flange_offset : (translation m, rotation rad) of the flange frame from its projection onto
         axis 6 (0, 0 for a flange on the axis).
-    mount : (link, translation m, rotation rad): the parent link of the first joint and its
-        pose's distance from the base frame (a pedestal or work-cell offset that the shoulder
-        entry then includes).
+    mount : (link, translation m, rotation rad): the robot's own base_link (the parent link of
+        the first joint, or in ur_description's layout the link base_link_inertia is fixed to) and
+        its distance from the base frame (a pedestal or work-cell offset that the shoulder entry
+        then includes).
     """
 
     origins: np.ndarray
@@ -249,15 +250,31 @@ def ur_kinematics(chain: UrdfChain, flange_frame: str | None = None) -> UrKinema
         origins[k, :3] = O[:3, 3]
         origins[k, 3:] = rpy_nearest(O[:3, :3], UR_RPY_PUBLISHED[k])
     T_tool = oMb.actInv(data.oMf[chain.tool_frame_id]).homogeneous
-    mount = ("", 0.0, 0.0)
-    doc_joint = chain.document.joints.get(chain.joints[0].name) if chain.document is not None else None
-    if doc_joint is not None and model.existFrame(doc_joint.parent):
-        M = oMb.actInv(data.oMf[model.getFrameId(doc_joint.parent)])
-        mount = (doc_joint.parent, float(np.linalg.norm(M.translation)), float(np.linalg.norm(pin.log3(M.rotation))))
-    return UrKinematics(mount=mount, origins=origins, joints=tuple(j.name for j in chain.joints),
+    return UrKinematics(mount=_mount(chain, data, oMb), origins=origins, joints=tuple(j.name for j in chain.joints),
                         base_frame=chain.base_frame, flange_frame=model.frames[fid].name,
                         tool_frame=chain.tool_frame, T_tool0_tool=inverse(Phi) @ T_tool,
                         flange_offset=flange_offset)
+
+
+def _mount(chain: UrdfChain, data, oMb) -> tuple[str, float, float]:
+    """(link, translation m, rotation rad): where the robot's own base_link is, and its distance
+    from the base frame. The first joint hangs from base_link itself in older descriptions, from
+    base_link_inertia, base_link turned pi about z (:data:`T_BASE_LINK_INERTIA`), in
+    ur_description's: of the two readings the one nearer the base frame's orientation (its link:
+    the first joint's parent, or the link that parent is fixed to)."""
+    model, doc = chain.model, chain.document
+    first = doc.joints.get(chain.joints[0].name) if doc is not None else None
+    if first is None or not model.existFrame(first.parent):
+        return ("", 0.0, 0.0)
+    M = oMb.actInv(data.oMf[model.getFrameId(first.parent)]).homogeneous      # T_base_parent
+    up = doc.parent_joint.get(first.parent)
+    above = up.parent if up is not None and up.kind == "fixed" else first.parent
+    best = ("", math.inf, math.inf)
+    for link, T in ((first.parent, M), (above, M @ inverse(T_BASE_LINK_INERTIA))):
+        t, r = float(np.linalg.norm(T[:3, 3])), float(np.linalg.norm(pin.log3(T[:3, :3])))
+        if r < best[2] - 1e-9:
+            best = (link, t, r)
+    return best
 
 
 def template_tool0(origins: np.ndarray, Q: np.ndarray) -> np.ndarray:
