@@ -80,8 +80,9 @@ def run(args: argparse.Namespace) -> int:
     out = outputs.add(args.output)
     from calib.io.export import export_calibration
 
-    result = export_calibration(robot_description(args, args.robot), args.format, kinematics_hash=args.hash, report=args.report,
-                                flange_frame=args.flange, base_frame=args.base_frame, tool_frame=args.tool_frame)
+    result = export_calibration(robot_description(args, args.robot), args.format, kinematics_hash=args.hash,
+                                report=args.report, flange_frame=args.flange, base_frame=args.base_frame,
+                                tool_frame=args.tool_frame)
     outputs.stage(out, result.text)
     outputs.commit()
     print_notes(result.notes, PROG)

@@ -7,8 +7,7 @@ import logging
 import sys
 
 from calib.cli.args import (HelpFormatter, add_frames, add_progress, add_targets, add_ur_type, add_verbose, count,
-                            positive, robot_description,
-                            positive_int, progress_enabled, with_targets)
+                            positive, positive_int, progress_enabled, robot_description, with_targets)
 from calib.cli.output import EXIT_OK, Outputs, command_line
 from calib.cli.progress import Progress, stage
 
