@@ -24,3 +24,6 @@ POSE_CRITERIA = ("D", "O1", "O4")
 SINGULAR_THRESHOLD = 1e-2
 #: Formats of ``calib export`` (:func:`calib.io.exports.export.export_calibration`).
 EXPORT_FORMATS = ("ur-yaml", "joint-origins-yaml", "mdh-csv")
+#: Universal Robots types whose joint limits calib holds (``--ur-type``;
+#: :data:`calib.io.urdf.ur_description.JOINT_LIMITS`: ur_description's config/<type>/joint_limits.yaml).
+UR_TYPES = ("ur3", "ur3e", "ur5", "ur5e", "ur10", "ur10e", "ur16e", "ur20", "ur30")

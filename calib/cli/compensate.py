@@ -8,8 +8,9 @@ import argparse
 import logging
 import sys
 
-from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_verbose, nonnegative,
-                            print_notes, read_options, with_compliance_file)
+from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_ur_type, add_verbose,
+                            nonnegative, print_notes, read_options, robot_description, urdf_only,
+                            with_compliance_file)
 from calib.cli.output import EXIT_NOT_CONVERGED, EXIT_OK, PROG, Outputs, command_line
 from calib.errors import ParameterError
 
@@ -83,7 +84,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("calibrated", metavar="CALIBRATED.urdf",
                    help="calibrated URDF (written by calib calibrate)")
     p.add_argument("nominal", metavar="NOMINAL.urdf",
-                   help="nominal URDF (the model the controller uses)")
+                   help="nominal URDF (the model the controller uses), or a UR kinematics YAML (with --ur-type)")
+    add_ur_type(p)
     p.add_argument("targets", metavar="TARGETS.csv", help="targets CSV (format above)")
     p.add_argument("-o", "--output", required=True, metavar="CORRECTED.csv",
                    help="CSV of corrected joint values with a status per row to write")
@@ -117,7 +119,9 @@ def run(args: argparse.Namespace) -> int:
 
     outputs = Outputs([args.calibrated, args.nominal, args.targets])
     out = outputs.add(args.output)
-    calibrated, nominal = load_compensation_models(args.calibrated, args.nominal,
+    urdf_only(args.calibrated, "CALIBRATED must be the URDF calib calibrate wrote")
+    nominal_source = robot_description(args, args.nominal)
+    calibrated, nominal = load_compensation_models(args.calibrated, nominal_source,
                                                    base_frame=args.base_frame,
                                                    tool_frame=args.tool_frame)
     calibrated = with_compliance_file(calibrated, args, torques_from=nominal,
@@ -147,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
                                  f"which have no frame (their poses are the nominal model's)")
         check_joint_targets(calibrated)
         if rec is not None and rec.tool_estimated:
-            calibrated, nominal = _last_link_models(args, calibrated, nominal)
+            calibrated, nominal = _last_link_models(args, calibrated, nominal, nominal_source)
         result = compensate(calibrated, nominal, targets.q, measure=args.measure, **opts)
     else:
         T = _homogeneous(targets.rotation, targets.position) if targets.kind == "pose" else None
@@ -190,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _last_link_models(args, calibrated, nominal):
+def _last_link_models(args, calibrated, nominal, nominal_source):
     """The models with the last joint's child link as tool frame, for joint targets after a
     calibration whose tool frame was estimated (a measured point, not the nominal tool): the
     link's pose is compensated, so any tool on it reaches its nominal pose (note on stderr)."""
@@ -205,7 +209,7 @@ def _last_link_models(args, calibrated, nominal):
                      f"not the nominal tool: joint targets are compensated for the pose of the last link "
                      f"{link!r} (every tool fixed to it reaches its nominal pose; the tool's own error was "
                      f"not calibrated)\n")
-    cal, nom = load_compensation_models(args.calibrated, args.nominal, base_frame=args.base_frame,
+    cal, nom = load_compensation_models(args.calibrated, nominal_source, base_frame=args.base_frame,
                                         tool_frame=link)
     cal = with_compliance_file(cal, args, torques_from=nom,
                                hint=" (the report or the compliance sidecar of the calibration)")

@@ -6,7 +6,7 @@ import sys
 
 from calib.cli.args import (COMMON_EPILOG, HelpFormatter, add_compliance, add_file_format, add_frames, add_progress,
                             add_report_options, add_robot, add_verbose, load, parse_meta, read,
-                            with_compliance_file)
+                            robot_description, with_compliance_file)
 from calib.cli.output import EXIT_OK, PROG, json_text
 from calib.errors import ParameterError
 
@@ -86,7 +86,7 @@ def _evaluate_compliance(robot, args):
         base, tool = nominal_frames(robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
         from calib.io.urdf.reader import load_robot
 
-        nominal = load_robot(args.nominal, base_frame=base, tool_frame=tool)
+        nominal = load_robot(robot_description(args, args.nominal), base_frame=base, tool_frame=tool)
     elif args.compliance is not None and robot.targets:
         raise ParameterError(f"--compliance: {args.robot} holds {robot.n_targets} targets and its tool "
                              f"frame is target {robot.targets[0]}'s, not the tool the payload was given "

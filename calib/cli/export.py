@@ -6,7 +6,8 @@ import argparse
 import sys
 
 from calib.choices import EXPORT_FORMATS
-from calib.cli.args import COMMON_EPILOG, HelpFormatter, add_frames, add_verbose, print_notes
+from calib.cli.args import (COMMON_EPILOG, HelpFormatter, add_frames, add_ur_type, add_verbose, print_notes,
+                            robot_description)
 from calib.cli.output import EXIT_OK, PROG, Outputs
 from calib.errors import ParameterError
 
@@ -45,7 +46,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("export", help="a calibrated URDF as UR kinematics YAML, xacro joint origins or "
                                              "an MDH table", description=_EXPORT_DESC, epilog=_EXPORT_EPILOG,
                               formatter_class=HelpFormatter)
-    p.add_argument("robot", metavar="CALIBRATED.urdf", help="the calibrated URDF (calib calibrate -o), or any URDF")
+    p.add_argument("robot", metavar="CALIBRATED.urdf", help="the calibrated URDF (calib calibrate -o), or any URDF, "
+                                                            "or a UR kinematics YAML (with --ur-type)")
+    add_ur_type(p)
     p.add_argument("--format", required=True, choices=EXPORT_FORMATS, metavar="F",
                    help=f"what to write: {', '.join(EXPORT_FORMATS)}")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="the file to write (never an input)")
@@ -77,8 +80,9 @@ def run(args: argparse.Namespace) -> int:
     out = outputs.add(args.output)
     from calib.io.exports.export import export_calibration
 
-    result = export_calibration(args.robot, args.format, kinematics_hash=args.hash, report=args.report,
-                                flange_frame=args.flange, base_frame=args.base_frame, tool_frame=args.tool_frame)
+    result = export_calibration(robot_description(args, args.robot), args.format, kinematics_hash=args.hash,
+                                report=args.report, flange_frame=args.flange, base_frame=args.base_frame,
+                                tool_frame=args.tool_frame)
     outputs.stage(out, result.text)
     outputs.commit()
     print_notes(result.notes, PROG)

@@ -6,8 +6,8 @@ import argparse
 import logging
 import sys
 
-from calib.cli.args import (HelpFormatter, add_frames, add_progress, add_targets, add_verbose, count, positive,
-                            positive_int, progress_enabled, with_targets)
+from calib.cli.args import (HelpFormatter, add_frames, add_progress, add_targets, add_ur_type, add_verbose, count,
+                            positive, positive_int, progress_enabled, robot_description, with_targets)
 from calib.cli.output import EXIT_OK, Outputs, command_line
 from calib.cli.progress import Progress, stage
 
@@ -62,7 +62,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("select-poses", help="choose the poses to measure (optimal design)",
                               description=_SELECT_DESC, epilog=_SELECT_EPILOG,
                               formatter_class=HelpFormatter)
-    p.add_argument("robot", metavar="ROBOT.urdf", help="URDF of the robot (the nominal model)")
+    p.add_argument("robot", metavar="ROBOT.urdf", help="URDF of the robot (the nominal model), or a UR "
+                                                       "kinematics YAML (ROBOT.yaml, with --ur-type)")
+    add_ur_type(p)
     p.add_argument("-n", "--poses", dest="n", type=positive_int, required=True, metavar="N",
                    help="number of poses to select")
     p.add_argument("-o", "--output", required=True, metavar="POSES.csv",
@@ -95,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
 
     outputs = Outputs([args.robot])
     out = outputs.add(args.output)
-    robot = load_robot(args.robot, base_frame=args.base_frame, tool_frame=args.tool_frame)
+    robot = load_robot(robot_description(args, args.robot), base_frame=args.base_frame,
+                       tool_frame=args.tool_frame)
     log.info("robot %s: %d joints (%s), base frame %r, tool frame %r", args.robot, robot.n_joints,
              ", ".join(robot.joint_names), robot.base_frame, robot.tool_frame)
     robot = with_targets(robot, args)

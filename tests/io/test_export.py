@@ -1,9 +1,11 @@
 """Exports of a calibrated URDF (calib.io.exports.export, calib export): each file is read back the way
 its consumer reads it and must give the calibrated forward kinematics.
 
-* ur-yaml: the URDF that ur_description's template (urdf/ur_macro.xacro) makes from the YAML
-  is built here, by the template's rule, and its tool0 must follow the calibrated URDF's flange
-  to 1e-9 m / 1e-9 rad over random configurations (exact arithmetic: only rounding separates them).
+* ur-yaml: the URDF that ur_description's template (urdf/ur_macro.xacro of ur_description 2.4.5,
+  its lines quoted in tests/ur_template.py) makes from the YAML is built here, by those lines,
+  and its tool0 must follow the calibrated URDF's flange to 1e-9 m / 1e-9 rad over random
+  configurations (exact arithmetic: only rounding separates them). The published numbers:
+  tests/io/test_export_ur.py.
 * joint-origins-yaml: the nominal URDF with the YAML's origins put in (as a xacro would) must be
   the calibrated URDF, link by link.
 * mdh-csv: read back by calib.read_mdh_csv, calib's MDH model must give the calibrated kinematics;
@@ -24,13 +26,14 @@ import yaml
 from lxml import etree
 
 import calib
-from calib.io.exports.ur import T_WRIST3_TOOL0, UR_SEGMENTS
+from calib.io.exports.ur import UR_SEGMENTS
 from calib.io.exports.mdh import rotation_angle
 from calib.io.urdf.reader import read_urdf_chain
 from calib.io.urdf.writer import write_calibrated_urdf
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations
 
 from conftest import BUNDLED_URDF, erd_urdf
+from ur_template import xacro_urdf
 
 #: Tolerance of every round trip: the files hold full double precision (repr), so only the
 #: rounding of the products separates the kinematics (observed ~1e-15; the URDF writer's 12
@@ -59,37 +62,11 @@ def _compare(A, B):
 
 
 # ====================================================================== ur-yaml
-def _ur_template_urdf(kinematics: dict) -> str:
-    """The kinematic skeleton ur_description's ur_macro.xacro makes from a kinematics YAML: the
-    fixed base_link -> base_link_inertia (rpy 0 0 pi), the six revolute joints with origins from
-    the entries shoulder .. wrist_3 and axis z, wrist_3_link -> flange -> tool0 (as written in
-    the xacro)."""
-    links = ["base_link", "base_link_inertia", "shoulder_link", "upper_arm_link", "forearm_link",
-             "wrist_1_link", "wrist_2_link", "wrist_3_link", "flange", "tool0"]
-    joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
-              "wrist_3_joint"]
-    pi = math.pi
-    xml = ['<robot name="ur">'] + [f'<link name="{n}"/>' for n in links]
-    xml.append(f'<joint name="base_link-base_link_inertia" type="fixed"><parent link="base_link"/>'
-               f'<child link="base_link_inertia"/><origin xyz="0 0 0" rpy="0 0 {pi!r}"/></joint>')
-    for k, (seg, joint) in enumerate(zip(UR_SEGMENTS, joints)):
-        e = kinematics[seg]
-        xml.append(f'<joint name="{joint}" type="revolute"><parent link="{links[k + 1]}"/>'
-                   f'<child link="{links[k + 2]}"/>'
-                   f'<origin xyz="{e["x"]!r} {e["y"]!r} {e["z"]!r}" rpy="{e["roll"]!r} {e["pitch"]!r} {e["yaw"]!r}"/>'
-                   f'<axis xyz="0 0 1"/><limit lower="-6.3" upper="6.3" effort="1" velocity="1"/></joint>')
-    xml.append(f'<joint name="wrist_3-flange" type="fixed"><parent link="wrist_3_link"/><child link="flange"/>'
-               f'<origin xyz="0 0 0" rpy="0 {-pi / 2.0!r} {-pi / 2.0!r}"/></joint>')
-    xml.append(f'<joint name="flange-tool0" type="fixed"><parent link="flange"/><child link="tool0"/>'
-               f'<origin xyz="0 0 0" rpy="{pi / 2.0!r} {pi!r} {pi / 2.0!r}"/></joint>')
-    return "".join(xml + ["</robot>"])
-
-
 def _template_difference(cal, doc, n=30) -> np.ndarray:
     """Largest (m, rad) differences over n random configurations between the template URDF made
     from ``doc`` (the YAML) and the URDF ``cal``: of tool0 (the template's) against the URDF's
     tool0, and of tool0 . tool_in_tool0 against the URDF's tool frame; both in the base frames."""
-    tmpl = pin.buildModelFromXML(_ur_template_urdf(doc["kinematics"]))
+    tmpl = pin.buildModelFromXML(xacro_urdf(doc["kinematics"]))
     tdata = tmpl.createData()
     tids = {n: tmpl.getFrameId(n) for n in ("base_link", "tool0")}
     chain = read_urdf_chain(cal)
@@ -172,12 +149,6 @@ def test_ur_yaml_hash_is_the_users_or_a_content_hash(tmp_path):
     for bad in ("", "two\nlines", 7):
         with pytest.raises(calib.CalibError, match="hash"):
             calib.export_calibration(cal, "ur-yaml", kinematics_hash=bad)
-
-
-def test_ur_yaml_template_tail_is_a_rotation_about_z():
-    """The module's claim that wrist_3_link -> tool0 of ur_description turns about z only (so
-    that the template's wrist_3_link keeps z on axis 6): pi about z, no translation."""
-    assert np.allclose(T_WRIST3_TOOL0, np.diag([-1.0, -1.0, 1.0, 1.0]), atol=1e-15)
 
 
 def test_ur_yaml_with_an_off_axis_flange_projects_it_and_says_so(tmp_path):

@@ -80,7 +80,7 @@ def _frame(value, name: str) -> str | None:
     return value
 
 
-def export_calibration(urdf_path: str | Path, format: str, output: str | Path | None = None, *,
+def export_calibration(urdf_path, format: str, output: str | Path | None = None, *,
                        kinematics_hash: str | None = None, report: str | Path | None = None,
                        flange_frame: str | None = None, base_frame: str | None = None,
                        tool_frame: str | None = None) -> ExportResult:
@@ -89,7 +89,9 @@ def export_calibration(urdf_path: str | Path, format: str, output: str | Path | 
 
     Parameters
     ----------
-    urdf_path : a URDF (calibrated by calib or not; its recorded frames are the defaults).
+    urdf_path : a URDF (calibrated by calib or not; its recorded frames are the defaults), or a
+        :class:`calib.io.urdf.reader.UrdfText` (e.g. a UR kinematics YAML's,
+        :func:`calib.io.urdf.ur_description.ur_description`).
     format : one of :data:`calib.choices.EXPORT_FORMATS`.
     output : the file to write (never an input), or None to only return the text.
     kinematics_hash : ur-yaml only: the ``kinematics.hash`` text; default ``calib_<decimal>`` from
@@ -105,7 +107,13 @@ def export_calibration(urdf_path: str | Path, format: str, output: str | Path | 
     unknown format, option of another format, not a URDF, a chain ur-yaml cannot map, output =
     input, a report of another calibration.
     """
-    urdf_path = check_path(urdf_path, "urdf_path")
+    from calib.io.urdf.reader import UrdfText
+
+    # a URDF made in memory (a UR kinematics YAML's, calib.io.urdf.ur_description) is read as it is;
+    # its source file is the input that the output must not overwrite
+    if not isinstance(urdf_path, UrdfText):
+        urdf_path = check_path(urdf_path, "urdf_path")
+    input_path = urdf_path.path if isinstance(urdf_path, UrdfText) else urdf_path
     format = check_choice(format, "format", EXPORT_FORMATS)
     output = None if output is None else check_path(output, "output")
     report = None if report is None else check_path(report, "report")
@@ -120,7 +128,7 @@ def export_calibration(urdf_path: str | Path, format: str, output: str | Path | 
     flange_frame, base_frame, tool_frame = (_frame(v, n) for v, n in ((flange_frame, "flange_frame"),
                                                                       (base_frame, "base_frame"), (tool_frame, "tool_frame")))
     if output is not None:
-        check_not_input(output, [urdf_path, report])
+        check_not_input(output, [input_path, report])
         output_target(output)                    # a device, FIFO or socket: refused before any work
         if output.is_dir() or not output.parent.is_dir():
             raise OutputError(output, "is a folder, expected a file name" if output.is_dir() else
@@ -193,7 +201,8 @@ def _ur_yaml(urdf_path, kinematics_hash, flange_frame, base_frame, tool_frame):
     link, t_m, r_m = ur.mount
     if link and link != chain.base_frame and (t_m > MOUNT_NOTE_M or r_m > MOUNT_NOTE_RAD):
         notes.append(f"base_link of the export is {chain.base_frame!r}, {t_m * 1e3:.4g} mm / {r_m:.4g} rad from "
-                     f"{link!r} (the parent link of the first joint): the shoulder entry includes that offset; if "
+                     f"{link!r} (the robot's own base, where its first joint hangs from): the shoulder entry "
+                     f"includes that offset; if "
                      f"your xacro mounts the robot there, export with --base-frame {link}")
     t_off, r_off = ur.flange_offset
     if t_off > 1e-9 or r_off > 1e-9:
@@ -201,7 +210,7 @@ def _ur_yaml(urdf_path, kinematics_hash, flange_frame, base_frame, tool_frame):
                      f"tool0 is its projection onto the axis (tool_in_tool0 gives the tool exactly)")
     p = float(np.linalg.norm(T[:3, 3]))
     if ur.tool_frame != ur.flange_frame or p > 1e-9:
-        notes.append(f"the calibration's tool frame {ur.tool_frame!r} is {p * 1e3:.4g} mm from tool0: the kinematics "
+        notes.append(f"the calibration's tool frame {ur.tool_frame!r} is {p * 1e3:.4g} mm from the template's tool0: the kinematics "
                      f"block holds the arm up to tool0, calib.tool_in_tool0 in the file the tool frame in tool0 "
                      f"(the controller's TCP, if that frame is the tool)")
     return text, notes, (dp, dr)

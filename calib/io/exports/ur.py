@@ -12,19 +12,48 @@ The format (``ur_description/config/<type>/default_kinematics.yaml``)::
       wrist_3:   {...}
       hash: calib_...
 
-How ``ur_description`` uses it (``urdf/ur_macro.xacro`` and ``urdf/inc/ur_common.xacro``), the
-template rule this module inverts:
+How ``ur_description`` uses it, the template rule this module inverts, quoted from
+``urdf/ur_macro.xacro`` of Universal_Robots_ROS2_Description 2.4.5 (the same lines in earlier
+versions and in ROS 1's universal_robot ur_description; the links and joints carry the prefix
+``${tf_prefix}``, left out here; :mod:`calib.io.urdf.ur_description` quotes the whole chain)::
+
+    <joint name="base_link-base_link_inertia" type="fixed"> ... <origin xyz="0 0 0" rpy="0 0 ${pi}" />
+    <joint name="shoulder_pan_joint" type="revolute">
+      <parent link="base_link_inertia" />
+      <child link="shoulder_link" />
+      <origin xyz="${shoulder_x} ${shoulder_y} ${shoulder_z}" rpy="${shoulder_roll} ${shoulder_pitch} ${shoulder_yaw}" />
+      <axis xyz="0 0 1" />
+    ... shoulder_lift_joint (upper_arm_*), elbow_joint (forearm_*), wrist_1_joint (wrist_1_*),
+    ... wrist_2_joint (wrist_2_*), wrist_3_joint (wrist_2_link -> wrist_3_link, wrist_3_*)
+    <joint name="wrist_3-flange" type="fixed">
+      <parent link="wrist_3_link" />
+      <child link="flange" />
+      <origin xyz="0 0 0" rpy="0 ${-pi/2.0} ${-pi/2.0}" />
+    </joint>
+    <joint name="flange-tool0" type="fixed">
+      <!-- default toolframe - X+ left, Y+ up, Z+ front -->
+      <origin xyz="0 0 0" rpy="${pi/2.0} 0 ${pi/2.0}"/>
+      <parent link="flange"/>
+      <child link="tool0"/>
+    </joint>
 
 * ``base_link`` -> ``base_link_inertia``: a fixed joint ``rpy="0 0 pi"``;
 * six revolute joints in series, ``shoulder_pan_joint`` (parent ``base_link_inertia``, child
   ``shoulder_link``), ``shoulder_lift_joint``, ``elbow_joint``, ``wrist_1_joint``,
-  ``wrist_2_joint``, ``wrist_3_joint`` (child ``wrist_3_link``), each with
-  ``<origin xyz="${<seg>_x} ${<seg>_y} ${<seg>_z}" rpy="${<seg>_roll} ${<seg>_pitch} ${<seg>_yaw}"/>``
-  from the entries shoulder .. wrist_3 in that order, and ``<axis xyz="0 0 1"/>``;
-* ``wrist_3_link`` -> ``flange`` (``rpy="0 -pi/2 -pi/2"``) -> ``tool0`` (``rpy="pi/2 pi pi/2"``):
-  fixed, together a rotation of pi about z (:data:`T_WRIST3_TOOL0`);
+  ``wrist_2_joint``, ``wrist_3_joint`` (child ``wrist_3_link``), each with the origin of its
+  entry, shoulder .. wrist_3 in that order, and axis z;
+* ``wrist_3_link`` -> ``flange`` (``rpy="0 -pi/2 -pi/2"``) -> ``tool0`` (``rpy="pi/2 0 pi/2"``):
+  fixed, together the identity (:data:`T_WRIST3_TOOL0`): ``tool0`` is ``wrist_3_link``. (A
+  fork's ``flange-tool0 rpy="${pi/2.0} ${pi} ${pi/2.0}"``, a rotation of pi about z, is not
+  ur_description's: exports made with it turned tool0 by pi about the flange axis.)
 * ``kinematics.hash`` becomes the ``hash_kinematics`` parameter of the driver, which compares it
   with the robot controller's own calibration checksum and warns when they differ.
+
+The roll, pitch, yaw of an entry are one of the equivalent triples of its rotation: the one
+nearest the published files' triple of that entry (:data:`UR_RPY_PUBLISHED`; ``wrist_3`` is
+``1.570796326589793 3.141592653589793 3.141592653589793`` in every
+``config/<type>/default_kinematics.yaml``), so that the nominal robot's export reproduces the
+published numbers and a calibrated robot's reads entry by entry against them.
 
 Mapping rule: by chain order. The six moving joints between the base frame and the tool frame
 (the calibrated URDF's recorded frames by default) are shoulder, upper_arm, forearm, wrist_1,
@@ -55,15 +84,14 @@ import numpy as np
 import pinocchio as pin
 
 from calib.errors import ChainError, FrameNotFound, ParameterError
+from calib.io.urdf.ur_description import UR_FIXED_JOINTS, UR_SEGMENTS
 from calib.io.urdf.document import rpy_nearest
 from calib.io.urdf.reader import UrdfChain
 from calib.model.spatial import inverse
 
-__all__ = ["UR_SEGMENTS", "UR_ANGLE_TOL", "T_BASE_LINK_INERTIA", "T_WRIST3_TOOL0", "UrKinematics",
+__all__ = ["UR_SEGMENTS", "UR_ANGLE_TOL", "T_BASE_LINK_INERTIA", "T_WRIST3_TOOL0", "UR_RPY_PUBLISHED", "UrKinematics",
            "ur_kinematics", "template_tool0", "default_hash", "check_hash"]
 
-#: The entries of ``kinematics``, in chain order (the mapping rule: the i-th moving joint).
-UR_SEGMENTS = ("shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3")
 #: Largest deviation (rad) of a UR-like chain's axes from parallel / normal where the UR
 #: structure has them so: far above any calibration's correction (milliradians), far below the
 #: angles of other arms (a spherical wrist's axis 4 is normal to axis 3: pi/2 from parallel).
@@ -79,10 +107,17 @@ def _rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
     return T
 
 
+_FIXED = {name: _rpy(*rpy) for name, _, _, rpy in UR_FIXED_JOINTS}
 #: ``base_link`` -> ``base_link_inertia`` of ur_description (rpy 0 0 pi).
-T_BASE_LINK_INERTIA = _rpy(0.0, 0.0, math.pi)
-#: ``wrist_3_link`` -> ``flange`` -> ``tool0`` of ur_description (a rotation of pi about z).
-T_WRIST3_TOOL0 = _rpy(0.0, -math.pi / 2, -math.pi / 2) @ _rpy(math.pi / 2, math.pi, math.pi / 2)
+T_BASE_LINK_INERTIA = _FIXED["base_link-base_link_inertia"]
+#: ``wrist_3_link`` -> ``flange`` -> ``tool0`` of ur_description: ``rpy="0 -pi/2 -pi/2"`` then
+#: ``rpy="pi/2 0 pi/2"``, the identity (to rounding, 1e-16).
+T_WRIST3_TOOL0 = _FIXED["wrist_3-flange"] @ _FIXED["flange-tool0"]
+#: roll, pitch, yaw of each entry shoulder .. wrist_3 in the published
+#: ``config/<type>/default_kinematics.yaml`` of ur_description 2.4.5 (ur3 .. ur30 alike; 1.570796327
+#: written for pi/2): the triple an export chooses is the nearest to these.
+UR_RPY_PUBLISHED = np.array([[0.0, 0.0, 0.0], [math.pi / 2, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0],
+                             [math.pi / 2, 0.0, 0.0], [math.pi / 2, math.pi, math.pi]])
 
 
 @dataclass(frozen=True)
@@ -97,9 +132,10 @@ class UrKinematics:
     T_tool0_tool : (4, 4) the tool frame in the template's tool0 (identity when they coincide).
     flange_offset : (translation m, rotation rad) of the flange frame from its projection onto
         axis 6 (0, 0 for a flange on the axis).
-    mount : (link, translation m, rotation rad): the parent link of the first joint and its
-        pose's distance from the base frame (a pedestal or work-cell offset that the shoulder
-        entry then includes).
+    mount : (link, translation m, rotation rad): the robot's own base_link (the parent link of
+        the first joint, or in ur_description's layout the link base_link_inertia is fixed to) and
+        its distance from the base frame (a pedestal or work-cell offset that the shoulder entry
+        then includes).
     """
 
     origins: np.ndarray
@@ -212,17 +248,33 @@ def ur_kinematics(chain: UrdfChain, flange_frame: str | None = None) -> UrKinema
     for k in range(6):
         O = inverse(W[k]) @ W[k + 1]
         origins[k, :3] = O[:3, 3]
-        origins[k, 3:] = rpy_nearest(O[:3, :3])
+        origins[k, 3:] = rpy_nearest(O[:3, :3], UR_RPY_PUBLISHED[k])
     T_tool = oMb.actInv(data.oMf[chain.tool_frame_id]).homogeneous
-    mount = ("", 0.0, 0.0)
-    doc_joint = chain.document.joints.get(chain.joints[0].name) if chain.document is not None else None
-    if doc_joint is not None and model.existFrame(doc_joint.parent):
-        M = oMb.actInv(data.oMf[model.getFrameId(doc_joint.parent)])
-        mount = (doc_joint.parent, float(np.linalg.norm(M.translation)), float(np.linalg.norm(pin.log3(M.rotation))))
-    return UrKinematics(mount=mount, origins=origins, joints=tuple(j.name for j in chain.joints),
+    return UrKinematics(mount=_mount(chain, data, oMb), origins=origins, joints=tuple(j.name for j in chain.joints),
                         base_frame=chain.base_frame, flange_frame=model.frames[fid].name,
                         tool_frame=chain.tool_frame, T_tool0_tool=inverse(Phi) @ T_tool,
                         flange_offset=flange_offset)
+
+
+def _mount(chain: UrdfChain, data, oMb) -> tuple[str, float, float]:
+    """(link, translation m, rotation rad): where the robot's own base_link is, and its distance
+    from the base frame. The first joint hangs from base_link itself in older descriptions, from
+    base_link_inertia, base_link turned pi about z (:data:`T_BASE_LINK_INERTIA`), in
+    ur_description's: of the two readings the one nearer the base frame's orientation (its link:
+    the first joint's parent, or the link that parent is fixed to)."""
+    model, doc = chain.model, chain.document
+    first = doc.joints.get(chain.joints[0].name) if doc is not None else None
+    if first is None or not model.existFrame(first.parent):
+        return ("", 0.0, 0.0)
+    M = oMb.actInv(data.oMf[model.getFrameId(first.parent)]).homogeneous      # T_base_parent
+    up = doc.parent_joint.get(first.parent)
+    above = up.parent if up is not None and up.kind == "fixed" else first.parent
+    best = ("", math.inf, math.inf)
+    for link, T in ((first.parent, M), (above, M @ inverse(T_BASE_LINK_INERTIA))):
+        t, r = float(np.linalg.norm(T[:3, 3])), float(np.linalg.norm(pin.log3(T[:3, :3])))
+        if r < best[2] - 1e-9:
+            best = (link, t, r)
+    return best
 
 
 def template_tool0(origins: np.ndarray, Q: np.ndarray) -> np.ndarray:

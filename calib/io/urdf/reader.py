@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
+from lxml import etree
 
 from calib.checks import check_number, check_path
 from calib.errors import CalibError, ChainError, FrameNotFound, ParameterError, URDFError
@@ -32,6 +33,37 @@ log = logging.getLogger(__name__)
 
 
 # ====================================================================== URDF reading
+@dataclass(frozen=True, repr=False)
+class UrdfText:
+    """A URDF made in memory from another robot description file, read as a URDF file is
+    (:func:`read_urdf_chain`, :func:`calib.load_robot`, the exports): e.g. the URDF that
+    ur_description's template builds from a UR kinematics YAML
+    (:func:`calib.io.urdf.ur_description.ur_description`).
+
+    path : the file it was made from: named in messages, the model's ``urdf_path``, an input
+        that no output may overwrite; ``str()`` of a UrdfText is this path.
+    text : the URDF (XML text).
+    """
+
+    path: Path
+    text: str
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+    def __repr__(self) -> str:
+        return f"UrdfText(path={str(self.path)!r}, text=<{len(self.text)} characters>)"
+
+    def document(self) -> UrdfDocument:
+        """The text parsed as :meth:`UrdfDocument.read` parses a file (comments kept)."""
+        parser = etree.XMLParser(remove_blank_text=False, remove_comments=False, resolve_entities=False)
+        try:
+            root = etree.fromstring(self.text.encode(), parser)
+        except etree.XMLSyntaxError as exc:
+            raise URDFError(self.path, f"the URDF made from it is malformed XML: {exc.msg}") from None
+        return UrdfDocument(self.path, etree.ElementTree(root))
+
+
 @dataclass(frozen=True, eq=False, repr=False)   # (Pinocchio's model, the XML tree: nothing compares or prints them)
 class UrdfChain:
     """A serial chain found in a URDF, with the Pinocchio model of the whole file.
@@ -203,12 +235,13 @@ def _check_placements(path: Path, model) -> None:
                                   f"large (a unit or a typo in the URDF)")
 
 
-def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
+def read_urdf_chain(urdf_path: str | Path | UrdfText, base_frame: str | None = None,
                     tool_frame: str | None = None, *,
                     document: UrdfDocument | None = None) -> UrdfChain:
     """Read a URDF and find the serial chain of moving joints between two of its frames.
 
-    ``urdf_path`` is a file or a robot name of example-robot-data (:func:`robot_path`).
+    ``urdf_path`` is a file, a robot name of example-robot-data (:func:`robot_path`), or a
+    :class:`UrdfText` (a URDF made in memory from another description file).
     ``base_frame`` defaults to the root link; ``tool_frame`` to the last link before the tree
     branches into an end effector (see :func:`_default_tool_frame`). A calibrated URDF written
     by calib records its frames, which are then the defaults (and requests for the nominal
@@ -217,15 +250,18 @@ def read_urdf_chain(urdf_path: str | Path, base_frame: str | None = None,
     :class:`ChainError`. ``document``: the file's document when the caller has already read it
     (it is then not read again).
     """
-    path = robot_path(check_path(urdf_path, "urdf_path"))
+    text = urdf_path.text if isinstance(urdf_path, UrdfText) else None
+    path = urdf_path.path if text is not None else robot_path(check_path(urdf_path, "urdf_path"))
     for name, frame in (("base_frame", base_frame), ("tool_frame", tool_frame)):
         if frame is not None and not (isinstance(frame, str) and frame):
             raise ParameterError(f"{name} must be a frame name (a non-empty str) or None, got {frame!r}")
-    doc = UrdfDocument.read(path) if document is None else document
+    if document is None:
+        document = UrdfDocument.read(path) if text is None else urdf_path.document()
+    doc = document
     parser_output: list[str] = []
     try:
         with captured_c_output() as parser_output:   # Pinocchio's parser prints to C stderr
-            model = pin.buildModelFromUrdf(str(path))
+            model = pin.buildModelFromUrdf(str(path)) if text is None else pin.buildModelFromXML(text)
     except (RuntimeError, ValueError) as exc:
         said = [l.strip()[len("Error:"):].strip() for l in "".join(parser_output).splitlines()
                 if l.strip().startswith("Error:")]
@@ -338,13 +374,13 @@ def chain_axes(chain: UrdfChain) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.array(pts), np.array(dirs), T_meas_tool
 
 
-def load_robot(urdf_path: str | Path, base_frame: str | None = None, tool_frame: str | None = None,
+def load_robot(urdf_path: str | Path | UrdfText, base_frame: str | None = None, tool_frame: str | None = None,
                parallel_threshold: float = PARALLEL_THRESHOLD_RAD) -> RobotModel:
     """Load a serial arm from a URDF and derive its TM-MDH model.
 
     Parameters
     ----------
-    urdf_path : the URDF file.
+    urdf_path : the URDF file (or a robot name of example-robot-data, or a :class:`UrdfText`).
     base_frame : URDF frame (link) that plays the measurement frame; default: the root link.
     tool_frame : URDF frame (link) whose pose is measured; default: the last link before the
         tree branches (``tool`` for the bundled robot).
