@@ -121,6 +121,7 @@ def table(tmp_path_factory):
         "calibrate_touch": (calib.calibrate_touch, dict(robot=robot, data=touch, params="tool", cv=0)),
         "export_calibration": (calib.export_calibration, dict(urdf_path=BUNDLED_URDF, format="mdh-csv", output=d / "e.csv")),
         "read_mdh_csv": (calib.read_mdh_csv, dict(path=d / "mdh.csv")),
+        "clear_caches": (calib.clear_caches, {}),
         # methods of the values the API returns
         "TouchData.subset": (touch.subset, dict(keep=np.ones(touch.n_rows, bool))),
         "TouchData.rows_of": (touch.rows_of, dict(k=0)),
