@@ -465,7 +465,7 @@ def test_positions_in_metres_named_mm_get_a_note(sim):
 
     _, robot, meas = sim
     res = calib.calibrate(robot, replace(meas, position=meas.position / 1000), params="base", cv=0)
-    reach = reach(robot)
+    reach = robot_reach(robot)
     far = [n for n in res.notes if n.startswith("identified link lengths far from the URDF's")]
     assert len(far) == 1 and far[0].endswith(
         f"(more than 10 % of the robot's reach {reach * 1e3:.0f} mm); check the length unit of the "
