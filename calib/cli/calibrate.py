@@ -284,12 +284,23 @@ def _calibrate(args: argparse.Namespace, plots) -> int:
                      + f"{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in "
                        f"base frame {frames.base_frame!r} (standing for {frames.nominal_tool_frame!r} "
                        f"and {frames.nominal_base_frame!r} of {args.robot}; evaluate and compensate "
-                       f"use them by default)\n")
+                       f"use them by default)\n" + _targets_line(out_urdf, frames))
     if stale is not None:
         sys.stdout.write(f"removed {stale}: an earlier calibration's joint terms, which this geometry-only "
                          f"calibration does not have\n")
     return status_exit(result.status, result.message)
 
+
+
+def _targets_line(out_urdf, frames) -> str:
+    """The line saying where a calibration of several targets put them ("" without targets)."""
+    if not frames.targets:
+        return ""
+    links = ", ".join(f"{link} ({t})" for t, link in frames.targets)
+    return (f"{out_urdf}: the targets are fixed links under {frames.tool_frame!r} at their identified offsets: "
+            f"{links}; {frames.tool_frame!r} stays at the flange (its place along and turn about the last "
+            f"joint's axis are the nominal ones: targets cannot tell them from their offsets); compensate "
+            f"aims {frames.tool_frame!r} or a tool on it (--tool-offset, --tool-frame)\n")
 
 
 def residuals_path(report: Path) -> Path:
