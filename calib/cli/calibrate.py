@@ -297,10 +297,11 @@ def _targets_line(out_urdf, frames) -> str:
     if not frames.targets:
         return ""
     links = ", ".join(f"{link} ({t})" for t, link in frames.targets)
-    return (f"{out_urdf}: the targets are fixed links under {frames.tool_frame!r} at their identified offsets: "
-            f"{links}; {frames.tool_frame!r} stays at the flange (its place along and turn about the last "
-            f"joint's axis are the nominal ones: targets cannot tell them from their offsets); compensate "
-            f"aims {frames.tool_frame!r} or a tool on it (--tool-offset, --tool-frame)\n")
+    tool = frames.tool_frame
+    return (f"{out_urdf}: {tool!r} stays at the flange, the targets are fixed links under it at their identified "
+            f"offsets: {links}; the flange's place along the last joint's axis, its turn about it and its offset "
+            f"and tilt from it are the nominal ones (targets cannot tell them from their own offsets); compensate "
+            f"aims {tool!r} or a tool on it (--tool-offset, --tool-frame)\n")
 
 
 def residuals_path(report: Path) -> Path:

@@ -266,7 +266,7 @@ def _tool_line(args, calibrated, rec) -> str:
     flange = rec is not None and rec.tool_kept and len(rec.targets) > 1
     where = f"at the flange of {args.calibrated}" if flange else f"of {args.calibrated}"
     if flange:
-        where += (" (the calibration's targets are the links "
+        where += (" (the calibration measured the links "
                   + ", ".join(f"{link} ({t})" for t, link in rec.targets) + " under it)")
     if rec is not None and tool not in calibrated.source.document.links:     # a tool link added since
         what = (f"tool frame {tool!r} of {args.nominal}, fixed to {rec.tool_frame!r} "

@@ -299,8 +299,8 @@ def test_compensation_aims_the_flange_of_a_calibration_of_several_targets(tmp_pa
     code = main(["compensate", str(out), str(BUNDLED_URDF), str(targets), "-o", str(tmp_path / "c.csv")])
     text = capsys.readouterr().out
     assert code == 0, text
-    assert (f"joint targets of {targets} are for tool frame 'tool' at the flange of {out} (the calibration's "
-            f"targets are the links tool_A (A), tool_B (B), tool_C (C) under it), in base frame meas") in text
+    assert (f"joint targets of {targets} are for tool frame 'tool' at the flange of {out} (the calibration "
+            f"measured the links tool_A (A), tool_B (B), tool_C (C) under it), in base frame meas") in text
     rows = [ln.split(",") for ln in (tmp_path / "c.csv").read_text().splitlines() if not ln.startswith("#")][1:]
     q = np.radians([[float(v) for v in r[:6]] for r in rows])
     # the true flange (the truth's chain, the URDF's flange->tool) reaches the nominal tool poses

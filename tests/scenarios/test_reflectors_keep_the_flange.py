@@ -128,8 +128,8 @@ def test_three_reflectors_keep_tool0_at_the_flange_and_compensation_aims_it(name
                  "--report", str(report), "--cv", "0", *frame_args])
     text = capsys.readouterr().out
     assert code == 0, text
-    assert (f"{out}: the targets are fixed links under 'tool0' at their identified offsets: tool_SMR1 (SMR1), "
-            f"tool_SMR2 (SMR2), tool_SMR3 (SMR3); 'tool0' stays at the flange") in text
+    assert (f"{out}: 'tool0' stays at the flange, the targets are fixed links under it at their identified "
+            f"offsets: tool_SMR1 (SMR1), tool_SMR2 (SMR2), tool_SMR3 (SMR3); ") in text
 
     # ---- the written URDF, read back by Pinocchio and yourdfpy
     rec = UrdfDocument.read(out).frames
@@ -189,8 +189,8 @@ def test_three_reflectors_keep_tool0_at_the_flange_and_compensation_aims_it(name
                  *frame_args])
     text = capsys.readouterr().out
     assert code == 0, text
-    assert (f"joint targets of {prog} are for tool frame 'tool0' at the flange of {out} (the calibration's "
-            f"targets are the links tool_SMR1 (SMR1), tool_SMR2 (SMR2), tool_SMR3 (SMR3) under it), in base "
+    assert (f"joint targets of {prog} are for tool frame 'tool0' at the flange of {out} (the calibration "
+            f"measured the links tool_SMR1 (SMR1), tool_SMR2 (SMR2), tool_SMR3 (SMR3) under it), in base "
             f"frame {base}") in text
     qc, status = _compensated(corrected, nominal.joint_names)
     assert status == ["ok"] * len(Qt)
