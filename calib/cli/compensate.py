@@ -153,7 +153,8 @@ def run(args: argparse.Namespace) -> int:
     print_notes(targets.notes)
     uncalibrated_orientation = (rec is not None and not rec.orientation_measured
                                 and (targets.kind == "pose" or (targets.kind == "joints" and args.measure == "pose")))
-    if uncalibrated_orientation and len(rec.targets) > 2:
+    several = uncalibrated_orientation and len(rec.targets) > 2
+    if several:
         sys.stderr.write(f"{PROG}: note: {args.calibrated}'s calibration measured the positions of "
                          f"{len(rec.targets)} targets: the tool's orientation follows from them but for the turn "
                          f"about the last joint's axis and the tilt from it, held at the nominal (targets cannot "
@@ -203,7 +204,9 @@ def run(args: argparse.Namespace) -> int:
     comment = (f"Corrected joint values, computed by: {command_line(args)}\n"
                f"Targets: {tool_line}; status ok: the calibrated model reaches the "
                f"target; other rows must not be sent to the robot as they are"
-               + ("\nThe calibration measured no tool orientation: the orientations reached are the model's "
+               + ("\nThe calibration measured the positions of several targets: the orientations reached are "
+                  "calibrated but for the turn about the last joint's axis and the tilt from it (nominal)" if several
+                  else "\nThe calibration measured no tool orientation: the orientations reached are the model's "
                   "prediction, not calibrated" if uncalibrated_orientation else ""))
     outputs.stage_from_file(out, lambda p: write_compensation(p, result, comment=comment))
     outputs.commit()
