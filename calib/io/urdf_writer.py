@@ -41,12 +41,9 @@ nominal model derived from the URDF, "cal" the calibrated one):
   a fixed joint from ``L_n``: the output's tool frame is then that new link (the calibrated
   tool is in general off the last joint's axis, where a URDF child link must sit).
 
-Several targets (reflectors, a model with ``targets``): the tool frame stays the URDF's (at the
-flange: its nominal transform from the MDH flange, no offset of its own, :func:`calib.model.flange.flange_robot`)
-and each target is a fixed link ``tool_<id>`` under it at the target's identified offset; with
-``nominal_flange`` the last link's parameters, which targets cannot separate from their offsets,
-are written at the nominal values and the targets take up the difference
-(:func:`calib.model.flange.with_nominal_last_link`), every target's pose unchanged.
+Several targets (reflectors): the tool frame stays the URDF's, at the flange
+(:func:`calib.model.flange.flange_robot`), and each target is a fixed link ``tool_<id>`` under it
+at its identified offset (``tool_kept`` in the record).
 
 The output records its base and tool frames, and the nominal frames they stand for, in a
 ``<calib:frames>`` element (:mod:`calib.io.urdf`), which :func:`calib.load_robot`, ``evaluate``
@@ -117,20 +114,15 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *, nominal: Robot
     orientation_measured : False when the calibration's rows measured no tool orientation
         (positions only, touch rows): recorded (``orientation_measured="false"``) so that a
         compensation with orientation targets can say the orientation is not calibrated.
-    nominal_flange : for a model of several targets measured by the calibration, write the last
-        joint's parameters at the nominal values (the URDF's) and move the difference into the
-        targets, which predict the same poses (:func:`calib.model.flange.with_nominal_last_link`):
-        the tool frame, at the flange, is then where the nominal model and the identifiable
-        corrections put it. False (default): the model's own last link (a true robot of a
-        simulation). No effect without targets.
+    nominal_flange : several targets placed by the fit: the last link at the URDF's values, the
+        difference in the targets (:func:`calib.model.flange.with_nominal_last_link`, the same
+        poses); False: the model's own (a simulation's true robot). No effect without targets.
 
     Returns the frames the output records (:class:`calib.io.urdf.RecordedFrames`): in the output,
     Pinocchio's pose of ``tool_frame`` in ``base_frame`` is ``robot.T_meas_tool(q)`` (4x4,
     metres) for every configuration q (radians / metres), to 1e-12 m / rad. The base frame
     keeps its name; the tool frame too, except when it is the child link of the last joint: a
-    link ``tool`` (or ``tool_calibrated``) is then added (see the module docstring). A model of
-    several targets: the tool frame stays the URDF's (the flange), with one fixed link
-    ``tool_<id>`` per target under it (``RecordedFrames.targets``, ``tool_kept``).
+    link ``tool`` (or ``tool_calibrated``) is then added (see the module docstring).
     :func:`calib.load_robot` of the output uses these frames by default. Only the origins of the
     chain's joints and of at most one fixed joint on each side change; everything else of the
     input is kept.
