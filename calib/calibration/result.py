@@ -152,6 +152,32 @@ class CalibrationResult:
 
         return in_base_frame(self.robot, self.measurement_frame)
 
+    def flange_robot(self) -> RobotModel:
+        """The one-tool-frame model of the tool frame the calibrated URDF holds, in the robot's
+        base frame like :meth:`base_robot`: for a calibration of several targets the URDF's tool
+        frame at the flange (its nominal transform from the calibrated chain, the last link's
+        parameters that the targets cannot separate from their offsets at the nominal values:
+        :mod:`calib.model.flange`), without the targets; :meth:`base_robot` itself otherwise.
+        What compensation aims at: ``calib.compensate(result.flange_robot(),
+        calib.load_robot(URDF), q)``."""
+        robot = self.base_robot()
+        if not robot.targets:
+            return robot
+        from calib.io.urdf.reader import nominal_tool_model
+        from calib.model.flange import flange_robot, with_nominal_last_link
+
+        tool = nominal_tool_model(self.nominal)
+        if self._nominal_flange():
+            robot = with_nominal_last_link(robot, tool)
+        return flange_robot(robot, tool.T_flange_tool_ref)
+
+    def _nominal_flange(self) -> bool:
+        """Whether the targets were placed by the fit (a v parameter of each free): the last
+        link's parameters then trade against their offsets and are written at the nominal."""
+        free = set(self.free)
+        return bool(self.robot.targets) and all(any(n in free for n in self.robot.v_names(t))
+                                                for t in self.robot.targets)
+
     @property
     def success(self) -> bool:
         return self.status == "converged"
@@ -212,7 +238,7 @@ class CalibrationResult:
         return dict(nominal=self.nominal.geometry(), estimated=self.estimated_frames,
                     T_meas_base=None if mf is None else mf.T_meas_base,
                     meas_covariance=None if mf is None else mf.covariance, measurement_link=measurement_link,
-                    orientation_measured=self.before.rotation is not None)
+                    orientation_measured=self.before.rotation is not None, nominal_flange=self._nominal_flange())
 
     def compliance_record(self) -> dict | None:
         """The compliances and periodic terms with their std, payload and gravity

@@ -284,12 +284,24 @@ def _calibrate(args: argparse.Namespace, plots) -> int:
                      + f"{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in "
                        f"base frame {frames.base_frame!r} (standing for {frames.nominal_tool_frame!r} "
                        f"and {frames.nominal_base_frame!r} of {args.robot}; evaluate and compensate "
-                       f"use them by default)\n")
+                       f"use them by default)\n" + _targets_line(out_urdf, frames))
     if stale is not None:
         sys.stdout.write(f"removed {stale}: an earlier calibration's joint terms, which this geometry-only "
                          f"calibration does not have\n")
     return status_exit(result.status, result.message)
 
+
+
+def _targets_line(out_urdf, frames) -> str:
+    """The line saying where a calibration of several targets put them ("" without targets)."""
+    if not frames.targets:
+        return ""
+    links = ", ".join(f"{link} ({t})" for t, link in frames.targets)
+    tool = frames.tool_frame
+    return (f"{out_urdf}: {tool!r} stays at the flange, the targets are fixed links under it at their identified "
+            f"offsets: {links}; the flange's place along the last joint's axis, its turn about it and its offset "
+            f"and tilt from it are the nominal ones (targets cannot tell them from their own offsets); compensate "
+            f"aims {tool!r} or a tool on it (--tool-offset, --tool-frame)\n")
 
 
 def residuals_path(report: Path) -> Path:

@@ -55,7 +55,14 @@ of the measurement->base transform causes) and detail. status is
   not_converged  the target was not reached
 Rows that are not ok must not be sent to the robot as they are.
 
-Joint targets after a calibration that estimated the tool frame (a reflector, not the nominal
+Which tool the targets are for (one line on stdout says it): the tool frame (--tool-frame,
+default the one the calibration was made for), or a tool fixed to it, --tool-offset X,Y,Z[,ROLL,
+PITCH,YAW] (mm and degrees, URDF roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll), in the tool frame).
+After a calibration of several targets (reflectors, a target column) the tool frame stays at the
+flange in CALIBRATED.urdf, the targets fixed links tool_<id> under it: targets are for the
+flange (or the tool given), not for the reflectors.
+
+Joint targets after a calibration that estimated the tool frame (one reflector, not the nominal
 tool) are compensated for the pose of the last link: every tool on it reaches its nominal pose.
 
 Frames: --base-frame and --tool-frame name frames of NOMINAL.urdf; the calibrated URDF's matching
@@ -66,6 +73,8 @@ _COMP_EPILOG = """\
 examples:
   calib compensate calibrated.urdf robot.urdf program_joints.csv -o corrected.csv
   calib compensate calibrated.urdf robot.urdf cad_poses.csv -o corrected.csv --tool-frame tool0
+  calib compensate calibrated.urdf robot.urdf cad_poses.csv -o corrected.csv --tool-offset 0,0,180,0,0,45
+      (the centre point of a tool 180 mm along tool0's z, turned 45 deg about it)
   calib compensate calibrated.urdf robot.urdf tracker_poses.csv -o corrected.csv --targets-frame meas
   (CALIBRATED.urdf comes from: calib calibrate robot.urdf meas.csv -o calibrated.urdf)
 
@@ -105,6 +114,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                             "pose targets are given with --targets-frame base (default: the root link)",
                tool_help="link (or joint) of NOMINAL.urdf whose pose is targeted (default: the "
                          "last link before the tree branches)")
+    p.add_argument("--tool-offset", type=_tool_offset, default=None, metavar="X,Y,Z[,ROLL,PITCH,YAW]",
+                   help="targets are for a tool fixed to the tool frame: its centre point at X,Y,Z mm in the "
+                        "tool frame, turned by ROLL,PITCH,YAW deg (URDF roll-pitch-yaw; default 0,0,0)")
     add_compliance(p, "compensate")
     add_verbose(p, help="log progress on stderr")
     p.set_defaults(func=run)
@@ -128,15 +140,30 @@ def run(args: argparse.Namespace) -> int:
                                       hint=" (the report or the compliance sidecar of the calibration)")
     if args.compliance is not None:
         log.info("compliance from %s: %s", args.compliance, calibrated.describe().splitlines()[-1])
+    rec = calibrated.source.document.frames if calibrated.source is not None else None
+    if args.tool_offset is not None:
+        from calib.compensation.compensate import with_tool_offset
+
+        if rec is not None and rec.tool_estimated:
+            raise ParameterError(f"--tool-offset: {args.calibrated}'s tool frame is the point the calibration measured "
+                                 f"(a reflector), not the nominal tool frame {nominal.tool_frame!r}: an offset from "
+                                 f"it is no tool's; calibrate with several reflectors (the tool frame then stays at "
+                                 f"the flange) or give the tool's poses")
+        calibrated, nominal = (with_tool_offset(m, args.tool_offset[0]) for m in (calibrated, nominal))
     log.info("nominal %s (frames %r -> %r), calibrated %s (frames %r -> %r)", args.nominal,
              nominal.base_frame, nominal.tool_frame, args.calibrated, calibrated.base_frame,
              calibrated.tool_frame)
     targets = read_targets(args.targets, nominal, options=read_options(args))
     print_notes(targets.notes)
-    rec = calibrated.source.document.frames if calibrated.source is not None else None
     uncalibrated_orientation = (rec is not None and not rec.orientation_measured
                                 and (targets.kind == "pose" or (targets.kind == "joints" and args.measure == "pose")))
-    if uncalibrated_orientation:
+    several = uncalibrated_orientation and len(rec.targets) > 2
+    if several:
+        sys.stderr.write(f"{PROG}: note: {args.calibrated}'s calibration measured the positions of "
+                         f"{len(rec.targets)} targets: the tool's orientation follows from them but for the turn "
+                         f"about the last joint's axis and the tilt from it, held at the nominal (targets cannot "
+                         f"tell them from their own offsets)\n")
+    elif uncalibrated_orientation:
         sys.stderr.write(f"{PROG}: note: {args.calibrated}'s calibration measured no tool orientation (positions "
                          f"only, or touch rows): the corrected joints reach the targets' orientations as the "
                          f"model predicts them, which the measurements did not check; status ok vouches for "
@@ -177,15 +204,17 @@ def run(args: argparse.Namespace) -> int:
         result = with_frame_uncertainty(result, T_meas_base=T_meas_base, covariance=rec.measurement_covariance)
     frame = (f"the measurement frame of {args.calibrated}" if args.targets_frame == "meas" and
              T_meas_base is not None else f"base frame {nominal.base_frame}")
+    tool_line = f"{kind} targets of {args.targets} are for {_tool_line(args, calibrated, rec)}, in {frame}"
     comment = (f"Corrected joint values, computed by: {command_line(args)}\n"
-               f"Targets: {kind} targets of {args.targets} (tool frame {nominal.tool_frame} "
-               f"in {frame}); status ok: the calibrated model reaches the "
+               f"Targets: {tool_line}; status ok: the calibrated model reaches the "
                f"target; other rows must not be sent to the robot as they are"
-               + ("\nThe calibration measured no tool orientation: the orientations reached are the model's "
+               + ("\nThe calibration measured the positions of several targets: the orientations reached are "
+                  "calibrated but for the turn about the last joint's axis and the tilt from it (nominal)" if several
+                  else "\nThe calibration measured no tool orientation: the orientations reached are the model's "
                   "prediction, not calibrated" if uncalibrated_orientation else ""))
     outputs.stage_from_file(out, lambda p: write_compensation(p, result, comment=comment))
     outputs.commit()
-    sys.stdout.write(result.format() + f"\n\nwrote {out}\n")
+    sys.stdout.write(f"{result.format()}\n{tool_line}\n\nwrote {out}\n")
     if not result.success:
         bad = result.n_targets - int(result.ok.sum())
         sys.stderr.write(f"{PROG}: warning: {bad} of {result.n_targets} targets are not ok (see the "
@@ -214,6 +243,50 @@ def _last_link_models(args, calibrated, nominal, nominal_source):
     cal = with_compliance_file(cal, args, torques_from=nom,
                                hint=" (the report or the compliance sidecar of the calibration)")
     return cal, nom
+
+
+def _tool_offset(text: str):
+    """``X,Y,Z[,ROLL,PITCH,YAW]`` (mm, deg) of --tool-offset: ((4, 4) T_tool_tcp in metres, the six
+    numbers as given)."""
+    import math
+
+    try:
+        v = [float(t) for t in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) not in (3, 6) or not all(math.isfinite(x) for x in v):
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z or X,Y,Z,ROLL,PITCH,YAW (mm, deg), got {text!r}")
+    import numpy as np
+    import pinocchio as pin
+
+    v += [0.0] * (6 - len(v))
+    T = np.eye(4)
+    T[:3, :3] = pin.rpy.rpyToMatrix(*np.radians(v[3:]))
+    T[:3, 3] = np.array(v[:3]) * 1e-3
+    return T, tuple(v)
+
+
+def _tool_line(args, calibrated, rec) -> str:
+    """What the targets are for, for the line compensate prints: the tool frame (the flange of a
+    calibration of several targets, whose target links are named) or the tool of --tool-offset."""
+    tool = calibrated.tool_frame
+    flange = rec is not None and rec.tool_kept and len(rec.targets) > 1
+    where = f"at the flange of {args.calibrated}" if flange else f"of {args.calibrated}"
+    if flange:
+        where += (" (the calibration measured the links "
+                  + ", ".join(f"{link} ({t})" for t, link in rec.targets) + " under it)")
+    if rec is not None and tool not in calibrated.source.document.links:     # a tool link added since
+        what = (f"tool frame {tool!r} of {args.nominal}, fixed to {rec.tool_frame!r} "
+                + where.replace("at the flange of", "at the flange in", 1))
+    elif flange and tool == rec.tool_frame:
+        what = f"tool frame {tool!r} {where}"
+    else:
+        what = f"tool frame {tool!r} of {args.calibrated}"
+    if args.tool_offset is None:
+        return what
+    x, y, z, r, p, w = args.tool_offset[1]
+    return (f"the tool at {x:g}, {y:g}, {z:g} mm, roll-pitch-yaw {r:g}, {p:g}, {w:g} deg in "
+            + what.replace("tool frame ", "", 1))
 
 
 def _homogeneous(R, p):

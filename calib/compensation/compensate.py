@@ -71,7 +71,7 @@ from calib.model.jacobian import MEASURES
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import finite_array
 from calib.model.robot import RobotModel
-from calib.io.urdf.reader import load_robot, read_urdf_chain, robot_from_chain, robot_path
+from calib.io.urdf.reader import load_robot, read_urdf_chain, recorded_targets, robot_from_chain, robot_path
 from calib.io.urdf.document import UrdfDocument
 from calib.compensation.solver import (  # noqa: F401  (re-exported)
     LIMIT_SLACK, RANDOM_STARTS, STATUSES, TOL_POS_M, TOL_ROT_RAD, CompensationResult, _finite_limits,
@@ -79,7 +79,7 @@ from calib.compensation.solver import (  # noqa: F401  (re-exported)
 
 __all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "compensate",
            "compensate_poses", "load_compensation_models", "check_joint_targets",
-           "with_frame_uncertainty", "pose_targets_in_base", "flange_link"]
+           "with_frame_uncertainty", "pose_targets_in_base", "flange_link", "with_tool_offset"]
 
 # ====================================================================== public API
 @api_call
@@ -236,17 +236,68 @@ def load_compensation_models(calibrated_urdf: str | Path, nominal_urdf: str | Pa
     (:func:`calib.io.urdf.writer.write_calibrated_urdf`) records which of its links stand for the
     nominal base and tool frames (it may have added a link ``tool``); :func:`calib.load_robot`
     maps the nominal frames to them (:meth:`calib.io.urdf.document.UrdfDocument.resolve_frames`). A URDF
-    without that record is read with the same frame names.
+    without that record is read with the same frame names. A calibration of several targets
+    (reflectors) keeps the tool frame at the flange with the targets as links under it
+    (``tool_kept``): the calibrated model is that tool frame's (the targets are not compensated).
+    A ``tool_frame`` of the nominal URDF that the calibrated one lacks (a tool link added to the
+    robot's description after the calibration), fixed to the recorded nominal tool frame, is the
+    calibrated tool frame moved by the nominal URDF's transform between the two
+    (:func:`with_tool_offset`).
 
-    Raises :class:`calib.CalibError` when the two chains have different joints.
+    Raises :class:`calib.CalibError` when the two chains have different joints, or for a URDF of
+    several targets written by an earlier calib (its tool frame is the first target).
     """
     document = UrdfDocument.read(robot_path(calibrated_urdf))     # read once, parsed below
     base_frame, tool_frame = nominal_frames(document, base_frame=base_frame, tool_frame=tool_frame)
     nominal = load_robot(nominal_urdf, base_frame=base_frame, tool_frame=tool_frame)
-    calibrated = robot_from_chain(read_urdf_chain(calibrated_urdf, nominal.base_frame, nominal.tool_frame,
-                                                  document=document))
+    rec = document.frames
+    offset = None
+    if rec is not None and document.link_of(nominal.tool_frame) not in document.links:
+        offset = _fixed_offset(nominal_urdf, nominal, rec.nominal_tool_frame)   # a tool added since
+    chain = read_urdf_chain(calibrated_urdf, nominal.base_frame,
+                            nominal.tool_frame if offset is None else rec.nominal_tool_frame, document=document)
+    targets = recorded_targets(chain)
+    if targets and not document.frames.tool_kept:
+        raise CalibError(f"{document.path}: written by an earlier version of calib, whose tool frame "
+                         f"{chain.tool_frame!r} is the calibration's first target ({targets[0][0]!r}), not the "
+                         f"flange: calibrate again (the tool frame then stays at the flange, the targets "
+                         f"links under it)")
+    calibrated = robot_from_chain(chain, targets=False)      # (with targets: the tool frame, at the flange)
+    if offset is not None:
+        calibrated = replace(with_tool_offset(calibrated, offset), tool_frame=nominal.tool_frame)
     _check_models(calibrated, nominal)
     return calibrated, nominal
+
+
+def _fixed_offset(nominal_urdf, nominal: RobotModel, tool_frame: str) -> np.ndarray | None:
+    """(4, 4) T_tool_link: where ``nominal``'s tool frame (a link of the nominal URDF) sits on the
+    frame ``tool_frame`` of the same URDF when both ride on the last link (the same transform at
+    every configuration, to 1e-12 m / rad); None when ``tool_frame`` is ``nominal``'s own, or
+    for a frame that moves with respect to it (the calibrated URDF's error then names it)."""
+    if nominal.tool_frame == tool_frame:
+        return None
+    tool = load_robot(nominal_urdf, base_frame=nominal.base_frame, tool_frame=tool_frame)
+    if tool.joint_names != nominal.joint_names:
+        return None
+    Q = nominal.random_configurations(3, 0)
+    T = [np.linalg.inv(tool.T_meas_tool(q)) @ nominal.T_meas_tool(q) for q in Q]
+    return T[0] if max(np.abs(t - T[0]).max() for t in T) < 1e-12 else None
+
+
+def with_tool_offset(robot: RobotModel, T_tool_tcp: np.ndarray) -> RobotModel:
+    """``robot`` (one tool frame) with its tool frame moved to a point fixed to it: a tool's
+    centre point at ``T_tool_tcp`` (4, 4), metres, in the tool frame (a rigid transform).
+    Compensating the result aims that point at the targets. A new model; every other field
+    as ``robot``'s."""
+    check_robot(robot)
+    T = finite_array(T_tool_tcp, "T_tool_tcp")
+    if T.shape != (4, 4) or np.abs(T[:3, :3] @ T[:3, :3].T - np.eye(3)).max() > 1e-9 or \
+            np.linalg.det(T[:3, :3]) <= 0 or np.abs(T[3] - [0, 0, 0, 1]).max() > 0:
+        raise ParameterError("T_tool_tcp must be a rigid (4, 4) transform (metres)")
+    if robot.targets:
+        raise ParameterError(f"with_tool_offset: the model holds {robot.n_targets} targets; give the model of "
+                             f"its tool frame (CalibrationResult.flange_robot())")
+    return replace(robot, T_flange_tool_ref=robot.T_flange_tool_ref @ T)
 
 
 def _calibrated_document(calibrated: str | Path | UrdfDocument | RobotModel) -> UrdfDocument | None:
@@ -308,9 +359,9 @@ def _check_models(calibrated: RobotModel, nominal: RobotModel) -> None:
     check_robot(nominal, "nominal")
     if calibrated.targets:
         raise CalibError(f"the calibrated model holds {calibrated.n_targets} targets "
-                         f"({', '.join(calibrated.targets)}) and no tool frame of its own: compensation "
-                         f"needs the nominal tool, which a calibration of several targets does not "
-                         f"identify")
+                         f"({', '.join(calibrated.targets)}): compensate the model of its tool frame at the "
+                         f"flange (CalibrationResult.flange_robot(), or the URDF calib calibrate writes), or "
+                         f"of one target (RobotModel.for_target)")
     if calibrated.joint_names != nominal.joint_names:
         raise CalibError(f"the calibrated model's joints {list(calibrated.joint_names)} differ from "
                          f"the nominal model's {list(nominal.joint_names)}: compensation needs the "

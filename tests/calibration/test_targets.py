@@ -251,16 +251,142 @@ def test_calibrated_urdf_has_a_link_per_target_and_reads_back(name, tmp_path):
     assert np.abs(T_again - T_want).max() < 1e-11
 
 
-def test_compensation_refuses_a_calibration_of_several_targets(tmp_path, capsys):
+def test_the_tool_frame_stays_at_the_flange_and_the_last_link_at_the_nominal(tmp_path):
+    """The URDF's tool frame is the chain's flange with the URDF's own flange->tool transform,
+    the targets links under it; with nominal_flange the last link's parameters (which the
+    targets cannot separate from their offsets) are written at the nominal values and the
+    targets take up the difference: the flange moves, no target does."""
+    from calib.io.urdf.reader import robot_from_chain
+    from calib.model.flange import flange_robot
+
+    nominal = load_robot(erd_urdf("ur10"), tool_frame="tool0")
+    truth = _truth(nominal).with_changes(d6=2e-3, theta6=0.05, a6=1e-3)
+    Q = nominal.random_configurations(12, 3)
+    rows = np.arange(12) % 3
+    for flag, out in ((False, tmp_path / "as_fitted.urdf"), (True, tmp_path / "nominal_flange.urdf")):
+        frames = write_calibrated_urdf(truth, out, nominal=nominal.with_targets(IDS), nominal_flange=flag)
+        assert frames.tool_kept and frames.tool_frame == nominal.tool_frame
+        back = load_robot(out)
+        # every target where the model puts it, either way
+        assert np.abs(ChainKinematics(back).frame_poses(Q, targets=rows)[1]
+                      - ChainKinematics(truth).frame_poses(Q, targets=rows)[1]).max() < 1e-11
+        tool = robot_from_chain(back.source, targets=False)      # the URDF's tool frame alone
+        chain = truth
+        if flag:    # the truth's chain with its last link at the nominal values
+            values, last = truth.values.copy(), ["theta6", "d6", "a6", "alpha6"]
+            values[truth.indices(last)] = nominal.values[nominal.indices(last)]
+            chain = truth.with_values(values)
+        want = flange_robot(chain, nominal.T_flange_tool_ref)
+        R1, p1 = ChainKinematics(tool).frame_poses(Q)
+        R2, p2 = ChainKinematics(want).frame_poses(Q)
+        assert np.abs(p1 - p2).max() < 1e-11 and np.abs(R1 - R2).max() < 1e-11
+    # the two flanges differ by the truth's last link: 2 mm along and 1 mm off the axis, and its
+    # random deviations (0.2 mm scale)
+    T1, T2 = (robot_from_chain(load_robot(tmp_path / f).source, targets=False).T_meas_tool(Q[0])
+              for f in ("as_fitted.urdf", "nominal_flange.urdf"))
+    d6, a6 = (truth.value(n) - nominal.value(n) for n in ("d6", "a6"))
+    assert abs(np.linalg.norm(T1[:3, 3] - T2[:3, 3]) - np.hypot(d6, a6)) < 1e-9 and np.hypot(d6, a6) > 1.5e-3
+
+
+def test_compensation_aims_the_flange_of_a_calibration_of_several_targets(tmp_path, capsys):
+    nominal = _nominal("bundled")
+    truth = _truth(nominal)
+    out = tmp_path / "cal.urdf"
+    write_calibrated_urdf(truth, out, nominal=nominal.with_targets(IDS))
+    targets = tmp_path / "targets.csv"
+    Q = np.array([[0.1, 0.3, 0.2, 0.4, 0.6, 0.5], [-0.7, -0.2, 0.9, -1.0, -0.9, 2.0]])
+    calib.write_poses(targets, nominal, Q)
+    code = main(["compensate", str(out), str(BUNDLED_URDF), str(targets), "-o", str(tmp_path / "c.csv")])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert (f"joint targets of {targets} are for tool frame 'tool' at the flange of {out} (the calibration "
+            f"measured the links tool_A (A), tool_B (B), tool_C (C) under it), in base frame meas") in text
+    rows = [ln.split(",") for ln in (tmp_path / "c.csv").read_text().splitlines() if not ln.startswith("#")][1:]
+    q = np.radians([[float(v) for v in r[:6]] for r in rows])
+    # the true flange (the truth's chain, the URDF's flange->tool) reaches the nominal tool poses
+    from calib.model.flange import flange_robot
+
+    R_t, p_t = ChainKinematics(flange_robot(truth, nominal.T_flange_tool_ref)).frame_poses(q)
+    R_n, p_n = ChainKinematics(nominal).frame_poses(Q)
+    assert np.abs(p_t - p_n).max() < 1e-10 and np.abs(R_t - R_n).max() < 1e-10      # written to 12 digits
+
+
+def test_a_urdf_of_several_targets_written_before_is_refused(tmp_path, capsys):
+    """Before, the tool frame was the first target (no tool_kept in the record): neither
+    compensate nor a recalibration may take it for the flange."""
     nominal = _nominal("bundled")
     out = tmp_path / "cal.urdf"
     write_calibrated_urdf(_truth(nominal), out, nominal=nominal.with_targets(IDS))
+    old = tmp_path / "old.urdf"
+    old.write_text(out.read_text().replace(' tool_kept="true"', ""))
     targets = tmp_path / "targets.csv"
-    targets.write_text("joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg\n0,0,0,0,0,0\n")
-    code = main(["compensate", str(out), str(BUNDLED_URDF), str(targets), "-o", str(tmp_path / "c.csv")])
+    targets.write_text("joint1_deg,joint2_deg,joint3_deg,joint4_deg,joint5_deg,joint6_deg\n0,10,20,0,30,0\n")
+    code = main(["compensate", str(old), str(BUNDLED_URDF), str(targets), "-o", str(tmp_path / "c.csv")])
     err = capsys.readouterr().err
-    assert code == 2 and "holds 3 targets (A, B, C) and no tool frame of its own" in err
+    assert code == 2 and (f"{old}: written by an earlier version of calib, whose tool frame 'tool' is the "
+                          f"calibration's first target ('A'), not the flange: calibrate again") in err
     assert not (tmp_path / "c.csv").exists()
+    with pytest.raises(calib.CalibError, match="earlier version of calib, whose tool frame 'tool' is the first target"):
+        calib.check_writable(load_robot(old))
+
+
+def test_the_results_flange_robot_is_the_urdfs_tool_frame(tmp_path):
+    """In Python: CalibrationResult.flange_robot() is the tool frame the URDF holds (at the
+    flange), compensate takes it; the multi-target model itself is refused with the way out."""
+    from calib.io.urdf.reader import robot_from_chain
+
+    nominal = _nominal("ur5")
+    truth = _truth(nominal)
+    Q, ids = _every_target(nominal.random_configurations(30, 2))
+    res = calibrate(nominal, simulate_measurements(truth, Q, sigma_pos=0, position_only=True, targets=ids),
+                    params="base", sigma_pos=1e-5, cv=0)
+    out = tmp_path / "cal.urdf"
+    res.write_urdf(out)
+    tool = res.flange_robot()
+    assert tool.targets == () and res.robot.targets == IDS
+    written = robot_from_chain(load_robot(out).source, targets=False)
+    Qv = nominal.random_configurations(10, 4)
+    R1, p1 = ChainKinematics(tool).frame_poses(Qv)
+    R2, p2 = ChainKinematics(written).frame_poses(Qv)
+    assert np.abs(p1 - p2).max() < 1e-11 and np.abs(R1 - R2).max() < 1e-11
+    # noise-free: the flange the data determine is the truth's (its last link is held at the
+    # nominal, the truth's deviates by 0.2 mm scale: compare with it moved there)
+    values = truth.values.copy()
+    values[truth.indices(["theta6", "d6", "a6", "alpha6"])] = nominal.values[nominal.indices(["theta6", "d6", "a6",
+                                                                                            "alpha6"])]
+    from calib.model.flange import flange_robot
+
+    seen = flange_robot(truth.with_values(values), nominal.T_flange_tool_ref)
+    assert np.abs(ChainKinematics(seen).frame_poses(Qv)[1] - p1).max() < 1e-9
+    q = np.array([[0.1, -1.2, 1.0, -0.8, 1.1, 0.3]])
+    assert list(calib.compensate(tool, nominal, q).status) == ["ok"]
+    with pytest.raises(calib.CalibError, match=r"holds 3 targets \(A, B, C\): compensate the model of its tool "
+                                               r"frame at the flange \(CalibrationResult.flange_robot\(\)"):
+        calib.compensate(res.robot, nominal, q)
+
+
+def test_tool_offset_is_checked_and_refused_for_a_measured_point(tmp_path, capsys):
+    """--tool-offset: bad text is one line (exit 2, nothing written); after a calibration whose
+    tool frame is one measured point (estimated, not the nominal tool) an offset from it is no
+    tool's: refused."""
+    nominal = _nominal("bundled")
+    targets = tmp_path / "targets.csv"
+    calib.write_poses(targets, nominal, np.array([[0.1, 0.3, 0.2, 0.4, 0.6, 0.5]]))
+    out = tmp_path / "c.csv"
+    code = main(["compensate", str(BUNDLED_URDF), str(BUNDLED_URDF), str(targets), "-o", str(out),
+                 "--tool-offset", "1,2"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.splitlines()[-1] == ("calib: error: argument --tool-offset: expected "
+                                                  "X,Y,Z or X,Y,Z,ROLL,PITCH,YAW (mm, deg), got '1,2'")
+    point = apply_deviations(nominal, {"v_x": 0.03, "v_y": -0.02, "v_z": 0.06})
+    res = calibrate(nominal, simulate_measurements(point, nominal.random_configurations(30, 4), rng=4), cv=0)
+    assert res.estimated_frames == ("flange->tool",)
+    res.write_urdf(tmp_path / "cal.urdf")
+    code = main(["compensate", str(tmp_path / "cal.urdf"), str(BUNDLED_URDF), str(targets), "-o", str(out),
+                 "--tool-offset", "0,0,100"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--tool-offset: " in err and "is the point the calibration measured (a reflector)" in err
+    assert not out.exists()
 
 
 def truth_p(model, Q, k):

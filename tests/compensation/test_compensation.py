@@ -320,7 +320,8 @@ def test_cli_select_poses_then_compensate_end_to_end(tmp_path, bundled, paper_tr
     out = capsys.readouterr().out
     # the words follow the targets' kind (it said "3 pose targets" and "joints targets")
     assert out.startswith("Compensated 3 joint targets (their nominal tool pose): ") and "3 ok" in out
-    assert f"# Targets: joint targets of {tmp_path / 'targets.csv'} (" in corrected.read_text()
+    line = f"joint targets of {tmp_path / 'targets.csv'} are for tool frame 'tool' of {cal_urdf}, in base frame meas"
+    assert f"# Targets: {line}; " in corrected.read_text() and f"\n{line}\n" in out
     lines = [l for l in corrected.read_text().splitlines() if not l.startswith("#")]
     assert lines[0].endswith("status,residual_mm,residual_rad,detail")
     rows = [l.split(",") for l in lines[1:]]
@@ -341,7 +342,8 @@ def test_cli_select_poses_then_compensate_end_to_end(tmp_path, bundled, paper_tr
     assert _run(["compensate", cal_urdf, BUNDLED_URDF, tmp_path / "poses_t.csv", "-o",
                  tmp_path / "c2.csv"]) == 0
     assert capsys.readouterr().out.startswith("Compensated 3 pose targets: ")
-    assert f"# Targets: pose targets of {tmp_path / 'poses_t.csv'} (" in (tmp_path / "c2.csv").read_text()
+    assert f"# Targets: pose targets of {tmp_path / 'poses_t.csv'} are for tool frame 'tool' of " in \
+        (tmp_path / "c2.csv").read_text()
     rows2 = [l.split(",") for l in (tmp_path / "c2.csv").read_text().splitlines()
              if not l.startswith("#")][1:]
     q2 = np.radians(np.array([[float(v) for v in r[:6]] for r in rows2]))

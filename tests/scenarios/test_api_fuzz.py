@@ -107,6 +107,7 @@ def table(tmp_path_factory):
         "MeasurementFrame.to_dict": (mframe.to_dict, {}),
         "MeasurementFrame.xyz_rpy": (mframe.xyz_rpy, {}),
         "CalibrationResult.base_robot": (res.base_robot, {}),
+        "CalibrationResult.flange_robot": (res.flange_robot, {}),
         "CalibrationResult.write_urdf_only": (res.write_urdf_only, dict(path=d / "r2.urdf")),
         "CalibrationResult.urdf_text": (res.urdf_text, dict(measurement_link=None)),
         "Payload": (calib.Payload, dict(mass=1.0)),

@@ -17,13 +17,18 @@ A calibrated URDF written by calib carries one extra top-level element in its ow
 ``base_frame``/``tool_frame`` are the links of this file between which the calibrated
 kinematics hold (the writer may have added a link ``tool``); ``nominal_base_frame`` and
 ``nominal_tool_frame`` the frames of the nominal URDF they stand for (the frames the measurements
-and compensation targets are expressed in). A calibration of several targets (reflectors) adds one fixed link per target under the tool
-frame and records each with its id::
+and compensation targets are expressed in). A calibration of several targets (reflectors) keeps
+the tool frame at the flange (``tool_kept="true"``: the nominal tool frame on the calibrated
+chain, :mod:`calib.model.flange`) and adds one fixed link per target under it, at the target's
+identified offset, recorded with its id::
 
-    <calib:frames ... tool_frame="tool" ...>
+    <calib:frames ... tool_frame="tool0" ... tool_kept="true">
       <calib:target id="A" link="tool_A"/>
       <calib:target id="B" link="tool_B"/>
     </calib:frames>
+
+(URDFs written by calib before that put the tool frame at the first target and lack
+``tool_kept``: their tool frame is a target, not the flange.)
 
 The writers' shared pieces live here too: numbers written to 12 significant digits
 (:func:`format_number`), the roll-pitch-yaw triple nearest a reference (:func:`rpy_nearest`),
@@ -77,6 +82,9 @@ class RecordedFrames:
     frame, or the tool (or target) frames, from the data because they were far from the nominal
     ones (attributes ``measurement_estimated="true"``, ``tool_estimated="true"``): the base
     frame is then the instrument's, the tool frame the measured point's, not the nominal ones.
+    tool_kept : with targets, whether the tool frame is the nominal tool frame on the calibrated
+    chain (the flange, attribute ``tool_kept="true"``), the targets fixed links under it; False
+    in URDFs of several targets written by earlier versions, whose tool frame is the first target.
     orientation_measured : whether the calibration's rows measured the tool's orientation
     (attribute ``orientation_measured="false"`` when they did not: positions only, or touch
     rows): the tool orientation the model gives is then not calibrated (compensate says so).
@@ -91,6 +99,7 @@ class RecordedFrames:
     measurement_estimated: bool = False
     tool_estimated: bool = False
     orientation_measured: bool = True
+    tool_kept: bool = False
     #: The measurement->base transform of a calibration that estimated the measurement frame
     #: and kept the URDF rooted at the robot's base: ``T_meas_base`` (4, 4) pose of ``base_frame``
     #: in the measurement frame as a 16-tuple (row-major, metres), its (6, 6) covariance as a
@@ -114,7 +123,7 @@ class RecordedFrames:
         out = {"base_frame": self.base_frame, "tool_frame": self.tool_frame,
                "nominal_base_frame": self.nominal_base_frame,
                "nominal_tool_frame": self.nominal_tool_frame, "source": self.source}
-        for key in ("measurement_estimated", "tool_estimated"):
+        for key in ("measurement_estimated", "tool_estimated", "tool_kept"):
             if getattr(self, key):
                 out[key] = "true"
         if not self.orientation_measured:
@@ -267,7 +276,7 @@ class UrdfDocument:
                 raise URDFError(self.path, f"<calib:target id={target!r} link={link!r}>: expected an id "
                                            f"and a link of this file")
         flags = {}
-        for k in ("measurement_estimated", "tool_estimated"):
+        for k in ("measurement_estimated", "tool_estimated", "tool_kept"):
             if el.get(k, "false") not in ("true", "false"):
                 raise URDFError(self.path, f"<calib:frames> {k}={el.get(k)!r}: expected true or false")
             flags[k] = el.get(k) == "true"

@@ -10,8 +10,10 @@ Joint i (revolute or prismatic about z of its child link, which is MDH moving fr
 origin ``tail_{i-1} . Rot(z, theta_i) . Trans(z, d_i)``, with ``tail_0 = T_meas_base`` and
 ``tail_i = Trans(x, a_i) . Rot(x, alpha_i) . Rot(y, beta_i)`` the rest of the link transform of
 Eq. (1) (theta_i + q_i and d_i + q_i split because rotations and translations along one axis
-commute); the tool joint has ``tail_n . T_flange_tool``. Each target of a multi-target model is a
-fixed link ``tool_<id>`` under the tool frame, as :mod:`calib.io.urdf.writer` writes them. The
+commute); the tool joint has ``tail_n . T_flange_tool``. A multi-target model, which keeps no
+tool frame of its own beside its targets, gets the flange (MDH frame n) as its tool frame
+(``tail_n``) and each target as a fixed link ``tool_<id>`` under it at ``T_flange_tool(k)``, as
+:mod:`calib.io.urdf.writer` writes them (``tool_kept``). The
 links have no geometry and no inertia (a model built in code has none), so such a URDF carries
 kinematics only: :func:`calib.load_robot` of it gives back ``robot.T_meas_tool(q)``.
 
@@ -29,7 +31,7 @@ from lxml import etree
 from calib.errors import CalibError
 from calib.io.urdf.document import RecordedFrames, origin_attributes, target_link_name, unique_name
 from calib.model.robot import RobotModel
-from calib.model.spatial import elementary, inverse
+from calib.model.spatial import elementary
 
 __all__ = ["minimal_urdf"]
 
@@ -50,7 +52,9 @@ def minimal_urdf(robot: RobotModel, *, estimated: tuple[str, ...] = (),
     frames = RecordedFrames(base_frame=base, tool_frame=tool, nominal_base_frame=base,
                             nominal_tool_frame=tool, source="a model built in code",
                             measurement_estimated="measurement->base" in estimated,
-                            tool_estimated=any(e.startswith("flange->") for e in estimated))
+                            tool_estimated=("flange->tool" in estimated if geo.targets else
+                                            any(e.startswith("flange->") for e in estimated)),
+                            tool_kept=bool(geo.targets))
     root.append(etree.Comment(" Kinematics of a model built in code, written by calib: links "
                               "without geometry or inertia (calib:frames records the frames). "))
     etree.SubElement(root, "link", name=base)
@@ -85,17 +89,16 @@ def minimal_urdf(robot: RobotModel, *, estimated: tuple[str, ...] = (),
     etree.SubElement(root, "link", name=tool)
     tool_joint = unique_name(f"{tool}_joint", taken)
     taken.add(tool_joint)
-    joint(tool_joint, "fixed", parent, tool, tail @ geo.T_flange_tool(0))
+    joint(tool_joint, "fixed", parent, tool, tail if geo.targets else tail @ geo.T_flange_tool(0))
     if geo.targets:
         recorded = []
-        T_first_inv = inverse(geo.T_flange_tool(0))
         for k, target in enumerate(geo.targets):
             link = unique_name(target_link_name(target), taken)
             taken.add(link)
             etree.SubElement(root, "link", name=link)
             jname = unique_name(f"{tool}_to_{link}", taken)
             taken.add(jname)
-            joint(jname, "fixed", tool, link, T_first_inv @ geo.T_flange_tool(k))
+            joint(jname, "fixed", tool, link, geo.T_flange_tool(k))
             recorded.append((target, link))
         frames = replace(frames, targets=tuple(recorded))
     root.insert(1, frames.element())

@@ -395,44 +395,75 @@ def load_robot(urdf_path: str | Path | UrdfText, base_frame: str | None = None, 
     return robot_from_chain(read_urdf_chain(urdf_path, base_frame, tool_frame), parallel_threshold)
 
 
-#: (chain, parallel threshold, model) of the last :func:`robot_from_chain`: the writer derives
-#: the nominal model again from the chain the loader read (check_writable, before a fit).
+#: (chain, model, model with the recorded targets) of the last :func:`robot_from_chain`, by the
+#: chain and the parallel threshold: the writer derives the nominal model again from the chain the
+#: loader read (check_writable, before a fit).
 LAST_DERIVED = Memo("derived model", 1)
 
 
-def robot_from_chain(chain: UrdfChain, parallel_threshold: float = PARALLEL_THRESHOLD_RAD) -> RobotModel:
+def robot_from_chain(chain: UrdfChain, parallel_threshold: float = PARALLEL_THRESHOLD_RAD, *,
+                     targets: bool = True) -> RobotModel:
     """The TM-MDH model of a chain already read (:func:`read_urdf_chain`), carrying it as its
     ``source``: no file is read and nothing is rebuilt. See :func:`load_robot`. (The model of the
-    last chain is kept: both are immutable.)"""
+    last chain is kept: both are immutable.)
+
+    targets : for a calibrated URDF of several targets read with its recorded tool frame, the
+    model of the targets (one flange->target transform per target link the URDF records under
+    the tool frame; the default), or with False the model of the tool frame itself (the flange,
+    what compensation aims at)."""
     key = (id(chain), parallel_threshold)
     hit = LAST_DERIVED.get(key)
-    if hit is not None and hit[0] is chain:
-        return hit[1]
-    robot = _derived(chain, parallel_threshold)
-    LAST_DERIVED.put(key, (chain, robot))
-    return robot
+    if hit is None or hit[0] is not chain:
+        robot = _derived(chain, parallel_threshold)
+        hit = LAST_DERIVED.put(key, (chain, robot, _with_recorded_targets(chain, robot)))
+    return hit[2] if targets else hit[1]
+
+
+def recorded_targets(chain: UrdfChain) -> tuple[tuple[str, str], ...]:
+    """(id, link) of the targets a calibrated URDF records under the tool frame ``chain`` was read
+    with (two or more), else ()."""
+    rec = chain.document.frames if chain.document is not None else None
+    if rec is not None and len(rec.targets) > 1 and chain.tool_frame == rec.tool_frame:
+        return rec.targets
+    return ()
+
+
+def nominal_tool_model(robot: RobotModel) -> RobotModel:
+    """The nominal model of the tool frame ``robot`` stands for, without targets: for a model
+    read from a URDF, the URDF's tool frame (:func:`robot_from_chain` with ``targets=False``;
+    nothing is read); for a model built in code, which keeps no tool frame beside its targets,
+    its chain with the flange (MDH frame n) as the tool frame
+    (:func:`calib.model.flange.flange_robot`)."""
+    if robot.source is None:
+        from calib.model.flange import flange_robot
+
+        return flange_robot(robot.geometry(), np.eye(4)) if robot.targets else robot
+    return robot_from_chain(robot.source, robot.parallel_threshold, targets=False)
 
 
 def _derived(chain: UrdfChain, parallel_threshold: float) -> RobotModel:
     pts, dirs, T_meas_tool = chain_axes(chain)
     geo = derive_mdh(pts, dirs, T_meas_tool, parallel_threshold)
-    robot = RobotModel.from_mdh(
+    return RobotModel.from_mdh(
         chain.joints, geo.theta, geo.d, geo.a, geo.alpha,
         beta=np.where(geo.has_beta, geo.beta, np.nan),
         T_meas_base_ref=geo.T_meas_base_ref, T_flange_tool_ref=geo.T_flange_tool_ref,
         base_frame=chain.base_frame, tool_frame=chain.tool_frame, source=chain,
         parallel_threshold=parallel_threshold)
-    rec = chain.document.frames if chain.document is not None else None
-    if rec is not None and len(rec.targets) > 1 and chain.tool_frame == rec.tool_frame:
-        # a calibration of several targets: one fixed link per target under the tool frame
-        data = chain.model.createData()
-        pin.framesForwardKinematics(chain.model, data, chain.configuration(np.zeros(len(chain.joints))))
-        oMt = data.oMf[chain.tool_frame_id]
-        body = {f.name: k for k, f in enumerate(chain.model.frames) if f.type == pin.FrameType.BODY}
-        refs = [geo.T_flange_tool_ref @ oMt.actInv(data.oMf[body[link]]).homogeneous
-                for _, link in rec.targets]
-        robot = robot.with_targets([t for t, _ in rec.targets], np.array(refs))
-    return robot
+
+
+def _with_recorded_targets(chain: UrdfChain, robot: RobotModel) -> RobotModel:
+    """``robot`` (the tool frame's model) with the targets the URDF records under its tool frame:
+    one fixed link per target."""
+    targets = recorded_targets(chain)
+    if not targets:
+        return robot
+    data = chain.model.createData()
+    pin.framesForwardKinematics(chain.model, data, chain.configuration(np.zeros(len(chain.joints))))
+    oMt = data.oMf[chain.tool_frame_id]
+    body = {f.name: k for k, f in enumerate(chain.model.frames) if f.type == pin.FrameType.BODY}
+    refs = [robot.T_flange_tool_ref @ oMt.actInv(data.oMf[body[link]]).homogeneous for _, link in targets]
+    return robot.with_targets([t for t, _ in targets], np.array(refs))
 
 
 # ====================================================================== the nominal model against its URDF

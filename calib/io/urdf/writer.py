@@ -41,6 +41,10 @@ nominal model derived from the URDF, "cal" the calibrated one):
   a fixed joint from ``L_n``: the output's tool frame is then that new link (the calibrated
   tool is in general off the last joint's axis, where a URDF child link must sit).
 
+Several targets (reflectors): the tool frame stays the URDF's, at the flange
+(:func:`calib.model.flange.flange_robot`), and each target is a fixed link ``tool_<id>`` under it
+at its identified offset (``tool_kept`` in the record).
+
 The output records its base and tool frames, and the nominal frames they stand for, in a
 ``<calib:frames>`` element (:mod:`calib.io.urdf.document`), which :func:`calib.load_robot`, ``evaluate``
 and ``compensate`` use by default. Numbers are written with 12 significant digits
@@ -82,7 +86,7 @@ _UNCHANGED_TOL = 1e-13
 def write_calibrated_urdf(robot: RobotModel, path: str | Path, *, nominal: RobotModel | None = None,
                           estimated: Sequence[str] = (), T_meas_base: np.ndarray | None = None,
                           meas_covariance: np.ndarray | None = None, measurement_link: str | None = None,
-                          orientation_measured: bool = True) -> RecordedFrames:
+                          orientation_measured: bool = True, nominal_flange: bool = False) -> RecordedFrames:
     """Write a copy of the URDF ``robot`` was read from whose kinematics are exactly ``robot``'s.
 
     Parameters
@@ -109,6 +113,9 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *, nominal: Robot
     orientation_measured : False when the calibration's rows measured no tool orientation
         (positions only, touch rows): recorded (``orientation_measured="false"``) so that a
         compensation with orientation targets can say the orientation is not calibrated.
+    nominal_flange : several targets placed by the fit: the last link at the URDF's values, the
+        difference in the targets (:func:`calib.model.flange.with_nominal_last_link`, the same
+        poses); False: the model's own (a simulation's true robot). No effect without targets.
 
     Returns the frames the output records (:class:`calib.io.urdf.document.RecordedFrames`): in the output,
     Pinocchio's pose of ``tool_frame`` in ``base_frame`` is ``robot.T_meas_tool(q)`` (4x4,
@@ -126,15 +133,15 @@ def write_calibrated_urdf(robot: RobotModel, path: str | Path, *, nominal: Robot
     """
     text, frames = calibrated_urdf_text(robot, nominal=nominal, estimated=estimated, T_meas_base=T_meas_base, _path=path,
                                         meas_covariance=meas_covariance, measurement_link=measurement_link,
-                                        orientation_measured=orientation_measured)
+                                        orientation_measured=orientation_measured, nominal_flange=nominal_flange)
     atomic_write_text(path, text)
     return frames
 
 
 def calibrated_urdf_text(robot: RobotModel, *, nominal: RobotModel | None = None, estimated: Sequence[str] = (),
                          T_meas_base: np.ndarray | None = None, meas_covariance: np.ndarray | None = None,
-                         measurement_link: str | None = None, orientation_measured: bool = True, _path=...
-                         ) -> tuple[str, RecordedFrames]:
+                         measurement_link: str | None = None, orientation_measured: bool = True,
+                         nominal_flange: bool = False, _path=...) -> tuple[str, RecordedFrames]:
     """(the text :func:`write_calibrated_urdf` writes, the frames it records), without a file
     (``calib calibrate`` stages its outputs in memory, then writes them as a set)."""
     from calib.checks import check_names, check_path
@@ -147,13 +154,18 @@ def calibrated_urdf_text(robot: RobotModel, *, nominal: RobotModel | None = None
     if _path is not ...:       # (write_calibrated_urdf's output, checked in its turn)
         check_not_input(check_path(_path, "path"), [robot.urdf_path] if robot.urdf_path is not None else [])
     measurement = _check_measurement(T_meas_base, meas_covariance, measurement_link)
-    if not isinstance(orientation_measured, bool):
-        raise CalibError(f"orientation_measured must be True or False, got {orientation_measured!r}")
+    for name, flag in (("orientation_measured", orientation_measured), ("nominal_flange", nominal_flange)):
+        if not isinstance(flag, bool):
+            raise CalibError(f"{name} must be True or False, got {flag!r}")
     if robot.source is None:      # a model built in code: a minimal URDF of its kinematics
         from calib.io.urdf.minimal import minimal_urdf
 
         if nominal is not None:
             check_compatible(robot, nominal)
+            if nominal_flange and robot.targets:
+                from calib.model.flange import with_nominal_last_link
+
+                robot = with_nominal_last_link(robot, nominal.geometry())
         if measurement_link:
             raise CalibError("measurement_link needs a model read from a URDF (this one was built in code)")
         text, frames = minimal_urdf(robot, estimated=tuple(e for e in estimated if measurement is None
@@ -162,15 +174,18 @@ def calibrated_urdf_text(robot: RobotModel, *, nominal: RobotModel | None = None
             frames = replace(frames, **(measurement or {}), orientation_measured=orientation_measured)
             text = _minimal_with_record(text, frames)
         return text, frames
-    doc, plan = _prepare(robot, nominal)
+    doc, plan = _prepare(robot, nominal, nominal_flange)
     estimated = tuple(estimated)
     f = plan.frames     # (a calibrated input's record kept: see _prepare)
     meas_estimated = f.measurement_estimated or "measurement->base" in estimated
     if measurement is not None:      # the base frame is the robot's; the instrument's is recorded
         meas_estimated = False
+    # (the targets' frames are estimated, not the tool frame, which stays the URDF's)
+    tool_estimated = "flange->tool" in estimated if robot.targets else \
+        any(e.startswith("flange->") for e in estimated)
     plan = replace(plan, frames=replace(
         f, measurement_estimated=meas_estimated,
-        tool_estimated=f.tool_estimated or any(e.startswith("flange->") for e in estimated),
+        tool_estimated=f.tool_estimated or tool_estimated,
         orientation_measured=orientation_measured,
         **(measurement or {"T_meas_base": (), "meas_covariance": (), "measurement_link": ""})))
     if measurement_link:
@@ -260,15 +275,14 @@ def check_writable(robot: RobotModel) -> RecordedFrames:
     return _prepare(robot, None)[1].frames
 
 
-def _prepare(robot: RobotModel, nominal: RobotModel | None):
+def _prepare(robot: RobotModel, nominal: RobotModel | None, nominal_flange: bool = False):
     from calib.checks import check_instance
     from calib.model.robot import check_robot
 
     check_robot(robot)
     check_instance(nominal, "nominal", RobotModel, "from calib.load_robot", allow_none=True)
-    if robot.targets:      # the chain and first target as one model, then a link per target
-        doc, plan = _prepare(robot.for_target(0), None if nominal is None else nominal.for_target(0))
-        return doc, _plan_targets(robot, doc, plan)
+    if robot.targets:      # the tool frame on the chain as one model, then a link per target
+        return _prepare_targets(robot, nominal, nominal_flange)
     chain = robot.source      # the URDF as the loader parsed it: no file is read again
     if chain is None:
         raise CalibError("the robot model was not read from a URDF (it carries no URDF source): "
@@ -278,7 +292,7 @@ def _prepare(robot: RobotModel, nominal: RobotModel | None):
                          f"{robot.tool_frame!r} are not those of the chain it was read with "
                          f"({chain.base_frame!r} -> {chain.tool_frame!r}); load it with these frames")
     if nominal is None:
-        nominal = robot_from_chain(chain, robot.parallel_threshold).for_target(0)
+        nominal = robot_from_chain(chain, robot.parallel_threshold, targets=False)
     check_compatible(robot, nominal)
     doc = _UrdfDocument(chain.document.path, chain.document.tree)
     return doc, _plan_edits(robot, nominal, chain, doc, checked_nominal_poses(nominal, chain))
@@ -529,19 +543,43 @@ def _plan_edits(robot: RobotModel, nominal: RobotModel, chain, doc: _UrdfDocumen
     return _Plan(source=doc.path.name, origins=origins, frames=frames, new_tool=new_tool)
 
 
-def _plan_targets(robot: RobotModel, doc: _UrdfDocument, plan: _Plan) -> _Plan:
-    """The plan of the first target's model with one fixed link ``tool_<id>`` per target under
-    the tool frame, at ``T_tool_target = T_flange_tool(first)^-1 T_flange_tool(target)``. A
-    calibrated input that has the link already (a fixed child of the tool frame) gets its origin
-    changed instead."""
+def _prepare_targets(robot: RobotModel, nominal: RobotModel | None, nominal_flange: bool):
+    """(document, plan) of a model of several targets: the tool frame of the URDF on the
+    calibrated chain (:func:`calib.model.flange.flange_robot`, the nominal flange->tool of the
+    URDF's tool frame), then a link per target (:func:`_plan_targets`)."""
+    from calib.io.urdf.reader import recorded_targets
+    from calib.model.flange import flange_robot, with_nominal_last_link
+
+    chain = robot.source
+    if chain is None:
+        raise CalibError("the robot model was not read from a URDF (it carries no URDF source): "
+                         "there is no URDF to write calibrated kinematics into")
+    rec = chain.document.frames
+    if rec is not None and not rec.tool_kept and recorded_targets(chain):
+        raise CalibError(f"{chain.path}: written by an earlier version of calib, whose tool frame "
+                         f"{rec.tool_frame!r} is the first target ({rec.targets[0][0]!r}), not the flange: "
+                         f"calibrate from the nominal URDF ({rec.source or 'the one it was made from'})")
+    if nominal is not None:
+        check_compatible(robot, nominal)
+    tool = robot_from_chain(chain, robot.parallel_threshold, targets=False)    # the URDF's tool frame
+    geo = with_nominal_last_link(robot, tool) if nominal_flange else robot
+    flange = flange_robot(geo, tool.T_flange_tool_ref)
+    doc, plan = _prepare(flange, tool)
+    return doc, _plan_targets(geo, doc, plan, flange.T_flange_tool())
+
+
+def _plan_targets(robot: RobotModel, doc: _UrdfDocument, plan: _Plan, T_flange_tool: np.ndarray) -> _Plan:
+    """The plan of the tool frame's model (``T_flange_tool`` (4, 4): the tool frame on the MDH
+    flange) with one fixed link ``tool_<id>`` per target under the tool frame, at
+    ``T_tool_target = T_flange_tool^-1 T_flange_tool(target)``. A calibrated input that has the
+    link already (a fixed child of the tool frame) gets its origin changed instead."""
     tool = plan.frames.tool_frame
     origins = dict(plan.origins)
     taken_links = set(doc.links) | {link for link, *_ in plan.new_links}
     taken_joints = set(doc.joints) | {joint for _, joint, *_ in plan.new_links}
     new, recorded = [], []
-    T_first = robot.T_flange_tool(0)
     for k, target in enumerate(robot.targets):
-        T = inverse(T_first) @ robot.T_flange_tool(k)
+        T = inverse(T_flange_tool) @ robot.T_flange_tool(k)
         wanted = _target_link_name(target)
         existing = doc.parent_joint.get(wanted)
         if existing is not None and existing.kind == "fixed" and existing.parent == tool:
@@ -554,5 +592,5 @@ def _plan_targets(robot: RobotModel, doc: _UrdfDocument, plan: _Plan) -> _Plan:
             taken_joints.add(joint)
             new.append((link, joint, tool, T))
         recorded.append((target, link))
-    frames = replace(plan.frames, targets=tuple(recorded))
+    frames = replace(plan.frames, targets=tuple(recorded), tool_kept=True)
     return replace(plan, origins=origins, frames=frames, new_targets=tuple(new))
