@@ -79,7 +79,7 @@ from calib.calibration.compensation_solver import (  # noqa: F401  (re-exported)
 
 __all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "compensate",
            "compensate_poses", "load_compensation_models", "check_joint_targets",
-           "with_frame_uncertainty", "pose_targets_in_base", "flange_link"]
+           "with_frame_uncertainty", "pose_targets_in_base", "pose_targets_from_frame", "flange_link"]
 
 # ====================================================================== public API
 @api_call
@@ -223,6 +223,24 @@ def pose_targets_in_base(*, T_meas_base: np.ndarray, T_meas_tool: np.ndarray | N
     if P.ndim != 2 or P.shape[1] != 3:
         raise DataError(f"p_meas_tool must be (N, 3), got shape {P.shape}")
     return P @ Ti[:3, :3].T + Ti[:3, 3]
+
+
+def pose_targets_from_frame(*, T_base_frame: np.ndarray, T_frame_tool: np.ndarray | None = None,
+                            p_frame_tool: np.ndarray | None = None) -> np.ndarray:
+    """Pose targets (N, 4, 4) or positions (N, 3) given in a frame fixed to the robot's base (a
+    controller's base frame, a link of the URDF: :func:`calib.io.controller_frame.targets_frame`),
+    in the robot's base frame: ``T_base_tool = T_base_frame T_frame_tool`` (metres). Give
+    exactly one of ``T_frame_tool`` and ``p_frame_tool``."""
+    T = finite_array(T_base_frame, "T_base_frame")
+    if T.shape != (4, 4):
+        raise ParameterError(f"T_base_frame must be (4, 4), got {T.shape}")
+    Ti = np.eye(4)
+    Ti[:3, :3], Ti[:3, 3] = T[:3, :3].T, -T[:3, :3].T @ T[:3, 3]
+    if (T_frame_tool is None) == (p_frame_tool is None):
+        raise ParameterError("give exactly one of T_frame_tool (N, 4, 4) and p_frame_tool (N, 3)")
+    if T_frame_tool is not None:
+        return pose_targets_in_base(T_meas_base=Ti, T_meas_tool=T_frame_tool)
+    return pose_targets_in_base(T_meas_base=Ti, p_meas_tool=p_frame_tool)
 
 
 # ====================================================================== models and checks

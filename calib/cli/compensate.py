@@ -94,10 +94,18 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    metavar="S",
                    help="smallest singular value of the joint Jacobian (position rows in m/rad, "
                         "rotation rows in rad/rad) below which a target is reported singular")
-    p.add_argument("--targets-frame", choices=("base", "meas"), default="base",
-                   help="frame of pose targets: base (default), the robot's base frame (the calibrated "
-                        "URDF's, what a robot program holds); meas, the measurement frame of the "
-                        "calibration (the tracker's), taken from CALIBRATED.urdf's record")
+    frames = p.add_mutually_exclusive_group()
+    frames.add_argument("--targets-frame", choices=("base", "controller", "meas"), default=None,
+                        help="frame of pose targets: controller (the default with a --convention naming a "
+                             "controller), that controller's own base frame, the one its programs and "
+                             "pendant use (ROS-Industrial's link 'base' of NOMINAL.urdf, e.g. UR: pi about z "
+                             "from base_link); base (the default otherwise), the robot's base frame "
+                             "(--base-frame); meas, the measurement frame of the calibration (the "
+                             "tracker's), taken from CALIBRATED.urdf's record. One line of the output says "
+                             "which frame was used")
+    frames.add_argument("--targets-link", metavar="LINK", default=None,
+                        help="pose targets in the frame of this link (or joint) of NOMINAL.urdf, fixed to "
+                             "the robot's base (a work object or user frame the URDF holds)")
     add_file_format(p)
     add_frames(p, base_help="link (or joint) of NOMINAL.urdf that is the robot's base frame, in which "
                             "pose targets are given with --targets-frame base (default: the root link)",
@@ -141,9 +149,12 @@ def run(args: argparse.Namespace) -> int:
     log.info("read %d %s targets from %s", targets.n_targets, kind, args.targets)
     T_meas_base = None if rec is None else rec.measurement_transform
     opts = dict(singular_threshold=args.singular_threshold)
+    frame = None
     if targets.kind == "joints":
-        if args.targets_frame != "base":
-            raise ParameterError(f"--targets-frame {args.targets_frame}: {args.targets} holds joint targets, "
+        given = (f"--targets-frame {args.targets_frame}" if args.targets_frame not in (None, "base") else
+                 f"--targets-link {args.targets_link}" if args.targets_link is not None else None)
+        if given:
+            raise ParameterError(f"{given}: {args.targets} holds joint targets, "
                                  f"which have no frame (their poses are the nominal model's)")
         check_joint_targets(calibrated)
         if rec is not None and rec.tool_estimated:
@@ -152,7 +163,18 @@ def run(args: argparse.Namespace) -> int:
     else:
         T = _homogeneous(targets.rotation, targets.position) if targets.kind == "pose" else None
         p = targets.position if targets.kind != "pose" else None
-        if args.targets_frame == "meas":
+        where = _targets_frame_name(args)
+        if where != "meas":
+            from calib.calibration.compensation import pose_targets_from_frame
+            from calib.io.controller_frame import targets_frame
+
+            frame = targets_frame(nominal, convention=args.convention if where == "controller" else None,
+                                  link=args.targets_link)
+            if T is not None:
+                T = pose_targets_from_frame(T_base_frame=frame.T_base_frame, T_frame_tool=T)
+            else:
+                p = pose_targets_from_frame(T_base_frame=frame.T_base_frame, p_frame_tool=p)
+        if where == "meas":
             if T_meas_base is None:
                 sys.stderr.write(f"{PROG}: note: {args.calibrated} records no measurement frame (the calibration's "
                                  f"measurements were in the robot's base frame): meas = base\n")
@@ -167,27 +189,47 @@ def run(args: argparse.Namespace) -> int:
             result = compensate_poses(calibrated, T_meas_tool=T, q_start=targets.q, **opts)
         else:
             result = compensate_poses(calibrated, p_meas_tool=p, q_start=targets.q, **opts)
-    if T_meas_base is not None and (targets.kind == "joints" or args.targets_frame == "base"):
+    if T_meas_base is not None and (targets.kind == "joints" or _targets_frame_name(args) != "meas"):
         from calib.calibration.compensation import with_frame_uncertainty
 
         result = with_frame_uncertainty(result, T_meas_base=T_meas_base, covariance=rec.measurement_covariance)
-    frame = (f"the measurement frame of {args.calibrated}" if args.targets_frame == "meas" and
-             T_meas_base is not None else f"base frame {nominal.base_frame}")
+    if frame is not None:
+        where = frame.text
+    elif targets.kind != "joints" and T_meas_base is not None:
+        where = f"targets in the measurement frame of {args.calibrated}"
+    else:
+        where = f"base frame {nominal.base_frame}"
     comment = (f"Corrected joint values, computed by: {command_line(args)}\n"
-               f"Targets: {kind} targets of {args.targets} (tool frame {nominal.tool_frame} "
-               f"in {frame}); status ok: the calibrated model reaches the "
+               f"Targets: {kind} targets of {args.targets} (tool frame {nominal.tool_frame}; "
+               f"{where}); status ok: the calibrated model reaches the "
                f"target; other rows must not be sent to the robot as they are"
                + ("\nThe calibration measured no tool orientation: the orientations reached are the model's "
                   "prediction, not calibrated" if uncalibrated_orientation else ""))
     outputs.stage_from_file(out, lambda p: write_compensation(p, result, comment=comment))
     outputs.commit()
-    sys.stdout.write(result.format() + f"\n\nwrote {out}\n")
+    sys.stdout.write(result.format() + ("" if frame is None else f"\n  {frame.text}") + f"\n\nwrote {out}\n")
     if not result.success:
         bad = result.n_targets - int(result.ok.sum())
         sys.stderr.write(f"{PROG}: warning: {bad} of {result.n_targets} targets are not ok (see the "
                          f"status and detail columns of {out})\n")
         return EXIT_NOT_CONVERGED
     return EXIT_OK
+
+
+def _targets_frame_name(args) -> str:
+    """The frame of pose targets: "meas", "base", "controller" (the --convention's controller
+    frame) or "link" (--targets-link); the default is the controller's frame under a
+    --convention that names one, else the robot's base frame."""
+    from calib.io.conventions import CONVENTIONS
+
+    if args.targets_link is not None:
+        return "link"
+    convention = getattr(args, "convention", None)
+    named = convention is not None and CONVENTIONS[convention].controller is not None
+    if args.targets_frame == "controller" and not named:
+        raise ParameterError("--targets-frame controller: give the controller with --convention "
+                             + "/".join(k for k, c in CONVENTIONS.items() if c.controller is not None))
+    return args.targets_frame or ("controller" if named else "base")
 
 
 def _last_link_models(args, calibrated, nominal):
