@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from pathlib import Path
 
 from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_verbose, nonnegative,
                             print_notes, read_options, with_compliance_file)
@@ -111,6 +112,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                             "pose targets are given with --targets-frame base (default: the root link)",
                tool_help="link (or joint) of NOMINAL.urdf whose pose is targeted (default: the "
                          "last link before the tree branches)")
+    p.add_argument("--j23-factor", type=float, choices=(-1.0, 0.0, 1.0), default=None, metavar="F",
+                   help="FANUC programs of joint positions: the model's J2/J3 interaction, as ROS-Industrial's "
+                        "FANUC driver takes it (J23_factor: J3 of the URDF = J3 + F * J2): -1, 0 or 1")
     add_compliance(p, "compensate")
     add_verbose(p, help="log progress on stderr")
     p.set_defaults(func=run)
@@ -123,11 +127,23 @@ def run(args: argparse.Namespace) -> int:
                                                 load_compensation_models)
     from calib.io.specs import read_targets, write_compensation
 
+    from calib.io.programs import vendor_of
+
+    program = vendor_of(args.targets)
     outputs = Outputs([args.calibrated, args.nominal, args.targets])
+    if program is not None and vendor_of(args.output) != program:
+        raise ParameterError(f"-o {args.output}: {args.targets} is a {program} program; the corrected copy is one "
+                             f"too (a file ending in {Path(args.targets).suffix})")
     out = outputs.add(args.output)
     calibrated, nominal = load_compensation_models(args.calibrated, args.nominal,
                                                    base_frame=args.base_frame,
                                                    tool_frame=args.tool_frame)
+    if program is not None:
+        from calib.cli.compensate_program import run_program
+
+        calibrated = with_compliance_file(calibrated, args, torques_from=nominal,
+                                          hint=" (the report or the compliance sidecar of the calibration)")
+        return run_program(args, calibrated, nominal, outputs, out, program)
     calibrated = with_compliance_file(calibrated, args, torques_from=nominal,
                                       hint=" (the report or the compliance sidecar of the calibration)")
     if args.compliance is not None:
@@ -185,10 +201,20 @@ def run(args: argparse.Namespace) -> int:
                     T = pose_targets_in_base(T_meas_base=T_meas_base, T_meas_tool=T)
                 else:
                     p = pose_targets_in_base(T_meas_base=T_meas_base, p_meas_tool=p)
+        configurations = None
+        if targets.q is None:
+            from calib.calibration.configuration import Configurations
+            from calib.io.compensation_targets import configurations_of
+
+            values = configurations_of(targets, args.convention)
+            if values is not None:
+                configurations = Configurations(args.convention, values,
+                                                None if frame is None else frame.T_base_frame)
+        branch = dict(nominal=nominal, configurations=configurations) if targets.q is None else {}
         if T is not None:
-            result = compensate_poses(calibrated, T_meas_tool=T, q_start=targets.q, **opts)
+            result = compensate_poses(calibrated, T_meas_tool=T, q_start=targets.q, **opts, **branch)
         else:
-            result = compensate_poses(calibrated, p_meas_tool=p, q_start=targets.q, **opts)
+            result = compensate_poses(calibrated, p_meas_tool=p, q_start=targets.q, **opts, **branch)
     if T_meas_base is not None and (targets.kind == "joints" or _targets_frame_name(args) != "meas"):
         from calib.calibration.compensation import with_frame_uncertainty
 
@@ -205,7 +231,22 @@ def run(args: argparse.Namespace) -> int:
                f"target; other rows must not be sent to the robot as they are"
                + ("\nThe calibration measured no tool orientation: the orientations reached are the model's "
                   "prediction, not calibrated" if uncalibrated_orientation else ""))
-    outputs.stage_from_file(out, lambda p: write_compensation(p, result, comment=comment))
+    if targets.names is not None:
+        from dataclasses import replace
+
+        result = replace(result, names=targets.names)
+    if args.convention not in (None, "calib"):
+        from calib.calibration.configuration import VENDORS, vendor_configuration
+        from calib.io.compensation_output import write_compensation_convention
+
+        confs = None
+        if args.convention in VENDORS and _six_revolute(nominal):
+            confs = vendor_configuration(nominal, result.q, args.convention,
+                                         T_base_frame=None if frame is None else frame.T_base_frame)
+        outputs.stage_from_file(out, lambda p: write_compensation_convention(
+            p, result, convention=args.convention, names=targets.names, configurations=confs, comment=comment))
+    else:
+        outputs.stage_from_file(out, lambda p: write_compensation(p, result, comment=comment, names=targets.names))
     outputs.commit()
     sys.stdout.write(result.format() + ("" if frame is None else f"\n  {frame.text}") + f"\n\nwrote {out}\n")
     if not result.success:
@@ -214,6 +255,10 @@ def run(args: argparse.Namespace) -> int:
                          f"status and detail columns of {out})\n")
         return EXIT_NOT_CONVERGED
     return EXIT_OK
+
+
+def _six_revolute(robot) -> bool:
+    return robot.n_joints >= 6 and not robot.prismatic[:6].any()
 
 
 def _targets_frame_name(args) -> str:

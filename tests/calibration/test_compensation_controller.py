@@ -89,9 +89,26 @@ def _ur_targets(path, nominal, Q, *, seeds=None):
     return T_base
 
 
+def _table(path):
+    """(header, rows) of a CSV output (comment lines skipped)."""
+    import csv
+
+    rows = list(csv.reader(l for l in path.read_text().splitlines() if not l.startswith("#")))
+    return rows[0], rows[1:]
+
+
 def _joints(path, n=6):
-    rows = [l.split(",") for l in path.read_text().splitlines() if not l.startswith("#")]
-    return np.array([[float(v) for v in r[:n]] for r in rows[1:]])
+    """(N, n) joint values in radians of a compensate output: UR's base..wrist3 (rad), KUKA's
+    A1..A6 (deg), or calib's <joint>_deg columns."""
+    header, rows = _table(path)
+    for names, scale in ((["base", "shoulder", "elbow", "wrist1", "wrist2", "wrist3"], 1.0),
+                         ([f"A{i}" for i in range(1, 7)], math.pi / 180)):
+        if set(names) <= set(header):
+            cols = [header.index(c) for c in names[:n]]
+            break
+    else:
+        cols, scale = [i for i, h in enumerate(header) if h.endswith("_deg")][:n], math.pi / 180
+    return np.array([[float(r[c]) for c in cols] for r in rows]) * scale
 
 
 def test_the_urdf_base_is_the_published_ur_base():
@@ -118,7 +135,6 @@ def test_ur_targets_in_the_controller_base_land_in_base(ur5_case, tmp_path, caps
             "rotated 180 deg about z from the base frame 'world'")
     assert line in out.splitlines()[2] and line in (tmp_path / "c.csv").read_text()
     q = _joints(tmp_path / "c.csv")
-    q = np.radians(q) if "_deg" in (tmp_path / "c.csv").read_text() else q
     # the true robot at the corrected joints, in 'base' (the nominal URDF's base: a fixed frame)
     B = _frame_pose(nominal, np.zeros(6), "base")
     R, p = ChainKinematics(true).frame_poses(q)
@@ -130,7 +146,6 @@ def test_ur_targets_in_the_controller_base_land_in_base(ur5_case, tmp_path, caps
     code, out, _ = _cli(capsys, "compensate", cal, erd_urdf("ur5"), tmp_path / "t.csv", "-o", tmp_path / "w.csv",
                         "--convention", "ur", "--tool-frame", "tool0", "--targets-frame", "base")
     qw = _joints(tmp_path / "w.csv")
-    qw = np.radians(qw) if "_deg" in (tmp_path / "w.csv").read_text() else qw
     _, p_w = ChainKinematics(true).frame_poses(qw)
     assert np.linalg.norm((p_w - B[:3, 3]) @ B[:3, :3] - T_t[:, :3, 3], axis=1).min() > 0.1
     assert "targets in the base frame 'world' of ur5_robot.urdf" in out
@@ -213,6 +228,119 @@ def test_kuka_robroot_is_the_urdf_base_link(tmp_path, capsys):
     assert "targets in KUKA's $ROBROOT (--convention kuka): link 'base' of kr16_2.urdf, the same frame as the " \
            "base frame 'base_link'" in out
     q = _joints(tmp_path / "c.csv")
-    q = np.radians(q) if "_deg" in (tmp_path / "c.csv").read_text() else q
     R_q, p_q = ChainKinematics(true).frame_poses(q)
     assert np.linalg.norm(p_q - p, axis=1).max() < 1e-5     # targets written to 1 um: reached to 10 um
+
+
+# ---------------------------------------------------------------------- the branch
+def _poses(robot, Q):
+    R, p = ChainKinematics(robot).frame_poses(Q)
+    T = np.zeros((len(Q), 4, 4))
+    T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = R, p, 1.0
+    return T
+
+
+def test_seeds_pick_the_branch_and_a_branch_change_is_refused(ur5_case):
+    """The same UR pose from seeds on two branches: each solution keeps its seed's branch (the
+    elbow's sign, the joints within a few mrad) and reaches the pose; a seed whose wrist is flipped
+    (q5 negated, q4 and q6 as they were) made the solver return to the other branch, reported
+    "ok" before (the elbow at -114 or +113 deg for one target): now refused, naming the change."""
+    from calib.calibration.compensation import compensate_poses
+    from calib.calibration.configuration import branch_indicators
+
+    nominal, true, _ = ur5_case
+    T = _poses(nominal, UR_Q[:2])
+    # the other elbow solution of the same poses, found on the nominal model from a flipped seed
+    alt = compensate_poses(nominal, T_meas_tool=T, q_start=UR_Q[:2] * [1, 1, -1, 1, 1, 1] + [0, 0.6, 0, -0.6, 0, 0])
+    e0 = branch_indicators(nominal, UR_Q[:2])["elbow"]
+    if not (np.sign(branch_indicators(nominal, alt.q)["elbow"]) == -np.sign(e0)).all():
+        pytest.skip("the flipped seed did not reach the other elbow solution")      # (it does: seeded numbers)
+    for seeds in (UR_Q[:2], np.array(alt.q)):
+        res = compensate_poses(true, T_meas_tool=T, q_start=seeds)
+        assert (res.status == "ok").all()
+        assert np.abs(res.q - seeds).max() < 0.02
+        R, p = ChainKinematics(true).frame_poses(res.q)
+        assert np.linalg.norm(p - T[:, :3, 3], axis=1).max() < 1e-9
+    flipped = UR_Q[:2] * [1, 1, 1, 1, -1, 1]
+    res = compensate_poses(true, T_meas_tool=T, q_start=flipped)
+    assert list(res.status) == ["branch", "branch"]
+    assert "the wrist flipped (axes 4 and 6 crossed alignment): another branch than the starting joints" \
+        in res.describe(0)
+    assert np.abs(res.q[:, 4] + flipped[:, 4]).max() < 0.02         # q5 went back through 0: the other branch
+
+
+def test_without_a_seed_the_nominal_models_own_solution_is_kept(ur5_case):
+    """No seed: the nominal model's own solution for each target (the controller's), then the
+    correction from there: the corrected joints are within a few mrad of it, on its branch."""
+    from calib.calibration.compensation import compensate_poses
+    from calib.calibration.configuration import branch_change
+
+    nominal, true, _ = ur5_case
+    T = _poses(nominal, UR_Q)
+    own = compensate_poses(nominal, T_meas_tool=T)              # the nominal model's own solutions
+    res = compensate_poses(true, T_meas_tool=T, nominal=nominal)
+    assert (res.status == "ok").all() and not res.seeded
+    assert np.abs(res.q - own.q).max() < 0.02
+    assert branch_change(nominal, res.q, own.q) == [""] * len(UR_Q)
+    R, p = ChainKinematics(true).frame_poses(res.q)
+    assert np.linalg.norm(p - T[:, :3, 3], axis=1).max() < 1e-9
+
+
+@pytest.mark.skipif(not KR16.exists(), reason="the vendor files of /work/shared/vendor are absent")
+def test_kuka_status_and_turn_as_published():
+    """KUKA Status and Turn of the KR 16-2 (vendor URDF) against the published definitions: the
+    usual posture (A2 -90, A3 +90, A5 +30) is S 'B010' = 2 (RoboDK's KUKA post writes 'B010' when
+    it has no configuration); Turn bit i-1 is set when Ai < 0 (RoboDK's joints_2_turn_str of its
+    own example joints [-46.18419, -6.77518, -20.54925, 71.38674, 49.58727, -302.54752] is
+    'B100111' = 39); bit 1 changes at the angle where the wrist point is in line with A2 and A3:
+    -atan(35 / 670) = -2.990 deg for the KR 16-2 (A3 -> A4 offset 0.67 m, -0.035 m in the URDF),
+    0 deg for axes 3 and 4 that intersect (SINUMERIK's text)."""
+    from calib.calibration.configuration import vendor_configuration
+
+    kr = load_robot(KR16)
+    got = vendor_configuration(kr, np.radians([[0, -90, 90, 0, 30, 0],
+                                               [-46.18419, -6.77518, -20.54925, 71.38674, 49.58727, -302.54752]]), "kuka")
+    assert got[0] == (0b010, 0b000010)                   # S 'B010'; T: A2 < 0
+    assert got[1] == (0b000, int("100111", 2))            # A3 -20.5 deg < phi: elbow down; T 'B100111'
+
+    phi = -math.degrees(math.atan2(0.035, 0.67))
+    s = [vendor_configuration(kr, np.radians([[0, -45, a, 0, 30, 0]]), "kuka")[0][0]
+         for a in (phi - 0.01, phi + 0.01)]
+    assert s == [0, 2]                                        # bit 1: A3 < phi, A3 >= phi
+    # overhead (bit 0) and A5 <= 0 (bit 2)
+    assert vendor_configuration(kr, np.radians([[0, -90, 90, 0, -30, 0]]), "kuka")[0][0] == 6
+    assert vendor_configuration(kr, np.radians([[0, -120, -60, 0, 30, 0]]), "kuka")[0][0] & 1 == 1
+
+
+@pytest.mark.skipif(not KR16.exists(), reason="the vendor files of /work/shared/vendor are absent")
+def test_kuka_status_turn_columns_pick_the_branch(tmp_path, capsys):
+    """KUKA targets with S and T columns: the same pose asked with S 2 and with S 6 (A5 > 0 or
+    <= 0: the wrist flipped) is reached on each; the output names the targets, writes A1..A6 in
+    degrees with KRL's nine digits, and the S, T of the corrected joints; a configuration the
+    robot cannot take there is refused naming the target (exit 3)."""
+    nominal = load_robot(KR16)
+    true = apply_deviations(nominal, random_deviations(nominal, 0.5e-3, 1))
+    cal = tmp_path / "cal.urdf"
+    write_calibrated_urdf(true, cal, nominal=nominal)
+    q = np.radians([[10, -80, 95, 20, 40, -30]])
+    T = _poses(nominal, q)[0]
+    abc = Rotation.from_matrix(T[:3, :3]).as_euler("ZYX", degrees=True)
+    pos = ",".join(f"{v:.6f}" for v in (*T[:3, 3] * 1e3, *abc))
+    (tmp_path / "t.csv").write_text(f"name,X,Y,Z,A,B,C,S,T\nup,{pos},2,34\nflip,{pos},'B110',18\n")
+    code, out, err = _cli(capsys, "compensate", cal, KR16, tmp_path / "t.csv", "-o", tmp_path / "c.csv",
+                          "--convention", "kuka")
+    assert code == 0, err
+    header, rows = _table(tmp_path / "c.csv")
+    assert header[:9] == ["name", "A1", "A2", "A3", "A4", "A5", "A6", "S", "T"]
+    assert [r[0] for r in rows] == ["up", "flip"] and [r[7:9] for r in rows] == [["2", "34"], ["6", "18"]]
+    qa = _joints(tmp_path / "c.csv")
+    assert np.abs(qa[0] - q[0]).max() < 0.02                  # S 2, T 34: the joints the pose was made at
+    assert qa[1, 4] < 0 and abs(qa[1, 3] - q[0, 3]) > 3       # S 6: A5 negative, A4 turned by about 180 deg
+    assert all(len(c.replace("-", "").replace(".", "")) <= 9 for r in rows for c in r[1:7])   # KRL digits
+    _, p = ChainKinematics(true).frame_poses(qa)
+    assert np.linalg.norm(p - T[:3, 3], axis=1).max() < 1e-5
+    (tmp_path / "b.csv").write_text(f"name,X,Y,Z,A,B,C,S,T\nback,{pos},3,34\n")
+    code, out, err = _cli(capsys, "compensate", cal, KR16, tmp_path / "b.csv", "-o", tmp_path / "d.csv",
+                          "--convention", "kuka")
+    assert code == 3 and "target 1 (back): branch: refused: the nominal model" in out
+    assert "S 3, T 34" in out
