@@ -344,3 +344,105 @@ def test_kuka_status_turn_columns_pick_the_branch(tmp_path, capsys):
                           "--convention", "kuka")
     assert code == 3 and "target 1 (back): branch: refused: the nominal model" in out
     assert "S 3, T 34" in out
+
+
+# ---------------------------------------------------------------------- program files
+@pytest.mark.skipif(not KR16.exists(), reason="the vendor files of /work/shared/vendor are absent")
+def test_cli_corrected_krl_data_list(tmp_path, capsys):
+    """A KRL .dat (an E6AXIS and an E6POS with S, T, in kuka_experimental's and RoboDK's layout)
+    through calib compensate: the copy differs only in the targets' numbers; the E6AXIS's new
+    joints put the true robot's tool0 where the nominal model put it at the old ones, and the
+    E6POS's new pose, taken by the nominal controller on its S/T branch, puts the true robot on
+    the original pose (0.01 mm); S and T are those of the corrected joints."""
+    from calib.calibration.compensation import compensate_poses
+    from calib.calibration.configuration import Configurations, vendor_configuration
+    from calib.io.programs import read_program
+
+    nominal = load_robot(KR16)
+    true = apply_deviations(nominal, random_deviations(nominal, 0.5e-3, 1))
+    cal = tmp_path / "cal.urdf"
+    write_calibrated_urdf(true, cal, nominal=nominal)
+    q_axis = np.radians([15.0, -85.0, 100.0, 10.0, 35.0, -20.0])
+    q_pose = np.radians([-20.0, -70.0, 85.0, -30.0, 50.0, 40.0])
+    T = _poses(nominal, q_pose[None])[0]
+    abc = Rotation.from_matrix(T[:3, :3]).as_euler("ZYX", degrees=True)
+    S, Tn = vendor_configuration(nominal, q_pose[None], "kuka")[0]
+    axes = ",".join(f"A{i + 1} {v:.6f}" for i, v in enumerate(np.degrees(q_axis)))
+    pos = ",".join(f"{k} {v:.6f}" for k, v in zip(("X", "Y", "Z", "A", "B", "C"), (*T[:3, 3] * 1e3, *abc)))
+    text = (f"&ACCESS RVP\r\nDEFDAT  CELL PUBLIC\r\n; taught 2024-05-02\r\nDECL E6AXIS XHOME={{{axes},E1 0.0,E2 0.0}}\r\n"
+            f"DECL E6POS XP1={{{pos},S {S},T {Tn},E1 0.0,E2 0.0}}\r\n"
+            f"DECL FDAT FP1={{TOOL_NO 1,BASE_NO 0,IPO_FRAME #BASE,POINT2[] \" \",TQ_STATE FALSE}}\r\nENDDAT\r\n")
+    src = tmp_path / "cell.dat"
+    src.write_bytes(text.encode())
+    out = tmp_path / "cell_corrected.dat"
+    code, stdout, err = _cli(capsys, "compensate", cal, KR16, src, "-o", out)
+    assert code == 0, err
+    assert "2 targets of" in stdout and "KUKA's $ROBROOT" in stdout
+    new = out.read_bytes().decode()
+    a, b = text.split("\r\n"), new.split("\r\n")
+    assert len(a) == len(b) and [x for x, y in zip(a, b) if x != y] == a[3:5]     # CRLF and all else kept
+    prog = read_program(out, nominal)
+    q_new = prog.targets[0].q
+    R0, p0 = ChainKinematics(nominal).frame_poses(q_axis[None])
+    R1, p1 = ChainKinematics(true).frame_poses(q_new[None])
+    assert np.linalg.norm(p1 - p0) < 1e-6 and np.abs(q_new - q_axis).max() > 1e-4
+    Tw = prog.targets[1].T
+    confs = Configurations("kuka", (prog.targets[1].configuration,))
+    taken = compensate_poses(nominal, T_meas_tool=Tw[None], nominal=nominal, configurations=confs)  # the controller
+    assert taken.status[0] == "ok"
+    _, p2 = ChainKinematics(true).frame_poses(np.array(taken.q))
+    assert np.linalg.norm(p2[0] - T[:3, 3]) < 1e-5
+    assert prog.targets[1].configuration == vendor_configuration(nominal, np.array(taken.q), "kuka")[0]
+
+
+def test_cli_corrected_urscript_and_refusals(ur5_case, tmp_path, capsys):
+    """A URScript program (movej joint list, movel pose, Polyscope waypoints): the corrected copy
+    keeps every other character; poses land in 'base' within 0.01 mm. A program setting a TCP, an
+    output of another kind, and a target the robot cannot reach are refused: one line or the
+    list, exit 2 or 3, nothing written."""
+    from calib.io.programs import read_program
+
+    nominal, true, cal = ur5_case
+    T_base = _ur_targets(tmp_path / "targets.csv", nominal, UR_Q[:1])[0]
+    rv = Rotation.from_matrix(T_base[:3, :3]).as_rotvec()
+    pose = ", ".join(f"{v:.6f}" for v in (*T_base[:3, 3], *rv))
+    joints = ", ".join(f"{v:.6f}" for v in UR_Q[1])
+    text = (f"def cell():\n  # taught on the pendant\n  movej([{joints}], a=1.4, v=1.05)\n"
+            f"  movel(p[{pose}], a=1.2, v=0.25)\nend\n")
+    src = tmp_path / "cell.script"
+    src.write_text(text)
+    out = tmp_path / "fixed.script"
+    code, stdout, err = _cli(capsys, "compensate", cal, erd_urdf("ur5"), src, "-o", out, "--tool-frame", "tool0")
+    assert code == 0, err
+    lines_a, lines_b = text.splitlines(), out.read_text().splitlines()
+    assert [i for i, (x, y) in enumerate(zip(lines_a, lines_b)) if x != y] == [2, 3]
+    assert lines_b[2].endswith("], a=1.4, v=1.05)") and lines_b[3].startswith("  movel(p[")
+    prog = read_program(out, nominal)
+    B = _frame_pose(nominal, np.zeros(6), "base")
+    # the movej joints: the true robot where the nominal one was
+    _, p0 = ChainKinematics(nominal).frame_poses(UR_Q[1:2])
+    _, p1 = ChainKinematics(true).frame_poses(prog.targets[0].q[None])
+    assert np.linalg.norm(p1 - p0) < 1e-6
+    # the movel pose: URScript's inverse kinematics starts from the current joints (the branch the
+    # nominal model's own solution gives here); the true robot there lands on the target in 'base'
+    from calib.calibration.compensation import compensate_poses
+
+    Tw = B @ prog.targets[1].T
+    own = compensate_poses(nominal, T_meas_tool=(B @ T_base)[None])
+    taken = compensate_poses(nominal, T_meas_tool=Tw[None], q_start=np.array(own.q))
+    _, p2 = ChainKinematics(true).frame_poses(np.array(taken.q))
+    assert np.linalg.norm((p2[0] - B[:3, 3]) @ B[:3, :3] - T_base[:3, 3]) < 1e-5
+    # refusals
+    (tmp_path / "tcp.script").write_text(text.replace("  # taught", "  set_tcp(p[0, 0, 0.12, 0, 0, 0])\n  # taught"))
+    far = text.replace(pose, "3.0, 0.0, 0.2, 0.0, 3.14, 0.0")
+    (tmp_path / "far.script").write_text(far)
+    for prog_in, extra, expect, fragment in (
+            ("tcp.script", (), 2, "tcp.script:5: line 5 movel: the program sets a TCP (set_tcp at line 2)"),
+            ("cell.script", ("-o", tmp_path / "x.csv"), 2, "the corrected copy is one too"),
+            ("far.script", (), 3, "targets of")):
+        target_out = tmp_path / f"out_{prog_in}"
+        argv = ["compensate", cal, erd_urdf("ur5"), tmp_path / prog_in, "--tool-frame", "tool0"]
+        argv += list(extra) if extra else ["-o", target_out]
+        code, stdout, err = _cli(capsys, *argv)
+        assert code == expect and fragment in err, err
+        assert not target_out.exists() and not (tmp_path / "x.csv").exists()
