@@ -31,19 +31,32 @@ TARGETS.csv (comments with #, one header row, units in the column names as in me
                          prismatic joints): the joints the controller would use; the target is
                          the nominal tool pose there
   x_mm, y_mm, z_mm       a target tool position in the robot's base frame (--targets-frame base,
-                         the default; meas: in the calibration's measurement frame),
+                         the default; with a --convention naming a controller, that controller's
+                         base frame, e.g. UR's Base = ROS-I 'base', pi about z from base_link;
+                         meas: the calibration's measurement frame; --targets-link LINK),
     [+ qw, qx, qy, qz]   with an orientation (unit quaternion, scalar first; or rz_deg, ry_deg,
                          rx_deg, R = Rz Ry Rx; or e1..e3 with --euler, rvx..rvz, r11..r33 as in
                          measurement files); joint columns, if also given, are the start of the
-                         solver and choose the solution branch (without them, the solution
-                         reached from the nearest of 512 seed configurations, others tried
-                         for the targets not ok)
+                         solver and choose the solution branch; else the configuration columns
+                         (KUKA S and T, ABB cf1 cf4 cf6 cfx, FANUC config 'N U T, 0, 0, 0';
+                         with --convention); else the nominal model's own solution (from the
+                         nearest of 512 seed configurations). Corrected joints that leave that
+                         branch are refused (status branch)
+  name                   the target's name, written back in the output
 
 Other columns are ignored (listed on stderr). Semicolon or tab separators with decimal commas,
 --rename and --limit-tolerance work as for measurement files (README, Measurement file format).
 
-Output CSV, one row per target in the same order: the corrected joint columns (degrees;
-millimetres for prismatic joints), then status, residual_mm, residual_rad (pose targets),
+A robot program instead of TARGETS.csv (by its suffix: KUKA .dat, ABB .mod, URScript .script,
+FANUC .ls): -o names a corrected copy of the same kind, every other character kept. Joint
+targets (E6AXIS, jointtarget, movej [..], J1..) are corrected; pose targets (E6POS, robtarget,
+p[..], X..R) are taken in the controller's base frame on their configuration's branch and
+rewritten as the pose the controller turns into the corrected joints, with their configuration.
+Nothing is written unless every target is ok.
+
+Output CSV, one row per target in the same order: name (when the targets have names), the
+corrected joint columns (degrees, millimetres for prismatic joints; with --convention, the
+controller's joint names, units and digits, and its configuration of the corrected joints), then status, residual_mm, residual_rad (pose targets),
 frame_std_mm and frame_std_deg (after a calibration that estimated the measurement frame, for
 targets in the robot's base frame: the 1-sigma error of the reached pose that the uncertainty
 of the measurement->base transform causes) and detail. status is
@@ -53,6 +66,7 @@ of the measurement->base transform causes) and detail. status is
   singular       the joint Jacobian's smallest singular value is below --singular-threshold
                  (near a singularity: a tiny pose error needs a large joint motion)
   not_converged  the target was not reached
+  branch         refused: the corrected joints left the branch asked for (detail: how)
 Rows that are not ok must not be sent to the robot as they are.
 
 Joint targets after a calibration that estimated the tool frame (a reflector, not the nominal
@@ -67,10 +81,13 @@ examples:
   calib compensate calibrated.urdf robot.urdf program_joints.csv -o corrected.csv
   calib compensate calibrated.urdf robot.urdf cad_poses.csv -o corrected.csv --tool-frame tool0
   calib compensate calibrated.urdf robot.urdf tracker_poses.csv -o corrected.csv --targets-frame meas
+  calib compensate calibrated.urdf ur5e.urdf waypoints.csv -o corrected.csv --convention ur --tool-frame tool0
+  calib compensate calibrated.urdf kr16_2.urdf cell.dat -o cell_corrected.dat
   (CALIBRATED.urdf comes from: calib calibrate robot.urdf meas.csv -o calibrated.urdf)
 
 Exit codes: 0 every target ok; 3 some targets are not ok (the output is written, see the status
-column; a summary is printed); 2 bad input (one-line message, nothing written)."""
+column; a summary is printed; a program's copy is not written); 2 bad input (one-line message,
+nothing written)."""
 
 
 

@@ -446,3 +446,36 @@ def test_cli_corrected_urscript_and_refusals(ur5_case, tmp_path, capsys):
         code, stdout, err = _cli(capsys, *argv)
         assert code == expect and fragment in err, err
         assert not target_out.exists() and not (tmp_path / "x.csv").exists()
+
+
+def test_abb_quadrants_as_the_rapid_manual_numbers_them():
+    """RAPID Reference Manual, confdata: "quadrant 0 is the first quarter revolution, 0-90°, in a
+    positive direction from the zero position; quadrant 1 is the next revolution, 90-180°, etc.
+    Quadrant -1 is the revolution 0° - (-90°)"; cfx's last bit is axis 5 negative."""
+    from calib.calibration.configuration import vendor_configuration
+
+    ur5 = load_robot(erd_urdf("ur5"), tool_frame="tool0")
+    q = np.radians([[45, -90, 90, 135, 30, -45], [-135, -90, 90, -200, -30, 300]])
+    cf = vendor_configuration(ur5, q, "abb")
+    assert [c[:3] for c in cf] == [(0, 1, -1), (-2, -3, 3)]
+    assert cf[0][3] & 1 == 0 and cf[1][3] & 1 == 1
+
+
+@pytest.mark.parametrize("columns,convention,fragment", [
+    ("S,T", "abb", "configuration column 'S' needs --convention kuka (not abb)"),
+    ("S", "kuka", "configuration columns in part: expected s, t (missing t)"),
+    ("S,T", "kuka", "'2x' is not a configuration value; expected an integer or a binary literal"),
+    ("config", "fanuc", "expected 'F|N U|D T|B, t1, t4, t6'"),
+])
+def test_bad_configuration_columns_are_one_line(ur5_case, tmp_path, capsys, columns, convention, fragment):
+    nominal, _, cal = ur5_case
+    cells = {"S,T": "2x,34", "S": "2", "config": "'N U Q, 0, 0, 0'"}[columns]
+    (tmp_path / "t.csv").write_text(f"name,x_mm,y_mm,z_mm,qw,qx,qy,qz,{columns}\nP1,400,100,300,0,1,0,0,\"{cells}\"\n"
+                                    if columns == "config" else
+                                    f"name,x_mm,y_mm,z_mm,qw,qx,qy,qz,{columns}\nP1,400,100,300,0,1,0,0,{cells}\n")
+    out = tmp_path / "c.csv"
+    code, _, err = _cli(capsys, "compensate", cal, erd_urdf("ur5"), tmp_path / "t.csv", "-o", out, "--tool-frame",
+                        "tool0", "--convention", convention, "--targets-frame", "base")
+    lines = [l for l in err.strip().splitlines() if not l.startswith("calib: note:")]
+    assert code == 2 and len(lines) == 1 and fragment in lines[0] and "t.csv" in lines[0], err
+    assert not out.exists()
