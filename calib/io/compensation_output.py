@@ -74,8 +74,11 @@ def write_compensation_convention(path: str | Path, result, *, convention: str, 
     from calib.io.csv_layer import csv_text
     from calib.io.fileio import atomic_write_text
 
-    if convention not in CONVENTIONS:
+    from calib.io.specs import check_names
+
+    if not isinstance(convention, str) or convention not in CONVENTIONS:
         raise ParameterError(f"unknown convention {convention!r}")
+    names = check_names(names, result.n_targets)
     header = (["name"] if names is not None else []) + joint_header(convention, len(result.joint_names),
                                                                     result.prismatic)
     vendor_cols = _CONFIG_COLUMNS.get(convention) if configurations is not None else None

@@ -335,6 +335,16 @@ def read_targets(path: str | Path, nominal, *, options: ReadOptions | None = Non
                                               if k != "name"})
 
 
+def check_names(names, n: int) -> tuple[str, ...] | None:
+    """``names`` as a tuple of n strings (one per target), or None; a ParameterError otherwise."""
+    if names is None:
+        return None
+    if isinstance(names, (str, bytes)) or not hasattr(names, "__len__") or len(names) != n \
+            or not all(isinstance(x, str) for x in names):
+        raise ParameterError(f"names must be {n} target names (str) or None, got {names!r:.60}")
+    return tuple(names)
+
+
 def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
                        length_unit: str = "mm", comment: str | None = None, names=None) -> None:
     """Write the corrected joint values of a :class:`calib.CompensationResult` with a status per
@@ -363,6 +373,7 @@ def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
                              f"got {type(result).__name__}")
     header, values = joint_columns(result.joint_names, result.prismatic, result.q, angle_unit,
                                    length_unit)
+    names = check_names(names, result.n_targets)
     if names is not None:
         header = ["name"] + header
     header += ["status", "residual_mm"] + (["residual_rad"] if result.rotation_error is not None else [])
