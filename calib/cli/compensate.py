@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from pathlib import Path
 
 from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_ur_type, add_verbose,
                             nonnegative, print_notes, read_options, robot_description, urdf_only,
@@ -31,19 +32,32 @@ TARGETS.csv (comments with #, one header row, units in the column names as in me
                          prismatic joints): the joints the controller would use; the target is
                          the nominal tool pose there
   x_mm, y_mm, z_mm       a target tool position in the robot's base frame (--targets-frame base,
-                         the default; meas: in the calibration's measurement frame),
+                         the default; with a --convention naming a controller, that controller's
+                         base frame, e.g. UR's Base = ROS-I 'base', pi about z from base_link;
+                         meas: the calibration's measurement frame; --targets-link LINK),
     [+ qw, qx, qy, qz]   with an orientation (unit quaternion, scalar first; or rz_deg, ry_deg,
                          rx_deg, R = Rz Ry Rx; or e1..e3 with --euler, rvx..rvz, r11..r33 as in
                          measurement files); joint columns, if also given, are the start of the
-                         solver and choose the solution branch (without them, the solution
-                         reached from the nearest of 512 seed configurations, others tried
-                         for the targets not ok)
+                         solver and choose the solution branch; else the configuration columns
+                         (KUKA S and T, ABB cf1 cf4 cf6 cfx, FANUC config 'N U T, 0, 0, 0';
+                         with --convention); else the nominal model's own solution (from the
+                         nearest of 512 seed configurations). Corrected joints that leave that
+                         branch are refused (status branch)
+  name                   the target's name, written back in the output
 
 Other columns are ignored (listed on stderr). Semicolon or tab separators with decimal commas,
 --rename and --limit-tolerance work as for measurement files (README, Measurement file format).
 
-Output CSV, one row per target in the same order: the corrected joint columns (degrees;
-millimetres for prismatic joints), then status, residual_mm, residual_rad (pose targets),
+A robot program instead of TARGETS.csv (by its suffix: KUKA .dat, ABB .mod, URScript .script,
+FANUC .ls): -o names a corrected copy of the same kind, every other character kept. Joint
+targets (E6AXIS, jointtarget, movej [..], J1..) are corrected; pose targets (E6POS, robtarget,
+p[..], X..R) are taken in the controller's base frame on their configuration's branch and
+rewritten as the pose the controller turns into the corrected joints, with their configuration.
+Nothing is written unless every target is ok.
+
+Output CSV, one row per target in the same order: name (when the targets have names), the
+corrected joint columns (degrees, millimetres for prismatic joints; with --convention, the
+controller's joint names, units and digits, and its configuration of the corrected joints), then status, residual_mm, residual_rad (pose targets),
 frame_std_mm and frame_std_deg (after a calibration that estimated the measurement frame, for
 targets in the robot's base frame: the 1-sigma error of the reached pose that the uncertainty
 of the measurement->base transform causes) and detail. status is
@@ -53,6 +67,7 @@ of the measurement->base transform causes) and detail. status is
   singular       the joint Jacobian's smallest singular value is below --singular-threshold
                  (near a singularity: a tiny pose error needs a large joint motion)
   not_converged  the target was not reached
+  branch         refused: the corrected joints left the branch asked for (detail: how)
 Rows that are not ok must not be sent to the robot as they are.
 
 Which tool the targets are for (one line on stdout says it): the tool frame (--tool-frame,
@@ -76,10 +91,13 @@ examples:
   calib compensate calibrated.urdf robot.urdf cad_poses.csv -o corrected.csv --tool-offset 0,0,180,0,0,45
       (the centre point of a tool 180 mm along tool0's z, turned 45 deg about it)
   calib compensate calibrated.urdf robot.urdf tracker_poses.csv -o corrected.csv --targets-frame meas
+  calib compensate calibrated.urdf ur5e.urdf waypoints.csv -o corrected.csv --convention ur --tool-frame tool0
+  calib compensate calibrated.urdf kr16_2.urdf cell.dat -o cell_corrected.dat
   (CALIBRATED.urdf comes from: calib calibrate robot.urdf meas.csv -o calibrated.urdf)
 
 Exit codes: 0 every target ok; 3 some targets are not ok (the output is written, see the status
-column; a summary is printed); 2 bad input (one-line message, nothing written)."""
+column; a summary is printed; a program's copy is not written); 2 bad input (one-line message,
+nothing written)."""
 
 
 
@@ -105,10 +123,18 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    metavar="S",
                    help="smallest singular value of the joint Jacobian (position rows in m/rad, "
                         "rotation rows in rad/rad) below which a target is reported singular")
-    p.add_argument("--targets-frame", choices=("base", "meas"), default="base",
-                   help="frame of pose targets: base (default), the robot's base frame (the calibrated "
-                        "URDF's, what a robot program holds); meas, the measurement frame of the "
-                        "calibration (the tracker's), taken from CALIBRATED.urdf's record")
+    frames = p.add_mutually_exclusive_group()
+    frames.add_argument("--targets-frame", choices=("base", "controller", "meas"), default=None,
+                        help="frame of pose targets: controller (the default with a --convention naming a "
+                             "controller), that controller's own base frame, the one its programs and "
+                             "pendant use (ROS-Industrial's link 'base' of NOMINAL.urdf, e.g. UR: pi about z "
+                             "from base_link); base (the default otherwise), the robot's base frame "
+                             "(--base-frame); meas, the measurement frame of the calibration (the "
+                             "tracker's), taken from CALIBRATED.urdf's record. One line of the output says "
+                             "which frame was used")
+    frames.add_argument("--targets-link", metavar="LINK", default=None,
+                        help="pose targets in the frame of this link (or joint) of NOMINAL.urdf, fixed to "
+                             "the robot's base (a work object or user frame the URDF holds)")
     add_file_format(p)
     add_frames(p, base_help="link (or joint) of NOMINAL.urdf that is the robot's base frame, in which "
                             "pose targets are given with --targets-frame base (default: the root link)",
@@ -117,6 +143,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--tool-offset", type=_tool_offset, default=None, metavar="X,Y,Z[,ROLL,PITCH,YAW]",
                    help="targets are for a tool fixed to the tool frame: its centre point at X,Y,Z mm in the "
                         "tool frame, turned by ROLL,PITCH,YAW deg (URDF roll-pitch-yaw; default 0,0,0)")
+    p.add_argument("--j23-factor", type=float, choices=(-1.0, 0.0, 1.0), default=None, metavar="F",
+                   help="FANUC programs of joint positions: the model's J2/J3 interaction, as ROS-Industrial's "
+                        "FANUC driver takes it (J23_factor: J3 of the URDF = J3 + F * J2): -1, 0 or 1")
     add_compliance(p, "compensate")
     add_verbose(p, help="log progress on stderr")
     p.set_defaults(func=run)
@@ -129,13 +158,25 @@ def run(args: argparse.Namespace) -> int:
                                                 load_compensation_models)
     from calib.io.csv.specs import read_targets, write_compensation
 
+    from calib.io.programs import vendor_of
+
+    program = vendor_of(args.targets)
     outputs = Outputs([args.calibrated, args.nominal, args.targets])
+    if program is not None and vendor_of(args.output) != program:
+        raise ParameterError(f"-o {args.output}: {args.targets} is a {program} program; the corrected copy is one "
+                             f"too (a file ending in {Path(args.targets).suffix})")
     out = outputs.add(args.output)
     urdf_only(args.calibrated, "CALIBRATED must be the URDF calib calibrate wrote")
     nominal_source = robot_description(args, args.nominal)
     calibrated, nominal = load_compensation_models(args.calibrated, nominal_source,
                                                    base_frame=args.base_frame,
                                                    tool_frame=args.tool_frame)
+    if program is not None:
+        from calib.cli.compensate_program import run_program
+
+        calibrated = with_compliance_file(calibrated, args, torques_from=nominal,
+                                          hint=" (the report or the compliance sidecar of the calibration)")
+        return run_program(args, calibrated, nominal, outputs, out, program)
     calibrated = with_compliance_file(calibrated, args, torques_from=nominal,
                                       hint=" (the report or the compliance sidecar of the calibration)")
     if args.compliance is not None:
@@ -172,9 +213,12 @@ def run(args: argparse.Namespace) -> int:
     log.info("read %d %s targets from %s", targets.n_targets, kind, args.targets)
     T_meas_base = None if rec is None else rec.measurement_transform
     opts = dict(singular_threshold=args.singular_threshold)
+    frame = None
     if targets.kind == "joints":
-        if args.targets_frame != "base":
-            raise ParameterError(f"--targets-frame {args.targets_frame}: {args.targets} holds joint targets, "
+        given = (f"--targets-frame {args.targets_frame}" if args.targets_frame not in (None, "base") else
+                 f"--targets-link {args.targets_link}" if args.targets_link is not None else None)
+        if given:
+            raise ParameterError(f"{given}: {args.targets} holds joint targets, "
                                  f"which have no frame (their poses are the nominal model's)")
         check_joint_targets(calibrated)
         if rec is not None and rec.tool_estimated:
@@ -183,7 +227,18 @@ def run(args: argparse.Namespace) -> int:
     else:
         T = _homogeneous(targets.rotation, targets.position) if targets.kind == "pose" else None
         p = targets.position if targets.kind != "pose" else None
-        if args.targets_frame == "meas":
+        where = _targets_frame_name(args)
+        if where != "meas":
+            from calib.compensation.compensate import pose_targets_from_frame
+            from calib.io.urdf.controller_frame import targets_frame
+
+            frame = targets_frame(nominal, convention=args.convention if where == "controller" else None,
+                                  link=args.targets_link)
+            if T is not None:
+                T = pose_targets_from_frame(T_base_frame=frame.T_base_frame, T_frame_tool=T)
+            else:
+                p = pose_targets_from_frame(T_base_frame=frame.T_base_frame, p_frame_tool=p)
+        if where == "meas":
             if T_meas_base is None:
                 sys.stderr.write(f"{PROG}: note: {args.calibrated} records no measurement frame (the calibration's "
                                  f"measurements were in the robot's base frame): meas = base\n")
@@ -194,17 +249,31 @@ def run(args: argparse.Namespace) -> int:
                     T = pose_targets_in_base(T_meas_base=T_meas_base, T_meas_tool=T)
                 else:
                     p = pose_targets_in_base(T_meas_base=T_meas_base, p_meas_tool=p)
+        configurations = None
+        if targets.q is None:
+            from calib.compensation.configuration import Configurations
+            from calib.io.csv.targets import configurations_of
+
+            values = configurations_of(targets, args.convention)
+            if values is not None:
+                configurations = Configurations(args.convention, values,
+                                                None if frame is None else frame.T_base_frame)
+        branch = dict(nominal=nominal, configurations=configurations) if targets.q is None else {}
         if T is not None:
-            result = compensate_poses(calibrated, T_meas_tool=T, q_start=targets.q, **opts)
+            result = compensate_poses(calibrated, T_meas_tool=T, q_start=targets.q, **opts, **branch)
         else:
-            result = compensate_poses(calibrated, p_meas_tool=p, q_start=targets.q, **opts)
-    if T_meas_base is not None and (targets.kind == "joints" or args.targets_frame == "base"):
+            result = compensate_poses(calibrated, p_meas_tool=p, q_start=targets.q, **opts, **branch)
+    if T_meas_base is not None and (targets.kind == "joints" or _targets_frame_name(args) != "meas"):
         from calib.compensation.compensate import with_frame_uncertainty
 
         result = with_frame_uncertainty(result, T_meas_base=T_meas_base, covariance=rec.measurement_covariance)
-    frame = (f"the measurement frame of {args.calibrated}" if args.targets_frame == "meas" and
-             T_meas_base is not None else f"base frame {nominal.base_frame}")
-    tool_line = f"{kind} targets of {args.targets} are for {_tool_line(args, calibrated, rec)}, in {frame}"
+    if frame is not None:
+        where = frame.text
+    elif targets.kind != "joints" and T_meas_base is not None:
+        where = f"the measurement frame of {args.calibrated}"
+    else:
+        where = f"base frame {nominal.base_frame}"
+    tool_line = f"{kind} targets of {args.targets} are for {_tool_line(args, calibrated, rec)}, in {where}"
     comment = (f"Corrected joint values, computed by: {command_line(args)}\n"
                f"Targets: {tool_line}; status ok: the calibrated model reaches the "
                f"target; other rows must not be sent to the robot as they are"
@@ -212,7 +281,22 @@ def run(args: argparse.Namespace) -> int:
                   "calibrated but for the turn about the last joint's axis and the tilt from it (nominal)" if several
                   else "\nThe calibration measured no tool orientation: the orientations reached are the model's "
                   "prediction, not calibrated" if uncalibrated_orientation else ""))
-    outputs.stage_from_file(out, lambda p: write_compensation(p, result, comment=comment))
+    if targets.names is not None:
+        from dataclasses import replace
+
+        result = replace(result, names=targets.names)
+    if args.convention not in (None, "calib"):
+        from calib.compensation.configuration import VENDORS, vendor_configuration
+        from calib.io.csv.compensation_output import write_compensation_convention
+
+        confs = None
+        if args.convention in VENDORS and _six_revolute(nominal):
+            confs = vendor_configuration(nominal, result.q, args.convention,
+                                         T_base_frame=None if frame is None else frame.T_base_frame)
+        outputs.stage_from_file(out, lambda p: write_compensation_convention(
+            p, result, convention=args.convention, names=targets.names, configurations=confs, comment=comment))
+    else:
+        outputs.stage_from_file(out, lambda p: write_compensation(p, result, comment=comment, names=targets.names))
     outputs.commit()
     sys.stdout.write(f"{result.format()}\n{tool_line}\n\nwrote {out}\n")
     if not result.success:
@@ -221,6 +305,26 @@ def run(args: argparse.Namespace) -> int:
                          f"status and detail columns of {out})\n")
         return EXIT_NOT_CONVERGED
     return EXIT_OK
+
+
+def _six_revolute(robot) -> bool:
+    return robot.n_joints >= 6 and not robot.prismatic[:6].any()
+
+
+def _targets_frame_name(args) -> str:
+    """The frame of pose targets: "meas", "base", "controller" (the --convention's controller
+    frame) or "link" (--targets-link); the default is the controller's frame under a
+    --convention that names one, else the robot's base frame."""
+    from calib.io.csv.conventions import CONVENTIONS
+
+    if args.targets_link is not None:
+        return "link"
+    convention = getattr(args, "convention", None)
+    named = convention is not None and CONVENTIONS[convention].controller is not None
+    if args.targets_frame == "controller" and not named:
+        raise ParameterError("--targets-frame controller: give the controller with --convention "
+                             + "/".join(k for k, c in CONVENTIONS.items() if c.controller is not None))
+    return args.targets_frame or ("controller" if named else "base")
 
 
 def _last_link_models(args, calibrated, nominal, nominal_source):

@@ -79,7 +79,8 @@ from calib.compensation.solver import (  # noqa: F401  (re-exported)
 
 __all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "compensate",
            "compensate_poses", "load_compensation_models", "check_joint_targets",
-           "with_frame_uncertainty", "pose_targets_in_base", "flange_link", "with_tool_offset"]
+           "with_frame_uncertainty", "pose_targets_in_base", "pose_targets_from_frame", "flange_link",
+           "with_tool_offset"]
 
 # ====================================================================== public API
 @api_call
@@ -110,8 +111,10 @@ def compensate(calibrated: RobotModel, nominal: RobotModel, q_nominal: np.ndarra
     R_t, p_t = ChainKinematics(nominal).frame_poses(q0)
     if measure == "position":
         R_t = None
-    return replace(_solve(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations),
-                   targets="joint")
+    from calib.compensation.branch import check_branch
+
+    res = _solve(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
+    return replace(check_branch(res, calibrated, q0, "the nominal joints"), targets="joint")
 
 
 @api_call
@@ -119,7 +122,8 @@ def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None =
                      p_meas_tool: np.ndarray | None = None, q_start: np.ndarray | None = None,
                      singular_threshold: float = SINGULAR_THRESHOLD, tol_pos: float = TOL_POS_M,
                      tol_rot: float = TOL_ROT_RAD, max_iterations: int = 100,
-                     seed: int = 0) -> CompensationResult:
+                     seed: int = 0, nominal: RobotModel | None = None,
+                     configurations=None) -> CompensationResult:
     """Joint values with which the calibrated model reaches given tool poses or positions.
 
     Parameters
@@ -135,7 +139,16 @@ def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None =
         near the middle of the ranges preferred); the targets not ok from there are solved again
         from their next nearest seeds (17 in all; a singular one from 4), and keep the least
         severe status met, then the solution closest to the middle of the joint ranges. Which
-        branch a target ends on is the one its seed leads to: give ``q_start`` to choose it.
+        branch a target ends on is the one its seed leads to: give ``q_start`` to choose it, or
+        ``nominal``. With ``q_start``, a target whose joints leave the start's branch is refused
+        (status "branch": :mod:`calib.compensation.branch`).
+    nominal : the nominal model (the controller's): without ``q_start``, each target is solved
+        first on it (its own solution, seeded as above), and the calibrated model from there; a
+        target leaving that branch is refused.
+    configurations : :class:`calib.compensation.configuration.Configurations`, with ``nominal``:
+        the configuration (KUKA Status/Turn, ABB confdata, FANUC configuration string) each
+        target is to be reached with; the nominal solution with it is the start, and a target
+        without one or leaving it is refused.
     Other parameters as :func:`compensate`.
     """
     check_robot(calibrated, "calibrated")
@@ -163,12 +176,30 @@ def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None =
             raise DataError(f"p_meas_tool must be (N, 3), got shape {p_t.shape}")
         R_t = None
     N = len(p_t)
+    from calib.compensation import branch
+
+    if nominal is not None:
+        _check_models(calibrated, nominal)
+    if configurations is not None:
+        from calib.compensation.configuration import Configurations
+
+        check_instance(configurations, "configurations", Configurations, "calib.compensation.configuration")
+        if nominal is None or q_start is not None:
+            raise ParameterError("configurations need the nominal model (nominal=) and no q_start")
+        if len(configurations.values) != N:
+            raise DataError(f"{len(configurations.values)} configurations for {N} targets")
     if q_start is not None:
         q0 = _joint_array(q_start, calibrated, "q_start")
         if len(q0) != N:
             raise DataError(f"q_start has {len(q0)} rows for {N} targets")
-        return _solve(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
-
+        res = _solve(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
+        return branch.check_branch(res, calibrated, q0, "the starting joints")
+    if configurations is not None:
+        return branch.from_configurations(calibrated, nominal, p_t, R_t, configurations, seed, singular_threshold,
+                                          tol_pos, tol_rot, max_iterations)
+    if nominal is not None:
+        return branch.from_nominal_solution(calibrated, nominal, p_t, R_t, seed, singular_threshold, tol_pos,
+                                            tol_rot, max_iterations)
     return _solve_from_seeds(calibrated, p_t, R_t, seed, singular_threshold, tol_pos, tol_rot,
                              max_iterations)
 
@@ -223,6 +254,24 @@ def pose_targets_in_base(*, T_meas_base: np.ndarray, T_meas_tool: np.ndarray | N
     if P.ndim != 2 or P.shape[1] != 3:
         raise DataError(f"p_meas_tool must be (N, 3), got shape {P.shape}")
     return P @ Ti[:3, :3].T + Ti[:3, 3]
+
+
+def pose_targets_from_frame(*, T_base_frame: np.ndarray, T_frame_tool: np.ndarray | None = None,
+                            p_frame_tool: np.ndarray | None = None) -> np.ndarray:
+    """Pose targets (N, 4, 4) or positions (N, 3) given in a frame fixed to the robot's base (a
+    controller's base frame, a link of the URDF: :func:`calib.io.urdf.controller_frame.targets_frame`),
+    in the robot's base frame: ``T_base_tool = T_base_frame T_frame_tool`` (metres). Give
+    exactly one of ``T_frame_tool`` and ``p_frame_tool``."""
+    T = finite_array(T_base_frame, "T_base_frame")
+    if T.shape != (4, 4):
+        raise ParameterError(f"T_base_frame must be (4, 4), got {T.shape}")
+    Ti = np.eye(4)
+    Ti[:3, :3], Ti[:3, 3] = T[:3, :3].T, -T[:3, :3].T @ T[:3, 3]
+    if (T_frame_tool is None) == (p_frame_tool is None):
+        raise ParameterError("give exactly one of T_frame_tool (N, 4, 4) and p_frame_tool (N, 3)")
+    if T_frame_tool is not None:
+        return pose_targets_in_base(T_meas_base=Ti, T_meas_tool=T_frame_tool)
+    return pose_targets_in_base(T_meas_base=Ti, p_meas_tool=p_frame_tool)
 
 
 # ====================================================================== models and checks

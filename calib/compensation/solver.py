@@ -17,7 +17,7 @@ from calib.model.spatial import log3_batch
 __all__ = ["STATUSES", "CompensationResult", "tool_poses_and_joint_jacobians"]
 
 #: Statuses of a target, from the most to the least severe (see the module docstring).
-STATUSES = ("singular", "not_converged", "limit", "ok")
+STATUSES = ("singular", "not_converged", "branch", "limit", "ok")
 #: Default threshold on the smallest singular value of the joint Jacobian (see the module docstring).
 #: Default residual tolerances: a target is reached when both errors are below them.
 TOL_POS_M = 1e-10
@@ -73,6 +73,11 @@ class CompensationResult:
     targets : what the targets were given as: "joint" (the nominal controller's joint values,
         :func:`calib.compensation.compensate.compensate`), "pose" or "position" (tool poses or
         positions, ``compensate_poses``); "" when not said (the summary then names ``measure``).
+    branch : (N,) str or None: for targets of status "branch", how the joints left the branch of
+        their reference (the start, the nominal model's solution, or the configuration asked for;
+        :mod:`calib.compensation.configuration`); "" for the others.
+    names : (N,) target names (the targets file's name column) or None: the summary names the
+        targets not ok by them.
     """
 
     q: np.ndarray
@@ -95,6 +100,8 @@ class CompensationResult:
     frame_rotation_std: np.ndarray | None = field(default=None, repr=False)
     seeded: bool = False
     targets: str = ""
+    branch: np.ndarray | None = field(default=None, repr=False)
+    names: tuple[str, ...] | None = field(default=None, repr=False)
 
     @property
     def n_targets(self) -> int:
@@ -119,6 +126,8 @@ class CompensationResult:
         degrees (mm for prismatic joints), residuals in mm and rad."""
         k = check_int(k, "k", maximum=self.n_targets - 1)
         parts = []
+        if self.branch is not None and self.branch[k]:
+            parts.append(f"refused: {self.branch[k]}")
         if self.min_singular_value[k] < self.singular_threshold:
             parts.append(f"near a singularity: smallest singular value of the joint Jacobian "
                          f"{self.min_singular_value[k]:.3g} < {self.singular_threshold:g}")
@@ -162,7 +171,8 @@ class CompensationResult:
                          f"{np.median(self.frame_position_std) * 1e3:.3g} mm), orientation "
                          f"{math.degrees(self.frame_rotation_std.max()):.3g} deg (1 sigma)")
         for k in np.flatnonzero(~ok)[:10]:
-            lines.append(f"  target {k + 1}: {self.status[k]}: {self.describe(int(k))}")
+            name = f" ({self.names[k]})" if self.names is not None and self.names[k] else ""
+            lines.append(f"  target {k + 1}{name}: {self.status[k]}: {self.describe(int(k))}")
         if (~ok).sum() > 10:
             lines.append(f"  ... and {int((~ok).sum()) - 10} more targets that are not ok")
         return "\n".join(lines)
@@ -470,7 +480,8 @@ def _concat(a: CompensationResult, b: CompensationResult) -> CompensationResult:
         target_position=cat(a.target_position, b.target_position),
         target_rotation=cat(a.target_rotation, b.target_rotation), joint_names=a.joint_names,
         prismatic=a.prismatic, singular_threshold=a.singular_threshold, tol_pos=a.tol_pos, tol_rot=a.tol_rot,
-        targets=a.targets)
+        targets=a.targets, branch=None if a.branch is None and b.branch is None else np.concatenate(
+            [_branch(a), _branch(b)]))
 
 
 def _take(res: CompensationResult, pick: np.ndarray) -> CompensationResult:
@@ -489,4 +500,9 @@ def _take(res: CompensationResult, pick: np.ndarray) -> CompensationResult:
         target_position=sub(res.target_position), target_rotation=sub(res.target_rotation),
         joint_names=res.joint_names, prismatic=res.prismatic,
         singular_threshold=res.singular_threshold, tol_pos=res.tol_pos, tol_rot=res.tol_rot,
-        targets=res.targets)
+        targets=res.targets, branch=None if res.branch is None else np.asarray(res.branch, dtype=object)[pick])
+
+
+def _branch(res: CompensationResult) -> np.ndarray:
+    """The branch details of a result, "" for each target when it has none."""
+    return np.full(res.n_targets, "", dtype=object) if res.branch is None else np.asarray(res.branch, dtype=object)

@@ -299,7 +299,8 @@ def test_poses_and_targets_files_share_the_layer(tmp_path, robot):
     (tmp_path / "t.csv").write_text(f"name,X (mm),Y (mm),Z (mm),rvx_deg,rvy_deg,rvz_deg\n"
                                     f"T1,256.2,45.1,131.5,{rv[0]!r},{rv[1]!r},{rv[2]!r}\n")
     t = read_targets(tmp_path / "t.csv", robot)
-    assert t.kind == "pose" and t.ignored_columns == ("name",)
+    # the name column is the targets' names, kept (compensate writes them back; it was dropped as unknown)
+    assert t.kind == "pose" and t.ignored_columns == () and t.names == ("T1",)
     np.testing.assert_allclose(t.rotation[0], R.as_matrix(), rtol=0, atol=1e-15)
     np.testing.assert_allclose(t.position[0], [0.2562, 0.0451, 0.1315], rtol=0, atol=1e-15)
 
@@ -419,7 +420,8 @@ def test_cli_compensate_reads_targets_with_the_same_options(tmp_path, robot, cap
     code, _, err = _run(capsys, "compensate", BUNDLED_URDF, BUNDLED_URDF, targets, "-o", out,
                         "--rename", rename)
     assert code == 0
-    assert err == f"calib: note: {targets}: ignored columns (not calib's): name\n"
+    assert err == ""            # (the name column is the targets' names: kept, written back)
+    assert out.read_text().splitlines()[2].startswith("name,joint1_deg,")
     # the nominal model is its own calibration: the joints come back unchanged, and the output
     # reads back as a poses file (its status columns ignored)
     np.testing.assert_allclose(read_poses(out, robot), [np.radians([10.5, -20, 30, 0, 45, 90])],

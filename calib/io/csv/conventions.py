@@ -12,15 +12,40 @@ This module imports nothing heavy: the command line builds its ``--convention`` 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 
 
-__all__ = ["Convention", "CONVENTIONS", "CONVENTION_NAMES", "UR_JOINT_NAMES", "ORIENTATION_READINGS",
+__all__ = ["Convention", "ControllerBase", "CONVENTIONS", "CONVENTION_NAMES", "UR_JOINT_NAMES", "ORIENTATION_READINGS",
            "ambiguous_candidates", "format_help", "markdown_table"]
 
 #: Universal Robots' joint names in chain order (URScript, the teach pendant's log).
 UR_JOINT_NAMES = ("base", "shoulder", "elbow", "wrist1", "wrist2", "wrist3")
+
+
+@dataclass(frozen=True, eq=False, repr=False)     # (table rows: nothing compares or prints them)
+class ControllerBase:
+    """Where a controller's own base frame (the frame of the poses it prints and its programs
+    hold) sits in a robot's URDF, as the vendor's ROS-Industrial support package defines it.
+
+    ROS-Industrial names that frame ``base`` ("The *base* frame shall match exactly the *base*
+    defined by the robot controller", the tutorial "Create a URDF for an Industrial Robot";
+    ur_description's doc/robot_frames.rst: "``base`` - This is the frame that is used by the robot
+    controller to represent the robot's *Base* feature ... This follows the REP proposal 199").
+
+    link : the URDF link of that frame (``base``). parent : the link it is placed from
+        (``base_link``). rpy, xyz : its origin there (radians, metres) when the vendor's packages
+        place it the same way for every model, else None (the URDF's own ``link`` is needed).
+    what : the vendor's name of the frame. source : the published lines followed.
+    """
+
+    link: str
+    parent: str
+    rpy: tuple[float, float, float] | None
+    xyz: tuple[float, float, float] | None
+    what: str
+    source: str
 
 
 @dataclass(frozen=True, eq=False, repr=False)     # (table rows, looked up by name: nothing compares or prints them)
@@ -47,6 +72,9 @@ class Convention:
     #: regular expression (full match, lower case) of the vendor's other columns: ignored like
     #: any column calib does not know, but never taken for a misspelt calib name
     others: str = ""
+    #: the controller's base frame in the robot's URDF (:class:`ControllerBase`), or None: pose
+    #: targets written for that controller are in that frame (``calib compensate``)
+    controller: ControllerBase | None = None
 
     def joint_names(self, n: int) -> list[tuple[str, int]]:
         """(lower-case name, joint index) of every joint column name of an n-joint robot."""
@@ -81,6 +109,10 @@ class Convention:
 
 
 _XYZ = "x", "y", "z"
+#: ROS-Industrial's rule for the ``base`` link, for vendors without one published placement.
+_ROS_I_BASE = ("ROS-Industrial, \"Create a URDF for an Industrial Robot\": \"The *base* frame shall match "
+               "exactly the *base* defined by the robot controller. The transform between *base* and "
+               "*base_link* can be defined in any way, as long as the transform is fixed between the two\"")
 CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
     Convention("calib", "calib's own format, stated", ((), ""), (), None,
                "rx, ry, rz with a unit suffix in any column order are calib's ZYX angles "
@@ -89,12 +121,22 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                (("A{i}",), "deg"),
                tuple((n, q, "mm") for n, q in zip("XYZ", _XYZ))
                + (("A", "rz", "deg"), ("B", "ry", "deg"), ("C", "rx", "deg")), None,
-               "ZYX Euler angles, deg: A about Z, B about Y', C about X'' (R = Rz(A) Ry(B) Rx(C))"),
+               "ZYX Euler angles, deg: A about Z, B about Y', C about X'' (R = Rz(A) Ry(B) Rx(C))",
+               controller=ControllerBase(
+                   "base", "base_link", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), "KUKA's $ROBROOT",
+                   "ros-industrial/kuka_experimental, kuka_kr16_support/urdf/kr16_2_macro.xacro (and every "
+                   "support package there): \"ROS base_link to KUKA $ROBROOT coordinate system transform\", "
+                   "<joint name=\"${prefix}base_link-base\" type=\"fixed\"> <origin xyz=\"0 0 0\" rpy=\"0 0 0\"/>")),
     Convention("abb", "ABB RAPID (CJointT, CRobT), RobotStudio signal logs",
                (("rax_{i}",), "deg"),
                tuple((n, q, "mm") for n, q in zip("xyz", _XYZ))
                + (("q1", "qw", ""), ("q2", "qx", ""), ("q3", "qy", ""), ("q4", "qz", "")), None,
-               "unit quaternion, scalar first (q1, q2, q3, q4) = (w, x, y, z)"),
+               "unit quaternion, scalar first (q1, q2, q3, q4) = (w, x, y, z)",
+               controller=ControllerBase(
+                   "base", "base_link", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), "ABB's base coordinate system",
+                   "ros-industrial/abb, abb_irb2400_support/urdf/irb2400_macro.xacro (and the other support "
+                   "packages): \"ROS base_link to ABB World Coordinates transform\", <joint "
+                   "name=\"${prefix}base_link-base\" type=\"fixed\"> <origin xyz=\"0 0 0\" rpy=\"0 0 0\"/>")),
     Convention("ur", "Universal Robots: waypoint logs (URScript) and RTDE recordings",
                ((UR_JOINT_NAMES, "actual_q_{i0}"), "rad"),
                tuple((n, q, "m") for n, q in zip("xyz", _XYZ))
@@ -103,26 +145,43 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                + tuple((f"actual_TCP_pose_{k + 3}", q, "rad") for k, q in enumerate(("rvx", "rvy", "rvz"))),
                None, "rotation vector (axis times angle), rad",
                others=r"timestamp|(actual|target|joint|tool|safety|robot|runtime|speed|output|input|"
-                      r"standard|payload|tcp|ft|elbow|euromap|script)_\w*"),
+                      r"standard|payload|tcp|ft|elbow|euromap|script)_\w*",
+               controller=ControllerBase(
+                   "base", "base_link", (0.0, 0.0, math.pi), (0.0, 0.0, 0.0), "the UR controller's Base frame",
+                   "Universal_Robots_ROS2_Description 2.4.5, urdf/ur_macro.xacro: <joint "
+                   "name=\"${tf_prefix}base_link-base_fixed_joint\" type=\"fixed\"> <origin xyz=\"0 0 0\" "
+                   "rpy=\"0 0 ${pi}\"/> <parent link=\"${tf_prefix}base_link\"/> <child "
+                   "link=\"${tf_prefix}base\"/>, \"this is needed to correctly align 'base' with the "
+                   "'Base' coordinate system of the UR controller\"")),
     Convention("fanuc", "FANUC (position registers, TP / KAREL exports)",
                (("J{i}",), "deg"),
                tuple((n, q, "mm") for n, q in zip("XYZ", _XYZ))
                + (("W", "rx", "deg"), ("P", "ry", "deg"), ("R", "rz", "deg")), None,
                "fixed-axis XYZ angles, deg: W about x, then P about y, then R about z, all of the "
-               "base (R = Rz(R) Ry(P) Rx(W))"),
+               "base (R = Rz(R) Ry(P) Rx(W))",
+               controller=ControllerBase(
+                   "base", "base_link", None, None, "FANUC's World frame",
+                   "ros-industrial/fanuc, fanuc_lrmate200id_support/urdf/lrmate200id_macro.xacro: \"ROS "
+                   "base_link to Fanuc World Coordinates transform\", <joint name=\"${prefix}base_link-base\" "
+                   "type=\"fixed\"> <origin xyz=\"0 0 0.330\" rpy=\"0 0 0\"/>: the height of J2's zero plane, "
+                   "another for each model")),
     Convention("staubli", "Staubli VAL3 (jointRx, pointRx / trsf)",
                (("J{i}",), "deg"),
                tuple((n, q, "mm") for n, q in zip("XYZ", _XYZ))
                + (("Rx", "e1", "deg"), ("Ry", "e2", "deg"), ("Rz", "e3", "deg")), "XYZ",
                "XYZ Euler angles, deg: Rx about X, then Ry about the new Y', then Rz about Z'' "
-               "(R = Rx(Rx) Ry(Ry) Rz(Rz))"),
+               "(R = Rx(Rx) Ry(Ry) Rz(Rz))",
+               controller=ControllerBase("base", "base_link", None, None, "the Staubli controller's World frame",
+                                         _ROS_I_BASE)),
     Convention("yaskawa", "Yaskawa Motoman (robot-coordinate position variables, MotoPlus / "
                           "FS100-YRC1000 exports)",
                (("J{i}",), "deg"),
                tuple((n, q, "mm") for n, q in zip("XYZ", _XYZ))
                + (("Rx", "rx", "deg"), ("Ry", "ry", "deg"), ("Rz", "rz", "deg")), None,
                "fixed-axis XYZ angles, deg: Rx about x, then Ry about y, then Rz about z, all of "
-               "the base (R = Rz(Rz) Ry(Ry) Rx(Rx))"),
+               "the base (R = Rz(Rz) Ry(Ry) Rx(Rx))",
+               controller=ControllerBase("base", "base_link", None, None, "the Yaskawa controller's robot "
+                                         "coordinates", _ROS_I_BASE)),
 )}
 CONVENTION_NAMES = tuple(CONVENTIONS)
 

@@ -70,7 +70,10 @@ __all__ = ["MEASUREMENT", "POSES", "TARGETS", "JOINT_SIDE", "TRACKER_SIDE", "rea
 MEASUREMENT = Spec("measurement", joints="required", position="required", orientation=True,
                    labels=("set", "target", "pose_id"), extras=("time", "temperature"))
 POSES = Spec("poses", joints="required")
-TARGETS = Spec("targets", joints="optional", position="optional", orientation=True)
+#: The text columns of a targets file: the target's name, and a controller's configuration (KUKA
+#: Status and Turn, ABB confdata, a FANUC configuration string; read with --convention).
+TARGET_LABELS = ("name", "s", "t", "cf1", "cf4", "cf6", "cfx", "config")
+TARGETS = Spec("targets", joints="optional", position="optional", orientation=True, labels=TARGET_LABELS)
 #: The two halves of a measurement joined by a key: joints, and the tracker's poses.
 JOINT_SIDE = Spec("joint", joints="required", labels=("set", "target", "pose_id"), keyed=True,
                   extras=("time", "temperature"))
@@ -323,13 +326,27 @@ def read_targets(path: str | Path, nominal, *, options: ReadOptions | None = Non
     t = read_table(path, TARGETS, nominal, options)
     from calib.io.csv.targets import CompensationTargets
 
+    names = t.labels.get("name")
     return CompensationTargets(q=t.q, position=t.position, rotation=t.rotation, rows=t.rows,
                                source=t.path, ignored_columns=t.ignored_columns,
-                               notes=t.notes + _rename_notes(options, [t]))
+                               notes=t.notes + _rename_notes(options, [t]),
+                               names=None if names is None else tuple(names),
+                               configuration={k: (t.names[k], tuple(v)) for k, v in t.labels.items()
+                                              if k != "name"})
+
+
+def check_names(names, n: int) -> tuple[str, ...] | None:
+    """``names`` as a tuple of n strings (one per target), or None; a ParameterError otherwise."""
+    if names is None:
+        return None
+    if isinstance(names, (str, bytes)) or not hasattr(names, "__len__") or len(names) != n \
+            or not all(isinstance(x, str) for x in names):
+        raise ParameterError(f"names must be {n} target names (str) or None, got {names!r:.60}")
+    return tuple(names)
 
 
 def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
-                       length_unit: str = "mm", comment: str | None = None) -> None:
+                       length_unit: str = "mm", comment: str | None = None, names=None) -> None:
     """Write the corrected joint values of a :class:`calib.CompensationResult` with a status per
     target as CSV, atomically.
 
@@ -342,6 +359,9 @@ def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
     much, the singular value, the residual). Joint values are written as computed, never clipped:
     a row whose status is not ``ok`` must not be sent to the robot as it is.
 
+    ``names`` : (N,) the targets' names (a targets file's name column), written first as a
+    ``name`` column; None: no such column.
+
     The file reads back as a poses file (:func:`read_poses`): the status columns are ignored.
     """
     from calib.checks import check_path
@@ -353,6 +373,9 @@ def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
                              f"got {type(result).__name__}")
     header, values = joint_columns(result.joint_names, result.prismatic, result.q, angle_unit,
                                    length_unit)
+    names = check_names(names, result.n_targets)
+    if names is not None:
+        header = ["name"] + header
     header += ["status", "residual_mm"] + (["residual_rad"] if result.rotation_error is not None else [])
     framed = getattr(result, "frame_position_std", None) is not None
     if framed:        # the base frame's uncertainty (targets in the robot's base frame)
@@ -360,7 +383,7 @@ def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
     header.append("detail")
     rows = []
     for k in range(result.n_targets):
-        row = [repr(float(v)) for v in values[k]]
+        row = ([str(names[k])] if names is not None else []) + [repr(float(v)) for v in values[k]]
         row += [str(result.status[k]), f"{result.position_error[k] * 1e3:.6g}"]
         if result.rotation_error is not None:
             row.append(f"{result.rotation_error[k]:.6g}")
