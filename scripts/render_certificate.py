@@ -72,10 +72,12 @@ def render(html: Path, png: Path | None = None, pdf: Path | None = None) -> None
             browser.close()
 
 
-def write_case(folder: Path, *, validation: bool = True, seed: int = 3) -> list[str]:
+def write_case(folder: Path, *, validation: str | None = "rows", seed: int = 3) -> list[str]:
     """The files of a tracker calibration in ``folder`` (module docstring) and the ``calib
     calibrate`` arguments that certify them (outputs in ``folder``: calibrated.urdf,
-    certificate.json, certificate.html)."""
+    certificate.json, certificate.html). validation : ``"rows"`` (every fourth single stop
+    held out: ``set=val`` in the joint log), ``"file"`` (12 more stops in validation.csv, calib's
+    own format, given by --validate) or None (no held-out rows: fit residuals only)."""
     import numpy as np
 
     import calib
@@ -91,7 +93,7 @@ def write_case(folder: Path, *, validation: bool = True, seed: int = 3) -> list[
         [f"R{k + 1}" for k in range(REPEATED_POSES)] * VISITS
     Q = np.concatenate([single, np.tile(repeated, (VISITS, 1))])
     meas = calib.simulate_measurements(truth, Q, sigma_pos=0.015e-3, sigma_rot=2e-5, rng=seed + 3)
-    sets = ["val" if validation and k % 4 == 3 and k < SINGLE_POSES else "cal" for k in range(len(Q))]
+    sets = ["val" if validation == "rows" and k % 4 == 3 and k < SINGLE_POSES else "cal" for k in range(len(Q))]
     t0 = np.datetime64(START)
     stamps = t0 + (np.arange(len(Q)) * 20_000 + rng.integers(0, 3000, len(Q))).astype("timedelta64[ms]")
     joints = ["A1_deg", "A2_deg", "A3_deg", "A4_deg", "A5_deg", "A6_deg"]
@@ -116,7 +118,13 @@ def write_case(folder: Path, *, validation: bool = True, seed: int = 3) -> list[
         "instrument_certificate: LGS-2026-0311\n"
         "operator: J. Doe\n"
         "approved_by: A. N. Other\n")
-    return ["calibrate", str(URDF), str(folder / "joints.csv"), "--tracker", str(folder / "tracker.csv"),
+    extra = []
+    if validation == "file":
+        val = calib.simulate_measurements(truth, robot.random_configurations(12, seed + 4), sigma_pos=0.015e-3,
+                                          sigma_rot=2e-5, rng=seed + 5)
+        calib.write_measurements(folder / "validation.csv", val)
+        extra = ["--validate", str(folder / "validation.csv")]
+    return ["calibrate", str(URDF), str(folder / "joints.csv"), "--tracker", str(folder / "tracker.csv"), *extra,
             "--join", "nearest-time", "--time", "time", "--max-gap", "1", "-o", str(folder / "calibrated.urdf"),
             "--report", str(folder / "certificate.json"), "--html", str(folder / "certificate.html"),
             "--meta", str(folder / "identity.yaml"), "--tolerance-mm", "0.1", "--cv", "0"]
@@ -150,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
         case = args.out / "case"
         if case.exists():
             shutil.rmtree(case)
-        code = calib_main(write_case(case, validation=not args.no_validation))
+        code = calib_main(write_case(case, validation=None if args.no_validation else "rows"))
         if code != 0:
             print(f"render_certificate: calib calibrate exited {code}", file=sys.stderr)
             return code
