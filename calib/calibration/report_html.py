@@ -185,9 +185,8 @@ def _identity(cert: Mapping, meta: dict, prov: Mapping) -> list[tuple[str, str]]
         how = "as given" if cert.get("number_from") == "meta" else \
             f"derived from the sha256 of the {', '.join(cert.get('number_inputs') or ['input'])} files: Provenance"
         out.append(("certificate number", f"{cert['number']} ({how})"))
-    for key in ("customer",):
-        if key in meta:
-            out.append((key, meta.pop(key)))
+    if "customer" in meta:
+        out.append(("customer", meta.pop("customer")))
     out.append(("issued", _utc_text(cert.get("issued") or prov.get("date", ""))))
     when = cert.get("measurement_date")
     if when:
