@@ -15,3 +15,15 @@ def display_value(value: float, unit: str) -> float:
 def display_unit(unit: str) -> str:
     """The display unit of the SI ``unit``."""
     return DISPLAY_UNITS[unit][0]
+
+
+def format_number(value: float, spec: str) -> str:
+    """``format(value, spec)`` without a sign on a zero: ``-0.0`` and the small negatives that
+    round to zero (``-1e-9`` at ``.6f``) print ``0.000000``, never ``-0.000000`` (the width of a
+    padded field kept)."""
+    text = format(value, spec)
+    if "-" in text and value == value and float(text) == 0.0:
+        same = len(text) == len(format(0.0, spec))          # a padded field: keep its width
+        text = text.replace("-", "", 1) + (" " if same and text.startswith("-") else "")
+        text = text.rjust(len(text) + 1) if same and len(text) < len(format(0.0, spec)) else text
+    return text

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from calib.calibration.accuracy import AccuracyStats, format_accuracy_table
-from calib.units import display_unit, display_value
+from calib.units import display_unit, display_value, format_number
 from calib.calibration.estimators.base import NoiseEstimate
 from calib.errors import ParameterError
 from calib.model.chain import U_NAMES
@@ -356,8 +356,9 @@ class CalibrationResult:
                 continue
             unit = display_unit(p.unit)
             std = "fixed" if not p.free else f"{display_value(p.std, p.unit):.3g}"
-            lines.append(f"{p.name:<{w}}{unit:>5}{display_value(p.nominal, p.unit):>14.6f}"
-                         f"{display_value(p.identified, p.unit):>14.6f}{display_value(p.deviation, p.unit):>13.6f}{std:>11}")
+            lines.append(f"{p.name:<{w}}{unit:>5}{format_number(display_value(p.nominal, p.unit), '>14.6f')}"
+                         f"{format_number(display_value(p.identified, p.unit), '>14.6f')}"
+                         f"{format_number(display_value(p.deviation, p.unit), '>13.6f')}{std:>11}")
         lines += ["", _frames_text(_frames_table(self))]
         rows = [("calibration rows, before", self.before)]
         if self.before_registered is not None:
@@ -423,8 +424,8 @@ def _frames_text(rows: list[dict]) -> str:
             [("identified", f["identified"], ".4f", ".6f"), (f["std_label"], f["std"], ".3g", ".3g")]
         none = "-" if f.get("orientation_measured") is False else "fixed"
         for k, (label, d, fl, fa) in enumerate(parts):
-            vals = [("fixed" if x is None else format(x, fl)) for x in d["xyz_mm"]] + \
-                   [(none if x is None else format(x, fa)) for x in d["rpy_deg"]]
+            vals = [("fixed" if x is None else format_number(x, fl)) for x in d["xyz_mm"]] + \
+                   [(none if x is None else format_number(x, fa)) for x in d["rpy_deg"]]
             out.append(f"{f['frame'] if k == 0 else '':<{w}}{label:<16}" + "".join(f"{v:>12}" for v in vals))
         if f.get("note"):
             out.append(f"{'':<{w}}({f['note']})")

@@ -462,7 +462,18 @@ def parse_meta(values) -> dict:
             if key in meta and meta[key] != value:
                 raise ParameterError(f"--meta: {key} given twice ({meta[key]!r} and {value!r})")
             meta[key] = value
+    from calib.report.identity import check_fields
+
+    check_fields(meta)       # (dates, the certificate number) before any work
     return meta
+
+
+def meta_inputs(values) -> dict:
+    """The identity files among ``--meta`` options (a value without ``=``) as report inputs:
+    ``{"meta": path}``, or ``{"meta": ..., "meta 2": ...}`` for several (their sha256 go into the
+    report's provenance)."""
+    files = [v.strip() for v in values or () if "=" not in v]
+    return {("meta" if k == 0 else f"meta {k + 1}"): f for k, f in enumerate(files)}
 
 
 def load(args: argparse.Namespace):

@@ -316,6 +316,7 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
     ``images``; returns the verdict line for the printed text ("" without --tolerance-mm)."""
     from calib.report.build import (build_report, render_html, report_json_text, report_rows_of,
                                           residuals_csv_chunks)
+    from calib.cli.args import meta_inputs
     from calib.cli.progress import Progress, stage
 
     want_plots = bool(plot_paths) or out_html is not None
@@ -329,8 +330,8 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
         progress.update()
         report = build_report(
             result, meas, validation, command_line=["calib", *args.argv],
-            inputs={"robot": robot_path_of(args), "measurements": args.measurements,
-                    "validation": args.validate},
+            inputs={"robot": robot_path_of(args), "measurements": args.measurements, "tracker": args.tracker,
+                    "validation": args.validate, **meta_inputs(args.meta)},
             outputs={"calibrated_urdf": out_urdf, "report": out_report, "html": out_html,
                      "residuals": out_residuals},
             frames={"written_urdf": frames.to_dict()}, meta=meta, tolerance_mm=args.tolerance_mm,
@@ -344,7 +345,11 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
             progress.update()
         verdict = ""
         tol = report["certificate"]["tolerance"]
-        if tol is not None:
+        if tol is not None and tol["pass"] is None:     # fit residuals only: no verdict
+            verdict = (f"\ntolerance {tol['tolerance_mm']:g} mm: no verdict (no verification rows: --validate "
+                       f"VAL.csv, or rows with set=val); fit residuals: largest {tol['max_mm']:.4g} mm over {tol['n']} "
+                       f"{tol['rows']}, {tol['beyond']} beyond")
+        elif tol is not None:
             verdict = (f"\ntolerance {tol['tolerance_mm']:g} mm: {'PASS' if tol['pass'] else 'FAIL'} (largest "
                        f"position error {tol['max_mm']:.4g} mm over {tol['n']} {tol['rows']}; {tol['beyond']} beyond)")
         if want_plots:

@@ -218,14 +218,15 @@ def _write_report(args, robot, meas, outputs, out_html, plot_paths, meta, plots)
     from calib.cli.progress import Progress
     from calib.io.urdf.reader import robot_path
 
-    from calib.cli.args import progress_enabled
+    from calib.cli.args import meta_inputs, progress_enabled
 
     with Progress(7, "writing the report", enabled=progress_enabled(args)) as progress:
         rows = report_rows(robot, meas, validation_rows="none")
         plots.submit(rows, tolerance_m=None if args.tolerance_mm is None else args.tolerance_mm * 1e-3)
         progress.update()
         report = build_accuracy_report(robot, meas, command_line=["calib", *args.argv],
-                                       inputs={"robot": robot_path(args.robot), "measurements": args.measurements},
+                                       inputs={"robot": robot_path(args.robot), "measurements": args.measurements,
+                                               "tracker": args.tracker, **meta_inputs(args.meta)},
                                        meta=meta, tolerance_mm=args.tolerance_mm, residuals="none", rows=rows)
         tol = report["certificate"]["tolerance"]
         args._verdict = "" if tol is None else (

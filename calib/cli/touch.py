@@ -149,9 +149,10 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
     """The touch report's certificate (into ``report``, the JSON), plots and HTML page staged in
     ``outputs``; returns the verdict line for the printed text ("" without --tolerance-mm)."""
     from calib.report.build import _provenance, render_html
+    from calib.report.identity import certificate_identity
     from calib.report.plots import plot_rows
     from calib.report.touch import measured_deviations, touch_certificate, touch_rows
-    from calib.cli.args import progress_enabled
+    from calib.cli.args import meta_inputs, progress_enabled
     from calib.cli.progress import Progress
     from calib.io.urdf.reader import robot_path
     from calib.units import DISPLAY_UNITS
@@ -159,9 +160,15 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
     tol_mm = getattr(args, "tolerance_mm", None)
     with Progress(3, "writing the report", enabled=progress_enabled(args)) as progress:
         rows = touch_rows(result, data, robot)
-        report["certificate"] = touch_certificate(rows, data.features, tol_mm,
-                                                  measured_deviations(result, data, robot))
+        provenance = _provenance(["calib", *getattr(args, "argv", [])],
+                                 {"robot": robot_path(args.robot), "measurements": args.measurements,
+                                  **meta_inputs(getattr(args, "meta", None))},
+                                 {"calibrated_urdf": args.output, "html": out_html})
+        report["certificate"] = {**certificate_identity(provenance, meta, rows.columns),
+                                 **touch_certificate(rows, data.features, tol_mm,
+                                                     measured_deviations(result, data, robot))}
         report["meta"] = meta
+        report["provenance"] = provenance
         progress.update()
         images = plot_rows(rows, tolerance_m=None if tol_mm is None else tol_mm * 1e-3) if (
             plot_paths or out_html is not None) else {}
@@ -181,9 +188,7 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
                                "deviation": (v - v0) * f, "std": float(s) * f, "free": True})
             page = {"status": result.status, "success": result.success, "message": result.message,
                     "meta": meta, "certificate": report["certificate"], "parameters": params,
-                    "provenance": _provenance(["calib", *getattr(args, "argv", [])],
-                                              {"robot": robot_path(args.robot), "measurements": args.measurements},
-                                              {"calibrated_urdf": args.output, "html": out_html}),
+                    "provenance": provenance,
                     "frames": {"base_frame": frames.base_frame, "tool_frame": frames.tool_frame,
                                "joints": list(robot.joint_names), "written_urdf": frames.to_dict()},
                     "outliers": [{"row": row, "position_error_mm": e * 1e3, "rotation_error_rad": None,

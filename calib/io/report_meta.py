@@ -3,6 +3,7 @@ JSON file: one mapping of field names to text or numbers, read with PyYAML (YAML
 JSON, so one reader takes both)."""
 from __future__ import annotations
 
+import datetime
 from pathlib import Path
 
 from calib.errors import CalibError
@@ -14,7 +15,8 @@ MAX_META_BYTES = 65536
 
 
 def read_meta(path: str | Path) -> dict[str, str]:
-    """``{field: text}`` of a YAML / JSON file holding one mapping of names to text or numbers;
+    """``{field: text}`` of a YAML / JSON file holding one mapping of names to text, numbers or
+    dates (YAML's unquoted ``2026-03-02``: its ISO 8601 text);
     :class:`calib.CalibError` naming the file (and the line for a syntax error) otherwise."""
     path = Path(path)
     if path.suffix.lower() not in (".yaml", ".yml", ".json"):
@@ -44,8 +46,10 @@ def read_meta(path: str | Path) -> dict[str, str]:
     for key, value in doc.items():
         if not isinstance(key, str) or not key.strip():
             raise CalibError(f"{path}: field name {key!r} is not a name")
+        if isinstance(value, datetime.date):      # YAML reads 2026-03-02 as a date: kept as written
+            value = value.isoformat()
         if isinstance(value, bool) or not isinstance(value, (str, int, float)) or not str(value).strip():
-            raise CalibError(f"{path}: field {key}: expected text or a number, got {value!r:.40}")
+            raise CalibError(f"{path}: field {key}: expected text, a number or a date, got {value!r:.40}")
         out[key.strip()] = str(value).strip()
     return out
 

@@ -47,8 +47,9 @@ class Measurements:
     notes : one-line remarks of the reading (ignored columns, readings kept just past a joint
         limit), for the caller to show; the library does not print them.
     columns : per-row columns the report uses, or None: ``time_s`` (seconds), ``temperature_c``
-        (degrees Celsius), each (N,) float with NaN for an empty cell, and ``pose_id`` (N,) str
-        (rows of one id are visits of one commanded pose).
+        (degrees Celsius), ``unix_time_s`` (seconds since 1970-01-01 UTC: the row's date and time,
+        from timestamps that are dates), each (N,) float with NaN for an empty cell, and
+        ``pose_id`` (N,) str (rows of one id are visits of one commanded pose).
     orientation : how the file gave the orientation (``"quaternion"``, ``"zyx"``, ``"rotvec"``,
         ``"matrix"``, or ``"euler:<sequence>"`` with the sequence it was read with), or None
         (data not read from a file, position only): what a check of a misreading tries.

@@ -24,6 +24,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from calib.report.identity import certificate_identity, check_fields
 from calib.report.plots import PLOT_FILES, plot_rows
 from calib.report.rows import (PoseDeviations, ReportRows, axis_table, drift_columns, error_stats, iso9283,
                                            pose_deviations, repeated_groups, report_rows,
@@ -82,18 +83,21 @@ def render_plots(result: CalibrationResult, measurements: Measurements,
 
 # ====================================================================== JSON report
 #: Version of the JSON report's layout; raised when a key changes meaning or disappears.
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 
 def file_provenance(path: str | Path) -> dict:
-    """``{"path", "sha256", "bytes"}`` of an input file (path as given, resolved to absolute)."""
+    """``{"path", "sha256", "bytes", "modified"}`` of an input file (path as given, resolved to
+    absolute; ``modified``: its modification time, ISO 8601 UTC to the second)."""
     path = Path(path)
+    mtime = datetime.datetime.fromtimestamp(path.stat().st_mtime, datetime.timezone.utc)
     digest, size = hashlib.sha256(), 0
     with open(path, "rb") as fh:          # in blocks: a million-row file is 250 MB
         for block in iter(lambda: fh.read(1 << 20), b""):
             digest.update(block)
             size += len(block)
-    return {"path": str(path.resolve()), "sha256": digest.hexdigest(), "bytes": size}
+    return {"path": str(path.resolve()), "sha256": digest.hexdigest(), "bytes": size,
+            "modified": mtime.isoformat(timespec="seconds").replace("+00:00", "Z")}
 
 
 def _calib_version() -> str:
@@ -118,20 +122,26 @@ def _residual_columns(rows: ReportRows) -> dict[str, np.ndarray]:
     cols["outlier"] = rows.outlier
     for name in ("pose_id", "time_s", "temperature_c"):
         if name in rows.columns:
-            cols[name] = rows.columns[name] if name == "pose_id" else np.round(rows.columns[name], 6)
+            cols[name] = rows.columns[name] if name == "pose_id" else _rounded(rows.columns[name], 6)
     dp = rows.after.position * 1e3
     for k, axis in enumerate("xyz"):
-        cols[f"d{axis}_mm"] = np.round(dp[:, k], 6)
-    cols["position_error_mm"] = np.round(rows.after.position_errors * 1e3, 6)
+        cols[f"d{axis}_mm"] = _rounded(dp[:, k], 6)
+    cols["position_error_mm"] = _rounded(rows.after.position_errors * 1e3, 6)
     if rows.before is not None:
-        cols["position_error_before_mm"] = np.round(rows.before.position_errors * 1e3, 6)
+        cols["position_error_before_mm"] = _rounded(rows.before.position_errors * 1e3, 6)
     if rows.has_rotation:
         for k, axis in enumerate("xyz"):
-            cols[f"r{axis}_rad"] = np.round(rows.after.rotation[:, k], 9)
-        cols["rotation_error_rad"] = np.round(rows.after.rotation_errors, 9)
+            cols[f"r{axis}_rad"] = _rounded(rows.after.rotation[:, k], 9)
+        cols["rotation_error_rad"] = _rounded(rows.after.rotation_errors, 9)
         if rows.before is not None and rows.before.rotation is not None:
-            cols["rotation_error_before_rad"] = np.round(rows.before.rotation_errors, 9)
+            cols["rotation_error_before_rad"] = _rounded(rows.before.rotation_errors, 9)
     return cols
+
+
+def _rounded(values: np.ndarray, decimals: int) -> np.ndarray:
+    """``values`` rounded, with no negative zero (-0.0 + 0.0 is +0.0: a -1e-12 mm deviation is
+    written 0, not -0)."""
+    return np.round(values, decimals) + 0.0
 
 
 def residuals_csv_text(rows: ReportRows) -> str:
@@ -217,14 +227,16 @@ def _certificate(rows: ReportRows, tolerance_mm: float | None, *, calibration: b
         accuracy.append({"label": label, "model": which, **st})
         if not label.startswith("outlier"):
             per_axis.append({"label": label, "model": which, "axes": axis_table(dev, mask)})
-    # the rows a verdict and the headline "after" are of: held-out rows when there are some
+    # the rows a verdict and the headline "after" are of: held-out rows when there are some; a
+    # calibration without them has fit residuals only, which no verdict rests on
     if calibration and rows.validation.any():
-        judged, what = rows.validation, "validation rows (held out)"
+        judged, what, basis = rows.validation, "validation rows (held out)", "held-out rows"
     elif calibration:
         judged, what = rows.calibration & kept, ("calibration rows without the outliers" if rows.outlier.any()
                                                  else "calibration rows")
+        basis = "fit residuals"
     else:
-        judged, what = np.ones(rows.n_rows, bool), "all rows"
+        judged, what, basis = np.ones(rows.n_rows, bool), "all rows", "evaluated rows"
     groups_id = repeated_groups(rows)
     iso = iso9283(rows, rows.after, groups_id, kept)
     if iso is not None and rows.before is not None:
@@ -239,7 +251,7 @@ def _certificate(rows: ReportRows, tolerance_mm: float | None, *, calibration: b
                        "slope_mm_per_unit": slope, "change_mm": slope * float(np.ptp(v[ok])),
                        "correlation": float(np.corrcoef(v[ok], e)[0, 1]) if np.ptp(e) > 0 else 0.0}
     out = {"before_label": rows.before_label if rows.before is not None else None,
-           "headline_rows": what, "accuracy": accuracy, "per_axis": per_axis, "iso9283": iso,
+           "headline_rows": what, "basis": basis, "accuracy": accuracy, "per_axis": per_axis, "iso9283": iso,
            "drift": drift or None,
            "outlier_rows": [int(r) for r in rows.row[rows.outlier]],
            "tolerance": None}
@@ -247,7 +259,23 @@ def _certificate(rows: ReportRows, tolerance_mm: float | None, *, calibration: b
         out["tolerance"] = tolerance_verdict(tolerance_mm * 1e-3, rows.after.position_errors[judged], what)
         over = judged & (rows.after.position_errors > tolerance_mm * 1e-3)
         out["tolerance"]["rows_beyond"] = [int(r) for r in rows.row[over][:100]]
+        out["tolerance"].update(_verdict_basis(out["tolerance"], basis))
     return out
+
+
+#: Why a calibration without held-out rows gets no verdict (the report's words).
+NO_VERDICT = ("no verification rows (--validate VAL.csv, or rows with set=val): the rows are fit residuals, "
+              "the model's distance to the very rows it was fitted to, which understate its error on new "
+              "rows and cannot carry a verdict")
+
+
+def _verdict_basis(tolerance: Mapping, basis: str) -> dict:
+    """The verdict of a tolerance comparison: ``"PASS"`` / ``"FAIL"`` on held-out or evaluated
+    rows; on fit residuals none (``pass`` and ``verdict`` None, ``reason`` :data:`NO_VERDICT`):
+    the comparison stays in the report as information."""
+    if basis == "fit residuals":
+        return {"basis": basis, "pass": None, "verdict": None, "reason": NO_VERDICT}
+    return {"basis": basis, "verdict": "PASS" if tolerance["pass"] else "FAIL", "reason": None}
 
 
 def _check_common(command_line, inputs, outputs, frames, meta, tolerance_mm, residuals) -> None:
@@ -272,7 +300,8 @@ def _check_common(command_line, inputs, outputs, frames, meta, tolerance_mm, res
 
 def check_meta(meta) -> dict:
     """``meta`` (identity fields of a report: name -> text or number, e.g. robot_serial,
-    instrument, operator) checked; returns it as a dict of strings."""
+    instrument, operator; the fields :mod:`calib.report.identity` reads checked as it
+    reads them: dates ISO 8601) checked; returns it as a dict of strings."""
     if meta is None:
         return {}
     if not isinstance(meta, Mapping) or not all(
@@ -280,7 +309,9 @@ def check_meta(meta) -> dict:
             for k, v in meta.items()):
         raise ParameterError(f"meta must map field names to text or numbers (robot_serial=..., "
                              f"instrument=..., operator=...), got {meta!r:.80}")
-    return {k.strip(): str(v) for k, v in meta.items()}
+    out = {k.strip(): str(v) for k, v in meta.items()}
+    check_fields(out)
+    return out
 
 
 def _provenance(command_line, inputs, outputs) -> dict:
@@ -352,7 +383,8 @@ def build_report(result: CalibrationResult, measurements: Measurements,
     report["frames"] = {"base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
                         "joints": list(robot.joint_names), **dict(frames or {})}
     report.update(result.to_dict())
-    report["certificate"] = _certificate(rows, tolerance_mm, calibration=True)
+    report["certificate"] = {**certificate_identity(report["provenance"], report["meta"], rows.columns),
+                             **_certificate(rows, tolerance_mm, calibration=True)}
     report["covariance"] = _covariance_dict(result)
     report["residuals"] = _residuals_entry(rows, residuals)
     return report
@@ -372,11 +404,13 @@ def build_accuracy_report(robot: RobotModel, measurements: Measurements, *, comm
     _check_common(command_line, inputs, None, None, meta, tolerance_mm, residuals)
     rows = check_instance(rows, "rows", ReportRows, "from report_rows", allow_none=True) \
         or report_rows(robot, measurements, validation_rows="none")
+    provenance, meta = _provenance(command_line, inputs, None), check_meta(meta)
     report = {"schema_version": SCHEMA_VERSION, "evaluation": True,
-              "provenance": _provenance(command_line, inputs, None), "meta": check_meta(meta),
+              "provenance": provenance, "meta": meta,
               "frames": {"base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
                          "joints": list(robot.joint_names)},
-              "certificate": _certificate(rows, tolerance_mm, calibration=False),
+              "certificate": {**certificate_identity(provenance, meta, rows.columns),
+                              **_certificate(rows, tolerance_mm, calibration=False)},
               "residuals": _residuals_entry(rows, residuals)}
     return report
 
@@ -396,14 +430,15 @@ def report_json_text(report: Mapping) -> str:
 
 
 def _clean(o):
-    """``o`` with non-finite floats as None and numpy scalars as Python ones."""
+    """``o`` with non-finite floats as None, no negative zero (-0.0 + 0.0 is 0.0) and numpy
+    scalars as Python ones."""
     if isinstance(o, float):
-        return o if math.isfinite(o) else None
+        return o + 0.0 if math.isfinite(o) else None
     if isinstance(o, dict):
         return {k: _clean(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
         if o and all(type(v) is float for v in o[:3]) and all(math.isfinite(v) for v in o):
-            return list(o)
+            return [v + 0.0 if type(v) is float else v for v in o]
         return [_clean(v) for v in o]
     if isinstance(o, np.generic):
         return _clean(o.item())

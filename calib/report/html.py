@@ -11,6 +11,9 @@ from functools import partial
 from pathlib import Path
 from typing import Mapping
 
+from calib.report.identity import approval, instrument
+from calib.units import format_number
+
 __all__ = ["html_page", "load_template", "COVERAGE_FACTOR", "IMAGE_CAPTIONS"]
 
 #: Coverage factor of the expanded uncertainties in the page (about 95 % for a normal law).
@@ -30,11 +33,12 @@ _COMPILED = None
 
 
 def _num(v, fmt: str = ".4g") -> str:
+    """A number for the page: "" for None, "n/a" for NaN and infinities, never a signed zero."""
     if v is None:
         return ""
     if isinstance(v, float) and not math.isfinite(v):
         return "n/a"
-    return format(v, fmt)
+    return format_number(v, fmt)
 
 
 def _environment():
@@ -144,14 +148,72 @@ def _written(key: str, value) -> str:
     page showed Python's repr of the dicts, in metres and radians, with ``'link': None``)."""
     if key == "measurement" and isinstance(value, Mapping):
         xyz, rpy = value.get("xyz") or [], value.get("rpy") or []
-        text = ("xyz " + ", ".join(f"{v * 1e3:.4f}" for v in xyz) + " mm; rpy "
-                + ", ".join(f"{v * _DEG:.6f}" for v in rpy) + " deg (the measurement->base transform)")
+        text = ("xyz " + ", ".join(format_number(v * 1e3, ".4f") for v in xyz) + " mm; rpy "
+                + ", ".join(format_number(v * _DEG, ".6f") for v in rpy) + " deg (the measurement->base transform)")
         link = value.get("link")
         return text + (f"; written as the fixed link '{link}' above the root" if link else
                        "; recorded in calib:frames only (no --measurement-link)")
     if isinstance(value, Mapping):
         return ", ".join(f"{k}: {v}" for k, v in value.items())
     return value
+
+
+def _utc_text(stamp: str | None) -> str:
+    """An ISO 8601 UTC stamp of a report (``2026-11-25T10:00:07+00:00``) as a person reads it:
+    ``2026-11-25 10:00:07 UTC``; anything else as it is."""
+    if not stamp:
+        return ""
+    for tail in ("+00:00", "Z"):
+        if stamp.endswith(tail) and len(stamp) > 11 and stamp[10] == "T":
+            return stamp[:10] + " " + stamp[11:-len(tail)] + " UTC"
+    return stamp
+
+
+#: Where each input of a report comes from, for the identity table (role -> label).
+_INPUT_LABELS = {"robot": "robot model", "measurements": "measurements", "tracker": "instrument's file",
+                 "validation": "validation measurements"}
+
+
+def _identity(cert: Mapping, meta: dict, prov: Mapping) -> list[tuple[str, str]]:
+    """The identity table: certificate number (and where it comes from), customer, dates, robot,
+    instrument (and its own calibration), the other fields as given, the input files. Consumes
+    the fields of ``meta`` it shows."""
+    inputs = prov.get("inputs", {})
+    given = set(meta)
+    out = []
+    if cert.get("number"):
+        how = "as given" if cert.get("number_from") == "meta" else \
+            f"derived from the sha256 of the {', '.join(cert.get('number_inputs') or ['input'])} files: Provenance"
+        out.append(("certificate number", f"{cert['number']} ({how})"))
+    if "customer" in meta:
+        out.append(("customer", meta.pop("customer")))
+    out.append(("issued", _utc_text(cert.get("issued") or prov.get("date", ""))))
+    when = cert.get("measurement_date")
+    if when:
+        out.append(("measurement date", when["label"]))
+    if "robot_serial" in meta:
+        out.append(("robot serial", meta.pop("robot_serial")))
+    inst = cert.get("instrument") or instrument(meta)
+    if inst.get("name") or inst.get("serial"):
+        out.append(("instrument", ", ".join(([inst["name"]] if inst.get("name") else [])
+                                            + ([f"serial {inst['serial']}"] if inst.get("serial") else []))))
+    else:
+        out.append(("instrument", "not given (--meta instrument=...,instrument_serial=...)"))
+    cal = inst.get("calibration_date")
+    out.append(("instrument calibrated", (cal + (f", certificate {inst['certificate']}" if inst.get("certificate")
+                                                 else "")) if cal else
+                "not given (--meta instrument_calibration_date=YYYY-MM-DD)"))
+    if "operator" in meta:
+        out.append(("measured by", meta.pop("operator")))
+    for key in ("certificate_number", "measurement_date", "instrument", "instrument_serial",
+                "instrument_calibration_date", "instrument_certificate", "approved_by"):
+        meta.pop(key, None)
+    out += [(k.replace("_", " "), v) for k, v in meta.items()]
+    out += [(_INPUT_LABELS.get(role, role), v["path"]) for role, v in inputs.items() if role in _INPUT_LABELS]
+    out.append(("calib version", prov.get("calib_version", "")))
+    if not given & {"robot_serial", "instrument", "operator"}:
+        out.insert(0, ("identity fields", "none given (--meta robot_serial=...,instrument=...,operator=...)"))
+    return out
 
 
 def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: str | None) -> str:
@@ -161,14 +223,7 @@ def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: st
     title = title or ("Robot accuracy report" if evaluation else "Kinematic calibration report")
     meta = dict(report.get("meta") or {})
     prov = report.get("provenance", {})
-    inputs = prov.get("inputs", {})
-    identity = [(k.replace("_", " "), meta.pop(k)) for k in ("robot_serial", "instrument", "operator") if k in meta]
-    identity += [(k.replace("_", " "), v) for k, v in meta.items()]
-    identity += [("robot model", inputs.get("robot", {}).get("path", "")),
-                 ("measurements", inputs.get("measurements", {}).get("path", "")),
-                 ("date (UTC)", prov.get("date", "")), ("calib version", prov.get("calib_version", ""))]
-    if not any(k in (report.get("meta") or {}) for k in ("robot_serial", "instrument", "operator")):
-        identity.insert(0, ("identity fields", "none given (--meta robot_serial=...,instrument=...,operator=...)"))
+    identity = _identity(cert, dict(meta), prov)
     accuracy = cert["accuracy"]
     has_rot = any(g.get("rotation_deg") for g in accuracy)
     headline = [g for g in accuracy if g["label"].startswith(("calibration rows", "validation rows", "all rows",
@@ -189,8 +244,9 @@ def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: st
     before = report.get("before") or {}
     provenance = [("calib version", prov.get("calib_version")), ("date (UTC)", prov.get("date")),
                   ("command line", " ".join(prov.get("command_line", [])))]
-    provenance += [(f"input {role}", f"{v['path']} (sha256 {v['sha256']}, {v['bytes']} bytes)")
-                   for role, v in inputs.items()]
+    provenance += [(f"input {role}", f"{v['path']} (sha256 {v['sha256']}, {v['bytes']} bytes"
+                                     + (f", modified {v['modified']}" if v.get("modified") else "") + ")")
+                   for role, v in prov.get("inputs", {}).items()]
     provenance += [(f"output {role}", v) for role, v in prov.get("outputs", {}).items()]
     res = report.get("residuals")
     if isinstance(res, Mapping) and res.get("layout") == "csv":
@@ -208,7 +264,8 @@ def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: st
         "unregistered_before": (before.get("position_mm") or {}).get("rms"),
         "outliers": outliers, "per_axis": cert["per_axis"],
         "axes": ["x", "y", "z"] + (["rx", "ry", "rz"] if has_rot else []),
-        "iso": cert.get("iso9283"), "iso_shown": ISO_SHOWN, "drift": cert.get("drift"),
+        "iso": cert.get("iso9283"), "iso_shown": ISO_SHOWN,
+        "iso_ids": any(p.get("pose_id") for p in (cert.get("iso9283") or {}).get("poses", [])), "drift": cert.get("drift"),
         "features": cert.get("features"), "quantity": cert.get("quantity"), "calibration": not evaluation,
         "multi_target": bool(report.get("targets")) or any(
             p.get("target") for p in (cert.get("iso9283") or {}).get("poses", [])),
@@ -220,6 +277,10 @@ def html_page(report: Mapping, text: str, images: Mapping[str, bytes], title: st
         "images": [(name, IMAGE_CAPTIONS.get(name, name), base64.b64encode(data).decode("ascii"))
                    for name, data in images.items()],
         "text": text, "provenance": provenance,
+        "number": cert.get("number"), "issued": _utc_text(cert.get("issued") or prov.get("date")),
+        "measured": (cert.get("measurement_date") or {}).get("label"),
+        "basis": cert.get("basis"), "identity_notes": cert.get("notes") or [],
+        "signatures": cert.get("signatures") or approval(meta),
     }
     import jinja2
 

@@ -236,8 +236,10 @@ def repeated_groups(rows: ReportRows) -> np.ndarray:
 def iso9283(rows: ReportRows, dev: PoseDeviations, groups: np.ndarray, keep: np.ndarray) -> dict | None:
     """ISO 9283 pose accuracy and repeatability (module docstring) of each pose visited at least
     twice among the rows of ``keep``, from the deviations ``dev`` (model minus measured); None when
-    no pose is. Returns ``{"poses": [{"first_row", "target", "visits", "ap_p_mm", "rp_l_mm",
-    "ap_deg": [a, b, c], "rp_deg": [a, b, c]}...], "ap_p_max_mm", "rp_l_max_mm", ...}``."""
+    no pose is. Returns ``{"poses": [{"pose_id", "first_row", "target", "visits", "ap_p_mm", "rp_l_mm",
+    "ap_deg": [a, b, c], "rp_deg": [a, b, c]}...], "ap_p_max_mm", "rp_l_max_mm", ...}``; ``pose_id``
+    is the file's id of the pose (its ``pose_id`` column; None without one), ``first_row`` the file
+    row of its first visit."""
     g = np.where(keep, groups, -1)
     counts = np.bincount(g[g >= 0]) if (g >= 0).any() else np.zeros(0, int)
     first = {}
@@ -250,6 +252,7 @@ def iso9283(rows: ReportRows, dev: PoseDeviations, groups: np.ndarray, keep: np.
     members = {k: np.flatnonzero(g == k) for k in first} if len(first) <= 1000 else None
     order = np.argsort(g, kind="stable")
     starts = np.searchsorted(g[order], list(first))
+    pose_id = rows.columns.get("pose_id")
     for j, k in enumerate(first):
         idx = members[k] if members is not None else order[starts[j]:starts[j] + counts[k]]
         d = -dev.position[idx] * 1e3                 # attained - commanded, mm
@@ -257,7 +260,8 @@ def iso9283(rows: ReportRows, dev: PoseDeviations, groups: np.ndarray, keep: np.
         ap = float(np.linalg.norm(bar))
         l = np.linalg.norm(d - bar, axis=1)
         s_l = float(np.sqrt(np.sum((l - l.mean()) ** 2) / (len(l) - 1)))
-        rec = {"first_row": int(rows.row[idx[0]]), "file": str(rows.file[idx[0]]),
+        rec = {"pose_id": (str(pose_id[idx[0]]) or None) if pose_id is not None else None,
+               "first_row": int(rows.row[idx[0]]), "file": str(rows.file[idx[0]]),
                "target": None if rows.target is None else str(rows.target[idx[0]]),
                "visits": int(len(idx)), "ap_p_mm": ap, "rp_l_mm": float(l.mean() + 3 * s_l),
                "ap_mm": bar.tolist()}

@@ -270,7 +270,7 @@ def test_json_and_html_reports(capsys, tmp_path, monkeypatch):
                           "--html", html_path)
     assert code == 0, err
     r = json.loads(rep.read_text())
-    assert r["schema_version"] == 2
+    assert r["schema_version"] == 3
     prov = r["provenance"]
     assert prov["command_line"][:3] == ["calib", "calibrate", str(BUNDLED)]
     assert prov["inputs"]["measurements"]["sha256"] == hashlib.sha256(meas.read_bytes()).hexdigest()

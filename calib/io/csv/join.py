@@ -186,6 +186,9 @@ class Joined:
     one_to_one : each joint row gives exactly one result row (then the result keeps the joint
         file's row numbers; otherwise the tracker file's, one per measured row).
     notes : one-line remarks of the join (a joint log not in time order).
+    unix_time_s : (M,) float, the measured rows' timestamps as seconds since 1970-01-01 UTC when
+        they are dates and times (a join by time on ISO 8601 stamps: when the robot was
+        measured), else None.
     """
 
     joint: np.ndarray
@@ -193,6 +196,7 @@ class Joined:
     labels: dict
     one_to_one: bool
     notes: tuple[str, ...] = ()
+    unix_time_s: np.ndarray | None = None
 
 
 def join_tables(j: Table, t: Table, options: ReadOptions) -> Joined:
@@ -200,11 +204,12 @@ def join_tables(j: Table, t: Table, options: ReadOptions) -> Joined:
     :func:`sides`) as ``options.join`` says (module docstring)."""
     target, target_col = _tracker_targets(t, options)
     notes: tuple[str, ...] = ()
+    dates = None
     if options.join == "key":
         jidx, tidx, target, target_col = _by_key(j, t, options, target, target_col)
         how = "same key"
     else:
-        jidx, tidx, notes = _by_time(j, t, options)
+        jidx, tidx, notes, dates = _by_time(j, t, options)
         how = "joined by time"
     order = np.lexsort((tidx, jidx))          # joint row order, then the tracker file's
     jidx, tidx = jidx[order], tidx[order]
@@ -213,7 +218,8 @@ def join_tables(j: Table, t: Table, options: ReadOptions) -> Joined:
     labels["target"] = _agree(j, t, jidx, tidx, "target", tt, target_col, how)
     labels["pose_id"] = _agree(j, t, jidx, tidx, "pose_id", None, t.names.get("pose_id"), how)
     one = len(jidx) == len(j.rows) and len(np.unique(jidx)) == len(jidx)
-    return Joined(joint=jidx, tracker=tidx, labels=labels, one_to_one=bool(one), notes=notes)
+    return Joined(joint=jidx, tracker=tidx, labels=labels, one_to_one=bool(one), notes=notes,
+                  unix_time_s=None if dates is None else dates[tidx])
 
 
 def _tracker_targets(t: Table, options: ReadOptions) -> tuple[tuple | None, str | None]:
@@ -369,7 +375,7 @@ def _by_time(j: Table, t: Table, options: ReadOptions):
                 t.path, f"{what}, with different joint values: the join by nearest time is ambiguous; "
                         f"expected one nearest joint row (a timestamp written more finely, or a joint "
                         f"log without repeated times)", row=int(t.rows[k]), column=col)
-    return order[pick], np.arange(len(tt)), tuple(notes)
+    return order[pick], np.arange(len(tt)), tuple(notes), (tt if kind_t == "dates and times" else None)
 
 
 def _seconds(table: Table, label: str, options: ReadOptions) -> tuple[np.ndarray, str]:

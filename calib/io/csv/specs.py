@@ -170,6 +170,8 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
     position = pose.position[order]
     rotation = None if pose.rotation is None else pose.rotation[order]
     columns = {f"{k}_{_EXTRA_SI[k]}": v for k, v in extras.items()}
+    if tracker is not None and joined.unix_time_s is not None:     # when the robot was measured
+        columns["unix_time_s"] = joined.unix_time_s
     if labels.get("pose_id") is not None:
         columns["pose_id"] = np.asarray(labels["pose_id"], dtype=object)
     return Measurements(q=q, position=position, rotation=rotation, rows=rows,
