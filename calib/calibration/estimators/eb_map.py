@@ -377,13 +377,75 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
     model with its frame parameters fitted); outlier_k : see :func:`eb_map` (None: off); source :
     the measurements' file, named in errors."""
     start, cal = setup.start, setup.cal
+    space, notes = _map_space(setup, sigma_pos, sigma_rot, prior_scales, source)
+    if keep is None:
+        keep = np.ones(cal.n_poses, bool) if setup.suspect is None or outlier_k is None else ~setup.suspect
+    keep = np.asarray(keep, bool)
+
+    def estimate(keep):
+        return _estimate(space, keep, x_start=x_start, sigma_pos=sigma_pos, sigma_rot=sigma_rot, passes=passes,
+                         tol=tol, max_iterations=max_iterations)
+
+    rounds = 3 if outlier_k is not None else 1
+    for rnd in range(rounds):
+        x, ev, done, problem = estimate(keep)
+        if outlier_k is None:
+            break
+        new_keep = _judge_rows(space.base, x, ev, space.rot, keep, outlier_k)
+        if (~new_keep).sum() > MAX_OUTLIER_SHARE * cal.n_poses:
+            notes.append(f"{int((~new_keep).sum())} of {cal.n_poses} rows have residuals above {outlier_k:g} "
+                         f"sigma: too many to be gross errors; all kept (the model does not describe the data?)")
+            if keep.all():
+                break
+            new_keep = np.ones(cal.n_poses, bool)
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+        if rnd == rounds - 1:
+            x, ev, done, problem = estimate(keep)
+    outliers = tuple(int(r) for r in cal.rows[~keep])
+    if outliers and outlier_k is not None:
+        notes.append(f"{len(outliers)} row(s) left out as gross errors: rows {', '.join(map(str, outliers))}")
+    return _result(space, start, x, ev, done, problem, keep, outliers, notes)
+
+
+@dataclass(frozen=True, eq=False, repr=False)     # (internal: arrays and problems, nothing compares them)
+class _MapSpace:
+    """What the passes of :func:`eb_map_stage` share: the problem of every calibration row over
+    the free parameters (``base``; ``everything`` over every candidate), the free indices, their
+    names and prior groups (``group_index``: the index in ``present``, -1 for a frame parameter),
+    the prior mean (``mu`` of the free, ``mu_all`` of every parameter), the scale of a step
+    (radians counted as LENGTH_SCALE_M metres), the hyper-parameters held (``fixed``,
+    ``given_tau``) and whether rotations are measured (``rot``; ``k`` noise levels)."""
+
+    everything: Problem
+    base: Problem
+    free: np.ndarray
+    names: tuple[str, ...]
+    groups: tuple[str, ...]
+    present: list
+    group_index: np.ndarray
+    n_frame: int
+    mu: np.ndarray
+    mu_all: np.ndarray
+    scale: np.ndarray
+    frame_pos: np.ndarray
+    k: int
+    fixed: np.ndarray
+    given_tau: dict
+    rot: bool
+
+
+def _map_space(setup: Setup, sigma_pos, sigma_rot, prior_scales, source) -> tuple[_MapSpace, list[str]]:
+    """The :class:`_MapSpace` of ``setup``'s calibration rows and notes on the free set; a
+    DataError when the rows leave too few residual components to estimate the noise."""
+    start, cal = setup.start, setup.cal
     notes: list[str] = []
     rot = setup.measure == "pose"
-    kin = setup.kin
     rows_t = target_rows(start, cal)
     mu_all = start.values.copy()
     candidates = np.array([i for i, p in enumerate(start.parameters) if p.group not in ("compliance", "periodic")], int)
-    everything = Problem(kin, cal.q, cal.position, cal.rotation, mu_all, candidates, START_SIGMA_POS,
+    everything = Problem(setup.kin, cal.q, cal.position, cal.rotation, mu_all, candidates, START_SIGMA_POS,
                          START_SIGMA_ROT, targets=rows_t)
     free, free_notes = _free_set_of(everything, start, candidates, cal.q, rows_t)
     notes += free_notes
@@ -399,13 +461,7 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
         raise DataError(f"{source or '<measurements>'}: {cal.n_poses} calibration rows give {M} "
                         f"residual components for {n_frame} frame parameters: at least {MIN_REDUNDANCY} "
                         f"more are needed to estimate the noise and the prior scales")
-    mu = mu_all[free]
     scale = np.array([LENGTH_SCALE_M if start.parameters[i].unit == "rad" else 1.0 for i in free])
-    base = everything.derived(free=free)
-    if keep is None:
-        keep = np.ones(cal.n_poses, bool) if setup.suspect is None or outlier_k is None else ~setup.suspect
-    keep = np.asarray(keep, bool)
-    frame_pos = np.flatnonzero(group_index < 0)
     k = 2 if rot else 1
     fixed = np.zeros(k + len(present), bool)
     fixed[0] = sigma_pos is not None
@@ -414,90 +470,84 @@ def eb_map_stage(setup: Setup, *, keep: np.ndarray | None = None, sigma_pos: flo
     given_tau = {g: t for g, t in (prior_scales or {}).items() if g in present}
     for g in given_tau:
         fixed[k + present.index(g)] = True
+    space = _MapSpace(everything, everything.derived(free=free), free, names, groups, present, group_index, n_frame,
+                      mu_all[free], mu_all, scale, np.flatnonzero(group_index < 0), k, fixed, given_tau, rot)
+    return space, notes
 
-    def estimate(keep):
-        problem = base.derived(keep=keep)
-        if x_start is not None:
-            x = np.asarray(x_start, float)[free].copy()
-        else:
-            # the frames alone, structure at mu
-            x = mu.copy()
-            if frame_pos.size:
-                fp = problem.derived(free=free[frame_pos])
-                x[frame_pos] = levenberg_marquardt(fp, mu[frame_pos], "pose",
-                                                   LMOptions(max_iterations=max_iterations)).x
-        log_h = None
-        ev = None
-        done = 0
-        for done in range(1, passes + 1):
-            lin = linearise(problem, x, mu)
-            if log_h is None:
-                sp = sigma_pos or math.sqrt(max(lin.yyp, 1e-30) / max(lin.n_p - n_frame, 1))
-                h0 = [-2 * math.log(max(sp, SIGMA_POS_BOUNDS[0]))]
-                if rot:
-                    sr = sigma_rot or math.sqrt(max(lin.yyr, 1e-30) / max(lin.n_r, 1))
-                    h0.append(-2 * math.log(max(sr, SIGMA_ROT_BOUNDS[0])))
-                log_h = np.array(h0 + [-2 * math.log(given_tau.get(g, 1e-3)) for g in present])
-                if sigma_pos is not None:
-                    log_h[0] = -2 * math.log(sigma_pos)
-                if rot and sigma_rot is not None:
-                    log_h[1] = -2 * math.log(sigma_rot)
-            ev = maximise_evidence(lin, group_index, log_h, fixed)
-            log_h = ev.log_h
-            sp, sr = math.exp(-0.5 * log_h[0]), (math.exp(-0.5 * log_h[1]) if rot else START_SIGMA_ROT)
-            lam = np.zeros(len(free))
-            lam[group_index >= 0] = np.exp(log_h[k:])[group_index[group_index >= 0]]
-            weighted = problem.derived(sigma_pos=sp, sigma_rot=sr)
-            # the MAP estimate of the linearised model (the evidence's posterior mean) is one
-            # Gauss-Newton step of the MAP objective from x: start there when it is lower
-            x0 = x
-            x_gn = mu + ev.z
-            if _map_cost(weighted, x_gn, mu, lam) < _map_cost(weighted, x, mu, lam):
-                x0 = x_gn
-            x_new, _, _ = map_fit(weighted, x0, mu, lam, max_iterations)
-            change = float(np.max(np.abs(x_new - x) * scale))
-            moved = not np.array_equal(x_new, x)
-            x = x_new
-            if change < tol:
-                break
-        # statistics at the estimate, with the final hyper-parameters (the last pass's own when
-        # its MAP fit stayed where it was linearised: the same linearisation and hyper-parameters)
-        final = evidence(linearise(problem, x, mu), group_index, log_h) if moved else ev
-        return x, final, done, problem
 
-    rounds = 3 if outlier_k is not None else 1
-    for rnd in range(rounds):
-        x, ev, done, problem = estimate(keep)
-        if outlier_k is None:
+def _estimate(space: _MapSpace, keep: np.ndarray, *, x_start, sigma_pos, sigma_rot, passes: int, tol: float,
+              max_iterations: int):
+    """The EB-MAP estimate of the rows ``keep``: up to ``passes`` linearisations, each choosing
+    the noise levels and prior scales by the evidence and then fitting the MAP estimate of the
+    exact model. Returns (x, the evidence at x, the passes run, the problem of the rows)."""
+    mu, free, frame_pos, rot, k = space.mu, space.free, space.frame_pos, space.rot, space.k
+    problem = space.base.derived(keep=keep)
+    if x_start is not None:
+        x = np.asarray(x_start, float)[free].copy()
+    else:
+        # the frames alone, structure at mu
+        x = mu.copy()
+        if frame_pos.size:
+            fp = problem.derived(free=free[frame_pos])
+            x[frame_pos] = levenberg_marquardt(fp, mu[frame_pos], "pose", LMOptions(max_iterations=max_iterations)).x
+    log_h = None
+    ev = None
+    done = 0
+    for done in range(1, passes + 1):
+        lin = linearise(problem, x, mu)
+        if log_h is None:
+            sp = sigma_pos or math.sqrt(max(lin.yyp, 1e-30) / max(lin.n_p - space.n_frame, 1))
+            h0 = [-2 * math.log(max(sp, SIGMA_POS_BOUNDS[0]))]
+            if rot:
+                sr = sigma_rot or math.sqrt(max(lin.yyr, 1e-30) / max(lin.n_r, 1))
+                h0.append(-2 * math.log(max(sr, SIGMA_ROT_BOUNDS[0])))
+            log_h = np.array(h0 + [-2 * math.log(space.given_tau.get(g, 1e-3)) for g in space.present])
+            if sigma_pos is not None:
+                log_h[0] = -2 * math.log(sigma_pos)
+            if rot and sigma_rot is not None:
+                log_h[1] = -2 * math.log(sigma_rot)
+        ev = maximise_evidence(lin, space.group_index, log_h, space.fixed)
+        log_h = ev.log_h
+        sp, sr = math.exp(-0.5 * log_h[0]), (math.exp(-0.5 * log_h[1]) if rot else START_SIGMA_ROT)
+        lam = np.zeros(len(free))
+        gi = space.group_index
+        lam[gi >= 0] = np.exp(log_h[k:])[gi[gi >= 0]]
+        weighted = problem.derived(sigma_pos=sp, sigma_rot=sr)
+        # the MAP estimate of the linearised model (the evidence's posterior mean) is one
+        # Gauss-Newton step of the MAP objective from x: start there when it is lower
+        x0 = x
+        x_gn = mu + ev.z
+        if _map_cost(weighted, x_gn, mu, lam) < _map_cost(weighted, x, mu, lam):
+            x0 = x_gn
+        x_new, _, _ = map_fit(weighted, x0, mu, lam, max_iterations)
+        change = float(np.max(np.abs(x_new - x) * space.scale))
+        moved = not np.array_equal(x_new, x)
+        x = x_new
+        if change < tol:
             break
-        new_keep = _judge_rows(everything.derived(free=free), x, ev, rot, keep, outlier_k)
-        if (~new_keep).sum() > MAX_OUTLIER_SHARE * cal.n_poses:
-            notes.append(f"{int((~new_keep).sum())} of {cal.n_poses} rows have residuals above {outlier_k:g} "
-                         f"sigma: too many to be gross errors; all kept (the model does not describe the data?)")
-            if keep.all():
-                break
-            new_keep = np.ones(cal.n_poses, bool)
-        if np.array_equal(new_keep, keep):
-            break
-        keep = new_keep
-        if rnd == rounds - 1:
-            x, ev, done, problem = estimate(keep)
-    outliers = tuple(int(r) for r in cal.rows[~keep])
-    if outliers and outlier_k is not None:
-        notes.append(f"{len(outliers)} row(s) left out as gross errors: rows {', '.join(map(str, outliers))}")
-    taus = {g: float(math.exp(-0.5 * ev.log_h[k + i])) for i, g in enumerate(present)}
-    pinned = tuple(g for g in present if taus[g] <= TAU_BOUNDS[0] * (1 + 1e-3))
-    values = mu_all.copy()
-    values[free] = x
+    # statistics at the estimate, with the final hyper-parameters (the last pass's own when
+    # its MAP fit stayed where it was linearised: the same linearisation and hyper-parameters)
+    final = evidence(linearise(problem, x, mu), space.group_index, log_h) if moved else ev
+    return x, final, done, problem
+
+
+def _result(space: _MapSpace, start: RobotModel, x, ev, done: int, problem: Problem, keep, outliers,
+            notes) -> EBMapResult:
+    """The :class:`EBMapResult` of the estimate x and its evidence ``ev``."""
+    k, rot, gi = space.k, space.rot, space.group_index
+    taus = {g: float(math.exp(-0.5 * ev.log_h[k + i])) for i, g in enumerate(space.present)}
+    pinned = tuple(g for g in space.present if taus[g] <= TAU_BOUNDS[0] * (1 + 1e-3))
+    values = space.mu_all.copy()
+    values[space.free] = x
     C = ev.covariance
     return EBMapResult(
-        robot=start.with_values(values), start=start, names=names, groups=groups, estimate=x, prior_mean=mu,
-        covariance=C, prior_scales=taus, pinned=pinned,
+        robot=start.with_values(values), start=start, names=space.names, groups=space.groups, estimate=x,
+        prior_mean=space.mu, covariance=C, prior_scales=taus, pinned=pinned,
         effective_parameters=float(np.sum(C * ev.A_data)), log_evidence=ev.value,
         sigma_pos=float(math.exp(-0.5 * ev.log_h[0])),
         sigma_rot=float(math.exp(-0.5 * ev.log_h[1])) if rot else None,
         keep=keep, outliers=outliers, passes=done, notes=tuple(notes),
-        prior_precision=np.where(group_index >= 0, np.exp(ev.log_h[k:])[np.maximum(group_index, 0)], 0.0),
+        prior_precision=np.where(gi >= 0, np.exp(ev.log_h[k:])[np.maximum(gi, 0)], 0.0),
         problem=problem.derived(sigma_pos=math.exp(-0.5 * ev.log_h[0]),
                                 sigma_rot=math.exp(-0.5 * ev.log_h[1]) if rot else problem.sigma_rot))
 

@@ -258,6 +258,33 @@ def read_urdf_chain(urdf_path: str | Path | UrdfText, base_frame: str | None = N
     if document is None:
         document = UrdfDocument.read(path) if text is None else urdf_path.document()
     doc = document
+    model = _pinocchio_model(path, text)
+    base_frame, tool_frame = doc.resolve_frames(base_frame, tool_frame)
+    base_frame = base_frame or doc.root_link
+    requested_tool = tool_frame
+    frame_names = [f.name for f in model.frames]
+    available = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
+    if base_frame not in frame_names:
+        raise FrameNotFound(base_frame, available, path)
+    tool_frame = tool_frame or _default_tool_frame(doc, doc.link_of(base_frame))
+    ids = {}
+    for role, name in (("base", base_frame), ("tool", tool_frame)):
+        if name not in frame_names:
+            raise FrameNotFound(name, available, path)
+        # prefer the body (link) frame when a joint of the same name exists
+        cands = [k for k, f in enumerate(model.frames) if f.name == name]
+        ids[role] = next((k for k in cands if model.frames[k].type == pin.FrameType.BODY), cands[0])
+    chain = _chain_joint_ids(path, doc, model, ids, base_frame, tool_frame, requested_tool)
+    cj = [_chain_joint(path, doc, model, jid, base_frame, tool_frame) for jid in chain]
+    return UrdfChain(path=path, model=model, joints=tuple(cj), joint_ids=tuple(chain),
+                     base_frame=base_frame, tool_frame=tool_frame,
+                     base_frame_id=ids["base"], tool_frame_id=ids["tool"], document=doc)
+
+
+def _pinocchio_model(path: Path, text: str | None):
+    """Pinocchio's model of the URDF file ``path`` (or of the URDF ``text`` made from it),
+    checked: its placements finite, at most MAX_MODEL_DOF moving degrees of freedom. The
+    parser's own message, if it fails, as a :class:`URDFError`."""
     parser_output: list[str] = []
     try:
         with captured_c_output() as parser_output:   # Pinocchio's parser prints to C stderr
@@ -274,27 +301,17 @@ def read_urdf_chain(urdf_path: str | Path | UrdfText, base_frame: str | None = N
         raise URDFError(path, f"{model.nv} moving degrees of freedom: calib calibrates serial arms of up to "
                               f"{MAX_MODEL_DOF} (Pinocchio's workspace for this model alone would take "
                               f"gigabytes)")
+    return model
 
-    base_frame, tool_frame = doc.resolve_frames(base_frame, tool_frame)
-    base_frame = base_frame or doc.root_link
-    requested_tool = tool_frame
-    frame_names = [f.name for f in model.frames]
-    available = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
-    if base_frame not in frame_names:
-        raise FrameNotFound(base_frame, available, path)
-    tool_frame = tool_frame or _default_tool_frame(doc, doc.link_of(base_frame))
-    ids = {}
-    for role, name in (("base", base_frame), ("tool", tool_frame)):
-        if name not in frame_names:
-            raise FrameNotFound(name, available, path)
-        # prefer the body (link) frame when a joint of the same name exists
-        cands = [k for k, f in enumerate(model.frames) if f.name == name]
-        ids[role] = next((k for k in cands if model.frames[k].type == pin.FrameType.BODY), cands[0])
 
+def _chain_joint_ids(path: Path, doc: UrdfDocument, model, ids: dict, base_frame: str, tool_frame: str,
+                     requested_tool: str | None) -> list[int]:
+    """The Pinocchio ids of the moving joints from the base frame to the tool frame (``ids``: their
+    frame ids), in chain order; :class:`ChainError` when they are not on one serial chain or no
+    joint moves between them (naming end-effector tool frames to choose from)."""
     base_joint = model.frames[ids["base"]].parentJoint
-    tool_joint = model.frames[ids["tool"]].parentJoint
     chain = []
-    j = tool_joint
+    j = model.frames[ids["tool"]].parentJoint
     while j != base_joint:
         if j == 0:
             raise ChainError(path, f"base frame {base_frame!r} and tool frame {tool_frame!r} are not "
@@ -318,34 +335,35 @@ def read_urdf_chain(urdf_path: str | Path | UrdfText, base_frame: str | None = N
                     if cands else "")
         raise ChainError(path, f"no moving joint between base frame {base_frame!r} and tool frame "
                                f"{tool_frame!r}{hint}")
+    return chain
 
-    cj = []
-    for jid in chain:
-        name = model.names[jid]
-        rec = doc.joints.get(name)
-        jtype = rec.kind if rec else model.joints[jid].shortname()
-        if rec is not None and rec.mimic:
-            raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} is a "
-                                   f"mimic joint: unsupported (it has no independent value)")
-        if jtype not in JOINT_KINDS or model.joints[jid].nv != 1:
-            raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} is of "
-                                   f"type {jtype!r}: unsupported (supported: revolute, continuous, "
-                                   f"prismatic)")
-        if jtype == "continuous":
+
+def _chain_joint(path: Path, doc: UrdfDocument, model, jid: int, base_frame: str, tool_frame: str) -> ChainJoint:
+    """The :class:`ChainJoint` of Pinocchio joint ``jid``: its kind and limits (none for a
+    continuous joint or a URDF joint without limits); :class:`ChainError` for a mimic joint, an
+    unsupported type or a joint that cannot move."""
+    name = model.names[jid]
+    rec = doc.joints.get(name)
+    jtype = rec.kind if rec else model.joints[jid].shortname()
+    if rec is not None and rec.mimic:
+        raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} is a "
+                               f"mimic joint: unsupported (it has no independent value)")
+    if jtype not in JOINT_KINDS or model.joints[jid].nv != 1:
+        raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} is of "
+                               f"type {jtype!r}: unsupported (supported: revolute, continuous, "
+                               f"prismatic)")
+    if jtype == "continuous":
+        lo, hi = -math.inf, math.inf
+    else:
+        jm = model.joints[jid]
+        lo, hi = float(model.lowerPositionLimit[jm.idx_q]), float(model.upperPositionLimit[jm.idx_q])
+        if rec is None or not rec.has_limits:
             lo, hi = -math.inf, math.inf
-        else:
-            jm = model.joints[jid]
-            lo, hi = float(model.lowerPositionLimit[jm.idx_q]), float(model.upperPositionLimit[jm.idx_q])
-            if rec is None or not rec.has_limits:
-                lo, hi = -math.inf, math.inf
-        if lo == hi:
-            raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} has "
-                                   f"limits lower = upper = {lo:g}: it cannot move; make it a "
-                                   f"fixed joint or give it a range")
-        cj.append(ChainJoint(name, jtype, lo, hi))
-    return UrdfChain(path=path, model=model, joints=tuple(cj), joint_ids=tuple(chain),
-                     base_frame=base_frame, tool_frame=tool_frame,
-                     base_frame_id=ids["base"], tool_frame_id=ids["tool"], document=doc)
+    if lo == hi:
+        raise ChainError(path, f"joint {name!r} between {base_frame!r} and {tool_frame!r} has "
+                               f"limits lower = upper = {lo:g}: it cannot move; make it a "
+                               f"fixed joint or give it a range")
+    return ChainJoint(name, jtype, lo, hi)
 
 
 def chain_axes(chain: UrdfChain) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
