@@ -207,7 +207,13 @@ class Header:
         self.ambiguous: tuple[str, str] | None = None
         self.columns: dict[object, Column] = {}
         self.ignored: list[str] = []
+        #: the ignored columns dropped on purpose (a rename to nothing)
+        self.dropped: list[str] = []
         styles: dict[str, str] = {}
+        # a group that looks like an orientation and that calib's names do not read (Leica's Q0..Q3,
+        # q_w..q_z) is one unread group, not joints q1..q3 missing a suffix nor a misspelt 'q'
+        lookalike = self._lookalike([renames.get(r.strip().lower(), r.strip()) for r in names]) \
+            if spec.orientation else set()
         for index, raw in enumerate(names):
             name = raw.strip()
             if name.lower() in renames:
@@ -215,7 +221,11 @@ class Header:
                 name = renames[name.lower()]
                 if not name:
                     self.ignored.append(raw.strip())
+                    self.dropped.append(raw.strip())
                     continue
+            if name in lookalike:
+                self.ignored.append(name)
+                continue
             col = self._classify(index, name)
             if col is None:
                 self.ignored.append(name)
@@ -240,6 +250,8 @@ class Header:
                 styles.setdefault(col.style, name)
             self.columns[col.quantity] = col
         self.orientation = self._check_complete()
+        if spec.orientation and self.orientation == "none" and "x" in self.columns:
+            self._unread_orientation()
 
     # -------------------------------------------------------------- helpers
     def fail(self, reason: str, column: str | None = None):
@@ -431,6 +443,31 @@ class Header:
                   f"{'|'.join(c.name for c, _ in found)} (calib formats lists the conventions), or "
                   f"drop them with --rename '{','.join(w + '=' for w in written)}' if they are not",
                   written[0])
+
+    def _lookalike(self, names: list[str]) -> set[str]:
+        """The names of a group among ``names`` that looks like an orientation
+        (:mod:`calib.io.csv_lookalike`) and that calib's names do not read (each is unknown or
+        an error by itself), else an empty set."""
+        from calib.io.csv_lookalike import unread_orientation
+
+        unread = []
+        for index, name in enumerate(names):
+            try:
+                if name and self._classify(index, name) is None:
+                    unread.append(name)
+            except MeasurementFormatError:
+                unread.append(name)
+        found = unread_orientation(unread)
+        return set() if found is None else set(found.columns)
+
+    def _unread_orientation(self) -> None:
+        """Refuse a header that reads a position and no orientation while columns it ignored
+        look like one (:mod:`calib.io.csv_lookalike`): never a silent position-only fit."""
+        from calib.io.csv_lookalike import unread_orientation
+
+        found = unread_orientation([n for n in self.ignored if n not in self.dropped])
+        if found is not None:
+            self.fail(found.message, found.columns[0])
 
     def _urdf_joints(self) -> dict:
         """The joints of the robot's URDF (name -> :class:`calib.io.urdf.UrdfJoint`), from the
