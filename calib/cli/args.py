@@ -167,9 +167,10 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
         g.add_argument("--tracker", metavar="POSES.csv", default=None,
                        help="the measured poses (x, y, z and an orientation) in a second file, "
                             "joined to the joint file row by row by --key")
-        g.add_argument("--key", metavar="COLUMN", default=None,
+        g.add_argument("--key", metavar="COLUMN|JOINT=TRACKER", default=None,
                        help="column present in both files whose values pair their rows (e.g. a "
-                            "point name), in any order; one joint row may go with several "
+                            "point name), in any order; JOINT=TRACKER when the files name it "
+                            "differently (--key Point=Target); one joint row may go with several "
                             "measured rows, each with its target id (--target-column, "
                             "--target-from, or a target column)")
         g.add_argument("--target-column", metavar="COLUMN", default=None,
@@ -184,9 +185,10 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
         g.add_argument("--join", choices=JOINS, default="key",
                        help="how the files' rows are paired: by --key, or each measured "
                             "row with the joint row of the nearest timestamp (--time, --max-gap)")
-        g.add_argument("--time", metavar="COLUMN", default=None,
-                       help="with --join nearest-time: the timestamp column of both files, numbers "
-                            "with the unit in the name (time_s, time_ms, time_us, time_ns) or "
+        g.add_argument("--time", metavar="COLUMN|JOINT=TRACKER", default=None,
+                       help="with --join nearest-time: the timestamp column of both files (JOINT=TRACKER "
+                            "when they name it differently: --time 'timestamp=Time [s]'), numbers "
+                            "with the unit in the name (time_s, Time [s], time_ms, time_us, time_ns) or "
                             "--time-unit, or times of day (10:00:07.125), or ISO 8601 dates and times")
         g.add_argument("--time-unit", choices=TIME_UNITS, default=None,
                        help="unit of the --time column's numbers when its name does not say it")

@@ -68,6 +68,10 @@ def _unit_text(units) -> str:
     return " or ".join(f"_{u}" for u in units)
 
 
+#: Labels read from a column of another name: ``name`` (the row's name, kept and shown in reports
+#: and outputs) from a column ``point``, ``name`` or ``waypoint`` (a point name in a tracker export,
+#: a UR waypoint log); in a touch file ``point`` is the feature touched instead.
+LABEL_ALIASES = {"name": ("point", "waypoint")}
 #: Names of the columns that hold a whole pose or all joints as one literal (URScript, RAPID).
 POSE_LITERAL_NAMES = ("pose", "tcp_pose", "robtarget")
 JOINT_LITERAL_NAMES = ("joints", "q", "jointtarget")
@@ -113,13 +117,15 @@ class Vocabulary:
                     (suffixed if units else plain)[c] = (c, units, "")
         for label in spec.labels:
             plain[label] = (label, None, "")
+            for alias in LABEL_ALIASES.get(label, ()):
+                plain.setdefault(alias, (label, None, ""))
         for k in spec.lengths:
             suffixed[k] = (k, LENGTH_UNITS, "")
         # extras: read only with a unit of theirs (a bare "time" column stays ignored, as before)
         self.extras = {k: EXTRA_UNITS[k] for k in spec.extras}
         self.key = None
         if spec.keyed:
-            self.key = str(options.key).strip()
+            self.key = str(spec.key or options.key).strip()
             plain[self.key.lower()] = (self.key, None, "")
         if joints:
             for k in JOINT_LITERAL_NAMES:
@@ -575,7 +581,8 @@ class Header:
         if self.key is not None and self.key not in cols:
             close = _close(self.key.lower(), [c.strip().lower() for c in self.ignored], 0.6)
             hint = f"; did you mean {close[0]!r}?" if close else ""
-            self.fail(f"no key column {self.key!r} (given by --key){hint}")
+            given = "" if self.key == self.options.key else f" {self.options.key!r}"
+            self.fail(f"no key column {self.key!r} (given by --key{given}){hint}")
         if spec.joints == "optional" and spec.position != "none" and not present and literal is None \
                 and not have_pos:
             self.fail(f"no {spec.kind}: give joint columns or a position x, y, z"

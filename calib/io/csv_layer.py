@@ -49,10 +49,6 @@ QUATERNION_NORM_TOLERANCE = 1e-3
 MATRIX_TOLERANCE = 1e-3
 #: Default joint limit tolerance, as a fraction of the joint range.
 LIMIT_TOLERANCE = 0.01
-#: Past a limit by more than this fraction of the joint range is more than a reading just past it.
-UNIT_HINT_EXCESS = 0.1
-#: A unit mix-up is suggested only for values at least this many times the largest limit.
-UNIT_HINT_RATIO = 3.0
 
 
 # ====================================================================== options and specs
@@ -98,10 +94,11 @@ class ReadOptions:
         extrinsic, ...), or None.
     limit_tolerance : joint values beyond a limit by at most this fraction of the joint range
         (upper - lower) are kept with a note (default 0.01, 1 %).
-    key : name of the column that joins a joint file and a tracker file, or None.
+    key : name of the column that joins a joint file and a tracker file, or ``"JOINT=TRACKER"``
+        when the two files name it differently (``"Point=Target"``), or None.
     target_column, target_from, join, time, time_unit, max_gap : how a joint file and a tracker
-        file are joined (one joint row to several measured rows, by nearest time): see
-        :mod:`calib.io.join`, which checks them.
+        file are joined (one joint row to several measured rows, by nearest time; ``time`` may be
+        ``"JOINT=TRACKER"`` too): see :mod:`calib.io.join`, which checks them.
     convention : a vendor's column names and units (a key of
         :data:`calib.io.conventions.CONVENTIONS`: ``"kuka"``, ``"abb"``, ``"ur"``, ``"fanuc"``,
         ``"staubli"``, ``"yaskawa"``, or ``"calib"`` to state calib's own ZYX reading of rx, ry,
@@ -156,6 +153,10 @@ class ReadOptions:
             if not isinstance(self.key, str) or not self.key.strip():
                 raise ParameterError(f"key must be a column name, got {self.key!r:.60}")
             object.__setattr__(self, "key", str(self.key).strip())
+            if "=" in self.key:                 # JOINT=TRACKER: each file's own name
+                from calib.io.join import _pair
+
+                object.__setattr__(self, "key", _pair(self.key, "key", "--key"))
         if not isinstance(self.join, str) or self.join != "key" or any(getattr(self, f) is not None
                                                                        for f in _JOIN_FIELDS):
             from calib.io.join import check_join_options     # (the defaults need no check)
@@ -181,6 +182,8 @@ class Spec:
     extras : optional per-row quantities of :data:`calib.io.csv_header.EXTRA_UNITS` (``time``
         with _s, _min or _h; ``temperature`` with _c or _degc), read in seconds and degrees
         Celsius, empty cells NaN: what a report plots the residuals against (drift).
+    key : the name of the key column in this file when it differs from :attr:`ReadOptions.key`
+        (``--key JOINT=TRACKER``: each side's own name), else None.
     """
 
     kind: str
@@ -193,6 +196,7 @@ class Spec:
     sparse: tuple[str, ...] = ()
     sparse_pose: bool = False
     extras: tuple[str, ...] = ()
+    key: str | None = None
 
     def may_be_empty(self, key) -> bool:
         """Whether the cells of the numeric quantity ``key`` may be empty (read as NaN)."""
@@ -332,7 +336,9 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
                  Column(cols["joint_literal"].index, cols["joint_literal"].name, i, 1.0,
                         "m" if robot.joints[i].is_prismatic else "rad")
                  for i in range(robot.n_joints)}
-        notes += _check_limits(path, robot, jcols, q, rows, options.limit_tolerance)
+        from calib.io.csv_limits import check_limits
+
+        notes += check_limits(path, robot, jcols, q, rows, options.limit_tolerance)
     position = None
     if "x" in values:
         position = np.column_stack([values[k] for k in POSITION_COLUMNS])
@@ -505,58 +511,6 @@ def _rotation(path: Path, kind: str, first: str, values: np.ndarray, rows: np.nd
                   f"rows of the matrix are r1j, r2j, r3j)", row=int(rows[k]), column=first)
     U, _, Vt = np.linalg.svd(R)          # the nearest rotation (within the tolerance above)
     return U @ Vt
-
-
-def _check_limits(path: Path, robot, columns: dict, q: np.ndarray, rows: np.ndarray,
-                  tolerance: float) -> list[str]:
-    """Notes for readings just past a limit; raise on the first row (then first column in header
-    order) further beyond."""
-    lo, hi = robot.lower, robot.upper
-    checked = np.array([j.kind != "continuous" for j in robot.joints]) & np.isfinite(lo) & \
-        np.isfinite(hi)
-    span = np.where(checked, hi - lo, 0.0)
-    tol = tolerance * span
-    below, above = lo - q, q - hi                       # > 0 outside
-    excess = np.where(checked, np.maximum(below, above), -np.inf)
-    beyond = excess > tol + 1e-12
-    notes = []
-    for i in np.flatnonzero(((excess > 0) & ~beyond).any(axis=0)):
-        c = columns[int(i)]
-        near = np.flatnonzero((excess[:, i] > 0) & ~beyond[:, i])
-        shown = ", ".join(str(r) for r in rows[near[:10]]) + (", ..." if len(near) > 10 else "")
-        notes.append(f"{path}: {robot.joints[i].name} is past its joint limit by up to "
-                     f"{excess[near, i].max() / c.scale:.4g} {c.unit} (within the limit tolerance, "
-                     f"{100 * tolerance:.3g} % of the range = {tol[i] / c.scale:.3g} {c.unit}) in row"
-                     f"{'s' if len(near) > 1 else ''} {shown}; kept as read")
-    if not beyond.any():
-        return notes
-    k = int(np.flatnonzero(beyond.any(axis=1))[0])
-    i = int(min(np.flatnonzero(beyond[k]), key=lambda j: columns[int(j)].index))
-    c, joint = columns[i], robot.joints[i]
-    value = q[k, i] / c.scale
-    count = int(beyond[:, i].sum())
-    others = f" ({count} rows of this column are outside)" if count > 1 else ""
-    side = "upper" if above[k, i] > 0 else "lower"
-    reason = (f"{joint.name} = {value:.6g} {c.unit} is outside the joint limits "
-              f"[{lo[i] / c.scale:.6g}, {hi[i] / c.scale:.6g}] {c.unit}{others}: "
-              f"{excess[k, i] / c.scale:.4g} {c.unit} past the {side} limit, "
-              f"{100 * excess[k, i] / span[i]:.3g} % of the joint range")
-    hint = (f"; beyond the limit tolerance ({100 * tolerance:.3g} % of the range); if the reading "
-            f"is right, raise it (--limit-tolerance) or the URDF limit")
-    if excess[k, i] > UNIT_HINT_EXCESS * span[i]:
-        hint = "; check the joint order, the zero offsets and the URDF limits"
-        # a unit mix-up multiplies the value by 180/pi or 1000: only suggest one when the value
-        # is several times the largest limit and fits the limits in the other unit
-        scale_off = abs(value) >= UNIT_HINT_RATIO * max(abs(lo[i]), abs(hi[i]))
-        if c.unit == "rad" and not joint.is_prismatic and scale_off:
-            fits = lo[i] - tol[i] <= value * ANGLE_UNITS["deg"] <= hi[i] + tol[i]
-            small = max(abs(lo[i]), abs(hi[i])) <= 2 * math.pi + 1e-3
-            if fits or (abs(value) > 2 * math.pi and small):
-                hint = "; degrees given as radians? use the _deg suffix"
-        elif c.unit == "m" and joint.is_prismatic and scale_off:
-            if lo[i] - tol[i] <= value * LENGTH_UNITS["mm"] <= hi[i] + tol[i]:
-                hint = "; millimetres given as metres? use the _mm suffix"
-    raise MeasurementFormatError(path, reason + hint, row=int(rows[k]), column=c.name)
 
 
 # ====================================================================== writing

@@ -56,7 +56,7 @@ import numpy as np
 
 from calib.errors import MeasurementFormatError, ParameterError
 from calib.io.fileio import atomic_write_text, check_not_input
-from calib.model.measurements import Measurements
+from calib.model.measurements import TEXT_COLUMNS, Measurements
 from calib.io.csv_layer import (ANGLE_UNITS, LENGTH_UNITS, POSITION_COLUMNS, ORIENTATIONS, ReadOptions, Spec,
                                 Table, csv_text, joint_columns, read_table)
 
@@ -68,14 +68,15 @@ __all__ = ["MEASUREMENT", "POSES", "TARGETS", "JOINT_SIDE", "TRACKER_SIDE", "rea
            "write_compensation"]
 
 MEASUREMENT = Spec("measurement", joints="required", position="required", orientation=True,
-                   labels=("set", "target", "pose_id"), extras=("time", "temperature"))
+                   labels=("set", "target", "pose_id", "name"), sparse=("name",), extras=("time", "temperature"))
 POSES = Spec("poses", joints="required")
 TARGETS = Spec("targets", joints="optional", position="optional", orientation=True)
 #: The two halves of a measurement joined by a key: joints, and the tracker's poses.
-JOINT_SIDE = Spec("joint", joints="required", labels=("set", "target", "pose_id"), keyed=True,
-                  extras=("time", "temperature"))
+JOINT_SIDE = Spec("joint", joints="required", labels=("set", "target", "pose_id", "name"), sparse=("name",),
+                  keyed=True, extras=("time", "temperature"))
 TRACKER_SIDE = Spec("tracker", joints="none", position="required", orientation=True,
-                    labels=("set", "target", "pose_id"), keyed=True, extras=("time", "temperature"))
+                    labels=("set", "target", "pose_id", "name"), sparse=("name",), keyed=True,
+                    extras=("time", "temperature"))
 
 
 #: The unit of each extra column in :attr:`Measurements.columns` names (SI, or Celsius).
@@ -167,8 +168,9 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
     position = pose.position[order]
     rotation = None if pose.rotation is None else pose.rotation[order]
     columns = {f"{k}_{_EXTRA_SI[k]}": v for k, v in extras.items()}
-    if labels.get("pose_id") is not None:
-        columns["pose_id"] = np.asarray(labels["pose_id"], dtype=object)
+    for label in TEXT_COLUMNS:
+        if labels.get(label) is not None:
+            columns[label] = np.asarray(labels[label], dtype=object)
     return Measurements(q=q, position=position, rotation=rotation, rows=rows,
                         sets=labels.get("set"), target=labels.get("target"), columns=columns or None,
                         joint_names=robot.joint_names, source=source,
@@ -240,8 +242,8 @@ def write_measurements(path: str | Path, measurements: Measurements, *, angle_un
             header.append(name)
             columns.append(np.asarray(extra[name], float).reshape(-1, 1))
     values = np.hstack(columns) if m.n_poses else np.zeros((0, len(header)))
-    texts = [m.sets, m.target, extra.get("pose_id")]
-    header += [name for name, t in zip(("set", "target", "pose_id"), texts) if t is not None]
+    texts = [m.sets, m.target, extra.get("pose_id"), extra.get("name")]
+    header += [name for name, t in zip(("set", "target", "pose_id", "name"), texts) if t is not None]
     rows = [[("" if v != v else repr(float(v))) for v in values[k]] + [str(t[k]) for t in texts if t is not None]
             for k in range(m.n_poses)]
     atomic_write_text(path, csv_text(header, rows, comment))

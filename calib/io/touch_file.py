@@ -23,7 +23,9 @@ Joint columns as in measurement files (:mod:`calib.io.specs`). Example::
 Rows measured by an instrument may be mixed in: a row with ``x, y, z`` (units as in measurement
 files; optionally an orientation, every measured row then giving it) and no feature is a
 measured pose of the tool frame in the meas frame (:attr:`calib.model.touch.TouchData.measured`).
-A row that names a feature and gives a measured pose is refused, naming the column.
+A row that names a feature and gives a measured pose is refused, naming the column. A ``point``
+column in a file whose rows all give a measured pose is no feature but the rows' names (a tracker
+export's point names): such a file is a measurement file (:func:`is_touch_file` says no).
 """
 from __future__ import annotations
 
@@ -70,7 +72,42 @@ def is_touch_file(path: str | Path, header_line: int | None = None, rename=()) -
     names = _peek_header(path, feature, header_line, words=not renames)
     if names is None:
         names = _records(path, feature, header_line)[1]
-    return any(map(feature, names))
+    kinds = {renames.get(n.strip().lower(), n.strip()).lower() for n in names if feature(n)}
+    if kinds == {"point"} and _position_columns(names, renames):
+        # a point column on rows that all carry a measured pose names them (a label); only a
+        # file with touched rows (no position) reads it as the point touched
+        return not _every_row_measured(path, names, header_line, renames, feature)
+    return bool(kinds)
+
+
+def _position_columns(names: list[str], renames: dict) -> list[int]:
+    """The indices of the header names (after ``renames``) that give a measured position: x, y,
+    z with or without a unit (``X [mm]``), a pose literal, UR's ``actual_TCP_pose_0..2``."""
+    import re
+
+    from calib.io.csv_header import POSE_LITERAL_NAMES
+    from calib.io.join import label_of
+
+    out = []
+    for i, name in enumerate(names):
+        low = label_of(renames.get(name.strip().lower(), name.strip()))
+        if re.fullmatch(r"[xyz](_[a-z]+)?|actual_tcp_pose_[012]", low) or low in POSE_LITERAL_NAMES:
+            out.append(i)
+    return out
+
+
+def _every_row_measured(path: Path, names: list[str], header_line, renames: dict, feature) -> bool:
+    """Whether every data row of the file has its position cells filled (a file read whole:
+    only asked of a file whose header names a point and a position)."""
+    from calib.io.csv_lines import split_fields
+
+    header_row, names, delimiter, lines, data = _records(path, feature, header_line)
+    cols = _position_columns(names, renames)
+    for k in data.tolist():
+        fields = split_fields(path, k + 1, lines[k], delimiter)
+        if any(i >= len(fields) or not fields[i].strip() for i in cols):
+            return False
+    return True
 
 
 def _peek_header(path: Path, known=None, header_line: int | None = None, words: bool = False

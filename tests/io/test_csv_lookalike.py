@@ -95,7 +95,7 @@ def test_the_same_file_read_as_a_quaternion_fits_the_orientations(ur5, tmp_path,
     np.testing.assert_allclose(got.position, m.position, atol=1e-15)
     dropped = calib.read_measurements(joints, robot, tracker=tracker, options=ReadOptions(
         rename="timestamp=time_s,Q0=,Q1=,Q2=,Q3=", **opts))
-    assert dropped.rotation is None and dropped.ignored_columns == ("Point", "Q0", "Q1", "Q2", "Q3")
+    assert dropped.rotation is None and dropped.ignored_columns == ("Q0", "Q1", "Q2", "Q3")
     assert main(_join_args(joints, tracker, tmp_path / "a.urdf", "--rename",
                            "timestamp=time_s,Q0=qw,Q1=qx,Q2=qy,Q3=qz")) == 0
     assert "orientation" in capsys.readouterr().out
