@@ -113,6 +113,16 @@ def _rename(text: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _columns(text: str):
+    from calib.errors import CalibError
+    from calib.io.instruments import parse_columns
+
+    try:
+        return parse_columns(text)
+    except CalibError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _euler(text: str) -> str:
     from calib.errors import CalibError
     from calib.io.csv_layer import check_euler_sequence
@@ -155,6 +165,19 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
                         "rx, ry, rz rotation vector, RTDE actual_q_*, actual_TCP_pose_*; ...): "
                         "`calib formats` lists every mapping; 'calib' states calib's own ZYX "
                         "reading of rx, ry, rz in any column order")
+    from calib.io.instruments import INSTRUMENT_NAMES, LENGTH_UNIT_NAMES
+
+    g.add_argument("--instrument", choices=INSTRUMENT_NAMES, default=None,
+                   help="the instrument's file as its software exports it (the tracker file of "
+                        "--tracker, else the measurement file): leica (Q0..Q3 a quaternion, Q0 the "
+                        "scalar; X [mm] ...), spatialanalyzer (no header line: Collection Group Target "
+                        "X Y Z, // comments; give --length-unit); `calib formats` lists them")
+    g.add_argument("--columns", metavar="NAMES", type=_columns, default=None,
+                   help="the column names of a file without a header line, in order, comma separated "
+                        "(e.g. 'point,x_mm,y_mm,z_mm'): the instrument's file, as --instrument")
+    g.add_argument("--length-unit", choices=LENGTH_UNIT_NAMES, default=None,
+                   help="the unit of x, y, z columns named without one (a SpatialAnalyzer export's "
+                        "X Y Z are in the job's units, which the file does not state)")
     g.add_argument("--header-line", metavar="N", type=positive_int, default=None,
                    help="line number of the header (default: the first line that names known "
                         "columns; a preamble before it is skipped)")
@@ -209,7 +232,9 @@ def read_options(args: argparse.Namespace, *, joined: bool = True):
                                                     "time_unit", "max_gap")}
         join["join"] = getattr(args, "join", None) or "key"
     return ReadOptions(rename=args.rename or (), euler=args.euler, limit_tolerance=args.limit_tolerance,
-                       convention=args.convention, header_line=args.header_line, **join)
+                       convention=args.convention, header_line=args.header_line,
+                       instrument=getattr(args, "instrument", None), columns=getattr(args, "columns", None),
+                       length_unit=getattr(args, "length_unit", None), **join)
 
 
 def print_notes(notes, prog: str = "calib") -> None:
@@ -478,7 +503,12 @@ def is_touch_input(args: argparse.Namespace) -> bool:
     if getattr(args, "tracker", None) is not None or not Path(args.measurements).is_file():
         return False
     try:
-        return is_touch_file(args.measurements, getattr(args, "header_line", None),
-                             read_options(args, joined=False).rename)
+        options = read_options(args, joined=False)
+        columns, comments = None, ()
+        if (options.instrument, options.columns) != (None, None):
+            from calib.io.instruments import file_columns
+
+            columns, comments, _ = file_columns(options)
+        return is_touch_file(args.measurements, options.header_line, options.rename, columns, comments)
     except CalibError:
         return False

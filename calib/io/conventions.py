@@ -221,9 +221,12 @@ Ambiguous orientation names: rx, ry, rz written in that order (or without a unit
 
 
 def format_help() -> str:
-    """The built-in help page of ``calib formats``: calib's own column rules and the vendor
-    conventions, as plain text (an installed wheel needs no README)."""
+    """The built-in help page of ``calib formats``: calib's own column rules, the vendor
+    conventions and the instrument presets (:func:`calib.io.instruments.format_help`), as plain
+    text (an installed wheel needs no README)."""
     import textwrap
+
+    from calib.io.instruments import format_help as instruments_help
 
     out = [RULES.format(candidates=ambiguous_candidates(), decide_max=DECIDE_MAX, margin=MARGIN), "",
            "Vendor conventions (--convention NAME): the names and units each controller writes.",
@@ -243,4 +246,4 @@ def format_help() -> str:
     for line in "\n".join(out).splitlines():
         indent = len(line) - len(line.lstrip())
         lines += textwrap.wrap(line, 98, subsequent_indent=" " * (indent + 2)) or [""]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n\n" + instruments_help()

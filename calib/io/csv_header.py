@@ -171,6 +171,10 @@ class Vocabulary:
                     suffixed.pop(low, None)
                     plain[low] = (quantity, None, "")
                 self.vendor.add(low)
+        if options.instrument is not None or options.length_unit is not None:
+            from calib.io.instruments import apply_to_vocabulary
+
+            apply_to_vocabulary(self, options, plain)
         self.suffixed, self.plain = suffixed, plain
         self.valid = [f"{b}_{u}" for b, (_, units, _) in suffixed.items() for u in units] + list(plain)
 
@@ -195,9 +199,12 @@ def _one(pattern, n: int) -> list[tuple[str, int]]:
 class Header:
     """A header checked against a spec and a robot."""
 
-    def __init__(self, path: Path, row: int, names: list[str], spec: Spec, robot,
-                 options: ReadOptions, vocabulary: Vocabulary | None = None):
+    def __init__(self, path: Path, row: int | None, names: list[str], spec: Spec, robot,
+                 options: ReadOptions, vocabulary: Vocabulary | None = None, named_by: str = ""):
         self.path, self.row, self.spec, self.robot, self.options = path, row, spec, robot, options
+        #: the option that gave the names of a file without a header line (row None), else ""
+        self.named_by = named_by
+        self.names = [n.strip() for n in names]
         voc = vocabulary or Vocabulary(spec, robot, options)
         self.vocabulary = voc
         self.joint_units = voc.joint_units
@@ -218,8 +225,11 @@ class Header:
         styles: dict[str, str] = {}
         # a group that looks like an orientation and that calib's names do not read (Leica's Q0..Q3,
         # q_w..q_z) is one unread group, not joints q1..q3 missing a suffix nor a misspelt 'q'
-        lookalike = self._lookalike([renames.get(r.strip().lower(), r.strip()) for r in names]) \
-            if spec.orientation else set()
+        lookalike = set()
+        if spec.orientation:
+            from calib.io.csv_lookalike import unread_group
+
+            lookalike = unread_group([renames.get(r.strip().lower(), r.strip()) for r in names], self._classify)
         for index, raw in enumerate(names):
             name = raw.strip()
             if name.lower() in renames:
@@ -261,6 +271,8 @@ class Header:
 
     # -------------------------------------------------------------- helpers
     def fail(self, reason: str, column: str | None = None):
+        if self.row is None and self.named_by:
+            reason = f"{reason} (the column names of {self.named_by})"
         raise MeasurementFormatError(self.path, reason, row=self.row, column=column)
 
     def _style_text(self, style: str) -> str:
@@ -321,8 +333,9 @@ class Header:
             if low in self.default:
                 unit = self.default[low]
                 return Column(index, written, quantity, units[unit], unit, style, vendor=True)
+            length = "; or give their unit: --length-unit mm|m" if quantity in POSITION_COLUMNS else ""
             self.fail(f"missing unit suffix: expected a unit suffix {_unit_text(units)} "
-                      f"(e.g. {name}_{list(units)[-1]}){self._convention_hint(low)}", written)
+                      f"(e.g. {name}_{list(units)[-1]}){length}{self._convention_hint(low)}", written)
         base, sep, suffix = low.rpartition("_")
         if sep and base in self.suffixed:
             quantity, units, style = self.suffixed[base]
@@ -449,22 +462,6 @@ class Header:
                   f"{'|'.join(c.name for c, _ in found)} (calib formats lists the conventions), or "
                   f"drop them with --rename '{','.join(w + '=' for w in written)}' if they are not",
                   written[0])
-
-    def _lookalike(self, names: list[str]) -> set[str]:
-        """The names of a group among ``names`` that looks like an orientation
-        (:mod:`calib.io.csv_lookalike`) and that calib's names do not read (each is unknown or
-        an error by itself), else an empty set."""
-        from calib.io.csv_lookalike import unread_orientation
-
-        unread = []
-        for index, name in enumerate(names):
-            try:
-                if name and self._classify(index, name) is None:
-                    unread.append(name)
-            except MeasurementFormatError:
-                unread.append(name)
-        found = unread_orientation(unread)
-        return set() if found is None else set(found.columns)
 
     def _unread_orientation(self) -> None:
         """Refuse a header that reads a position and no orientation while columns it ignored

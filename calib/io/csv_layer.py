@@ -105,6 +105,10 @@ class ReadOptions:
         rz in any order), or None (calib's own names; ambiguous orientation names refused).
     header_line : line number (from 1) of the header, or None: the first line that names known
         columns (a preamble before it is skipped).
+    instrument, columns, length_unit : the instrument's file: a preset of
+        :data:`calib.io.instruments.INSTRUMENTS` (``"leica"``, ``"spatialanalyzer"``), the names of
+        the columns of a file without a header line (``"point,x_mm,y_mm,z_mm"``), the unit
+        (``"mm"``, ``"m"``) of x, y, z named without one; see :mod:`calib.io.instruments`.
     """
 
     rename: tuple[tuple[str, str], ...] = ()
@@ -119,6 +123,9 @@ class ReadOptions:
     max_gap: float | None = None
     convention: str | None = None
     header_line: int | None = None
+    instrument: str | None = None
+    columns: tuple[str, ...] | None = None
+    length_unit: str | None = None
 
     def __post_init__(self):
         if isinstance(self.rename, str):
@@ -149,6 +156,10 @@ class ReadOptions:
         h = self.header_line
         if h is not None and (isinstance(h, bool) or not isinstance(h, int) or h < 1):
             raise ParameterError(f"header_line must be a line number >= 1, got {h!r:.60}")
+        if (self.instrument, self.columns, self.length_unit) != (None, None, None):
+            from calib.io.instruments import check_file_options
+
+            check_file_options(self)
         if self.key is not None:
             if not isinstance(self.key, str) or not self.key.strip():
                 raise ParameterError(f"key must be a column name, got {self.key!r:.60}")
@@ -264,8 +275,14 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
         or ReadOptions()
     vocabulary = Vocabulary(spec, robot, options)
-    header_row, names, delimiter, lines, data = _records(path, vocabulary.known, options.header_line)
-    header = Header(path, header_row, names, spec, robot, options, vocabulary)
+    columns, comments, named_by = (None, (), "")
+    if (options.instrument, options.columns) != (None, None):
+        from calib.io.instruments import file_columns
+
+        columns, comments, named_by = file_columns(options)
+    header_row, names, delimiter, lines, data = _records(path, vocabulary.known, options.header_line,
+                                                         columns=columns, comments=comments, named_by=named_by)
+    header = Header(path, header_row, names, spec, robot, options, vocabulary, named_by=named_by)
     if not len(data):
         raise MeasurementFormatError(path, "header but no data rows", row=header_row)
     decimal_comma = delimiter != ","
@@ -288,8 +305,8 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
         for key, v in got[1].items():
             labels[key].extend(v)
         del chunk, got
-    preamble = int(np.count_nonzero([bool(x.strip()) and not x.lstrip().startswith("#")
-                                     for x in lines[:header_row - 1]]))
+    preamble = 0 if header_row is None else int(np.count_nonzero(
+        [bool(x.strip()) and not x.lstrip().startswith(("#",) + comments) for x in lines[:header_row - 1]]))
     del lines, data     # (the text of a million rows: 300 MB, before the rotations are built)
     orientation = header.orientation
     names_out = {k: c.name for k, c in cols.items()}
@@ -445,8 +462,10 @@ class _Rows:
                 if "[" in line and self.delimiter in line[line.index("["):] and \
                         any(k in cols for k in ("pose_literal", "joint_literal")):
                     hint = f"; quote a literal [...] that holds the delimiter {self.delimiter!r}"
+                per = f"name of {header.named_by}" if header.named_by else "header column"
+                lack = header.names[len(fields)] if len(fields) < self.ncols else None   # (the first without one)
                 raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
-                                                   f"{self.ncols} (one per header column){hint}", row=row)
+                                                   f"{self.ncols} (one per {per}){hint}", row=row, column=lack)
             for key, c in self.numeric.items():
                 if self.spec.may_be_empty(key) and not fields[c.index].strip():
                     out[key][k] = np.nan

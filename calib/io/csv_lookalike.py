@@ -21,7 +21,7 @@ import re
 
 from calib.dataclass_code import dataclass
 
-__all__ = ["Lookalike", "unread_orientation"]
+__all__ = ["Lookalike", "unread_orientation", "unread_group"]
 
 _UNIT_IN_BRACKETS = re.compile(r"^(.*?)\s*[\(\[]\s*([A-Za-z]+)\s*[\)\]]$")
 #: Unit suffixes removed before the comparison (angles; the quaternion and matrix take none).
@@ -94,7 +94,7 @@ def _how(kind: str, pairs: list[tuple[str, str]], instruments: dict) -> str:
     written = [w for w, _ in pairs]
     if kind == "quaternion_index":
         first = dict((k, w) for w, k in pairs)[min(k for _, k in pairs)]
-        presets = [name for name, names in instruments.items() if {n.lower() for n in written} <= names]
+        presets = [name for name, names in instruments.items() if names and {n.lower() for n in written} <= names]
         preset = f"--instrument {'|'.join(presets)} ({first} the scalar), or " if presets else ""
         keys = sorted(k for _, k in pairs)
         return (f"{preset}{rename(dict(zip(keys, ('qw', 'qx', 'qy', 'qz'))))} if {first} is the scalar (w) or "
@@ -113,14 +113,18 @@ def _how(kind: str, pairs: list[tuple[str, str]], instruments: dict) -> str:
             "angles rz_deg, ry_deg, rx_deg or to e1_deg, e2_deg, e3_deg with --euler SEQ")
 
 
-def unread_orientation(ignored, instruments: dict | None = None) -> Lookalike | None:
+def unread_orientation(ignored) -> Lookalike | None:
     """The first whole group of names among ``ignored`` (header names as written, of columns the
     header check did not read and that were not dropped on purpose) that looks like an
-    orientation, or None. ``instruments``: preset name -> the lower-case names it reads as an
-    orientation (to name the preset that reads the group)."""
+    orientation, or None. The message names the instrument preset that reads the group
+    (:data:`calib.io.instruments.INSTRUMENTS`), if one does."""
+    from calib.io.instruments import INSTRUMENTS
+
     names = [n for n in ignored if n and n.strip()]
     if not names:
         return None
+    instruments = {i.name: {a.lower() for a, b in i.columns if b in ("qw", "qx", "qy", "qz")}
+                   for i in INSTRUMENTS.values()}
     squashed = [(n, _squash(n)) for n in names]
     order = {n: i for i, n in reversed(list(enumerate(names)))}
     for family in _FAMILIES:
@@ -136,9 +140,28 @@ def unread_orientation(ignored, instruments: dict | None = None) -> Lookalike | 
                     written = [w for w, _ in pairs]
                     shown = ", ".join(written)
                     drop = "--rename '" + ",".join(f"{w}=" for w in written) + "'"
-                    how = _how(family.how, pairs, instruments or {})
+                    how = _how(family.how, pairs, instruments)
                     return Lookalike(tuple(written), (
                         f"columns {shown} look like {family.what}, which calib does not read as written: "
                         f"the calibration would use the positions alone. Read them with {how}; or drop "
                         f"them with {drop} to calibrate positions only"))
     return None
+
+
+def unread_group(names: list[str], classify) -> set[str]:
+    """The names of a group among ``names`` (a header's, after renames) that looks like an
+    orientation and that calib's names do not read, each unknown or an error by itself
+    (``classify(index, name)``: the header check's reading of one name, None when unknown), else
+    an empty set: such a group is one unread group, not joints q1..q3 missing a suffix nor a
+    misspelt name."""
+    from calib.errors import MeasurementFormatError
+
+    unread = []
+    for index, name in enumerate(names):
+        try:
+            if name and classify(index, name) is None:
+                unread.append(name)
+        except MeasurementFormatError:
+            unread.append(name)
+    found = unread_orientation(unread)
+    return set() if found is None else set(found.columns)

@@ -49,6 +49,7 @@ there), or a position ``x, y, z`` with an optional orientation as in measurement
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -153,7 +154,9 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
         from calib.io.join import join_tables, sides       # (a tracker file only)
 
         joint_spec, tracker_spec = sides(JOINT_SIDE, TRACKER_SIDE, options)
-        j = read_table(csv_path, joint_spec, robot, options)
+        # (the instrument's preset, --columns and --length-unit describe the tracker file)
+        j = read_table(csv_path, joint_spec, robot, replace(options, instrument=None, columns=None,
+                                                            length_unit=None))
         pose = read_table(tracker, tracker_spec, robot, options)
         tables = [j, pose]
         joined = join_tables(j, pose, options)

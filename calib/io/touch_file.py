@@ -54,14 +54,16 @@ RADIUS_TOL = 1e-9
 _HEADER_PEEK = 1 << 16
 
 
-def is_touch_file(path: str | Path, header_line: int | None = None, rename=()) -> bool:
+def is_touch_file(path: str | Path, header_line: int | None = None, rename=(), columns=None,
+                  comments=()) -> bool:
     """Whether the header of the CSV file ``path`` has a ``point``, ``plane`` or ``sphere``
     column (the file is then read by :func:`read_touch`). The header is found as the reader finds
     it: past an instrument's preamble, or line ``header_line`` when given; ``rename`` (the pairs
     (old, new) of :attr:`ReadOptions.rename`) applies first, as in the reader. In a regular UTF-8
     file the header is looked for in its first 64 KB (``calib calibrate`` asks this of every
     measurement file: a million-row file was read whole, twice), else, or when those lines do not
-    settle it, in the whole file."""
+    settle it, in the whole file. ``columns``: the names of a file without a header line
+    (``--columns``, an instrument preset's), ``comments``: its comment line prefixes."""
     path = Path(path)
     renames = {str(old).strip().lower(): str(new).strip() for old, new in rename}
 
@@ -69,14 +71,15 @@ def is_touch_file(path: str | Path, header_line: int | None = None, rename=()) -
         name = name.strip()
         return renames.get(name.lower(), name).lower() in FEATURE_KINDS
 
-    names = _peek_header(path, feature, header_line, words=not renames)
+    names = list(columns) if columns is not None else _peek_header(path, feature, header_line,
+                                                                    words=not renames)
     if names is None:
         names = _records(path, feature, header_line)[1]
     kinds = {renames.get(n.strip().lower(), n.strip()).lower() for n in names if feature(n)}
     if kinds == {"point"} and _position_columns(names, renames):
         # a point column on rows that all carry a measured pose names them (a label); only a
         # file with touched rows (no position) reads it as the point touched
-        return not _every_row_measured(path, names, header_line, renames, feature)
+        return not _every_row_measured(path, header_line, renames, feature, columns, comments)
     return bool(kinds)
 
 
@@ -96,12 +99,13 @@ def _position_columns(names: list[str], renames: dict) -> list[int]:
     return out
 
 
-def _every_row_measured(path: Path, names: list[str], header_line, renames: dict, feature) -> bool:
+def _every_row_measured(path: Path, header_line, renames: dict, feature, columns, comments) -> bool:
     """Whether every data row of the file has its position cells filled (a file read whole:
     only asked of a file whose header names a point and a position)."""
     from calib.io.csv_lines import split_fields
 
-    header_row, names, delimiter, lines, data = _records(path, feature, header_line)
+    header_row, names, delimiter, lines, data = _records(path, feature, header_line, columns=columns,
+                                                         comments=comments)
     cols = _position_columns(names, renames)
     for k in data.tolist():
         fields = split_fields(path, k + 1, lines[k], delimiter)
