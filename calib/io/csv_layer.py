@@ -462,7 +462,7 @@ class _Rows:
                 if "[" in line and self.delimiter in line[line.index("["):] and \
                         any(k in cols for k in ("pose_literal", "joint_literal")):
                     hint = f"; quote a literal [...] that holds the delimiter {self.delimiter!r}"
-                per = f"name of {header.named_by}" if header.named_by else "header column"
+                per = f"column named by {header.named_by}" if header.named_by else "header column"
                 lack = header.names[len(fields)] if len(fields) < self.ncols else None   # (the first without one)
                 raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
                                                    f"{self.ncols} (one per {per}){hint}", row=row, column=lack)

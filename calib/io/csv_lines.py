@@ -311,7 +311,7 @@ def _headerless(path: Path, lines: list[str], records: np.ndarray, columns: list
     if not fits:
         shown = max(counts.values())
         raise MeasurementFormatError(path, f"wrong number of fields: {shown}, expected {len(columns)} (one "
-                                           f"per name of {named_by}: {', '.join(columns)})"
+                                           f"per column named by {named_by}: {', '.join(columns)})"
                                            f"{_instrument_hint(lines, records[:1])}", row=k + 1,
                                      column=columns[shown] if shown < len(columns) else None)
     return None, columns, fits[0], lines, records
