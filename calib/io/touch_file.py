@@ -104,14 +104,23 @@ def _every_row_measured(path: Path, header_line, renames: dict, feature, columns
     only asked of a file whose header names a point and a position)."""
     from calib.io.csv_lines import split_fields
 
+    from operator import methodcaller
+
+    from calib.io.csv_lines import WHITESPACE
+
     header_row, names, delimiter, lines, data = _records(path, feature, header_line, columns=columns,
                                                          comments=comments)
     cols = _position_columns(names, renames)
-    for k in data.tolist():
-        fields = split_fields(path, k + 1, lines[k], delimiter)
-        if any(i >= len(fields) or not fields[i].strip() for i in cols):
-            return False
-    return True
+    rows = [lines[k] for k in data.tolist()]
+    del lines
+    if delimiter == WHITESPACE:
+        split = map(str.split, rows)
+    elif not any('"' in r for r in rows):
+        split = map(methodcaller("split", delimiter), rows)       # (no quotes: the csv module's fields)
+    else:
+        split = (split_fields(path, int(k) + 1, r, delimiter) for k, r in zip(data, rows))
+    last = max(cols)
+    return all(len(f) > last and all(f[i].strip() for i in cols) for f in split)
 
 
 def _peek_header(path: Path, known=None, header_line: int | None = None, words: bool = False
