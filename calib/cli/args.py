@@ -505,7 +505,7 @@ def is_touch_input(args: argparse.Namespace) -> bool:
     try:
         options = read_options(args, joined=False)
         columns, comments = None, ()
-        if (options.instrument, options.columns) != (None, None):
+        if options.instrument is not None or options.columns is not None:
             from calib.io.instruments import file_columns
 
             columns, comments, _ = file_columns(options)

@@ -156,7 +156,7 @@ class ReadOptions:
         h = self.header_line
         if h is not None and (isinstance(h, bool) or not isinstance(h, int) or h < 1):
             raise ParameterError(f"header_line must be a line number >= 1, got {h!r:.60}")
-        if (self.instrument, self.columns, self.length_unit) != (None, None, None):
+        if any(v is not None for v in (self.instrument, self.columns, self.length_unit)):
             from calib.io.instruments import check_file_options
 
             check_file_options(self)
@@ -276,7 +276,7 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
         or ReadOptions()
     vocabulary = Vocabulary(spec, robot, options)
     columns, comments, named_by = (None, (), "")
-    if (options.instrument, options.columns) != (None, None):
+    if options.instrument is not None or options.columns is not None:
         from calib.io.instruments import file_columns
 
         columns, comments, named_by = file_columns(options)

@@ -85,7 +85,10 @@ def parse_columns(text) -> tuple[str, ...]:
     :class:`calib.ParameterError` for an empty name or a name given twice."""
     from calib.errors import ParameterError
 
-    names = [str(n).strip() for n in (text.split(",") if isinstance(text, str) else text)]
+    if not (isinstance(text, str) or isinstance(text, (list, tuple)) and all(isinstance(n, str) for n in text)):
+        raise ParameterError(f"columns must be the file's column names, 'a,b,c' or a sequence of str, got "
+                             f"{text!r:.60}")
+    names = [n.strip() for n in (text.split(",") if isinstance(text, str) else text)]
     if not names or any(not n for n in names):
         raise ParameterError(f"--columns {text!r:.80}: expected the file's column names in order, "
                              f"separated by commas (e.g. 'point,x_mm,y_mm,z_mm'), none empty")
