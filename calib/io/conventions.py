@@ -166,7 +166,8 @@ calib's measurement, poses and targets files (CSV):
 File: UTF-8 text (a byte-order mark is accepted); lines starting with # and blank lines are
   skipped anywhere; row numbers in messages are line numbers of the file.
 Header: the first line that names known columns (a preamble before it, such as an instrument's
-  export header, is skipped with a note), or the line given by --header-line N.
+  export header, is skipped with a note), or the line given by --header-line N; a file without a
+  header line is refused unless --columns NAMES (or an --instrument preset) names its columns.
 Delimiter: the one of comma, semicolon, tab or whitespace (runs of spaces) that splits the header
   into the most fields; with semicolon, tab or whitespace a decimal comma (441,5) is accepted.
 Names: matched case-insensitively; 'X (mm)' and 'X [mm]' read as x_mm; --rename OLD=NEW maps a

@@ -165,9 +165,9 @@ class ReadOptions:
                 raise ParameterError(f"key must be a column name, got {self.key!r:.60}")
             object.__setattr__(self, "key", str(self.key).strip())
             if "=" in self.key:                 # JOINT=TRACKER: each file's own name
-                from calib.io.join import _pair
+                from calib.io.join import check_sides
 
-                object.__setattr__(self, "key", _pair(self.key, "key", "--key"))
+                object.__setattr__(self, "key", check_sides(self.key, "key", "--key"))
         if not isinstance(self.join, str) or self.join != "key" or any(getattr(self, f) is not None
                                                                        for f in _JOIN_FIELDS):
             from calib.io.join import check_join_options     # (the defaults need no check)

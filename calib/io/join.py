@@ -25,6 +25,12 @@ rows as :attr:`calib.ReadOptions.join` says (options checked by :func:`check_joi
   timestamp. Joint rows never joined (the robot moving between poses) are left out; a joint log
   not in time order is joined all the same, with a note.
 
+When the two files name the key or the time column differently, ``key`` and ``time`` are
+``JOINT=TRACKER`` (``Point=Target``, ``timestamp=Time [s]``): each file's own name
+(:func:`split_sides`); a name is matched as the header check reads it (``Time [s]`` is
+``time_s``). Each result row is named (:func:`_names`): the joint file's ``point`` / ``name`` /
+``waypoint`` column, else the tracker's, else the tracker's key cells.
+
 The result (:class:`Joined`) has one row per measured row, in the order of the joint rows they
 join (the measured rows of one joint row in the order of the tracker file); each carries the
 joint values of its joint row and its own target, so a configuration measured at three targets
@@ -47,7 +53,8 @@ from calib.errors import MeasurementFormatError, ParameterError
 if TYPE_CHECKING:
     from calib.io.csv_layer import ReadOptions, Spec, Table
 
-__all__ = ["TIME_UNITS", "TIME_RESOLUTION", "Joined", "check_join_options", "sides", "join_tables"]
+__all__ = ["TIME_UNITS", "TIME_RESOLUTION", "Joined", "check_join_options", "check_sides", "split_sides", "key_columns",
+           "label_of", "sides", "join_tables"]
 
 #: Seconds per unit of a time column (``time_s``, ``--time-unit ms``, ...).
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -102,7 +109,7 @@ def check_join_options(options: ReadOptions) -> None:
         if getattr(o, field) is not None:
             object.__setattr__(o, field, _column_name(getattr(o, field), field, flag))
     if o.time is not None:
-        object.__setattr__(o, "time", _pair(o.time, "time", "--time"))
+        object.__setattr__(o, "time", check_sides(o.time, "time", "--time"))
     if o.time_unit is not None and (not isinstance(o.time_unit, str) or o.time_unit not in TIME_UNITS):
         raise ParameterError(f"time_unit must be one of {', '.join(TIME_UNITS)} (--time-unit), got "
                              f"{o.time_unit!r:.60}")
@@ -150,7 +157,7 @@ def check_join_options(options: ReadOptions) -> None:
                                  f"says {o.time_unit}: give one")
 
 
-def _pair(value: str, option: str, flag: str) -> str:
+def check_sides(value: str, option: str, flag: str) -> str:
     """``value`` with blanks stripped around ``=``; ParameterError for an empty side."""
     if "=" not in value:
         return value
