@@ -102,24 +102,24 @@ def _position_columns(names: list[str], renames: dict) -> list[int]:
 def _every_row_measured(path: Path, header_line, renames: dict, feature, columns, comments) -> bool:
     """Whether every data row of the file has its position cells filled (a file read whole:
     only asked of a file whose header names a point and a position)."""
-    from calib.io.csv_lines import split_fields
-
-    from operator import methodcaller
-
-    from calib.io.csv_lines import WHITESPACE
+    from calib.io.csv_lines import WHITESPACE, split_fields
 
     header_row, names, delimiter, lines, data = _records(path, feature, header_line, columns=columns,
                                                          comments=comments)
     cols = _position_columns(names, renames)
     rows = [lines[k] for k in data.tolist()]
     del lines
-    if delimiter == WHITESPACE:
-        split = map(str.split, rows)
-    elif not any('"' in r for r in rows):
-        split = map(methodcaller("split", delimiter), rows)       # (no quotes: the csv module's fields)
-    else:
-        split = (split_fields(path, int(k) + 1, r, delimiter) for k, r in zip(data, rows))
     last = max(cols)
+    if delimiter == WHITESPACE:             # (no empty field: a row without a position is shorter)
+        return all(len(f) > last for f in map(str.split, rows))
+    d = delimiter
+    text = "\n" + "\n".join(rows) + "\n"
+    if '"' not in text and d + d not in text and "\n" + d not in text and d + "\n" not in text:
+        # no empty field in any row (searches of the text: 0.2 s for 200,000 rows, splitting them
+        # 0.6 s); a blank cell, or a short row, the measurement reader refuses naming the row
+        return True
+    del text
+    split = (split_fields(path, int(k) + 1, r, d) for k, r in zip(data, rows))
     return all(len(f) > last and all(f[i].strip() for i in cols) for f in split)
 
 
