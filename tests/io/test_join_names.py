@@ -165,6 +165,14 @@ def test_a_point_column_of_measured_rows_is_their_name_not_a_touch_feature(data,
     from calib.io.touch_file import is_touch_file
 
     assert not is_touch_file(named)
+    # rows with an empty cell elsewhere, or quoted names: still every row measured (the rows split)
+    blank = tmp_path / "blank.csv"
+    blank.write_text("\n".join([lines[0] + ",temperature_c,point"] + [f"{line},{'' if k == 2 else '21'},P{k}"
+                                                                      for k, line in enumerate(lines[1:])]) + "\n")
+    quoted = tmp_path / "quoted.csv"
+    quoted.write_text("\n".join([lines[0] + ",point"] + [f'{line},"P {k}"' for k, line in enumerate(lines[1:])]) + "\n")
+    assert not is_touch_file(blank) and not is_touch_file(quoted)
+    assert list(calib.read_measurements(quoted, robot).columns["name"])[:2] == ["P 0", "P 1"]
     mixed = tmp_path / "mixed.csv"
     mixed.write_text(named.read_text() + ",".join(lines[1].split(",")[:6]) + ",,,,,,,,P99\n")
     assert is_touch_file(mixed)
