@@ -113,6 +113,16 @@ def _rename(text: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _columns(text: str):
+    from calib.errors import CalibError
+    from calib.io.csv.instruments import parse_columns
+
+    try:
+        return parse_columns(text)
+    except CalibError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _euler(text: str) -> str:
     from calib.errors import CalibError
     from calib.io.csv.layer import check_euler_sequence
@@ -155,6 +165,19 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
                         "rx, ry, rz rotation vector, RTDE actual_q_*, actual_TCP_pose_*; ...): "
                         "`calib formats` lists every mapping; 'calib' states calib's own ZYX "
                         "reading of rx, ry, rz in any column order")
+    from calib.io.csv.instruments import INSTRUMENT_NAMES, LENGTH_UNIT_NAMES
+
+    g.add_argument("--instrument", choices=INSTRUMENT_NAMES, default=None,
+                   help="the instrument's file as its software exports it (the tracker file of "
+                        "--tracker, else the measurement file): leica (Q0..Q3 a quaternion, Q0 the "
+                        "scalar; X [mm] ...), spatialanalyzer (no header line: Collection Group Target "
+                        "X Y Z, // comments; give --length-unit); `calib formats` lists them")
+    g.add_argument("--columns", metavar="NAMES", type=_columns, default=None,
+                   help="the column names of a file without a header line, in order, comma separated "
+                        "(e.g. 'point,x_mm,y_mm,z_mm'): the instrument's file, as --instrument")
+    g.add_argument("--length-unit", choices=LENGTH_UNIT_NAMES, default=None,
+                   help="the unit of x, y, z columns named without one (a SpatialAnalyzer export's "
+                        "X Y Z are in the job's units, which the file does not state)")
     g.add_argument("--header-line", metavar="N", type=positive_int, default=None,
                    help="line number of the header (default: the first line that names known "
                         "columns; a preamble before it is skipped)")
@@ -167,9 +190,10 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
         g.add_argument("--tracker", metavar="POSES.csv", default=None,
                        help="the measured poses (x, y, z and an orientation) in a second file, "
                             "joined to the joint file row by row by --key")
-        g.add_argument("--key", metavar="COLUMN", default=None,
+        g.add_argument("--key", metavar="COLUMN|JOINT=TRACKER", default=None,
                        help="column present in both files whose values pair their rows (e.g. a "
-                            "point name), in any order; one joint row may go with several "
+                            "point name), in any order; JOINT=TRACKER when the files name it "
+                            "differently (--key Point=Target); one joint row may go with several "
                             "measured rows, each with its target id (--target-column, "
                             "--target-from, or a target column)")
         g.add_argument("--target-column", metavar="COLUMN", default=None,
@@ -184,9 +208,10 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
         g.add_argument("--join", choices=JOINS, default="key",
                        help="how the files' rows are paired: by --key, or each measured "
                             "row with the joint row of the nearest timestamp (--time, --max-gap)")
-        g.add_argument("--time", metavar="COLUMN", default=None,
-                       help="with --join nearest-time: the timestamp column of both files, numbers "
-                            "with the unit in the name (time_s, time_ms, time_us, time_ns) or "
+        g.add_argument("--time", metavar="COLUMN|JOINT=TRACKER", default=None,
+                       help="with --join nearest-time: the timestamp column of both files (JOINT=TRACKER "
+                            "when they name it differently: --time 'timestamp=Time [s]'), numbers "
+                            "with the unit in the name (time_s, Time [s], time_ms, time_us, time_ns) or "
                             "--time-unit, or times of day (10:00:07.125), or ISO 8601 dates and times")
         g.add_argument("--time-unit", choices=TIME_UNITS, default=None,
                        help="unit of the --time column's numbers when its name does not say it")
@@ -207,7 +232,9 @@ def read_options(args: argparse.Namespace, *, joined: bool = True):
                                                     "time_unit", "max_gap")}
         join["join"] = getattr(args, "join", None) or "key"
     return ReadOptions(rename=args.rename or (), euler=args.euler, limit_tolerance=args.limit_tolerance,
-                       convention=args.convention, header_line=args.header_line, **join)
+                       convention=args.convention, header_line=args.header_line,
+                       instrument=getattr(args, "instrument", None), columns=getattr(args, "columns", None),
+                       length_unit=getattr(args, "length_unit", None), **join)
 
 
 def print_notes(notes, prog: str = "calib") -> None:
@@ -549,7 +576,12 @@ def is_touch_input(args: argparse.Namespace) -> bool:
     if getattr(args, "tracker", None) is not None or not Path(args.measurements).is_file():
         return False
     try:
-        return is_touch_file(args.measurements, getattr(args, "header_line", None),
-                             read_options(args, joined=False).rename)
+        options = read_options(args, joined=False)
+        columns, comments = None, ()
+        if options.instrument is not None or options.columns is not None:
+            from calib.io.csv.instruments import file_columns
+
+            columns, comments, _ = file_columns(options)
+        return is_touch_file(args.measurements, options.header_line, options.rename, columns, comments)
     except CalibError:
         return False

@@ -13,11 +13,12 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add ``formats`` to ``subparsers``; it runs :func:`run`."""
-    p = subparsers.add_parser("formats", help="the column rules of measurement files and the vendor "
-                                              "conventions (--convention)",
+    p = subparsers.add_parser("formats", help="the column rules of measurement files, the vendor "
+                                              "conventions (--convention) and instrument presets (--instrument)",
                               description="Print every column rule of calib's measurement, poses and "
-                                          "targets files, and the table of vendor conventions that "
-                                          "--convention NAME reads.",
+                                          "targets files, the table of vendor conventions that "
+                                          "--convention NAME reads and the instrument presets of "
+                                          "--instrument NAME.",
                               formatter_class=HelpFormatter)
     p.add_argument("--markdown", action="store_true",
                    help="print only the conventions table, in Markdown (as in README.md)")

@@ -16,7 +16,11 @@ import numpy as np
 from calib.checks import check_instance, check_names, check_path
 from calib.errors import DataError
 
-__all__ = ["Measurements"]  # read_measurements, write_measurements: see __getattr__ below
+__all__ = ["Measurements", "TEXT_COLUMNS"]  # read_measurements, write_measurements: see __getattr__ below
+
+#: The per-row columns of :attr:`Measurements.columns` that hold text (the others are numbers):
+#: ``pose_id`` and ``name`` (the row's name: a point name, a waypoint).
+TEXT_COLUMNS = ("pose_id", "name")
 
 SET_VALUES = ("cal", "val")
 #: Tolerance of the orthonormality check of rotation matrices given to :class:`Measurements`.
@@ -49,7 +53,8 @@ class Measurements:
     columns : per-row columns the report uses, or None: ``time_s`` (seconds), ``temperature_c``
         (degrees Celsius), ``unix_time_s`` (seconds since 1970-01-01 UTC: the row's date and time,
         from timestamps that are dates), each (N,) float with NaN for an empty cell, and
-        ``pose_id`` (N,) str (rows of one id are visits of one commanded pose).
+        ``pose_id`` (N,) str (rows of one id are visits of one commanded pose) and ``name`` (N,) str
+        (the row's name, "" where a file gives none), the text columns of :data:`TEXT_COLUMNS`.
     orientation : how the file gave the orientation (``"quaternion"``, ``"zyx"``, ``"rotvec"``,
         ``"matrix"``, or ``"euler:<sequence>"`` with the sequence it was read with), or None
         (data not read from a file, position only): what a check of a misreading tries.
@@ -131,7 +136,7 @@ class Measurements:
                 raise DataError(f"columns must map names to ({N},) arrays, got {self.columns!r:.60}")
             columns = {}
             for name, values in self.columns.items():
-                v = np.array(values, dtype=object if name == "pose_id" else float)
+                v = np.array(values, dtype=object if name in TEXT_COLUMNS else float)
                 if v.shape != (N,):
                     raise DataError(f"columns[{name!r}] must be ({N},), got shape {v.shape}")
                 v.setflags(write=False)

@@ -107,7 +107,7 @@ def _calib_version() -> str:
 
 
 #: The per-row residual columns of a report, with their units (JSON and CSV alike).
-RESIDUAL_COLUMNS = ("file", "row", "set", "target", "outlier", "pose_id", "time_s", "temperature_c", "dx_mm", "dy_mm", "dz_mm", "position_error_mm",
+RESIDUAL_COLUMNS = ("file", "row", "name", "set", "target", "outlier", "pose_id", "time_s", "temperature_c", "dx_mm", "dy_mm", "dz_mm", "position_error_mm",
                     "position_error_before_mm", "rx_rad", "ry_rad", "rz_rad", "rotation_error_rad",
                     "rotation_error_before_rad")
 
@@ -116,7 +116,10 @@ def _residual_columns(rows: ReportRows) -> dict[str, np.ndarray]:
     """The per-row residuals as columns (see :data:`RESIDUAL_COLUMNS`); position deviations
     p_model - p_measured in mm (rounded to 1 nm), rotation vectors of R_model R_measured^T in rad
     (to 1e-9 rad), in the meas frame; a column without data is left out."""
-    cols: dict[str, np.ndarray] = {"file": rows.file, "row": rows.row, "set": rows.sets}
+    cols: dict[str, np.ndarray] = {"file": rows.file, "row": rows.row}
+    if "name" in rows.columns:
+        cols["name"] = rows.columns["name"]
+    cols["set"] = rows.sets
     if rows.target is not None:
         cols["target"] = rows.target
     cols["outlier"] = rows.outlier

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-from calib.model.measurements import Measurements
+from calib.model.measurements import TEXT_COLUMNS, Measurements
 
 if TYPE_CHECKING:     # Pinocchio is imported where the kinematics run: the plots' worker process
     from calib.model.robot import RobotModel     # (calib.cli.plot_worker) unpickles ReportRows without it
@@ -88,8 +88,8 @@ class ReportRows:
     calibration's validation statistics are of. point_base : (N, 3) metres, the measured point in
     the robot's base frame (by the model of ``after``). before_label : what "before" is.
     columns : the files' per-row columns (:attr:`Measurements.columns`: ``time_s``,
-    ``temperature_c`` as (N,) float, NaN where a file has none; ``pose_id`` (N,) str, "" where
-    a file has none). quantity : what ``position_errors`` measure, for the plots ("position
+    ``temperature_c`` as (N,) float, NaN where a file has none; ``pose_id`` and ``name`` (N,)
+    str, "" where a file has none). quantity : what ``position_errors`` measure, for the plots ("position
     error"; "touch residual" for touch rows, whose deviation is the residual along x).
     """
 
@@ -170,7 +170,7 @@ def report_rows(model: RobotModel, measurements: Measurements, validation: Measu
     point_base = (position - T[:3, 3]) @ T[:3, :3]
     columns = {}
     for name in dict.fromkeys(k for _, m in parts for k in (m.columns or {})):
-        pid = name == "pose_id"
+        pid = name in TEXT_COLUMNS
         columns[name] = np.concatenate([
             np.asarray(m.columns[name], object if pid else float) if m.columns and name in m.columns
             else np.full(m.n_poses, "" if pid else np.nan, dtype=object if pid else float) for _, m in parts])

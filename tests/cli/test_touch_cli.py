@@ -67,9 +67,12 @@ def test_degenerate_design_and_bad_input_exit_2_writing_nothing(urdf, tmp_path, 
     assert "one.csv" in err and "normals span 1 direction: add two planes" in err
     assert len(err.strip().splitlines()) == 1
     bad = tmp_path / "bad.csv"
-    bad.write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,point\n0,0,0,0,0,0,1,2,3,P1\n")
+    # (a file mixing touched and measured rows reads point as the feature touched; a point column
+    # on rows that all carry a measured pose is their name: issue 37)
+    bad.write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,point\n0,0,0,0,0,0,,,,P1\n"
+                   "0,0,0,0,0,0,1,2,3,P1\n")
     code, _, err = run(capsys, "calibrate", urdf, bad, "--tool-frame", "tool0", "-o", tmp_path / "cal.urdf")
-    assert code == 2 and "row 2" in err and "'x_mm'" in err and "a row touching point 'P1' takes no measured pose" in err
+    assert code == 2 and "row 3" in err and "'x_mm'" in err and "a row touching point 'P1' takes no measured pose" in err
     assert len(err.strip().splitlines()) == 1
     code, _, err = run(capsys, "simulate", urdf, "-o", tmp_path / "x.csv", "--constraint", "cube:3")
     assert code == 2 and "--constraint: 'cube:3'" in err

@@ -116,7 +116,8 @@ def test_every_format_gives_the_same_calibration(tmp_path, robot, reference, ori
     euler = orientation[6:] if orientation.startswith("euler:") else None
     back = calib.read_measurements(path, robot, options=ReadOptions(euler=euler))
 
-    assert back.ignored_columns == ("point",)
+    assert back.ignored_columns == ()
+    assert list(back.columns["name"]) == point              # the rows' names (issue 37), kept
     assert (back.columns["temperature_c"] == 21.5).all()     # read for the report (degrees Celsius)
     # the data itself: joints to 1e-15 rad (unit conversion), rotations to 1e-14 (scipy round trip)
     np.testing.assert_allclose(back.q, meas.q, rtol=0, atol=1e-14)
@@ -387,7 +388,7 @@ def test_readme_examples_read_and_match_nominal_kinematics(tmp_path, robot):
         path.write_text(block)
         m = calib.read_measurements(path, robot, options=options.get(k))
         _check_fk(robot, m)
-        assert m.ignored_columns == (("Point", "Temp") if k == 2 else ())
+        assert m.ignored_columns == (("Temp",) if k == 2 else ())       # (Point: the rows' names)
     (tmp_path / "joints.csv").write_text(blocks[5])
     (tmp_path / "poses.csv").write_text(blocks[6])
     m = calib.read_measurements(tmp_path / "joints.csv", robot, tracker=tmp_path / "poses.csv",

@@ -270,9 +270,9 @@ def test_too_many_joint_columns(tmp_path, bundled_robot):
 def test_unknown_columns_are_ignored_and_listed(tmp_path, bundled_robot):
     path = _write(tmp_path, f"point,{HEADER},temperature_F,time_ms\nP1,{ROW},21,0.5\n")
     m = read_measurements(path, bundled_robot)
-    assert m.ignored_columns == ("point", "temperature_F", "time_ms")
-    assert m.notes == (f"{path}: ignored columns (not calib's): point, temperature_F, time_ms",)
-    assert m.columns is None
+    assert m.ignored_columns == ("temperature_F", "time_ms")
+    assert m.notes == (f"{path}: ignored columns (not calib's): temperature_F, time_ms",)
+    assert list(m.columns) == ["name"] and list(m.columns["name"]) == ["P1"]   # (a point column: the name)
     np.testing.assert_allclose(m.position, [[0.441, 0.0, -0.0365]], rtol=0, atol=1e-15)
 
 
@@ -414,7 +414,7 @@ def test_bad_number_in_position(tmp_path, bundled_robot):
 def test_wrong_field_count(tmp_path, bundled_robot, row):
     n = len(row.split(","))
     _error(_write(tmp_path, f"{HEADER}\n{ROW}\n\n{row}\n"), bundled_robot,
-           f"wrong number of fields: {n}, expected 9", row=4)
+           f"wrong number of fields: {n}, expected 9", row=4, column="z_mm" if n < 9 else None)
 
 
 def test_malformed_quoting(tmp_path, bundled_robot):

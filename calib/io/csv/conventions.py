@@ -226,7 +226,8 @@ calib's measurement, poses and targets files (CSV):
 File: UTF-8 text (a byte-order mark is accepted); lines starting with # and blank lines are
   skipped anywhere; row numbers in messages are line numbers of the file.
 Header: the first line that names known columns (a preamble before it, such as an instrument's
-  export header, is skipped with a note), or the line given by --header-line N.
+  export header, is skipped with a note), or the line given by --header-line N; a file without a
+  header line is refused unless --columns NAMES (or an --instrument preset) names its columns.
 Delimiter: the one of comma, semicolon, tab or whitespace (runs of spaces) that splits the header
   into the most fields; with semicolon, tab or whitespace a decimal comma (441,5) is accepted.
 Names: matched case-insensitively; 'X (mm)' and 'X [mm]' read as x_mm; --rename OLD=NEW maps a
@@ -244,17 +245,20 @@ Orientation (optional), of the tool frame in the measurement frame, one of:
   rvx, rvy, rvz        rotation vector (axis times angle), _deg or _rad
   r11 ... r33          rotation matrix, rij = row i, column j
 Labels: set (cal or val), target (the reflector's id), pose_id (rows of one id are repeated
-  visits of one configuration: the report's ISO 9283 repeatability); with --tracker, the --key
-  column.
+  visits of one configuration: the report's ISO 9283 repeatability), name (a column point, name
+  or waypoint: the row's name, kept in the report's residuals and in files written back); with
+  --tracker, the --key column.
 Extra quantities (optional, read only with a unit): time with _s, _min or _h; temperature with
   _c or _degc. Empty cells are allowed; the report plots the residuals against them (drift).
 Touch rows (calibration without a tracker): instead of x, y, z a row names what the tool point
   touched: point ID (the same unknown point in every row of that id), plane ID (a point of an
   unknown plane; --probe-radius-mm R for a ball tip), or sphere ID with radius_mm or radius_m (a
   known distance from an unknown centre). Rows with x, y, z and no feature in the same file are
-  poses measured by an instrument; a row gives a feature or a measured pose, never both.
+  poses measured by an instrument; a row gives a feature or a measured pose, never both. A point
+  column on rows that all give a measured pose is their name, not a feature.
 Two files joined (--tracker POSES.csv): the joint file holds the joints, the tracker file the
-  measured poses. --key COLUMN joins rows with the same value in both; a key may repeat in the
+  measured poses. --key COLUMN joins rows with the same value in both (--key JOINT=TRACKER when
+  the files name the column differently, as --time JOINT=TRACKER); a key may repeat in the
   tracker file when each of its rows names its reflector: a target column, --target-column COL,
   or the point name split by --target-from REGEX (named groups key and target, matching the whole
   name, e.g. (?P<key>P\\d+)_(?P<target>SMR\\d+) for P001_SMR2). --join nearest-time --time COLUMN
@@ -278,9 +282,12 @@ Ambiguous orientation names: rx, ry, rz written in that order (or without a unit
 
 
 def format_help() -> str:
-    """The built-in help page of ``calib formats``: calib's own column rules and the vendor
-    conventions, as plain text (an installed wheel needs no README)."""
+    """The built-in help page of ``calib formats``: calib's own column rules, the vendor
+    conventions and the instrument presets (:func:`calib.io.csv.instruments.format_help`), as plain
+    text (an installed wheel needs no README)."""
     import textwrap
+
+    from calib.io.csv.instruments import format_help as instruments_help
 
     out = [RULES.format(candidates=ambiguous_candidates(), decide_max=DECIDE_MAX, margin=MARGIN), "",
            "Vendor conventions (--convention NAME): the names and units each controller writes.",
@@ -300,4 +307,4 @@ def format_help() -> str:
     for line in "\n".join(out).splitlines():
         indent = len(line) - len(line.lstrip())
         lines += textwrap.wrap(line, 98, subsequent_indent=" " * (indent + 2)) or [""]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n\n" + instruments_help()

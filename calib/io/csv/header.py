@@ -68,6 +68,10 @@ def _unit_text(units) -> str:
     return " or ".join(f"_{u}" for u in units)
 
 
+#: Labels read from a column of another name: ``name`` (the row's name, kept and shown in reports
+#: and outputs) from a column ``point``, ``name`` or ``waypoint`` (a point name in a tracker export,
+#: a UR waypoint log); in a touch file ``point`` is the feature touched instead.
+LABEL_ALIASES = {"name": ("point", "waypoint")}
 #: Names of the columns that hold a whole pose or all joints as one literal (URScript, RAPID).
 POSE_LITERAL_NAMES = ("pose", "tcp_pose", "robtarget")
 JOINT_LITERAL_NAMES = ("joints", "q", "jointtarget")
@@ -113,13 +117,15 @@ class Vocabulary:
                     (suffixed if units else plain)[c] = (c, units, "")
         for label in spec.labels:
             plain[label] = (label, None, "")
+            for alias in LABEL_ALIASES.get(label, ()):
+                plain.setdefault(alias, (label, None, ""))
         for k in spec.lengths:
             suffixed[k] = (k, LENGTH_UNITS, "")
         # extras: read only with a unit of theirs (a bare "time" column stays ignored, as before)
         self.extras = {k: EXTRA_UNITS[k] for k in spec.extras}
         self.key = None
         if spec.keyed:
-            self.key = str(options.key).strip()
+            self.key = str(spec.key or options.key).strip()
             plain[self.key.lower()] = (self.key, None, "")
         if joints:
             for k in JOINT_LITERAL_NAMES:
@@ -165,6 +171,10 @@ class Vocabulary:
                     suffixed.pop(low, None)
                     plain[low] = (quantity, None, "")
                 self.vendor.add(low)
+        if options.instrument is not None or options.length_unit is not None:
+            from calib.io.csv.instruments import apply_to_vocabulary
+
+            apply_to_vocabulary(self, options, plain)
         self.suffixed, self.plain = suffixed, plain
         self.valid = [f"{b}_{u}" for b, (_, units, _) in suffixed.items() for u in units] + list(plain)
 
@@ -189,9 +199,12 @@ def _one(pattern, n: int) -> list[tuple[str, int]]:
 class Header:
     """A header checked against a spec and a robot."""
 
-    def __init__(self, path: Path, row: int, names: list[str], spec: Spec, robot,
-                 options: ReadOptions, vocabulary: Vocabulary | None = None):
+    def __init__(self, path: Path, row: int | None, names: list[str], spec: Spec, robot,
+                 options: ReadOptions, vocabulary: Vocabulary | None = None, named_by: str = ""):
         self.path, self.row, self.spec, self.robot, self.options = path, row, spec, robot, options
+        #: the option that gave the names of a file without a header line (row None), else ""
+        self.named_by = named_by
+        self.names = [n.strip() for n in names]
         voc = vocabulary or Vocabulary(spec, robot, options)
         self.vocabulary = voc
         self.joint_units = voc.joint_units
@@ -207,7 +220,16 @@ class Header:
         self.ambiguous: tuple[str, str] | None = None
         self.columns: dict[object, Column] = {}
         self.ignored: list[str] = []
+        #: the ignored columns dropped on purpose (a rename to nothing)
+        self.dropped: list[str] = []
         styles: dict[str, str] = {}
+        # a group that looks like an orientation and that calib's names do not read (Leica's Q0..Q3,
+        # q_w..q_z) is one unread group, not joints q1..q3 missing a suffix nor a misspelt 'q'
+        lookalike = set()
+        if spec.orientation:
+            from calib.io.csv.lookalike import unread_group
+
+            lookalike = unread_group([renames.get(r.strip().lower(), r.strip()) for r in names], self._classify)
         for index, raw in enumerate(names):
             name = raw.strip()
             if name.lower() in renames:
@@ -215,7 +237,11 @@ class Header:
                 name = renames[name.lower()]
                 if not name:
                     self.ignored.append(raw.strip())
+                    self.dropped.append(raw.strip())
                     continue
+            if name in lookalike:
+                self.ignored.append(name)
+                continue
             col = self._classify(index, name)
             if col is None:
                 self.ignored.append(name)
@@ -240,9 +266,13 @@ class Header:
                 styles.setdefault(col.style, name)
             self.columns[col.quantity] = col
         self.orientation = self._check_complete()
+        if spec.orientation and self.orientation == "none" and "x" in self.columns:
+            self._unread_orientation()
 
     # -------------------------------------------------------------- helpers
     def fail(self, reason: str, column: str | None = None):
+        if self.row is None and self.named_by:
+            reason = f"{reason} (the column names of {self.named_by})"
         raise MeasurementFormatError(self.path, reason, row=self.row, column=column)
 
     def _style_text(self, style: str) -> str:
@@ -303,8 +333,9 @@ class Header:
             if low in self.default:
                 unit = self.default[low]
                 return Column(index, written, quantity, units[unit], unit, style, vendor=True)
+            length = "; or give their unit: --length-unit mm|m" if quantity in POSITION_COLUMNS else ""
             self.fail(f"missing unit suffix: expected a unit suffix {_unit_text(units)} "
-                      f"(e.g. {name}_{list(units)[-1]}){self._convention_hint(low)}", written)
+                      f"(e.g. {name}_{list(units)[-1]}){length}{self._convention_hint(low)}", written)
         base, sep, suffix = low.rpartition("_")
         if sep and base in self.suffixed:
             quantity, units, style = self.suffixed[base]
@@ -432,6 +463,15 @@ class Header:
                   f"drop them with --rename '{','.join(w + '=' for w in written)}' if they are not",
                   written[0])
 
+    def _unread_orientation(self) -> None:
+        """Refuse a header that reads a position and no orientation while columns it ignored
+        look like one (:mod:`calib.io.csv.lookalike`): never a silent position-only fit."""
+        from calib.io.csv.lookalike import unread_orientation
+
+        found = unread_orientation([n for n in self.ignored if n not in self.dropped])
+        if found is not None:
+            self.fail(found.message, found.columns[0])
+
     def _urdf_joints(self) -> dict:
         """The joints of the robot's URDF (name -> :class:`calib.io.urdf.document.UrdfJoint`), from the
         document the model carries (only on an error path); empty for a model built in code."""
@@ -538,7 +578,8 @@ class Header:
         if self.key is not None and self.key not in cols:
             close = _close(self.key.lower(), [c.strip().lower() for c in self.ignored], 0.6)
             hint = f"; did you mean {close[0]!r}?" if close else ""
-            self.fail(f"no key column {self.key!r} (given by --key){hint}")
+            given = "" if self.key == self.options.key else f" {self.options.key!r}"
+            self.fail(f"no key column {self.key!r} (given by --key{given}){hint}")
         if spec.joints == "optional" and spec.position != "none" and not present and literal is None \
                 and not have_pos:
             self.fail(f"no {spec.kind}: give joint columns or a position x, y, z"

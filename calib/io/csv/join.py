@@ -25,6 +25,12 @@ rows as :attr:`calib.ReadOptions.join` says (options checked by :func:`check_joi
   timestamp. Joint rows never joined (the robot moving between poses) are left out; a joint log
   not in time order is joined all the same, with a note.
 
+When the two files name the key or the time column differently, ``key`` and ``time`` are
+``JOINT=TRACKER`` (``Point=Target``, ``timestamp=Time [s]``): each file's own name
+(:func:`split_sides`); a name is matched as the header check reads it (``Time [s]`` is
+``time_s``). Each result row is named (:func:`_names`): the joint file's ``point`` / ``name`` /
+``waypoint`` column, else the tracker's, else the tracker's key cells.
+
 The result (:class:`Joined`) has one row per measured row, in the order of the joint rows they
 join (the measured rows of one joint row in the order of the tracker file); each carries the
 joint values of its joint row and its own target, so a configuration measured at three targets
@@ -47,7 +53,8 @@ from calib.errors import MeasurementFormatError, ParameterError
 if TYPE_CHECKING:
     from calib.io.csv.layer import ReadOptions, Spec, Table
 
-__all__ = ["TIME_UNITS", "TIME_RESOLUTION", "Joined", "check_join_options", "sides", "join_tables"]
+__all__ = ["TIME_UNITS", "TIME_RESOLUTION", "Joined", "check_join_options", "check_sides", "split_sides", "key_columns",
+           "label_of", "sides", "join_tables"]
 
 #: Seconds per unit of a time column (``time_s``, ``--time-unit ms``, ...).
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -66,6 +73,25 @@ def _column_name(value, option: str, flag: str) -> str:
     return value.strip()
 
 
+def split_sides(value: str) -> tuple[str, str]:
+    """(joint file's name, tracker file's name) of a column option: ``A=B`` names each side's
+    column (``--key Point=Target``, ``--time 'timestamp=Time [s]'``), a single name both."""
+    a, sep, b = value.partition("=")
+    return (a.strip(), b.strip()) if sep else (value.strip(), value.strip())
+
+
+def key_columns(options: ReadOptions) -> tuple[str, str]:
+    """The key column's name in the joint file and in the tracker file (``options.key``)."""
+    return split_sides(options.key)
+
+
+def label_of(name: str) -> str:
+    """The label a column name is read under: lower case, a unit in brackets as a suffix
+    (``Time [s]`` -> ``time_s``), as the header check reads the file's names."""
+    m = _UNIT_IN_BRACKETS.match(name.strip())
+    return (f"{m.group(1)}_{m.group(2)}" if m and m.group(1) else name.strip()).lower()
+
+
 def name_unit(name: str) -> str | None:
     """The time unit a column name states (``time_s``, ``t_ms``, ``Time (s)``), or None."""
     m = _UNIT_IN_BRACKETS.match(name)
@@ -82,6 +108,8 @@ def check_join_options(options: ReadOptions) -> None:
     for field, flag in (("target_column", "--target-column"), ("time", "--time")):
         if getattr(o, field) is not None:
             object.__setattr__(o, field, _column_name(getattr(o, field), field, flag))
+    if o.time is not None:
+        object.__setattr__(o, "time", check_sides(o.time, "time", "--time"))
     if o.time_unit is not None and (not isinstance(o.time_unit, str) or o.time_unit not in TIME_UNITS):
         raise ParameterError(f"time_unit must be one of {', '.join(TIME_UNITS)} (--time-unit), got "
                              f"{o.time_unit!r:.60}")
@@ -98,7 +126,8 @@ def check_join_options(options: ReadOptions) -> None:
         if o.target_column is not None:
             raise ParameterError("the target id comes from one place: a target column (--target-column) "
                                  "or the compound point names of the key column (--target-from), not both")
-    if o.target_column is not None and o.key is not None and o.target_column.lower() == o.key.lower():
+    if o.target_column is not None and o.key is not None and \
+            o.target_column.lower() == key_columns(o)[1].lower():
         raise ParameterError(f"--target-column {o.target_column!r} is the key column: to take the target "
                              f"id from a compound point name (P001_SMR2) give --target-from REGEX "
                              f"(e.g. {TARGET_FROM_EXAMPLE!r})")
@@ -121,10 +150,23 @@ def check_join_options(options: ReadOptions) -> None:
     if o.max_gap is None:
         raise ParameterError("--join nearest-time needs --max-gap S: the largest time, in seconds, "
                              "between a measured row and the joint row it is joined to")
-    stated = name_unit(o.time)
-    if stated is not None and o.time_unit is not None and stated != o.time_unit:
-        raise ParameterError(f"--time {o.time!r} says its unit is {stated}, --time-unit says "
-                             f"{o.time_unit}: give one")
+    for side in dict.fromkeys(split_sides(o.time)):
+        stated = name_unit(side)
+        if stated is not None and o.time_unit is not None and stated != o.time_unit:
+            raise ParameterError(f"--time {o.time!r}: {side!r} says its unit is {stated}, --time-unit "
+                                 f"says {o.time_unit}: give one")
+
+
+def check_sides(value: str, option: str, flag: str) -> str:
+    """``value`` with blanks stripped around ``=``; ParameterError for an empty side."""
+    if "=" not in value:
+        return value
+    a, b = split_sides(value)
+    if not a or not b or "=" in b:
+        raise ParameterError(f"{flag} {value!r}: expected COLUMN, or JOINT=TRACKER naming the column of "
+                             f"the joint file and of the tracker file (e.g. {flag} "
+                             f"{'Point=Target' if option == 'key' else 'timestamp=Time [s]'})")
+    return f"{a}={b}"
 
 
 def _check_target_from(text) -> re.Pattern:
@@ -145,8 +187,9 @@ def _check_target_from(text) -> re.Pattern:
 
 
 # ====================================================================== specs
-def _time_label(options: ReadOptions) -> str | None:
-    return None if options.time is None else options.time.lower()
+def _time_labels(options: ReadOptions) -> tuple[str, str] | None:
+    """The labels of the time column in the joint file and in the tracker file, or None."""
+    return None if options.time is None else tuple(map(label_of, split_sides(options.time)))
 
 
 def _target_label(options: ReadOptions) -> str:
@@ -160,20 +203,20 @@ def sides(joint: Spec, tracker: Spec, options: ReadOptions) -> tuple[Spec, Spec]
     target column ``target_column`` as a label."""
     from dataclasses import replace
 
-    time = _time_label(options)
-    extra = (time,) if time is not None else ()
+    times = _time_labels(options)
     target = _target_label(options)
     keyed = options.join == "key"
+    keys = key_columns(options) if keyed and options.key is not None else (None, None)
 
-    def extras(spec):
+    def side(spec, k: int, more=()):
+        time = None if times is None else times[k]
+        extra = (time,) if time is not None else ()
         # the join's time column is a label (text: numbers, times of day, dates), not the
         # report's per-row time quantity (time_s, ...) that a spec may also name
-        return tuple(e for e in spec.extras if time is None or not (time == e or time.startswith(e + "_")))
-    joint = replace(joint, labels=tuple(dict.fromkeys(joint.labels + extra)), keyed=keyed,
-                    sparse=joint.sparse + extra, extras=extras(joint))
-    tracker = replace(tracker, labels=tuple(dict.fromkeys(tracker.labels + (target,) + extra)),
-                      keyed=keyed, sparse=tracker.sparse + extra, extras=extras(tracker))
-    return joint, tracker
+        extras = tuple(e for e in spec.extras if time is None or not (time == e or time.startswith(e + "_")))
+        return replace(spec, labels=tuple(dict.fromkeys(spec.labels + more + extra)), keyed=keyed,
+                       sparse=spec.sparse + extra, extras=extras, key=keys[k])
+    return side(joint, 0), side(tracker, 1, (target,))
 
 
 # ====================================================================== joining
@@ -182,7 +225,8 @@ class Joined:
     """Two tables joined: result row ``k`` is joint row ``joint[k]`` with tracker row ``tracker[k]``.
 
     joint, tracker : (M,) int, indices into the rows of the joint and the tracker table.
-    labels : ``set``, ``target`` and ``pose_id`` -> (M,) tuple of str, or None where neither file has it.
+    labels : ``set``, ``target``, ``pose_id`` and ``name`` -> (M,) tuple of str, or None where neither
+        file has it (``name``: see :func:`_names`).
     one_to_one : each joint row gives exactly one result row (then the result keeps the joint
         file's row numbers; otherwise the tracker file's, one per measured row).
     notes : one-line remarks of the join (a joint log not in time order).
@@ -217,9 +261,24 @@ def join_tables(j: Table, t: Table, options: ReadOptions) -> Joined:
     tt = None if target is None else [target[i] for i in tidx]
     labels["target"] = _agree(j, t, jidx, tidx, "target", tt, target_col, how)
     labels["pose_id"] = _agree(j, t, jidx, tidx, "pose_id", None, t.names.get("pose_id"), how)
+    labels["name"] = _names(j, t, jidx, tidx, options)
     one = len(jidx) == len(j.rows) and len(np.unique(jidx)) == len(jidx)
     return Joined(joint=jidx, tracker=tidx, labels=labels, one_to_one=bool(one), notes=notes,
                   unix_time_s=None if dates is None else dates[tidx])
+
+
+def _names(j: Table, t: Table, jidx, tidx, options: ReadOptions) -> tuple | None:
+    """The name of each result row: the joint file's name column (``point``, ``name``,
+    ``waypoint``), else the tracker file's, else the tracker's key cells (its point names); None
+    without any. Two name columns need not agree: a waypoint and the point measured there."""
+    if "name" in j.labels:
+        return tuple(j.labels["name"][i] for i in jidx)
+    if "name" in t.labels:
+        return tuple(t.labels["name"][i] for i in tidx)
+    if options.join == "key":
+        cells = t.labels[key_columns(options)[1]]
+        return tuple(cells[i] for i in tidx)
+    return None
 
 
 def _tracker_targets(t: Table, options: ReadOptions) -> tuple[tuple | None, str | None]:
@@ -240,8 +299,8 @@ def _tracker_targets(t: Table, options: ReadOptions) -> tuple[tuple | None, str 
 
 
 def _by_key(j: Table, t: Table, options: ReadOptions, target, target_col):
-    key = options.key
-    jkeys, cells = j.labels[key], t.labels[key]
+    jkey, key = key_columns(options)
+    jkeys, cells = j.labels[jkey], t.labels[key]
     if options.target_from is not None:
         if target is not None:
             raise MeasurementFormatError(t.path, f"a target column ({target_col!r}) and --target-from: "
@@ -268,7 +327,7 @@ def _by_key(j: Table, t: Table, options: ReadOptions, target, target_col):
         if value in jpos:
             raise MeasurementFormatError(j.path, f"duplicated key {value!r} (also in row "
                                                  f"{j.rows[jpos[value]]})", row=int(j.rows[k]),
-                                         column=j.names[key])
+                                         column=j.names[jkey])
         jpos[value] = k
     seen: dict[tuple, int] = {}
     for k, value in enumerate(tkeys):
@@ -291,7 +350,7 @@ def _by_key(j: Table, t: Table, options: ReadOptions, target, target_col):
     for k, value in enumerate(jkeys):
         if value not in in_t:
             raise MeasurementFormatError(j.path, f"key {value!r} is not in {t.path}", row=int(j.rows[k]),
-                                         column=j.names[key])
+                                         column=j.names[jkey])
     for k, value in enumerate(tkeys):
         if value not in jpos:
             via = f" (of {cells[k]!r}, by --target-from)" if options.target_from is not None else ""
@@ -321,12 +380,13 @@ def _agree(j: Table, t: Table, jidx, tidx, label: str, b, b_col, how: str):
 
 # ====================================================================== by time
 def _by_time(j: Table, t: Table, options: ReadOptions):
-    label = _time_label(options)
-    for table in (j, t):
-        if label not in table.labels:
-            raise MeasurementFormatError(table.path, f"no time column {options.time!r} (given by --time)",
+    jlabel, label = _time_labels(options)
+    for table, lab, name in zip((j, t), (jlabel, label), split_sides(options.time)):
+        if lab not in table.labels:
+            given = f" {options.time!r}" if "=" in options.time else ""
+            raise MeasurementFormatError(table.path, f"no time column {name!r} (given by --time{given})",
                                          row=table.header_row)
-    tj, kind_j = _seconds(j, label, options)
+    tj, kind_j = _seconds(j, jlabel, options)
     tt, kind_t = _seconds(t, label, options)
     col = t.names[label]
     if kind_j != kind_t:
@@ -368,9 +428,9 @@ def _by_time(j: Table, t: Table, options: ReadOptions):
             a, b = sorted((int(near[0]), int(near[differ[0]])))
             same = abs(tj[a] - tj[b]) <= TIME_RESOLUTION
             what = (f"rows {j.rows[a]} and {j.rows[b]} of {j.path} have the same timestamp "
-                    f"{j.labels[label][a]!r}" if same else
-                    f"rows {j.rows[a]} and {j.rows[b]} of {j.path} ({j.labels[label][a]!r} and "
-                    f"{j.labels[label][b]!r}) are equally near {t.labels[label][k]!r}")
+                    f"{j.labels[jlabel][a]!r}" if same else
+                    f"rows {j.rows[a]} and {j.rows[b]} of {j.path} ({j.labels[jlabel][a]!r} and "
+                    f"{j.labels[jlabel][b]!r}) are equally near {t.labels[label][k]!r}")
             raise MeasurementFormatError(
                 t.path, f"{what}, with different joint values: the join by nearest time is ambiguous; "
                         f"expected one nearest joint row (a timestamp written more finely, or a joint "
@@ -422,7 +482,7 @@ def _seconds(table: Table, label: str, options: ReadOptions) -> tuple[np.ndarray
         k = int(bad[0])
         raise MeasurementFormatError(table.path, f"{table.labels[label][k]!r}: expected a finite "
                                                  f"timestamp", row=int(table.rows[k]), column=col)
-    unit = options.time_unit or name_unit(col) or name_unit(options.time)
+    unit = options.time_unit or name_unit(col)
     if unit is None:
         raise MeasurementFormatError(table.path, f"the timestamps are numbers without a unit: name it in "
                                                  f"the column ({col}_s, {col}_ms) or give --time-unit "

@@ -48,10 +48,6 @@ QUATERNION_NORM_TOLERANCE = 1e-3
 MATRIX_TOLERANCE = 1e-3
 #: Default joint limit tolerance, as a fraction of the joint range.
 LIMIT_TOLERANCE = 0.01
-#: Past a limit by more than this fraction of the joint range is more than a reading just past it.
-UNIT_HINT_EXCESS = 0.1
-#: A unit mix-up is suggested only for values at least this many times the largest limit.
-UNIT_HINT_RATIO = 3.0
 
 
 # ====================================================================== options and specs
@@ -97,16 +93,21 @@ class ReadOptions:
         extrinsic, ...), or None.
     limit_tolerance : joint values beyond a limit by at most this fraction of the joint range
         (upper - lower) are kept with a note (default 0.01, 1 %).
-    key : name of the column that joins a joint file and a tracker file, or None.
+    key : name of the column that joins a joint file and a tracker file, or ``"JOINT=TRACKER"``
+        when the two files name it differently (``"Point=Target"``), or None.
     target_column, target_from, join, time, time_unit, max_gap : how a joint file and a tracker
-        file are joined (one joint row to several measured rows, by nearest time): see
-        :mod:`calib.io.csv.join`, which checks them.
+        file are joined (one joint row to several measured rows, by nearest time; ``time`` may be
+        ``"JOINT=TRACKER"`` too): see :mod:`calib.io.csv.join`, which checks them.
     convention : a vendor's column names and units (a key of
         :data:`calib.io.csv.conventions.CONVENTIONS`: ``"kuka"``, ``"abb"``, ``"ur"``, ``"fanuc"``,
         ``"staubli"``, ``"yaskawa"``, or ``"calib"`` to state calib's own ZYX reading of rx, ry,
         rz in any order), or None (calib's own names; ambiguous orientation names refused).
     header_line : line number (from 1) of the header, or None: the first line that names known
         columns (a preamble before it is skipped).
+    instrument, columns, length_unit : the instrument's file: a preset of
+        :data:`calib.io.csv.instruments.INSTRUMENTS` (``"leica"``, ``"spatialanalyzer"``), the names of
+        the columns of a file without a header line (``"point,x_mm,y_mm,z_mm"``), the unit
+        (``"mm"``, ``"m"``) of x, y, z named without one; see :mod:`calib.io.csv.instruments`.
     """
 
     rename: tuple[tuple[str, str], ...] = ()
@@ -121,6 +122,9 @@ class ReadOptions:
     max_gap: float | None = None
     convention: str | None = None
     header_line: int | None = None
+    instrument: str | None = None
+    columns: tuple[str, ...] | None = None
+    length_unit: str | None = None
 
     def __post_init__(self):
         if isinstance(self.rename, str):
@@ -151,10 +155,18 @@ class ReadOptions:
         h = self.header_line
         if h is not None and (isinstance(h, bool) or not isinstance(h, int) or h < 1):
             raise ParameterError(f"header_line must be a line number >= 1, got {h!r:.60}")
+        if any(v is not None for v in (self.instrument, self.columns, self.length_unit)):
+            from calib.io.csv.instruments import check_file_options
+
+            check_file_options(self)
         if self.key is not None:
             if not isinstance(self.key, str) or not self.key.strip():
                 raise ParameterError(f"key must be a column name, got {self.key!r:.60}")
             object.__setattr__(self, "key", str(self.key).strip())
+            if "=" in self.key:                 # JOINT=TRACKER: each file's own name
+                from calib.io.csv.join import check_sides
+
+                object.__setattr__(self, "key", check_sides(self.key, "key", "--key"))
         if not isinstance(self.join, str) or self.join != "key" or any(getattr(self, f) is not None
                                                                        for f in _JOIN_FIELDS):
             from calib.io.csv.join import check_join_options     # (the defaults need no check)
@@ -180,6 +192,8 @@ class Spec:
     extras : optional per-row quantities of :data:`calib.io.csv.header.EXTRA_UNITS` (``time``
         with _s, _min or _h; ``temperature`` with _c or _degc), read in seconds and degrees
         Celsius, empty cells NaN: what a report plots the residuals against (drift).
+    key : the name of the key column in this file when it differs from :attr:`ReadOptions.key`
+        (``--key JOINT=TRACKER``: each side's own name), else None.
     """
 
     kind: str
@@ -192,6 +206,7 @@ class Spec:
     sparse: tuple[str, ...] = ()
     sparse_pose: bool = False
     extras: tuple[str, ...] = ()
+    key: str | None = None
 
     def may_be_empty(self, key) -> bool:
         """Whether the cells of the numeric quantity ``key`` may be empty (read as NaN)."""
@@ -259,8 +274,14 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     options = check_instance(options, "options", ReadOptions, "calib.ReadOptions", allow_none=True) \
         or ReadOptions()
     vocabulary = Vocabulary(spec, robot, options)
-    header_row, names, delimiter, lines, data = _records(path, vocabulary.known, options.header_line)
-    header = Header(path, header_row, names, spec, robot, options, vocabulary)
+    columns, comments, named_by = (None, (), "")
+    if options.instrument is not None or options.columns is not None:
+        from calib.io.csv.instruments import file_columns
+
+        columns, comments, named_by = file_columns(options)
+    header_row, names, delimiter, lines, data = _records(path, vocabulary.known, options.header_line,
+                                                         columns=columns, comments=comments, named_by=named_by)
+    header = Header(path, header_row, names, spec, robot, options, vocabulary, named_by=named_by)
     if not len(data):
         raise MeasurementFormatError(path, "header but no data rows", row=header_row)
     decimal_comma = delimiter != ","
@@ -283,8 +304,8 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
         for key, v in got[1].items():
             labels[key].extend(v)
         del chunk, got
-    preamble = int(np.count_nonzero([bool(x.strip()) and not x.lstrip().startswith("#")
-                                     for x in lines[:header_row - 1]]))
+    preamble = 0 if header_row is None else int(np.count_nonzero(
+        [bool(x.strip()) and not x.lstrip().startswith(("#",) + comments) for x in lines[:header_row - 1]]))
     del lines, data     # (the text of a million rows: 300 MB, before the rotations are built)
     orientation = header.orientation
     names_out = {k: c.name for k, c in cols.items()}
@@ -331,7 +352,9 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
                  Column(cols["joint_literal"].index, cols["joint_literal"].name, i, 1.0,
                         "m" if robot.joints[i].is_prismatic else "rad")
                  for i in range(robot.n_joints)}
-        notes += _check_limits(path, robot, jcols, q, rows, options.limit_tolerance)
+        from calib.io.csv.limits import check_limits
+
+        notes += check_limits(path, robot, jcols, q, rows, options.limit_tolerance)
     position = None
     if "x" in values:
         position = np.column_stack([values[k] for k in POSITION_COLUMNS])
@@ -438,8 +461,10 @@ class _Rows:
                 if "[" in line and self.delimiter in line[line.index("["):] and \
                         any(k in cols for k in ("pose_literal", "joint_literal")):
                     hint = f"; quote a literal [...] that holds the delimiter {self.delimiter!r}"
+                per = f"column named by {header.named_by}" if header.named_by else "header column"
+                lack = header.names[len(fields)] if len(fields) < self.ncols else None   # (the first without one)
                 raise MeasurementFormatError(path, f"wrong number of fields: {len(fields)}, expected "
-                                                   f"{self.ncols} (one per header column){hint}", row=row)
+                                                   f"{self.ncols} (one per {per}){hint}", row=row, column=lack)
             for key, c in self.numeric.items():
                 if self.spec.may_be_empty(key) and not fields[c.index].strip():
                     out[key][k] = np.nan
@@ -504,58 +529,6 @@ def _rotation(path: Path, kind: str, first: str, values: np.ndarray, rows: np.nd
                   f"rows of the matrix are r1j, r2j, r3j)", row=int(rows[k]), column=first)
     U, _, Vt = np.linalg.svd(R)          # the nearest rotation (within the tolerance above)
     return U @ Vt
-
-
-def _check_limits(path: Path, robot, columns: dict, q: np.ndarray, rows: np.ndarray,
-                  tolerance: float) -> list[str]:
-    """Notes for readings just past a limit; raise on the first row (then first column in header
-    order) further beyond."""
-    lo, hi = robot.lower, robot.upper
-    checked = np.array([j.kind != "continuous" for j in robot.joints]) & np.isfinite(lo) & \
-        np.isfinite(hi)
-    span = np.where(checked, hi - lo, 0.0)
-    tol = tolerance * span
-    below, above = lo - q, q - hi                       # > 0 outside
-    excess = np.where(checked, np.maximum(below, above), -np.inf)
-    beyond = excess > tol + 1e-12
-    notes = []
-    for i in np.flatnonzero(((excess > 0) & ~beyond).any(axis=0)):
-        c = columns[int(i)]
-        near = np.flatnonzero((excess[:, i] > 0) & ~beyond[:, i])
-        shown = ", ".join(str(r) for r in rows[near[:10]]) + (", ..." if len(near) > 10 else "")
-        notes.append(f"{path}: {robot.joints[i].name} is past its joint limit by up to "
-                     f"{excess[near, i].max() / c.scale:.4g} {c.unit} (within the limit tolerance, "
-                     f"{100 * tolerance:.3g} % of the range = {tol[i] / c.scale:.3g} {c.unit}) in row"
-                     f"{'s' if len(near) > 1 else ''} {shown}; kept as read")
-    if not beyond.any():
-        return notes
-    k = int(np.flatnonzero(beyond.any(axis=1))[0])
-    i = int(min(np.flatnonzero(beyond[k]), key=lambda j: columns[int(j)].index))
-    c, joint = columns[i], robot.joints[i]
-    value = q[k, i] / c.scale
-    count = int(beyond[:, i].sum())
-    others = f" ({count} rows of this column are outside)" if count > 1 else ""
-    side = "upper" if above[k, i] > 0 else "lower"
-    reason = (f"{joint.name} = {value:.6g} {c.unit} is outside the joint limits "
-              f"[{lo[i] / c.scale:.6g}, {hi[i] / c.scale:.6g}] {c.unit}{others}: "
-              f"{excess[k, i] / c.scale:.4g} {c.unit} past the {side} limit, "
-              f"{100 * excess[k, i] / span[i]:.3g} % of the joint range")
-    hint = (f"; beyond the limit tolerance ({100 * tolerance:.3g} % of the range); if the reading "
-            f"is right, raise it (--limit-tolerance) or the URDF limit")
-    if excess[k, i] > UNIT_HINT_EXCESS * span[i]:
-        hint = "; check the joint order, the zero offsets and the URDF limits"
-        # a unit mix-up multiplies the value by 180/pi or 1000: only suggest one when the value
-        # is several times the largest limit and fits the limits in the other unit
-        scale_off = abs(value) >= UNIT_HINT_RATIO * max(abs(lo[i]), abs(hi[i]))
-        if c.unit == "rad" and not joint.is_prismatic and scale_off:
-            fits = lo[i] - tol[i] <= value * ANGLE_UNITS["deg"] <= hi[i] + tol[i]
-            small = max(abs(lo[i]), abs(hi[i])) <= 2 * math.pi + 1e-3
-            if fits or (abs(value) > 2 * math.pi and small):
-                hint = "; degrees given as radians? use the _deg suffix"
-        elif c.unit == "m" and joint.is_prismatic and scale_off:
-            if lo[i] - tol[i] <= value * LENGTH_UNITS["mm"] <= hi[i] + tol[i]:
-                hint = "; millimetres given as metres? use the _mm suffix"
-    raise MeasurementFormatError(path, reason + hint, row=int(rows[k]), column=c.name)
 
 
 # ====================================================================== writing

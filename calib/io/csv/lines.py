@@ -180,8 +180,8 @@ def _has_number(fields: list[str]) -> bool:
     return any(_looks_numeric([f]) for f in fields if f.strip())
 
 
-def _records(path: Path, known=None, header_line: int | None = None
-             ) -> tuple[int, list[str], str, list[str], np.ndarray]:
+def _records(path: Path, known=None, header_line: int | None = None, *, columns=None, comments=(),
+             named_by: str = "--columns") -> tuple[int | None, list[str], str, list[str], np.ndarray]:
     """(header line number, header names as written, delimiter, the file's lines, (N,) index of
     each data line among them): an index array, not (line number, line) pairs, which cost a
     million-row file 100 MB more.
@@ -190,18 +190,29 @@ def _records(path: Path, known=None, header_line: int | None = None
     (``known(name) -> bool``) before any line of numbers (the lines before it are a preamble),
     else the first line when it alone comes before the data with the data's field count (whose
     names the header check then explains); other lines before the data, or lines and no data,
-    are refused as no header line."""
-    return header_of(path, read_lines(path), known, header_line)
+    are refused as no header line; a first line that holds numbers as data rows do (a file without
+    a header line) is refused naming --columns.
+
+    With ``columns`` (the names of a header-less file's columns: ``--columns``, or an instrument
+    preset's, ``named_by`` saying which) the file has no header line: every line that is not a
+    comment is data, the delimiter the one that splits the first into ``len(columns)`` fields;
+    the header line number returned is None. ``comments``: line prefixes of comment lines besides
+    ``#`` (SpatialAnalyzer's ``//``)."""
+    return header_of(path, read_lines(path), known, header_line, columns=columns, comments=comments,
+                     named_by=named_by)
 
 
-def header_of(path: Path, lines: list[str], known=None, header_line: int | None = None
-              ) -> tuple[int, list[str], str, list[str], np.ndarray]:
+def header_of(path: Path, lines: list[str], known=None, header_line: int | None = None, *, columns=None,
+              comments=(), named_by: str = "--columns") -> tuple[int | None, list[str], str, list[str], np.ndarray]:
     """:func:`_records` of the file's ``lines`` (as :func:`read_lines` gives them; a file's
     first lines alone find its header as well, e.g. to tell its kind without reading it whole)."""
     heads = list(map(str.lstrip, lines))      # (map over C methods: no Python frame per line)
     records = np.flatnonzero(np.fromiter(map(bool, heads), bool, len(lines)) &
-                             ~np.fromiter(map(methodcaller("startswith", "#"), heads), bool, len(lines)))
+                             ~np.fromiter(map(methodcaller("startswith", ("#",) + tuple(comments)), heads),
+                                          bool, len(lines)))
     del heads
+    if columns is not None:
+        return _headerless(path, lines, records, list(columns), named_by)
     if header_line is not None:
         k = header_line - 1
         size = len(lines) - (not lines[-1])       # (a final line end starts no line)
@@ -236,7 +247,8 @@ def header_of(path: Path, lines: list[str], known=None, header_line: int | None 
                                   f"column calib knows and line {row} is data; expected a line of "
                                   f"column names (such as joint1_deg, x_mm; calib formats lists "
                                   f"them) before the data, or --header-line N for a header calib "
-                                  f"does not recognise", row=row)
+                                  f"does not recognise, or --columns NAMES for a file without "
+                                  f"one{_instrument_hint(lines, records)}", row=row)
                     break
                 if any(known(n) for n in names):
                     first = j
@@ -254,6 +266,16 @@ def header_of(path: Path, lines: list[str], known=None, header_line: int | None 
                               f"line is data; expected a line of column names (such as joint1_deg, "
                               f"x_mm; calib formats lists them) followed by data rows",
                         row=int(records[0]) + 1)
+                # lines with numbers, none all numbers, no known name: the first line that is
+                # not SpatialAnalyzer's // comment holds numbers as data rows do: no header line
+                first = next((i for i, k in enumerate(window) if not lines[k].lstrip().startswith("//")), 0)
+                k = records[first]
+                if _has_number(split_fields(path, k + 1, lines[k], _delimiter(path, k + 1, lines[k]))):
+                    raise MeasurementFormatError(
+                        path, f"no header line: line {k + 1} holds numbers, as data rows do, and no line "
+                              f"names a column calib knows; give the file's column names with --columns "
+                              f"NAMES (e.g. --columns 'point,x_mm,y_mm,z_mm'; calib formats lists the "
+                              f"names){_instrument_hint(lines, records)}", row=int(k) + 1)
     k = int(records[first])
     header_row, header_line_text = k + 1, lines[k]
     best = _delimiter(path, header_row, header_line_text)
@@ -261,7 +283,37 @@ def header_of(path: Path, lines: list[str], known=None, header_line: int | None 
     if _looks_numeric(names):
         raise MeasurementFormatError(path, "this line looks like data, expected the header row "
                                            "(column names such as joint1_deg, x_mm; a line starting "
-                                           "with # is a comment)", row=header_row)
+                                           "with # is a comment), or --columns NAMES for a file "
+                                           "without one", row=header_row)
     return header_row, names, best, lines, records[first + 1:]
+
+
+def _instrument_hint(lines: list[str], records: np.ndarray) -> str:
+    """"; lines starting with // ... --instrument spatialanalyzer" when the file's first lines
+    are SpatialAnalyzer's comments, else ""."""
+    if any(lines[k].lstrip().startswith("//") for k in records[:MAX_PREAMBLE].tolist()):
+        return ("; lines starting with // are comments of a SpatialAnalyzer ASCII export: "
+                "--instrument spatialanalyzer reads it")
+    return ""
+
+
+def _headerless(path: Path, lines: list[str], records: np.ndarray, columns: list[str], named_by: str):
+    """(None, ``columns``, delimiter, lines, records) of a file without a header line: the
+    delimiter (tab, semicolon, comma, else whitespace: the first of them) that splits the first
+    data line into one field per name."""
+    if not len(records):
+        raise MeasurementFormatError(path, "no data rows: the file holds only comments and blank lines")
+    k = int(records[0])
+    # (tab and semicolon first: a line of decimal commas, 1,5;2,5, may split into as many at commas)
+    counts = {d: _field_count(path, k + 1, lines[k], d) for d in ("\t", ";", ",")}
+    counts[WHITESPACE] = len(lines[k].split())
+    fits = [d for d, n in counts.items() if n == len(columns)]
+    if not fits:
+        shown = max(counts.values())
+        raise MeasurementFormatError(path, f"wrong number of fields: {shown}, expected {len(columns)} (one "
+                                           f"per column named by {named_by}: {', '.join(columns)})"
+                                           f"{_instrument_hint(lines, records[:1])}", row=k + 1,
+                                     column=columns[shown] if shown < len(columns) else None)
+    return None, columns, fits[0], lines, records
 
 

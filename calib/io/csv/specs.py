@@ -49,6 +49,7 @@ there), or a position ``x, y, z`` with an optional orientation as in measurement
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -56,7 +57,7 @@ import numpy as np
 
 from calib.errors import MeasurementFormatError, ParameterError
 from calib.io.fileio import atomic_write_text, check_not_input
-from calib.model.measurements import Measurements
+from calib.model.measurements import TEXT_COLUMNS, Measurements
 from calib.io.csv.layer import (ANGLE_UNITS, LENGTH_UNITS, POSITION_COLUMNS, ORIENTATIONS, ReadOptions, Spec,
                                 Table, csv_text, joint_columns, read_table)
 
@@ -68,17 +69,18 @@ __all__ = ["MEASUREMENT", "POSES", "TARGETS", "JOINT_SIDE", "TRACKER_SIDE", "rea
            "write_compensation"]
 
 MEASUREMENT = Spec("measurement", joints="required", position="required", orientation=True,
-                   labels=("set", "target", "pose_id"), extras=("time", "temperature"))
+                   labels=("set", "target", "pose_id", "name"), sparse=("name",), extras=("time", "temperature"))
 POSES = Spec("poses", joints="required")
 #: The text columns of a targets file: the target's name, and a controller's configuration (KUKA
 #: Status and Turn, ABB confdata, a FANUC configuration string; read with --convention).
 TARGET_LABELS = ("name", "s", "t", "cf1", "cf4", "cf6", "cfx", "config")
 TARGETS = Spec("targets", joints="optional", position="optional", orientation=True, labels=TARGET_LABELS)
 #: The two halves of a measurement joined by a key: joints, and the tracker's poses.
-JOINT_SIDE = Spec("joint", joints="required", labels=("set", "target", "pose_id"), keyed=True,
-                  extras=("time", "temperature"))
+JOINT_SIDE = Spec("joint", joints="required", labels=("set", "target", "pose_id", "name"), sparse=("name",),
+                  keyed=True, extras=("time", "temperature"))
 TRACKER_SIDE = Spec("tracker", joints="none", position="required", orientation=True,
-                    labels=("set", "target", "pose_id"), keyed=True, extras=("time", "temperature"))
+                    labels=("set", "target", "pose_id", "name"), sparse=("name",), keyed=True,
+                    extras=("time", "temperature"))
 
 
 #: The unit of each extra column in :attr:`Measurements.columns` names (SI, or Celsius).
@@ -155,7 +157,9 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
         from calib.io.csv.join import join_tables, sides       # (a tracker file only)
 
         joint_spec, tracker_spec = sides(JOINT_SIDE, TRACKER_SIDE, options)
-        j = read_table(csv_path, joint_spec, robot, options)
+        # (the instrument's preset, --columns and --length-unit describe the tracker file)
+        j = read_table(csv_path, joint_spec, robot, replace(options, instrument=None, columns=None,
+                                                            length_unit=None))
         pose = read_table(tracker, tracker_spec, robot, options)
         tables = [j, pose]
         joined = join_tables(j, pose, options)
@@ -172,8 +176,9 @@ def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None
     columns = {f"{k}_{_EXTRA_SI[k]}": v for k, v in extras.items()}
     if tracker is not None and joined.unix_time_s is not None:     # when the robot was measured
         columns["unix_time_s"] = joined.unix_time_s
-    if labels.get("pose_id") is not None:
-        columns["pose_id"] = np.asarray(labels["pose_id"], dtype=object)
+    for label in TEXT_COLUMNS:
+        if labels.get(label) is not None:
+            columns[label] = np.asarray(labels[label], dtype=object)
     return Measurements(q=q, position=position, rotation=rotation, rows=rows,
                         sets=labels.get("set"), target=labels.get("target"), columns=columns or None,
                         joint_names=robot.joint_names, source=source,
@@ -245,8 +250,8 @@ def write_measurements(path: str | Path, measurements: Measurements, *, angle_un
             header.append(name)
             columns.append(np.asarray(extra[name], float).reshape(-1, 1))
     values = np.hstack(columns) if m.n_poses else np.zeros((0, len(header)))
-    texts = [m.sets, m.target, extra.get("pose_id")]
-    header += [name for name, t in zip(("set", "target", "pose_id"), texts) if t is not None]
+    texts = [m.sets, m.target, extra.get("pose_id"), extra.get("name")]
+    header += [name for name, t in zip(("set", "target", "pose_id", "name"), texts) if t is not None]
     rows = [[("" if v != v else repr(float(v))) for v in values[k]] + [str(t[k]) for t in texts if t is not None]
             for k in range(m.n_poses)]
     atomic_write_text(path, csv_text(header, rows, comment))

@@ -23,7 +23,9 @@ Joint columns as in measurement files (:mod:`calib.io.csv.specs`). Example::
 Rows measured by an instrument may be mixed in: a row with ``x, y, z`` (units as in measurement
 files; optionally an orientation, every measured row then giving it) and no feature is a
 measured pose of the tool frame in the meas frame (:attr:`calib.model.touch.TouchData.measured`).
-A row that names a feature and gives a measured pose is refused, naming the column.
+A row that names a feature and gives a measured pose is refused, naming the column. A ``point``
+column in a file whose rows all give a measured pose is no feature but the rows' names (a tracker
+export's point names): such a file is a measurement file (:func:`is_touch_file` says no).
 """
 from __future__ import annotations
 
@@ -52,14 +54,16 @@ RADIUS_TOL = 1e-9
 _HEADER_PEEK = 1 << 16
 
 
-def is_touch_file(path: str | Path, header_line: int | None = None, rename=()) -> bool:
+def is_touch_file(path: str | Path, header_line: int | None = None, rename=(), columns=None,
+                  comments=()) -> bool:
     """Whether the header of the CSV file ``path`` has a ``point``, ``plane`` or ``sphere``
     column (the file is then read by :func:`read_touch`). The header is found as the reader finds
     it: past an instrument's preamble, or line ``header_line`` when given; ``rename`` (the pairs
     (old, new) of :attr:`ReadOptions.rename`) applies first, as in the reader. In a regular UTF-8
     file the header is looked for in its first 64 KB (``calib calibrate`` asks this of every
     measurement file: a million-row file was read whole, twice), else, or when those lines do not
-    settle it, in the whole file."""
+    settle it, in the whole file. ``columns``: the names of a file without a header line
+    (``--columns``, an instrument preset's), ``comments``: its comment line prefixes."""
     path = Path(path)
     renames = {str(old).strip().lower(): str(new).strip() for old, new in rename}
 
@@ -67,10 +71,56 @@ def is_touch_file(path: str | Path, header_line: int | None = None, rename=()) -
         name = name.strip()
         return renames.get(name.lower(), name).lower() in FEATURE_KINDS
 
-    names = _peek_header(path, feature, header_line, words=not renames)
+    names = list(columns) if columns is not None else _peek_header(path, feature, header_line,
+                                                                    words=not renames)
     if names is None:
         names = _records(path, feature, header_line)[1]
-    return any(map(feature, names))
+    kinds = {renames.get(n.strip().lower(), n.strip()).lower() for n in names if feature(n)}
+    if kinds == {"point"} and _position_columns(names, renames):
+        # a point column on rows that all carry a measured pose names them (a label); only a
+        # file with touched rows (no position) reads it as the point touched
+        return not _every_row_measured(path, header_line, renames, feature, columns, comments)
+    return bool(kinds)
+
+
+def _position_columns(names: list[str], renames: dict) -> list[int]:
+    """The indices of the header names (after ``renames``) that give a measured position: x, y,
+    z with or without a unit (``X [mm]``), a pose literal, UR's ``actual_TCP_pose_0..2``."""
+    import re
+
+    from calib.io.csv.header import POSE_LITERAL_NAMES
+    from calib.io.csv.join import label_of
+
+    out = []
+    for i, name in enumerate(names):
+        low = label_of(renames.get(name.strip().lower(), name.strip()))
+        if re.fullmatch(r"[xyz](_[a-z]+)?|actual_tcp_pose_[012]", low) or low in POSE_LITERAL_NAMES:
+            out.append(i)
+    return out
+
+
+def _every_row_measured(path: Path, header_line, renames: dict, feature, columns, comments) -> bool:
+    """Whether every data row of the file has its position cells filled (a file read whole:
+    only asked of a file whose header names a point and a position)."""
+    from calib.io.csv.lines import WHITESPACE, split_fields
+
+    header_row, names, delimiter, lines, data = _records(path, feature, header_line, columns=columns,
+                                                         comments=comments)
+    cols = _position_columns(names, renames)
+    rows = [lines[k] for k in data.tolist()]
+    del lines
+    last = max(cols)
+    if delimiter == WHITESPACE:             # (no empty field: a row without a position is shorter)
+        return all(len(f) > last for f in map(str.split, rows))
+    d = delimiter
+    text = "\n" + "\n".join(rows) + "\n"
+    if '"' not in text and d + d not in text and "\n" + d not in text and d + "\n" not in text:
+        # no empty field in any row (searches of the text: 0.2 s for 200,000 rows, splitting them
+        # 0.6 s); a blank cell, or a short row, the measurement reader refuses naming the row
+        return True
+    del text
+    split = (split_fields(path, int(k) + 1, r, d) for k, r in zip(data, rows))
+    return all(len(f) > last and all(f[i].strip() for i in cols) for f in split)
 
 
 def _peek_header(path: Path, known=None, header_line: int | None = None, words: bool = False
