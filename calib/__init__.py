@@ -28,7 +28,7 @@ _HOME = {
     "model.jacobian": ("identification_jacobian",),
     "model.identifiability_report": ("IdentifiabilityReport", "analyze_identifiability"),
     "model.measurements": ("Measurements",),
-    "io.csv.layer": ("ReadOptions",),
+    "io.csv.options": ("ReadOptions",),
     "io.csv.targets": ("CompensationTargets",),
     "io.csv.specs": ("read_measurements", "read_poses", "read_targets",
                  "write_compensation", "write_measurements", "write_poses"),

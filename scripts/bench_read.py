@@ -32,7 +32,7 @@ import _bench
 import numpy as np
 
 import calib
-from calib.io.csv.layer import READ_BYTES_PER_FILE_BYTE
+from calib.io.csv.lines import READ_BYTES_PER_FILE_BYTE
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"

@@ -105,7 +105,7 @@ def add_frames(p: argparse.ArgumentParser, base_help: str | None = None,
 # ---------------------------------------------------------------------- file-format options
 def _rename(text: str):
     from calib.errors import CalibError
-    from calib.io.csv.layer import parse_rename
+    from calib.io.csv.options import parse_rename
 
     try:
         return parse_rename(text)
@@ -125,7 +125,7 @@ def _columns(text: str):
 
 def _euler(text: str) -> str:
     from calib.errors import CalibError
-    from calib.io.csv.layer import check_euler_sequence
+    from calib.io.csv.options import check_euler_sequence
 
     try:
         return check_euler_sequence(text)

@@ -22,8 +22,8 @@ from dataclasses import replace
 import numpy as np
 
 from calib.compensation.solver import (SEED_CONFIGURATIONS, SEED_ROTATION_M, STATUSES,
-                                                   CompensationResult, _finite_limits, _solve,
-                                                   _solve_from_seeds)
+                                                   CompensationResult, finite_limits, solve_from,
+                                                   solve_from_seeds)
 from calib.compensation.configuration import (Configurations, branch_change, branch_key, format_configuration,
                                              vendor_configuration, with_turns)
 from calib.model.kinematics import ChainKinematics
@@ -65,9 +65,9 @@ def from_nominal_solution(calibrated: RobotModel, nominal: RobotModel, p_t, R_t,
     :func:`calib.compensation.compensate.compensate_poses`), then the calibrated model from
     there, on its branch. A target the nominal model does not reach keeps the nominal solve's
     status (its solution is no reference)."""
-    nom = _solve_from_seeds(nominal, p_t, R_t, seed, singular_threshold, tol_pos, tol_rot, max_iterations)
+    nom = solve_from_seeds(nominal, p_t, R_t, seed, singular_threshold, tol_pos, tol_rot, max_iterations)
     q0 = np.array(nom.q)
-    res = _solve(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
+    res = solve_from(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
     unreached = nom.status == "not_converged"
     if unreached.any():
         status = np.where(unreached, _worse(res.status, nom.status), res.status).astype("<U13")
@@ -89,7 +89,7 @@ def configured_solutions(nominal: RobotModel, p_t, R_t, configurations: Configur
     """
     vendor, values = configurations.vendor, configurations.values
     N, n = len(p_t), nominal.n_joints
-    lo, hi = _finite_limits(nominal)
+    lo, hi = finite_limits(nominal)
     mid, half = (lo + hi) / 2, np.where(hi > lo, (hi - lo) / 2, 1.0)
     seeds = np.vstack([mid[None], nominal.random_configurations(SEED_CONFIGURATIONS, seed)])
     seed_keys = [branch_key(vendor, v) for v in
@@ -110,7 +110,7 @@ def configured_solutions(nominal: RobotModel, p_t, R_t, configurations: Configur
                     for k in range(N)], dtype=object)
     if not len(rows):
         return q_out, why
-    sub = _solve(nominal, seeds[pick[rows, cols]], p_t[rows], None if R_t is None else R_t[rows],
+    sub = solve_from(nominal, seeds[pick[rows, cols]], p_t[rows], None if R_t is None else R_t[rows],
                  singular_threshold, tol_pos, tol_rot, max_iterations, start_counts=False, wrap=True)
     q = with_turns(nominal, np.array(sub.q), vendor, [values[k] for k in rows])
     got = vendor_configuration(nominal, q, vendor, T_base_frame=configurations.T_base_frame)
@@ -147,7 +147,7 @@ def from_configurations(calibrated: RobotModel, nominal: RobotModel, p_t, R_t, c
     found = ~np.isnan(q_nom).any(axis=1)
     q0 = np.where(found[:, None], q_nom, (nominal.lower + nominal.upper) / 2 if np.isfinite(
         nominal.lower + nominal.upper).all() else 0.0)
-    res = _solve(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
+    res = solve_from(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
     vendor = configurations.vendor
     got = vendor_configuration(calibrated, res.q, vendor, T_base_frame=configurations.T_base_frame)
     branch = np.array(["" if found[k] else f"{why[k]}" for k in range(len(q0))], dtype=object)

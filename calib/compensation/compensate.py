@@ -74,8 +74,8 @@ from calib.model.robot import RobotModel
 from calib.io.urdf.reader import load_robot, read_urdf_chain, recorded_targets, robot_from_chain, robot_path
 from calib.io.urdf.document import UrdfDocument
 from calib.compensation.solver import (  # noqa: F401  (re-exported)
-    LIMIT_SLACK, RANDOM_STARTS, STATUSES, TOL_POS_M, TOL_ROT_RAD, CompensationResult, _finite_limits,
-    _solve, _solve_from_seeds, tool_poses_and_joint_jacobians)
+    LIMIT_SLACK, RANDOM_STARTS, STATUSES, TOL_POS_M, TOL_ROT_RAD, CompensationResult, finite_limits,
+    solve_from, solve_from_seeds, tool_poses_and_joint_jacobians)
 
 __all__ = ["STATUSES", "SINGULAR_THRESHOLD", "CompensationResult", "compensate",
            "compensate_poses", "load_compensation_models", "check_joint_targets",
@@ -113,7 +113,7 @@ def compensate(calibrated: RobotModel, nominal: RobotModel, q_nominal: np.ndarra
         R_t = None
     from calib.compensation.branch import check_branch
 
-    res = _solve(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
+    res = solve_from(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
     return replace(check_branch(res, calibrated, q0, "the nominal joints"), targets="joint")
 
 
@@ -192,7 +192,7 @@ def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None =
         q0 = _joint_array(q_start, calibrated, "q_start")
         if len(q0) != N:
             raise DataError(f"q_start has {len(q0)} rows for {N} targets")
-        res = _solve(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
+        res = solve_from(calibrated, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot, max_iterations)
         return branch.check_branch(res, calibrated, q0, "the starting joints")
     if configurations is not None:
         return branch.from_configurations(calibrated, nominal, p_t, R_t, configurations, seed, singular_threshold,
@@ -200,7 +200,7 @@ def compensate_poses(calibrated: RobotModel, *, T_meas_tool: np.ndarray | None =
     if nominal is not None:
         return branch.from_nominal_solution(calibrated, nominal, p_t, R_t, seed, singular_threshold, tol_pos,
                                             tol_rot, max_iterations)
-    return _solve_from_seeds(calibrated, p_t, R_t, seed, singular_threshold, tol_pos, tol_rot,
+    return solve_from_seeds(calibrated, p_t, R_t, seed, singular_threshold, tol_pos, tol_rot,
                              max_iterations)
 
 

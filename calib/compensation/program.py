@@ -49,7 +49,7 @@ def compensate_program(calibrated: RobotModel, nominal: RobotModel, program, *, 
     a TCP the program sets) raises :class:`calib.CalibError` naming it: nothing is compensated.
     """
     from calib.compensation.compensate import compensate, compensate_poses
-    from calib.compensation.solver import _concat, _take
+    from calib.compensation.solver import concat_results, take_targets
     from calib.compensation.configuration import VENDORS, Configurations, vendor_configuration
 
     targets = program.targets
@@ -77,9 +77,9 @@ def compensate_program(calibrated: RobotModel, nominal: RobotModel, program, *, 
     order = np.concatenate([np.array(i) for i, _ in groups])
     merged = groups[0][1]
     for _, res in groups[1:]:
-        merged = _concat(merged, res)
+        merged = concat_results(merged, res)
     pick = np.argsort(order, kind="stable")
-    result = _take(merged, pick)
+    result = take_targets(merged, pick)
     from dataclasses import replace
 
     result = replace(result, names=tuple(t.name for t in targets), targets="program")

@@ -179,7 +179,7 @@ class CompensationResult:
 
 
 # ====================================================================== seeds
-def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol_pos, tol_rot,
+def solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol_pos, tol_rot,
                       max_iterations) -> CompensationResult:
     """Pose targets without starting joints: each target from the seed configuration whose
     calibrated tool pose is nearest (of ``SEED_CONFIGURATIONS`` drawn within the joint limits with
@@ -193,7 +193,7 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
     solution are moved by whole turns to the turn nearest the middle of their range when it lies
     within the limits (continuous joints into [-pi, pi]): the same pose, not a turn more."""
     N = len(p_t)
-    lo, hi = _finite_limits(robot)
+    lo, hi = finite_limits(robot)
     mid, half = (lo + hi) / 2, np.where(hi > lo, (hi - lo) / 2, 1.0)
     seeds = np.vstack([mid[None], robot.random_configurations(SEED_CONFIGURATIONS, seed)])
     kin = ChainKinematics(robot)
@@ -206,10 +206,10 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
     for stage, (a, b) in enumerate(zip(SEED_STAGES[:-1], SEED_STAGES[1:])):
         S = b - a
         rows = np.repeat(todo, S)                                    # target k, seeds a..b-1
-        sub = _solve(robot, seeds[order[todo, a:b].reshape(-1)], p_t[rows],
+        sub = solve_from(robot, seeds[order[todo, a:b].reshape(-1)], p_t[rows],
                      None if R_t is None else R_t[rows], singular_threshold, tol_pos, tol_rot,
                      min(max_iterations, EARLY_ITERATIONS), start_counts=False, wrap=True, kin=kin)
-        cand = sub if best is None else _concat(_take(best, todo), sub)
+        cand = sub if best is None else concat_results(take_targets(best, todo), sub)
         at = np.arange(len(todo) * S).reshape(len(todo), S)
         if best is not None:
             at = np.hstack([np.arange(len(todo))[:, None], len(todo) + at])
@@ -219,11 +219,11 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
         distance = np.where(cand.status == "not_converged", residual, (np.abs(cand.q - mid) / half).max(axis=1))[at]
         choice = at[np.arange(len(todo)), np.lexsort((distance, -severity), axis=-1)[:, 0]]
         if best is None:
-            best = _take(cand, choice)
+            best = take_targets(cand, choice)
         else:
             pick = np.arange(N)
             pick[todo] = N + np.arange(len(todo))
-            best = _take(_concat(best, _take(cand, choice)), pick)
+            best = take_targets(concat_results(best, take_targets(cand, choice)), pick)
         retry = (best.status == "not_converged") | (best.status == "limit")
         if stage == 0:
             retry |= best.status == "singular"
@@ -233,7 +233,7 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
     # the targets still not reached continue from where they got, with the rest of the budget
     todo = np.flatnonzero(best.status == "not_converged")
     if len(todo) and max_iterations > EARLY_ITERATIONS:
-        more = _solve(robot, np.array(best.q[todo]), p_t[todo], None if R_t is None else R_t[todo],
+        more = solve_from(robot, np.array(best.q[todo]), p_t[todo], None if R_t is None else R_t[todo],
                       singular_threshold, tol_pos, tol_rot, max_iterations - EARLY_ITERATIONS,
                       start_counts=False, wrap=True, kin=kin)
         better = np.array([STATUSES.index(x) for x in more.status]) > \
@@ -241,7 +241,7 @@ def _solve_from_seeds(robot: RobotModel, p_t, R_t, seed, singular_threshold, tol
         if better.any():
             pick = np.arange(N)
             pick[todo[better]] = N + np.flatnonzero(better)
-            best = _take(_concat(best, more), pick)
+            best = take_targets(concat_results(best, more), pick)
     return replace(best, seeded=True)
 
 
@@ -282,7 +282,7 @@ def _nearest(R_s, p_s, R_t, p_t, k: int, prefer: np.ndarray | None = None) -> np
     return out
 
 
-def _finite_limits(robot: RobotModel) -> tuple[np.ndarray, np.ndarray]:
+def finite_limits(robot: RobotModel) -> tuple[np.ndarray, np.ndarray]:
     lo = np.where(np.isfinite(robot.lower), robot.lower, -math.pi)
     hi = np.where(np.isfinite(robot.upper), robot.upper, math.pi)
     return lo, hi
@@ -392,9 +392,11 @@ class _Newton:
         return w - np.einsum("kij,ki->kj", Vt, coef)
 
 
-def _solve(robot: RobotModel, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot,
-           max_iterations, start_counts: bool = True, wrap: bool = False,
-           kin: ChainKinematics | None = None) -> CompensationResult:
+def solve_from(robot: RobotModel, q0, p_t, R_t, singular_threshold, tol_pos, tol_rot,
+               max_iterations, start_counts: bool = True, wrap: bool = False,
+               kin: ChainKinematics | None = None) -> CompensationResult:
+    """The joints that put ``robot``'s tool at the targets (p_t (N, 3) m; R_t (N, 3, 3) or None)
+    from the starting joints q0 (N, n), by damped Gauss-Newton steps of the exact model."""
     kin = kin or ChainKinematics(robot)
     kin.set_values(robot.values, twists=False)
     newton = _Newton(kin, q0, p_t, R_t, tol_pos, tol_rot)
@@ -466,7 +468,7 @@ def _min_singular_values(J: np.ndarray) -> np.ndarray:
     return np.linalg.svd(J, compute_uv=False)[:, -1]
 
 
-def _concat(a: CompensationResult, b: CompensationResult) -> CompensationResult:
+def concat_results(a: CompensationResult, b: CompensationResult) -> CompensationResult:
     """The targets of ``a`` then those of ``b`` (same models and options)."""
     def cat(x, y):
         return None if x is None else np.concatenate([x, y])
@@ -484,7 +486,7 @@ def _concat(a: CompensationResult, b: CompensationResult) -> CompensationResult:
             [_branch(a), _branch(b)]))
 
 
-def _take(res: CompensationResult, pick: np.ndarray) -> CompensationResult:
+def take_targets(res: CompensationResult, pick: np.ndarray) -> CompensationResult:
     """The targets ``pick`` of a result (a new result, arrays read-only)."""
     def sub(a):
         if a is None:

@@ -518,11 +518,12 @@ def test_a_file_quoted_field_by_field_reads_as_the_plain_one(tmp_path):
 
 def test_a_header_name_holding_the_delimiter_is_read(tmp_path):
     """A quoted column name that holds a comma (calib's own writer quotes it) is one column."""
-    from calib.io.csv.layer import _records, csv_text
+    from calib.io.csv.layer import csv_text
+    from calib.io.csv.lines import records
 
     path = tmp_path / "t.csv"
     path.write_text(csv_text(["wrist, roll_rad", "x_mm"], [[0.5, 1.0]]))
-    _, names, delimiter, _, records = _records(path)
+    _, names, delimiter, _, records = records(path)
     assert names == ["wrist, roll_rad", "x_mm"] and delimiter == "," and len(records) == 1
 
 

@@ -110,16 +110,16 @@ def test_one_sphere_one_radius(ur10, tmp_path):
 def test_touch_check_reads_only_the_header(tmp_path, text, monkeypatch):
     # is_touch_file finds the header in the file's first bytes, as the readers split it; a
     # file whose start does not settle it is read whole (the readers' errors are theirs)
-    from calib.io.csv import layer as csv_layer, touch as touch_file
+    from calib.io.csv import lines as csv_lines, touch as touch_file
 
     path = tmp_path / "f.csv"
     path.write_bytes(text.encode())
     try:
-        expected = any(n.strip().lower() in ("point", "plane", "sphere") for n in csv_layer._records(path)[1])
+        expected = any(n.strip().lower() in ("point", "plane", "sphere") for n in csv_lines.records(path)[1])
     except CalibError:
         expected = None
     peek = touch_file._peek_header(path)
-    assert peek is None or peek == csv_layer._records(path)[1]
+    assert peek is None or peek == csv_lines.records(path)[1]
     if expected is None:
         with pytest.raises(CalibError):
             is_touch_file(path)
@@ -156,7 +156,7 @@ def test_touch_check_of_a_large_file_does_not_read_it(tmp_path, monkeypatch):
 
     path = tmp_path / "m.csv"
     path.write_text("joint1_deg,x_mm\n" + "1,2\n" * 50_000)
-    monkeypatch.setattr(touch_file, "_records", lambda p: pytest.fail("read whole"))
+    monkeypatch.setattr(touch_file, "records", lambda p: pytest.fail("read whole"))
     assert not is_touch_file(path)
 
 

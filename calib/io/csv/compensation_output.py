@@ -14,7 +14,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
 
 from calib.errors import ParameterError
 from calib.io.csv.conventions import CONVENTIONS

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 from calib.errors import MeasurementFormatError
 
 if TYPE_CHECKING:
-    from calib.io.csv.layer import ReadOptions, Spec
+    from calib.io.csv.options import ReadOptions, Spec
 
 __all__ = ["ANGLE_UNITS", "LENGTH_UNITS", "POSITION_COLUMNS", "ORIENTATIONS", "Column", "Header"]
 

@@ -99,9 +99,10 @@ def parse_columns(text) -> tuple[str, ...]:
     return tuple(names)
 
 
-def check_file_options(options) -> None:
-    """Check (and normalise in place) the fields ``instrument``, ``columns`` and ``length_unit``
-    of a :class:`calib.ReadOptions`; :class:`calib.ParameterError` naming the option."""
+def check_file_options(options) -> dict:
+    """Check the fields ``instrument``, ``columns`` and ``length_unit`` of a
+    :class:`calib.ReadOptions`; the normalised values (field -> value, which ReadOptions sets);
+    :class:`calib.ParameterError` naming the option."""
     from calib.errors import ParameterError
 
     o = options
@@ -111,11 +112,12 @@ def check_file_options(options) -> None:
     if o.length_unit is not None and (not isinstance(o.length_unit, str) or o.length_unit not in LENGTH_UNIT_NAMES):
         raise ParameterError(f"length_unit must be one of {', '.join(LENGTH_UNIT_NAMES)} (--length-unit), got "
                              f"{o.length_unit!r:.60}")
-    if o.columns is not None:
-        object.__setattr__(o, "columns", parse_columns(o.columns))
-        if o.header_line is not None:
-            raise ParameterError("--columns names the columns of a file without a header line, --header-line "
-                                 "says which line the header is: give one")
+    if o.columns is None:
+        return {}
+    if o.header_line is not None:
+        raise ParameterError("--columns names the columns of a file without a header line, --header-line "
+                             "says which line the header is: give one")
+    return {"columns": parse_columns(o.columns)}
 
 
 def apply_to_vocabulary(vocabulary, options, plain: dict) -> None:

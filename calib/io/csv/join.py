@@ -43,147 +43,21 @@ import math
 import re
 import warnings
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calib.choices import JOINS
-from calib.errors import MeasurementFormatError, ParameterError
+from calib.errors import MeasurementFormatError
+from calib.io.csv.options import (TARGET_FROM_EXAMPLE, TIME_UNITS, ReadOptions, Spec, Table, check_target_from,
+                                  key_columns, label_of, name_unit, split_sides)
 
-if TYPE_CHECKING:
-    from calib.io.csv.layer import ReadOptions, Spec, Table
 
-__all__ = ["TIME_UNITS", "TIME_RESOLUTION", "Joined", "check_join_options", "check_sides", "split_sides", "key_columns",
-           "label_of", "sides", "join_tables"]
+__all__ = ["TIME_RESOLUTION", "Joined", "sides", "join_tables"]
 
-#: Seconds per unit of a time column (``time_s``, ``--time-unit ms``, ...).
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: Two gaps closer than this (seconds) are equally near; a gap this much over ``max_gap`` is
 #: still within it (the rounding of decimal timestamps; epoch seconds in float64 resolve 0.24 us).
 TIME_RESOLUTION = 1e-6
-TARGET_FROM_EXAMPLE = r"(?P<key>P\d+)_(?P<target>SMR\d+)"
+
 _CLOCK = re.compile(r"(\d{1,2}):(\d{2}):(\d{2}(?:\.\d*)?)")
-_UNIT_IN_BRACKETS = re.compile(r"^(.*?)\s*[\(\[]\s*([A-Za-z]+)\s*[\)\]]$")
-
-
-# ====================================================================== options
-def _column_name(value, option: str, flag: str) -> str:
-    if not isinstance(value, str) or not value.strip():
-        raise ParameterError(f"{option} must be a column name ({flag} COLUMN), got {value!r:.60}")
-    return value.strip()
-
-
-def split_sides(value: str) -> tuple[str, str]:
-    """(joint file's name, tracker file's name) of a column option: ``A=B`` names each side's
-    column (``--key Point=Target``, ``--time 'timestamp=Time [s]'``), a single name both."""
-    a, sep, b = value.partition("=")
-    return (a.strip(), b.strip()) if sep else (value.strip(), value.strip())
-
-
-def key_columns(options: ReadOptions) -> tuple[str, str]:
-    """The key column's name in the joint file and in the tracker file (``options.key``)."""
-    return split_sides(options.key)
-
-
-def label_of(name: str) -> str:
-    """The label a column name is read under: lower case, a unit in brackets as a suffix
-    (``Time [s]`` -> ``time_s``), as the header check reads the file's names."""
-    m = _UNIT_IN_BRACKETS.match(name.strip())
-    return (f"{m.group(1)}_{m.group(2)}" if m and m.group(1) else name.strip()).lower()
-
-
-def name_unit(name: str) -> str | None:
-    """The time unit a column name states (``time_s``, ``t_ms``, ``Time (s)``), or None."""
-    m = _UNIT_IN_BRACKETS.match(name)
-    base, sep, suffix = (f"{m.group(1)}_{m.group(2)}" if m and m.group(1) else name).lower().rpartition("_")
-    return suffix if sep and base and suffix in TIME_UNITS else None
-
-
-def check_join_options(options: ReadOptions) -> None:
-    """Check the join fields of ``options`` (called by ReadOptions itself, names stripped in
-    place); :class:`calib.ParameterError` naming the option and its flag."""
-    o = options
-    if not isinstance(o.join, str) or o.join not in JOINS:
-        raise ParameterError(f"join must be one of {', '.join(JOINS)} (--join), got {o.join!r:.60}")
-    for field, flag in (("target_column", "--target-column"), ("time", "--time")):
-        if getattr(o, field) is not None:
-            object.__setattr__(o, field, _column_name(getattr(o, field), field, flag))
-    if o.time is not None:
-        object.__setattr__(o, "time", check_sides(o.time, "time", "--time"))
-    if o.time_unit is not None and (not isinstance(o.time_unit, str) or o.time_unit not in TIME_UNITS):
-        raise ParameterError(f"time_unit must be one of {', '.join(TIME_UNITS)} (--time-unit), got "
-                             f"{o.time_unit!r:.60}")
-    gap = o.max_gap
-    if gap is not None and (isinstance(gap, bool) or not isinstance(gap, (int, float))
-                            or not math.isfinite(gap) or gap < 0):
-        raise ParameterError(f"max_gap must be a finite number of seconds >= 0 (--max-gap S), got "
-                             f"{gap!r:.60}")
-    if o.target_from is not None:
-        _check_target_from(o.target_from)
-        if o.join == "key" and o.key is None:
-            raise ParameterError("--target-from splits the point names of the key column: give it too "
-                                 "(--key COLUMN)")
-        if o.target_column is not None:
-            raise ParameterError("the target id comes from one place: a target column (--target-column) "
-                                 "or the compound point names of the key column (--target-from), not both")
-    if o.target_column is not None and o.key is not None and \
-            o.target_column.lower() == key_columns(o)[1].lower():
-        raise ParameterError(f"--target-column {o.target_column!r} is the key column: to take the target "
-                             f"id from a compound point name (P001_SMR2) give --target-from REGEX "
-                             f"(e.g. {TARGET_FROM_EXAMPLE!r})")
-    if o.join == "key":
-        given = [flag for field, flag in (("time", "--time"), ("time_unit", "--time-unit"),
-                                          ("max_gap", "--max-gap")) if getattr(o, field) is not None]
-        if given:
-            raise ParameterError(f"{', '.join(given)} join by time: give --join nearest-time too "
-                                 f"(or leave {'them' if len(given) > 1 else 'it'} out to join by --key)")
-        return
-    if o.key is not None:
-        raise ParameterError("--key and --join nearest-time: join the files by a key column or by the "
-                             "nearest time, not both")
-    if o.target_from is not None:
-        raise ParameterError("--target-from splits the key column (--key), and --join nearest-time has "
-                             "none: give the target id in a column of the tracker file (--target-column)")
-    if o.time is None:
-        raise ParameterError("--join nearest-time needs the time column of both files: give --time "
-                             "COLUMN (e.g. time_s, its unit in its name, or --time-unit)")
-    if o.max_gap is None:
-        raise ParameterError("--join nearest-time needs --max-gap S: the largest time, in seconds, "
-                             "between a measured row and the joint row it is joined to")
-    for side in dict.fromkeys(split_sides(o.time)):
-        stated = name_unit(side)
-        if stated is not None and o.time_unit is not None and stated != o.time_unit:
-            raise ParameterError(f"--time {o.time!r}: {side!r} says its unit is {stated}, --time-unit "
-                                 f"says {o.time_unit}: give one")
-
-
-def check_sides(value: str, option: str, flag: str) -> str:
-    """``value`` with blanks stripped around ``=``; ParameterError for an empty side."""
-    if "=" not in value:
-        return value
-    a, b = split_sides(value)
-    if not a or not b or "=" in b:
-        raise ParameterError(f"{flag} {value!r}: expected COLUMN, or JOINT=TRACKER naming the column of "
-                             f"the joint file and of the tracker file (e.g. {flag} "
-                             f"{'Point=Target' if option == 'key' else 'timestamp=Time [s]'})")
-    return f"{a}={b}"
-
-
-def _check_target_from(text) -> re.Pattern:
-    if not isinstance(text, str) or not text:
-        raise ParameterError(f"target_from must be a regular expression with the named groups key and "
-                             f"target (--target-from REGEX, e.g. {TARGET_FROM_EXAMPLE!r}), got {text!r:.60}")
-    try:
-        rx = re.compile(text)
-    except re.error as exc:
-        raise ParameterError(f"--target-from {text!r:.80} is not a regular expression: {exc}") from None
-    lack = [g for g in ("key", "target") if g not in rx.groupindex]
-    if lack:
-        raise ParameterError(f"--target-from {text!r:.80} has no named group{'s' if len(lack) > 1 else ''} "
-                             f"{' and '.join(lack)}: name the part of the point name that is the key "
-                             f"(?P<key>...) and the part that is the target (?P<target>...), e.g. "
-                             f"{TARGET_FROM_EXAMPLE!r}")
-    return rx
 
 
 # ====================================================================== specs
@@ -307,7 +181,7 @@ def _by_key(j: Table, t: Table, options: ReadOptions, target, target_col):
                                                  f"the target id comes from one of them; drop the column "
                                                  f"(--rename '{target_col}=') or --target-from",
                                          row=t.header_row, column=target_col)
-        rx = _check_target_from(options.target_from)
+        rx = check_target_from(options.target_from)
         tkeys, target = [], []
         for k, cell in enumerate(cells):
             m = rx.fullmatch(cell)

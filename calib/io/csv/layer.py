@@ -26,8 +26,6 @@ Errors are :class:`calib.MeasurementFormatError`: one line naming the file, row 
 from __future__ import annotations
 
 import csv
-import math
-from dataclasses import dataclass, field
 from operator import methodcaller
 from pathlib import Path
 from typing import Sequence
@@ -35,217 +33,16 @@ from typing import Sequence
 import numpy as np
 
 from calib.errors import MeasurementFormatError, ParameterError
-from calib.io.csv.lines import (READ_BYTES_PER_FILE_BYTE, WHITESPACE, _records, available_memory,  # noqa: F401
-                                check_size, parse_number, read_lines, split_fields)
+from calib.io.csv.lines import WHITESPACE, parse_number, records, split_fields
 from calib.io.csv.header import ANGLE_UNITS, LENGTH_UNITS, ORIENTATIONS, POSITION_COLUMNS, Column, Header
+from calib.io.csv.options import ReadOptions, Spec, Table
 
-__all__ = ["ANGLE_UNITS", "LENGTH_UNITS", "ORIENTATIONS", "ReadOptions", "Spec", "Table",
-           "read_table", "parse_rename", "check_euler_sequence", "joint_columns", "csv_text"]
+__all__ = ["read_table", "joint_columns", "csv_text"]
 
 #: Largest accepted distance of a quaternion's norm from 1.
 QUATERNION_NORM_TOLERANCE = 1e-3
 #: Largest accepted entry of R R^T - I (and |det R - 1|) of a rotation matrix given in a file.
 MATRIX_TOLERANCE = 1e-3
-#: Default joint limit tolerance, as a fraction of the joint range.
-LIMIT_TOLERANCE = 0.01
-
-
-# ====================================================================== options and specs
-def check_euler_sequence(seq: str) -> str:
-    """``seq`` if it is one of scipy's 12 Euler sequences (``ZYX`` intrinsic, ``xyz`` extrinsic),
-    else :class:`calib.ParameterError`."""
-    s = str(seq)
-    if len(s) != 3 or not (set(s) <= set("XYZ") or set(s) <= set("xyz")) or s[0] == s[1] \
-            or s[1] == s[2]:
-        raise ParameterError(f"--euler {s!r} is not an Euler sequence: expected 3 axes, all upper "
-                             f"case (intrinsic, e.g. ZYX) or all lower case (extrinsic, e.g. xyz), "
-                             f"no axis twice in a row (one of scipy's 12 sequences)")
-    return s
-
-
-def parse_rename(text: str) -> tuple[tuple[str, str], ...]:
-    """``"OLD=NEW,OLD=NEW"`` as pairs; ``OLD=`` (empty NEW) drops the column."""
-    pairs = []
-    for item in str(text).split(","):
-        old, sep, new = item.partition("=")
-        if not sep or not old.strip():
-            raise ParameterError(f"--rename {text!r}: {item.strip()!r} is not OLD=NEW (column "
-                                 f"names; an empty NEW drops the column)")
-        pairs.append((old.strip(), new.strip()))
-    olds = [o.lower() for o, _ in pairs]
-    dup = next((o for o in olds if olds.count(o) > 1), None)
-    if dup is not None:
-        raise ParameterError(f"--rename {text!r}: column {dup!r} renamed twice")
-    return tuple(pairs)
-
-
-#: ReadOptions' fields of the joining of a tracker file (:mod:`calib.io.csv.join`) besides ``join``.
-_JOIN_FIELDS = ("target_column", "target_from", "time", "time_unit", "max_gap")
-
-
-@dataclass(frozen=True)
-class ReadOptions:
-    """How to read tracker files as they come (all optional).
-
-    rename : ((old, new), ...) header names mapped onto calib's names before parsing (matched
-        case-insensitively, after stripping blanks); an empty ``new`` drops the column.
-    euler : scipy Euler sequence of the ``e1, e2, e3`` columns (``"ZYX"`` intrinsic, ``"xyz"``
-        extrinsic, ...), or None.
-    limit_tolerance : joint values beyond a limit by at most this fraction of the joint range
-        (upper - lower) are kept with a note (default 0.01, 1 %).
-    key : name of the column that joins a joint file and a tracker file, or ``"JOINT=TRACKER"``
-        when the two files name it differently (``"Point=Target"``), or None.
-    target_column, target_from, join, time, time_unit, max_gap : how a joint file and a tracker
-        file are joined (one joint row to several measured rows, by nearest time; ``time`` may be
-        ``"JOINT=TRACKER"`` too): see :mod:`calib.io.csv.join`, which checks them.
-    convention : a vendor's column names and units (a key of
-        :data:`calib.io.csv.conventions.CONVENTIONS`: ``"kuka"``, ``"abb"``, ``"ur"``, ``"fanuc"``,
-        ``"staubli"``, ``"yaskawa"``, or ``"calib"`` to state calib's own ZYX reading of rx, ry,
-        rz in any order), or None (calib's own names; ambiguous orientation names refused).
-    header_line : line number (from 1) of the header, or None: the first line that names known
-        columns (a preamble before it is skipped).
-    instrument, columns, length_unit : the instrument's file: a preset of
-        :data:`calib.io.csv.instruments.INSTRUMENTS` (``"leica"``, ``"spatialanalyzer"``), the names of
-        the columns of a file without a header line (``"point,x_mm,y_mm,z_mm"``), the unit
-        (``"mm"``, ``"m"``) of x, y, z named without one; see :mod:`calib.io.csv.instruments`.
-    """
-
-    rename: tuple[tuple[str, str], ...] = ()
-    euler: str | None = None
-    limit_tolerance: float = LIMIT_TOLERANCE
-    key: str | None = None
-    target_column: str | None = None
-    target_from: str | None = None
-    join: str = "key"
-    time: str | None = None
-    time_unit: str | None = None
-    max_gap: float | None = None
-    convention: str | None = None
-    header_line: int | None = None
-    instrument: str | None = None
-    columns: tuple[str, ...] | None = None
-    length_unit: str | None = None
-
-    def __post_init__(self):
-        if isinstance(self.rename, str):
-            object.__setattr__(self, "rename", parse_rename(self.rename))
-        else:
-            pairs = self.rename if isinstance(self.rename, (list, tuple)) else None
-            if pairs is None or not all(isinstance(p, (list, tuple)) and len(p) == 2 and
-                                        all(isinstance(x, str) for x in p) for p in pairs):
-                raise ParameterError(f"rename must be pairs (old, new) of column names, or 'old=new,...', "
-                                     f"got {self.rename!r:.60}")
-            object.__setattr__(self, "rename", tuple((o.strip(), n.strip()) for o, n in pairs))
-        if self.euler is not None:
-            check_euler_sequence(self.euler)
-        tol = self.limit_tolerance
-        if isinstance(tol, bool) or not (isinstance(tol, (int, float)) and math.isfinite(tol) and 0 <= tol <= 1):
-            raise ParameterError(f"limit_tolerance must be a fraction of the joint range in "
-                                 f"[0, 1], got {tol!r}")
-        if self.convention is not None:
-            from calib.io.csv.conventions import CONVENTIONS
-
-            if not isinstance(self.convention, str) or self.convention not in CONVENTIONS:
-                raise ParameterError(f"convention must be one of {', '.join(CONVENTIONS)}, got "
-                                     f"{self.convention!r:.60}")
-            seq = CONVENTIONS[self.convention].euler
-            if seq is not None and self.euler is not None and self.euler != seq:
-                raise ParameterError(f"euler {self.euler!r} contradicts the {self.convention} "
-                                     f"convention, whose angles are the sequence {seq!r}")
-        h = self.header_line
-        if h is not None and (isinstance(h, bool) or not isinstance(h, int) or h < 1):
-            raise ParameterError(f"header_line must be a line number >= 1, got {h!r:.60}")
-        if any(v is not None for v in (self.instrument, self.columns, self.length_unit)):
-            from calib.io.csv.instruments import check_file_options
-
-            check_file_options(self)
-        if self.key is not None:
-            if not isinstance(self.key, str) or not self.key.strip():
-                raise ParameterError(f"key must be a column name, got {self.key!r:.60}")
-            object.__setattr__(self, "key", str(self.key).strip())
-            if "=" in self.key:                 # JOINT=TRACKER: each file's own name
-                from calib.io.csv.join import check_sides
-
-                object.__setattr__(self, "key", check_sides(self.key, "key", "--key"))
-        if not isinstance(self.join, str) or self.join != "key" or any(getattr(self, f) is not None
-                                                                       for f in _JOIN_FIELDS):
-            from calib.io.csv.join import check_join_options     # (the defaults need no check)
-
-            check_join_options(self)
-
-
-@dataclass(frozen=True, eq=False, repr=False)     # (the file kinds' constants: nothing compares or prints them)
-class Spec:
-    """The columns of one file kind.
-
-    kind : what the file is, for messages ("measurement", "poses", "targets", ...).
-    joints, position : "required", "optional" or "none".
-    orientation : whether orientation columns are read (optional in every kind that has them).
-    labels : text columns read as strings (``set``, ``target``).
-    keyed : the key column of :attr:`ReadOptions.key` is required.
-    lengths : optional length columns (``radius``), each with ``_m`` or ``_mm``, whose cells may
-        be empty (NaN).
-    sparse : the labels whose cells may be empty ("", touch files' ``point``, ``plane``,
-        ``sphere``: one of them per row).
-    sparse_pose : the position and orientation cells may be empty (NaN; touch files: a row
-        measured by an instrument, or one naming the feature touched).
-    extras : optional per-row quantities of :data:`calib.io.csv.header.EXTRA_UNITS` (``time``
-        with _s, _min or _h; ``temperature`` with _c or _degc), read in seconds and degrees
-        Celsius, empty cells NaN: what a report plots the residuals against (drift).
-    key : the name of the key column in this file when it differs from :attr:`ReadOptions.key`
-        (``--key JOINT=TRACKER``: each side's own name), else None.
-    """
-
-    kind: str
-    joints: str = "required"
-    position: str = "none"
-    orientation: bool = False
-    labels: tuple[str, ...] = ()
-    keyed: bool = False
-    lengths: tuple[str, ...] = ()
-    sparse: tuple[str, ...] = ()
-    sparse_pose: bool = False
-    extras: tuple[str, ...] = ()
-    key: str | None = None
-
-    def may_be_empty(self, key) -> bool:
-        """Whether the cells of the numeric quantity ``key`` may be empty (read as NaN)."""
-        return key in self.lengths or key in self.extras or (self.sparse_pose and not isinstance(key, int))
-
-
-@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
-class Table:
-    """A file read by :func:`read_table`, SI units, one entry per data row.
-
-    rows : (N,) int, line numbers. q : (N, n) rad / m in chain order, or None.
-    position : (N, 3) metres, or None. rotation : (N, 3, 3), or None (with
-    ``Spec.sparse_pose``: NaN in the rows whose cells are empty).
-    orientation : "none" or a key of :data:`ORIENTATIONS`.
-    labels : label name (``set``, ``target``, the key) -> N stripped strings.
-    lengths : length column name (``radius``) -> (N,) metres, NaN where the cell is empty.
-    extras : extra quantity (``time``, ``temperature``) -> (N,) seconds / degrees Celsius, NaN
-        where the cell is empty.
-    names : quantity ("x", "qw", "set", joint index, ...) -> header name as written.
-    ignored_columns : header names (as written) of columns calib does not know or that were
-        dropped by a rename. notes : one-line remarks (ignored columns, readings kept just past a
-        limit). renamed : the rename sources that matched a column of this file.
-    """
-
-    path: Path
-    header_row: int
-    rows: np.ndarray
-    q: np.ndarray | None
-    position: np.ndarray | None
-    rotation: np.ndarray | None
-    orientation: str
-    labels: dict
-    names: dict
-    ignored_columns: tuple[str, ...] = ()
-    notes: tuple[str, ...] = ()
-    renamed: tuple[str, ...] = ()
-    lengths: dict = field(default_factory=dict)
-    extras: dict = field(default_factory=dict)
-    euler: str | None = None
 
 
 # ====================================================================== reading
@@ -279,69 +76,23 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
         from calib.io.csv.instruments import file_columns
 
         columns, comments, named_by = file_columns(options)
-    header_row, names, delimiter, lines, data = _records(path, vocabulary.known, options.header_line,
+    header_row, names, delimiter, lines, data = records(path, vocabulary.known, options.header_line,
                                                          columns=columns, comments=comments, named_by=named_by)
     header = Header(path, header_row, names, spec, robot, options, vocabulary, named_by=named_by)
     if not len(data):
         raise MeasurementFormatError(path, "header but no data rows", row=header_row)
-    decimal_comma = delimiter != ","
     cols = header.columns
-    N, ncols = len(data), len(names)
-    label_names = set(spec.labels) | ({header.key} if header.key else set()) | \
-        {"pose_literal", "joint_literal"}
-    numeric = {k: c for k, c in cols.items() if k not in label_names}
-    values = {k: np.empty(N) for k in numeric}
-    labels = {k: [] for k in cols if k not in numeric}
-    rows = (data + 1).astype(int)
-    reader = _Rows(path, spec, header, delimiter, decimal_comma, ncols, numeric, labels)
-    for start in range(0, N, CHUNK_ROWS):
-        chunk = [lines[i] for i in data[start:start + CHUNK_ROWS].tolist()]
-        got = reader.fast(chunk)
-        if got is None:
-            got = reader.slow(chunk, rows[start:start + CHUNK_ROWS])
-        for key, v in got[0].items():
-            values[key][start:start + len(chunk)] = v
-        for key, v in got[1].items():
-            labels[key].extend(v)
-        del chunk, got
+    values, labels, rows = _parse_rows(path, spec, header, delimiter, len(names), lines, data)
     preamble = 0 if header_row is None else int(np.count_nonzero(
         [bool(x.strip()) and not x.lstrip().startswith(("#",) + comments) for x in lines[:header_row - 1]]))
     del lines, data     # (the text of a million rows: 300 MB, before the rotations are built)
-    orientation = header.orientation
     names_out = {k: c.name for k, c in cols.items()}
-    if "joint_literal" in cols:
-        from calib.io.csv.literals import joint_literals     # (URScript/RAPID cells only)
-
-        c = cols["joint_literal"]
-        qv = joint_literals(path, robot, c.name, labels.pop("joint_literal"), rows)
-        for i in range(robot.n_joints):
-            values[i] = qv[:, i]
-            names_out[i] = c.name
-    if "pose_literal" in cols:
-        from calib.io.csv.literals import pose_literals
-
-        c = cols["pose_literal"]
-        orientation, pv = pose_literals(path, c.name, labels.pop("pose_literal"), rows)
-        for k, v in zip(POSITION_COLUMNS + ORIENTATIONS[orientation][0], pv.T):
-            values[k] = v
-            names_out[k] = c.name
+    orientation = _literal_cells(path, robot, cols, values, labels, rows, names_out) or header.orientation
     q = None
     notes: list[str] = []
     euler = header.euler
     if header.ambiguous is not None:            # rx, ry, rz: the rows decide, or refused
-        from calib.io.csv.orientation import READINGS, decide_rx_ry_rz
-
-        qa = None if not any(isinstance(k, int) for k in values) else \
-            np.column_stack([values[i] for i in range(robot.n_joints)])
-        reading, note = decide_rx_ry_rz(
-            path, *header.ambiguous[:1], header_row, header.ambiguous[1],
-            ", ".join(cols[k].name for k in ("rx", "ry", "rz")), robot, qa,
-            np.column_stack([values[k] for k in ("rx", "ry", "rz")]))
-        orientation, keys, seq, _ = READINGS[reading]
-        for old_key, key in zip(("rx", "ry", "rz"), keys):
-            values[key] = values.pop(old_key)
-            names_out[key] = names_out.pop(old_key)
-        euler = seq or euler
+        orientation, euler, note = _decided_rx_ry_rz(path, robot, header, values, names_out, euler)
         notes.append(note)
     if preamble:
         notes.append(f"{path}: {preamble} line{'s' if preamble > 1 else ''} before the header "
@@ -358,24 +109,7 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
     position = None
     if "x" in values:
         position = np.column_stack([values[k] for k in POSITION_COLUMNS])
-    rotation = None
-    if orientation != "none":
-        group = ORIENTATIONS[orientation][0]
-        given = np.column_stack([values[k] for k in group])
-        full = np.isfinite(given).all(axis=1)
-        part = np.flatnonzero(~full & np.isfinite(given).any(axis=1))
-        if len(part):       # (sparse_pose: an orientation is given whole or not at all)
-            k = int(part[0])
-            empty = names_out[group[int(np.argmin(np.isfinite(given[k])))]]
-            raise MeasurementFormatError(path, f"empty value: an orientation gives all of "
-                                               f"{', '.join(names_out[c] for c in group)} or none",
-                                         row=int(rows[k]), column=empty)
-        if full.all():
-            rotation = _rotation(path, orientation, names_out[group[0]], given, rows, euler)
-        else:       # (sparse_pose: the rows without an orientation stay NaN)
-            rotation = np.full((N, 3, 3), np.nan)
-            if full.any():
-                rotation[full] = _rotation(path, orientation, names_out[group[0]], given[full], rows[full], euler)
+    rotation = None if orientation == "none" else _rotations(path, orientation, values, names_out, rows, euler)
     if header.ignored:
         notes.insert(0, f"{path}: ignored columns (not calib's): {', '.join(header.ignored)}")
     for arr in (q, position, rotation, rows):
@@ -390,6 +124,97 @@ def read_table(path: str | Path, spec: Spec, robot, options: ReadOptions | None 
                  lengths={k: values[k] for k in spec.lengths if k in cols},
                  extras={k: values[k] for k in spec.extras if k in cols},
                  euler=euler if orientation == "euler" else None)
+
+
+def _parse_rows(path: Path, spec: Spec, header: Header, delimiter: str, ncols: int, lines, data):
+    """The data lines ``data`` (indices into ``lines``) parsed a chunk of :data:`CHUNK_ROWS` at a
+    time: (the numeric columns' values by quantity, the text columns' cells by label, the rows'
+    line numbers)."""
+    cols = header.columns
+    N = len(data)
+    label_names = set(spec.labels) | ({header.key} if header.key else set()) | \
+        {"pose_literal", "joint_literal"}
+    numeric = {k: c for k, c in cols.items() if k not in label_names}
+    values = {k: np.empty(N) for k in numeric}
+    labels = {k: [] for k in cols if k not in numeric}
+    rows = (data + 1).astype(int)
+    reader = _Rows(path, spec, header, delimiter, delimiter != ",", ncols, numeric, labels)
+    for start in range(0, N, CHUNK_ROWS):
+        chunk = [lines[i] for i in data[start:start + CHUNK_ROWS].tolist()]
+        got = reader.fast(chunk)
+        if got is None:
+            got = reader.slow(chunk, rows[start:start + CHUNK_ROWS])
+        for key, v in got[0].items():
+            values[key][start:start + len(chunk)] = v
+        for key, v in got[1].items():
+            labels[key].extend(v)
+        del chunk, got
+    return values, labels, rows
+
+
+def _literal_cells(path: Path, robot, cols: dict, values: dict, labels: dict, rows, names_out: dict) -> str | None:
+    """The URScript/RAPID cells of a joint literal or pose literal column read into ``values``
+    (and ``names_out``) as the joints' and the pose's quantities; the literal pose's orientation
+    kind, or None without a pose literal."""
+    orientation = None
+    if "joint_literal" in cols:
+        from calib.io.csv.literals import joint_literals     # (URScript/RAPID cells only)
+
+        c = cols["joint_literal"]
+        qv = joint_literals(path, robot, c.name, labels.pop("joint_literal"), rows)
+        for i in range(robot.n_joints):
+            values[i] = qv[:, i]
+            names_out[i] = c.name
+    if "pose_literal" in cols:
+        from calib.io.csv.literals import pose_literals
+
+        c = cols["pose_literal"]
+        orientation, pv = pose_literals(path, c.name, labels.pop("pose_literal"), rows)
+        for k, v in zip(POSITION_COLUMNS + ORIENTATIONS[orientation][0], pv.T):
+            values[k] = v
+            names_out[k] = c.name
+    return orientation
+
+
+def _decided_rx_ry_rz(path: Path, robot, header: Header, values: dict, names_out: dict, euler):
+    """Columns named rx, ry, rz without a convention: their reading decided by the rows (or
+    refused: :func:`calib.io.csv.orientation.decide_rx_ry_rz`), their values renamed to its
+    quantities. Returns (the orientation kind, the Euler sequence, the note)."""
+    from calib.io.csv.orientation import READINGS, decide_rx_ry_rz
+
+    cols = header.columns
+    qa = None if not any(isinstance(k, int) for k in values) else \
+        np.column_stack([values[i] for i in range(robot.n_joints)])
+    reading, note = decide_rx_ry_rz(
+        path, *header.ambiguous[:1], header.row, header.ambiguous[1],
+        ", ".join(cols[k].name for k in ("rx", "ry", "rz")), robot, qa,
+        np.column_stack([values[k] for k in ("rx", "ry", "rz")]))
+    orientation, keys, seq, _ = READINGS[reading]
+    for old_key, key in zip(("rx", "ry", "rz"), keys):
+        values[key] = values.pop(old_key)
+        names_out[key] = names_out.pop(old_key)
+    return orientation, seq or euler, note
+
+
+def _rotations(path: Path, orientation: str, values: dict, names_out: dict, rows, euler) -> np.ndarray:
+    """(N, 3, 3) the rotations of the orientation columns (NaN in the rows of a sparse file that
+    give none; a row that gives some of its columns only is refused)."""
+    group = ORIENTATIONS[orientation][0]
+    given = np.column_stack([values[k] for k in group])
+    full = np.isfinite(given).all(axis=1)
+    part = np.flatnonzero(~full & np.isfinite(given).any(axis=1))
+    if len(part):       # (sparse_pose: an orientation is given whole or not at all)
+        k = int(part[0])
+        empty = names_out[group[int(np.argmin(np.isfinite(given[k])))]]
+        raise MeasurementFormatError(path, f"empty value: an orientation gives all of "
+                                           f"{', '.join(names_out[c] for c in group)} or none",
+                                     row=int(rows[k]), column=empty)
+    if full.all():
+        return _rotation(path, orientation, names_out[group[0]], given, rows, euler)
+    rotation = np.full((len(given), 3, 3), np.nan)      # (sparse_pose: the rows without an orientation stay NaN)
+    if full.any():
+        rotation[full] = _rotation(path, orientation, names_out[group[0]], given[full], rows[full], euler)
+    return rotation
 
 
 class _Rows:

@@ -180,7 +180,7 @@ def _has_number(fields: list[str]) -> bool:
     return any(_looks_numeric([f]) for f in fields if f.strip())
 
 
-def _records(path: Path, known=None, header_line: int | None = None, *, columns=None, comments=(),
+def records(path: Path, known=None, header_line: int | None = None, *, columns=None, comments=(),
              named_by: str = "--columns") -> tuple[int | None, list[str], str, list[str], np.ndarray]:
     """(header line number, header names as written, delimiter, the file's lines, (N,) index of
     each data line among them): an index array, not (line number, line) pairs, which cost a
@@ -204,7 +204,7 @@ def _records(path: Path, known=None, header_line: int | None = None, *, columns=
 
 def header_of(path: Path, lines: list[str], known=None, header_line: int | None = None, *, columns=None,
               comments=(), named_by: str = "--columns") -> tuple[int | None, list[str], str, list[str], np.ndarray]:
-    """:func:`_records` of the file's ``lines`` (as :func:`read_lines` gives them; a file's
+    """:func:`records` of the file's ``lines`` (as :func:`read_lines` gives them; a file's
     first lines alone find its header as well, e.g. to tell its kind without reading it whole)."""
     heads = list(map(str.lstrip, lines))      # (map over C methods: no Python frame per line)
     records = np.flatnonzero(np.fromiter(map(bool, heads), bool, len(lines)) &

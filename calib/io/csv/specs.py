@@ -58,8 +58,9 @@ import numpy as np
 from calib.errors import MeasurementFormatError, ParameterError
 from calib.io.fileio import atomic_write_text, check_not_input
 from calib.model.measurements import TEXT_COLUMNS, Measurements
-from calib.io.csv.layer import (ANGLE_UNITS, LENGTH_UNITS, POSITION_COLUMNS, ORIENTATIONS, ReadOptions, Spec,
-                                Table, csv_text, joint_columns, read_table)
+from calib.io.csv.layer import csv_text, joint_columns, read_table
+from calib.io.csv.header import ANGLE_UNITS, LENGTH_UNITS, POSITION_COLUMNS, ORIENTATIONS
+from calib.io.csv.options import ReadOptions, Spec, Table
 
 if TYPE_CHECKING:      # (read_targets builds it: calib.io.csv.targets)
     from calib.io.csv.targets import CompensationTargets

@@ -35,7 +35,10 @@ import numpy as np
 
 from calib.choices import FEATURE_KINDS
 from calib.errors import CalibError, MeasurementFormatError
-from calib.io.csv.layer import LENGTH_UNITS, ReadOptions, Spec, _records, csv_text, joint_columns, read_table
+from calib.io.csv.layer import csv_text, joint_columns, read_table
+from calib.io.csv.header import LENGTH_UNITS
+from calib.io.csv.lines import records
+from calib.io.csv.options import ReadOptions, Spec
 from calib.io.fileio import atomic_write_text, check_not_input
 
 # (calib.model.touch is imported by the reader and the writer: calib calibrate asks
@@ -74,7 +77,7 @@ def is_touch_file(path: str | Path, header_line: int | None = None, rename=(), c
     names = list(columns) if columns is not None else _peek_header(path, feature, header_line,
                                                                     words=not renames)
     if names is None:
-        names = _records(path, feature, header_line)[1]
+        names = records(path, feature, header_line)[1]
     kinds = {renames.get(n.strip().lower(), n.strip()).lower() for n in names if feature(n)}
     if kinds == {"point"} and _position_columns(names, renames):
         # a point column on rows that all carry a measured pose names them (a label); only a
@@ -89,7 +92,7 @@ def _position_columns(names: list[str], renames: dict) -> list[int]:
     import re
 
     from calib.io.csv.header import POSE_LITERAL_NAMES
-    from calib.io.csv.join import label_of
+    from calib.io.csv.options import label_of
 
     out = []
     for i, name in enumerate(names):
@@ -104,7 +107,7 @@ def _every_row_measured(path: Path, header_line, renames: dict, feature, columns
     only asked of a file whose header names a point and a position)."""
     from calib.io.csv.lines import WHITESPACE, split_fields
 
-    header_row, names, delimiter, lines, data = _records(path, feature, header_line, columns=columns,
+    header_row, names, delimiter, lines, data = records(path, feature, header_line, columns=columns,
                                                          comments=comments)
     cols = _position_columns(names, renames)
     rows = [lines[k] for k in data.tolist()]
