@@ -37,11 +37,14 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "examples").glob("**/README.md"))]
 
 #: What a run block's folder holds: copies (a command may write into them), and the package as a
 #: link (``PYTHONPATH=.`` finds this checkout).
 COPIED = ("robots", "examples", "scripts")
+#: The folder beside the repository that ``needs=../shared/...`` blocks read (the real data sets);
+#: CALIB_DOCS_SHARED names it where the checkout is elsewhere (a worktree).
+SHARED = Path(os.environ.get("CALIB_DOCS_SHARED", ROOT.parent / "shared"))
 #: The seconds one run block may take.
 TIMEOUT_S = 900
 #: The setup commands the README opens with: shown to be typed on a fresh machine (they install
@@ -56,7 +59,8 @@ _FENCE = re.compile(r"^(?P<indent> *)(?P<ticks>`{3,})(?P<info>[^`]*)$")
 #: A number as the documents and calib write them; not a digit inside a name (theta1, v_x@M3).
 _NUMBER = r"(?<![\w.])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?(?![\d])"
 _TIME_UNIT = re.compile(r"\s?(?:ms|s|min)(?![\w/])")
-_VARIABLE = re.compile(r"^[A-Za-z_]\w*=\S")
+#: A line that only sets a shell variable (``UR10=$(python -c ...)``, not ``PYTHONPATH=. python ...``).
+_VARIABLE = re.compile(r"[A-Za-z_]\w*=(\$\(.*\)|\S*)")
 
 
 # ====================================================================== the blocks of a document
@@ -231,8 +235,8 @@ def _workdir(tmp: Path) -> Path:
     for name in COPIED:
         shutil.copytree(ROOT / name, path / name, ignore=shutil.ignore_patterns("__pycache__"))
     (path / "calib").symlink_to(ROOT / "calib")
-    if (ROOT.parent / "shared").is_dir():
-        (tmp / "shared").symlink_to(ROOT.parent / "shared")
+    if SHARED.is_dir():
+        (tmp / "shared").symlink_to(SHARED)
     return path
 
 
@@ -279,7 +283,7 @@ def _check_document(path: Path, blocks: list[Block], selected, workdir: Path, sh
                                         f"{b.where} prints:\n  " + "\n  ".join(found))
                         if updated != b.output.body:
                             edits[b.output] = updated
-        variables += [l for l in b.body if _VARIABLE.match(l)]
+        variables += [l for l in b.body if _VARIABLE.fullmatch(l)]
     if update and edits:
         _rewrite(path, edits)
         problems = [p for p in problems if "no line with this text" in p]
@@ -316,8 +320,137 @@ def test_document_commands_print_what_the_document_shows(path, selected, tmp_pat
     marks = selected[0].marks
     if "bench" in marks and not request.config.getoption("--docs-bench"):
         pytest.skip("a benchmark of minutes: --docs-bench runs it")
-    if "needs" in marks and not (ROOT / marks["needs"]).exists():
+    needed = Path(str(marks.get("needs", "")))
+    if needed.parts[:2] == ("..", "shared"):
+        needed = SHARED.joinpath(*needed.parts[2:])
+    if "needs" in marks and not (needed if needed.is_absolute() else ROOT / needed).exists():
         pytest.skip(f"needs {marks['needs']} (beside the repository), absent here")
     blocks = parse_blocks(path)
     chosen = [b for b in blocks if any(b.where == s.where for s in selected)]
     _check_document(path, blocks, chosen, _workdir(tmp_path), shims, request.config.getoption("--update-docs"))
+
+
+# ====================================================================== the comparison itself
+PRINTED = """Calibration: SEARCH-LM, parameter set 'base' (30 identified of 37), converged
+  5 LM iterations in all (every fit of the calibration), 1 rounds, 102.8 ms
+  note: something added later
+validation rows, after         200 |     0.0324    0.0350    0.0856    0.0063  |   3.341e-03  3.651e-03
+predicted RMS error (Cramer-Rao): position 0.01072 mm, orientation 0.000423 rad
+wrote /tmp/x/calibrated.urdf"""
+
+
+def test_shown_lines_match_in_order_numbers_to_the_digits_shown():
+    shown = ["Calibration: SEARCH-LM, parameter set 'base' (30 identified of 37), converged",
+             "  5 LM iterations in all (every fit of the calibration), 1 rounds, 9.1 ms",   # a time
+             "...",
+             "validation rows, after 200 | 0.032 0.035 0.086 0.006 | 3.34e-03 3.65e-03",    # fewer digits
+             "predicted RMS error (Cramer-Rao): position 0.0107 mm, orientation 4.2e-4 rad",
+             "wrote .../calibrated.urdf"]
+    assert compare(shown, PRINTED) == ([], shown)
+
+
+@pytest.mark.parametrize("shown", [
+    "predicted RMS error (Cramer-Rao): position 0.01072 mm, orientation 0.000424 rad",  # one digit
+    "predicted RMS error (Cramer-Rao): position 0.0108 mm, orientation 0.000423 rad",   # rounded wrong
+    "validation rows, after 200 | 0.0324 0.0350 0.0856 0.0063 | 3.341e-03 3.652e-03",
+    "predicted RMS error (Cramer-Rao): position 0.01072 mm, orientation 0.000423 rad RMS",  # text
+    "Calibration: SEARCH-LM, parameter set 'base' (31 identified of 37), converged"])
+def test_a_one_digit_change_fails_and_the_update_restores_it(shown):
+    problems, updated = compare([shown], PRINTED)
+    assert len(problems) == 1
+    if not shown.endswith("RMS"):             # same text: the update takes the printed figure
+        assert compare(updated, PRINTED) == ([], updated)
+        assert updated != [shown]
+
+
+def test_order_counts_and_every_shown_line_must_be_found():
+    lines = PRINTED.splitlines()
+    assert compare([lines[3], lines[0]], PRINTED)[0]           # out of order
+    assert compare([lines[0], lines[0]], PRINTED)[0]           # once printed, once matched
+    assert compare(["a line nobody printed"], PRINTED)[0]
+
+
+def test_number_forms():
+    assert _tolerance("0.0088") == pytest.approx(5e-5) and _tolerance("4.0e-4") == pytest.approx(5e-6)
+    assert _tolerance("25") == pytest.approx(0.5)
+    assert _format_like("4.0e-4", 4.27e-4) == "4.3e-4" and _format_like("0.0100", 0.01234) == "0.0123"
+    assert _format_like("1.2e-05", 3.456e-6) == "3.5e-06"
+    # digits inside names are text: theta1 stays theta1, v_x@M3 stays v_x@M3
+    assert compare(["theta1 -0.0035"], "theta1 -0.003507")[0] == []
+    assert compare(["theta2 -0.0035"], "theta1 -0.003507")[0]
+
+
+# ====================================================================== the documents' structure
+def _runnable_lines() -> set[str]:
+    return {l.strip() for p in DOCS for b in parse_blocks(p) if "run" in b.marks for l in b.body}
+
+
+def test_every_workflow_command_of_the_readme_is_a_runnable_line():
+    """The README's table of workflows: each command (inline code starting with calib) is a line
+    of a run block of README.md or docs/, run by this test as a user types it."""
+    readme = (ROOT / "README.md").read_text()
+    table = [l for l in readme.splitlines() if l.startswith("| ")]
+    commands = [c for l in table for c in re.findall(r"`(calib [^`]+)`", l)]
+    assert len(commands) >= 8
+    missing = [c for c in commands if c not in _runnable_lines()]
+    assert not missing, missing
+
+
+def test_readme_is_short_and_opens_with_the_setup_commands():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 200
+    sh = [b for b in parse_blocks(ROOT / "README.md") if b.lang == "sh" and "run" not in b.marks]
+    assert [b.body for b in sh[:2]] == [[c] for c in SETUP_COMMANDS]
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor of a heading: lower case, punctuation but - and _ dropped, spaces to -."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def _anchors(path: Path) -> set[str]:
+    text = re.sub(r"^```.*?^```", "", path.read_text(), flags=re.S | re.M)
+    return {_slug(m) for m in re.findall(r"^#+ (.*)$", text, flags=re.M)}
+
+
+def test_relative_links_and_anchors_resolve():
+    """Every relative link of the documents names a file that exists, and its #anchor a heading
+    of that file (the check a documentation site's strict build would make)."""
+    broken = []
+    for path in DOCS:
+        text = re.sub(r"^```.*?^```", "", path.read_text(), flags=re.S | re.M)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"[a-z]+:", target):
+                continue
+            file, _, anchor = target.partition("#")
+            dest = (path.parent / file).resolve() if file else path
+            if not dest.exists():
+                broken.append(f"{path.relative_to(ROOT)}: {target} (no such file)")
+            elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest):
+                broken.append(f"{path.relative_to(ROOT)}: {target} (no such heading)")
+    assert not broken, "\n".join(broken)
+
+
+#: Scripts named in the documents' prose whose figures no block runs, and why.
+NOT_RUN = {
+    "bench_selection.py": "an hour of computing; the figures are in its docstring, not quoted in the pages",
+    "bench_compliance.py": "named for what it repeats over seeds; the page's figures come from its run blocks",
+    "make_tracker_example.py": "writes examples/tracker/, which test_make_tracker_example_writes_the_bundled_files checks",
+    "reproduce_paper.py": "writes docs/reproduction.md, whose tables test_reproduction_tables_are_what_the_script_writes checks",
+}
+
+
+def test_scripts_named_in_prose_are_run_by_a_block():
+    """A figure quoted from a script comes from a block that runs it on the same page (its output
+    block shows the figure), unless NOT_RUN says why not. The development page lists them all."""
+    unrun = []
+    for path in DOCS:
+        if path.name in ("development.md", "reproduction.md"):
+            continue
+        blocks = parse_blocks(path)
+        run = " ".join(l for b in blocks if "run" in b.marks for l in b.body)
+        prose = re.sub(r"^```.*?^```", "", path.read_text(), flags=re.S | re.M)
+        for script in sorted(set(re.findall(r"scripts/(\w+\.py)", prose))):
+            if f"scripts/{script}" not in run and script not in NOT_RUN:
+                unrun.append(f"{path.relative_to(ROOT)}: scripts/{script}")
+    assert not unrun, unrun

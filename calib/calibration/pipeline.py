@@ -126,15 +126,14 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     method : "search-lm" (default): a closed-form search of the angular parameters on the
         rotation data (:mod:`calib.solvers.angles`), then LM on all free parameters, searching again if
         LM stops above the noise level; it converges from far larger joint-offset and twist
-        errors than the others (docs/reproduction.md: 100% of the paper's Table 8 grid).
+        errors than the others (docs/reproduction.md, Table 8).
         "c-lm": the paper's cross-identification scheme (Section 3.2.2: rounds of LM on the
         angular parameters with the rotation residuals, then LM on all free parameters) run with
         calib's LM (noise-weighted residuals, SO(3) log, damping mu diag(J^T J), rejected steps
         retried), not the paper's LM of Eq. (27)-(28); ``lm_variant="paper"`` runs it on that LM
-        as printed (:mod:`calib.solvers.paper_lm`). On the paper's Table 8 study (docs/reproduction.md,
-        21x21 grid) search-lm converges in 100% of the cases, calib's C-LM in 99.1% and LM in
-        90.9%, the paper's C-LM and LM as printed in 92.3% and 15.65% (the paper reports 53.16%
-        and 22.45%). "lm": calib's Levenberg-Marquardt alone. With position-only data all run as
+        as printed (:mod:`calib.solvers.paper_lm`); docs/reproduction.md compares the methods on the
+        paper's Table 8 study (``scripts/reproduce_paper.py``). "lm": calib's Levenberg-Marquardt
+        alone. With position-only data all run as
         LM (a note says so). An explicit lm / c-lm fit that an angle search from its solution
         beats is reported with status "local_minimum".
     params : "base": the identifiable set, each redundant partner held at its nominal value;

@@ -39,7 +39,7 @@ TARGETS.csv (comments with #, one header row, units in the column names as in me
                          for the targets not ok)
 
 Other columns are ignored (listed on stderr). Semicolon or tab separators with decimal commas,
---rename and --limit-tolerance work as for measurement files (README, Measurement file format).
+--rename and --limit-tolerance work as for measurement files (calib formats; docs/formats.md).
 
 Output CSV, one row per target in the same order: the corrected joint columns (degrees;
 millimetres for prismatic joints), then status, residual_mm, residual_rad (pose targets),
