@@ -436,6 +436,7 @@ NOT_RUN = {
     "bench_selection.py": "an hour of computing; the figures are in its docstring, not quoted in the pages",
     "bench_compliance.py": "named for what it repeats over seeds; the page's figures come from its run blocks",
     "make_tracker_example.py": "writes examples/tracker/, which test_make_tracker_example_writes_the_bundled_files checks",
+    "convert_figaroh_tiago.py": "the converter of the real TIAGo data: no figure",
     "reproduce_paper.py": "writes docs/reproduction.md, whose tables test_reproduction_tables_are_what_the_script_writes checks",
 }
 
@@ -454,3 +455,34 @@ def test_scripts_named_in_prose_are_run_by_a_block():
             if f"scripts/{script}" not in run and script not in NOT_RUN:
                 unrun.append(f"{path.relative_to(ROOT)}: scripts/{script}")
     assert not unrun, unrun
+
+
+# ====================================================================== docs/reproduction.md
+#: The sections of docs/reproduction.md that do not depend on the convergence grid: written again
+#: by the script with the smallest grid, they must read as the page does (timings aside).
+REPRODUCTION_SECTIONS = ("## Tables 6-7", "## Table 9", "## Tables 10-11")
+
+
+def _section(text: str, heading: str) -> list[str]:
+    start = text.index(heading)
+    end = min(i for i in (text.find("\n## ", start + 1), text.find("\n### Figure 5", start + 1), len(text)) if i > 0)
+    return text[start:end].splitlines()
+
+
+@pytest.mark.slow
+def test_reproduction_tables_are_what_the_script_writes(tmp_path):
+    """docs/reproduction.md is written by scripts/reproduce_paper.py: its Tables 6-7, 9 and 10-11
+    (the calibrations, the Cramer-Rao bound and the Monte Carlo spread; not the convergence study,
+    which takes minutes) are what the script writes today, to the digits shown."""
+    out = tmp_path / "docs"
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "reproduce_paper.py"), "--grid", "2", "--workers", "1",
+                           "--sweep", "0", "--default-grid", "0", "--sample-grid", "0", "--paper-variants-grid", "0",
+                           "--out", str(out)], cwd=tmp_path, capture_output=True, text=True, timeout=TIMEOUT_S,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg"))
+    assert proc.returncode == 0, proc.stderr
+    page, written = (ROOT / "docs" / "reproduction.md").read_text(), (out / "reproduction.md").read_text()
+    for heading in REPRODUCTION_SECTIONS:
+        shown, printed = _section(page, heading), _section(written, heading)
+        assert len(shown) == len(printed), heading
+        problems, _ = compare(shown, "\n".join(printed))
+        assert not problems, "\n".join(problems)
