@@ -301,23 +301,28 @@ def _rewrite(path: Path, edits: dict) -> None:
 
 
 def _cases():
+    """(document, the ordinals of its run blocks a test runs): the quick blocks of a document
+    together, each slow or bench block alone. Ordinals, not line numbers: --update-docs moves
+    the lines of a document while its other blocks wait to run."""
     for path in DOCS:
-        blocks = parse_blocks(path)
-        runs = [b for b in blocks if "run" in b.marks]
+        runs = [b for b in parse_blocks(path) if "run" in b.marks]
         name = str(path.relative_to(ROOT))
-        quick = [b for b in runs if not {"slow", "bench"} & set(b.marks)]
+        quick = tuple(k for k, b in enumerate(runs) if not {"slow", "bench"} & set(b.marks))
         if quick:
-            yield pytest.param(path, tuple(quick), id=name)
-        for b in runs:
+            yield pytest.param(path, quick, id=name)
+        for k, b in enumerate(runs):
             if "bench" in b.marks:
-                yield pytest.param(path, (b,), id=f"{name}:{b.line}", marks=pytest.mark.bench)
+                yield pytest.param(path, (k,), id=f"{name}:{b.line}", marks=pytest.mark.bench)
             elif "slow" in b.marks:
-                yield pytest.param(path, (b,), id=f"{name}:{b.line}", marks=pytest.mark.slow)
+                yield pytest.param(path, (k,), id=f"{name}:{b.line}", marks=pytest.mark.slow)
 
 
 @pytest.mark.parametrize("path, selected", list(_cases()))
 def test_document_commands_print_what_the_document_shows(path, selected, tmp_path, shims, request):
-    marks = selected[0].marks
+    blocks = parse_blocks(path)
+    runs = [b for b in blocks if "run" in b.marks]
+    chosen = [runs[k] for k in selected]
+    marks = chosen[0].marks
     if "bench" in marks and not request.config.getoption("--docs-bench"):
         pytest.skip("a benchmark of minutes: --docs-bench runs it")
     needed = Path(str(marks.get("needs", "")))
@@ -325,8 +330,6 @@ def test_document_commands_print_what_the_document_shows(path, selected, tmp_pat
         needed = SHARED.joinpath(*needed.parts[2:])
     if "needs" in marks and not (needed if needed.is_absolute() else ROOT / needed).exists():
         pytest.skip(f"needs {marks['needs']} (beside the repository), absent here")
-    blocks = parse_blocks(path)
-    chosen = [b for b in blocks if any(b.where == s.where for s in selected)]
     _check_document(path, blocks, chosen, _workdir(tmp_path), shims, request.config.getoption("--update-docs"))
 
 
