@@ -1,14 +1,16 @@
 """The documents' commands run and print what the documents show (issue 42).
 
-README.md and docs/*.md mark their runnable examples in the fence's info string (the syntax is
-documented in docs/index.md, "How these pages stay true"):
+README.md, docs/*.md and examples/*/README.md mark their runnable examples in the fence's info
+string (the syntax is documented in docs/index.md, "How these pages stay true"):
 
-- ```` ```sh run ```` (or ```` ```python run ````, run by ``python``): a shell block run by bash in the document's working directory (a temporary
-  folder holding copies of robots/, examples/ and scripts/, and calib/ as a link), with ``calib``
-  and ``python`` the interpreter running the tests and this checkout on ``PYTHONPATH``. Every
+- ```` ```sh run ````: a shell block run by bash (```` ```python run ````: by ``python``) in the
+  document's working directory (a temporary folder holding copies of robots/, examples/ and
+  scripts/, and calib/ as a link), with ``calib`` and ``python`` the interpreter running the
+  tests and this checkout on ``PYTHONPATH``. Every
   command must exit 0 (``set -e``), or the block ends with the status ``exit=N`` names.
   ``slow``: run in a fresh folder, as a test of its own with the ``slow`` mark. ``bench``: minutes
-  of a benchmark or data outside the repository (../shared): run only with ``--docs-bench``.
+  of a benchmark: run only with ``--docs-bench``. ``needs=../shared/realdata``: skipped where
+  the folder beside the repository is absent (``CALIB_DOCS_SHARED`` names it elsewhere).
   A line ``NAME=...`` assigning a shell variable stays set for the document's later blocks.
 - ```` ```text output ````: the first fenced block after a run block with this mark is what the
   block prints (stdout and stderr together). Its lines must appear in that order among the printed
