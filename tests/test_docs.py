@@ -8,7 +8,9 @@ string (the syntax is documented in docs/index.md, "How these pages stay true"):
   scripts/, and calib/ as a link), with ``calib`` and ``python`` the interpreter running the
   tests and this checkout on ``PYTHONPATH``. Every
   command must exit 0 (``set -e``), or the block ends with the status ``exit=N`` names.
-  ``slow``: run in a fresh folder, as a test of its own with the ``slow`` mark. ``bench``: minutes
+  The blocks of a document run as one test with the ``slow`` mark (the inner loop,
+  ``-m "not slow"``, keeps the structure checks below); ``slow`` on a block: run in a fresh
+  folder, as a test of its own. ``bench``: minutes
   of a benchmark: run only with ``--docs-bench``. ``needs=../shared/realdata``: skipped where
   the folder beside the repository is absent (``CALIB_DOCS_SHARED`` names it elsewhere).
   A line ``NAME=...`` assigning a shell variable stays set for the document's later blocks.
@@ -310,8 +312,8 @@ def _cases():
         runs = [b for b in parse_blocks(path) if "run" in b.marks]
         name = str(path.relative_to(ROOT))
         quick = tuple(k for k, b in enumerate(runs) if not {"slow", "bench"} & set(b.marks))
-        if quick:
-            yield pytest.param(path, quick, id=name)
+        if quick:       # (slow too: they run the command line, tens of processes; CI runs them)
+            yield pytest.param(path, quick, id=name, marks=pytest.mark.slow)
         for k, b in enumerate(runs):
             if "bench" in b.marks:
                 yield pytest.param(path, (k,), id=f"{name}:{b.line}", marks=pytest.mark.bench)
