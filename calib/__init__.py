@@ -10,7 +10,7 @@ Python API (SI units everywhere: metres, radians)::
     result.write_urdf("calibrated.urdf")
     calib.evaluate(result.robot, meas)
 
-See README.md for the command line.
+See docs/commands.md for the command line (docs/index.md: the documentation).
 """
 #: The package version (the one place it is written: pyproject.toml reads it from here).
 __version__ = "0.1.0"

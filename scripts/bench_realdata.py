@@ -23,7 +23,8 @@ calib's validation statistics do):
   measurement- and tool-frame parameter, by name (calib holds what they leave undetermined);
 * ``eb-map``: :func:`calib.calibration.estimators.eb_map.eb_map` with its defaults (the estimator alone,
   with its own outlier check; ``calibrate`` runs it behind its least-squares outlier stage);
-* the joint terms (issue 22, item 3): ``compliance`` (``compliance=True``: gravity compliance,
+* the joint terms (issue 22, item 3): ``geometry`` (``terms=None``: the geometry alone, no joint
+  term judged), ``compliance`` (``compliance=True``: gravity compliance,
   the torques from the URDF's masses), ``periodic`` (``periodic=True``: sin/cos of q_i and 2 q_i
   added to each joint angle), ``both``, and ``terms-auto`` (``terms="auto"``: chosen by
   cross-validation on the calibration rows, :func:`calib.calibration.terms.choose_terms`; the
@@ -70,7 +71,7 @@ TIAGO_CSV = ROOT / "examples" / "tiago_qualisys" / "measurements.csv"
 FOLDS = 5
 #: File rows of the TIAGo example's gross configuration (its tenth), left out of the benchmark.
 GROSS_TIAGO_ROWS = (31, 32, 33)
-METHODS = ("defaults", "ls-ident", "offsets", "eb-map", "compliance", "periodic", "both", "terms-auto")
+METHODS = ("defaults", "ls-ident", "offsets", "eb-map", "geometry", "compliance", "periodic", "both", "terms-auto")
 #: Diagnostics, run only when named in --methods: EB-MAP and LS-ident with every row kept (no
 #: outlier check), to see what the outlier stage costs or gains on held-out rows.
 DIAGNOSTICS = ("eb-map-all-rows", "ls-ident-all-rows")
@@ -143,7 +144,8 @@ def fit(method: str, robot, m):
     kwargs = {"ls-ident": {"params": "base"}, "offsets": {"params": offset_names(robot)},
               "ls-ident-all-rows": {"params": "base", "outlier_k": None},
               "compliance": {"compliance": True}, "periodic": {"periodic": True},
-              "both": {"compliance": True, "periodic": True}, "terms-auto": {"terms": "auto"}}.get(method, {})
+              "both": {"compliance": True, "periodic": True}, "terms-auto": {"terms": "auto"},
+              "geometry": {"terms": None}}.get(method, {})
     res = calib.calibrate(robot, m, **kwargs)
     if method == "terms-auto":
         chosen = next((n.split(": ", 1)[1].split(" (")[0] for n in res.notes if n.startswith("joint terms chosen")),

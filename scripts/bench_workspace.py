@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
 import calib.calibration.statistics as stats_module  # noqa: E402
-from calib.calibration.workspace import predict_workspace, workspace_configurations  # noqa: E402
+from calib.calibration.workspace import WORKSPACE_CONFIGURATIONS, predict_workspace, workspace_configurations  # noqa: E402
 from calib.model.kinematics import ChainKinematics  # noqa: E402
 from calib.model.simulate import (PAPER_DEVIATIONS, apply_deviations, random_deviations,  # noqa: E402
                                   simulate_measurements)
@@ -61,7 +61,7 @@ def cost(repeats: int = 40) -> None:
     res = calib.calibrate(robot, m)
     one = functools.partial(predict_workspace, res.robot, res.free, res.covariance, res.sigma_pos, res.sigma_rot,
                             calibration_q=m.q, kin=ChainKinematics(res.robot))
-    print(f"  predict_workspace alone (300 configurations, {len(res.free)} parameters): "
+    print(f"  predict_workspace alone ({WORKSPACE_CONFIGURATIONS} configurations, {len(res.free)} parameters): "
           f"{_bench.median_time(one, 41, 3, time.process_time) * 1e3:.2f} ms")
 
 

@@ -77,3 +77,11 @@ def urdf_numbers(text: str):
     text = re.sub(r"Recomputed joint origins: [^.]*\.", "", text)
     pattern = r"-?\d+\.?\d*(?:[eE][-+]?\d+)?"
     return re.sub(pattern, "#", text), np.array([float(v) for v in re.findall(pattern, text)])
+
+
+def pytest_addoption(parser):
+    group = parser.getgroup("calib documents (tests/test_docs.py)")
+    group.addoption("--update-docs", action="store_true",
+                    help="rewrite the output blocks of README.md and docs/*.md from what their commands print")
+    group.addoption("--docs-bench", action="store_true",
+                    help="also run the documents' benchmark blocks (minutes, or data in ../shared)")

@@ -150,7 +150,7 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
     """The options that read CSV files as trackers and controllers write them, in their own help
     group: --rename, --euler, --convention, --header-line, --limit-tolerance, and with
     ``tracker`` --tracker and --key."""
-    g = p.add_argument_group("file format (see README, Measurement file format)")
+    g = p.add_argument_group("file format (see calib formats, docs/formats.md)")
     g.add_argument("--rename", metavar="OLD=NEW[,...]", type=_rename, default=None,
                    help="rename the file's columns to calib's names before reading, e.g. "
                         "'X=x_mm,Y=y_mm,Z=z_mm'; OLD= (empty NEW) drops a column")

@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 _CAL_DESC = """\
 Identify a robot's TM-MDH parameters from measured tool poses and write the calibrated URDF.
 
-Reads the nominal model from ROBOT.urdf and the measurements (CSV, see README.md: joint values
+Reads the nominal model from ROBOT.urdf and the measurements (CSV, see `calib formats`: joint values
 and the tool pose in the base frame of the URDF, which plays the measurement frame). Rows with
 set=val, and the rows of --validate, are held out for validation. Prints the parameter table
 (nominal, identified, deviation, standard deviation; mm and rad) and the accuracy before and
@@ -82,7 +82,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("calibrate", help="identify the parameters, write the calibrated URDF",
                        description=_CAL_DESC, epilog=_CAL_EPILOG, formatter_class=HelpFormatter)
     add_robot(p)
-    p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: README.md)")
+    p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: calib formats, docs/formats.md)")
     p.add_argument("-o", "--output", required=True, metavar="CALIBRATED.urdf",
                    help="calibrated URDF to write (must differ from ROBOT.urdf)")
     p.add_argument("--method", choices=METHODS, default="search-lm",
@@ -139,7 +139,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     add_report_options(p)
     add_progress(p)
     p.add_argument("--probe-radius-mm", type=positive, default=None, metavar="R",
-                   help="touch files (rows naming point, plane or sphere, README.md): the ball tip's "
+                   help="touch files (rows naming point, plane or sphere, docs/touch.md): the ball tip's "
                         "radius for plane rows")
     p.add_argument("--sigma-touch-mm", type=positive, default=None, metavar="S",
                    help="touch files: the touch noise per residual component, mm (default: estimated; "
@@ -152,7 +152,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="when the calibration estimates the measurement frame (a tracker's), also write "
                         "it into CALIBRATED.urdf as a new root link NAME with a fixed joint "
                         "NAME_to_<root> whose child is the URDF's root link (the robot's base frame "
-                        "stays where it was; README, Frames and units)")
+                        "stays where it was; docs/model.md, Frames and units)")
     add_file_format(p, tracker=True)
     add_frames(p)
     g = add_compliance(p, "calibrate")

@@ -45,7 +45,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("evaluate", help="accuracy of a model against measurements",
                        description=_EVAL_DESC, epilog=_EVAL_EPILOG, formatter_class=HelpFormatter)
     add_robot(p)
-    p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: README.md)")
+    p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: calib formats, docs/formats.md)")
     p.add_argument("--json", action="store_true",
                    help="print one JSON object: n_poses, position_mm and rotation_rad statistics "
                         "(mean, rms, max, min) for all, cal and val rows")

@@ -26,7 +26,7 @@ Export a calibrated URDF (written by calib calibrate, or any URDF) for the user'
                       URDF's base frame, its tool0 the --flange link; the forward kinematics of
                       the URDF built from the file equal the calibrated ones (checked to 1e-9 m).
   joint-origins-yaml  every joint of the URDF: type, parent, child and the text of its origin xyz,
-                      rpy (and axis), ready for a xacro's properties (README, calib export).
+                      rpy (and axis), ready for a xacro's properties (docs/exports.md).
   mdh-csv             theta, d, a, alpha, beta per joint and the base and tool transforms, mm and
                       deg in the column names; with --report, the calibration's own parameters
                       and their standard deviations (1 sigma).

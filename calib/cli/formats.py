@@ -1,5 +1,5 @@
 """``calib formats``: the column rules of calib's files and the vendor conventions, as a help page
-(an installed wheel needs no README); ``--markdown`` prints the conventions table of README.md."""
+(an installed wheel needs no documentation); ``--markdown`` prints the conventions table of docs/formats.md."""
 from __future__ import annotations
 
 import argparse
@@ -21,7 +21,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                           "--instrument NAME.",
                               formatter_class=HelpFormatter)
     p.add_argument("--markdown", action="store_true",
-                   help="print only the conventions table, in Markdown (as in README.md)")
+                   help="print only the conventions table, in Markdown (as in docs/formats.md)")
     p.set_defaults(func=run)
     return p
 

@@ -43,7 +43,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="print one JSON object (n_params, rank, identifiable, unidentifiable with "
                         "tied partners, condition_number, observability, ...)")
     p.add_argument("--touch", metavar="TOUCH.csv", default=None,
-                   help="analyse these touch rows (points, planes, spheres touched, README.md) instead of "
+                   help="analyse these touch rows (points, planes, spheres touched, docs/touch.md) instead of "
                         "random measured poses: the robot parameters they determine with the features, "
                         "those held nominal and what they are tied to")
     p.add_argument("--params", choices=("auto", "tool"), default="auto",

@@ -72,7 +72,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--position-only", action="store_true",
                    help="write positions only (no orientation columns)")
     p.add_argument("--constraint", default=None, metavar="point:N,plane:N,sphere:RADIUS_MM,measured:N",
-                   help="write a touch file instead (README.md): N point ids, N planes (faces of a "
+                   help="write a touch file instead (docs/touch.md): N point ids, N planes (faces of a "
                         "cube, perpendicular in threes), a sphere of each radius; --poses rows per "
                         "feature, reached by the true model within the joint limits, --sigma-pos-mm "
                         "the touch noise per axis; measured:N adds N rows measured by an instrument "

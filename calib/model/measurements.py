@@ -2,7 +2,7 @@
 
 :class:`Measurements` is the data the calibration takes. Files are read and written by
 :mod:`calib.io.csv.specs` (:func:`calib.read_measurements`, :func:`calib.write_measurements`; the
-format is described there and in README.md), which this module re-exports.
+format is described there and in docs/formats.md), which this module re-exports.
 """
 from __future__ import annotations
 

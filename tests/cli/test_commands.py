@@ -514,9 +514,13 @@ def test_outlier_options_reach_the_fit(good_csv, tmp_path, capsys):
 
 
 # ====================================================================== docs and the bundled example
-def _readme_commands(path: Path) -> list[str]:
+def _readme_commands(path: Path, runnable: bool = False) -> list[str]:
+    """The lines of the shell blocks of a Markdown file: ```` ```sh ```` (the commands shown to be
+    typed, not run by tests/test_docs.py), and with ``runnable`` also ```` ```sh run ... ````."""
     text = path.read_text()
-    blocks = text.split("```sh\n")[1:]
+    blocks = re.split(r"```sh run[^\n]*\n" if runnable else r"```sh\n", text)[1:]
+    if runnable:
+        blocks += text.split("```sh\n")[1:]
     return [line for block in blocks for line in block.split("```")[0].splitlines() if line.strip()]
 
 
@@ -535,10 +539,10 @@ def test_readme_opens_with_the_two_setup_commands_and_ci_runs_the_test_one():
 def test_every_calib_command_in_the_docs_parses():
     from calib.cli.main import build_parser
 
-    shown = [c for doc in (ROOT / "README.md", ROOT / "examples" / "README.md")
-             for c in _readme_commands(doc)]
-    calib_commands = [c.split("&& ")[-1] for c in shown if "calib " in c]
-    assert len(calib_commands) >= 12
+    docs = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "examples").glob("**/README.md"))]
+    shown = [c for doc in docs for c in _readme_commands(doc, runnable=True)]
+    calib_commands = [c.split("&& ")[-1] for c in shown if c.split("&& ")[-1].startswith("calib ")]
+    assert len(calib_commands) >= 40
     parser = build_parser()
     import shlex
     for command in calib_commands:
@@ -550,14 +554,20 @@ def test_every_calib_command_in_the_docs_parses():
 _NUMBER = re.compile(r"-?\d+\.?\d*(?:e[-+]?\d+)?")
 
 
-def test_bundled_example_is_reproduced_by_its_command(tmp_path):
-    """examples/README.md's command, run again, gives the same data and the same truth URDF."""
-    ex = ROOT / "examples" / "brtirus0707a"
-    first = ex.joinpath("measurements.csv").read_text().splitlines()[0]
+@pytest.mark.parametrize("data, truth", [("brtirus0707a/measurements.csv", "brtirus0707a/true.urdf"),
+                                         ("tracker/smr.csv", "tracker/true.urdf"),
+                                         ("ur10_touch/cube.csv", "ur10_touch/true.urdf"),
+                                         ("ur10_touch/tcp.csv", None)])
+def test_bundled_example_is_reproduced_by_its_command(data, truth, tmp_path):
+    """examples/README.md's commands, run again, give the same data and the same truth URDF (the
+    command is recorded in the data file's first line)."""
+    ex = ROOT / "examples"
+    first = ex.joinpath(data).read_text().splitlines()[0]
     assert first.startswith("# Simulated by: calib simulate ")
     argv = first[len("# Simulated by: calib "):].split()
     argv[argv.index("-o") + 1] = str(tmp_path / "m.csv")
-    argv[argv.index("--truth-urdf") + 1] = str(tmp_path / "t.urdf")
+    if truth:
+        argv[argv.index("--truth-urdf") + 1] = str(tmp_path / "t.urdf")
     old = os.getcwd()
     os.chdir(ROOT)   # the command names the robot relative to the repository root
     try:
@@ -567,13 +577,37 @@ def test_bundled_example_is_reproduced_by_its_command(tmp_path):
     assert code == 0
     # same text, numbers equal to 1e-12 relative: the last printed digit of a float depends on
     # the order of floating-point operations (BLAS, vectorised kinematics), not on the result
-    for mine, theirs in (((tmp_path / "m.csv").read_text().splitlines()[1:],
-                          ex.joinpath("measurements.csv").read_text().splitlines()[1:]),
-                         ((tmp_path / "t.urdf").read_text().splitlines(),
-                          ex.joinpath("true.urdf").read_text().splitlines())):
+    pairs = [((tmp_path / "m.csv").read_text().splitlines()[1:], ex.joinpath(data).read_text().splitlines()[1:])]
+    if truth:
+        pairs.append(((tmp_path / "t.urdf").read_text().splitlines(), ex.joinpath(truth).read_text().splitlines()))
+    for mine, theirs in pairs:
         assert len(mine) == len(theirs)
         for a, b in zip(mine, theirs):
             assert _NUMBER.sub("#", a) == _NUMBER.sub("#", b)
             np.testing.assert_allclose([float(x) for x in _NUMBER.findall(a)],
                                        [float(x) for x in _NUMBER.findall(b)], rtol=1e-12, atol=1e-15)
-    assert ex.joinpath("measurements.csv").stat().st_size < 100_000
+    assert ex.joinpath(data).stat().st_size < 100_000
+
+
+def test_make_tracker_example_writes_the_bundled_joint_and_tracker_files(tmp_path):
+    """examples/tracker/joints.csv and tracker.csv are smr.csv as a controller and a tracker
+    write it (scripts/make_tracker_example.py), and the join reads them back into smr.csv's rows
+    to the rounding of the two exports."""
+    import importlib.util
+
+    import calib
+
+    spec = importlib.util.spec_from_file_location("make_tracker_example", ROOT / "scripts" / "make_tracker_example.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    ex = ROOT / "examples" / "tracker"
+    assert module.split(ex / "smr.csv", tmp_path / "j.csv", tmp_path / "t.csv") == 50
+    assert (tmp_path / "j.csv").read_text() == (ex / "joints.csv").read_text()
+    assert (tmp_path / "t.csv").read_text() == (ex / "tracker.csv").read_text()
+    robot = calib.load_robot(ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf")
+    own = calib.read_measurements(ex / "smr.csv", robot)
+    joined = calib.read_measurements(ex / "joints.csv", robot, tracker=ex / "tracker.csv",
+                                     options=calib.ReadOptions(key="Point", target_from=r"(?P<key>P\d+)_(?P<target>SMR\d+)"))
+    assert list(joined.target) == list(own.target) and list(joined.sets) == list(own.sets)
+    np.testing.assert_allclose(joined.q, own.q, rtol=0, atol=np.radians(0.5e-6) * 1.0001)
+    np.testing.assert_allclose(joined.position, own.position, rtol=0, atol=0.5e-6 * 1.0001)

@@ -483,11 +483,11 @@ def test_the_fast_and_the_slow_path_read_the_same(data, tmp_path, monkeypatch):
     assert a.sets == b.sets
 
 
-# ---------------------------------------------------------------- the help page and README
+# ---------------------------------------------------------------- the help page and docs/formats.md
 def test_readme_table_is_the_codes_table():
     from calib.io.csv.conventions import markdown_table
 
-    readme = (ROOT / "README.md").read_text()
+    readme = (ROOT / "docs" / "formats.md").read_text()
     start = readme.index("<!-- conventions table:")
     body = readme[readme.index("\n", start) + 1:readme.index("<!-- end of conventions table -->")]
     assert body == markdown_table()

@@ -373,13 +373,13 @@ def test_cli_limit_tolerance_percent(tmp_path, robot, capsys):
                    f"the limit tolerance, 1.5 % of the range = 3.75 deg) in row 2; kept as read\n")
 
 
-# ====================================================================== README examples
+# ====================================================================== the examples of docs/formats.md
 def test_readme_examples_read_and_match_nominal_kinematics(tmp_path, robot):
-    """Every example of README's "Measurement file format" reads (with the options its text
-    gives) to the bundled robot's FK at its joints, to the 3 to 6 decimals printed."""
-    text = (BUNDLED_URDF.parents[2] / "README.md").read_text()
-    section = text[text.index("## Measurement file format"):text.index("## Commands")]
-    blocks = re.findall(r"```\n(.*?)```", section, flags=re.S)
+    """Every example of docs/formats.md reads (with the options its text gives) to the bundled
+    robot's FK at its joints, to the 3 to 6 decimals printed."""
+    section = (BUNDLED_URDF.parents[2] / "docs" / "formats.md").read_text()
+    blocks = [body for info, body in re.findall(r"^```([^\n]*)\n(.*?)^```[ \t]*$", section, flags=re.S | re.M)
+              if not info.strip()]     # (the examples: fences without an info string)
     assert len(blocks) == 12      # 8 to 11: the joins of tests/io/test_join.py
     options = {3: ReadOptions(rename="X=x_mm,Y=y_mm,Z=z_mm,A=e1_deg,B=e2_deg,C=e3_deg",
                               euler="ZYZ")}

@@ -19,7 +19,7 @@ from calib.cli.main import main
 
 from conftest import BUNDLED_URDF, urdf_numbers
 
-#: Reflectors on the tool, metres in the tool frame (README's "several targets" example).
+#: Reflectors on the tool, metres in the tool frame (docs/formats.md's "several targets" example).
 OFFSETS = {"SMR1": [0.1, 0.0, 0.05], "SMR2": [-0.05, 0.08, 0.05], "SMR3": [0.0, -0.07, 0.1]}
 N_POSES = 15
 REGEX = r"(?P<key>P\d+)_(?P<target>SMR\d+)"
@@ -433,7 +433,7 @@ def test_cli_bad_input_of_the_acceptance_exits_2_with_one_line_and_leaves_the_ou
 
 
 def test_readme_join_examples_read_as_the_several_targets_example(tmp_path, robot):
-    """README's worked examples of the joins: each command (as printed) reads its two files into
+    """docs/formats.md's worked examples of the joins: each command (as printed) reads its two files into
     the rows of the "several targets" example (tracker export) or two of them (by time)."""
     import re
     import shlex
@@ -441,9 +441,9 @@ def test_readme_join_examples_read_as_the_several_targets_example(tmp_path, robo
     from calib.cli.args import read
     from calib.cli.main import build_parser
 
-    text = (BUNDLED_URDF.parents[2] / "README.md").read_text()
-    section = text[text.index("## Measurement file format"):text.index("## Commands")]
-    blocks = re.findall(r"```\n(.*?)```", section, flags=re.S)
+    section = (BUNDLED_URDF.parents[2] / "docs" / "formats.md").read_text()
+    blocks = [body for info, body in re.findall(r"^```([^\n]*)\n(.*?)^```[ \t]*$", section, flags=re.S | re.M)
+              if not info.strip()]     # (the examples: fences without an info string)
     names = [b.splitlines()[0].split()[1].rstrip(",") for b in blocks[8:12]]
     assert names == ["JOINTS.csv", "TRACKER.csv", "LOG.csv", "TIMED.csv"]
     for name, block in zip(names, blocks[8:12]):

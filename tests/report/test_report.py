@@ -1,14 +1,11 @@
 """Outputs a user can trust (issue 12): frames that round-trip through a calibrated URDF, robots
-by name, default chains, readable numbers, the JSON and HTML reports, the README's examples."""
+by name, default chains, readable numbers, the JSON and HTML reports."""
 from __future__ import annotations
 
 import hashlib
 import json
 import math
-import os
 import re
-import shlex
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -302,32 +299,6 @@ def test_json_and_html_reports(capsys, tmp_path, monkeypatch):
     assert "validation rows, after" in page and "calibration rows, after" in page
     # 40 rows: fewer than 10 residual components per parameter, the regularised estimate
     assert "Calibration: EB-MAP" in page and r["estimator"]["kind"] == "eb-map"
-
-
-# ====================================================================== README
-def _readme_commands(prefix: str) -> list[str]:
-    text = (ROOT / "README.md").read_text()
-    return [l.strip() for l in text.splitlines() if l.strip().startswith(prefix)]
-
-
-def test_readme_compensate_example_runs_as_printed(capsys, tmp_path):
-    """The README's compensate block (calibrate, then compensate) exits 0, from a copy of the
-    files it names laid out as in the repository."""
-    block = (ROOT / "README.md").read_text().split("### `calib compensate`")[1].split("```sh")[1] \
-        .split("```")[0].strip().splitlines()
-    assert [l.split()[1] for l in block] == ["calibrate", "compensate"]
-    for rel in ("robots/brtirus0707a", "examples/brtirus0707a"):
-        shutil.copytree(ROOT / rel, tmp_path / rel)
-    old = os.getcwd()
-    os.chdir(tmp_path)
-    try:
-        for line in block:
-            code, out, err = run(capsys, *shlex.split(line)[1:])
-            assert code == 0, (line, err)
-    finally:
-        os.chdir(old)
-    rows = [l for l in (tmp_path / "corrected.csv").read_text().splitlines() if not l.startswith("#")]
-    assert len(rows) == 6 and all(",ok," in r for r in rows[1:])
 
 
 def test_compensate_defaults_to_the_frames_calibrate_used(tmp_path):

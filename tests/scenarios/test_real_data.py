@@ -277,40 +277,25 @@ def test_cli_prints_noise_prediction_and_exit_3_for_a_stuck_lm(tmp_path, bundled
     assert code == 3 and "local minimum" in err
 
 
-def test_readme_real_measurements_example_runs_as_printed(tmp_path, monkeypatch, capsys):
-    """README "Real measurements": the two commands run (exit 0) and print the quoted lines."""
+def test_statistics_page_prose_quotes_its_tiago_output_block():
+    """docs/statistics.md, the real TIAGo data: the figures its prose quotes are those of the output
+    block shown above them (which tests/test_docs.py runs and compares with what calib prints)."""
     import os
     import re
-    import shlex
 
-    from calib.cli.main import main
-
-    readme = open(os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "README.md")).read()
-    start = readme.index("### Real measurements")
-    section = readme[start:readme.index("\n### ", start + 1)]
-    commands = re.findall(r"^calib .*$", section, re.M)
-    assert len(commands) == 4
-    monkeypatch.chdir(tmp_path)
-    for command in commands[:3]:
-        assert main(shlex.split(command)[1:]) == 0
-    out = capsys.readouterr().out
-    for quoted in ("noise estimated from the residuals (2 re-weighted fits): position 1.026 mm, "
-                   "orientation 0.00521 rad per axis", "offsets+frames                 16    27.04",
-                   "prior scales from the evidence: theta 0.0026 rad, length 1.43 mm, twist 0.00196 rad",
-                   "cross-validated (5-fold) held-out RMS error: position 2.077 mm",
-                   "predicted RMS error on new measured rows (calibration configurations): position 2.11 mm",
-                   "cross-validated (leave-one-out) held-out RMS error: position 2.078 mm",
-                   "predicted RMS error on new measured rows (calibration configurations): position 2.116 mm"):
-        assert quoted in section and quoted in out
-    # the real data (the repository's example, the output written here)
-    args = shlex.split(commands[3])[1:]
-    args[args.index("examples/tiago_qualisys/measurements.csv")] = str(TIAGO_REAL)
-    assert main(args) == 0
-    out = capsys.readouterr().out
+    page = open(os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "docs",
+                             "statistics.md")).read()
+    start = page.index("### Real motion-capture data of a TIAGo")
+    section = page[start:page.index("\n## ", start)]
+    block = section.split("```text output\n")[1].split("```")[0]
+    prose = " ".join(section.split("```text output")[1].split("```")[1].split())
     for shown, printed in (("1.58 mm of noise per axis", "position 1.579 mm per axis"),
-                           ("predicts 2.93 mm on new\nrows", "position 2.933 mm"),
-                           ("against 2.94 mm cross-validated", "held-out RMS error: position 2.936 mm")):
-        assert shown in section and printed in out
+                           ("predicts 2.93 mm on new rows", "position 2.933 mm"),
+                           ("against 2.94 mm cross-validated", "held-out RMS error: position 2.936 mm"),
+                           ("8.1 residual components per identifiable parameter", "(8.1 per parameter"),
+                           ("55–67 mm off", "row 32: 55.249 mm"), ("55–67 mm off", "row 31: 67.247 mm")):
+        assert shown in prose and printed in block, (shown, printed)
+    assert len(re.findall(r"^  outlier: row", block, re.M)) == 3     # "flags the one gross error" (3 markers)
 
 
 def test_no_spare_residuals_is_refused_and_cv_never_leaks(bundled_robot, paper_data):

@@ -6,7 +6,7 @@
 read in that unit when its name has no unit suffix, and in the suffix's unit when it has one
 (``rx_deg`` under ``ur`` is a rotation vector in degrees). calib's own names stay valid under
 every convention. :func:`format_help` prints calib's own column rules and this table (``calib
-formats``); :func:`markdown_table` is the table in README.md (a test checks that they agree).
+formats``); :func:`markdown_table` is the table in docs/formats.md (a test checks that they agree).
 
 This module imports nothing heavy: the command line builds its ``--convention`` choices from it.
 """
@@ -206,9 +206,9 @@ def ambiguous_candidates() -> str:
     return "; ".join(f"{text}: --convention {name}" for text, name in ORIENTATION_READINGS)
 
 
-# ====================================================================== help page and README table
+# ====================================================================== help page and docs/formats.md table
 def markdown_table() -> str:
-    """The conventions as a Markdown table (the one in README.md)."""
+    """The conventions as a Markdown table (the one in docs/formats.md)."""
     lines = ["| `--convention` | written by | joints | position | orientation |",
              "|---|---|---|---|---|"]
     for c in CONVENTIONS.values():
@@ -284,7 +284,7 @@ Ambiguous orientation names: rx, ry, rz written in that order (or without a unit
 def format_help() -> str:
     """The built-in help page of ``calib formats``: calib's own column rules, the vendor
     conventions and the instrument presets (:func:`calib.io.csv.instruments.format_help`), as plain
-    text (an installed wheel needs no README)."""
+    text (an installed wheel needs no documentation)."""
     import textwrap
 
     from calib.io.csv.instruments import format_help as instruments_help

@@ -99,7 +99,7 @@ def _rename_notes(options: ReadOptions, tables: list[Table]) -> tuple[str, ...]:
 # ====================================================================== measurements
 def read_measurements(csv_path: str | Path, robot, *, tracker: str | Path | None = None,
                       options: ReadOptions | None = None) -> Measurements:
-    """Read a measurement CSV file (format: module docstring and README) for ``robot``.
+    """Read a measurement CSV file (format: module docstring and docs/formats.md) for ``robot``.
 
     Parameters
     ----------
