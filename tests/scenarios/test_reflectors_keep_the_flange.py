@@ -108,9 +108,16 @@ def _write_files(d: Path, nominal, truth, columns, unit):
     return log, tracker
 
 
-def _compensated(path: Path, names) -> tuple[np.ndarray, list[str]]:
+def _compensated(path: Path, robot, convention: str) -> tuple[np.ndarray, list[str]]:
+    """(joints rad, statuses) of compensate's output in ``convention``'s terms (its joint names
+    and unit: calib.io.csv.compensation_output)."""
+    from calib.io.csv.compensation_output import joint_header
+    from calib.io.csv.conventions import CONVENTIONS
+
     rows = list(csv.DictReader(ln for ln in path.read_text().splitlines() if not ln.startswith("#")))
-    return np.radians([[float(r[f"{j}_deg"]) for j in names] for r in rows]), [r["status"] for r in rows]
+    cols = joint_header(convention, robot.n_joints, robot.prismatic)
+    q = np.array([[float(r[c]) for c in cols] for r in rows])
+    return (np.radians(q) if CONVENTIONS[convention].joints[1] == "deg" else q), [r["status"] for r in rows]
 
 
 @pytest.mark.parametrize("name", ["kr16", "ur10"])
@@ -192,7 +199,7 @@ def test_three_reflectors_keep_tool0_at_the_flange_and_compensation_aims_it(name
     assert (f"joint targets of {prog} are for tool frame 'tool0' at the flange of {out} (the calibration "
             f"measured the links tool_SMR1 (SMR1), tool_SMR2 (SMR2), tool_SMR3 (SMR3) under it), in base "
             f"frame {base}") in text
-    qc, status = _compensated(corrected, nominal.joint_names)
+    qc, status = _compensated(corrected, nominal, convention)
     assert status == ["ok"] * len(Qt)
 
     def reached(q, T_tool_tcp=np.eye(4)):
@@ -216,13 +223,14 @@ def test_three_reflectors_keep_tool0_at_the_flange_and_compensation_aims_it(name
     poses.write_text(";".join(columns) + ";X;Y;Z;qw;qx;qy;qz\n".replace("X;Y;Z", "x_mm;y_mm;z_mm") + "".join(
         ";".join(f"{conv(x):.9f}" for x in q) + ";" + ";".join(f"{v * 1e3:.6f}" for v in T[:3, 3]) + ";"
         + ";".join(f"{v:.12f}" for v in (qq.w, qq.x, qq.y, qq.z)) + "\n" for q, T, qq in zip(Qt, tcp, quat)))
+    # (the targets are poses in the URDF's base frame: --targets-frame base, not the controller's)
     code = main(["compensate", str(out), urdf, str(poses), "-o", str(corrected), "--convention", convention,
-                 "--tool-offset", "0,0,180,0,0,30", *frame_args])
+                 "--tool-offset", "0,0,180,0,0,30", "--targets-frame", "base", *frame_args])
     text = capsys.readouterr().out
     assert code == 0, text
     assert (f"pose targets of {poses} are for the tool at 0, 0, 180 mm, roll-pitch-yaw 0, 0, 30 deg in 'tool0' "
             f"at the flange of {out}") in text
-    qc, status = _compensated(corrected, nominal.joint_names)
+    qc, status = _compensated(corrected, nominal, convention)
     assert status == ["ok"] * len(Qt)
     err = np.linalg.norm(reached(qc, T_tcp)[:, :3, 3] - tcp[:, :3, 3], axis=1)
     assert err.max() < 0.1e-3, err.max()
@@ -270,7 +278,7 @@ def test_a_tool_link_of_the_nominal_urdf_is_aimed_at(tmp_path, capsys):
         where = (f"tool frame 'gripper_tcp' of {with_gripper}, fixed to 'tool0' at the flange in {out}"
                  if link == "gripper_tcp" else f"tool frame 'ee_link' of {out}")
         assert f"joint targets of {prog} are for {where}" in text
-        qc, status = _compensated(corrected, nominal.joint_names)
+        qc, status = _compensated(corrected, nominal, "ur")
         assert status == ["ok"] * len(Qt)
         got = np.array([(np.linalg.inv(T_meas_base) @ true_tool0.T_meas_tool(q) @ T_tool0_link)[:3, 3] for q in qc])
         want = np.array([tool.T_meas_tool(q)[:3, 3] for q in Qt])
