@@ -180,3 +180,24 @@ def consistency_notes(consistency: Mapping | None) -> list[str]:
     text += (" Likely causes: " + "; ".join(c["causes"]) + ". Calibrate each campaign (or instrument "
              "placement) apart, or find and fix the flagged rows.")
     return [text]
+
+
+def consistency_dict(c: dict | None) -> dict | None:
+    """The JSON form of :func:`calib.calibration.consistency.data_consistency`'s record (mm, rad)."""
+    if c is None:
+        return None
+
+    def figures(d):
+        return {"position_mm": None if d["position_rms"] is None else d["position_rms"] * 1e3,
+                "rotation_rad": d["rotation_rms"]}
+    mv = c["moved_frame"]
+    return {"flagged": c["flagged"], "removed": c["removed"], "rows": c["rows"], "share": c["share"], "flagged_rows": c["flagged_rows"],
+            "runs": [list(r) for r in c["runs"]],
+            "held_out_all_rows": figures(c["held_out_all_rows"]), "held_out_kept_rows": figures(c["held_out_kept_rows"]),
+            "held_out_flagged_rows": figures(c["held_out_flagged_rows"]),
+            "predicted_holdout": figures(c["predicted_holdout"]),
+            "moved_frame": None if mv is None else {
+                "translation_mm": mv["translation_m"] * 1e3, "rotation_rad": mv["rotation_rad"],
+                "position_rms_before_mm": mv["position_rms_before"] * 1e3,
+                "position_rms_after_mm": mv["position_rms_after"] * 1e3, "explains": mv["explains"]},
+            "causes": list(c["causes"])}

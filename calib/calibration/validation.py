@@ -16,6 +16,7 @@ from calib.calibration.prepare import Setup
 from calib.errors import DataError, ParameterError
 from calib.solvers.lm import LMOptions, levenberg_marquardt
 from calib.solvers.inverse import normal_inverse
+from calib.solvers.blocks import GROUPS
 from calib.solvers.problem import Problem
 
 if TYPE_CHECKING:
@@ -261,6 +262,62 @@ def held_out_error(setup: Setup, fit: Fit, problem: Problem, selection: ModelSel
     if fit.keep.sum() < folds:
         return None, [f"no cross-validation: fewer rows than the {folds} folds"]
     try:
+        if setup.touch is not None:
+            return cross_validate_blocks(fit, problem, folds), []
         return cross_validate(setup, fit, problem, folds, options=options), []
     except DataError as exc:
         return None, [f"no cross-validation: {exc}"]
+
+
+def stratified_folds(strata: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:
+    """(n,) the fold of each row, dealt stratum by stratum (``strata``: each row's stratum, e.g.
+    the feature a touch row touches) from a random permutation of its rows and a random first
+    fold (``seed``): every stratum keeps rows in every refit that it has more rows than folds for."""
+    rng = np.random.default_rng(seed)
+    fold_of = np.empty(len(strata), int)
+    for s in np.unique(strata):
+        rows = rng.permutation(np.flatnonzero(strata == s))
+        fold_of[rows] = (np.arange(len(rows)) + rng.integers(folds)) % folds
+    return fold_of
+
+
+def cross_validate_blocks(fit: Fit, problem, folds: int = CV_FOLDS, seed: int = 0) -> CrossValidation:
+    """K-fold cross-validated held-out error of a fit of residual blocks (touch data;
+    ``problem``: its kept rows, :class:`calib.solvers.blocks.BlockProblem`): the folds dealt within
+    each stratum (:func:`stratified_folds`: every feature keeps rows in every refit), each fold
+    predicted by one Gauss-Newton step from the fit's solution without its rows
+    (:func:`newton_held_out`, as :func:`cross_validate`). position_rms : RMS over the rows of the
+    held-out error's norm (a touch row's distance to its feature, a measured row's position
+    error); rotation_rms : the measured rotations' (None without); ``groups`` : each residual
+    group's held-out RMS per component."""
+    x = fit.solver.x
+    fold_rows = stratified_folds(problem.strata(), folds, seed)
+    chunks = list(problem.row_blocks(x))
+    order = np.concatenate([rows for rows, _, _, _ in chunks])
+    w_p, w_r = newton_held_out(lambda: ((r, Jw) for _, r, Jw, _ in chunks), fold_rows[order], folds,
+                               check_rank=fit.full_rank)
+    levels = np.asarray(problem.levels)
+    e_p, e_r = np.zeros(problem.n_poses), np.full(problem.n_poses, np.nan)
+    sq, count = np.zeros(3), np.zeros(3)
+    start = 0
+    for rows, r, _, groups in chunks:
+        a, b = w_p[start:start + len(rows)], w_r[start:start + len(rows)]
+        start += len(rows)
+        g_p, g_r = groups[:, 0], groups[:, -1]          # (a row's first three components: one group)
+        e_p[rows] = a * levels[g_p] ** 2
+        if r.shape[1] == 6:
+            e_r[rows] = b * levels[g_r] ** 2
+        np.add.at(sq, g_p, e_p[rows])
+        np.add.at(count, g_p, min(r.shape[1], 3))
+        if r.shape[1] == 6:
+            np.add.at(sq, g_r, e_r[rows])
+            np.add.at(count, g_r, 3)
+    summary = held_out_summary(fold_rows, folds, e_p, None, 1.0, 1.0)
+    measured = ~np.isnan(e_r)
+    score = np.empty(problem.n_poses)
+    score[order] = w_p + w_r
+    from dataclasses import replace
+
+    return replace(summary, rotation_rms=math.sqrt(_mean(e_r[measured])) if measured.any() else None,
+                   score=_mean(score), score_se=_standard_error(score), row_scores=score,
+                   groups={g: math.sqrt(sq[k] / count[k]) for k, g in enumerate(GROUPS) if count[k]})
