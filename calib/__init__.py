@@ -46,10 +46,9 @@ _HOME = {
     "calibration.base_frame": ("MeasurementFrame", "robot_base_frame", "in_base_frame"),
     "model.compliance": ("GravityModel", "Payload"),
     "solvers.paper_lm": ("PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm"),
-    "model.touch": ("Feature", "TouchData"),
+    "model.touch": ("Feature", "FeatureFit", "TouchData"),
     "model.touch_simulate": ("simulate_touch",),
     "io.csv.touch": ("read_touch", "write_touch"),
-    "calibration.touch": ("TouchResult", "calibrate_touch"),
     "io.exports.export": ("ExportResult", "export_calibration"),
     "io.exports.mdh": ("read_mdh_csv",),
 }
@@ -87,6 +86,6 @@ __all__ = [
     "MeasurementFrame", "robot_base_frame", "in_base_frame",
     "GravityModel", "Payload",
     "PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm",
-    "Feature", "TouchData", "TouchResult", "calibrate_touch", "read_touch", "simulate_touch", "write_touch",
+    "Feature", "FeatureFit", "TouchData", "read_touch", "simulate_touch", "write_touch",
     "ExportResult", "export_calibration", "read_mdh_csv",
 ]

@@ -123,8 +123,8 @@ def _check_touch_options(opts: CalibrationOptions, data, validation) -> None:
                                  f"LM of the geometry; {name} {allowed[0]!r})")
     if validation is not None:
         raise ParameterError("validation does not apply to touch data (their held-out error is cross-validated)")
-    if opts.params is not None and opts.params not in ("auto", "tool"):
-        raise ParameterError(f"params for touch data: 'auto' or 'tool', got {opts.params!r}")
+    if opts.params is not None and not (isinstance(opts.params, str) and opts.params in ("auto", "tool")):
+        raise ParameterError(f"params for touch data: 'auto' or 'tool', got {opts.params!r:.60}")
     m = data.measured
     if opts.sigma_rot is not None and (m is None or m.rotation is None):
         raise ParameterError("sigma_rot weights measured orientations; these touch data have none")

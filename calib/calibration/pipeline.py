@@ -44,7 +44,7 @@ from typing import Sequence
 import numpy as np
 
 from calib.calibration.accuracy import AccuracyStats, BeforeAfter, accuracy_after, accuracy_before
-from calib.calibration.consistency import consistency_notes
+from calib.calibration.validation import consistency_notes
 from calib.calibration.diagnose import misreadings
 from calib.calibration.estimators.base import Estimate
 from calib.calibration.estimators.least_squares import implausibility, length_notes, method_notes
@@ -247,9 +247,18 @@ def make_result(setup: Setup, est: Estimate, stats: Statistics, opts: Calibratio
         cross_validation=cross, selection=est.selection, before_registered=accuracy.before_registered,
         validation_before_registered=accuracy.validation_before_registered, targets=accuracy.targets,
         after_without_outliers=errors.subset(fit.keep) if fit.outliers else None,
-        estimated_frames=setup.rebased, predicted_workspace=stats.predicted_workspace,
+        estimated_frames=estimated_frames(setup, fit), predicted_workspace=stats.predicted_workspace,
         consistency=stats.consistency, estimator=est.record, measurement_frame=mframe,
         **({} if setup.touch is None else touch_fields(setup, est, opts, cross)))
+
+
+def estimated_frames(setup: Setup, fit) -> tuple[str, ...]:
+    """The frames the calibration estimated from the data: those the closed-form estimate moved
+    (:class:`~calib.calibration.prepare.Setup`'s ``rebased``); of touch data, also the tool when its
+    offset was fitted (the tool point the rows touched with)."""
+    if setup.touch is None:
+        return setup.rebased
+    return setup.rebased + (("flange->tool",) if any(n.startswith("v_") for n in fit.free) else ())
 
 
 def touch_fields(setup: Setup, est: Estimate, opts: CalibrationOptions, cross) -> dict:

@@ -324,6 +324,11 @@ def _reach(robot: RobotModel) -> float:
     return float(np.linalg.norm(p, axis=1).max())
 
 
+def reach_of(robot: RobotModel) -> float:
+    """The robot's reach (:func:`_reach`), kept for the next calibrations of the same model."""
+    return _robot_memo("reach", robot, (), lambda: _reach(robot))
+
+
 def _check_plausible_positions(robot: RobotModel, m: Measurements) -> None:
     """Refuse positions no tracker could have measured of this robot: farther from the meas
     frame's origin than the robot's reach (the farthest tool position over random

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from calib.calibration.accuracy import AccuracyStats, format_accuracy_table
-from calib.calibration.consistency import consistency_dict
+from calib.calibration.validation import consistency_dict
 from calib.calibration.workspace import workspace_dict
 from calib.units import display_unit, display_value
 from calib.calibration.estimators.base import NoiseEstimate
@@ -97,7 +97,7 @@ class CalibrationResult:
     not computed. consistency : when more than a tenth of the calibration rows were flagged as
     outliers, the held-out error of all rows (flagged ones included) beside the prediction for
     rows like the kept ones, and the likely causes
-    (:func:`calib.calibration.consistency.data_consistency`; its note comes first in ``notes``);
+    (:func:`calib.calibration.validation.data_consistency`; its note comes first in ``notes``);
     None otherwise.
     estimator : how the parameters were estimated: ``{"kind": "least-squares", "param_set": ...}``
     or, for the regularised estimate (:mod:`calib.calibration.estimators.regularised`), ``{"kind": "eb-map",
@@ -158,6 +158,8 @@ class CalibrationResult:
 
     def group(self, name: str) -> GroupFit | None:
         """The residual group ``name`` ("touch", "position", "rotation") of a fit of touch data, or None."""
+        if not isinstance(name, str):
+            raise ParameterError(f"name must be a residual group's name (a string), got {name!r:.60}")
         return next((g for g in self.groups if g.name == name), None)
 
     def base_robot(self) -> RobotModel:

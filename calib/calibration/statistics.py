@@ -12,9 +12,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib.calibration.accuracy import registered_residuals, target_rows
-from calib.calibration.consistency import data_consistency
+from calib.calibration.validation import data_consistency
 from calib.calibration.estimators.base import Fit, GroupFit
-from calib.calibration.prepare import Setup
+from calib.calibration.options import IMPLAUSIBLE_LENGTH_FRACTION
+from calib.calibration.prepare import Setup, reach_of
 from calib.calibration.validation import row_traces
 from calib.calibration.workspace import (predict_workspace, predicted_tool_error, propagate_covariance, propagated,
                                          workspace_configurations, workspace_notes)
@@ -37,7 +38,7 @@ class Statistics:
     configurations within the joint limits (:func:`calib.calibration.workspace.predict_workspace`;
     None when not computed). consistency : when many calibration rows were flagged as outliers,
     the held-out error of all of them beside the prediction for rows like the kept ones
-    (:func:`calib.calibration.consistency.data_consistency`; None otherwise). refusals : why the
+    (:func:`calib.calibration.validation.data_consistency`; None otherwise). refusals : why the
     design cannot be trusted (touch data: :func:`touch_statistics`), which the verdict reports.
     """
 
@@ -148,11 +149,14 @@ def touch_statistics(setup: Setup, fit: Fit, problem) -> Statistics:
     registration (similarity when no length fixes the scale), and in the meas frame when measured
     rows identified it (``meas_frame_rms``); the nominal model's expected error there
     (``nominal_rms``: the RMS of the correction the fit applies, registered the same way, less
-    the part the noise makes of it, sqrt(correction^2 - prediction^2)). A design whose
-    predicted error exceeds the nominal model's (and DESIGN_NOISE_FACTOR times the noise) is
-    refused naming what to add: the calibrated model is expected to be worse than the nominal
-    one (a sphere touched only within an 11 degree cap: 9 mm predicted, the URDF 2.8 times worse
-    than the nominal)."""
+    the part the noise makes of it, sqrt(correction^2 - prediction^2); against the nominal robot
+    with the fitted tool offset: an unknown tool is no error of the robot's). Refused (the
+    ``refusals`` the verdict reports): a correction beyond IMPLAUSIBLE_LENGTH_FRACTION of the
+    reach (no robot is that far from its drawing; touch rows that contradict each other fit such
+    a robot to the noise, where measured poses would not), and a design whose predicted error
+    exceeds the nominal model's (and DESIGN_NOISE_FACTOR times the noise), naming what to add:
+    the calibrated model is expected to be worse than the nominal one (a sphere touched only
+    within an 11 degree cap: 9 mm predicted, the URDF 2.8 times worse than the nominal)."""
     m = len(fit.free)
     x = fit.solver.x
     C = fit.covariance[:m, :m]
@@ -165,7 +169,11 @@ def touch_statistics(setup: Setup, fit: Fit, problem) -> Statistics:
         f.kind == "sphere" for f in setup.touch.features)) else "rigid"
     pred = predicted_tool_error(model, fit.free, C, Q, registration)
     p_cal = ChainKinematics(model).frame_poses(Q)[1]
-    p_nom = ChainKinematics(setup.nominal).frame_poses(Q)[1]
+    # (the nominal robot with the fitted tool: an unknown tool is no error of the robot's)
+    v = setup.nominal.values.copy()
+    tool = [k for k, p in enumerate(model.parameters) if p.group == "v" and p.name in set(fit.free)]
+    v[tool] = model.values[tool]
+    p_nom = ChainKinematics(setup.nominal.with_values(v)).frame_poses(Q)[1]
     correction = float(np.sqrt(np.mean(np.sum(registered_residuals(p_cal, p_nom, registration) ** 2, axis=1))))
     nominal = math.sqrt(max(correction ** 2 - pred ** 2, 0.0))
     where = (f"{TOUCH_CONFIGURATIONS} random configurations within the joint limits, after a best-fit "
@@ -174,7 +182,17 @@ def touch_statistics(setup: Setup, fit: Fit, problem) -> Statistics:
                  "configurations": TOUCH_CONFIGURATIONS, "correction_rms": correction, "nominal_rms": nominal,
                  "meas_frame_rms": None if setup.cal is None else predicted_tool_error(model, fit.free, C, Q, "none")}
     refusals = ()
-    if pred > nominal and pred > DESIGN_NOISE_FACTOR * problem.sigma_touch:
+    reach = reach_of(setup.nominal)
+    if correction > IMPLAUSIBLE_LENGTH_FRACTION * reach:
+        # (touch rows fix the robot relative to features they locate themselves: a robot bent far
+        # from its drawing can fit them to the noise, where measured poses would not fit it)
+        refusals = (f"the calibrated model is not this robot: its tool positions lie {correction * 1e3:.4g} mm "
+                    f"({where}) from the URDF's, more than {100 * IMPLAUSIBLE_LENGTH_FRACTION:g} % of the robot's "
+                    f"reach {reach * 1e3:.0f} mm, which no robot is from its drawing; the touch rows fit such a "
+                    f"robot when they contradict each other (two features touched under one name: "
+                    f"{', '.join(f'{f.kind} {f.id!r}' for f in setup.touch.features)}) or when the URDF is not "
+                    f"this robot's",)
+    elif pred > nominal and pred > DESIGN_NOISE_FACTOR * problem.sigma_touch:
         refusals = (f"the design cannot calibrate this robot: the predicted tool position error over the "
                     f"workspace ({where}) is {pred * 1e3:.3g} mm, more than the nominal model's expected "
                     f"{nominal * 1e3:.3g} mm (the fit's correction {correction * 1e3:.3g} mm less what the noise "
@@ -214,7 +232,7 @@ def group_fits(problem, fit: Fit, x0: np.ndarray, given: tuple, rows_of: dict, c
     estimated = {"position": (nz.position, nz.redundancy_pos), "rotation": (nz.rotation, nz.redundancy_rot),
                  "touch": (nz.touch, nz.redundancy_touch)}
     out = []
-    for g in problem.groups:
+    for g in sorted(problem.groups, key=("touch", "position", "rotation").index):     # (the touch rows first)
         k = GROUPS.index(g)
         sel = problem.component_group == k
         level, red = estimated[g]

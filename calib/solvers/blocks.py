@@ -269,6 +269,18 @@ class BlockProblem:
         dr = np.concatenate(drs) if drs and all(d is not None for d in drs) else None
         return dp, dr
 
+    def robust_start(self, x: np.ndarray, robot: np.ndarray | None = None) -> np.ndarray:
+        """The robot's free parameters at ``robot`` (default: those of x) and each block's
+        unknowns fitted robustly to the tool positions there (a point touched at the centre of its
+        rows' largest cluster, not their mean), x's where a block has no robust fit: a start of
+        the outlier check's high-breakdown fit."""
+        x = np.asarray(x, float)
+        x_robot = x[:len(self.free)] if robot is None else np.asarray(robot, float)
+        self.kin.set_values(self.full(x_robot), twists=False)
+        R, p = self.kin.frame_poses(self.Q)
+        own = [b.robust_start(p[self.block_rows(k)], self.own(x, k)) for k, b in enumerate(self.blocks)]
+        return np.concatenate([x_robot] + own)
+
     def row_errors(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(position error (N,) metres, rotation error (N,) radians, NaN where not measured)."""
         self.kin.set_values(self.full(x), twists=False)

@@ -268,6 +268,32 @@ def noise_estimate(problem: Problem, lin: Linearised, estimated: bool, iteration
                          ne.rss_rot / max(red_r, 1e-300) if has_rot else None, chi2, dof, iterations, **touch)
 
 
+#: A residual group whose noise is estimated needs at least this redundancy (its components
+#: minus its share of the unknowns): below it the fit passes through its rows and the "estimate"
+#: would be the weight it started with.
+MIN_GROUP_REDUNDANCY = 1.0
+_GROUP_ADVICE = {"touch": ("touch rows", "--sigma-touch-mm, API sigma_touch"),
+                 "position": ("measured rows", "--sigma-pos-mm, API sigma_pos"),
+                 "rotation": ("measured rows", "--sigma-rot-rad, API sigma_rot")}
+
+
+def check_group_redundancy(lin: Linearised, groups, given) -> None:
+    """Raise DataError, naming what to add, when a residual group of a fit of residual blocks
+    whose noise is estimated (``given``: per group of ("position", "rotation", "touch"), None:
+    estimated) has a redundancy below MIN_GROUP_REDUNDANCY (3 measured positions mixed with touch
+    rows: 9 components, 8.5 of them spent on the meas frame and the scale; their noise was
+    printed as 'estimated' at the weight it started with, and the prediction in the meas frame
+    at it). groups : the groups the fit has."""
+    from calib.errors import DataError
+
+    for k, (g, red) in enumerate(zip(("position", "rotation", "touch"), lin.redundancies(3))):
+        if g in groups and given[k] is None and red < MIN_GROUP_REDUNDANCY:
+            rows, flag = _GROUP_ADVICE[g]
+            raise DataError(f"the {GROUP_NAMES[g][1]} have a redundancy of {red:.2g} (their components minus their "
+                            f"share of the unknowns, below {MIN_GROUP_REDUNDANCY:g}): the fit passes through them and "
+                            f"their noise cannot be estimated; add {rows}, or give their noise ({flag})")
+
+
 def chi2_p_value(chi2: float, dof: float) -> float:
     """Two-sided p-value of a chi-square ``chi2`` with ``dof`` degrees of freedom: residuals far
     below the given noise disagree with it as much as far above (scipy.special's regularised

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Sequence
 
@@ -16,93 +15,31 @@ from calib.calibration.options import (
     IMPLAUSIBLE_LENGTH_FRACTION,
     IMPLAUSIBLE_REACH_FRACTION,
     IMPLAUSIBLE_ROT_RAD,
-    LOCAL_MINIMUM_RATIO,
     ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM,
     STEP_START_MU0,
     TRIMMED_MAX_OUTLIER_SHARE,
-    VCE_FIRST_FTOL,
     VCE_MAX_ITERATIONS,
     VCE_RTOL,
     WARM_MU0,
     CalibrationOptions,
 )
-from calib.calibration.prepare import Setup, _reach, _robot_memo
-from calib.calibration.estimators.base import Estimate, Fit, Linearised, linearised, noise_estimate, vce_fixed_point
+from calib.calibration.prepare import Setup, _reach, _robot_memo, reach_of
+from calib.calibration.estimators.base import (Estimate, Fit, Linearised, check_group_redundancy, linearised,
+                                               noise_estimate, vce_fixed_point)
 from calib.calibration.estimators.outlier import Outlier
 from calib.calibration.estimators.robust import (can_trim, components, flag_outliers, judge_rows, leftover_gross,
                                                  levels_of, robust_sigmas, too_many_gross)
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, SIGMA_TOUCH_M
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
-from calib.solvers import dispatch
-from calib.solvers.angles import RotationChain
-from calib.solvers.lm import LMOptions, LMTrace, SolverResult, options_with
+from calib.calibration.estimators.solver import Solver, check_local_minimum, solve_logged, solver_for
+from calib.solvers.lm import LMTrace, SolverResult
 from calib.solvers.inverse import normal_inverse
 from calib.solvers.blocks import GROUPS
 from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem
 
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
-class Solver:
-    """How the fit stage solves: method, options, and the search-lm ingredients."""
-
-    method: str
-    measure: str
-    options: LMOptions
-    max_rounds: int
-    fixed_rounds: int | None
-    angular: np.ndarray
-    chain: RotationChain | None
-    model: RobotModel
-    lm_variant: str = "calib"
-
-    def __call__(self, problem: Problem, x: np.ndarray, trace: LMTrace, first: bool, *,
-                 loose: bool = False, mu0: float = WARM_MU0) -> SolverResult:
-        """The first fit (``first``: the method's own scheme) or a re-fit from a near solution
-        (LM started with damping ``mu0``, at most the options'); ``loose``: stop at
-        VCE_FIRST_FTOL (calib's LM only)."""
-        if self.lm_variant == "paper":
-            return self._paper(problem, x, trace)
-        opts = self.options
-        if loose:   # (stopping at its last evaluated point, whose normal equations the estimate uses)
-            opts = options_with(opts, ftol=max(opts.ftol, VCE_FIRST_FTOL), last_step=False)
-        if not first:
-            return dispatch.solve(problem, x, "lm", options=options_with(opts, mu0=min(opts.mu0, mu0)), trace=trace)
-        method = "lm" if self.measure != "pose" else self.method
-        return dispatch.solve(problem, x, method, angular=self.angular, chain=self.chain, options=opts,
-                              trace=trace, max_rounds=self.max_rounds, fixed_rounds=self.fixed_rounds)
-
-    def _paper(self, problem: Problem, x: np.ndarray, trace: LMTrace) -> SolverResult:
-        """The LM of Eq. (27)-(28) as printed (:mod:`calib.solvers.paper_lm`): unweighted residuals in mm
-        and rad, so the noise levels do not change its solution; its cost is re-expressed in the
-        fit's noise weights."""
-        from calib.solvers.paper_lm import PaperLMOptions
-
-        popts = PaperLMOptions(max_iterations=self.options.max_iterations)
-        method = "c-lm" if (self.method == "c-lm" and self.measure == "pose") else "lm"
-        r = dispatch.solve(problem, x, method, angular=self.angular, variant="paper", paper_options=popts,
-                           max_rounds=self.max_rounds, fixed_rounds=self.fixed_rounds)
-        trace.iterations += r.iterations
-        cost = 0.5 * float(np.sum(problem.residuals(r.x) ** 2))
-        return SolverResult(r.x, cost, r.status, f"paper's LM as printed: {r.message}", r.iterations,
-                            max(r.rounds, 1))
-
-
-def solver_for(setup: Setup, free: Sequence[str], method: str, options: LMOptions, max_rounds: int,
-                fixed_rounds: int | None, lm_variant: str = "calib") -> Solver:
-    """The :class:`Solver` of the fit stage for the free parameters ``free`` of ``setup``'s start
-    model: ``method`` run as LM for several targets (the angle search takes one tool frame), the
-    angle search's rotation chain for search-lm on pose data."""
-    idx = setup.start.indices(free)
-    angular = np.array([setup.start.parameters[k].is_angular for k in idx], bool)
-    if method == "search-lm" and setup.start.targets:
-        method = "lm"       # the angle search takes one tool frame (a note says so)
-    chain = RotationChain(setup.start) if (method == "search-lm" and setup.measure == "pose") else None
-    return Solver(method, setup.measure, options, max_rounds, fixed_rounds, angular, chain, setup.start,
-                  lm_variant)
 
 
 def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: float | None,
@@ -252,13 +189,13 @@ class _FitRun:
             problem = self.problem()
             # (pose data: the weights change the fit, so a re-weighted fit follows the first)
             loose = self.first and self.estimate and self.two_groups
-            sol = _solve_logged(self.solve, problem, self.x, self.trace, self.first, loose=loose, mu0=self.start_mu0)
+            sol = solve_logged(self.solve, problem, self.x, self.trace, self.first, loose=loose, mu0=self.start_mu0)
             self.start_mu0 = WARM_MU0
             if self.first or (self.unjudged and sol.status == "converged"):
                 # judged at the starting weights, before they adapt to a stuck fit's residuals;
                 # a first fit that stopped unconverged (the paper's LM at its iteration limit) is
                 # judged when a re-fit from it first calls itself converged
-                sol = _check_local_minimum(sol, problem, self.solve)
+                sol = check_local_minimum(sol, problem, self.solve)
                 self.stuck = sol if sol.status == "local_minimum" else None
                 self.unjudged = sol.status != "converged" and self.stuck is None
             self.first = False
@@ -334,7 +271,7 @@ class _FitRun:
         problem = self.problem()
         sol, x = self.sol, self.x
         if sol.x is not x and self.refit:   # the last change of x was not solved at these weights (robust start)
-            sol = _solve_logged(self.solve, problem, x, self.trace, False)
+            sol = solve_logged(self.solve, problem, x, self.trace, False)
             x = sol.x
         if sol.x is not x:      # (refit False: the robust solution, not refitted)
             sol = replace(sol, x=x, message=f"{sol.message}; then the outlier check's robust solution, not "
@@ -342,6 +279,8 @@ class _FitRun:
         if self.stuck is not None:
             sol = replace(sol, status=self.stuck.status, message=self.stuck.message)
         lin = self.linearised(problem, x)
+        if self.setup.touch is not None and sol.status != "diverged":
+            check_group_redundancy(lin, everything.groups, self.given)
         noise = noise_estimate(problem, lin, self.estimate, self.vce_total)
         if self.estimate and self.outlier_k is not None and self.loss == "linear" and not self.refusals \
                 and self.refit and can_trim(everything, self.keep, len(x)):
@@ -355,6 +294,7 @@ class _FitRun:
         if self.outliers:
             notes.append(f"{len(self.outliers)} outlier rows removed and the fit repeated without them: rows "
                          + ", ".join(str(o.row) for o in self.outliers))
+            notes += feature_notes(self.setup.touch, self.outliers)
         # (least squares: the cost from the normal equations of the noise estimate)
         cost = lin.ne.cost if problem.loss == "linear" else 0.5 * float(np.sum(problem.residuals(x) ** 2))
         fit = Fit(model, self.free, replace(sol, cost=cost), self.keep, tuple(self.outliers), noise,
@@ -364,33 +304,26 @@ class _FitRun:
         return fit, problem
 
 
-def _solve_logged(solve: Solver, problem: Problem, x, trace, first, loose: bool = False,
-                  mu0: float = WARM_MU0) -> SolverResult:
-    t = time.perf_counter()
-    sol = solve(problem, x, trace, first, loose=loose, mu0=mu0)
-    log.info("fit (%s%s): %s, cost %.6g, %d iterations, %.1f ms", solve.method if first else "lm",
-             "" if first else " re-weighted", sol.status, sol.cost, sol.iterations,
-             (time.perf_counter() - t) * 1e3)
-    return sol
+#: A feature of touch data that loses this share of its rows to the outlier check is named.
+FEATURE_FLAGGED_SHARE = 0.25
 
 
-def _check_local_minimum(sol: SolverResult, problem: Problem, solve: Solver) -> SolverResult:
-    """An explicit lm / c-lm fit: an angle search from its solution, then LM; if that reaches a
-    clearly lower cost, the fit stopped in a local minimum and is not called converged."""
-    if solve.measure != "pose" or solve.method == "search-lm" or sol.status != "converged":
-        return sol
-    if solve.model.targets:     # the angle search takes one tool frame
-        return sol
-    chain = solve.chain or RotationChain(solve.model)
-    other = dispatch.solve(problem, sol.x, "search-lm", angular=solve.angular, chain=chain,
-                           options=solve.options, max_escapes=0)
-    # clearly lower: by a fraction of the cost and by more than chance (1 in chi^2 / 2 units)
-    if other.cost < LOCAL_MINIMUM_RATIO * sol.cost and sol.cost - other.cost > 1.0:
-        msg = (f"{solve.method.upper()} stopped in a local minimum: an angle search from its solution, "
-               f"then LM, reaches a cost {other.cost:.4g} below its {sol.cost:.4g} (method search-lm "
-               f"escapes it)")
-        return replace(sol, status="local_minimum", message=msg)
-    return sol
+def feature_notes(touch, outliers) -> list[str]:
+    """A note per feature of touch data (``touch``, None: none) that lost FEATURE_FLAGGED_SHARE
+    or more of its rows to the outlier check: rows that contradict the others of one feature are
+    another feature touched under its name, more often than gross touches."""
+    if touch is None:
+        return []
+    flagged = {o.row: o for o in outliers}
+    notes = []
+    for k, f in enumerate(touch.features):
+        rows = touch.rows[touch.rows_of(k)]
+        out = [flagged[r] for r in rows if r in flagged]
+        if out and len(out) >= FEATURE_FLAGGED_SHARE * len(rows):
+            notes.append(f"{len(out)} of the {len(rows)} rows of {f.kind} {f.id!r} lie "
+                         f"{min(o.position_error for o in out) * 1e3:.3g} mm or more from it (rows "
+                         f"{', '.join(str(o.row) for o in out)}): a second {f.kind} touched under its name?")
+    return notes
 
 
 def method_notes(setup: Setup, method: str) -> list[str]:
@@ -423,15 +356,63 @@ def implausibility(nominal: RobotModel, fit: Fit, *, sigma_pos_given: bool,
                      f"given noise (reduced chi^2 {worst[1]:.3g}): a wrong sigma, or errors the model "
                      f"does not describe; omit the noise levels to estimate them from the data")
     # judged on the rows the fit kept: a gross row it flagged is not the model's failure
-    return notes + _implausible_fit_notes(nominal, fit.errors.subset(fit.keep))
+    return notes + _implausible_fit_notes(nominal, fit.errors.subset(fit.keep)) + length_refusals(nominal, fit)
 
 
 def length_notes(nominal: RobotModel, fit: Fit) -> list[str]:
     """Notes naming link lengths identified far from ``nominal``'s. A note, not a refusal: a
     length tied to another (d2 and d3 of parallel axes, d6 and the tool's z) can move along the
     tie with the model's kinematics exact (from a start 1.55 rad off in alpha2: d2 -26 m,
-    d3 +26 m, error to the truth 1e-9 m)."""
+    d3 +26 m, error to the truth 1e-9 m); :func:`length_refusals` refuses the lengths that move
+    the tool positions."""
     return _implausible_length_notes(nominal, fit.model)
+
+
+def length_refusals(nominal: RobotModel, fit: Fit) -> list[str]:
+    """The one rule on link lengths far from the URDF's, for every kind of data: lengths
+    identified further than IMPLAUSIBLE_LENGTH_FRACTION of the reach from ``nominal``'s
+    (:func:`length_notes`) that carry the fit are refused. They carry it when, put back to the
+    URDF's values, no other parameter (and no rigid motion of the meas frame) brings the tool
+    positions over random configurations back within that fraction of the reach (RMS) of the
+    calibrated ones (an LM fit of those positions): a tie moves lengths, not the tool (d2 -26 m
+    and d3 +26 m of parallel axes, d6 +172 mm against the tool's z: a note). Two nests touched
+    under one point's name were explained by an arm whose a2 and a3 shrank by 630 and 580 mm,
+    fitted to the noise: refused. One sentence, else empty."""
+    far = _far_lengths(nominal, fit.model)
+    if not far:
+        return []
+    from calib.calibration.workspace import workspace_configurations
+    from calib.solvers.lm import LMOptions, levenberg_marquardt
+
+    model = fit.model
+    Q = workspace_configurations(nominal)
+    values = model.values.copy()
+    for name, _ in far:
+        values[model.index(name)] = nominal.value(name)
+    reset = model.with_values(values)
+    p_cal = ChainKinematics(model).frame_poses(Q)[1]
+    others = [k for k, p in enumerate(reset.parameters) if p.name not in dict(far) and p.group != "compliance"]
+    problem = Problem(ChainKinematics(reset), Q, p_cal, None, reset.values, others, 1e-3, 1.0)
+    sol = levenberg_marquardt(problem, reset.values[others], options=LMOptions(max_iterations=50))
+    moved = float(np.sqrt(2.0 * sol.cost / len(Q))) * 1e-3
+    reach = reach_of(nominal)
+    if moved <= IMPLAUSIBLE_LENGTH_FRACTION * reach:
+        return []
+    shown = ", ".join(f"{name} {dev * 1e3:+.1f} mm" for name, dev in far)
+    return [f"the calibrated model is not this robot: its link lengths far from the URDF's ({shown}) carry the "
+            f"fit, the tool positions {moved * 1e3:.4g} mm (RMS over random configurations) from any model with "
+            f"the URDF's lengths, more than {100 * IMPLAUSIBLE_LENGTH_FRACTION:g} % of the robot's reach "
+            f"{reach * 1e3:.0f} mm; check the length unit of the positions, that the URDF is this robot's, and "
+            f"rows that contradict each other (two features touched under one name)"]
+
+
+def _far_lengths(nominal: RobotModel, calibrated: RobotModel) -> list[tuple[str, float]]:
+    """(name, deviation) of the link lengths (d, a) identified further than
+    IMPLAUSIBLE_LENGTH_FRACTION of the reach from ``nominal``'s (a slide's offset: any)."""
+    reach = reach_of(nominal)
+    return [(p.name, b - a) for p, a, b in zip(nominal.parameters, nominal.values, calibrated.values)
+            if p.group == "joint" and p.unit == "m" and abs(b - a) > IMPLAUSIBLE_LENGTH_FRACTION * reach
+            and not (p.kind == "d" and nominal.prismatic[p.joint - 1])]
 
 
 def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, outlier_k: float | None,
@@ -473,7 +454,7 @@ class LeastSquares:
                                 rank_deficit=choice.deficit, warm=warm)
         if setup.touch is not None and fit.solver.status != "diverged":
             return self.second_pass(setup, choice, options, kin, fit, problem)
-        return Estimate(fit, problem, choice.label, {"kind": self.name, "param_set": choice.label})
+        return Estimate(fit, problem, choice.label, {"kind": self.name, "param_set": choice.label}, choice=choice)
 
     def second_pass(self, setup: Setup, choice, options: CalibrationOptions, kin: ChainKinematics, fit: Fit,
                     problem) -> Estimate:
@@ -489,9 +470,13 @@ class LeastSquares:
         its chi-square 99 % point."""
         from calib.calibration.estimators.robust import at_levels
         from calib.calibration.parameters import choose_touch_parameters
+        from calib.errors import DataError
 
         first = Estimate(fit, problem, choice.label, {"kind": self.name, "param_set": choice.label}, choice=choice)
-        again = choose_touch_parameters(setup, options, at=fit.model, first=choice.free)
+        try:
+            again = choose_touch_parameters(setup, options, at=fit.model, first=choice.free)
+        except DataError:       # (the first fit's model is far from any the rows determine: judged as it is)
+            return first
         extra = set(again.free) - set(choice.free)
         if not extra or not set(choice.free) <= set(again.free) or \
                 problem.n_residuals <= len(again.free) + problem.n_free - len(choice.free):

@@ -221,6 +221,11 @@ def _apart(problem: Problem) -> Problem:
 #: least this share of their position components as redundancy (the noise it judges by comes
 #: from them).
 TRIM_MIN_REDUNDANCY_SHARE = 0.25
+#: The same for a problem of residual blocks, of all its components: a feature's rows carry its
+#: own unknowns besides the robot's (one point touched from 6 orientations, the tool fitted, a
+#: robot with 0.5 mm errors: the refit of 3 rows had a redundancy of 3 of its 9 components, and
+#: flagged the 3 others, off by the robot's unmodelled errors).
+TRIM_MIN_BLOCKS_REDUNDANCY_SHARE = 0.5
 #: Residual components per parameter that half of the rows must hold for the trimmed fit.
 TRIM_MIN_RATIO = 1.5
 
@@ -383,8 +388,12 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
     # at the point whose normal equations are at hand: that step's Jacobian pass served nothing,
     # the steps rank the rows by a residual pass of all of them)
     options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL), last_step=False)
-    nominal = everything.values[everything.free]
-    starts = (x, np.concatenate([nominal, x[len(nominal):]]))    # (the fit's solution, the nominal values)
+    starts = (x, everything.values[everything.free])    # (the fit's solution, the nominal values)
+    if isinstance(everything, BlockProblem):
+        # (with the blocks' unknowns: x's, then fitted robustly at x's robot; a point's rows at two
+        # nests leave x's point between them, where no half of the rows lies)
+        nominal = np.concatenate([starts[1], x[len(starts[1]):]])
+        starts = (x, nominal, everything.robust_start(x))
     x_t = trimmed_fit(at_levels(everything, levels), starts, keep, levels, options, trace)
     inliers, n = keep, keep.sum()
     last_red = [None]       # the redundancy of the last least-squares refit of the inliers
@@ -429,7 +438,8 @@ def _little_redundancy(everything, red_fit: tuple[float, ...], inliers: np.ndarr
     TRIM_MIN_REDUNDANCY_SHARE of their components (pose rows: of their position components) as
     redundancy (red_fit: its redundancy per group)."""
     if isinstance(everything, BlockProblem):
-        return sum(red_fit) < TRIM_MIN_REDUNDANCY_SHARE * components(everything, inliers)
+        red = sum(red_fit[GROUPS.index(g)] for g in everything.groups)
+        return red < TRIM_MIN_BLOCKS_REDUNDANCY_SHARE * components(everything, inliers)
     return red_fit[0] < TRIM_MIN_REDUNDANCY_SHARE * 3 * int(inliers.sum())
 
 

@@ -72,6 +72,10 @@ class MeasuredRows:
             jac.append((left_jacobian_inverse_batch(rr) @ J[:, 3:]).reshape(-1, m))
         return r, np.concatenate(jac), np.zeros((len(r), 0))
 
+    def robust_start(self, p, own) -> np.ndarray:
+        """The block's own unknowns fitted robustly: none."""
+        return np.zeros(0)
+
     def displacements(self, R, p, own) -> tuple[np.ndarray, np.ndarray | None]:
         """Each row's position residual (N, 3) metres and rotation residual (N, 3) radians
         (None without orientation data)."""

@@ -113,6 +113,28 @@ class TouchRows:
         return (r, np.concatenate(jr) if jr else np.zeros((0, m)),
                 np.concatenate(jo) if jo else np.zeros((0, K3)))
 
+    def robust_start(self, p, own) -> np.ndarray:
+        """The features' unknowns (3 K,) fitted robustly to the tool positions p (N, 3) of the
+        rows: a point at the median of the half of its rows that lie closest together (the row
+        whose median distance to the others is the smallest, and the rows within that distance of
+        it), a plane (about its reference) at the median offset of its rows, a sphere as in
+        ``own``: a start that a minority of rows off their feature (two nests touched under one
+        name) does not drag, as their mean does."""
+        F = np.array(own, float).reshape(-1, 3)
+        for k, f in enumerate(self.data.features):
+            rows = np.flatnonzero(self.feature == k)
+            if not rows.size:
+                continue
+            if f.kind == "point":
+                P = p[rows]
+                d = np.linalg.norm(P[:, None] - P[None], axis=2)
+                spread = np.median(d, axis=1)
+                j = int(np.argmin(spread))
+                F[k] = np.median(P[d[j] <= spread[j]], axis=0)
+            elif f.kind == "plane":
+                F[k] = (0.0, 0.0, float(np.median(p[rows] @ self.plane_refs[k][:, 2])) - self.data.probe_radius)
+        return F.reshape(-1)
+
     def displacements(self, R, p, own) -> tuple[np.ndarray, None]:
         """Each row's tool point displacement from its feature (N, 3) metres: ``p - c`` for a
         point, the signed distance along the normal for a plane, along the radius for a sphere
