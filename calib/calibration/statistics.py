@@ -212,10 +212,10 @@ def design_advice(setup: Setup, fit: Fit) -> str:
             e = p[touch.rows_of(k)] - F[k]
             e /= np.linalg.norm(e, axis=1)[:, None]
             mean = e.mean(axis=0) / max(np.linalg.norm(e.mean(axis=0)), 1e-300)
-            angle = 2.0 * float(np.degrees(np.arccos(np.clip(e @ mean, -1.0, 1.0))).max())
-            if angle < 90.0:
-                caps.append(f"sphere {f.id!r} is touched within a {angle:.0f} degree cap: touch it over at least "
-                            f"a hemisphere")
+            angle = float(np.degrees(np.arccos(np.clip(e @ mean, -1.0, 1.0))).max())
+            if angle < 60.0:
+                caps.append(f"sphere {f.id!r} is touched within {angle:.0f} degrees of one direction from its "
+                            f"centre: touch it over a wider cap (a hemisphere)")
     return "; ".join(caps + ["add rows spread over the workspace and other features (a sphere of known radius, "
                              "planes of three directions, points) or rows measured by an instrument"])
 
