@@ -123,6 +123,9 @@ def _check_touch_options(opts: CalibrationOptions, data, validation) -> None:
                                  f"LM of the geometry; {name} {allowed[0]!r})")
     if validation is not None:
         raise ParameterError("validation does not apply to touch data (their held-out error is cross-validated)")
+    if opts.init_frames is False:
+        raise ParameterError("init_frames=False does not apply to touch data (their meas frame starts at the "
+                             "measured rows' registration; without measured rows it stays nominal)")
     if opts.params is not None and not (isinstance(opts.params, str) and opts.params in ("auto", "tool")):
         raise ParameterError(f"params for touch data: 'auto' or 'tool', got {opts.params!r:.60}")
     m = data.measured

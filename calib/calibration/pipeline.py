@@ -34,6 +34,15 @@ values, so that a script or a test can call them one after the other:
    :func:`~calib.calibration.accuracy.accuracy_after`) on the calibration and validation rows, raw
    and (for a measurement frame far from the base) after a best-fit registration of the
    measurement frame only; then the :class:`~calib.calibration.result.CalibrationResult`.
+
+Touch data (:class:`calib.model.touch.TouchData`: rows naming the point, plane or sphere the tool
+touched, and rows measured by an instrument in the same data) take the same stages: prepare
+builds the setup's residual blocks (:mod:`calib.solvers.residuals`), the parameter choice is their
+identifiability, the estimator fits the robot and the features' unknowns together
+(:class:`calib.solvers.blocks.BlockProblem`: one noise level per residual group, the one outlier
+check), the statistics predict the tool error after a best-fit registration and judge the design
+against the nominal model, cross-validation deals its folds within each feature, and the result
+carries the features (``docs/touch.md``).
 """
 from __future__ import annotations
 

@@ -523,3 +523,26 @@ def test_a_design_worse_than_the_nominal_model_is_refused_naming_what_to_add(tmp
     code = main(["calibrate", erd_urdf("ur10"), str(tmp_path / "cap.csv"), "--tool-frame", "tool0",
                  "-o", str(tmp_path / "cal.urdf"), "--cv", "0"])
     assert code == 3 and not (tmp_path / "cal.urdf").exists()
+
+
+def test_options_a_touch_fit_does_not_take_are_refused_naming_them():
+    """calibrate refuses, before any work, the options of a pose fit that touch data do not take
+    (not ignored), and the touch options on measurements."""
+    from calib import ParameterError, simulate_measurements
+
+    robot, _, sim, _ = _case("ur10", PLANES, 0)
+    for kwargs, what in ((dict(loss="huber"), "loss 'huber' does not apply to touch data"),
+                         (dict(estimator="map"), "estimator 'map' does not apply to touch data"),
+                         (dict(method="c-lm"), "method 'c-lm' does not apply to touch data"),
+                         (dict(compliance=True), "compliance True does not apply to touch data"),
+                         (dict(init_frames=False), "init_frames=False does not apply to touch data"),
+                         (dict(params="paper"), "params for touch data: 'auto' or 'tool'"),
+                         (dict(sigma_pos=1e-5), "sigma_pos weights measured positions; these touch data have none"),
+                         (dict(sigma_rot=1e-3), "sigma_rot weights measured orientations")):
+        with pytest.raises(ParameterError, match=what):
+            calibrate(robot, sim.data, **kwargs)
+    meas = simulate_measurements(robot, robot.random_configurations(30, 1), rng=2)
+    with pytest.raises(ParameterError, match="sigma_touch applies to touch data"):
+        calibrate(robot, meas, sigma_touch=2e-5)
+    with pytest.raises(ParameterError, match="nominal_scale applies to touch data"):
+        calibrate(robot, meas, nominal_scale=True)
