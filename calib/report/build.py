@@ -343,6 +343,9 @@ def build_report(result: CalibrationResult, measurements: Measurements,
     ``rows`` their :func:`report_rows_of` when already computed.
     """
     check_instance(result, "result", CalibrationResult, "from calib.calibrate")
+    if result.features is not None:
+        raise ParameterError("result is a calibration from touch data: its report is "
+                             "calib.report.touch.touch_report (and touch_certificate)")
     check_measurements(measurements)
     check_measurements(validation, "validation", allow_none=True)
     _check_common(command_line, inputs, outputs, frames, meta, tolerance_mm, residuals)
