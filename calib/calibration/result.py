@@ -233,7 +233,7 @@ class CalibrationResult:
         return dict(nominal=self.nominal.geometry(), estimated=self.estimated_frames,
                     T_meas_base=None if mf is None else mf.T_meas_base,
                     meas_covariance=None if mf is None else mf.covariance, measurement_link=measurement_link,
-                    orientation_measured=self.before.rotation is not None)
+                    orientation_measured=self.before.rotation is not None or self.group("rotation") is not None)
 
     def compliance_record(self) -> dict | None:
         """The compliances and periodic terms with their std, payload and gravity
