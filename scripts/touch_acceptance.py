@@ -2,11 +2,11 @@
 
 Per seed: a true robot with Gaussian errors of every parameter (``random_deviations(robot,
 0.5e-3)``: 0.5 mm lengths, 1 mrad angles), touch rows simulated on it (noise 0.02 mm per axis),
-:func:`calib.calibration.touch.calibrate_touch` from the nominal model, then over 500 new random
+:func:`calib.calibrate` from the nominal model, then over 500 new random
 configurations the RMS distance of the calibrated and of the nominal tool positions to the true
 ones after one best-fit rigid registration (and, for point designs whose scale no data fix,
 after a similarity registration), against the Cramer-Rao prediction of the same quantity
-(:func:`predicted_tool_error`). Designs: 4 point ids x 15 rows (no known length: calibrate_touch
+(:func:`calib.calibration.workspace.predicted_tool_error`). Designs: 4 point ids x 15 rows (no known length: calibrate
 refuses the full model by default; fitted here with nominal_scale=True to show why); 3
 perpendicular planes x 20 rows + one sphere (100 mm) x 15 rows. Then --params tool: a 150 mm tool
 on the nominal robot, one point touched from 6 orientations. Then touch rows mixed with rows
@@ -44,8 +44,7 @@ def main() -> None:
     import example_robot_data as erd
 
     import calib
-    from calib.calibration.touch import calibrate_touch
-    from calib.calibration.touch_accuracy import predicted_tool_error, registered_error
+    from calib.calibration.accuracy import registered_error
     from calib.model.simulate import apply_deviations, random_deviations
     from calib.model.touch import Feature
     from calib.model.touch_simulate import simulate_touch
@@ -62,7 +61,7 @@ def main() -> None:
                 rng = np.random.default_rng(seed)
                 true = apply_deviations(robot, random_deviations(robot, 0.5e-3, rng))
                 sim = simulate_touch(true, feats, rows, sigma=0.02e-3, rng=rng)
-                res = calibrate_touch(robot, sim.data, sigma=0.02e-3, nominal_scale=design.startswith("points"))
+                res = calib.calibrate(robot, sim.data, sigma_touch=0.02e-3, nominal_scale=design.startswith("points"))
                 Qt = robot.random_configurations(500, rng)
                 for reg in regs:
                     e_cal = registered_error(res.robot, true, Qt, reg)
@@ -80,7 +79,7 @@ def main() -> None:
             rng = np.random.default_rng(100 + seed)
             true = robot.with_changes(v_x=rng.normal(0, 0.005), v_y=rng.normal(0, 0.005), v_z=0.150)
             sim = simulate_touch(true, [Feature("point", "TCP")], [6], sigma=0.02e-3, rng=rng)
-            res = calibrate_touch(robot, sim.data, params="tool")
+            res = calib.calibrate(robot, sim.data, params="tool")
             errs.append(res.robot.v()[:3] - true.v()[:3])
             stds.append(res.std)
         errs, stds = np.array(errs), np.array(stds)
@@ -98,8 +97,7 @@ def mixed(robot, name: str, seeds: int) -> None:
     from scipy.spatial.transform import Rotation
 
     from calib import calibrate
-    from calib.calibration.touch import calibrate_touch
-    from calib.calibration.touch_accuracy import predicted_tool_error, registered_error
+    from calib.calibration.accuracy import registered_error
     from calib.model.simulate import apply_deviations, random_deviations, simulate_measurements
     from calib.model.touch import Feature
     from calib.model.touch_simulate import simulate_touch
@@ -115,9 +113,9 @@ def mixed(robot, name: str, seeds: int) -> None:
         meas = simulate_measurements(true, robot.random_configurations(15, rng), sigma_pos=0.05e-3,
                                      position_only=True, rng=rng)
         Qt = robot.random_configurations(500, rng)
-        res = calibrate_touch(robot, replace(sim.data, measured=meas), cv=0)
+        res = calibrate(robot, replace(sim.data, measured=meas), cv=0)
         alone = calibrate(robot, meas, estimator="ls", cv=0)
-        touch = calibrate_touch(robot, sim.data, cv=0, nominal_scale=True)
+        touch = calibrate(robot, sim.data, cv=0, nominal_scale=True)
         t, p = res.group("touch"), res.group("position")
         rows.append((registered_error(res.robot, true, Qt, "none"), predicted_tool_error(res, Qt, "none"),
                      registered_error(alone.robot, true, Qt, "none"), registered_error(res.robot, true, Qt),
@@ -132,6 +130,13 @@ def mixed(robot, name: str, seeds: int) -> None:
           f"{med[3]:.4f}, measured alone {med[4]:.4f}, touch alone (nominal scale) {med[5]:.4f}, nominal {med[6]:.4f}; "
           f"mixed better than both parts in {int(np.sum((a[:, 0] < a[:, 2]) & (a[:, 3] < a[:, 5])))}/{seeds}; "
           f"noise estimated / true: touch {med[7]:.2f}, positions {med[8]:.2f}")
+
+
+def predicted_tool_error(res, Q, registration="rigid") -> float:
+    """The Cramer-Rao prediction of a result's tool positions' error at Q after ``registration``."""
+    from calib.calibration.workspace import predicted_tool_error as predicted
+
+    return predicted(res.robot, res.free, res.covariance, Q, registration)
 
 
 if __name__ == "__main__":

@@ -265,3 +265,32 @@ def accuracy_after(before: BeforeAfter, calibrated: RobotModel, after: AccuracyS
                        None if val is None else va.subset(before.val_rows == k))
         for k, t in enumerate(targets))
     return replace(before, after=after, validation_after=va, targets=per_target)
+
+
+# ---------------------------------------------------------------- registered (touch data)
+#: The registrations of tool positions: "rigid", "similarity" (and scale), "none" (as they are).
+REGISTRATIONS = ("rigid", "similarity", "none")
+
+
+def registered_residuals(p: np.ndarray, p_ref: np.ndarray, registration: str = "rigid") -> np.ndarray:
+    """(N, 3) what is left of p - p_ref (both (N, 3) metres) after the best-fit rigid motion
+    (``"similarity"``: and scale; ``"none"``: nothing) of p onto p_ref (Kabsch / Umeyama). Touch
+    data without measured rows leave the base frame nominal (a rigid motion of the cell is not
+    seen) and, without a known length, the scale: what a robot located by touching its work needs
+    is its tool positions up to that motion."""
+    from calib.model.spatial import best_fit_motion
+
+    if registration not in REGISTRATIONS:
+        raise ParameterError(f"registration must be one of {', '.join(REGISTRATIONS)}, got {registration!r}")
+    if registration == "none":
+        return p - p_ref
+    R, t, scale = best_fit_motion(p, p_ref, registration)
+    return scale * p @ R.T + t - p_ref
+
+
+def registered_error(model: RobotModel, truth: RobotModel, Q: np.ndarray, registration: str = "rigid") -> float:
+    """RMS distance (metres) between ``model``'s and ``truth``'s tool positions at Q (N, n) after
+    one best-fit rigid (or similarity) registration of the former onto the latter."""
+    p = ChainKinematics(model).frame_poses(Q)[1]
+    p_ref = ChainKinematics(truth).frame_poses(Q)[1]
+    return float(np.sqrt(np.mean(np.sum(registered_residuals(p, p_ref, registration) ** 2, axis=1))))

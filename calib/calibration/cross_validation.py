@@ -25,12 +25,17 @@ class CrossValidation:
     score: float
     score_se: float
     row_scores: np.ndarray = field(repr=False, default=None)
+    #: a fit of residual blocks (touch data): each group's held-out RMS per component (m, rad)
+    groups: dict | None = None
 
     def to_dict(self) -> dict:
-        return {"folds": self.folds, "position_rms_mm": self.position_rms * 1e3,
-                "rotation_rms_rad": self.rotation_rms,
-                "per_fold": [{"rows": n, "position_rms_mm": p * 1e3, "rotation_rms_rad": r}
-                             for n, p, r in self.per_fold]}
+        out = {"folds": self.folds, "position_rms_mm": self.position_rms * 1e3,
+               "rotation_rms_rad": self.rotation_rms,
+               "per_fold": [{"rows": n, "position_rms_mm": p * 1e3, "rotation_rms_rad": r}
+                            for n, p, r in self.per_fold]}
+        if self.groups is not None:
+            out["groups"] = {g: v * (1.0 if g == "rotation" else 1e3) for g, v in self.groups.items()}
+        return out
 
 
 @dataclass(frozen=True)

@@ -180,7 +180,10 @@ def misreadings(setup: Setup, fit: Fit, options: CalibrationOptions, *, implausi
     survivors (at most :data:`MAX_FITS`, best first) are fitted. A fit of the rows as read that
     moved link lengths far from the URDF's (positions in metres named _mm shrink the robot and
     fit to the noise) is also checked; there a misreading is named when its fit keeps the
-    lengths near the URDF's at no larger noise."""
+    lengths near the URDF's at no larger noise. (Touch data: none; their measured rows are
+    judged by the fit's outlier check.)"""
+    if setup.touch is not None:
+        return []
     pos, rot = _noise(fit)
     far = bool(length_notes(setup.nominal, fit))
     if not (implausible or far or pos > SUSPECT_POS_M or rot > SUSPECT_ROT_RAD):

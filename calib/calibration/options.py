@@ -3,7 +3,7 @@ thresholds the stages use, and the checks of every option before any work.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -13,6 +13,7 @@ from calib.choices import ESTIMATORS as _ESTIMATORS, LM_VARIANTS as _VARIANTS, L
 from calib.errors import DataError, ParameterError
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.measurements import Measurements
+from calib.model.measurements import is_touch_data
 from calib.model.robot import RobotModel
 from calib.solvers.lm import LMOptions
 
@@ -111,6 +112,30 @@ CV_FOLDS = 5
 LOO_BELOW_ROWS = 80
 
 
+def _check_touch_options(opts: CalibrationOptions, data, validation) -> None:
+    """Refuse the options a calibration from touch data does not take (least squares by LM,
+    geometry only, the parameter sets "auto" and "tool"), naming the option."""
+    defaults = (("method", ("search-lm", "lm")), ("loss", ("linear",)), ("estimator", ("auto", "ls")),
+                ("compliance", (False,)), ("periodic", (False,)), ("lm_variant", ("calib",)))
+    for name, allowed in defaults:
+        if getattr(opts, name) not in allowed:
+            raise ParameterError(f"{name} {getattr(opts, name)!r} does not apply to touch data (least squares by "
+                                 f"LM of the geometry; {name} {allowed[0]!r})")
+    if validation is not None:
+        raise ParameterError("validation does not apply to touch data (their held-out error is cross-validated)")
+    if opts.init_frames is False:
+        raise ParameterError("init_frames=False does not apply to touch data (their meas frame starts at the "
+                             "measured rows' registration; without measured rows it stays nominal)")
+    if opts.params is not None and not (isinstance(opts.params, str) and opts.params in ("auto", "tool")):
+        raise ParameterError(f"params for touch data: 'auto' or 'tool', got {opts.params!r:.60}")
+    m = data.measured
+    if opts.sigma_rot is not None and (m is None or m.rotation is None):
+        raise ParameterError("sigma_rot weights measured orientations; these touch data have none")
+    if opts.sigma_pos is not None and m is None:
+        raise ParameterError("sigma_pos weights measured positions; these touch data have none (the touch "
+                             "noise is sigma_touch)")
+
+
 # ====================================================================== stages
 def check_compatible(robot: RobotModel, m: Measurements) -> None:
     if m.n_joints != robot.n_joints:
@@ -121,8 +146,9 @@ def check_compatible(robot: RobotModel, m: Measurements) -> None:
 @dataclass(frozen=True, eq=False, repr=False)     # (checked once, passed down: nothing compares, hashes or prints them)
 class CalibrationOptions:
     """The options of :func:`calib.calibrate`, checked once (:func:`resolve_options`); see its
-    docstring for each. sigma_pos (m) / sigma_rot (rad): given noise levels, None to estimate.
-    method is lower-case; lm is the LM's options (defaults when none were given)."""
+    docstring for each. sigma_pos (m) / sigma_rot (rad) / sigma_touch (m, touch rows): given
+    noise levels, None to estimate. method is lower-case; lm is the LM's options (defaults when
+    none were given). nominal_scale : touch data with no known length: the scale held nominal."""
 
     method: str
     params: str | Sequence[str] | None
@@ -140,6 +166,8 @@ class CalibrationOptions:
     lm_variant: str
     estimator: str = "auto"
     periodic: bool = False
+    sigma_touch: float | None = None
+    nominal_scale: bool = False
 
     @property
     def map_clash(self) -> str | None:
@@ -172,9 +200,11 @@ class CalibrationOptions:
 def resolve_options(robot, measurements, validation=None, *, method="search-lm", params=None, sigma_pos=None,
                     sigma_rot=None, init_frames="auto", max_rounds=20, fixed_rounds=None, options=None,
                     loss="linear", loss_scale=3.0, outlier_k=5.0, cv=None, compliance=False,
-                    lm_variant="calib", estimator="auto", periodic=False) -> CalibrationOptions:
+                    lm_variant="calib", estimator="auto", periodic=False, sigma_touch=None,
+                    nominal_scale=False) -> CalibrationOptions:
     """Every option of :func:`calib.calibrate` and the types of its inputs checked before any work
-    (as scipy's least_squares does), each error naming the option; the frozen options."""
+    (as scipy's least_squares does), each error naming the option; the frozen options. Touch data
+    (:class:`calib.model.touch.TouchData`) take the options of :func:`_check_touch_options`."""
     if not isinstance(method, str) or method.lower() not in METHODS:
         raise ParameterError(f"unknown method {method!r}: expected one of {', '.join(METHODS)}")
     check_number(sigma_pos, "sigma_pos", minimum=0.0, strict=True, allow_none=True)
@@ -204,9 +234,10 @@ def resolve_options(robot, measurements, validation=None, *, method="search-lm",
         raise ParameterError(f"options must be an LMOptions, got {type(options).__name__}")
     if not isinstance(robot, RobotModel):
         raise ParameterError(f"robot must be a RobotModel (calib.load_robot), got {type(robot).__name__}")
-    if not isinstance(measurements, Measurements):
-        raise ParameterError(f"measurements must be a Measurements (calib.read_measurements), got "
-                             f"{type(measurements).__name__}")
+    touch = is_touch_data(measurements)
+    if not isinstance(measurements, Measurements) and not touch:
+        raise ParameterError(f"measurements must be a Measurements (calib.read_measurements) or TouchData "
+                             f"(calib.read_touch), got {type(measurements).__name__}")
     if validation is not None and not isinstance(validation, Measurements):
         raise ParameterError(f"validation must be a Measurements, got {type(validation).__name__}")
     if not isinstance(compliance, bool):
@@ -216,9 +247,18 @@ def resolve_options(robot, measurements, validation=None, *, method="search-lm",
     estimator = estimator.lower()
     if not isinstance(periodic, bool):
         raise ParameterError(f"periodic must be True or False, got {periodic!r}")
+    check_number(sigma_touch, "sigma_touch", minimum=1e-12, maximum=1.0, allow_none=True)
+    if not isinstance(nominal_scale, bool):
+        raise ParameterError(f"nominal_scale must be True or False, got {nominal_scale!r}")
     opts = CalibrationOptions(method, params, sigma_pos, sigma_rot, init_frames, max_rounds, fixed_rounds,
                               options or LMOptions(), loss, loss_scale, outlier_k, cv, compliance, lm_variant,
-                              estimator, periodic)
+                              estimator, periodic, sigma_touch, nominal_scale)
+    if touch:
+        _check_touch_options(opts, measurements, validation)
+        opts = replace(opts, method="lm")       # (LM: the angle search of search-lm takes pose rows)
+    elif sigma_touch is not None or nominal_scale:
+        raise ParameterError(f"{'sigma_touch' if sigma_touch is not None else 'nominal_scale'} applies to touch "
+                             f"data (calib.read_touch), not to measurements")
     if estimator == "map" and opts.map_clash:
         raise ParameterError(f"estimator 'map' cannot be combined with {opts.map_clash}: use estimator 'ls'")
     return opts

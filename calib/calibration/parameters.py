@@ -4,8 +4,8 @@ model selection, and the compliance filter.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -17,11 +17,18 @@ from calib.calibration.options import (
     PARAM_SETS,
     CalibrationOptions,
 )
-from calib.calibration.prepare import FRAME_MEMO_MAX_ROWS, Setup, robot_memo, check_data_rank
+from calib.calibration.prepare import FRAME_MEMO_MAX_ROWS, Setup, check_data_rank, check_touch_design, robot_memo
+from calib.checks import check_instance
 from calib.errors import DataError, ParameterError
 from calib.memo import content_digest
-from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, identifiable_names
-from calib.model.robot import RobotModel
+from calib.model.identifiability import (RANK_TOL, SIGMA_POS_M, SIGMA_ROT_RAD, SIGMA_TOUCH_M,
+                                         identifiable_names, no_effect, select_identifiable)
+from calib.model.identifiability_report import Relation
+from calib.model.kinematics import ChainKinematics
+from calib.model.robot import RobotModel, check_robot
+
+if TYPE_CHECKING:       # (loaded by the touch choice: a calibration of measurements does not)
+    from calib.model.touch import FeatureStart, TouchData
 
 
 # ---------------------------------------------------------------- parameter sets
@@ -209,6 +216,8 @@ class ParameterChoice:
     free: tuple[str, ...]
     deficit: int = 0
     notes: tuple[str, ...] = ()
+    #: touch data: which parameters the rows determine, and what they leave (:func:`touch_identifiability`)
+    identifiability: TouchIdentifiability | None = None
 
     @property
     def auto(self) -> bool:
@@ -223,6 +232,8 @@ def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) ->
     and leave residual components to estimate the noise. source : the measurements' file, named
     in the errors. Raises :class:`DataError` for too few rows, :class:`ParameterError` for an
     unusable choice."""
+    if setup.touch is not None:
+        return choose_touch_parameters(setup, options)
     start, cal, params, notes = setup.start, setup.cal, options.params, []
     if params is not None and not isinstance(params, str) and not (
             isinstance(params, (list, tuple)) and all(isinstance(n, str) for n in params)):
@@ -286,3 +297,222 @@ def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) ->
             deficit = _set_rank_deficit(setup, filtered, weights)
         free = filtered
     return ParameterChoice(label, free, deficit, tuple(notes))
+
+
+# ---------------------------------------------------------------- touch data
+#: The parameter sets of touch data: the identifiable geometric parameters, or the flange->tool
+#: offset only (the classic TCP calibration; with measured rows the meas frame too).
+TOUCH_PARAM_SETS = ("auto", "tool")
+#: What no length fixes the scale of, and what to add (the refusal and the identifiability output).
+SCALE_ADVICE = ("add a sphere of known radius (a ball bar), rows measured by an instrument, or calibrate "
+                "the tool only (params='tool'); or accept the nominal scale (nominal_scale=True, "
+                "--nominal-scale: the accuracy then holds up to scale)")
+
+
+@dataclass(frozen=True)
+class TouchIdentifiability:
+    """Which parameters touch rows determine (:func:`touch_identifiability`).
+
+    robot_free : names of the identifiable robot parameters (in the robot's order);
+    features : names of the features' unknowns (all identifiable: else the design is refused);
+    unidentifiable : the robot parameters held at their nominal values, with the kept parameters
+    (robot or feature) each is tied to; scale_free : True when no known length fixes the scale
+    (no sphere rows, no measured rows), the scale then held by the longest length.
+    measured : rows measured by an instrument among the data (they identify the meas frame and
+    the scale).
+    """
+
+    robot_free: tuple[str, ...]
+    features: tuple[str, ...]
+    unidentifiable: tuple[Relation, ...]
+    scale_free: bool
+    measured: int = 0
+
+    def to_dict(self) -> dict:
+        """A JSON-ready dict (robot_free, features, held_nominal with tied partners, scale_free)."""
+        return {"robot_free": list(self.robot_free), "features": list(self.features),
+                "held_nominal": [{"name": r.parameter, "tied_to": [{"name": n, "coefficient": c}
+                                                                   for n, c in r.partners],
+                                  "reason": r.reason} for r in self.unidentifiable],
+                "scale_free": self.scale_free, "measured_rows": self.measured}
+
+    def format(self) -> str:
+        lines = [f"identifiable robot parameters ({len(self.robot_free)}): {', '.join(self.robot_free)}",
+                 f"feature unknowns ({len(self.features)}): {', '.join(self.features)}",
+                 f"held nominal ({len(self.unidentifiable)}):"]
+        lines += [f"  {r.describe()}" for r in self.unidentifiable]
+        if self.measured:
+            lines.append(f"{self.measured} rows measured by an instrument: they identify the meas frame and "
+                         f"the scale")
+        if self.scale_free:
+            lines.append("no known length (no sphere rows, no measured rows): the scale is not determined "
+                         "(held by the longest link length). calibrate refuses the full model: " + SCALE_ADVICE)
+        return "\n".join(lines)
+
+
+def _priority(robot: RobotModel, candidates: Sequence[int]) -> list[int]:
+    """The robot's candidate parameters in their order, the longest nominal length last."""
+    order = list(candidates)
+    lengths = [k for k in order if robot.parameters[k].unit == "m" and robot.parameters[k].group == "joint"]
+    if lengths:
+        longest = max(lengths, key=lambda k: abs(robot.values[k]))
+        order.remove(longest)
+        order.append(longest)
+    return order
+
+
+def touch_identifiability(robot: RobotModel, data: TouchData, *, params: str = "auto",
+                          sigma: float = SIGMA_TOUCH_M, sigma_pos: float | None = None,
+                          sigma_rot: float | None = None, tol: float = RANK_TOL,
+                          first: Sequence[str] = (), require_redundancy: bool = True) -> TouchIdentifiability:
+    """Which robot parameters touch rows ``data`` (and the rows measured by an instrument in
+    them) determine with the features, at ``robot``'s idealised values (:func:`idealised`): the
+    rank-revealing selection of :mod:`calib.model.identifiability` on the noise-weighted Jacobian
+    of the residual blocks (:class:`calib.solvers.blocks.BlockProblem`) in the priority: the
+    features' unknowns first, then the robot's parameters in their order (Eq. 23) with the
+    longest link length last (the scale, when no length fixes it, is then held by it: its
+    relative error is the smallest). params : "auto" (every geometric parameter a candidate) or
+    "tool" (the flange->tool offset v_x, v_y, v_z only, the robot held nominal; with measured
+    rows the meas frame's u too). sigma, sigma_pos, sigma_rot : the groups' noise, the weights
+    (metres, metres, radians; None: calib's defaults). first : robot parameter names to keep
+    before the others (after the features). Raises DataError naming what to add when a
+    feature's unknowns or every robot parameter are undetermined, when planes alone have normals
+    that do not span space, or (``require_redundancy``) when the rows give no more residual
+    components than the unknowns they determine (the fit would pass through every row: no noise
+    to estimate, nothing left to check it; one sphere from 15 rows, one point from 6 rows for the
+    full model)."""
+    from calib.model.touch import TouchData, feature_parameter_names, initial_features
+    from calib.solvers.blocks import BlockProblem
+    from calib.solvers.residuals.pose import MeasuredRows
+    from calib.solvers.residuals.touch import TouchRows
+
+    check_robot(robot)
+    check_instance(data, "data", TouchData, "calib.read_touch or calib.simulate_touch")
+    if params not in TOUCH_PARAM_SETS:
+        raise ParameterError(f"params must be one of {', '.join(TOUCH_PARAM_SETS)} for touch data, got {params!r}")
+    check_touch_design(data)
+    if params == "tool" and not any(f.kind == "point" for f in data.features) and not data.n_measured:
+        raise DataError("--params tool needs a point touched from 4 or more orientations; the rows "
+                        "touch no point")
+    if data.q.shape[1] != robot.n_joints:
+        raise DataError(f"touch rows have {data.q.shape[1]} joint values, the robot {robot.n_joints} joints")
+    model = idealised(robot)
+    if params == "tool":
+        candidates = [model.index(n) for n in model.v_names()[:3]]
+        if data.n_measured:     # (the instrument's frame is unknown: the measured rows need u)
+            candidates = [k for k, p in enumerate(model.parameters) if p.name.startswith("u_")] + candidates
+    else:
+        candidates = [k for k, p in enumerate(model.parameters) if p.group != "compliance"]
+    kin = ChainKinematics(model)
+    R, p = kin.frame_poses(data.q)
+    start = initial_features(data, p, R[:, :, 2])
+    if not data.n_measured:     # (measured rows determine the robot: one plane is located by its rows)
+        _check_planes(data, start.plane_refs)
+    data = consistent_rows(model, data, start)
+    m = data.measured
+    blocks = ([] if m is None else [MeasuredRows(m.q, m.position, m.rotation)]) + [TouchRows(data, start.plane_refs)]
+    prob = BlockProblem(kin, model.values, candidates, blocks, sigma_pos or SIGMA_POS_M, sigma_rot or SIGMA_ROT_RAD,
+                        sigma)
+    J = prob.jacobian(np.concatenate([model.values[candidates], start.values]))
+    mr = len(candidates)
+    n_feat = J.shape[1] - mr
+    ranked = _priority(model, candidates)
+    lead = [k for k in model.indices(first) if k in ranked] if first else []
+    ranked = lead + [k for k in ranked if k not in lead]
+    kept, dropped = select_identifiable(J, list(range(mr, mr + n_feat)) + [candidates.index(k) for k in ranked], tol)
+    fnames = feature_parameter_names(data.features)
+    lost = [fnames[j - mr] for j in dropped if j >= mr]
+    if lost:
+        raise DataError(f"the rows cannot locate {', '.join(lost)}: touch each feature at configurations "
+                        f"further apart (a plane at points not on one line)")
+    robot_kept = sorted(j for j in kept if j < mr)
+    if not robot_kept:
+        raise DataError("the rows determine no robot parameter: add rows or features")
+    if require_redundancy and J.shape[0] <= len(kept):
+        raise DataError(f"the rows give {J.shape[0]} residual components for {len(kept)} unknowns "
+                        f"({len(robot_kept)} robot parameters, {n_feat} of the features): the fit would pass "
+                        f"through every row, with no noise to estimate and nothing to check it; add rows (a "
+                        f"point row gives 3 components, a plane or sphere row 1) or another feature"
+                        + (", or calibrate the tool only (--params tool)"
+                           if params != "tool" and any(f.kind == "point" for f in data.features) else ""))
+    names = [model.names[k] for k in candidates] + list(fnames)
+    # (the tool offset alone, the robot held nominal: the nominal lengths fix the scale)
+    scale_free = params != "tool" and not any(f.kind == "sphere" for f in data.features) and not data.n_measured
+    return TouchIdentifiability(tuple(names[j] for j in robot_kept), tuple(fnames),
+                                _relations(J, kept, dropped, names), scale_free, data.n_measured)
+
+
+def _relations(J: np.ndarray, kept, dropped, names) -> tuple[Relation, ...]:
+    """The parameters ``dropped`` (columns of J) with the kept ones each is tied to."""
+    norms = np.linalg.norm(J, axis=0)
+    relations = []
+    for j in dropped:
+        if no_effect(norms, j):
+            relations.append(Relation(names[j], (), "no effect on the rows' tool points"))
+            continue
+        coef = np.linalg.lstsq(J[:, kept], J[:, j], rcond=None)[0]
+        scale = norms[kept] / norms[j]
+        partners = tuple((names[k], float(c)) for k, c, s in zip(kept, coef, scale) if abs(c * s) > 1e-4)
+        relations.append(Relation(names[j], partners, "its effect equals that of the listed parameters"))
+    return tuple(relations)
+
+
+def consistent_rows(model: RobotModel, data: TouchData, start: FeatureStart) -> TouchData:
+    """``data`` with each touch row's configuration moved (by the robot's errors: a few mrad) so
+    that ``model``'s tool point satisfies its constraint exactly, the features at ``start``: the
+    projection of the tool point onto its feature, reached by damped least squares from the
+    row's configuration. The ties of such data are exact (a rigid motion of the cell, the scale):
+    at the rows as measured, whose tool points miss the features by the robot's errors, they
+    hold only to that relative size (1e-3), above the rank tolerance. Rows that do not converge
+    are left out (all of them kept when that would leave a feature without rows)."""
+    from calib.model.touch_simulate import reach_positions
+
+    p = ChainKinematics(model).frame_poses(data.q)[1]
+    F = start.values.reshape(-1, 3)
+    target = p.copy()
+    for k, f in enumerate(data.features):
+        rows = data.rows_of(k)
+        if f.kind == "point":
+            target[rows] = F[k]
+        elif f.kind == "plane":
+            n = start.plane_refs[k][:, 2]
+            target[rows] -= np.outer(p[rows] @ n - F[k, 2] - data.probe_radius, n)
+        else:
+            e = p[rows] - F[k]
+            target[rows] = F[k] + f.radius * e / np.linalg.norm(e, axis=1)[:, None]
+    Q, ok = reach_positions(model, target, starts=data.q, margin=0.0)   # (measured rows may touch a limit)
+    moved = replace(data, q=np.where(ok[:, None], Q, data.q))
+    if ok.all() or len(set(data.feature[ok].tolist())) < len(data.features):
+        return moved
+    return moved.subset(ok)
+
+
+def _check_planes(data: TouchData, plane_refs: np.ndarray) -> None:
+    """Planes alone must have normals spanning space: one plane (or parallel ones) leaves the
+    tool free along it, two leave the line where they meet."""
+    if any(f.kind != "plane" for f in data.features):
+        return
+    s = np.linalg.svd(plane_refs[:, :, 2], compute_uv=False)
+    span = int(np.sum(s > 0.1 * s[0]))     # directions at more than ~6 degrees
+    if span < 3:
+        raise DataError(f"the planes' normals span {span} direction{'s' if span > 1 else ''}: add "
+                        f"{'two planes' if span == 1 else 'a plane'} not parallel to the touched ones "
+                        f"(three faces of a cube), or a point or a sphere")
+
+
+def choose_touch_parameters(setup: Setup, options: CalibrationOptions, *, at: RobotModel | None = None,
+                            first: Sequence[str] = ()) -> ParameterChoice:
+    """The parameter choice of touch data (``setup.touch``): :func:`touch_identifiability` of the
+    touch rows and the measured rows at the nominal model (or ``at``, the model a first fit
+    reached, with ``first`` kept first: no redundancy asked), ``options.params`` "auto" (default)
+    or "tool". No known length and the full model: refused unless ``options.nominal_scale``."""
+    params = "auto" if options.params is None else options.params
+    data = replace(setup.touch, measured=setup.cal)
+    ident = touch_identifiability(setup.nominal if at is None else at, data, params=params,
+                                  sigma=options.sigma_touch or SIGMA_TOUCH_M, sigma_pos=options.sigma_pos,
+                                  sigma_rot=options.sigma_rot, first=first, require_redundancy=at is None)
+    if ident.scale_free and params == "auto" and not options.nominal_scale:
+        raise DataError("the rows fix no length (points and planes only, no sphere, no measured row): the "
+                        "robot's scale is not determined; " + SCALE_ADVICE)
+    # ("auto" of touch data: the identifiable set, no model selection among candidates)
+    return ParameterChoice("base" if params == "auto" else params, ident.robot_free, 0, (), ident)

@@ -34,6 +34,15 @@ values, so that a script or a test can call them one after the other:
    :func:`~calib.calibration.accuracy.accuracy_after`) on the calibration and validation rows, raw
    and (for a measurement frame far from the base) after a best-fit registration of the
    measurement frame only; then the :class:`~calib.calibration.result.CalibrationResult`.
+
+Touch data (:class:`calib.model.touch.TouchData`: rows naming the point, plane or sphere the tool
+touched, and rows measured by an instrument in the same data) take the same stages: prepare
+builds the setup's residual blocks (:mod:`calib.solvers.residuals`), the parameter choice is their
+identifiability, the estimator fits the robot and the features' unknowns together
+(:class:`calib.solvers.blocks.BlockProblem`: one noise level per residual group, the one outlier
+check), the statistics predict the tool error after a best-fit registration and judge the design
+against the nominal model, cross-validation deals its folds within each feature, and the result
+carries the features (``docs/touch.md``).
 """
 from __future__ import annotations
 
@@ -41,8 +50,10 @@ import logging
 import time
 from typing import Sequence
 
-from calib.calibration.accuracy import accuracy_after, accuracy_before
-from calib.calibration.consistency import consistency_notes
+import numpy as np
+
+from calib.calibration.accuracy import AccuracyStats, BeforeAfter, accuracy_after, accuracy_before
+from calib.calibration.validation import consistency_notes
 from calib.calibration.diagnose import misreadings
 from calib.calibration.estimators.base import Estimate
 from calib.calibration.estimators.least_squares import implausibility, length_notes, method_notes
@@ -51,10 +62,11 @@ from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import Setup, prepare, with_gravity_for
 from calib.calibration.result import CalibrationResult, parameter_table
-from calib.calibration.statistics import Statistics, statistics_notes, statistics_stage
+from calib.calibration.statistics import Statistics, group_fits, statistics_notes, statistics_stage
 from calib.calibration.terms import compliance_notes, payload_note, resolve_terms
 from calib.calibration.validation import held_out_error
 from calib.errors import ParameterError
+from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, SIGMA_TOUCH_M
 from calib.model.kinematics import ChainKinematics
 from calib.model.measurements import Measurements
 from calib.model.robot import RobotModel
@@ -119,15 +131,18 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
               outlier_k: float | None = 5.0, cv: int | None = None, compliance: bool = False,
               payload=None, gravity: Sequence[float] | None = None,
               lm_variant: str = "calib", estimator: str = "auto", periodic: bool = False,
-              terms: str | None = "auto", progress=None) -> CalibrationResult:
+              terms: str | None = "auto", progress=None, sigma_touch: float | None = None,
+              nominal_scale: bool = False) -> CalibrationResult:
     """Identify the TM-MDH parameters of ``robot`` (the nominal :class:`RobotModel`) from
     ``measurements`` (measured tool poses or positions, SI units; rows with ``val`` set are held
-    out), by the stages of this module. Every parameter is described in ``docs/calibrate.md``:
-    method ("search-lm", "c-lm", "lm"), params ("base", "auto", "paper", "all" or names),
-    sigma_pos (m) / sigma_rot (rad) (None: estimated), init_frames, max_rounds, fixed_rounds,
-    options (LM), validation, loss and loss_scale, outlier_k, cv (folds), compliance, payload,
-    gravity (m/s^2), lm_variant, estimator ("auto", "ls", "map"), periodic, terms, progress (a
-    function of (fraction, stage)).
+    out; or :class:`~calib.model.touch.TouchData`, rows naming the point, plane or sphere the tool
+    touched, mixed with rows measured by an instrument: ``docs/touch.md``), by the stages of this
+    module. Every parameter is described in ``docs/calibrate.md``: method ("search-lm", "c-lm",
+    "lm"), params ("base", "auto", "paper", "all" or names; touch data "auto" or "tool"),
+    sigma_pos (m) / sigma_rot (rad) / sigma_touch (m) (None: estimated), init_frames, max_rounds,
+    fixed_rounds, options (LM), validation, loss and loss_scale, outlier_k, cv (folds),
+    compliance, payload, gravity (m/s^2), lm_variant, estimator ("auto", "ls", "map"), periodic,
+    terms, progress (a function of (fraction, stage)), nominal_scale (touch data without a length).
 
     Returns a :class:`CalibrationResult` (a fit that did not converge is in its ``status``,
     never raised). Raises :class:`calib.CalibError` for unusable input.
@@ -137,7 +152,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                            sigma_rot=sigma_rot, init_frames=init_frames, max_rounds=max_rounds,
                            fixed_rounds=fixed_rounds, options=options, loss=loss, loss_scale=loss_scale,
                            outlier_k=outlier_k, cv=cv, compliance=compliance, lm_variant=lm_variant,
-                           estimator=estimator, periodic=periodic)
+                           estimator=estimator, periodic=periodic, sigma_touch=sigma_touch, nominal_scale=nominal_scale)
     stages.start("joint terms")
     opts, notes, terms_fit = resolve_terms(robot, measurements, opts, terms, payload, gravity)
     if terms_fit is None:                       # (the joint terms were not judged)
@@ -147,17 +162,17 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     choice = choose_parameters(setup, opts, source=measurements.source)
     notes += prepare_notes + list(choice.notes)
     kin = setup.kin or ChainKinematics(setup.start)
-    # the errors before calibration first: the fit's kinematics start at the nominal values when
-    # the frames were not moved
-    accuracy = accuracy_before(setup.nominal, setup.start, setup.cal, setup.val, rebased=setup.rebased,
-                               kin=kin if setup.start is setup.nominal else ChainKinematics(setup.nominal))
+    accuracy = before_stage(setup, kin)
     stages.start("fit")
     est = resolve_estimator(setup, choice, opts, terms_fit, measurements.source).fit(setup, choice, opts, kin)
     status, message, fit_notes = verdict(setup, est, opts)
     stages.start("statistics")
     stats = statistics_stage(setup, est.fit, est.problem)
+    if stats.refusals:      # (touch data: a design that leaves the model worse than the nominal one)
+        status, message = ("implausible", stats.refusals[0]) if status == "converged" else (status, message)
+        fit_notes = list(stats.refusals) + fit_notes
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
-             stats.predicted_holdout["position_rms"] * 1e3)
+             (stats.predicted_holdout or stats.predicted)["position_rms"] * 1e3)
     notes += fit_notes + statistics_notes(stats) + compliance_notes(est.fit.model, est.fit.free, stats.covariance) \
         + payload_note(est.fit.model, est.problem)
     stages.start("cross-validation")
@@ -177,10 +192,24 @@ def prepare_stage(robot: RobotModel, measurements: Measurements, validation: Mea
     robot, notes = with_gravity_for(robot, opts.compliance, payload, gravity)
     robot = robot.with_periodic() if opts.periodic else robot
     setup, prepare_notes = prepare(robot, measurements, validation, opts.init_frames)
-    log.info("prepare: %d calibration rows, %d validation rows, %s data%s", setup.cal.n_poses,
+    log.info("prepare: %d calibration rows, %d validation rows, %s data%s", len(setup.rows),
              0 if setup.val is None else setup.val.n_poses, setup.measure,
              "".join(f"; {r} frame estimated" for r in setup.rebased))
     return setup, notes + prepare_notes + method_notes(setup, opts.method)
+
+
+def before_stage(setup: Setup, kin: ChainKinematics) -> BeforeAfter:
+    """The errors before calibration (:func:`calib.calibration.accuracy.accuracy_before`; its
+    kinematics those of the fit, which start at the nominal values when the frames were not
+    moved); touch data: every row's error (a touch row's distance to its feature) at the start
+    (the meas frame at the measured rows' registration, the features fitted to the nominal
+    model's tool points)."""
+    if setup.touch is not None:
+        problem = setup.block_problem(ChainKinematics(setup.start), np.zeros(0, int),
+                                      (SIGMA_POS_M, SIGMA_ROT_RAD, SIGMA_TOUCH_M))
+        return BeforeAfter(AccuracyStats.from_residuals(*problem.pose_residuals(setup.features.values)))
+    return accuracy_before(setup.nominal, setup.start, setup.cal, setup.val, rebased=setup.rebased,
+                           kin=kin if setup.start is setup.nominal else ChainKinematics(setup.nominal))
 
 
 def verdict(setup: Setup, est: Estimate, opts: CalibrationOptions) -> tuple[str, str, list[str]]:
@@ -189,7 +218,8 @@ def verdict(setup: Setup, est: Estimate, opts: CalibrationOptions) -> tuple[str,
     fit's notes."""
     fit = est.fit
     implausible = implausibility(setup.nominal, fit, sigma_pos_given=opts.sigma_pos is not None,
-                                 sigma_rot_given=opts.sigma_rot is not None)
+                                 sigma_rot_given=opts.sigma_rot is not None,
+                                 sigma_touch_given=opts.sigma_touch is not None)
     causes = misreadings(setup, fit, opts, implausible=bool(implausible) or fit.solver.status != "converged")
     implausible = causes + implausible
     notes = list(fit.notes) + implausible + length_notes(setup.nominal, fit)
@@ -210,7 +240,7 @@ def make_result(setup: Setup, est: Estimate, stats: Statistics, opts: Calibratio
         from calib.calibration.base_frame import in_base_frame, robot_base_frame
 
         mframe = robot_base_frame(fit.model, nominal, covariance=stats.covariance, free=fit.free,
-                                  position_only=setup.measure == "position")
+                                  position_only=not setup.cal.has_orientation)
         in_base = in_base_frame(fit.model, mframe)
     return CalibrationResult(
         robot=fit.model, nominal=nominal, method=opts.method, param_set=est.label,
@@ -226,6 +256,37 @@ def make_result(setup: Setup, est: Estimate, stats: Statistics, opts: Calibratio
         cross_validation=cross, selection=est.selection, before_registered=accuracy.before_registered,
         validation_before_registered=accuracy.validation_before_registered, targets=accuracy.targets,
         after_without_outliers=errors.subset(fit.keep) if fit.outliers else None,
-        estimated_frames=setup.rebased, predicted_workspace=stats.predicted_workspace,
+        estimated_frames=estimated_frames(setup, fit), predicted_workspace=stats.predicted_workspace,
         consistency=stats.consistency, estimator=est.record, measurement_frame=mframe,
-        nominal_registered=accuracy.registered)
+        nominal_registered=accuracy.registered,
+        **({} if setup.touch is None else touch_fields(setup, est, opts, cross)))
+
+
+def estimated_frames(setup: Setup, fit) -> tuple[str, ...]:
+    """The frames the calibration estimated from the data: those the closed-form estimate moved
+    (:class:`~calib.calibration.prepare.Setup`'s ``rebased``); of touch data, also the tool when its
+    offset was fitted (the tool point the rows touched with)."""
+    if setup.touch is None:
+        return setup.rebased
+    return setup.rebased + (("flange->tool",) if any(n.startswith("v_") for n in fit.free) else ())
+
+
+def touch_fields(setup: Setup, est: Estimate, opts: CalibrationOptions, cross) -> dict:
+    """The fields of a :class:`CalibrationResult` of touch data: the features' unknowns
+    (:class:`~calib.model.touch.FeatureFit`), each residual group's figures
+    (:func:`calib.calibration.statistics.group_fits`), the parameter choice's identifiability."""
+    from calib.model.touch import FeatureFit
+    from calib.solvers.residuals.touch import TouchRows
+
+    fit, problem = est.fit, est.problem
+    m = len(fit.free)
+    std = np.sqrt(np.maximum(np.diag(fit.covariance), 0.0))
+    features = FeatureFit(setup.touch.features, fit.solver.x[m:].copy(), std[m:], setup.features.plane_refs)
+    x0 = np.concatenate([setup.start.values[setup.start.indices(fit.free)], setup.features.values])
+    n_touch = problem.blocks[problem.block_of(TouchRows)].n_rows
+    rows = {"touch": n_touch, "position": problem.n_poses - n_touch, "rotation": problem.n_poses - n_touch}
+    groups = group_fits(problem, fit, x0, (opts.sigma_pos, opts.sigma_rot, opts.sigma_touch), rows,
+                        None if cross is None else cross.groups)
+    choice = est.choice
+    return {"features": features, "groups": groups, "nominal_scale": bool(opts.nominal_scale),
+            "identifiability": None if choice is None else choice.identifiability}

@@ -1,11 +1,19 @@
 """The prepare stage (:class:`Setup`): calibration and validation rows, what is measured, duplicate and
 implausible rows, the data-rank check, and the closed-form estimate of the measurement and tool
 frames; plus what depends only on the robot model, kept for the next calibrations (reach).
+
+Touch data (:class:`calib.model.touch.TouchData`: rows naming the point, plane or sphere the tool
+touched, and rows measured by an instrument in the same data) are prepared by
+:func:`prepare_touch`: the designs that cannot calibrate anything are refused naming what to add
+(:func:`check_touch_design`), the meas frame is started at the rigid registration of the tool
+positions onto the measured rows, and the features' unknowns at the nominal tool points
+(:func:`calib.model.touch.initial_features`); the setup's residual blocks
+(:meth:`Setup.blocks`) are then the measured rows' and the touch rows'.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -28,9 +36,12 @@ from calib.model.identifiability import (
     weighted_jacobian,
 )
 from calib.model.kinematics import ChainKinematics
-from calib.model.measurements import Measurements
+from calib.model.measurements import Measurements, is_touch_data
 from calib.model.robot import RobotModel
-from calib.model.spatial import inverse, rotation_angle, zyx_transform
+from calib.model.spatial import best_fit_motion, inverse, rotation_angle, zyx_transform
+
+if TYPE_CHECKING:       # (touch data load their module: a calibration of measurements does not)
+    from calib.model.touch import FeatureStart, TouchData
 
 
 @dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
@@ -44,7 +55,9 @@ class Setup:
     moved; suspect : (N,) bool over the calibration rows, those the closed-form frame estimate
     left out as gross (the fit starts without them and takes back those its model explains), or
     None; kin : ``start``'s kinematics (a scratch workspace the stages share; None: built when
-    needed).
+    needed). Touch data (measure "touch", :func:`prepare_touch`): touch : the touch rows (their
+    measured rows are ``cal``, or None without any); features : the features' start values and
+    the planes' reference rotations at ``start``.
     """
 
     nominal: RobotModel
@@ -55,17 +68,50 @@ class Setup:
     rebased: tuple[str, ...]
     suspect: np.ndarray | None = field(default=None, repr=False)
     kin: ChainKinematics | None = field(default=None, repr=False, compare=False)
+    touch: TouchData | None = field(default=None, repr=False)
+    features: FeatureStart | None = field(default=None, repr=False)
 
     @property
     def components_per_pose(self) -> int:
         return 6 if self.measure == "pose" else 3
+
+    @property
+    def rows(self) -> np.ndarray:
+        """(N,) the line numbers of the calibration rows in the order of the fit's problem (the
+        measured rows, then the touch rows)."""
+        if self.touch is None:
+            return self.cal.rows
+        return self.touch.rows if self.cal is None else np.concatenate([self.cal.rows, self.touch.rows])
+
+    def blocks(self) -> list:
+        """The residual blocks of the calibration rows of touch data (:mod:`calib.solvers.residuals`):
+        the measured rows' (when there are some), then the touch rows'."""
+        from calib.solvers.residuals.pose import MeasuredRows
+        from calib.solvers.residuals.touch import TouchRows
+
+        m = self.cal
+        measured = [] if m is None else [MeasuredRows(m.q, m.position, m.rotation, m.rows)]
+        return measured + [TouchRows(self.touch, self.features.plane_refs)]
+
+    def block_problem(self, kin: ChainKinematics, free: np.ndarray, levels, loss: str = "linear",
+                      loss_scale: float = 3.0):
+        """The :class:`calib.solvers.blocks.BlockProblem` of the calibration rows of touch data at
+        ``start``'s values, the robot parameters ``free`` (indices) free, weighted by ``levels``
+        (sigma_pos m, sigma_rot rad, sigma_touch m); its x starts at
+        ``(start.values[free], features.values)``."""
+        from calib.solvers.blocks import BlockProblem
+
+        return BlockProblem(kin, self.start.values, free, self.blocks(), *levels, loss, loss_scale)
 
 
 def prepare(robot: RobotModel, measurements: Measurements, validation: Measurements | None = None,
             init_frames: bool | str = "auto") -> tuple[Setup, list[str]]:
     """The prepare stage: rows, what is measured, closed-form frames (see the module docstring).
     Returns the :class:`Setup` and notes for the user. Data of several targets give the nominal
-    model one flange->target transform per target (:func:`with_measured_targets`)."""
+    model one flange->target transform per target (:func:`with_measured_targets`). Touch data:
+    :func:`prepare_touch`."""
+    if is_touch_data(measurements):
+        return prepare_touch(robot, measurements)
     check_compatible(robot, measurements)
     robot = with_measured_targets(robot, measurements, validation)
     notes: list[str] = []
@@ -259,6 +305,11 @@ def robot_reach(robot: RobotModel) -> float:
     return float(np.linalg.norm(p, axis=1).max())
 
 
+def reach_of(robot: RobotModel) -> float:
+    """The robot's reach (:func:`robot_reach`), kept for the next calibrations of the same model."""
+    return robot_memo("reach", robot, (), lambda: robot_reach(robot))
+
+
 def _check_plausible_positions(robot: RobotModel, m: Measurements) -> None:
     """Refuse positions no tracker could have measured of this robot: farther from the meas
     frame's origin than the robot's reach (the farthest tool position over random
@@ -410,3 +461,69 @@ def with_gravity_for(robot: RobotModel, compliance: bool, payload=None,
                          gravity=gravity if gravity is not None else
                          (robot.gravity.gravity if robot.has_compliance else None))
     return robot, [robot.gravity.note] if robot.gravity.note else []
+
+
+# ---------------------------------------------------------------- touch data
+#: Rows a feature needs at least (a point from 3 orientations, 3 points of a plane, locate the
+#: feature and leave almost nothing to calibrate the robot).
+MIN_TOUCH_ROWS = {"point": 4, "plane": 4, "sphere": 4}
+#: Measured rows mixed with touch rows: at least this many, not on one line, to locate the
+#: instrument's frame (the fit starts it at their rigid registration).
+MEAS_FRAME_MIN_ROWS = 3
+
+
+def check_touch_design(data: TouchData) -> None:
+    """Raise DataError (one line, naming what to add) for touch designs that cannot calibrate
+    anything useful: a feature with fewer rows than MIN_TOUCH_ROWS; measured rows
+    (``data.measured``) fewer than MEAS_FRAME_MIN_ROWS or on one line (they cannot locate the
+    instrument's frame). (Planes whose normals do not span space, and the parameter set, are
+    judged by :func:`calib.calibration.parameters.touch_identifiability`.)"""
+    if data.n_measured:
+        m = data.measured
+        s = np.linalg.svd(m.position - m.position.mean(axis=0), compute_uv=False) if m.n_poses > 1 else [0.0, 0.0]
+        if m.n_poses < MEAS_FRAME_MIN_ROWS or s[1] <= 1e-6 * max(s[0], 1e-300):
+            raise DataError(f"the {m.n_poses} measured rows {'lie on one line and ' if m.n_poses >= MEAS_FRAME_MIN_ROWS else ''}"
+                            f"cannot locate the instrument's frame: give at least {MEAS_FRAME_MIN_ROWS} "
+                            f"measured rows not on one line, or none")
+    for k, f in enumerate(data.features):
+        n = len(data.rows_of(k))
+        if n < MIN_TOUCH_ROWS[f.kind]:
+            what = {"point": "orientations", "plane": "points", "sphere": "points"}[f.kind]
+            raise DataError(f"{f.kind} {f.id!r} is touched in {n} rows: touch it from at least "
+                            f"{MIN_TOUCH_ROWS[f.kind]} {what} (more rows, or more features)")
+
+
+def prepare_touch(robot: RobotModel, data: TouchData) -> tuple[Setup, list[str]]:
+    """The prepare stage of touch data: the design checked (:func:`check_touch_design`), the
+    measured rows' positions checked as a tracker's (:func:`_check_plausible_positions`), the
+    meas frame started at the best-fit rigid motion of the nominal tool positions onto the
+    measured ones (the instrument stands anywhere: a fit started at the nominal meas frame would
+    not converge; the reference transform moves, u keeps its value, as the closed-form frames of
+    :func:`prepare` do), the features started at the start model's tool points. Returns the
+    :class:`Setup` (measure "touch") and its notes."""
+    from calib.model.touch import initial_features
+
+    if robot.targets:
+        raise ParameterError("touch data calibrate a robot with one tool point; this model has several "
+                             f"targets ({', '.join(robot.targets)})")
+    if data.q.shape[1] != robot.n_joints:
+        raise DataError(f"touch rows have {data.q.shape[1]} joint values, the robot {robot.n_joints} joints")
+    check_touch_design(data)
+    m, start, notes = data.measured, robot, []
+    if m is not None:
+        check_compatible(robot, m)
+        _check_plausible_positions(robot, m)
+        R, t, _ = best_fit_motion(ChainKinematics(robot).frame_poses(m.q)[1], m.position)
+        X = np.eye(4)
+        X[:3, :3], X[:3, 3] = R, t
+        start = replace(robot, T_meas_base_ref=X @ robot.T_meas_base_ref)
+        dT = inverse(robot.T_meas_base_ref) @ start.T_meas_base_ref
+        notes.append(f"measurement->base initialised by a rigid registration onto the measured rows: "
+                     f"{np.linalg.norm(dT[:3, 3]) * 1e3:.1f} mm and {rotation_angle(dT):.3g} rad "
+                     f"from the nominal transform (u are relative to it)")
+    touch = replace(data, measured=None)
+    kin = ChainKinematics(start)
+    R, p = kin.frame_poses(touch.q)
+    features = initial_features(touch, p, R[:, :, 2])
+    rebased = ("measurement->base",) if m is not None else ()
+    return Setup(robot, start, m, None, "touch", rebased, None, kin, touch, features), notes

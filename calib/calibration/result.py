@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from calib.calibration.accuracy import AccuracyStats, format_accuracy_table
+from calib.calibration.validation import consistency_dict
+from calib.calibration.workspace import workspace_dict
 from calib.units import display_unit, display_value, format_number
 from calib.calibration.estimators.base import NoiseEstimate
 from calib.errors import ParameterError
@@ -20,6 +22,9 @@ from calib.model.spatial import zyx_parameters
 
 if TYPE_CHECKING:           # (calib.calibration.base_frame is loaded when a calibration reports the frame)
     from calib.calibration.base_frame import MeasurementFrame
+    from calib.calibration.estimators.base import GroupFit
+    from calib.calibration.parameters import TouchIdentifiability
+    from calib.model.touch import FeatureFit
     from calib.calibration.cross_validation import CrossValidation, ModelSelection
     from calib.calibration.estimators.outlier import Outlier
     from calib.calibration.accuracy import TargetAccuracy
@@ -94,12 +99,21 @@ class CalibrationResult:
     not computed. consistency : when more than a tenth of the calibration rows were flagged as
     outliers, the held-out error of all rows (flagged ones included) beside the prediction for
     rows like the kept ones, and the likely causes
-    (:func:`calib.calibration.consistency.data_consistency`; its note comes first in ``notes``);
+    (:func:`calib.calibration.validation.data_consistency`; its note comes first in ``notes``);
     None otherwise.
     estimator : how the parameters were estimated: ``{"kind": "least-squares", "param_set": ...}``
     or, for the regularised estimate (:mod:`calib.calibration.estimators.regularised`), ``{"kind": "eb-map",
     "prior_scales": {group: tau} (theta, twist rad; length mm), "effective_parameters",
     "log_evidence", ...}`` (:meth:`calib.calibration.estimators.eb_map.EBMapResult.to_dict`).
+    Touch data (:class:`calib.model.touch.TouchData`): features : the features' unknowns
+    (:class:`calib.model.touch.FeatureFit`: names such as ``point_<id>_x``, values, std); groups :
+    each residual group's figures (:class:`~calib.calibration.estimators.base.GroupFit`: touch,
+    and the measured rows' position and rotation); identifiability : the robot parameters the
+    rows determine and those held nominal (:class:`~calib.calibration.parameters.TouchIdentifiability`);
+    nominal_scale : no length fixed the scale and it was held nominal; ``predicted`` is the tool
+    positions' error over the workspace after a best-fit registration (``meas_frame_rms``: in the
+    meas frame); ``before`` / ``after`` hold every row's error (a touch row's distance to its
+    feature, a measured row's position error). None, (), None and False otherwise.
     """
 
     robot: RobotModel
@@ -140,6 +154,16 @@ class CalibrationResult:
     estimator: dict | None = None
     measurement_frame: MeasurementFrame | None = field(default=None, repr=False)
     nominal_registered: RobotModel | None = field(default=None, repr=False)
+    features: FeatureFit | None = field(default=None, repr=False)
+    groups: tuple[GroupFit, ...] = field(default=(), repr=False)
+    identifiability: TouchIdentifiability | None = field(default=None, repr=False)
+    nominal_scale: bool = False
+
+    def group(self, name: str) -> GroupFit | None:
+        """The residual group ``name`` ("touch", "position", "rotation") of a fit of touch data, or None."""
+        if not isinstance(name, str):
+            raise ParameterError(f"name must be a residual group's name (a string), got {name!r:.60}")
+        return next((g for g in self.groups if g.name == name), None)
 
     def base_robot(self) -> RobotModel:
         """The calibrated model with its tool poses in the robot's base frame: ``robot`` itself,
@@ -238,7 +262,8 @@ class CalibrationResult:
         return dict(nominal=self.nominal.geometry(), estimated=self.estimated_frames,
                     T_meas_base=None if mf is None else mf.T_meas_base,
                     meas_covariance=None if mf is None else mf.covariance, measurement_link=measurement_link,
-                    orientation_measured=self.before.rotation is not None, nominal_flange=self._nominal_flange())
+                    orientation_measured=self.before.rotation is not None or self.group("rotation") is not None,
+                    nominal_flange=self._nominal_flange())
 
     def compliance_record(self) -> dict | None:
         """The compliances and periodic terms with their std, payload and gravity
@@ -257,7 +282,7 @@ class CalibrationResult:
             "status": self.status,
             "success": self.success,
             "message": self.message,
-            "data_consistency": _consistency_dict(self.consistency),
+            "data_consistency": consistency_dict(self.consistency),
             "method": self.method,
             "param_set": self.param_set,
             "estimator": self.estimator,
@@ -294,7 +319,7 @@ class CalibrationResult:
             "predicted_holdout_rms": None if ph is None else {
                 "position_mm": ph["position_rms"] * 1e3,
                 "rotation_rad": ph["rotation_rms"] if has_rot else None},
-            "predicted_workspace_rms": _workspace_dict(self.predicted_workspace),
+            "predicted_workspace_rms": workspace_dict(self.predicted_workspace),
             "cross_validation": None if self.cross_validation is None else self.cross_validation.to_dict(),
             "model_selection": None if self.selection is None else self.selection.to_dict(),
             "compliance": self.compliance_record(),
@@ -303,7 +328,20 @@ class CalibrationResult:
                             "deviation": display_value(p.deviation, p.unit),
                             "std": None if math.isnan(p.std) else display_value(p.std, p.unit),
                             "free": p.free} for p in self.parameters],
+            **({} if self.features is None else {"touch": self.touch_dict()}),
         }
+
+    def touch_dict(self) -> dict:
+        """The touch data's part of :meth:`to_dict` (features, groups, identifiability, predictions)."""
+        pr = self.predicted
+        return {"features": self.features.to_dict(), "groups": [g.to_dict() for g in self.groups],
+                "plane_normals": {f"plane_{f.id}": [float(v) for v in n]
+                                  for f, n in zip(self.features.features, self.features.normals) if f.kind == "plane"},
+                "identifiability": None if self.identifiability is None else self.identifiability.to_dict(),
+                "nominal_scale": self.nominal_scale,
+                "predicted_tool_error_mm": pr["position_rms"] * 1e3, "registration": pr["registration"],
+                "predicted_tool_error_meas_frame_mm": None if pr.get("meas_frame_rms") is None
+                else pr["meas_frame_rms"] * 1e3, "nominal_expected_error_mm": pr["nominal_rms"] * 1e3}
 
     def to_json(self) -> str:
         import json
@@ -312,6 +350,8 @@ class CalibrationResult:
 
     def format(self) -> str:
         """The report for a person: parameter table, accuracy before/after, status."""
+        if self.features is not None:
+            return self._format_touch()
         nz = self.noise
         est = self.estimator or {}
         if est.get("kind") == "eb-map":
@@ -347,19 +387,7 @@ class CalibrationResult:
             lines.append(f"  outlier: row {o.row}: {o.position_error * 1e3:.3f} mm{rot} ({o.sigmas:.0f} sigma)")
         if self.selection is not None:
             lines += ["", self.selection.format()]
-        w = max([10] + [len(p.name) + 1 for p in self.parameters])
-        lines += ["", f"{'parameter':<{w}}{'unit':>5}{'nominal':>14}{'identified':>14}{'deviation':>13}{'std':>11}"]
-        if self.robot.has_joint_terms:
-            lines.insert(-1, f"  note: {self.compliance_record()['note']}")
-        for p in self.parameters:
-            if _frame_of(p.name) is not None:      # frames: as transforms, below
-                continue
-            unit = display_unit(p.unit)
-            std = "fixed" if not p.free else f"{display_value(p.std, p.unit):.3g}"
-            lines.append(f"{p.name:<{w}}{unit:>5}{format_number(display_value(p.nominal, p.unit), '>14.6f')}"
-                         f"{format_number(display_value(p.identified, p.unit), '>14.6f')}"
-                         f"{format_number(display_value(p.deviation, p.unit), '>13.6f')}{std:>11}")
-        lines += ["", _frames_text(_frames_table(self))]
+        lines += self._parameter_lines()
         rows = [("calibration rows, before", self.before)]
         if self.before_registered is not None:
             rows.append(("  before, frame registered", self.before_registered))
@@ -397,6 +425,60 @@ class CalibrationResult:
                          f"position {pw['position_rms'] * 1e3:.4g} mm{rot_w}")
         lines.append(f"predicted RMS error of the calibrated model against the true poses (Cramer-Rao, "
                      f"{pr['where']}): position {pr['position_rms'] * 1e3:.4g} mm{rot}")
+        return "\n".join(lines)
+
+    def _parameter_lines(self) -> list[str]:
+        """The parameter table (the frames as transforms, after it)."""
+        w = max([10] + [len(p.name) + 1 for p in self.parameters])
+        lines = ["", f"{'parameter':<{w}}{'unit':>5}{'nominal':>14}{'identified':>14}{'deviation':>13}{'std':>11}"]
+        if self.robot.has_joint_terms:
+            lines.insert(-1, f"  note: {self.compliance_record()['note']}")
+        for p in self.parameters:
+            if _frame_of(p.name) is not None:      # frames: as transforms, below
+                continue
+            unit = display_unit(p.unit)
+            std = "fixed" if not p.free else f"{display_value(p.std, p.unit):.3g}"
+            lines.append(f"{p.name:<{w}}{unit:>5}{format_number(display_value(p.nominal, p.unit), '>14.6f')}"
+                         f"{format_number(display_value(p.identified, p.unit), '>14.6f')}"
+                         f"{format_number(display_value(p.deviation, p.unit), '>13.6f')}{std:>11}")
+        return lines + ["", _frames_text(_frames_table(self))]
+
+    def _format_touch(self) -> str:
+        """:meth:`format` of a calibration from touch data."""
+        touch = self.group("touch")
+        measured = self.group("position")
+        n = sum(g.components for g in self.groups)
+        lines = [f"touch calibration: {touch.rows} touch rows" + (f" and {measured.rows} measured rows" if measured
+                                                                   else "")
+                 + f", {n} residual components, {len(self.free)} robot parameters and "
+                 f"{len(self.features.names)} feature unknowns fitted; LM, parameter set {self.param_set!r}, "
+                 f"{self.status}: {self.message}",
+                 f"  {self.iterations} LM iterations in all (every fit of the calibration), {self.wall_time * 1e3:.1f} ms"]
+        lines += [f"  {g.format()}" for g in self.groups]
+        if self.nominal_scale:
+            lines.append("  no known length: the scale is held at the nominal (nominal_scale); the model is "
+                         "right up to scale")
+        lines += [f"  note: {n}" for n in self.notes]
+        lines += [f"  outlier: row {o.row}: {o.position_error * 1e3:.3f} mm ({o.sigmas:.0f} sigma)" for o in self.outliers]
+        if self.cross_validation is not None:
+            lines.append(f"  held out by {self.cross_validation.folds}-fold cross-validation (each group's RMS per "
+                         f"component above)")
+        lines += ["", "features:"] + self.features.format()
+        if self.identifiability is not None:
+            lines += ["", self.identifiability.format()]
+        lines += self._parameter_lines()
+        lines += ["", format_accuracy_table([("rows, before", self.before), ("rows, after", self.after)]
+                                            + ([("  after, without outliers", self.after_without_outliers)]
+                                               if self.after_without_outliers is not None else []))]
+        pr = self.predicted
+        lines.append(f"predicted tool position error over the workspace ({pr['where']}"
+                     + ("" if measured else ", relative to the nominal base frame")
+                     + f"): {pr['position_rms'] * 1e3:.4f} mm RMS (noise only"
+                     + ("; the scale held nominal adds the longest link's error over its length)"
+                        if self.nominal_scale else ")"))
+        if pr.get("meas_frame_rms") is not None:
+            lines.append(f"predicted tool position error in the meas frame (identified by the {measured.rows} "
+                         f"measured rows, no registration): {pr['meas_frame_rms'] * 1e3:.4f} mm RMS (noise only)")
         return "\n".join(lines)
 
 
@@ -484,37 +566,6 @@ def _frames_table(result: "CalibrationResult") -> list[dict]:
             entry["orientation_measured"] = False
         out.append(entry)
     return out
-
-
-def _workspace_dict(pw: dict | None) -> dict | None:
-    """The JSON form of :func:`calib.calibration.workspace.predict_workspace`'s figures (mm, rad)."""
-    if pw is None:
-        return None
-    return {"position_mm": pw["position_rms"] * 1e3, "rotation_rad": pw.get("rotation_rms"),
-            "model_position_mm": pw["model_position_rms"] * 1e3, "model_rotation_rad": pw.get("model_rotation_rms"),
-            "configurations": pw["configurations"], "seed": pw["seed"], "where": pw["where"],
-            "joint_coverage": dict(pw.get("joint_coverage") or {})}
-
-
-def _consistency_dict(c: dict | None) -> dict | None:
-    """The JSON form of :func:`calib.calibration.consistency.data_consistency`'s record (mm, rad)."""
-    if c is None:
-        return None
-
-    def figures(d):
-        return {"position_mm": None if d["position_rms"] is None else d["position_rms"] * 1e3,
-                "rotation_rad": d["rotation_rms"]}
-    mv = c["moved_frame"]
-    return {"flagged": c["flagged"], "removed": c["removed"], "rows": c["rows"], "share": c["share"], "flagged_rows": c["flagged_rows"],
-            "runs": [list(r) for r in c["runs"]],
-            "held_out_all_rows": figures(c["held_out_all_rows"]), "held_out_kept_rows": figures(c["held_out_kept_rows"]),
-            "held_out_flagged_rows": figures(c["held_out_flagged_rows"]),
-            "predicted_holdout": figures(c["predicted_holdout"]),
-            "moved_frame": None if mv is None else {
-                "translation_mm": mv["translation_m"] * 1e3, "rotation_rad": mv["rotation_rad"],
-                "position_rms_before_mm": mv["position_rms_before"] * 1e3,
-                "position_rms_after_mm": mv["position_rms_after"] * 1e3, "explains": mv["explains"]},
-            "causes": list(c["causes"])}
 
 
 def parameter_table(nominal: RobotModel, calibrated: RobotModel, free, cov) -> tuple[ParameterEstimate, ...]:

@@ -29,7 +29,7 @@ from calib.calibration.validation import (standard_error, fold_labels, fold_norm
                                           newton_held_out)
 from calib.errors import DataError, ParameterError
 from calib.model.kinematics import ChainKinematics
-from calib.model.measurements import Measurements
+from calib.model.measurements import Measurements, is_touch_data
 from calib.model.robot import RobotModel
 from calib.solvers.inverse import normal_inverse
 from calib.solvers.lm import options_with
@@ -553,8 +553,8 @@ def resolve_terms(robot: RobotModel, measurements: Measurements, options: Calibr
     None or "none": as given), a note saying what was chosen and why, and the
     :class:`TermsChoice` (where calibrate's own fit may start: its ``start`` and
     ``outlier_rows``; None when nothing was judged)."""
-    if terms is None or (isinstance(terms, str) and terms.lower() == "none"):
-        return options, [], None
+    if terms is None or (isinstance(terms, str) and terms.lower() == "none") or is_touch_data(measurements):
+        return options, [], None    # (touch data: the geometry only)
     if not isinstance(terms, str) or terms.lower() not in TERMS:
         raise ParameterError(f"unknown terms {terms!r}: expected one of {', '.join(TERMS)} or None")
     if options.compliance or options.periodic:

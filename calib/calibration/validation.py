@@ -2,11 +2,19 @@
 :mod:`calib.calibration.cross_validation`), :func:`held_out_error` and the held-out quantities
 the statistics and the choice of joint terms use. The choice among candidate parameter sets
 (``params="auto"``) is :mod:`calib.calibration.estimators.selection`.
+
+Data that disagree with themselves (:func:`data_consistency`, :func:`consistency_notes`): when
+many calibration rows are flagged as outliers (more than :data:`INCONSISTENT_SHARE` of them), the
+predictions of the fit describe only rows like the kept ones; the held-out error of every row,
+flagged ones included, is measured, and the commonest cause, a moved instrument, tried on the
+flagged rows. A kept row's held-out error is its leave-one-out residual, (I - H_ii)^-1 r_i with
+H_ii its block of the hat matrix (exact for the linearised fit, also for a MAP fit with its
+posterior covariance); a flagged row's is its residual (the fit did not use it).
 """
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Mapping, Sequence
 
 import numpy as np
 
@@ -17,6 +25,7 @@ from calib.calibration.prepare import Setup
 from calib.errors import DataError, ParameterError
 from calib.solvers.lm import LMOptions, levenberg_marquardt
 from calib.solvers.inverse import normal_inverse
+from calib.solvers.blocks import GROUPS
 from calib.solvers.problem import Problem
 
 if TYPE_CHECKING:
@@ -259,6 +268,245 @@ def held_out_error(setup: Setup, fit: Fit, problem: Problem, selection: ModelSel
     if fit.keep.sum() < folds:
         return None, [f"no cross-validation: fewer rows than the {folds} folds"]
     try:
+        if setup.touch is not None:
+            return cross_validate_blocks(fit, problem, folds), []
         return cross_validate(setup, fit, problem, folds, options=options), []
     except DataError as exc:
         return None, [f"no cross-validation: {exc}"]
+
+
+def stratified_folds(strata: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:
+    """(n,) the fold of each row, dealt stratum by stratum (``strata``: each row's stratum, e.g.
+    the feature a touch row touches) from a random permutation of its rows and a random first
+    fold (``seed``): every stratum keeps rows in every refit that it has more rows than folds for."""
+    rng = np.random.default_rng(seed)
+    fold_of = np.empty(len(strata), int)
+    for s in np.unique(strata):
+        rows = rng.permutation(np.flatnonzero(strata == s))
+        fold_of[rows] = (np.arange(len(rows)) + rng.integers(folds)) % folds
+    return fold_of
+
+
+def cross_validate_blocks(fit: Fit, problem, folds: int = CV_FOLDS, seed: int = 0) -> CrossValidation:
+    """K-fold cross-validated held-out error of a fit of residual blocks (touch data;
+    ``problem``: its kept rows, :class:`calib.solvers.blocks.BlockProblem`): the folds dealt within
+    each stratum (:func:`stratified_folds`: every feature keeps rows in every refit), each fold
+    predicted by one Gauss-Newton step from the fit's solution without its rows
+    (:func:`newton_held_out`, as :func:`cross_validate`). position_rms : RMS over the rows of the
+    held-out error's norm (a touch row's distance to its feature, a measured row's position
+    error); rotation_rms : the measured rotations' (None without); ``groups`` : each residual
+    group's held-out RMS per component."""
+    x = fit.solver.x
+    fold_rows = stratified_folds(problem.strata(), folds, seed)
+    chunks = list(problem.row_blocks(x))
+    order = np.concatenate([rows for rows, _, _, _ in chunks])
+    w_p, w_r = newton_held_out(lambda: ((r, Jw) for _, r, Jw, _ in chunks), fold_rows[order], folds,
+                               check_rank=fit.full_rank)
+    levels = np.asarray(problem.levels)
+    e_p, e_r = np.zeros(problem.n_poses), np.full(problem.n_poses, np.nan)
+    sq, count = np.zeros(3), np.zeros(3)
+    start = 0
+    for rows, r, _, groups in chunks:
+        a, b = w_p[start:start + len(rows)], w_r[start:start + len(rows)]
+        start += len(rows)
+        g_p, g_r = groups[:, 0], groups[:, -1]          # (a row's first three components: one group)
+        e_p[rows] = a * levels[g_p] ** 2
+        if r.shape[1] == 6:
+            e_r[rows] = b * levels[g_r] ** 2
+        np.add.at(sq, g_p, e_p[rows])
+        np.add.at(count, g_p, min(r.shape[1], 3))
+        if r.shape[1] == 6:
+            np.add.at(sq, g_r, e_r[rows])
+            np.add.at(count, g_r, 3)
+    summary = held_out_summary(fold_rows, folds, e_p, None, 1.0, 1.0)
+    measured = ~np.isnan(e_r)
+    score = np.empty(problem.n_poses)
+    score[order] = w_p + w_r
+    from dataclasses import replace
+
+    return replace(summary, rotation_rms=math.sqrt(_mean(e_r[measured])) if measured.any() else None,
+                   score=_mean(score), score_se=standard_error(score), row_scores=score,
+                   groups={g: math.sqrt(sq[k] / count[k]) for k, g in enumerate(GROUPS) if count[k]})
+
+
+# ---------------------------------------------------------------- the data's consistency
+#: More flagged calibration rows than this share: the data disagree with themselves.
+INCONSISTENT_SHARE = 0.1
+#: A rigid move of the measurement frame explains the flagged rows when it leaves them within
+#: this factor of the predicted held-out error (and halves their error).
+MOVED_FRAME_FACTOR = 3.0
+
+_CAUSES = ("two measurement campaigns in one file (another day, another setup)",
+           "an instrument (or the robot's base) moved during the measurements",
+           "joint values in the wrong units for some rows (degrees read as radians), or a joint's zero "
+           "or sign changed between campaigns")
+
+
+def held_out_residuals(problem: Problem, x: np.ndarray, keep: np.ndarray,
+                       covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Each calibration row's held-out residual (model - measured, meas frame).
+
+    problem : every calibration row, weighted by the fit's noise levels (least squares); x : the
+    fit's free parameters; keep : (N,) bool, the rows the fit used; covariance : (m, m) the fit's
+    covariance of x in the same weights. Returns position (N, 3) metres and rotation (N, 3)
+    radians (None for position-only data): for a kept row its leave-one-out residual, for a
+    row left out its residual.
+    """
+    keep = np.asarray(keep, bool)
+    k = 6 if problem.has_orientation else 3
+    e = np.empty((problem.n_poses, k))
+    start = 0
+    for r, Jw, _ in problem.whitened_blocks(x, raw=True):
+        sl = slice(start, start + len(r))
+        kept = keep[sl]
+        e[sl] = r
+        if kept.any():
+            e[sl][kept] = np.einsum("nij,nj->ni", held_out_factors(Jw[kept], covariance), r[kept])
+        start += len(r)
+    dp = e[:, :3] * problem.sigma_pos
+    return dp, (e[:, 3:] * problem.sigma_rot if k == 6 else None)
+
+
+def _rms(dp: np.ndarray, dr: np.ndarray | None, mask: np.ndarray) -> dict:
+    """position_rms (m), rotation_rms (rad, None position only) of the rows in ``mask``."""
+    if not mask.any():
+        return {"position_rms": None, "rotation_rms": None}
+    pos = math.sqrt(float(np.mean(np.sum(dp[mask] ** 2, axis=1))))
+    rot = None if dr is None else math.sqrt(float(np.mean(np.sum(dr[mask] ** 2, axis=1))))
+    return {"position_rms": pos, "rotation_rms": rot}
+
+
+def _rigid_fit(p_from: np.ndarray, p_to: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation R (3, 3) and translation t (3,) minimising sum |R p_from + t - p_to|^2 (Kabsch)."""
+    c_from, c_to = p_from.mean(axis=0), p_to.mean(axis=0)
+    U, _, Vt = np.linalg.svd((p_from - c_from).T @ (p_to - c_to))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return R, c_to - R @ c_from
+
+
+def _runs(indices: np.ndarray, rows: np.ndarray) -> list[tuple[int, int]]:
+    """Runs of consecutive calibration rows among ``indices`` (sorted positions), as (first, last)
+    file rows."""
+    runs: list[tuple[int, int]] = []
+    for i in indices:
+        if runs and i == runs[-1][1] + 1:
+            runs[-1] = (runs[-1][0], int(i))
+        else:
+            runs.append((int(i), int(i)))
+    return [(int(rows[a]), int(rows[b])) for a, b in runs]
+
+
+def data_consistency(problem: Problem, x: np.ndarray, keep: np.ndarray, covariance: np.ndarray,
+                     predicted_holdout: Mapping, *, rows: Sequence[int], flagged_rows: Sequence[int] | None = None,
+                     share: float = INCONSISTENT_SHARE) -> dict | None:
+    """Whether the calibration rows agree with themselves, and what the disagreement costs.
+
+    Parameters
+    ----------
+    problem, x, keep, covariance : as :func:`held_out_residuals` (every calibration row, the
+        fit's free parameters, the rows it used, its covariance in the same weights).
+    predicted_holdout : the fit's predicted RMS error of new rows like the kept ones
+        (position_rms m, rotation_rms rad).
+    rows : (N,) the file row of each calibration row; flagged_rows : the file rows flagged as
+        outliers (removed or, being too many, kept); default: the rows not kept.
+    share : the share of flagged rows above which the data count as inconsistent.
+
+    Returns None when at most ``share`` of the rows are flagged; else a dict: ``flagged``,
+    ``removed`` (how many of them the fit left out), ``rows``, ``share``, ``flagged_rows`` (file rows), ``runs`` ((first, last) file rows of the
+    flagged rows' consecutive runs), ``held_out_all_rows`` / ``held_out_kept_rows`` /
+    ``held_out_flagged_rows`` (position_rms m, rotation_rms rad: RMS held-out error of those
+    rows), ``predicted_holdout`` (as given), ``moved_frame`` (a rigid move of the measurement
+    frame fitted to the flagged rows' positions: translation_m, rotation_rad, position_rms_before
+    / _after (m), explains (bool); None under 3 flagged rows) and ``causes`` (the likely
+    causes, the one the data point to first).
+    """
+    rows = np.asarray(rows)
+    keep = np.asarray(keep, bool)
+    flagged = np.isin(rows, list(flagged_rows)) if flagged_rows is not None else ~keep
+    n_flag = int(flagged.sum())
+    if n_flag <= share * len(rows):
+        return None
+    dp, dr = held_out_residuals(problem, x, keep, covariance)
+    pred = {"position_rms": predicted_holdout.get("position_rms"), "rotation_rms": predicted_holdout.get("rotation_rms")}
+    moved = None
+    causes = list(_CAUSES)
+    if n_flag >= 3:
+        # the fitted model's positions of the flagged rows moved rigidly onto the measured ones
+        p_meas = problem.p_meas[flagged]
+        p_model = p_meas + problem.pose_residuals(x)[0][flagged]
+        R, t = _rigid_fit(p_model, p_meas)
+        before = math.sqrt(float(np.mean(np.sum((p_model - p_meas) ** 2, axis=1))))
+        after = math.sqrt(float(np.mean(np.sum((p_model @ R.T + t - p_meas) ** 2, axis=1))))
+        angle = math.acos(max(-1.0, min(1.0, (np.trace(R) - 1.0) / 2.0)))
+        limit = MOVED_FRAME_FACTOR * (pred["position_rms"] or 0.0)
+        explains = bool(after <= 0.5 * before and after <= limit)
+        moved = {"translation_m": float(np.linalg.norm(t + R @ p_model.mean(axis=0) - p_model.mean(axis=0))),
+                 "rotation_rad": angle, "position_rms_before": before, "position_rms_after": after,
+                 "explains": explains}
+        if not explains:
+            causes = [causes[2], causes[0], causes[1]]
+    return {"flagged": n_flag, "removed": int(np.sum(flagged & ~keep)), "rows": int(len(rows)),
+            "share": n_flag / len(rows),
+            "flagged_rows": [int(r) for r in rows[flagged]], "runs": _runs(np.flatnonzero(flagged), rows),
+            "held_out_all_rows": _rms(dp, dr, np.ones(len(rows), bool)),
+            "held_out_kept_rows": _rms(dp, dr, keep), "held_out_flagged_rows": _rms(dp, dr, flagged),
+            "predicted_holdout": pred, "moved_frame": moved, "causes": causes}
+
+
+def _figures(d: Mapping) -> str:
+    rot = "" if d.get("rotation_rms") is None else f", orientation {d['rotation_rms']:.3g} rad"
+    return f"position {d['position_rms'] * 1e3:.4g} mm{rot}"
+
+
+def consistency_notes(consistency: Mapping | None) -> list[str]:
+    """The leading note of a result whose data disagree with themselves (see
+    :func:`data_consistency`; [] for None)."""
+    if not consistency:
+        return []
+    c = consistency
+    runs = c["runs"]
+    where = (", ".join(f"{a}-{b}" if a != b else f"{a}" for a, b in runs[:4]) + (", ..." if len(runs) > 4 else ""))
+    head = (f"the data disagree with themselves: {c['flagged']} of {c['rows']} calibration rows "
+            f"({100 * c['share']:.0f}%, rows {where}) ")
+    if c["removed"]:
+        head += "were flagged as outliers and left out, so the predictions describe only rows like the kept ones"
+    else:
+        head += ("have residuals above the outlier threshold, too many to leave out: the fit is a compromise "
+                 "between rows that disagree")
+    text = (f"{head}. Held-out RMS error of all rows, flagged ones included: {_figures(c['held_out_all_rows'])}; "
+            f"predicted for new rows like the kept ones: {_figures(c['predicted_holdout'])}.")
+    mv = c.get("moved_frame")
+    if mv is not None:
+        if mv["explains"]:
+            text += (f" A rigid move of the measurement frame ({mv['translation_m'] * 1e3:.3g} mm, "
+                     f"{mv['rotation_rad']:.3g} rad) fitted to the flagged rows brings them from "
+                     f"{mv['position_rms_before'] * 1e3:.3g} mm to {mv['position_rms_after'] * 1e3:.3g} mm RMS:"
+                     f" the instrument most likely moved between them and the others.")
+        else:
+            text += (f" A rigid move of the measurement frame does not explain the flagged rows (it leaves "
+                     f"{mv['position_rms_after'] * 1e3:.3g} of their {mv['position_rms_before'] * 1e3:.3g} mm RMS).")
+    text += (" Likely causes: " + "; ".join(c["causes"]) + ". Calibrate each campaign (or instrument "
+             "placement) apart, or find and fix the flagged rows.")
+    return [text]
+
+
+def consistency_dict(c: dict | None) -> dict | None:
+    """The JSON form of :func:`calib.calibration.validation.data_consistency`'s record (mm, rad)."""
+    if c is None:
+        return None
+
+    def figures(d):
+        return {"position_mm": None if d["position_rms"] is None else d["position_rms"] * 1e3,
+                "rotation_rad": d["rotation_rms"]}
+    mv = c["moved_frame"]
+    return {"flagged": c["flagged"], "removed": c["removed"], "rows": c["rows"], "share": c["share"], "flagged_rows": c["flagged_rows"],
+            "runs": [list(r) for r in c["runs"]],
+            "held_out_all_rows": figures(c["held_out_all_rows"]), "held_out_kept_rows": figures(c["held_out_kept_rows"]),
+            "held_out_flagged_rows": figures(c["held_out_flagged_rows"]),
+            "predicted_holdout": figures(c["predicted_holdout"]),
+            "moved_frame": None if mv is None else {
+                "translation_mm": mv["translation_m"] * 1e3, "rotation_rad": mv["rotation_rad"],
+                "position_rms_before_mm": mv["position_rms_before"] * 1e3,
+                "position_rms_after_mm": mv["position_rms_after"] * 1e3, "explains": mv["explains"]},
+            "causes": list(c["causes"])}

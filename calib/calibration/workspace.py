@@ -25,7 +25,7 @@ from calib.solvers.problem import CHUNK_POSES
 
 __all__ = ["WORKSPACE_CONFIGURATIONS", "WORKSPACE_SEED", "WORKSPACE_RATIO", "POOR_COVERAGE",
            "propagate_covariance", "workspace_configurations", "joint_coverage", "predict_workspace",
-           "workspace_notes"]
+           "workspace_notes", "predicted_tool_error", "workspace_dict"]
 
 #: Random configurations of the workspace prediction: the RMS over them has a relative sampling
 #: error of about 1/sqrt(2 n) for a smooth error field (7 % at 100, 4 % at 300), far inside the
@@ -235,3 +235,42 @@ def workspace_notes(at_calibration: Mapping | None, workspace: Mapping | None,
     return [f"the predicted error on new rows over the workspace ({workspace.get('where')}) is "
             f"{'; '.join(worse)} predicted at the {where}: the calibrated model is known well only "
             f"near the measured poses; {what}"]
+
+
+def predicted_tool_error(model: RobotModel, free: Sequence[str], covariance: np.ndarray, Q: np.ndarray,
+                         registration: str = "rigid") -> float:
+    """The Cramer-Rao prediction of the RMS error of ``model``'s tool positions at Q (N, n) after
+    a best-fit rigid (or similarity) registration (``"none"``: in the meas frame, for a fit whose
+    measured rows identified it): sqrt(trace(P Jt C Jt^T P) / N), Jt the tool positions' Jacobian
+    in the free parameters ``free`` (3 N, m), C their covariance (m, m), P the projection off the
+    rigid motions (and the scaling) of the N points, linearised. It covers the noise only: the
+    parameters held at their nominal values (a gauge such as the scale of point-only data) add
+    their own errors."""
+    kin = ChainKinematics(model)
+    idx = model.indices(free)
+    _, p, J = pose_jacobian(kin, Q, idx)
+    Jt = J[:, :3].reshape(-1, len(idx))
+    N = len(Q)
+    if registration == "none":
+        PJ = Jt
+    else:
+        G = np.zeros((N, 3, 7))
+        G[:, :, :3] = np.eye(3)
+        c = p - p.mean(axis=0)
+        G[:, 0, 4], G[:, 0, 5] = c[:, 2], -c[:, 1]          # w x c: the columns of -[c]x
+        G[:, 1, 3], G[:, 1, 5] = -c[:, 2], c[:, 0]
+        G[:, 2, 3], G[:, 2, 4] = c[:, 1], -c[:, 0]
+        G[:, :, 6] = c                                     # a scaling about the centroid
+        Qg = np.linalg.qr(G[:, :, :7 if registration == "similarity" else 6].reshape(3 * N, -1))[0]
+        PJ = Jt - Qg @ (Qg.T @ Jt)
+    return float(np.sqrt(max(np.einsum("ij,jk,ik->", PJ, np.asarray(covariance, float), PJ), 0.0) / N))
+
+
+def workspace_dict(pw: dict | None) -> dict | None:
+    """The JSON form of :func:`calib.calibration.workspace.predict_workspace`'s figures (mm, rad)."""
+    if pw is None:
+        return None
+    return {"position_mm": pw["position_rms"] * 1e3, "rotation_rad": pw.get("rotation_rms"),
+            "model_position_mm": pw["model_position_rms"] * 1e3, "model_rotation_rad": pw.get("model_rotation_rms"),
+            "configurations": pw["configurations"], "seed": pw["seed"], "where": pw["where"],
+            "joint_coverage": dict(pw.get("joint_coverage") or {})}

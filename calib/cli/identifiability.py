@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from calib.model.identifiability_report import analyze_identifiability
 
     if args.touch is not None:
-        from calib.calibration.touch import touch_identifiability
+        from calib.calibration.parameters import touch_identifiability
         from calib.io.csv.touch import read_touch
 
         robot = load(args)

@@ -17,9 +17,6 @@ from calib.errors import CalibError, ParameterError
 
 log = logging.getLogger(__name__)
 
-#: Configurations over which the predicted tool accuracy is printed.
-ACCURACY_CONFIGURATIONS = 500
-#: calibrate's options that do not apply to touch files (yet), with their default.
 #: calibrate's options that touch files do not take, with their defaults (a value other than the
 #: default is refused: the touch fit is least squares by LM, geometry only).
 _NOT_FOR_TOUCH = (("tracker", None), ("validate", None), ("compliance", False), ("method", "search-lm"), ("estimator", "auto"), ("loss", "linear"),
@@ -30,25 +27,22 @@ _NOT_FOR_TOUCH = (("tracker", None), ("validate", None), ("compliance", False), 
 
 
 def run_touch(args: argparse.Namespace) -> int:
-    """``calib calibrate`` on a touch file: the identifiable parameters and the features, the
-    calibrated URDF (u nominal; with measured rows rooted at the robot's base, the measurement->base
-    transform recorded apart as calibrate records it), the printed report (and --report JSON)."""
-    import numpy as np
-
-    from calib.calibration.base_frame import in_base_frame
-    from calib.calibration.touch import PARAM_CHOICES, calibrate_touch
-    from calib.calibration.touch_accuracy import predicted_tool_error
+    """``calib calibrate`` on a touch file: :func:`calib.calibrate` of its rows (the identifiable
+    parameters and the features), the calibrated URDF (u nominal; with measured rows rooted at the
+    robot's base, the measurement->base transform recorded apart as for measurement files), the
+    printed result (and --report JSON, :func:`calib.report.touch.touch_report`)."""
+    import calib
     from calib.io.csv.touch import read_touch
     from calib.io.urdf.reader import robot_path
-    from calib.io.urdf.writer import check_writable, write_calibrated_urdf
+    from calib.io.urdf.writer import check_writable
 
     for name, default in _NOT_FOR_TOUCH:
         if getattr(args, name, default) not in (default, None):
             raise ParameterError(f"--{name.replace('_', '-')} does not apply to touch files "
                                  f"(rows naming point, plane or sphere)")
     params = args.params or "auto"
-    if params not in PARAM_CHOICES:
-        raise ParameterError(f"--params for touch files: one of {', '.join(PARAM_CHOICES)}, got {params!r}")
+    if params not in ("auto", "tool"):
+        raise ParameterError(f"--params for touch files: one of auto, tool, got {params!r}")
     outputs = Outputs([robot_path(args.robot), args.measurements])
     out_urdf = outputs.add(args.output)
     out_report = outputs.add(args.report) if args.report else None
@@ -60,7 +54,7 @@ def run_touch(args: argparse.Namespace) -> int:
         from calib.report.plots import PLOT_FILES
 
         plot_paths = {name: outputs.add(Path(args.plots) / name, make_folder=True) for name in PLOT_FILES}
-    from calib.cli.args import parse_meta
+    from calib.cli.args import check_measurement_link, parse_meta
 
     meta = parse_meta(getattr(args, "meta", None))
     if out_report is None and out_html is None and (getattr(args, "meta", None) is not None
@@ -69,8 +63,6 @@ def run_touch(args: argparse.Namespace) -> int:
                              "--html REPORT.html")
     robot = load(args)
     check_writable(robot)
-    from calib.cli.args import check_measurement_link
-
     check_measurement_link(getattr(args, "measurement_link", None), robot)
     probe = (getattr(args, "probe_radius_mm", None) or 0.0) * 1e-3
     data = read_touch(args.measurements, robot, probe_radius=probe, options=read_options(args, joined=False))
@@ -79,50 +71,28 @@ def run_touch(args: argparse.Namespace) -> int:
         raise ParameterError(f"--measurement-link {link}: {args.measurements} has no rows measured by an "
                              f"instrument, so the calibration estimates no measurement frame (the features "
                              f"are in the robot's base frame {robot.base_frame!r}); nothing written")
-    noise = _noise_arguments(args, data)
-    data_all = data
     try:
-        result = calibrate_touch(robot, data, params=params, cv=getattr(args, "cv", 5),
+        result = calib.calibrate(robot, data, params=params, cv=getattr(args, "cv", 5),
                                  outlier_k=getattr(args, "outlier_k", 5.0),
-                                 nominal_scale=bool(getattr(args, "nominal_scale", False)), **noise)
+                                 nominal_scale=bool(getattr(args, "nominal_scale", False)), **_noise_arguments(args, data))
     except CalibError as exc:       # about the data as a whole (a degenerate design): name the file
         if str(exc).startswith(str(args.measurements)):
             raise
         raise type(exc)(f"{args.measurements}: {exc}") from None
     if result.status == "implausible" and not getattr(args, "accept_implausible", False):
         return refuse_implausible(result.format(), result.message)   # nonsense is not written
-    Q = robot.random_configurations(ACCURACY_CONFIGURATIONS, np.random.default_rng(0))
-    registration = "similarity" if result.nominal_scale else "rigid"
-    predicted = predicted_tool_error(result, Q, registration)
-    absolute = predicted_tool_error(result, Q, "none") if result.n_measured else None
-    estimated = ("flange->tool",) if any(n.startswith("v_") for n in result.free) else ()
-    mframe = _measurement_frame(result, robot, data)
-    written = []
-    outputs.stage_from_file(out_urdf, lambda p: written.append(write_calibrated_urdf(
-        (result.robot if mframe is None else in_base_frame(result.robot, mframe)).geometry(), p,
-        nominal=robot.geometry(), estimated=estimated,
-        T_meas_base=None if mframe is None else mframe.T_meas_base,
-        meas_covariance=None if mframe is None else mframe.covariance, measurement_link=link,
-        orientation_measured=data.measured is not None and data.measured.rotation is not None)))
-    text = "\n".join([result.format(), result.identifiability.format(), _parameter_table(robot, result),
-                      f"predicted tool position error over the workspace ({ACCURACY_CONFIGURATIONS} random "
-                      f"configurations, " + ("relative to the nominal base frame, " if not result.n_measured else "")
-                      + f"after a best-fit {registration} registration): {predicted * 1e3:.4f} mm RMS (noise only"
-                      + ("; the scale held nominal adds the longest link's error over its length)"
-                         if result.nominal_scale else ")")]
-                     + ([f"predicted tool position error in the meas frame (identified by the {result.n_measured} "
-                         f"measured rows, no registration): {absolute * 1e3:.4f} mm RMS (noise only)"]
-                        if absolute is not None else [])
-                     + ([mframe.format()] if mframe is not None else []))
-    report = _report(result, predicted, args, registration, absolute)
-    report["measurement_frame"] = None if mframe is None else mframe.to_dict()
+    urdf_text, frames = result.urdf_text(measurement_link=link)
+    outputs.stage(out_urdf, urdf_text)
+    text = result.format()
+    from calib.report.touch import touch_report
+
+    report = touch_report(result, ["calib", *getattr(args, "argv", [])])
     if out_report is not None or out_html is not None or plot_paths:
-        text += _touch_report_stage(args, result, data_all, robot, report, text, meta, outputs, out_html,
-                                    plot_paths, written[0])
+        text += _touch_report_stage(args, result, data, robot, report, text, meta, outputs, out_html,
+                                    plot_paths, frames)
     if out_report is not None:
         outputs.stage(out_report, json_text(report))
     outputs.commit()
-    frames = written[0]
     shown = [p for p in [out_report, out_html] + list(plot_paths.values()) if p is not None and p in outputs.data]
     sys.stdout.write(text + f"\n\nwrote {out_urdf}" + "".join(f", {p}" for p in shown)
                      + f"\n{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in base "
@@ -130,37 +100,22 @@ def run_touch(args: argparse.Namespace) -> int:
     return status_exit(result.status, result.message)
 
 
-def _measurement_frame(result, robot, data):
-    """The robot's base frame in the measurement frame (calib.calibration.base_frame, the
-    convention of ``calibrate``) when measured rows located the instrument, else None: the URDF
-    then stays rooted at the robot's base and the instrument's pose is recorded apart."""
-    if not result.n_measured:
-        return None
-    from calib.calibration.base_frame import robot_base_frame
-
-    k = len(result.free)
-    measured = data.measured
-    return robot_base_frame(result.robot, robot, covariance=result.covariance[:k, :k], free=result.free,
-                            position_only=measured is None or not measured.has_orientation)
-
-
 def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta, outputs, out_html, plot_paths,
                         frames) -> str:
     """The touch report's certificate (into ``report``, the JSON), plots and HTML page staged in
     ``outputs``; returns the verdict line for the printed text ("" without --tolerance-mm)."""
-    from calib.report.build import _provenance, render_html
+    from calib.report.build import provenance_of, render_html
     from calib.report.identity import certificate_identity
     from calib.report.plots import plot_rows
     from calib.report.touch import measured_deviations, touch_certificate, touch_rows
     from calib.cli.args import meta_inputs, progress_enabled
     from calib.cli.progress import Progress
     from calib.io.urdf.reader import robot_path
-    from calib.units import DISPLAY_UNITS
 
     tol_mm = getattr(args, "tolerance_mm", None)
     with Progress(3, "writing the report", enabled=progress_enabled(args)) as progress:
         rows = touch_rows(result, data, robot)
-        provenance = _provenance(["calib", *getattr(args, "argv", [])],
+        provenance = provenance_of(["calib", *getattr(args, "argv", [])],
                                  {"robot": robot_path(args.robot), "measurements": args.measurements,
                                   **meta_inputs(getattr(args, "meta", None))},
                                  {"calibrated_urdf": args.output, "html": out_html})
@@ -179,26 +134,22 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
             f"{'touch residual or measured position error' if data.n_measured else 'touch residual'} "
             f"{tol['max_mm']:.4g} mm over {tol['n']} {tol['rows']}; {tol['beyond']} beyond)")
         if out_html is not None:
-            params = []
-            for name, s in zip(result.free, result.std):
-                p = robot.parameters[robot.index(name)]
-                unit, f = DISPLAY_UNITS[p.unit]
-                v0, v = robot.value(name), result.robot.value(name)
-                params.append({"name": name, "unit": unit, "nominal": v0 * f, "identified": v * f,
-                               "deviation": (v - v0) * f, "std": float(s) * f, "free": True})
+            params = [{"name": p.name, "unit": d["unit"], "nominal": d["nominal"], "identified": d["identified"],
+                       "deviation": d["deviation"], "std": d["std"], "free": True}
+                      for p, d in zip(result.parameters, result.to_dict()["parameters"]) if p.free]
             page = {"status": result.status, "success": result.success, "message": result.message,
                     "meta": meta, "certificate": report["certificate"], "parameters": params,
                     "provenance": provenance,
                     "frames": {"base_frame": frames.base_frame, "tool_frame": frames.tool_frame,
                                "joints": list(robot.joint_names), "written_urdf": frames.to_dict()},
-                    "outliers": [{"row": row, "position_error_mm": e * 1e3, "rotation_error_rad": None,
-                                  "sigmas": None} for row, e in result.outliers],
+                    "outliers": [{"row": o.row, "position_error_mm": o.position_error * 1e3, "rotation_error_rad": None,
+                                  "sigmas": o.sigmas} for o in result.outliers],
                     "predicted_rows": [r for r in (
-                        None if result.cv_rms is None else (
-                            f"touch residual held out by {result.cv_folds}-fold cross-validation (RMS per "
-                            f"component)", result.cv_rms * 1e3, None),
-                        (f"tool position at {ACCURACY_CONFIGURATIONS} random configurations, after a best-fit "
-                         f"registration (noise only)", report["predicted_tool_error_mm"], None)) if r is not None]}
+                        None if report["cross_validation"] is None else (
+                            f"touch residual held out by {report['cross_validation']['folds']}-fold cross-validation "
+                            f"(RMS per component)", report["cross_validation"]["held_out_rms_mm"], None),
+                        (f"tool position at {result.predicted['configurations']} random configurations, after a "
+                         f"best-fit registration (noise only)", report["predicted_tool_error_mm"], None)) if r is not None]}
             outputs.stage(out_html, render_html(page, text + verdict, images, title="Touch calibration report"))
         for name, path in plot_paths.items():
             if name in images:
@@ -207,22 +158,10 @@ def _touch_report_stage(args, result, data, robot, report: dict, text: str, meta
     return verdict
 
 
-def _parameter_table(robot, result) -> str:
-    from calib.units import DISPLAY_UNITS
-
-    lines = [f"{'parameter':<12}{'unit':>6}{'nominal':>14}{'identified':>14}{'deviation':>12}{'std':>10}"]
-    for name, s in zip(result.free, result.std):
-        p = robot.parameters[robot.index(name)]
-        unit, f = DISPLAY_UNITS[p.unit]
-        v0, v = robot.value(name), result.robot.value(name)
-        lines.append(f"{name:<12}{unit:>6}{v0 * f:>14.6f}{v * f:>14.6f}{(v - v0) * f:>12.4g}{s * f:>10.3g}")
-    return "\n".join(lines)
-
-
 def _noise_arguments(args, data) -> dict:
-    """calibrate_touch's noise levels from the flags: --sigma-touch-mm (or, in a file without
-    measured rows, --sigma-pos-mm) the touch rows', --sigma-pos-mm / --sigma-rot-rad the measured
-    rows'; a flag for a group the file does not have is refused."""
+    """calibrate's noise levels of touch data from the flags: --sigma-touch-mm (or, in a file
+    without measured rows, --sigma-pos-mm) the touch rows', --sigma-pos-mm / --sigma-rot-rad the
+    measured rows'; a flag for a group the file does not have is refused."""
     touch = getattr(args, "sigma_touch_mm", None)
     pos, rot = args.sigma_pos_mm, getattr(args, "sigma_rot_rad", None)
     if not data.n_measured:
@@ -232,45 +171,8 @@ def _noise_arguments(args, data) -> dict:
         touch, pos = (touch if touch is not None else pos), None
     if rot is not None and (data.measured is None or data.measured.rotation is None):
         raise ParameterError("--sigma-rot-rad weights measured orientations; this touch file has none")
-    mm = (lambda v: None if v is None else v * 1e-3)
-    return {"sigma": mm(touch), "sigma_pos": mm(pos), "sigma_rot": rot}
-
-
-def _report(result, predicted: float, args, registration: str = "rigid", absolute: float | None = None) -> dict:
-    def scaled(name, v):
-        return v if name.endswith(("_a", "_b")) else v * 1e3
-
-    return {
-        "kind": "touch",
-        "status": result.status,
-        "message": result.message,
-        "command_line": ["calib", *getattr(args, "argv", [])],
-        "rows": result.n_rows,
-        "residual_components": result.n_residuals,
-        "residual_rms_mm": {"before": result.rms_before * 1e3, "after": result.rms_after * 1e3},
-        "noise_mm": {"used": result.sigma * 1e3, "given": result.sigma_given,
-                     "estimated": result.sigma_estimated * 1e3},
-        "cross_validation": None if result.cv_rms is None else {"folds": result.cv_folds,
-                                                                 "held_out_rms_mm": result.cv_rms * 1e3},
-        "parameters": [{"name": n, "value": float(result.robot.value(n)), "std": float(s)}
-                       for n, s in zip(result.free, result.std)],
-        "features": [{"name": n, "value": scaled(n, float(v)), "std": scaled(n, float(s)),
-                      "unit": "rad" if n.endswith(("_a", "_b")) else "mm"}
-                     for n, v, s in zip(result.feature_names, result.feature_values, result.feature_std)],
-        "plane_normals": {f"plane_{n.split('_', 2)[1]}": [float(x) for x in row]
-                          for n, row in zip(result.feature_names[::3], result.plane_normals)
-                          if n.startswith("plane_")},
-        "held_nominal": [r.describe() for r in result.identifiability.unidentifiable],
-        "outliers": [{"row": row, "residual_mm": e * 1e3} for row, e in result.outliers],
-        "scale_free": result.identifiability.scale_free,
-        "nominal_scale": result.nominal_scale,
-        "measured_rows": result.n_measured,
-        "notes": list(result.notes),
-        "groups": [g.to_dict() for g in result.groups],
-        "predicted_tool_error_mm": predicted * 1e3,
-        "predicted_tool_error_registration": registration,
-        "predicted_tool_error_meas_frame_mm": None if absolute is None else absolute * 1e3,
-    }
+    mm = (lambda v: None if v is None else v * 1e-3)      # noqa: E731
+    return {"sigma_touch": mm(touch), "sigma_pos": mm(pos), "sigma_rot": rot}
 
 
 # ---------------------------------------------------------------- simulate

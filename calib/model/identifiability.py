@@ -49,6 +49,8 @@ from calib.model.jacobian import NO_EFFECT_RTOL
 #: Default noise levels used for row weighting (the paper's simulation, Section 4.3).
 SIGMA_POS_M = 0.02e-3
 SIGMA_ROT_RAD = 0.002
+#: Default touch noise (metres per residual component of a touch row: a good probe in a good nest).
+SIGMA_TOUCH_M = 0.02e-3
 #: Default relative tolerance on the unexplained part of a unit column.
 RANK_TOL = 1e-6
 #: How many analyses :func:`analyze_identifiability` keeps for repeated calls.

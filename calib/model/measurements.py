@@ -250,6 +250,15 @@ class Measurements:
         return f"Measurements({self.n_poses} poses, {self.n_joints} joints, {kind}{split}{src})"
 
 
+def is_touch_data(value) -> bool:
+    """Whether ``value`` is touch data (:class:`calib.model.touch.TouchData`), without loading
+    that module when nothing has (a calibration of measurements does not pay for its classes)."""
+    import sys
+
+    touch = sys.modules.get("calib.model.touch")
+    return touch is not None and isinstance(value, touch.TouchData)
+
+
 def finite_array(value, name: str) -> np.ndarray:
     try:
         arr = np.array(value, dtype=float)

@@ -30,6 +30,7 @@ import numpy as np
 from calib.checks import check_array, check_int, check_number
 from calib.choices import FEATURE_KINDS
 from calib.errors import DataError
+
 #: The three unknowns of each kind, as suffixes of the parameter names.
 FEATURE_UNKNOWNS = {"point": ("x", "y", "z"), "plane": ("a", "b", "d"), "sphere": ("x", "y", "z")}
 #: The unit of each unknown.
@@ -254,3 +255,43 @@ def _sphere_centre(P: np.ndarray, radius: float) -> np.ndarray:
     n = np.linalg.svd(P - m)[2][-1] if len(P) >= 3 else np.array([0.0, 0.0, 1.0])
     spread = np.sqrt(max(radius ** 2 - np.mean(np.sum((P - m) ** 2, axis=1)), 0.0))
     return m - n * spread
+
+
+@dataclass(frozen=True, eq=False)
+class FeatureFit:
+    """The features' unknowns identified by a calibration from touch data (the
+    :class:`calib.CalibrationResult`'s ``features``).
+
+    features : the touched features; values, std : (3 K,) SI, feature by feature (see the module
+    docstring: a point's or a sphere's centre x, y, z; a plane's a, b about its reference and its
+    offset d); plane_refs : (K, 3, 3) the planes' reference rotations (identity for the others).
+    """
+
+    features: tuple[Feature, ...]
+    values: np.ndarray = field(repr=False)
+    std: np.ndarray = field(repr=False)
+    plane_refs: np.ndarray = field(repr=False)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """(3 K,) the unknowns' names: ``point_<id>_x``, ``plane_<id>_a``, ``sphere_<id>_z`` ..."""
+        return feature_parameter_names(self.features)
+
+    @property
+    def normals(self) -> np.ndarray:
+        """(K, 3) each plane's unit normal (zeros for the other kinds)."""
+        F = np.asarray(self.values, float).reshape(-1, 3)
+        out = np.zeros((len(self.features), 3))
+        planes = [k for k, f in enumerate(self.features) if f.kind == "plane"]
+        if planes:
+            out[planes] = plane_normals(self.plane_refs[planes], F[planes, 0], F[planes, 1])[0]
+        return out
+
+    def to_dict(self) -> list[dict]:
+        """One entry per unknown: name, value and std (mm, or rad for a plane's angles), unit."""
+        scale = [1.0 if FEATURE_UNITS[n.rsplit("_", 1)[1]] == "rad" else 1e3 for n in self.names]
+        return [{"name": n, "value": float(v) * f, "std": float(s) * f, "unit": "rad" if f == 1.0 else "mm"}
+                for n, v, s, f in zip(self.names, self.values, self.std, scale)]
+
+    def format(self) -> list[str]:
+        return [f"  {d['name']:<24} {d['value']:12.4f} +- {d['std']:.4f} {d['unit']}" for d in self.to_dict()]

@@ -36,7 +36,7 @@ from calib.model.measurements import Measurements, check_measurements
 from calib.model.robot import RobotModel, check_robot
 
 __all__ = ["PoseDeviations", "SCHEMA_VERSION", "PLOT_FILES", "build_report", "build_accuracy_report",
-           "file_provenance", "pose_deviations", "render_html", "render_plots", "report_rows_of",
+           "file_provenance", "provenance_of", "pose_deviations", "render_html", "render_plots", "report_rows_of",
            "residuals_csv_text", "residuals_csv_chunks", "report_json_text", "INLINE_RESIDUALS_MAX",
            "RESIDUAL_COLUMNS", "check_meta"]
 
@@ -317,7 +317,9 @@ def check_meta(meta) -> dict:
     return out
 
 
-def _provenance(command_line, inputs, outputs) -> dict:
+def provenance_of(command_line, inputs, outputs) -> dict:
+    """Where a report comes from: calib's version, the command line, the date, each input file's
+    digest and each output's path."""
     return {
         "calib_version": _calib_version(),
         "command_line": [os.fspath(a) for a in command_line],
@@ -375,12 +377,15 @@ def build_report(result: CalibrationResult, measurements: Measurements,
     ``rows`` their :func:`report_rows_of` when already computed.
     """
     check_instance(result, "result", CalibrationResult, "from calib.calibrate")
+    if result.features is not None:
+        raise ParameterError("result is a calibration from touch data: its report is "
+                             "calib.report.touch.touch_report (and touch_certificate)")
     check_measurements(measurements)
     check_measurements(validation, "validation", allow_none=True)
     _check_common(command_line, inputs, outputs, frames, meta, tolerance_mm, residuals)
     rows = check_instance(rows, "rows", ReportRows, "from report_rows_of", allow_none=True) \
         or report_rows_of(result, measurements, validation)
-    report = {"schema_version": SCHEMA_VERSION, "provenance": _provenance(command_line, inputs, outputs),
+    report = {"schema_version": SCHEMA_VERSION, "provenance": provenance_of(command_line, inputs, outputs),
               "meta": check_meta(meta)}
     robot = result.robot
     report["frames"] = {"base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
@@ -407,7 +412,7 @@ def build_accuracy_report(robot: RobotModel, measurements: Measurements, *, comm
     _check_common(command_line, inputs, None, None, meta, tolerance_mm, residuals)
     rows = check_instance(rows, "rows", ReportRows, "from report_rows", allow_none=True) \
         or report_rows(robot, measurements, validation_rows="none")
-    provenance, meta = _provenance(command_line, inputs, None), check_meta(meta)
+    provenance, meta = provenance_of(command_line, inputs, None), check_meta(meta)
     report = {"schema_version": SCHEMA_VERSION, "evaluation": True,
               "provenance": provenance, "meta": meta,
               "frames": {"base_frame": robot.base_frame, "tool_frame": robot.tool_frame,

@@ -1,66 +1,79 @@
-"""The report of a touch calibration (:func:`calib.calibrate_touch`): each row's constraint
-residual before and after, per feature, with the same plots and page as a pose calibration.
+"""The report of a calibration from touch data (a :class:`calib.CalibrationResult` whose
+``features`` are set): its JSON (:func:`touch_report`), each row's constraint residual before and
+after, per feature, with the same plots and page as a pose calibration (:func:`touch_rows`,
+:func:`touch_certificate`), and the measured rows' deviations (:func:`measured_deviations`).
 
-A row's residual is its RMS residual per component (:meth:`TouchProblem.row_residuals`: a point
-row's ``|p - c| / sqrt(3)``, a plane or sphere row's distance to the surface), metres. "Before":
-the nominal model with the features fitted to its tool points (the start of the fit, as the
-printed "residual RMS ... before"); "after": the calibrated model with the identified features.
-The rows the fit dropped as outliers are kept here and marked.
+A row's residual is its RMS residual per component (a point row's ``|p - c| / sqrt(3)``, a plane
+or sphere row's distance to the surface), metres. "Before": the nominal model with the features
+fitted to its tool points (the start of the fit); "after": the calibrated model with the
+identified features. The rows the fit dropped as outliers are kept here and marked.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
 
-from calib.report.rows import PoseDeviations, ReportRows, error_stats, tolerance_verdict
-from calib.calibration.touch import TouchResult
+from calib.calibration.result import CalibrationResult
 from calib.checks import check_instance
 from calib.errors import ParameterError
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel, check_robot
 from calib.model.touch import TouchData, initial_features
+from calib.report.rows import PoseDeviations, ReportRows, error_stats, tolerance_verdict
 
-__all__ = ["touch_rows", "touch_certificate", "measured_deviations"]
-
-
-def _row_residuals(model: RobotModel, data: TouchData, feature_values, plane_refs) -> np.ndarray:
-    from calib.solvers.touch_problem import TouchProblem
-
-    prob = TouchProblem(ChainKinematics(model), data, model.values, np.zeros(0, int), plane_refs, 1.0)
-    return prob.row_residuals(prob.x0(feature_values))
+__all__ = ["touch_report", "touch_rows", "touch_certificate", "measured_deviations"]
 
 
-def touch_rows(result: TouchResult, data: TouchData, nominal: RobotModel) -> ReportRows:
-    """The :class:`ReportRows` of a touch calibration: every row of ``data`` (the rows the fit
-    dropped included, marked as outliers), the residual before (``nominal``, features fitted to
-    its tool points) and after (``result``), each stored as the x component of the deviation
-    (metres; no rotation), and the tool point in the base frame."""
-    check_instance(result, "result", TouchResult, "from calib.calibrate_touch")
+def _check(result, data, nominal) -> None:
+    check_instance(result, "result", CalibrationResult, "from calib.calibrate")
     check_instance(data, "data", TouchData, "calib.read_touch")
     check_robot(nominal, "nominal")
-    if len(result.feature_names) != 3 * len(data.features):
-        raise ParameterError(f"result has {len(result.feature_names) // 3} features, data {len(data.features)}: "
+    if result.features is None:
+        raise ParameterError("result is not a calibration from touch data (it has no features)")
+    if len(result.features.features) != len(data.features):
+        raise ParameterError(f"result has {len(result.features.features)} features, data {len(data.features)}: "
                              f"give the data the calibration was run on")
-    kin = ChainKinematics(nominal)
-    R, p = kin.frame_poses(data.q)
+
+
+def row_residuals(model: RobotModel, data: TouchData, feature_values, plane_refs) -> np.ndarray:
+    """(N,) metres: each touch row's RMS residual per component with ``model`` and the features'
+    unknowns ``feature_values`` (3 K,), in the order of the rows."""
+    from calib.solvers.residuals.touch import TouchRows
+
+    block = TouchRows(data, plane_refs)
+    R, p = ChainKinematics(model).frame_poses(data.q)
+    r = block.evaluate(R, p, None, feature_values)[0]
+    row = block.layout()[1]
+    return np.sqrt(np.bincount(row, weights=r * r, minlength=data.n_rows) / np.bincount(row, minlength=data.n_rows))
+
+
+def touch_rows(result: CalibrationResult, data: TouchData, nominal: RobotModel) -> ReportRows:
+    """The :class:`ReportRows` of a touch calibration: every touch row of ``data`` (the rows the
+    fit dropped included, marked as outliers), the residual before (``nominal``, features fitted
+    to its tool points) and after (``result``), each stored as the x component of the deviation
+    (metres; no rotation), and the tool point in the base frame."""
+    _check(result, data, nominal)
+    data = replace(data, measured=None)
+    R, p = ChainKinematics(nominal).frame_poses(data.q)
     start = initial_features(data, p, R[:, :, 2])
-    before = _row_residuals(nominal, data, start.values, start.plane_refs)
-    after = _row_residuals(result.robot, data, result.feature_values, result.plane_refs)
+    before = row_residuals(nominal, data, start.values, start.plane_refs)
+    after = row_residuals(result.robot, data, result.features.values, result.features.plane_refs)
     N = data.n_rows
-    dev = lambda r: PoseDeviations(np.column_stack([r, np.zeros(N), np.zeros(N)]), None)
+    dev = lambda r: PoseDeviations(np.column_stack([r, np.zeros(N), np.zeros(N)]), None)   # noqa: E731
     _, p_cal = ChainKinematics(result.robot).frame_poses(data.q)
     T = result.robot.T_meas_base()
     rows = np.asarray(data.rows, int)
-    outlier = np.isin(rows, [row for row, _ in result.outliers])
+    outlier = np.isin(rows, [o.row for o in result.outliers])
     feature_ids = np.array([f"{data.features[k].kind} {data.features[k].id}" for k in data.feature])
     return ReportRows(np.full(N, "measurements"), rows, np.full(N, "cal"), feature_ids, np.asarray(data.q),
                       dev(before), dev(after), outlier, np.zeros(N, bool), (p_cal - T[:3, 3]) @ T[:3, :3],
                       "nominal model, features fitted to it", quantity="touch residual")
 
 
-def measured_deviations(result: TouchResult, data: TouchData, nominal: RobotModel) -> dict | None:
+def measured_deviations(result: CalibrationResult, data: TouchData, nominal: RobotModel) -> dict | None:
     """The rows of ``data`` measured by an instrument (None without): their line numbers
     (``row``), outlier marks (``outlier``), and deviations ``before`` (the nominal model, its
     measurement frame registered to them by a best fit of the positions) and ``after`` (the
@@ -68,16 +81,50 @@ def measured_deviations(result: TouchResult, data: TouchData, nominal: RobotMode
     from calib.calibration.accuracy import register_measurement_frame
     from calib.report.rows import pose_deviations
 
-    check_instance(result, "result", TouchResult, "from calib.calibrate_touch")
-    check_instance(data, "data", TouchData, "calib.read_touch")
-    check_robot(nominal, "nominal")
+    _check(result, data, nominal)
     m = data.measured
     if m is None or not m.n_poses:
         return None
     rows = np.asarray(m.rows, int)
-    return {"row": rows, "outlier": np.isin(rows, [row for row, _ in result.outliers]),
+    return {"row": rows, "outlier": np.isin(rows, [o.row for o in result.outliers]),
             "before": pose_deviations(register_measurement_frame(nominal, m), m),
             "after": pose_deviations(result.robot, m)}
+
+
+def touch_report(result: CalibrationResult, command_line: Sequence[str]) -> dict:
+    """The JSON report of a calibration from touch data (mm, rad; a parameter's value and std in
+    SI units as in :class:`calib.CalibrationResult`): its status, rows, the touch group's
+    residuals and noise, cross-validation, the robot parameters fitted, the features, the held
+    nominal parameters, the outliers, each residual group, the predicted tool errors, and the
+    whole result's own dict under ``result``."""
+    check_instance(result, "result", CalibrationResult, "from calib.calibrate")
+    if result.features is None:
+        raise ParameterError("result is not a calibration from touch data (it has no features)")
+    touch, measured = result.group("touch"), result.group("position")
+    cv, std = result.cross_validation, result.std
+    extra = result.touch_dict()
+    ident = result.identifiability
+    return {
+        "kind": "touch", "status": result.status, "message": result.message, "command_line": list(command_line),
+        "rows": touch.rows, "residual_components": sum(g.components for g in result.groups),
+        "residual_rms_mm": {"before": touch.rms_before * 1e3, "after": touch.rms_after * 1e3},
+        "noise_mm": {"used": touch.sigma * 1e3, "given": touch.given, "estimated": touch.estimated * 1e3},
+        "cross_validation": None if cv is None else {"folds": cv.folds, "held_out_rms_mm": touch.cv_rms * 1e3},
+        "parameters": [{"name": n, "value": float(result.robot.value(n)), "std": float(s)}
+                       for n, s in zip(result.free, std)],
+        "features": extra["features"], "plane_normals": extra["plane_normals"],
+        "held_nominal": [] if ident is None else [r.describe() for r in ident.unidentifiable],
+        "outliers": [{"row": o.row, "residual_mm": o.position_error * 1e3, "sigmas": o.sigmas}
+                     for o in result.outliers],
+        "scale_free": bool(ident is not None and ident.scale_free), "nominal_scale": result.nominal_scale,
+        "measured_rows": 0 if measured is None else measured.rows, "notes": list(result.notes),
+        "groups": extra["groups"], "predicted_tool_error_mm": extra["predicted_tool_error_mm"],
+        "predicted_tool_error_registration": extra["registration"],
+        "predicted_tool_error_meas_frame_mm": extra["predicted_tool_error_meas_frame_mm"],
+        "nominal_expected_error_mm": extra["nominal_expected_error_mm"],
+        "measurement_frame": None if result.measurement_frame is None else result.measurement_frame.to_dict(),
+        "result": result.to_dict(),
+    }
 
 
 def touch_certificate(rows: ReportRows, features: Sequence, tolerance_mm: float | None = None,

@@ -17,7 +17,9 @@ class NormalEquations:
 
     A : (m, m) J^T J; g : (m,) J^T r; A_pos / A_rot : the position / rotation rows' share of A
     (A_rot None without orientation data); rss_pos / rss_rot : sums of squared weighted residuals
-    of each group; n_pos / n_rot : number of residual components of each group.
+    of each group; n_pos / n_rot : number of residual components of each group. A problem of
+    residual blocks (:class:`calib.solvers.blocks.BlockProblem`) with touch rows has their group's
+    share too (A_touch, rss_touch, n_touch; None, 0, 0 otherwise): :meth:`share` gives any group's.
     """
 
     A: np.ndarray
@@ -30,10 +32,21 @@ class NormalEquations:
     n_rot: int
     #: (m,) the position rows' share of g (least squares with position rows; None otherwise)
     g_pos: np.ndarray | None = None
+    A_touch: np.ndarray | None = None
+    rss_touch: float = 0.0
+    n_touch: int = 0
 
     @property
     def cost(self) -> float:
-        return 0.5 * (self.rss_pos + self.rss_rot)
+        return 0.5 * (self.rss_pos + self.rss_rot + self.rss_touch)
+
+    def share(self, group: str) -> tuple[np.ndarray | None, float, int]:
+        """(A_g, rss_g, n_g) of the residual group ``group`` ("position", "rotation", "touch")."""
+        if group == "position":
+            return self.A_pos, self.rss_pos, self.n_pos
+        if group == "rotation":
+            return self.A_rot, self.rss_rot, self.n_rot
+        return self.A_touch, self.rss_touch, self.n_touch
 
 
 def reweighted(ne: NormalEquations, f_pos: float, f_rot: float) -> NormalEquations:
@@ -75,3 +88,9 @@ def without_inert(ne: NormalEquations) -> tuple[np.ndarray, np.ndarray, np.ndarr
         A[:, inert] = 0.0
         d[inert] = 1.0
     return A, g, d
+
+
+def rank_deficit_of(ne: NormalEquations) -> int:
+    """How many directions the normal equations ``ne`` leave undetermined, the parameters without
+    effect taken out first (see :func:`rank_deficit`, :func:`without_inert`)."""
+    return rank_deficit(without_inert(ne))

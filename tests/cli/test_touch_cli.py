@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import calib
-from calib.calibration.touch_accuracy import registered_error
+from calib.calibration.accuracy import registered_error
 from calib.cli.main import main
 
 from conftest import erd_urdf
@@ -228,9 +228,7 @@ def test_touch_file_with_measured_rows_from_a_tracker_keeps_the_urdf_at_the_robo
     p_t = ChainKinematics(seen).frame_poses(data.measured.q)[1]
     assert np.sqrt(np.mean(np.sum((p_t - data.measured.position) ** 2, axis=1))) < 2e-4
     # the URDF seen from the tracker is the fit's model (the split changes no prediction)
-    from calib.calibration.touch import calibrate_touch
-
-    fit = calibrate_touch(nominal, data, cv=0)
+    fit = calib.calibrate(nominal, data, cv=0)
     R_f, p_f = ChainKinematics(fit.robot).frame_poses(Q)
     R_s, p_s = ChainKinematics(seen).frame_poses(Q)
     assert np.abs(p_s - p_f).max() < 1e-9 and np.abs(R_s - R_f).max() < 1e-9

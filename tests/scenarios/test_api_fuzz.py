@@ -29,7 +29,7 @@ HOSTILE = [None, "x", "", float("nan"), float("inf"), -1, 0, 10 ** 30, [], {}, (
 #: are not fuzzed (they take what calib computed), their public methods are.
 BUILT_BY_CALIB = {"IdentifiabilityReport", "CalibrationResult", "ParameterEstimate", "TargetAccuracy",
                   "RecordedFrames", "PoseDesign", "CompensationResult", "PaperLMResult", "GravityModel",
-                  "CompensationTargets", "AccuracyStats", "ExportResult", "MeasurementFrame"}
+                  "CompensationTargets", "AccuracyStats", "ExportResult", "MeasurementFrame", "FeatureFit"}
 #: Per call: a result slower than this is a failure (10**30 poses, rounds, candidates...).
 CALL_LIMIT_S = 10
 
@@ -60,7 +60,7 @@ def table(tmp_path_factory):
     touch = calib.simulate_touch(robot, [point], [6], rng=0).data
     calib.write_touch(d / "t.csv", touch, robot)
     calib.export_calibration(BUNDLED_URDF, "mdh-csv", d / "mdh.csv")
-    touch_res = calib.calibrate_touch(robot, touch, params="tool", cv=0)
+    touch_res = calib.calibrate(robot, touch, params="tool", cv=0)
     (d / "log.csv").write_text("time_s,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n0,0,0,0,0,0,0\n0.01,1,0,0,0,0,0\n")
     (d / "trk.csv").write_text("time_s,point,target,x_mm,y_mm,z_mm\n0.002,P1_A,A,441,0,-36.5\n")
     timed = calib.ReadOptions(join="nearest-time", time="time_s", max_gap=0.005)
@@ -119,14 +119,18 @@ def table(tmp_path_factory):
         "simulate_touch": (calib.simulate_touch, dict(true_robot=robot, features=[point], rows=[6], rng=0)),
         "read_touch": (calib.read_touch, dict(csv_path=d / "t.csv", robot=robot)),
         "write_touch": (calib.write_touch, dict(path=d / "t2.csv", data=touch, robot=robot)),
-        "calibrate_touch": (calib.calibrate_touch, dict(robot=robot, data=touch, params="tool", cv=0)),
+        "calibrate.touch": (calib.calibrate, dict(robot=robot, measurements=touch, params="tool", cv=0)),
         "export_calibration": (calib.export_calibration, dict(urdf_path=BUNDLED_URDF, format="mdh-csv", output=d / "e.csv")),
         "read_mdh_csv": (calib.read_mdh_csv, dict(path=d / "mdh.csv")),
         "clear_caches": (calib.clear_caches, {}),
         # methods of the values the API returns
         "TouchData.subset": (touch.subset, dict(keep=np.ones(touch.n_rows, bool))),
         "TouchData.rows_of": (touch.rows_of, dict(k=0)),
-        "TouchResult.format": (touch_res.format, {}),
+        "CalibrationResult.format.touch": (touch_res.format, {}),
+        "CalibrationResult.group": (touch_res.group, dict(name="touch")),
+        "CalibrationResult.touch_dict": (touch_res.touch_dict, {}),
+        "FeatureFit.to_dict": (touch_res.features.to_dict, {}),
+        "FeatureFit.format": (touch_res.features.format, {}),
         "Measurements.from_arrays": (calib.Measurements.from_arrays, dict(q=meas.q, position=meas.position)),
         "Measurements.subset": (meas.subset, dict(index_or_mask=[0, 1])),
         "Measurements.calibration": (meas.calibration, {}),

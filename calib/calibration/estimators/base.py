@@ -33,8 +33,8 @@ from calib.solvers.lm import SolverResult
 from calib.solvers.normal_equations import NormalEquations
 from calib.solvers.problem import Problem
 
-__all__ = ["NoiseEstimate", "Fit", "Estimate", "Estimator", "Linearised", "linearised", "vce_fixed_point",
-           "noise_estimate", "chi2_p_value"]
+__all__ = ["NoiseEstimate", "GroupFit", "Fit", "Estimate", "Estimator", "Linearised", "linearised",
+           "vce_fixed_point", "noise_estimate", "chi2_p_value"]
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,9 @@ class NoiseEstimate:
     redundancy (1 when the noise level matches); chi2, dof, p_value : the chi-square test of the
     whole fit (p_value the two-sided probability of a chi-square at least this far from its
     expectation if the noise levels were right; None when they were estimated). iterations : re-weighted fits of the estimation.
+    touch (m per component), redundancy_touch, chi2_touch : the touch rows' group (None, 0, None
+    without touch rows); with touch rows alone ``position`` is the unused default weight of the
+    absent measured positions.
     """
 
     position: float
@@ -60,6 +63,9 @@ class NoiseEstimate:
     chi2: float
     dof: float
     iterations: int
+    touch: float | None = None
+    redundancy_touch: float = 0.0
+    chi2_touch: float | None = None
 
     @property
     def reduced_chi2(self) -> float:
@@ -75,12 +81,66 @@ class NoiseEstimate:
         return chi2_p_value(self.chi2, self.dof)
 
     def to_dict(self) -> dict:
+        if self.touch is not None:
+            return {"touch_mm": self.touch * 1e3, "position_mm": self.position * 1e3, "rotation_rad": self.rotation,
+                    "estimated": self.estimated, "iterations": self.iterations, "reduced_chi2": self.reduced_chi2,
+                    "dof": self.dof}
         return {"position_mm": self.position * 1e3, "rotation_rad": self.rotation,
                 "estimated": self.estimated, "iterations": self.iterations,
                 "reduced_chi2": self.reduced_chi2, "dof": self.dof,
                 "chi2_test": None if self.estimated else {
                     "chi2": self.chi2, "dof": self.dof, "p_value": self.p_value,
                     "reduced_chi2_position": self.chi2_pos, "reduced_chi2_rotation": self.chi2_rot}}
+
+
+#: The residual groups of a fit, their unit and their name in reports.
+GROUP_NAMES = {"touch": ("m", "touch residuals"), "position": ("m", "measured positions"),
+               "rotation": ("rad", "measured rotations")}
+
+
+@dataclass(frozen=True)
+class GroupFit:
+    """One residual group of a fit of residual blocks (touch rows, and the rows measured by an
+    instrument in the same data): ``"touch"`` (metres per component), ``"position"`` /
+    ``"rotation"`` (metres / radians per axis). rows, components : its rows and residual
+    components (the kept ones); rms_before / rms_after : RMS of its components at the start (the
+    nominal model, the features fitted to it, the meas frame at the measured rows' registration)
+    and at the solution; sigma : the noise its uncertainties are at (the given one, else
+    ``estimated``); given : whether it was given; estimated : from the residuals (its weighted
+    residual sum of squares over its redundancy); redundancy : its components minus its share of
+    the fitted unknowns; cv_rms : RMS of its held-out components (None without cross-validation)."""
+
+    name: str
+    rows: int
+    components: int
+    rms_before: float
+    rms_after: float
+    sigma: float
+    given: bool
+    estimated: float
+    redundancy: float
+    cv_rms: float | None = None
+
+    @property
+    def unit(self) -> str:
+        return GROUP_NAMES[self.name][0]
+
+    def to_dict(self) -> dict:
+        f, u = (1e3, "mm") if self.unit == "m" else (1.0, "rad")
+        return {"name": self.name, "rows": self.rows, "components": self.components,
+                f"rms_before_{u}": self.rms_before * f, f"rms_after_{u}": self.rms_after * f,
+                f"noise_{u}": self.sigma * f, "noise_given": self.given, f"noise_estimated_{u}": self.estimated * f,
+                "redundancy": self.redundancy,
+                f"held_out_rms_{u}": None if self.cv_rms is None else self.cv_rms * f}
+
+    def format(self) -> str:
+        f, u = (1e3, "mm") if self.unit == "m" else (1.0, "rad")
+        text = (f"{GROUP_NAMES[self.name][1]} ({self.rows} rows, {self.components} components): RMS "
+                f"{self.rms_before * f:.4g} {u} before, {self.rms_after * f:.4g} {u} after; noise estimated "
+                f"{self.estimated * f:.4g} {u}" + (f", given {self.sigma * f:.4g} {u}" if self.given else ""))
+        if self.cv_rms is not None:
+            text += f"; held out {self.cv_rms * f:.4g} {u}"
+        return text
 
 
 @dataclass(frozen=True, eq=False, repr=False)     # (a model and arrays: nothing compares or prints it)
@@ -138,6 +198,11 @@ class Linearised:
     full_rank: bool
     red_pos: float
     red_rot: float
+    red_touch: float = 0.0
+
+    def redundancies(self, n: int = 2) -> tuple[float, ...]:
+        """The first ``n`` groups' redundancies: (position, rotation[, touch])."""
+        return (self.red_pos, self.red_rot, self.red_touch)[:n]
 
 
 def linearised(problem: Problem, x: np.ndarray) -> Linearised:
@@ -146,7 +211,10 @@ def linearised(problem: Problem, x: np.ndarray) -> Linearised:
     Ainv, full_rank = normal_inverse(ne.A)
     share_p = float(np.trace(Ainv @ ne.A_pos)) if ne.A_pos is not None else 0.0
     share_r = float(np.trace(Ainv @ ne.A_rot)) if ne.A_rot is not None else 0.0
-    return Linearised(ne, Ainv, full_rank, ne.n_pos - share_p, ne.n_rot - share_r)
+    if ne.A_touch is None:
+        return Linearised(ne, Ainv, full_rank, ne.n_pos - share_p, ne.n_rot - share_r)
+    share_t = float(np.trace(Ainv @ ne.A_touch))
+    return Linearised(ne, Ainv, full_rank, ne.n_pos - share_p, ne.n_rot - share_r, ne.n_touch - share_t)
 
 
 def vce_fixed_point(ne: NormalEquations, sigmas: tuple[float, float], start: tuple[float, float],
@@ -190,9 +258,40 @@ def noise_estimate(problem: Problem, lin: Linearised, estimated: bool, iteration
     dof = red_p + red_r
     chi2 = ne.rss_pos + ne.rss_rot
     has_rot = problem.has_orientation
+    touch = {}
+    if ne.A_touch is not None:
+        dof, chi2 = dof + lin.red_touch, chi2 + ne.rss_touch
+        touch = {"touch": problem.sigma_touch, "redundancy_touch": lin.red_touch,
+                 "chi2_touch": ne.rss_touch / max(lin.red_touch, 1e-300)}
     return NoiseEstimate(problem.sigma_pos, problem.sigma_rot if has_rot else None, estimated,
                          red_p, red_r, ne.rss_pos / max(red_p, 1e-300),
-                         ne.rss_rot / max(red_r, 1e-300) if has_rot else None, chi2, dof, iterations)
+                         ne.rss_rot / max(red_r, 1e-300) if has_rot else None, chi2, dof, iterations, **touch)
+
+
+#: A residual group whose noise is estimated needs at least this redundancy (its components
+#: minus its share of the unknowns): below it the fit passes through its rows and the "estimate"
+#: would be the weight it started with.
+MIN_GROUP_REDUNDANCY = 1.0
+_GROUP_ADVICE = {"touch": ("touch rows", "--sigma-touch-mm, API sigma_touch"),
+                 "position": ("measured rows", "--sigma-pos-mm, API sigma_pos"),
+                 "rotation": ("measured rows", "--sigma-rot-rad, API sigma_rot")}
+
+
+def check_group_redundancy(lin: Linearised, groups, given) -> None:
+    """Raise DataError, naming what to add, when a residual group of a fit of residual blocks
+    whose noise is estimated (``given``: per group of ("position", "rotation", "touch"), None:
+    estimated) has a redundancy below MIN_GROUP_REDUNDANCY (3 measured positions mixed with touch
+    rows: 9 components, 8.5 of them spent on the meas frame and the scale; their noise was
+    printed as 'estimated' at the weight it started with, and the prediction in the meas frame
+    at it). groups : the groups the fit has."""
+    from calib.errors import DataError
+
+    for k, (g, red) in enumerate(zip(("position", "rotation", "touch"), lin.redundancies(3))):
+        if g in groups and given[k] is None and red < MIN_GROUP_REDUNDANCY:
+            rows, flag = _GROUP_ADVICE[g]
+            raise DataError(f"the {GROUP_NAMES[g][1]} have a redundancy of {red:.2g} (their components minus their "
+                            f"share of the unknowns, below {MIN_GROUP_REDUNDANCY:g}): the fit passes through them and "
+                            f"their noise cannot be estimated; add {rows}, or give their noise ({flag})")
 
 
 def chi2_p_value(chi2: float, dof: float) -> float:
@@ -220,6 +319,9 @@ class Estimate:
     label: str
     record: dict
     selection: object | None = None
+    #: the parameter choice the fit was made with (touch data: decided again at a first fit's
+    #: model, :class:`~calib.calibration.estimators.least_squares.LeastSquares`); None: the given one
+    choice: ParameterChoice | None = None
 
 
 class Estimator(Protocol):

@@ -558,8 +558,8 @@ def _judge_rows(problem_all: Problem, x: np.ndarray, ev: Evidence, rot: bool, ke
     levels from the median absolute residual component of the kept rows
     (:func:`calib.calibration.estimators.robust.robust_sigmas`: 1.4826 MAD, corrected for the fit's share of
     each group's degrees of freedom), which gross rows cannot inflate."""
-    sp, sr = robust_sigmas(problem_all, x, keep, ev.red_p, ev.red_r)
+    sp, sr = robust_sigmas(problem_all, x, keep, (ev.red_p, ev.red_r))
     if rot:
-        return row_rms(problem_all, x, sp, sr)[0] <= k
+        return row_rms(problem_all, x, (sp, sr))[0] <= k
     dp, _ = problem_all.pose_residuals(x)
     return np.sqrt(np.mean((dp / sp) ** 2, axis=1)) <= k

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Sequence
 
@@ -16,104 +15,45 @@ from calib.calibration.options import (
     IMPLAUSIBLE_LENGTH_FRACTION,
     IMPLAUSIBLE_REACH_FRACTION,
     IMPLAUSIBLE_ROT_RAD,
-    LOCAL_MINIMUM_RATIO,
     ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM,
     STEP_START_MU0,
     TRIMMED_MAX_OUTLIER_SHARE,
-    VCE_FIRST_FTOL,
     VCE_MAX_ITERATIONS,
     VCE_RTOL,
     WARM_MU0,
     CalibrationOptions,
 )
-from calib.calibration.prepare import Setup, robot_memo, robot_reach
-from calib.calibration.estimators.base import Estimate, Fit, Linearised, linearised, noise_estimate, vce_fixed_point
+from calib.calibration.prepare import Setup, reach_of, robot_memo, robot_reach
+from calib.calibration.estimators.base import (Estimate, Fit, Linearised, check_group_redundancy, linearised,
+                                               noise_estimate, vce_fixed_point)
 from calib.calibration.estimators.outlier import Outlier
-from calib.calibration.estimators.robust import (can_trim, flag_outliers, judge_rows, leftover_gross, robust_sigmas,
-                                      too_many_gross)
-from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
+from calib.calibration.estimators.robust import (can_trim, components, flag_outliers, judge_rows, leftover_gross,
+                                                 levels_of, robust_sigmas, too_many_gross)
+from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, SIGMA_TOUCH_M
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
-from calib.solvers import dispatch
-from calib.solvers.angles import RotationChain
-from calib.solvers.lm import LMOptions, LMTrace, SolverResult, options_with
+from calib.calibration.estimators.solver import Solver, check_local_minimum, solve_logged, solver_for
+from calib.solvers.lm import LMTrace, SolverResult
 from calib.solvers.inverse import normal_inverse
+from calib.solvers.blocks import GROUPS
 from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem
 
 
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True, eq=False, repr=False)     # (internal; array fields: nothing compares or prints them)
-class Solver:
-    """How the fit stage solves: method, options, and the search-lm ingredients."""
-
-    method: str
-    measure: str
-    options: LMOptions
-    max_rounds: int
-    fixed_rounds: int | None
-    angular: np.ndarray
-    chain: RotationChain | None
-    model: RobotModel
-    lm_variant: str = "calib"
-
-    def __call__(self, problem: Problem, x: np.ndarray, trace: LMTrace, first: bool, *,
-                 loose: bool = False, mu0: float = WARM_MU0) -> SolverResult:
-        """The first fit (``first``: the method's own scheme) or a re-fit from a near solution
-        (LM started with damping ``mu0``, at most the options'); ``loose``: stop at
-        VCE_FIRST_FTOL (calib's LM only)."""
-        if self.lm_variant == "paper":
-            return self._paper(problem, x, trace)
-        opts = self.options
-        if loose:   # (stopping at its last evaluated point, whose normal equations the estimate uses)
-            opts = options_with(opts, ftol=max(opts.ftol, VCE_FIRST_FTOL), last_step=False)
-        if not first:
-            return dispatch.solve(problem, x, "lm", options=options_with(opts, mu0=min(opts.mu0, mu0)), trace=trace)
-        method = "lm" if self.measure == "position" else self.method
-        return dispatch.solve(problem, x, method, angular=self.angular, chain=self.chain, options=opts,
-                              trace=trace, max_rounds=self.max_rounds, fixed_rounds=self.fixed_rounds)
-
-    def _paper(self, problem: Problem, x: np.ndarray, trace: LMTrace) -> SolverResult:
-        """The LM of Eq. (27)-(28) as printed (:mod:`calib.solvers.paper_lm`): unweighted residuals in mm
-        and rad, so the noise levels do not change its solution; its cost is re-expressed in the
-        fit's noise weights."""
-        from calib.solvers.paper_lm import PaperLMOptions
-
-        popts = PaperLMOptions(max_iterations=self.options.max_iterations)
-        method = "c-lm" if (self.method == "c-lm" and self.measure == "pose") else "lm"
-        r = dispatch.solve(problem, x, method, angular=self.angular, variant="paper", paper_options=popts,
-                           max_rounds=self.max_rounds, fixed_rounds=self.fixed_rounds)
-        trace.iterations += r.iterations
-        cost = 0.5 * float(np.sum(problem.residuals(r.x) ** 2))
-        return SolverResult(r.x, cost, r.status, f"paper's LM as printed: {r.message}", r.iterations,
-                            max(r.rounds, 1))
-
-
-def solver_for(setup: Setup, free: Sequence[str], method: str, options: LMOptions, max_rounds: int,
-                fixed_rounds: int | None, lm_variant: str = "calib") -> Solver:
-    """The :class:`Solver` of the fit stage for the free parameters ``free`` of ``setup``'s start
-    model: ``method`` run as LM for several targets (the angle search takes one tool frame), the
-    angle search's rotation chain for search-lm on pose data."""
-    idx = setup.start.indices(free)
-    angular = np.array([setup.start.parameters[k].is_angular for k in idx], bool)
-    if method == "search-lm" and setup.start.targets:
-        method = "lm"       # the angle search takes one tool frame (a note says so)
-    chain = RotationChain(setup.start) if (method == "search-lm" and setup.measure == "pose") else None
-    return Solver(method, setup.measure, options, max_rounds, fixed_rounds, angular, chain, setup.start,
-                  lm_variant)
-
-
 def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: float | None,
               sigma_rot: float | None, loss: str = "linear", loss_scale: float = 3.0,
               outlier_k: float | None = 5.0, keep: np.ndarray | None = None,
               kin: ChainKinematics | None = None, rank_deficit: int = 0,
-              warm: bool = False, refit: bool = True) -> tuple[Fit, Problem]:
-    """The fit stage: identify ``free`` on the calibration rows of ``setup``.
+              warm: bool = False, refit: bool = True, sigma_touch: float | None = None) -> tuple[Fit, Problem]:
+    """The fit stage: identify ``free`` on the calibration rows of ``setup`` (with touch rows, and
+    the features' unknowns: a :class:`~calib.solvers.blocks.BlockProblem` of the setup's blocks).
 
-    sigma_pos (m) / sigma_rot (rad): the noise per axis, or None to estimate it from the residuals
-    (variance-component estimation: each group's weight is re-set to its weighted residual sum of
-    squares over its redundancy, and the fit repeated, until both change by less than VCE_RTOL).
+    sigma_pos (m) / sigma_rot (rad) / sigma_touch (m, touch rows): the noise per axis (per
+    component), or None to estimate it from the residuals (variance-component estimation: each
+    group's weight is re-set to its weighted residual sum of squares over its redundancy, and the
+    fit repeated, until every one changes by less than VCE_RTOL).
     With ``outlier_k``, rows whose whitened residual RMS exceeds it (judged against a robust fit,
     with noise levels that outliers cannot inflate) are removed and the fit repeated.
     rank_deficit : how many directions ``free`` leaves undetermined at the nominal model on these
@@ -134,7 +74,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     """
     return _FitRun(setup, free, solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss=loss, loss_scale=loss_scale,
                    outlier_k=outlier_k, keep=keep, kin=kin, rank_deficit=rank_deficit, warm=warm,
-                   refit=refit).run()
+                   refit=refit, sigma_touch=sigma_touch).run()
 
 
 class _FitRun:
@@ -145,22 +85,29 @@ class _FitRun:
     def __init__(self, setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: float | None,
                  sigma_rot: float | None, loss: str, loss_scale: float, outlier_k: float | None,
                  keep: np.ndarray | None, kin: ChainKinematics | None, rank_deficit: int, warm: bool,
-                 refit: bool):
+                 refit: bool, sigma_touch: float | None = None):
         cal, start = setup.cal, setup.start
         kin = kin or ChainKinematics(start)
         self.setup, self.solve, self.loss, self.outlier_k, self.refit = setup, solve, loss, outlier_k, refit
         self.free = tuple(free)
         idx = start.indices(self.free)
-        self.given = (sigma_pos, sigma_rot)
-        self.estimate = sigma_pos is None or sigma_rot is None
-        self.sp = SIGMA_POS_M if sigma_pos is None else sigma_pos
-        self.sr = SIGMA_ROT_RAD if sigma_rot is None else sigma_rot
-        self.everything = Problem(kin, cal.q, cal.position, cal.rotation, start.values, idx, self.sp, self.sr,
-                                  loss, loss_scale, targets=target_rows(start, cal))
+        # the noise levels given (None: estimated) and used, one per residual group: position,
+        # rotation (and touch, with touch rows)
+        self.given = (sigma_pos, sigma_rot) + ((sigma_touch,) if setup.touch is not None else ())
+        self.estimate = any(g is None for g in self.given)
+        self.lv = tuple(d if g is None else g for d, g in zip((SIGMA_POS_M, SIGMA_ROT_RAD, SIGMA_TOUCH_M), self.given))
+        if setup.touch is None:
+            self.everything = Problem(kin, cal.q, cal.position, cal.rotation, start.values, idx, *self.lv,
+                                      loss, loss_scale, targets=target_rows(start, cal))
+            self.x = start.values[idx]
+        else:
+            self.everything = setup.block_problem(kin, idx, self.lv, loss, loss_scale)
+            self.x = np.concatenate([start.values[idx], setup.features.values])
         self.everything.set_rank_deficit(rank_deficit)     # (of the set at the nominal model, these rows)
+        self.rows = setup.rows
         self.suspect = None
         if keep is None:
-            keep = np.ones(cal.n_poses, bool)
+            keep = np.ones(len(self.rows), bool)
             if setup.suspect is not None and outlier_k is not None:
                 # rows the frame estimate found gross would drag the first fit far from the others'
                 # solution: start without them, take back below those the fitted model explains
@@ -170,7 +117,6 @@ class _FitRun:
             keep = keep.copy()
         self.keep = keep
         self.trace = LMTrace()
-        self.x = start.values[idx]
         self.sol: SolverResult | None = None
         self.outliers: list[Outlier] = []
         self.notes: list[str] = []
@@ -183,23 +129,26 @@ class _FitRun:
         self.unjudged = warm
         self.unremoved: tuple[Outlier, ...] = ()
         self.vce_total = 0
-        self.two_groups = setup.measure == "pose"
+        self.two_groups = setup.measure == "pose" if setup.touch is None else len(self.everything.groups) > 1
         # the levels where the estimation stops, from one linearisation (vce_fixed_point): a
         # re-fit that follows the weights confirms them; the paper's LM as printed ignores the
         # weights, and the estimation then ran to its limit of re-fits, its levels not its
         # residuals' own
         self.fixed_point = self.two_groups and loss == "linear" and solve.lm_variant != "paper"
-        self.robust_levels = (self.sp, self.sr)       # (the outlier check's robust noise levels)
+        self.robust_levels = self.lv       # (the outlier check's robust noise levels)
         self._last_lin = None
 
     def problem(self) -> Problem:
         """The weighted problem of the rows kept, at the current noise levels."""
-        return self.everything.derived(keep=self.keep, sigma_pos=self.sp, sigma_rot=self.sr)
+        if self.setup.touch is not None:
+            return self.everything.derived(keep=self.keep, sigma_pos=self.lv[0], sigma_rot=self.lv[1],
+                                           sigma_touch=self.lv[2])
+        return self.everything.derived(keep=self.keep, sigma_pos=self.lv[0], sigma_rot=self.lv[1])
 
     def linearised(self, problem: Problem, x: np.ndarray) -> Linearised:
         """:func:`linearised` of the kept rows at the current weights, the last one kept: the
         outlier check and the noise estimate ask at the same solution."""
-        key = (x.tobytes(), problem.sigma_pos, problem.sigma_rot, self.keep.tobytes())
+        key = (x.tobytes(), levels_of(problem), self.keep.tobytes())
         if self._last_lin is None or self._last_lin[0] != key:
             self._last_lin = key, linearised(problem, x)
         return self._last_lin[1]
@@ -209,9 +158,8 @@ class _FitRun:
             if not self.first and self.estimate and self.fixed_point:
                 # rows were removed (or taken back): the noise levels of the fit of the rows now
                 # kept, from their linearisation at x (whose normal equations the re-fit starts from)
-                levels = (self.sp, self.sr)
-                self.sp, self.sr = vce_fixed_point(self.linearised(self.problem(), self.x).ne, levels, levels,
-                                                   (self.given[0] is None, self.given[1] is None))
+                self.lv = vce_fixed_point(self.linearised(self.problem(), self.x).ne, self.lv, self.lv,
+                                          (self.given[0] is None, self.given[1] is None))
             if outlier_pass and not self.refit:
                 self.take_back_unrefitted()
                 break
@@ -226,10 +174,9 @@ class _FitRun:
         """``refit`` False: the rows now kept and their levels, at the robust solution; the frame
         estimate's suspect rows judged there, as :meth:`judge` does."""
         if self.suspect is not None:
-            cal = self.setup.cal
-            still, _ = flag_outliers(self.everything, self.x, cal.rows, self.suspect, self.outlier_k,
-                                     *self.robust_levels)
-            back = self.suspect & ~np.isin(cal.rows, [o.row for o in still])
+            still, _ = flag_outliers(self.everything, self.x, self.rows, self.suspect, self.outlier_k,
+                                     self.robust_levels)
+            back = self.suspect & ~np.isin(self.rows, [o.row for o in still])
             self.outliers += still
             self.suspect = None
             # (the levels stay those of the rows without them: calibrate's fit estimates its own)
@@ -238,18 +185,17 @@ class _FitRun:
     def weighted_fits(self) -> None:
         """The fit of the kept rows, re-weighted by the noise levels its residuals give until they
         settle (variance-component estimation; once when the levels are given)."""
-        sigma_pos, sigma_rot = self.given
         for _ in range(VCE_MAX_ITERATIONS):
             problem = self.problem()
             # (pose data: the weights change the fit, so a re-weighted fit follows the first)
             loose = self.first and self.estimate and self.two_groups
-            sol = _solve_logged(self.solve, problem, self.x, self.trace, self.first, loose=loose, mu0=self.start_mu0)
+            sol = solve_logged(self.solve, problem, self.x, self.trace, self.first, loose=loose, mu0=self.start_mu0)
             self.start_mu0 = WARM_MU0
             if self.first or (self.unjudged and sol.status == "converged"):
                 # judged at the starting weights, before they adapt to a stuck fit's residuals;
                 # a first fit that stopped unconverged (the paper's LM at its iteration limit) is
                 # judged when a re-fit from it first calls itself converged
-                sol = _check_local_minimum(sol, problem, self.solve)
+                sol = check_local_minimum(sol, problem, self.solve)
                 self.stuck = sol if sol.status == "local_minimum" else None
                 self.unjudged = sol.status != "converged" and self.stuck is None
             self.first = False
@@ -257,24 +203,21 @@ class _FitRun:
             if not self.estimate or sol.status == "diverged":
                 break
             lin = self.linearised(problem, self.x)
-            ne, red_p, red_r = lin.ne, lin.red_pos, lin.red_rot
+            ne, red = lin.ne, lin.redundancies(len(self.lv))
             self.vce_total += 1
-            sp, sr = self.sp, self.sr
-            if self.loss == "linear":
-                est_p = sp * math.sqrt(ne.rss_pos / red_p) if red_p > 0.5 else sp
-                est_r = sr * math.sqrt(ne.rss_rot / red_r) if (self.two_groups and red_r > 0.5) else sr
+            old = self.lv
+            if self.loss == "linear":   # (each group: its weighted rss over its redundancy)
+                est = tuple(lv * math.sqrt(ne.share(g)[1] / r) if r > 0.5 else lv
+                            for g, lv, r in zip(GROUPS, old, red))
             else:   # a robust fit: a noise level that the outliers it resists cannot inflate
-                est_p, est_r = robust_sigmas(problem, self.x, np.ones(problem.n_poses, bool), red_p, red_r)
-            new_sp = est_p if sigma_pos is None else sp
-            new_sr = est_r if (sigma_rot is None and self.two_groups) else sr
-            new_sp, new_sr = max(new_sp, 1e-12), max(new_sr, 1e-12)
-            change = max(abs(new_sp / sp - 1.0), abs(new_sr / sr - 1.0))
+                est = robust_sigmas(problem, self.x, np.ones(problem.n_poses, bool), red)
+            new = tuple(max(e if g is None else lv, 1e-12) for e, g, lv in zip(est, self.given, old))
+            change = max(abs(a / b - 1.0) for a, b in zip(new, old))
             if change >= VCE_RTOL and self.fixed_point:
                 # where the estimation would stop, from this linearisation: one re-weighted fit
                 # confirms it instead of one per step of the estimation
-                new_sp, new_sr = vce_fixed_point(ne, (sp, sr), (new_sp, new_sr),
-                                                 (sigma_pos is None, sigma_rot is None))
-            self.sp, self.sr = new_sp, new_sr
+                new = vce_fixed_point(ne, old, new, (self.given[0] is None, self.given[1] is None))
+            self.lv = new
             if (change < VCE_RTOL and not loose) or (not self.two_groups and self.loss == "linear"):
                 break   # (one group: the weights do not change the fit)
 
@@ -282,14 +225,14 @@ class _FitRun:
         """The outlier check of the rows kept against a robust fit: rows removed (or the frame
         estimate's suspect rows taken back) and True for another pass, False when the rows kept
         stand."""
-        cal, everything, outlier_k = self.setup.cal, self.everything, self.outlier_k
+        rows, everything, outlier_k = self.rows, self.everything, self.outlier_k
         problem = self.problem()
         lin = self.linearised(problem, self.x)
-        few = everything.n_poses * (6 if self.two_groups else 3) < ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM * len(self.x)
-        judged = judge_rows(everything, problem, self.x, self.keep, cal.rows, outlier_k, given=self.given,
-                            red=(lin.red_pos, lin.red_rot), few=few, first=not self.outliers,
+        few = components(everything) < ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM * len(self.x)
+        judged = judge_rows(everything, problem, self.x, self.keep, rows, outlier_k, given=self.given,
+                            red=lin.redundancies(len(self.lv)), few=few, first=not self.outliers,
                             options=self.solve.options, trace=self.trace)
-        self.x, self.robust_levels = judged.x, (judged.sigma_pos, judged.sigma_rot)
+        self.x, self.robust_levels = judged.x, judged.levels
         new, too_many = list(judged.outliers), judged.too_many
         if judged.breakdown:
             self.refusals.append(judged.breakdown)
@@ -299,14 +242,14 @@ class _FitRun:
                               f"data), so no row was removed as an outlier")
             self.unremoved = tuple(new)
         new = [] if too_many else new
-        if new and len(self.outliers) + len(new) > TRIMMED_MAX_OUTLIER_SHARE * cal.n_poses:
-            self.refusals.append(too_many_gross(len(self.outliers) + len(new), cal.n_poses))
+        if new and len(self.outliers) + len(new) > TRIMMED_MAX_OUTLIER_SHARE * len(rows):
+            self.refusals.append(too_many_gross(len(self.outliers) + len(new), len(rows)))
             new = []
         if self.suspect is not None and not new:
             # the suspect rows against the fit of the others: those within outlier_k are taken
             # back (and the fit repeated), the others are outliers
-            still, _ = flag_outliers(everything, self.x, cal.rows, self.suspect, outlier_k, *self.robust_levels)
-            back = self.suspect & ~np.isin(cal.rows, list({o.row for o in still}))
+            still, _ = flag_outliers(everything, self.x, rows, self.suspect, outlier_k, self.robust_levels)
+            back = self.suspect & ~np.isin(rows, list({o.row for o in still}))
             self.outliers += still
             self.suspect = None
             if back.any():
@@ -315,20 +258,20 @@ class _FitRun:
         if not new:
             return False
         self.outliers += new
-        self.keep &= ~np.isin(cal.rows, [o.row for o in new])
+        self.keep &= ~np.isin(rows, [o.row for o in new])
         return True
 
     def finish(self) -> tuple[Fit, Problem]:
         """The :class:`Fit` of the rows kept: a last least-squares fit where the robust solution
         was not solved at the final weights, the noise estimate, the covariance, the check for
         gross rows left over."""
-        cal, everything, start = self.setup.cal, self.everything, self.setup.start
+        everything, start = self.everything, self.setup.start
         if self.suspect is not None:   # never judged (the fit diverged or ran out of passes): outliers
-            self.outliers += flag_outliers(everything, self.x, cal.rows, self.suspect, -1.0, self.sp, self.sr)[0]
+            self.outliers += flag_outliers(everything, self.x, self.rows, self.suspect, -1.0, self.lv)[0]
         problem = self.problem()
         sol, x = self.sol, self.x
         if sol.x is not x and self.refit:   # the last change of x was not solved at these weights (robust start)
-            sol = _solve_logged(self.solve, problem, x, self.trace, False)
+            sol = solve_logged(self.solve, problem, x, self.trace, False)
             x = sol.x
         if sol.x is not x:      # (refit False: the robust solution, not refitted)
             sol = replace(sol, x=x, message=f"{sol.message}; then the outlier check's robust solution, not "
@@ -336,19 +279,22 @@ class _FitRun:
         if self.stuck is not None:
             sol = replace(sol, status=self.stuck.status, message=self.stuck.message)
         lin = self.linearised(problem, x)
+        if self.setup.touch is not None and sol.status != "diverged":
+            check_group_redundancy(lin, everything.groups, self.given)
         noise = noise_estimate(problem, lin, self.estimate, self.vce_total)
         if self.estimate and self.outlier_k is not None and self.loss == "linear" and not self.refusals \
                 and self.refit and can_trim(everything, self.keep, len(x)):
             # (where half of the rows cannot determine the parameters, the median residual cannot
             # say what the noise is either: the real TIAGo marker rows, 27 for 33 parameters, were
             # refused as inconsistent, the least-squares noise 2.2x the median residual's)
-            self.refusals.append(leftover_gross(everything, x, self.keep, (lin.red_pos, lin.red_rot),
-                                                (self.sp, self.sr), self.given))
+            self.refusals.append(leftover_gross(everything, x, self.keep, lin.redundancies(len(self.lv)),
+                                                self.lv, self.given))
         model = start.with_values(problem.full(x))
         notes = list(self.notes)
         if self.outliers:
             notes.append(f"{len(self.outliers)} outlier rows removed and the fit repeated without them: rows "
                          + ", ".join(str(o.row) for o in self.outliers))
+            notes += feature_notes(self.setup.touch, self.outliers)
         # (least squares: the cost from the normal equations of the noise estimate)
         cost = lin.ne.cost if problem.loss == "linear" else 0.5 * float(np.sum(problem.residuals(x) ** 2))
         fit = Fit(model, self.free, replace(sol, cost=cost), self.keep, tuple(self.outliers), noise,
@@ -358,33 +304,26 @@ class _FitRun:
         return fit, problem
 
 
-def _solve_logged(solve: Solver, problem: Problem, x, trace, first, loose: bool = False,
-                  mu0: float = WARM_MU0) -> SolverResult:
-    t = time.perf_counter()
-    sol = solve(problem, x, trace, first, loose=loose, mu0=mu0)
-    log.info("fit (%s%s): %s, cost %.6g, %d iterations, %.1f ms", solve.method if first else "lm",
-             "" if first else " re-weighted", sol.status, sol.cost, sol.iterations,
-             (time.perf_counter() - t) * 1e3)
-    return sol
+#: A feature of touch data that loses this share of its rows to the outlier check is named.
+FEATURE_FLAGGED_SHARE = 0.25
 
 
-def _check_local_minimum(sol: SolverResult, problem: Problem, solve: Solver) -> SolverResult:
-    """An explicit lm / c-lm fit: an angle search from its solution, then LM; if that reaches a
-    clearly lower cost, the fit stopped in a local minimum and is not called converged."""
-    if solve.measure != "pose" or solve.method == "search-lm" or sol.status != "converged":
-        return sol
-    if solve.model.targets:     # the angle search takes one tool frame
-        return sol
-    chain = solve.chain or RotationChain(solve.model)
-    other = dispatch.solve(problem, sol.x, "search-lm", angular=solve.angular, chain=chain,
-                           options=solve.options, max_escapes=0)
-    # clearly lower: by a fraction of the cost and by more than chance (1 in chi^2 / 2 units)
-    if other.cost < LOCAL_MINIMUM_RATIO * sol.cost and sol.cost - other.cost > 1.0:
-        msg = (f"{solve.method.upper()} stopped in a local minimum: an angle search from its solution, "
-               f"then LM, reaches a cost {other.cost:.4g} below its {sol.cost:.4g} (method search-lm "
-               f"escapes it)")
-        return replace(sol, status="local_minimum", message=msg)
-    return sol
+def feature_notes(touch, outliers) -> list[str]:
+    """A note per feature of touch data (``touch``, None: none) that lost FEATURE_FLAGGED_SHARE
+    or more of its rows to the outlier check: rows that contradict the others of one feature are
+    another feature touched under its name, more often than gross touches."""
+    if touch is None:
+        return []
+    flagged = {o.row: o for o in outliers}
+    notes = []
+    for k, f in enumerate(touch.features):
+        rows = touch.rows[touch.rows_of(k)]
+        out = [flagged[r] for r in rows if r in flagged]
+        if out and len(out) >= FEATURE_FLAGGED_SHARE * len(rows):
+            notes.append(f"{len(out)} of the {len(rows)} rows of {f.kind} {f.id!r} lie "
+                         f"{min(o.position_error for o in out) * 1e3:.3g} mm or more from it (rows "
+                         f"{', '.join(str(o.row) for o in out)}): a second {f.kind} touched under its name?")
+    return notes
 
 
 def method_notes(setup: Setup, method: str) -> list[str]:
@@ -398,32 +337,82 @@ def method_notes(setup: Setup, method: str) -> list[str]:
 
 
 def implausibility(nominal: RobotModel, fit: Fit, *, sigma_pos_given: bool,
-                   sigma_rot_given: bool) -> list[str]:
+                   sigma_rot_given: bool, sigma_touch_given: bool = False) -> list[str]:
     """Why the fit's result cannot be trusted, one sentence each (empty when it can): residuals
     far above given noise levels (every uncertainty and prediction is that much too small),
     errors no robot and instrument give. A calibration with any of these is not called converged
     (status "implausible"). sigma_pos_given / sigma_rot_given: which noise levels the user gave
-    (each group is judged against its own)."""
+    (each group is judged against its own; sigma_touch_given: the touch rows' noise)."""
     notes = list(fit.refusals)
     nz = fit.noise
     given = [("position", nz.chi2_pos)] if sigma_pos_given else []
     if sigma_rot_given and nz.chi2_rot is not None:
         given.append(("orientation", nz.chi2_rot))
+    if sigma_touch_given and nz.chi2_touch is not None:
+        given.append(("touch", nz.chi2_touch))
     worst = max(given, key=lambda g: g[1], default=None)
     if worst is not None and fit.solver.status == "converged" and worst[1] > CHI2_ESCAPE:
         notes.append(f"the fit converged but its {worst[0]} residuals are {math.sqrt(worst[1]):.1f} times the "
                      f"given noise (reduced chi^2 {worst[1]:.3g}): a wrong sigma, or errors the model "
                      f"does not describe; omit the noise levels to estimate them from the data")
     # judged on the rows the fit kept: a gross row it flagged is not the model's failure
-    return notes + _implausible_fit_notes(nominal, fit.errors.subset(fit.keep))
+    return notes + _implausible_fit_notes(nominal, fit.errors.subset(fit.keep)) + length_refusals(nominal, fit)
 
 
 def length_notes(nominal: RobotModel, fit: Fit) -> list[str]:
     """Notes naming link lengths identified far from ``nominal``'s. A note, not a refusal: a
     length tied to another (d2 and d3 of parallel axes, d6 and the tool's z) can move along the
     tie with the model's kinematics exact (from a start 1.55 rad off in alpha2: d2 -26 m,
-    d3 +26 m, error to the truth 1e-9 m)."""
+    d3 +26 m, error to the truth 1e-9 m); :func:`length_refusals` refuses the lengths that move
+    the tool positions."""
     return _implausible_length_notes(nominal, fit.model)
+
+
+def length_refusals(nominal: RobotModel, fit: Fit) -> list[str]:
+    """The one rule on link lengths far from the URDF's, for every kind of data: lengths
+    identified further than IMPLAUSIBLE_LENGTH_FRACTION of the reach from ``nominal``'s
+    (:func:`length_notes`) that carry the fit are refused. They carry it when, put back to the
+    URDF's values, no other parameter (and no rigid motion of the meas frame) brings the tool
+    positions over random configurations back within that fraction of the reach (RMS) of the
+    calibrated ones (an LM fit of those positions): a tie moves lengths, not the tool (d2 -26 m
+    and d3 +26 m of parallel axes, d6 +172 mm against the tool's z: a note). Two nests touched
+    under one point's name were explained by an arm whose a2 and a3 shrank by 630 and 580 mm,
+    fitted to the noise: refused. One sentence, else empty."""
+    far = _far_lengths(nominal, fit.model)
+    if not far:
+        return []
+    from calib.calibration.workspace import workspace_configurations
+    from calib.solvers.lm import LMOptions, levenberg_marquardt
+
+    model = fit.model
+    Q = workspace_configurations(nominal)
+    values = model.values.copy()
+    for name, _ in far:
+        values[model.index(name)] = nominal.value(name)
+    reset = model.with_values(values)
+    p_cal = ChainKinematics(model).frame_poses(Q)[1]
+    others = [k for k, p in enumerate(reset.parameters) if p.name not in dict(far) and p.group != "compliance"]
+    problem = Problem(ChainKinematics(reset), Q, p_cal, None, reset.values, others, 1e-3, 1.0)
+    sol = levenberg_marquardt(problem, reset.values[others], options=LMOptions(max_iterations=50))
+    moved = float(np.sqrt(2.0 * sol.cost / len(Q))) * 1e-3
+    reach = reach_of(nominal)
+    if moved <= IMPLAUSIBLE_LENGTH_FRACTION * reach:
+        return []
+    shown = ", ".join(f"{name} {dev * 1e3:+.1f} mm" for name, dev in far)
+    return [f"the calibrated model is not this robot: its link lengths far from the URDF's ({shown}) carry the "
+            f"fit, the tool positions {moved * 1e3:.4g} mm (RMS over random configurations) from any model with "
+            f"the URDF's lengths, more than {100 * IMPLAUSIBLE_LENGTH_FRACTION:g} % of the robot's reach "
+            f"{reach * 1e3:.0f} mm; check the length unit of the positions, that the URDF is this robot's, and "
+            f"rows that contradict each other (two features touched under one name)"]
+
+
+def _far_lengths(nominal: RobotModel, calibrated: RobotModel) -> list[tuple[str, float]]:
+    """(name, deviation) of the link lengths (d, a) identified further than
+    IMPLAUSIBLE_LENGTH_FRACTION of the reach from ``nominal``'s (a slide's offset: any)."""
+    reach = reach_of(nominal)
+    return [(p.name, b - a) for p, a, b in zip(nominal.parameters, nominal.values, calibrated.values)
+            if p.group == "joint" and p.unit == "m" and abs(b - a) > IMPLAUSIBLE_LENGTH_FRACTION * reach
+            and not (p.kind == "d" and nominal.prismatic[p.joint - 1])]
 
 
 def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, outlier_k: float | None,
@@ -438,7 +427,7 @@ def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, 
     return fit_stage(setup, free, solve, sigma_pos=options.sigma_pos if sigma_pos is None else sigma_pos,
                      sigma_rot=options.sigma_rot if sigma_rot is None else sigma_rot, loss=options.loss,
                      loss_scale=options.loss_scale, outlier_k=outlier_k, keep=keep, kin=kin,
-                     rank_deficit=rank_deficit, warm=warm, refit=refit)
+                     rank_deficit=rank_deficit, warm=warm, refit=refit, sigma_touch=options.sigma_touch)
 
 
 @dataclass(frozen=True, eq=False)
@@ -450,7 +439,8 @@ class LeastSquares:
     start : a model near the solution to start from (the joint terms' chosen model, linearised at
     the geometric solution: a few LM iterations instead of the method's scheme), or None (the
     method's scheme from the setup's start); suspect : (N_cal,) bool, rows to start without
-    (the geometric fit's outliers), taken back when the model explains them."""
+    (the geometric fit's outliers), taken back when the model explains them. Touch data: the
+    parameter set decided again at the fitted model (:meth:`second_pass`)."""
 
     start: RobotModel | None = None
     suspect: np.ndarray | None = None
@@ -462,7 +452,49 @@ class LeastSquares:
             setup = replace(setup, start=self.start, suspect=self.suspect)
         fit, problem = fit_with(setup, choice.free, options, outlier_k=options.outlier_k, kin=kin,
                                 rank_deficit=choice.deficit, warm=warm)
-        return Estimate(fit, problem, choice.label, {"kind": self.name, "param_set": choice.label})
+        if setup.touch is not None and fit.solver.status != "diverged":
+            return self.second_pass(setup, choice, options, kin, fit, problem)
+        return Estimate(fit, problem, choice.label, {"kind": self.name, "param_set": choice.label}, choice=choice)
+
+    def second_pass(self, setup: Setup, choice, options: CalibrationOptions, kin: ChainKinematics, fit: Fit,
+                    problem) -> Estimate:
+        """Touch data: the parameter set decided again at the first fit's model, and the fit with
+        it when it is larger and lowers the cost significantly. Ties and "no effect" are decided
+        at an idealised model (exact right angles, zero small lengths); a robot whose errors are
+        larger than that idealisation snaps (1 mm, 0.05 rad: a tool point millimetres off the last
+        axis) breaks some of them (the last joint's offset then moves the tool point), and holding
+        those parameters nominal leaves residuals of several times the noise (UR10, errors of 5 mm
+        / 10 mrad: 3 times, the tool positions 2-5 times the Cramer-Rao prediction; with the
+        second pass at the noise and the prediction). Kept when the likelihood-ratio statistic of
+        the extra parameters, on the rows both fits kept at the second fit's noise levels, exceeds
+        its chi-square 99 % point."""
+        from calib.calibration.estimators.robust import at_levels
+        from calib.calibration.parameters import choose_touch_parameters
+        from calib.errors import DataError
+
+        first = Estimate(fit, problem, choice.label, {"kind": self.name, "param_set": choice.label}, choice=choice)
+        try:
+            again = choose_touch_parameters(setup, options, at=fit.model, first=choice.free)
+        except DataError:       # (the first fit's model is far from any the rows determine: judged as it is)
+            return first
+        extra = set(again.free) - set(choice.free)
+        if not extra or not set(choice.free) <= set(again.free) or \
+                problem.n_residuals <= len(again.free) + problem.n_free - len(choice.free):
+            return first
+        n_robot = len(choice.free)
+        start = replace(setup, start=fit.model,
+                        features=replace(setup.features, values=fit.solver.x[n_robot:].copy()))
+        fit2, problem2 = fit_with(start, again.free, options, outlier_k=options.outlier_k, kin=kin, warm=True,
+                                  keep=fit.keep)
+        both = fit.keep & fit2.keep
+        levels = problem2.levels
+        r1 = at_levels(fit.all_rows, levels).derived(keep=both).residuals(fit.solver.x)
+        r2 = at_levels(fit2.all_rows, levels).derived(keep=both).residuals(fit2.solver.x)
+        from scipy.stats import chi2
+
+        if r1 @ r1 - r2 @ r2 <= chi2.ppf(0.99, len(extra)):
+            return first
+        return Estimate(fit2, problem2, again.label, {"kind": self.name, "param_set": again.label}, choice=again)
 
     def refit(self, setup: Setup, free: Sequence[str], options: CalibrationOptions, kin: ChainKinematics, *,
               keep: np.ndarray, levels: tuple[float, float] | None = None) -> tuple[Fit, Problem]:

@@ -15,6 +15,13 @@ the noise estimate with them. The rows are judged instead against
 More than half of the rows flagged against the high-breakdown fit (its breakdown point) means
 data inconsistent with the model: :attr:`Judgement.breakdown` says so, and the fit stage
 refuses the result (status "implausible"). scripts/accept_gross_rows.py measures it all.
+
+The noise levels are a tuple in the problem's order: (sigma_pos, sigma_rot) of a
+:class:`~calib.solvers.problem.Problem`, (sigma_pos, sigma_rot, sigma_touch) of a
+:class:`~calib.solvers.blocks.BlockProblem` (:func:`levels_of`); the rows of a problem of blocks
+are judged by each row's components whitened by its groups' levels, and the trimmed fit keeps
+the best rows of each stratum (the measured rows; each feature's touch rows), so that no block
+and no feature is left without rows.
 """
 from __future__ import annotations
 
@@ -33,6 +40,7 @@ from calib.calibration.options import (
     TRIMMED_MAX_OUTLIER_SHARE,
     WARM_MU0,
 )
+from calib.solvers.blocks import GROUPS, BlockProblem
 from calib.solvers.lm import LMOptions, LMTrace, levenberg_marquardt, options_with
 from calib.solvers.inverse import normal_inverse
 from calib.solvers.problem import Problem
@@ -54,15 +62,41 @@ class Judgement:
     outliers: tuple[Outlier, ...]
     too_many: bool
     x: np.ndarray
-    sigma_pos: float
-    sigma_rot: float
+    levels: tuple[float, ...]
     trimmed: bool = False
     breakdown: str = ""
 
 
-def row_rms(problem: Problem, x: np.ndarray, sigma_pos: float, sigma_rot: float):
-    """Each row's whitened residual RMS per component, its position residuals (N, 3) metres and
-    the norm of its rotation residual (radians; NaN without orientation data)."""
+def levels_of(problem) -> tuple[float, ...]:
+    """The noise levels a problem is weighted by: (sigma_pos, sigma_rot), and sigma_touch for a
+    problem of residual blocks."""
+    if isinstance(problem, BlockProblem):
+        return problem.levels
+    return problem.sigma_pos, problem.sigma_rot
+
+
+def at_levels(problem, levels: Sequence[float], **changes):
+    """``problem`` weighted by the noise ``levels`` (see :func:`levels_of`), with ``changes``."""
+    if isinstance(problem, BlockProblem):
+        return problem.derived(sigma_pos=levels[0], sigma_rot=levels[1], sigma_touch=levels[2], **changes)
+    return problem.derived(sigma_pos=levels[0], sigma_rot=levels[1], **changes)
+
+
+def components(problem, keep: np.ndarray | None = None) -> int:
+    """The residual components of the rows ``keep`` (default all)."""
+    if isinstance(problem, BlockProblem):
+        return problem.components(keep)
+    n = problem.n_poses if keep is None else int(np.count_nonzero(keep))
+    return n * (6 if problem.has_orientation else 3)
+
+
+def row_rms(problem: Problem, x: np.ndarray, levels: Sequence[float]):
+    """Each row's whitened residual RMS per component at the noise ``levels``, its position
+    residuals (N, 3) metres (a touch row's displacement from its feature) and the norm of its
+    rotation residual (radians; NaN without orientation data)."""
+    if isinstance(problem, BlockProblem):
+        return problem.row_rms(x, levels), problem.pose_residuals(x)[0], problem.row_errors(x)[1]
+    sigma_pos, sigma_rot = levels[0], levels[1]
     dp, dr = problem.pose_residuals(x)
     blocks = [dp / sigma_pos]
     rot = np.full(len(dp), np.nan)
@@ -74,14 +108,14 @@ def row_rms(problem: Problem, x: np.ndarray, sigma_pos: float, sigma_rot: float)
 
 
 def flag_outliers(problem: Problem, x: np.ndarray, rows: np.ndarray, keep: np.ndarray, k: float,
-                  sigma_pos: float, sigma_rot: float, max_share: float = 0.25,
+                  levels: Sequence[float], max_share: float = 0.25,
                   spread: np.ndarray | None = None) -> tuple[list[Outlier], bool]:
-    """Rows still kept whose whitened residual RMS per component exceeds k (with the given noise
-    levels), and whether they are too many (more than ``max_share`` of the kept rows) to be
+    """Rows still kept whose whitened residual RMS per component exceeds k (with the noise
+    ``levels``), and whether they are too many (more than ``max_share`` of the kept rows) to be
     outliers. ``problem`` holds all calibration rows; rows : their line numbers; spread : (N,)
     each row's residual RMS expected from noise, in sigma (default 1: rows the fit saw; a row
     predicted by a fit of other rows errs by its noise and the fit's prediction error)."""
-    rms, dp, rot = row_rms(problem, x, sigma_pos, sigma_rot)
+    rms, dp, rot = row_rms(problem, x, levels)
     bad = np.flatnonzero(keep & (rms > k * (1.0 if spread is None else spread)))
     found = []
     if len(bad):
@@ -91,10 +125,19 @@ def flag_outliers(problem: Problem, x: np.ndarray, rows: np.ndarray, keep: np.nd
     return found, len(bad) > max_share * keep.sum()
 
 
-def robust_sigmas(problem: Problem, x: np.ndarray, keep: np.ndarray, red_p: float, red_r: float):
-    """Noise levels (m, rad) from the median absolute residual component of each group over the
-    rows ``keep`` (1.4826 MAD, corrected for the fit's share of the degrees of freedom): what
-    outliers cannot inflate. red_p / red_r : each group's redundancy in the fit."""
+def robust_sigmas(problem: Problem, x: np.ndarray, keep: np.ndarray, red: Sequence[float]) -> tuple[float, ...]:
+    """Noise levels (see :func:`levels_of`) from the median absolute residual component of each
+    group over the rows ``keep`` (1.4826 MAD, corrected for the fit's share of the degrees of
+    freedom): what outliers cannot inflate. red : each group's redundancy in the fit."""
+    if isinstance(problem, BlockProblem):
+        out = list(problem.levels)
+        for g, r in problem.group_residuals(x, keep).items():
+            k = GROUPS.index(g)
+            if len(r):
+                f = max(red[k] / len(r), 1e-3)
+                out[k] = max(1.4826 * median(np.abs(r)) / math.sqrt(f), 1e-12)
+        return tuple(out)
+    red_p, red_r = red[0], red[1]
     dp, dr = problem.pose_residuals(x)
     n = keep.sum()
     f_p = max(red_p / (3 * n), 1e-3)
@@ -106,8 +149,8 @@ def robust_sigmas(problem: Problem, x: np.ndarray, keep: np.ndarray, red_p: floa
     return max(sp, 1e-12), max(sr, 1e-12)
 
 
-def trimmed_fit(problem: Problem, starts: Sequence[np.ndarray], keep: np.ndarray, sigma_pos: float,
-                sigma_rot: float, options: LMOptions, trace: LMTrace) -> np.ndarray:
+def trimmed_fit(problem: Problem, starts: Sequence[np.ndarray], keep: np.ndarray, levels: Sequence[float],
+                options: LMOptions, trace: LMTrace) -> np.ndarray:
     """A high-breakdown fit of ``problem``'s kept rows (least trimmed squares by concentration
     steps): from each start, the least-squares fit of the h kept rows with the smallest whitened
     residuals (at the robust noise levels given), repeated until those rows stop changing; the
@@ -120,9 +163,13 @@ def trimmed_fit(problem: Problem, starts: Sequence[np.ndarray], keep: np.ndarray
     by many gross rows can lead the steps to a half that holds some of them). LM starts at the
     re-fits' damping WARM_MU0 where it starts near a solution (from the first start, a fit of
     these rows, and from the last step's fit), at the options' from the others (1 to 2 Jacobian
-    passes fewer per fit on 25 full-pose rows)."""
+    passes fewer per fit on 25 full-pose rows). A problem of residual blocks keeps the best rows
+    of each stratum, in proportion
+    (:func:`best_rows_of`)."""
     n = int(keep.sum())
     per_row = 6 if problem.has_orientation else 3
+    if isinstance(problem, BlockProblem):
+        per_row = components(problem, keep) / max(n, 1)
     options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))     # (it ranks rows)
     h = min(max(-(-n // 3), -(-2 * len(starts[0]) // per_row) + 1), (n + 1) // 2)
     best, best_cost = None, np.inf
@@ -131,17 +178,34 @@ def trimmed_fit(problem: Problem, starts: Sequence[np.ndarray], keep: np.ndarray
     for i, x in enumerate(starts):
         chosen = None
         for step in range(TRIMMED_FIT_STEPS):
-            rms = np.where(keep, row_rms(problem, x, sigma_pos, sigma_rot)[0], np.inf)
-            best_rows = np.zeros(len(rms), bool)
-            best_rows[np.argsort(rms, kind="stable")[:h]] = True
+            rms = np.where(keep, row_rms(problem, x, levels)[0], np.inf)
+            best_rows = best_rows_of(problem, rms, keep, int(h))
             if chosen is not None and np.array_equal(best_rows, chosen):
                 break
             chosen = best_rows
             x = levenberg_marquardt(apart.derived(keep=chosen), x, "pose", warm if (i == 0 or step) else options,
                                     trace).x
-        cost = float(np.sum(np.sort(np.where(keep, row_rms(problem, x, sigma_pos, sigma_rot)[0], np.inf))[:h] ** 2))
+        rms = np.where(keep, row_rms(problem, x, levels)[0], np.inf)
+        cost = (float(np.sum(rms[best_rows_of(problem, rms, keep, int(h))] ** 2)) if isinstance(problem, BlockProblem)
+                else float(np.sum(np.sort(rms)[:h] ** 2)))
         if cost < best_cost:
             best, best_cost = x, cost
+    return best
+
+
+def best_rows_of(problem, rms: np.ndarray, keep: np.ndarray, h: int) -> np.ndarray:
+    """(N,) bool: the h kept rows of smallest whitened residual ``rms``; of a problem of residual
+    blocks, the best of each stratum in proportion to its kept rows (at least 3 of it, or all it
+    has: a block or a feature without rows would leave its unknowns undetermined)."""
+    best = np.zeros(len(rms), bool)
+    if not isinstance(problem, BlockProblem):
+        best[np.argsort(rms, kind="stable")[:h]] = True
+        return best
+    strata, n = problem.strata(), max(int(keep.sum()), 1)
+    for s in np.unique(strata[keep]):
+        mine = np.flatnonzero(keep & (strata == s))
+        take = min(len(mine), max(3, -(-h * len(mine) // n)))
+        best[mine[np.argsort(rms[mine], kind="stable")[:take]]] = True
     return best
 
 
@@ -157,6 +221,11 @@ def _apart(problem: Problem) -> Problem:
 #: least this share of their position components as redundancy (the noise it judges by comes
 #: from them).
 TRIM_MIN_REDUNDANCY_SHARE = 0.25
+#: The same for a problem of residual blocks, of all its components: a feature's rows carry its
+#: own unknowns besides the robot's (one point touched from 6 orientations, the tool fitted, a
+#: robot with 0.5 mm errors: the refit of 3 rows had a redundancy of 3 of its 9 components, and
+#: flagged the 3 others, off by the robot's unmodelled errors).
+TRIM_MIN_BLOCKS_REDUNDANCY_SHARE = 0.5
 #: Residual components per parameter that half of the rows must hold for the trimmed fit.
 TRIM_MIN_RATIO = 1.5
 
@@ -169,51 +238,53 @@ def can_trim(problem: Problem, keep: np.ndarray, n_params: int) -> bool:
     marker data, 27 position-only rows, 33 parameters: a fit of 14 rows (42 components) flagged
     13 of the 27 (held-out error 4.27 mm instead of 3.81); 25 position-only rows of 23
     parameters (39 components in 13 rows) are trimmed and their 2 gross rows found."""
+    if isinstance(problem, BlockProblem):
+        return components(problem, keep) / 2 >= TRIM_MIN_RATIO * n_params
     per_row = 6 if problem.has_orientation else 3
     return (int(keep.sum()) + 1) // 2 * per_row >= TRIM_MIN_RATIO * n_params
 
 
 def judge_rows(everything: Problem, problem: Problem, x: np.ndarray, keep: np.ndarray, rows: np.ndarray,
-               k: float, *, given: tuple[float | None, float | None], red: tuple[float, float],
+               k: float, *, given: tuple[float | None, ...], red: tuple[float, ...],
                few: bool, first: bool = True, options: LMOptions, trace: LMTrace) -> Judgement:
     """The outlier check of the fit at x (see the module docstring).
 
     everything : the problem of all calibration rows; problem : the fit's (the kept rows, its
     noise levels and loss); keep : (N,) bool, rows kept; rows : (N,) their line numbers; k : the
     threshold on a row's whitened residual RMS per component; given : the noise levels the user
-    gave (m, rad; None: estimated); red : the fit's redundancy (position, rotation); few : the
-    rows hold few residual components per parameter; first : no row was flagged yet (few rows
-    go to the high-breakdown fit on the first judgement only: once the gross rows are out, a
-    trimmed fit of what is left, a third of a few rows, scatters its predictions for the others
-    and flagged 12 good rows of 24).
+    gave, in the order of :func:`levels_of` (None: estimated); red : the fit's redundancy of each
+    group, in the same order; few : the rows hold few residual components per parameter; first :
+    no row was flagged yet (few rows go to the high-breakdown fit on the first judgement only:
+    once the gross rows are out, a trimmed fit of what is left, a third of a few rows, scatters
+    its predictions for the others and flagged 12 good rows of 24).
     """
-    sp, sr = problem.sigma_pos, problem.sigma_rot
-    estimate = given[0] is None or given[1] is None
-    fsp, fsr = _levels(everything, x, keep, red, given, sp, sr) if estimate else (sp, sr)
-    new, too_many = flag_outliers(everything, x, rows, keep, k, fsp, fsr)
+    levels = levels_of(problem)
+    estimate = any(g is None for g in given)
+    found = _levels(everything, x, keep, red, given, levels) if estimate else levels
+    new, too_many = flag_outliers(everything, x, rows, keep, k, found)
     if problem.loss != "linear":
-        return Judgement(tuple(new), too_many, x, fsp, fsr)
+        return Judgement(tuple(new), too_many, x, found)
     # few rows (a least-squares fit spreads gross rows until none stands out, and the median
     # residual swells with them: 12 of 40 position-only rows 5 mm off, 1.5 mm noise estimated
     # against 0.02 mm), or a least-squares noise level far above the robust one (many gross
     # rows): judged against the high-breakdown fit
-    if can_trim(everything, keep, len(x)) and ((few and first)
-                                               or (estimate and max(sp / fsp, sr / fsr) > ROBUST_CHECK_INFLATION)):
-        return _judge_trimmed(everything, problem, x, keep, rows, k, (fsp, fsr), given, red, options, trace)
+    if can_trim(everything, keep, len(x)) and ((few and first) or (
+            estimate and max(a / b for a, b in zip(levels, found)) > ROBUST_CHECK_INFLATION)):
+        return _judge_trimmed(everything, problem, x, keep, rows, k, found, given, red, options, trace)
     if not new:
-        return Judgement(tuple(new), too_many, x, fsp, fsr)
+        return Judgement(tuple(new), too_many, x, found)
     # a least-squares fit spreads a gross error over its neighbours: judge the rows against a
     # robust (Huber) fit instead, then refit by least squares without them
-    x_robust, fsp, fsr = _huber(everything, problem, x, keep, red, given, (fsp, fsr), options, trace)
-    new, too_many = flag_outliers(everything, x_robust, rows, keep, k, fsp, fsr)
-    return Judgement(tuple(new), too_many, x_robust if (new and not too_many) else x, fsp, fsr)
+    x_robust, found = _huber(everything, problem, x, keep, red, given, found, options, trace)
+    new, too_many = flag_outliers(everything, x_robust, rows, keep, k, found)
+    return Judgement(tuple(new), too_many, x_robust if (new and not too_many) else x, found)
 
 
-def _levels(everything, x, rows, red, given, sp, sr):
+def _levels(everything, x, rows, red, given, levels) -> tuple[float, ...]:
     """The robust noise levels at x over ``rows`` where they are estimated, the given ones
-    (sp, sr) where not; red : the fit's redundancy on ``rows``."""
-    rsp, rsr = robust_sigmas(everything, x, rows, *red)
-    return (rsp if given[0] is None else sp), (rsr if given[1] is None else sr)
+    (``levels``) where not; red : the fit's redundancy of each group on ``rows``."""
+    robust = robust_sigmas(everything, x, rows, red)
+    return tuple(r if g is None else lv for r, g, lv in zip(robust, given, levels))
 
 
 def _huber(everything, problem, x, keep, red, given, levels, options, trace, judged=None):
@@ -222,44 +293,45 @@ def _huber(everything, problem, x, keep, red, given, levels, options, trace, jud
     fit repeated (ROBUST_CHECK_ITERATIONS at most,
     until they change by less than 10 %): with several gross rows the first levels, from a
     least-squares fit's smeared residuals, set the threshold near them (5 rows 1-1.5 mm off
-    among 40 UR5 rows of 0.05 mm noise: sigma 0.27 mm, none flagged). Returns (x, sp, sr)."""
-    fsp, fsr = levels
+    among 40 UR5 rows of 0.05 mm noise: sigma 0.27 mm, none flagged). Returns (x, levels)."""
+    found = levels
     options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL))
     for _ in range(ROBUST_CHECK_ITERATIONS):
-        x = levenberg_marquardt(problem.derived(loss="huber", sigma_pos=fsp, sigma_rot=fsr), x, "pose",
-                                options, trace).x
-        if given[0] is not None and given[1] is not None:
+        x = levenberg_marquardt(at_levels(problem, found, loss="huber"), x, "pose", options, trace).x
+        if all(g is not None for g in given):
             break
         rows = keep if judged is None else judged
         share = rows.sum() / keep.sum()
-        rsp, rsr = _levels(everything, x, rows, (red[0] * share, red[1] * share), given, fsp, fsr)
-        settled = max(abs(rsp / fsp - 1.0), abs(rsr / fsr - 1.0)) < 0.1
-        fsp, fsr = rsp, rsr
+        again = _levels(everything, x, rows, tuple(r * share for r in red), given, found)
+        settled = max(abs(a / b - 1.0) for a, b in zip(again, found)) < 0.1
+        found = again
         if settled:
             break
-    return x, fsp, fsr
+    return x, found
 
 
-def _fit_covariance(everything: Problem, x: np.ndarray, fitted: np.ndarray, sigma_pos: float, sigma_rot: float):
+def _fit_covariance(everything: Problem, x: np.ndarray, fitted: np.ndarray, levels: Sequence[float]):
     """The normal equations at x of the least-squares fit of the rows ``fitted`` (whitened at
     the noise levels given) and its covariance C."""
-    pr = everything.derived(sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss="linear")
+    pr = at_levels(everything, levels, loss="linear")
     ne = pr.derived(keep=fitted).normal_equations(x)
     return pr, ne, normal_inverse(ne.A)[0]
 
 
-def _fit_redundancy(everything: Problem, x: np.ndarray, fitted: np.ndarray, sigma_pos: float,
-                    sigma_rot: float) -> tuple[float, float]:
+def _fit_redundancy(everything: Problem, x: np.ndarray, fitted: np.ndarray,
+                    levels: Sequence[float]) -> tuple[float, ...]:
     """Each group's redundancy in the least-squares fit at x of the rows ``fitted`` (its
     components less its share of the parameters, tr(C A_group)), at least 1."""
-    _, ne, C = _fit_covariance(everything, x, fitted, sigma_pos, sigma_rot)
-    red_p = ne.n_pos - float(np.sum(C * ne.A_pos)) if ne.A_pos is not None else 0.0
-    red_r = ne.n_rot - float(np.sum(C * ne.A_rot)) if ne.A_rot is not None else 0.0
-    return max(red_p, 1.0), max(red_r, 1.0)
+    _, ne, C = _fit_covariance(everything, x, fitted, levels)
+    out = []
+    for g in GROUPS[:len(levels)]:
+        A_g, _, n_g = ne.share(g)
+        out.append(max(n_g - float(np.sum(C * A_g)) if A_g is not None else 0.0, 1.0))
+    return tuple(out)
 
 
-def _prediction_spread(everything: Problem, x: np.ndarray, fitted: np.ndarray, sigma_pos: float,
-                       sigma_rot: float, judged: np.ndarray) -> np.ndarray:
+def _prediction_spread(everything: Problem, x: np.ndarray, fitted: np.ndarray, levels: Sequence[float],
+                       judged: np.ndarray) -> np.ndarray:
     """(N,) each row's expected residual RMS per component in sigma at x, the least-squares fit
     of the rows ``fitted``: 1 for those, sqrt(1 + tr(Jw_i C Jw_i^T) / k) for the others, C the
     fit's covariance (whitened at the noise levels given): a fit of 8 of 15 full-pose rows of a
@@ -268,13 +340,40 @@ def _prediction_spread(everything: Problem, x: np.ndarray, fitted: np.ndarray, s
     others too when every one of them was fitted: nothing to compute)."""
     if not np.any(judged & ~fitted):
         return np.ones(len(fitted))
-    pr, _, C = _fit_covariance(everything, x, fitted, sigma_pos, sigma_rot)
-    out, start = np.ones(len(fitted)), 0
+    pr, _, C = _fit_covariance(everything, x, fitted, levels)
+    out = np.ones(len(fitted))
+    if isinstance(pr, BlockProblem):
+        for rows, _, Jw, _ in pr.row_blocks(x):
+            out[rows] = np.sqrt(1.0 + np.einsum("nkm,ml,nkl->n", Jw, C, Jw) / Jw.shape[1])
+        return np.where(fitted, 1.0, out)
+    start = 0
     for _, Jw in pr.whitened_blocks(x):
         h = np.einsum("nkm,ml,nkl->n", Jw, C, Jw) / Jw.shape[1]
         out[start:start + len(Jw)] = np.sqrt(1.0 + h)
         start += len(Jw)
     return np.where(fitted, 1.0, out)
+
+
+def _judged(everything, x_t, inliers, levels, ctx, fitted=None):
+    """Noise levels from the inliers' residuals at x_t, the rows flagged against them, the rows
+    not flagged (see :func:`_judge_trimmed`; ctx: its (keep, rows, k, given, red, n, last_red)).
+    fitted : None (x_t a trimmed fit: the fit's share of each group's degrees of freedom kept as
+    on all the kept rows), or x_t is the least-squares fit of the rows ``fitted`` (their own
+    redundancy, and a row it did not see judged by its noise and the fit's prediction error: 8
+    of 15 full-pose rows of 30 parameters left 0.4 of a position redundancy scaled from all the
+    rows, the noise came out at a tenth of the truth and the 7 other clean rows were flagged)."""
+    keep, rows, k, given, red, n, last_red = ctx
+    if fitted is None:
+        share = inliers.sum() / n
+        levels = _levels(everything, x_t, inliers, tuple(r * share for r in red), given, levels)
+        spread = None
+    else:
+        red_fit = _fit_redundancy(everything, x_t, fitted, levels)
+        last_red[0] = red_fit
+        levels = _levels(everything, x_t, fitted, red_fit, given, levels)
+        spread = _prediction_spread(everything, x_t, fitted, levels, keep)
+    new, too_many = flag_outliers(everything, x_t, rows, keep, k, levels, TRIMMED_MAX_OUTLIER_SHARE, spread=spread)
+    return levels, new, too_many, keep & ~np.isin(rows, [o.row for o in new])
 
 
 def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, options, trace) -> Judgement:
@@ -284,39 +383,23 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
     are many), then the least-squares fit of the rows it does not flag at those levels, every
     row judged again against it (the trimmed fit fits a third of the rows: its predictions for
     the others scatter more than the noise)."""
-    fsp, fsr = levels
+    start_levels = levels
     # (it judges rows; its fits stop before a last step whose predicted decrease is below ftol,
     # at the point whose normal equations are at hand: that step's Jacobian pass served nothing,
     # the steps rank the rows by a residual pass of all of them)
     options = options_with(options, ftol=max(options.ftol, ROBUST_CHECK_FTOL), last_step=False)
     starts = (x, everything.values[everything.free])    # (the fit's solution, the nominal values)
-    x_t = trimmed_fit(everything.derived(sigma_pos=fsp, sigma_rot=fsr), starts, keep, fsp, fsr, options, trace)
+    if isinstance(everything, BlockProblem):
+        # (with the blocks' unknowns: x's, then fitted robustly at x's robot; a point's rows at two
+        # nests leave x's point between them, where no half of the rows lies)
+        nominal = np.concatenate([starts[1], x[len(starts[1]):]])
+        starts = (x, nominal, everything.robust_start(x))
+    x_t = trimmed_fit(at_levels(everything, levels), starts, keep, levels, options, trace)
     inliers, n = keep, keep.sum()
-    last_red = [None]       # the position redundancy of the last least-squares refit of the inliers
-
-    def judged(x_t, inliers, fsp, fsr, fitted=None):
-        """Noise levels from the inliers' residuals at x_t, the rows flagged against them, the
-        rows not flagged. fitted : None (x_t a trimmed fit: the fit's share of each group's
-        degrees of freedom kept as on all the kept rows), or x_t is the least-squares fit of
-        the rows ``fitted`` (their own redundancy, and a row it did not see judged by its noise
-        and the fit's prediction error: 8 of 15 full-pose rows of 30 parameters left 0.4 of a
-        position redundancy scaled from all the rows, the noise came out at a tenth of the
-        truth and the 7 other clean rows were flagged)."""
-        if fitted is None:
-            share = inliers.sum() / n
-            fsp, fsr = _levels(everything, x_t, inliers, (red[0] * share, red[1] * share), given, fsp, fsr)
-            spread = None
-        else:
-            red_fit = _fit_redundancy(everything, x_t, fitted, fsp, fsr)
-            last_red[0] = red_fit[0]
-            fsp, fsr = _levels(everything, x_t, fitted, red_fit, given, fsp, fsr)
-            spread = _prediction_spread(everything, x_t, fitted, fsp, fsr, keep)
-        new, too_many = flag_outliers(everything, x_t, rows, keep, k, fsp, fsr, TRIMMED_MAX_OUTLIER_SHARE,
-                                      spread=spread)
-        return fsp, fsr, new, too_many, keep & ~np.isin(rows, [o.row for o in new])
-
+    last_red = [None]       # the redundancy of the last least-squares refit of the inliers
+    ctx = (keep, rows, k, given, red, n, last_red)
     for _ in range(ROBUST_CHECK_ITERATIONS + 1):
-        fsp, fsr, new, too_many, now = judged(x_t, inliers, fsp, fsr)
+        levels, new, too_many, now = _judged(everything, x_t, inliers, levels, ctx)
         if too_many or np.array_equal(now, inliers):
             break
         inliers = now
@@ -328,28 +411,51 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
         # (from x when the rows are all the kept ones: x is their least-squares fit at the fit's
         # noise levels, nearer than the trimmed fit of a third of them)
         start = x if np.array_equal(inliers, keep) else x_t        # (near: a re-fit's damping)
-        x_t = levenberg_marquardt(everything.derived(keep=inliers, sigma_pos=fsp, sigma_rot=fsr), start, "pose",
+        x_t = levenberg_marquardt(at_levels(everything, levels, keep=inliers), start, "pose",
                                   options_with(options, mu0=min(options.mu0, WARM_MU0)), trace).x
-        fsp, fsr, new, too_many, now = judged(x_t, inliers, fsp, fsr, inliers)
+        levels, new, too_many, now = _judged(everything, x_t, inliers, levels, ctx, inliers)
         if too_many or np.array_equal(now, inliers):
             break
         inliers = now
-    if new and not too_many and last_red[0] is not None \
-            and last_red[0] < TRIM_MIN_REDUNDANCY_SHARE * 3 * int(inliers.sum()):
+    if new and not too_many and last_red[0] is not None and _little_redundancy(everything, last_red[0], inliers):
         # the rows the trimmed route keeps leave too little position redundancy to say what the
         # noise is (15 full-pose UR5 rows, 30 parameters: 8 rows kept, interpolated to a noise a
         # tenth of the truth, and the 7 clean others flagged): its flags are not trusted, the
         # rows are judged against the fit of them all
-        new0, too_many0 = flag_outliers(everything, x, rows, keep, k, *levels)
-        return Judgement(tuple(new0), too_many0, x, *levels)
-    if too_many and given[0] is None and (given[1] is None or not everything.has_orientation):
-        n_pos = f"{fsp * 1e3:.3g} mm" + (f", {fsr:.3g} rad" if everything.has_orientation else "")
+        new0, too_many0 = flag_outliers(everything, x, rows, keep, k, start_levels)
+        return Judgement(tuple(new0), too_many0, x, start_levels)
+    if too_many and _all_estimated(everything, given):
         why = (f"the data are inconsistent: {len(new)} of {int(n)} rows lie more than {k:g} sigma "
-               f"({n_pos}) from the fit of the rows that agree best, more than the half that gross "
-               f"rows can be among consistent data; check the joint columns (order, units), the "
-               f"orientation columns and that the URDF is this robot's")
-        return Judgement((), True, x, fsp, fsr, trimmed=True, breakdown=why)
-    return Judgement(tuple(new), too_many, x_t if (new and not too_many) else x, fsp, fsr, trimmed=True)
+               f"({_levels_text(everything, levels)}) from the fit of the rows that agree best, more than "
+               f"the half that gross rows can be among consistent data; check the joint columns (order, "
+               f"units), the orientation columns and that the URDF is this robot's")
+        return Judgement((), True, x, levels, trimmed=True, breakdown=why)
+    return Judgement(tuple(new), too_many, x_t if (new and not too_many) else x, levels, trimmed=True)
+
+
+def _little_redundancy(everything, red_fit: tuple[float, ...], inliers: np.ndarray) -> bool:
+    """Whether the least-squares refit of the ``inliers`` leaves less than
+    TRIM_MIN_REDUNDANCY_SHARE of their components (pose rows: of their position components) as
+    redundancy (red_fit: its redundancy per group)."""
+    if isinstance(everything, BlockProblem):
+        red = sum(red_fit[GROUPS.index(g)] for g in everything.groups)
+        return red < TRIM_MIN_BLOCKS_REDUNDANCY_SHARE * components(everything, inliers)
+    return red_fit[0] < TRIM_MIN_REDUNDANCY_SHARE * 3 * int(inliers.sum())
+
+
+def _all_estimated(everything, given) -> bool:
+    """Whether every noise level of the problem's groups is estimated (none given)."""
+    if isinstance(everything, BlockProblem):
+        return all(given[GROUPS.index(g)] is None for g in everything.groups)
+    return given[0] is None and (given[1] is None or not everything.has_orientation)
+
+
+def _levels_text(everything, levels) -> str:
+    """The noise levels of the problem's groups for a person (mm, rad)."""
+    if isinstance(everything, BlockProblem):
+        unit = {"position": ("mm", 1e3), "rotation": ("rad", 1.0), "touch": ("mm", 1e3)}
+        return ", ".join(f"{g} {levels[GROUPS.index(g)] * unit[g][1]:.3g} {unit[g][0]}" for g in everything.groups)
+    return f"{levels[0] * 1e3:.3g} mm" + (f", {levels[1]:.3g} rad" if everything.has_orientation else "")
 
 
 def too_many_gross(flagged: int, rows: int) -> str:
@@ -362,18 +468,22 @@ def too_many_gross(flagged: int, rows: int) -> str:
             f"(order, units), the orientation columns and that the URDF is this robot's")
 
 
-def leftover_gross(everything: Problem, x: np.ndarray, keep: np.ndarray, red: tuple[float, float],
-                   levels: tuple[float, float], given: tuple[float | None, float | None]) -> str:
+def leftover_gross(everything: Problem, x: np.ndarray, keep: np.ndarray, red: tuple[float, ...],
+                   levels: tuple[float, ...], given: tuple[float | None, ...]) -> str:
     """Why the least-squares fit at x of the kept rows cannot be trusted when, after the outlier
-    check, its estimated noise levels ``levels`` (m, rad) are still more than
+    check, its estimated noise levels ``levels`` (see :func:`levels_of`) are still more than
     ROBUST_CHECK_INFLATION times the robust ones (the median absolute residual): many rows are
     gross by amounts that no fit separates from the others (60 of 100 rows 5 mm off: noise
     estimated 2.2 mm, 1.4-2.1 times the robust level, none flagged), else empty. given : the
     noise levels the user gave (None: estimated; given levels are judged by the chi-square test)."""
-    est = [(g, lvl) for g, lvl in zip(("position", "orientation"), levels)]
-    rsp, rsr = robust_sigmas(everything, x, keep, *red)
-    ratios = [(g, lvl / r) for (g, lvl), r, giv in zip(est, (rsp, rsr), given)
-              if giv is None and (g == "position" or everything.has_orientation)]
+    names = ("position", "orientation", "touch")
+    robust = robust_sigmas(everything, x, keep, red)
+    if isinstance(everything, BlockProblem):
+        present = [GROUPS[k] in everything.groups for k in range(3)]
+    else:
+        present = [True, everything.has_orientation]
+    ratios = [(g, lvl / r) for g, lvl, r, giv, here in zip(names, levels, robust, given, present)
+              if giv is None and here]
     worst = max(ratios, key=lambda gr: gr[1], default=None)
     if worst is None or worst[1] <= ROBUST_CHECK_INFLATION:
         return ""
