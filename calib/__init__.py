@@ -32,7 +32,7 @@ _HOME = {
     "io.csv.targets": ("CompensationTargets",),
     "io.csv.specs": ("read_measurements", "read_poses", "read_targets",
                  "write_compensation", "write_measurements", "write_poses"),
-    "calibration.accuracy": ("AccuracyStats", "TargetAccuracy", "evaluate"),
+    "calibration.accuracy.errors": ("AccuracyStats", "TargetAccuracy", "evaluate"),
     "calibration.result": ("CalibrationResult", "ParameterEstimate"),
     "calibration.pipeline": ("calibrate",),
     "model.simulate": ("PAPER_DEVIATIONS", "apply_deviations", "random_deviations", "simulate_measurements"),

@@ -29,8 +29,8 @@ import _bench  # noqa: E402,F401  (one BLAS thread)
 import numpy as np  # noqa: E402
 
 import calib  # noqa: E402
-import calib.calibration.statistics as stats_module  # noqa: E402
-from calib.calibration.workspace import WORKSPACE_CONFIGURATIONS, predict_workspace, workspace_configurations  # noqa: E402
+import calib.calibration.accuracy.statistics as stats_module  # noqa: E402
+from calib.calibration.accuracy.workspace import WORKSPACE_CONFIGURATIONS, predict_workspace, workspace_configurations  # noqa: E402
 from calib.model.kinematics import ChainKinematics  # noqa: E402
 from calib.model.simulate import (PAPER_DEVIATIONS, apply_deviations, random_deviations,  # noqa: E402
                                   simulate_measurements)

@@ -6,7 +6,7 @@ Per seed: a true robot with Gaussian errors of every parameter (``random_deviati
 configurations the RMS distance of the calibrated and of the nominal tool positions to the true
 ones after one best-fit rigid registration (and, for point designs whose scale no data fix,
 after a similarity registration), against the Cramer-Rao prediction of the same quantity
-(:func:`calib.calibration.workspace.predicted_tool_error`). Designs: 4 point ids x 15 rows (no known length: calibrate
+(:func:`calib.calibration.accuracy.workspace.predicted_tool_error`). Designs: 4 point ids x 15 rows (no known length: calibrate
 refuses the full model by default; fitted here with nominal_scale=True to show why); 3
 perpendicular planes x 20 rows + one sphere (100 mm) x 15 rows. Then --params tool: a 150 mm tool
 on the nominal robot, one point touched from 6 orientations. Then touch rows mixed with rows
@@ -44,7 +44,7 @@ def main() -> None:
     import example_robot_data as erd
 
     import calib
-    from calib.calibration.accuracy import registered_error
+    from calib.calibration.accuracy.errors import registered_error
     from calib.model.simulate import apply_deviations, random_deviations
     from calib.model.touch import Feature
     from calib.model.touch_simulate import simulate_touch
@@ -97,7 +97,7 @@ def mixed(robot, name: str, seeds: int) -> None:
     from scipy.spatial.transform import Rotation
 
     from calib import calibrate
-    from calib.calibration.accuracy import registered_error
+    from calib.calibration.accuracy.errors import registered_error
     from calib.model.simulate import apply_deviations, random_deviations, simulate_measurements
     from calib.model.touch import Feature
     from calib.model.touch_simulate import simulate_touch
@@ -134,7 +134,7 @@ def mixed(robot, name: str, seeds: int) -> None:
 
 def predicted_tool_error(res, Q, registration="rigid") -> float:
     """The Cramer-Rao prediction of a result's tool positions' error at Q after ``registration``."""
-    from calib.calibration.workspace import predicted_tool_error as predicted
+    from calib.calibration.accuracy.workspace import predicted_tool_error as predicted
 
     return predicted(res.robot, res.free, res.covariance, Q, registration)
 

@@ -31,7 +31,7 @@ def main() -> None:
     from scipy.spatial.transform import Rotation
 
     import calib
-    from calib.calibration.accuracy import registered_error
+    from calib.calibration.accuracy.errors import registered_error
     from calib.model.simulate import apply_deviations, random_deviations, simulate_measurements
     from calib.model.touch import Feature, TouchData
     from calib.model.touch_simulate import reach_positions, simulate_touch

@@ -21,7 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from calib.calibration.accuracy import pose_errors, target_rows
+from calib.calibration.accuracy.errors import pose_errors, target_rows
 from calib.calibration.estimators.base import Fit
 from calib.calibration.estimators.least_squares import fit_with, implausibility, length_notes
 from calib.calibration.frames import median

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from calib.calibration.accuracy import target_rows
+from calib.calibration.accuracy.errors import target_rows
 from calib.calibration.options import (
     AUTO_BELOW_COMPONENTS_PER_PARAM,
     MIN_REDUNDANCY,

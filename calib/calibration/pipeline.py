@@ -23,15 +23,15 @@ values, so that a script or a test can call them one after the other:
    (:class:`~calib.calibration.estimators.regularised.EBMap`) or model selection over nested
    candidate sets wrapping least squares
    (:class:`~calib.calibration.estimators.selection.SelectBest`). Then the :func:`verdict`.
-4. **statistics** (:func:`calib.calibration.statistics.statistics_stage`): parameter covariance,
+4. **statistics** (:func:`calib.calibration.accuracy.statistics.statistics_stage`): parameter covariance,
    the predicted accuracy of the calibrated model against the true poses (``predicted_rms``, the
    Cramer-Rao figure) and against new measured rows (``predicted_holdout_rms``: parameter
    uncertainty inflated by the measured misfit, plus the measurement noise), chi-square
    consistency of given noise levels.
-5. **cross-validation** (:func:`calib.calibration.validation.held_out_error`): K-fold held-out
+5. **cross-validation** (:func:`calib.calibration.accuracy.validation.held_out_error`): K-fold held-out
    error when no validation rows are given.
-6. **accuracy** before and after (:func:`calib.calibration.accuracy.accuracy_before`,
-   :func:`~calib.calibration.accuracy.accuracy_after`) on the calibration and validation rows, raw
+6. **accuracy** before and after (:func:`calib.calibration.accuracy.errors.accuracy_before`,
+   :func:`~calib.calibration.accuracy.errors.accuracy_after`) on the calibration and validation rows, raw
    and (for a measurement frame far from the base) after a best-fit registration of the
    measurement frame only; then the :class:`~calib.calibration.result.CalibrationResult`.
 
@@ -52,8 +52,8 @@ from typing import Sequence
 
 import numpy as np
 
-from calib.calibration.accuracy import AccuracyStats, BeforeAfter, accuracy_after, accuracy_before
-from calib.calibration.validation import consistency_notes
+from calib.calibration.accuracy.errors import AccuracyStats, BeforeAfter, accuracy_after, accuracy_before
+from calib.calibration.accuracy.validation import consistency_notes
 from calib.calibration.diagnose import misreadings
 from calib.calibration.estimators.base import Estimate
 from calib.calibration.estimators.least_squares import implausibility, length_notes, method_notes
@@ -62,9 +62,9 @@ from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import Setup, prepare, with_gravity_for
 from calib.calibration.result import CalibrationResult, parameter_table
-from calib.calibration.statistics import Statistics, group_fits, statistics_notes, statistics_stage
+from calib.calibration.accuracy.statistics import Statistics, group_fits, statistics_notes, statistics_stage
 from calib.calibration.terms import compliance_notes, payload_note, resolve_terms
-from calib.calibration.validation import held_out_error
+from calib.calibration.accuracy.validation import held_out_error
 from calib.errors import ParameterError
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, SIGMA_TOUCH_M
 from calib.model.kinematics import ChainKinematics
@@ -199,7 +199,7 @@ def prepare_stage(robot: RobotModel, measurements: Measurements, validation: Mea
 
 
 def before_stage(setup: Setup, kin: ChainKinematics) -> BeforeAfter:
-    """The errors before calibration (:func:`calib.calibration.accuracy.accuracy_before`; its
+    """The errors before calibration (:func:`calib.calibration.accuracy.errors.accuracy_before`; its
     kinematics those of the fit, which start at the nominal values when the frames were not
     moved); touch data: every row's error (a touch row's distance to its feature) at the start
     (the meas frame at the measured rows' registration, the features fitted to the nominal
@@ -274,7 +274,7 @@ def estimated_frames(setup: Setup, fit) -> tuple[str, ...]:
 def touch_fields(setup: Setup, est: Estimate, opts: CalibrationOptions, cross) -> dict:
     """The fields of a :class:`CalibrationResult` of touch data: the features' unknowns
     (:class:`~calib.model.touch.FeatureFit`), each residual group's figures
-    (:func:`calib.calibration.statistics.group_fits`), the parameter choice's identifiability."""
+    (:func:`calib.calibration.accuracy.statistics.group_fits`), the parameter choice's identifiability."""
     from calib.model.touch import FeatureFit
     from calib.solvers.residuals.touch import TouchRows
 

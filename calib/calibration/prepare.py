@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from calib.calibration.accuracy import target_rows, with_measured_targets
+from calib.calibration.accuracy.errors import target_rows, with_measured_targets
 from calib.calibration.frames import estimate_frames_robust
 from calib.calibration.options import (
     DISTINCT_Q_TOL,

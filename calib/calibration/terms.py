@@ -19,13 +19,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calib.calibration.accuracy import target_rows
+from calib.calibration.accuracy.errors import target_rows
 from calib.calibration.estimators.base import vce_fixed_point
 from calib.calibration.estimators.least_squares import fit_with
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare, with_gravity_for
-from calib.calibration.validation import (standard_error, fold_labels, fold_normal_equations, held_out_summary,
+from calib.calibration.accuracy.validation import (standard_error, fold_labels, fold_normal_equations, held_out_summary,
                                           newton_held_out)
 from calib.errors import DataError, ParameterError
 from calib.model.kinematics import ChainKinematics
@@ -456,7 +456,7 @@ def _linear_scores(blocks, x, x_held, union: list, cols: dict, fold_of, folds: i
     names) scored on the linearisation ``blocks`` at x (the union's parameter values; the columns
     a candidate lacks are moved to their values in ``x_held``, the geometric solution with the
     terms at zero, first): label -> (its K-fold
-    :class:`~calib.calibration.validation.CrossValidation`, its Gauss-Newton step as name ->
+    :class:`~calib.calibration.accuracy.validation.CrossValidation`, its Gauss-Newton step as name ->
     value). A candidate without which a fold's rows cannot identify it is left out; the
     ``required`` one raises DataError. With ``lin`` (the union's problem) also the union's step
     x_u and the curvature per row: the cost at x_u less the linearisation's prediction, over the

@@ -156,7 +156,7 @@ def _evaluate(args: argparse.Namespace, plots) -> int:
     import numpy as np
 
     import calib
-    from calib.calibration.accuracy import format_accuracy_table
+    from calib.calibration.accuracy.errors import format_accuracy_table
     from calib.cli.output import Outputs
     from calib.io.urdf.reader import robot_path
 

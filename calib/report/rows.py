@@ -62,7 +62,7 @@ class PoseDeviations:
 def pose_deviations(robot: RobotModel, measurements: Measurements) -> PoseDeviations:
     """Deviations of ``robot``'s tool poses from ``measurements`` (both in the meas frame; rows
     of several targets against the model's transform of their target)."""
-    from calib.calibration.accuracy import target_rows, with_measured_targets
+    from calib.calibration.accuracy.errors import target_rows, with_measured_targets
     from calib.model.kinematics import ChainKinematics
     from calib.model.spatial import log3_batch
 

@@ -78,7 +78,7 @@ def measured_deviations(result: CalibrationResult, data: TouchData, nominal: Rob
     (``row``), outlier marks (``outlier``), and deviations ``before`` (the nominal model, its
     measurement frame registered to them by a best fit of the positions) and ``after`` (the
     calibrated model in the identified measurement frame), :class:`PoseDeviations` each."""
-    from calib.calibration.accuracy import register_measurement_frame
+    from calib.calibration.accuracy.errors import register_measurement_frame
     from calib.report.rows import pose_deviations
 
     _check(result, data, nominal)

@@ -1,4 +1,4 @@
-"""Inconsistent data (calib.calibration.validation): the leave-one-out residuals against refits,
+"""Inconsistent data (calib.calibration.accuracy.validation): the leave-one-out residuals against refits,
 and by simulation two campaigns with a moved instrument: the leading note, the held-out error of
 all rows beside the prediction, the moved frame found; consistent data and a few gross rows get
 no note."""
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import calib
-from calib.calibration.validation import INCONSISTENT_SHARE, data_consistency, held_out_residuals
+from calib.calibration.accuracy.validation import INCONSISTENT_SHARE, data_consistency, held_out_residuals
 from calib.calibration.estimators.least_squares import fit_with
 from calib.calibration.options import resolve_options
 from calib.calibration.prepare import prepare

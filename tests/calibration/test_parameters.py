@@ -12,7 +12,7 @@ from calib import load_robot
 from calib.calibration.options import resolve_options
 from calib.calibration.parameters import candidate_sets, choose_parameters, identifiable_set
 from calib.calibration.prepare import prepare
-from calib.calibration.cross_validation import Candidate, CrossValidation, ModelSelection
+from calib.calibration.accuracy.cross_validation import Candidate, CrossValidation, ModelSelection
 from calib.calibration.estimators.selection import lowest_score, one_standard_error, select_and_fit
 from calib.cli.main import main
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, weighted_jacobian

@@ -12,7 +12,7 @@ from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare
 from calib.calibration.estimators.regularised import map_fit_stage
-from calib.calibration.validation import cross_validate
+from calib.calibration.accuracy.validation import cross_validate
 from calib.errors import ParameterError
 from calib.model.kinematics import ChainKinematics
 

@@ -14,10 +14,10 @@ import calib
 from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
 from calib.calibration.prepare import prepare
-from calib.calibration.statistics import statistics_stage
+from calib.calibration.accuracy.statistics import statistics_stage
 from calib.calibration.estimators.selection import one_standard_error, select_and_fit
-from calib.calibration.validation import cross_validate, row_traces
-from calib.calibration.workspace import propagated
+from calib.calibration.accuracy.validation import cross_validate, row_traces
+from calib.calibration.accuracy.workspace import propagated
 from calib.model.kinematics import ChainKinematics
 from calib.solvers.inverse import normal_inverse
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, simulate_measurements
@@ -229,7 +229,7 @@ def test_registration_is_scipys_best_rotation_without_importing_it(bundled_robot
 
     from scipy.spatial.transform import Rotation
 
-    from calib.calibration.accuracy import register_measurement_frame
+    from calib.calibration.accuracy.errors import register_measurement_frame
     from calib.model.spatial import rotation_from_rotvec
 
     m = simulate_measurements(bundled_robot, bundled_robot.random_configurations(30, 4), rng=5)
@@ -312,7 +312,7 @@ def test_fold_labels_take_a_seed_or_a_generator():
     draws them from a Generator or None as numpy does, not refusing them."""
     import numpy as np
 
-    from calib.calibration.validation import fold_labels
+    from calib.calibration.accuracy.validation import fold_labels
 
     a, b = fold_labels(23, 5, 3), fold_labels(23, 5, 3)
     assert a is not b and np.array_equal(a, b) and np.bincount(a).tolist() == [5, 5, 5, 4, 4]
@@ -323,7 +323,7 @@ def test_fold_labels_take_a_seed_or_a_generator():
 
 def test_fold_labels_unchanged():
     """The folds dealt from the stored seed-0 permutations (n <= 256) are numpy's."""
-    from calib.calibration.validation import fold_labels
+    from calib.calibration.accuracy.validation import fold_labels
 
     for n, folds in ((100, 5), (7, 5), (256, 10), (300, 5)):
         want = np.empty(n, int)

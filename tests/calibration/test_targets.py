@@ -11,7 +11,7 @@ import pytest
 import calib
 from calib import identification_jacobian, load_robot
 from calib.calibration.pipeline import calibrate
-from calib.calibration.accuracy import evaluate
+from calib.calibration.accuracy.errors import evaluate
 from calib.cli.main import main
 from calib.errors import DataError, ParameterError
 from calib.calibration.frames import estimate_target_frames

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from calib import calibrate, load_robot
-from calib.calibration.accuracy import registered_error
+from calib.calibration.accuracy.errors import registered_error
 from calib.calibration.parameters import touch_identifiability
-from calib.calibration.workspace import predicted_tool_error as _predicted
+from calib.calibration.accuracy.workspace import predicted_tool_error as _predicted
 from calib.errors import DataError
 from calib.model.kinematics import ChainKinematics
 from calib.model.simulate import apply_deviations, random_deviations

@@ -1,4 +1,4 @@
-"""Predictions over the workspace (calib.calibration.workspace): the random configurations keep
+"""Predictions over the workspace (calib.calibration.accuracy.workspace): the random configurations keep
 to the joint limits (continuous and prismatic joints included), the coverage of each joint's
 range, the propagation against Monte Carlo, and by simulation: poses bunched near a wrist
 singularity get the note and a workspace prediction that matches the calibrated model's error
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import calib
-from calib.calibration.workspace import (
+from calib.calibration.accuracy.workspace import (
     WORKSPACE_CONFIGURATIONS,
     joint_coverage,
     predict_workspace,
@@ -303,7 +303,7 @@ def test_workspace_prediction_of_three_targets(bundled_robot):
 
 def test_covered_arc_by_sorting_equals_the_binned_one():
     """Few angles are sorted (exact), many binned (to 2 bins of a turn): the two agree."""
-    import calib.calibration.workspace as W
+    import calib.calibration.accuracy.workspace as W
 
     rng = np.random.default_rng(3)
     for q in (rng.uniform(-1.0, 2.0, 50), rng.uniform(-7.0, 7.0, 200), np.array([3.1, -3.1]), np.array([0.5])):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import calib
-from calib.calibration.accuracy import registered_error
+from calib.calibration.accuracy.errors import registered_error
 from calib.cli.main import main
 
 from conftest import erd_urdf

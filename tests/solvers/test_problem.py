@@ -13,7 +13,7 @@ import pytest
 import calib
 import calib.solvers.lm as lm_module
 import calib.solvers.problem as solvers
-from calib.calibration.accuracy import target_rows
+from calib.calibration.accuracy.errors import target_rows
 from calib.model.kinematics import ChainKinematics
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations, random_deviations, simulate_measurements
 from calib.solvers.problem import COST_RTOL, Problem

@@ -21,7 +21,7 @@ from typing import Protocol
 
 import numpy as np
 
-from calib.calibration.accuracy import AccuracyStats
+from calib.calibration.accuracy.errors import AccuracyStats
 from calib.calibration.estimators.outlier import Outlier
 from calib.calibration.options import VCE_RTOL, CalibrationOptions
 from calib.calibration.parameters import ParameterChoice

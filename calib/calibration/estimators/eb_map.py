@@ -28,12 +28,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calib.calibration.accuracy import target_rows
+from calib.calibration.accuracy.errors import target_rows
 from calib.calibration.estimators.evidence import (SIGMA_POS_BOUNDS, SIGMA_ROT_BOUNDS, TAU_BOUNDS, Evidence, evidence,
                                         linearise, maximise_evidence)
 from calib.calibration.prepare import FRAME_MEMO_MAX_ROWS, Setup, robot_memo, prepare
 from calib.calibration.estimators.robust import robust_sigmas, row_rms
-from calib.calibration.workspace import propagate_covariance
+from calib.calibration.accuracy.workspace import propagate_covariance
 from calib.checks import check_instance, check_int, check_number
 from calib.errors import DataError, ParameterError
 from calib.memo import content_digest

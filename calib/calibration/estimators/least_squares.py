@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from calib.calibration.accuracy import AccuracyStats, target_rows
+from calib.calibration.accuracy.errors import AccuracyStats, target_rows
 from calib.calibration.options import (
     IMPLAUSIBLE_LENGTH_FRACTION,
     IMPLAUSIBLE_REACH_FRACTION,
@@ -381,7 +381,7 @@ def length_refusals(nominal: RobotModel, fit: Fit) -> list[str]:
     far = _far_lengths(nominal, fit.model)
     if not far:
         return []
-    from calib.calibration.workspace import workspace_configurations
+    from calib.calibration.accuracy.workspace import workspace_configurations
     from calib.solvers.lm import LMOptions, levenberg_marquardt
 
     model = fit.model

@@ -1,5 +1,5 @@
 """The choice among candidate parameter sets (``params="auto"``): each candidate's
-cross-validated error (:mod:`calib.calibration.validation`), the selection rules
+cross-validated error (:mod:`calib.calibration.accuracy.validation`), the selection rules
 (:func:`lowest_score`, :func:`one_standard_error`), :class:`ModelSelection`,
 :func:`select_model` and :func:`select_and_fit` (what :func:`calib.calibrate` runs for "auto").
 """
@@ -11,14 +11,14 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from calib.calibration.accuracy import target_rows
+from calib.calibration.accuracy.errors import target_rows
 from calib.calibration.estimators.base import Estimate, Estimator, Fit
 from calib.calibration.estimators.least_squares import LeastSquares
 from calib.calibration.options import LOO_BELOW_ROWS, CalibrationOptions
 from calib.calibration.parameters import ParameterChoice, candidate_sets
 from calib.calibration.prepare import Setup
-from calib.calibration.cross_validation import Candidate, CrossValidation, ModelSelection
-from calib.calibration.validation import standard_error, cross_validate
+from calib.calibration.accuracy.cross_validation import Candidate, CrossValidation, ModelSelection
+from calib.calibration.accuracy.validation import standard_error, cross_validate
 from calib.errors import DataError
 from calib.model.kinematics import ChainKinematics
 from calib.solvers.lm import LMOptions

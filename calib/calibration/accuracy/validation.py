@@ -1,5 +1,5 @@
 """Cross-validation (:func:`cross_validate`; its result, :class:`CrossValidation`, is in
-:mod:`calib.calibration.cross_validation`), :func:`held_out_error` and the held-out quantities
+:mod:`calib.calibration.accuracy.cross_validation`), :func:`held_out_error` and the held-out quantities
 the statistics and the choice of joint terms use. The choice among candidate parameter sets
 (``params="auto"``) is :mod:`calib.calibration.estimators.selection`.
 
@@ -29,7 +29,7 @@ from calib.solvers.blocks import GROUPS
 from calib.solvers.problem import Problem
 
 if TYPE_CHECKING:
-    from calib.calibration.cross_validation import CrossValidation, ModelSelection
+    from calib.calibration.accuracy.cross_validation import CrossValidation, ModelSelection
 
 
 def _hat_blocks(Jw: np.ndarray, C: np.ndarray) -> np.ndarray:
@@ -63,7 +63,7 @@ def row_traces(problem: Problem, x: np.ndarray, C: np.ndarray) -> tuple[float, f
     Jw_i^T the row's block of the hat matrix (a row whose leverage reaches 1, alone determining a
     parameter, counts as leverage 0.99); e_p / e_r the means of tr (J_i C J_i^T) over the position
     (m^2) and the rotation (rad^2) block of each row's pose Jacobian J_i (the pose error a
-    parameter error of covariance C causes, as :func:`~calib.calibration.workspace.propagated`
+    parameter error of covariance C causes, as :func:`~calib.calibration.accuracy.workspace.propagated`
     gives it; t_r and e_r 0 for position rows only), from one product Jw C: a row's position block
     of J C J^T is sigma_pos^2 times H_ii's, and the rotation blocks sum to tr (C sum J_r^T J_r)
     (Jw's rotation rows carry the log map's Jacobian, the pose error's do not)."""
@@ -234,7 +234,7 @@ def held_out_summary(fold_of: np.ndarray, folds: int, e_p: np.ndarray, e_r: np.n
     per_fold = [(b - a, math.sqrt(_mean(ep_f[a:b])), math.sqrt(_mean(er_f[a:b])) if has_rot else None)
                 for a, b in bounds]
     score = e_p / sigma_pos ** 2 + (e_r / sigma_rot ** 2 if has_rot else 0.0)
-    from calib.calibration.cross_validation import CrossValidation
+    from calib.calibration.accuracy.cross_validation import CrossValidation
 
     return CrossValidation(folds, math.sqrt(_mean(e_p)), math.sqrt(_mean(e_r)) if has_rot else None,
                            tuple(per_fold), _mean(score), standard_error(score), score)
@@ -492,7 +492,7 @@ def consistency_notes(consistency: Mapping | None) -> list[str]:
 
 
 def consistency_dict(c: dict | None) -> dict | None:
-    """The JSON form of :func:`calib.calibration.validation.data_consistency`'s record (mm, rad)."""
+    """The JSON form of :func:`calib.calibration.accuracy.validation.data_consistency`'s record (mm, rad)."""
     if c is None:
         return None
 

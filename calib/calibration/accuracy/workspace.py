@@ -4,7 +4,7 @@ configurations within the joint limits, from the covariance of its free paramete
 (:func:`joint_coverage`), and the note when the workspace figure is far above the one at the
 calibration configurations (:func:`workspace_notes`).
 
-The figures at the calibration configurations (:func:`calib.calibration.statistics.statistics_stage`)
+The figures at the calibration configurations (:func:`calib.calibration.accuracy.statistics.statistics_stage`)
 say how well the model predicts poses like the measured ones; 40 rows bunched near a wrist
 singularity predict themselves to 0.1 mm while random configurations err by millimetres. The
 same covariance propagated through the pose Jacobian at random configurations says so.
@@ -267,7 +267,7 @@ def predicted_tool_error(model: RobotModel, free: Sequence[str], covariance: np.
 
 
 def workspace_dict(pw: dict | None) -> dict | None:
-    """The JSON form of :func:`calib.calibration.workspace.predict_workspace`'s figures (mm, rad)."""
+    """The JSON form of :func:`calib.calibration.accuracy.workspace.predict_workspace`'s figures (mm, rad)."""
     if pw is None:
         return None
     return {"position_mm": pw["position_rms"] * 1e3, "rotation_rad": pw.get("rotation_rms"),

@@ -1,5 +1,5 @@
 """The results of a cross-validation (:class:`CrossValidation`, made by
-:mod:`calib.calibration.validation`) and of a model selection among candidate parameter sets
+:mod:`calib.calibration.accuracy.validation`) and of a model selection among candidate parameter sets
 (:class:`Candidate`, :class:`ModelSelection`, made by
 :mod:`calib.calibration.estimators.selection`)."""
 from __future__ import annotations

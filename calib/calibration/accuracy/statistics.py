@@ -11,13 +11,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.calibration.accuracy import registered_residuals, target_rows
-from calib.calibration.validation import data_consistency
+from calib.calibration.accuracy.errors import registered_residuals, target_rows
+from calib.calibration.accuracy.validation import data_consistency
 from calib.calibration.estimators.base import Fit, GroupFit
 from calib.calibration.options import IMPLAUSIBLE_LENGTH_FRACTION
 from calib.calibration.prepare import Setup, reach_of
-from calib.calibration.validation import row_traces
-from calib.calibration.workspace import (predict_workspace, predicted_tool_error, propagate_covariance, propagated,
+from calib.calibration.accuracy.validation import row_traces
+from calib.calibration.accuracy.workspace import (predict_workspace, predicted_tool_error, propagate_covariance, propagated,
                                          workspace_configurations, workspace_notes)
 from calib.model.kinematics import ChainKinematics
 from calib.solvers.blocks import GROUPS
@@ -35,10 +35,10 @@ class Statistics:
     (position_rms m, rotation_rms rad): the covariance propagated to the poses. predicted_holdout :
     RMS error against new measured rows: the covariance inflated by the measured misfit, plus the
     measurement noise (inflated likewise). predicted_workspace : the same over random
-    configurations within the joint limits (:func:`calib.calibration.workspace.predict_workspace`;
+    configurations within the joint limits (:func:`calib.calibration.accuracy.workspace.predict_workspace`;
     None when not computed). consistency : when many calibration rows were flagged as outliers,
     the held-out error of all of them beside the prediction for rows like the kept ones
-    (:func:`calib.calibration.validation.data_consistency`; None otherwise). refusals : why the
+    (:func:`calib.calibration.accuracy.validation.data_consistency`; None otherwise). refusals : why the
     design cannot be trusted (touch data: :func:`touch_statistics`), which the verdict reports.
     """
 
@@ -125,7 +125,7 @@ def statistics_stage(setup: Setup, fit: Fit, problem: Problem) -> Statistics:
 def statistics_notes(stats: Statistics) -> list[str]:
     """A note when the free parameters are not all identifiable, and when the predicted error
     over the workspace is far above the one at the calibration configurations
-    (:func:`calib.calibration.workspace.workspace_notes`)."""
+    (:func:`calib.calibration.accuracy.workspace.workspace_notes`)."""
     notes = workspace_notes(stats.predicted_holdout, stats.predicted_workspace)
     if stats.full_rank:
         return notes
