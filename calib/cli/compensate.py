@@ -154,9 +154,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calib compensate`` with parsed arguments; returns the exit code."""
-    from calib.compensation.compensate import (check_joint_targets, compensate, compensate_poses,
-                                                load_compensation_models)
-    from calib.io.csv.specs import read_targets, write_compensation
+    from calib.compensation.compensate import check_joint_targets, compensate, load_compensation_models
+    from calib.io.csv.specs import read_targets
 
     from calib.io.programs import vendor_of
 
@@ -196,19 +195,7 @@ def run(args: argparse.Namespace) -> int:
              calibrated.tool_frame)
     targets = read_targets(args.targets, nominal, options=read_options(args))
     print_notes(targets.notes)
-    uncalibrated_orientation = (rec is not None and not rec.orientation_measured
-                                and (targets.kind == "pose" or (targets.kind == "joints" and args.measure == "pose")))
-    several = uncalibrated_orientation and len(rec.targets) > 2
-    if several:
-        sys.stderr.write(f"{PROG}: note: {args.calibrated}'s calibration measured the positions of "
-                         f"{len(rec.targets)} targets: the tool's orientation follows from them but for the turn "
-                         f"about the last joint's axis and the tilt from it, held at the nominal (targets cannot "
-                         f"tell them from their own offsets)\n")
-    elif uncalibrated_orientation:
-        sys.stderr.write(f"{PROG}: note: {args.calibrated}'s calibration measured no tool orientation (positions "
-                         f"only, or touch rows): the corrected joints reach the targets' orientations as the "
-                         f"model predicts them, which the measurements did not check; status ok vouches for "
-                         f"the position (--measure position corrects the position alone)\n")
+    uncalibrated_orientation, several = _orientation_notes(args, rec, targets)
     kind = {"joints": "joint"}.get(targets.kind, targets.kind)      # joint, pose, position
     log.info("read %d %s targets from %s", targets.n_targets, kind, args.targets)
     T_meas_base = None if rec is None else rec.measurement_transform
@@ -225,44 +212,7 @@ def run(args: argparse.Namespace) -> int:
             calibrated, nominal = _last_link_models(args, calibrated, nominal, nominal_source)
         result = compensate(calibrated, nominal, targets.q, measure=args.measure, **opts)
     else:
-        T = _homogeneous(targets.rotation, targets.position) if targets.kind == "pose" else None
-        p = targets.position if targets.kind != "pose" else None
-        where = _targets_frame_name(args)
-        if where != "meas":
-            from calib.compensation.compensate import pose_targets_from_frame
-            from calib.io.urdf.controller_frame import targets_frame
-
-            frame = targets_frame(nominal, convention=args.convention if where == "controller" else None,
-                                  link=args.targets_link)
-            if T is not None:
-                T = pose_targets_from_frame(T_base_frame=frame.T_base_frame, T_frame_tool=T)
-            else:
-                p = pose_targets_from_frame(T_base_frame=frame.T_base_frame, p_frame_tool=p)
-        if where == "meas":
-            if T_meas_base is None:
-                sys.stderr.write(f"{PROG}: note: {args.calibrated} records no measurement frame (the calibration's "
-                                 f"measurements were in the robot's base frame): meas = base\n")
-            else:
-                from calib.compensation.compensate import pose_targets_in_base
-
-                if T is not None:
-                    T = pose_targets_in_base(T_meas_base=T_meas_base, T_meas_tool=T)
-                else:
-                    p = pose_targets_in_base(T_meas_base=T_meas_base, p_meas_tool=p)
-        configurations = None
-        if targets.q is None:
-            from calib.compensation.configuration import Configurations
-            from calib.io.csv.targets import configurations_of
-
-            values = configurations_of(targets, args.convention)
-            if values is not None:
-                configurations = Configurations(args.convention, values,
-                                                None if frame is None else frame.T_base_frame)
-        branch = dict(nominal=nominal, configurations=configurations) if targets.q is None else {}
-        if T is not None:
-            result = compensate_poses(calibrated, T_meas_tool=T, q_start=targets.q, **opts, **branch)
-        else:
-            result = compensate_poses(calibrated, p_meas_tool=p, q_start=targets.q, **opts, **branch)
+        result, frame = _pose_targets(args, calibrated, nominal, targets, T_meas_base, opts)
     if T_meas_base is not None and (targets.kind == "joints" or _targets_frame_name(args) != "meas"):
         from calib.compensation.compensate import with_frame_uncertainty
 
@@ -285,6 +235,82 @@ def run(args: argparse.Namespace) -> int:
         from dataclasses import replace
 
         result = replace(result, names=targets.names)
+    _stage_output(args, outputs, out, result, targets, nominal, frame, comment)
+    outputs.commit()
+    sys.stdout.write(f"{result.format()}\n{tool_line}\n\nwrote {out}\n")
+    if not result.success:
+        bad = result.n_targets - int(result.ok.sum())
+        sys.stderr.write(f"{PROG}: warning: {bad} of {result.n_targets} targets are not ok (see the "
+                         f"status and detail columns of {out})\n")
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
+
+
+def _orientation_notes(args, rec, targets) -> tuple[bool, bool]:
+    """(whether the calibration measured no tool orientation that the targets ask for, whether
+    it measured the positions of several targets instead), each said on stderr."""
+    uncalibrated_orientation = (rec is not None and not rec.orientation_measured
+                                and (targets.kind == "pose" or (targets.kind == "joints" and args.measure == "pose")))
+    several = uncalibrated_orientation and len(rec.targets) > 2
+    if several:
+        sys.stderr.write(f"{PROG}: note: {args.calibrated}'s calibration measured the positions of "
+                         f"{len(rec.targets)} targets: the tool's orientation follows from them but for the turn "
+                         f"about the last joint's axis and the tilt from it, held at the nominal (targets cannot "
+                         f"tell them from their own offsets)\n")
+    elif uncalibrated_orientation:
+        sys.stderr.write(f"{PROG}: note: {args.calibrated}'s calibration measured no tool orientation (positions "
+                         f"only, or touch rows): the corrected joints reach the targets' orientations as the "
+                         f"model predicts them, which the measurements did not check; status ok vouches for "
+                         f"the position (--measure position corrects the position alone)\n")
+    return uncalibrated_orientation, several
+
+
+def _pose_targets(args, calibrated, nominal, targets, T_meas_base, opts):
+    """The compensation of pose or position targets, taken in the frame the options name (the
+    controller's, a link, the base frame or the measurement frame) on the branch their seeds or
+    configurations give: (the result, the frame or None for the measurement / base frame)."""
+    from calib.compensation.compensate import compensate_poses
+
+    T = _homogeneous(targets.rotation, targets.position) if targets.kind == "pose" else None
+    p = targets.position if targets.kind != "pose" else None
+    where, frame = _targets_frame_name(args), None
+    if where != "meas":
+        from calib.compensation.compensate import pose_targets_from_frame
+        from calib.io.urdf.controller_frame import targets_frame
+
+        frame = targets_frame(nominal, convention=args.convention if where == "controller" else None,
+                              link=args.targets_link)
+        if T is not None:
+            T = pose_targets_from_frame(T_base_frame=frame.T_base_frame, T_frame_tool=T)
+        else:
+            p = pose_targets_from_frame(T_base_frame=frame.T_base_frame, p_frame_tool=p)
+    elif T_meas_base is None:
+        sys.stderr.write(f"{PROG}: note: {args.calibrated} records no measurement frame (the calibration's "
+                         f"measurements were in the robot's base frame): meas = base\n")
+    else:
+        from calib.compensation.compensate import pose_targets_in_base
+
+        if T is not None:
+            T = pose_targets_in_base(T_meas_base=T_meas_base, T_meas_tool=T)
+        else:
+            p = pose_targets_in_base(T_meas_base=T_meas_base, p_meas_tool=p)
+    configurations = None
+    if targets.q is None:
+        from calib.compensation.configuration import Configurations
+        from calib.io.csv.targets import configurations_of
+
+        values = configurations_of(targets, args.convention)
+        if values is not None:
+            configurations = Configurations(args.convention, values, None if frame is None else frame.T_base_frame)
+    branch = dict(nominal=nominal, configurations=configurations) if targets.q is None else {}
+    if T is not None:
+        return compensate_poses(calibrated, T_meas_tool=T, q_start=targets.q, **opts, **branch), frame
+    return compensate_poses(calibrated, p_meas_tool=p, q_start=targets.q, **opts, **branch), frame
+
+
+def _stage_output(args, outputs, out, result, targets, nominal, frame, comment) -> None:
+    """The corrected joints staged in ``outputs``: in the convention's terms (its names, units,
+    digits and the vendor's configuration of each target) or calib's own."""
     if args.convention not in (None, "calib"):
         from calib.compensation.configuration import VENDORS, vendor_configuration
         from calib.io.csv.compensation_output import write_compensation_convention
@@ -296,15 +322,9 @@ def run(args: argparse.Namespace) -> int:
         outputs.stage_from_file(out, lambda p: write_compensation_convention(
             p, result, convention=args.convention, names=targets.names, configurations=confs, comment=comment))
     else:
+        from calib.io.csv.specs import write_compensation
+
         outputs.stage_from_file(out, lambda p: write_compensation(p, result, comment=comment, names=targets.names))
-    outputs.commit()
-    sys.stdout.write(f"{result.format()}\n{tool_line}\n\nwrote {out}\n")
-    if not result.success:
-        bad = result.n_targets - int(result.ok.sum())
-        sys.stderr.write(f"{PROG}: warning: {bad} of {result.n_targets} targets are not ok (see the "
-                         f"status and detail columns of {out})\n")
-        return EXIT_NOT_CONVERGED
-    return EXIT_OK
 
 
 def _six_revolute(robot) -> bool:
