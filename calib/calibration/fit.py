@@ -14,9 +14,6 @@ import numpy as np
 from calib.dataclass_code import dataclass
 from calib.calibration.accuracy import AccuracyStats, target_rows
 from calib.calibration.options import (
-    IMPLAUSIBLE_LENGTH_FRACTION,
-    IMPLAUSIBLE_REACH_FRACTION,
-    IMPLAUSIBLE_ROT_RAD,
     LOCAL_MINIMUM_RATIO,
     ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM,
     STEP_START_MU0,
@@ -27,9 +24,9 @@ from calib.calibration.options import (
     WARM_MU0,
     CalibrationOptions,
 )
-from calib.calibration.prepare import Setup, _reach, _robot_memo
-from calib.calibration.robust import (can_trim, flag_outliers, judge_rows, leftover_gross, robust_sigmas,
-                                      too_many_gross)
+from calib.calibration.plausibility import leftover_gross, too_many_gross
+from calib.calibration.prepare import Setup
+from calib.calibration.robust import can_trim, flag_outliers, judge_rows, robust_sigmas
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -37,7 +34,7 @@ from calib.solvers import dispatch
 from calib.solvers.angles import RotationChain
 from calib.solvers.lm import LMOptions, LMTrace, SolverResult, options_with
 from calib.solvers.inverse import normal_inverse
-from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem
+from calib.solvers.problem import NormalEquations, Problem
 
 if TYPE_CHECKING:      # (built when the outlier check flags rows)
     from calib.calibration.outlier import Outlier
@@ -513,35 +510,6 @@ def method_notes(setup: Setup, method: str) -> list[str]:
     return []
 
 
-def implausibility(nominal: RobotModel, fit: Fit, *, sigma_pos_given: bool,
-                   sigma_rot_given: bool) -> list[str]:
-    """Why the fit's result cannot be trusted, one sentence each (empty when it can): residuals
-    far above given noise levels (every uncertainty and prediction is that much too small),
-    errors no robot and instrument give. A calibration with any of these is not called converged
-    (status "implausible"). sigma_pos_given / sigma_rot_given: which noise levels the user gave
-    (each group is judged against its own)."""
-    notes = list(fit.refusals)
-    nz = fit.noise
-    given = [("position", nz.chi2_pos)] if sigma_pos_given else []
-    if sigma_rot_given and nz.chi2_rot is not None:
-        given.append(("orientation", nz.chi2_rot))
-    worst = max(given, key=lambda g: g[1], default=None)
-    if worst is not None and fit.solver.status == "converged" and worst[1] > CHI2_ESCAPE:
-        notes.append(f"the fit converged but its {worst[0]} residuals are {math.sqrt(worst[1]):.1f} times the "
-                     f"given noise (reduced chi^2 {worst[1]:.3g}): a wrong sigma, or errors the model "
-                     f"does not describe; omit the noise levels to estimate them from the data")
-    # judged on the rows the fit kept: a gross row it flagged is not the model's failure
-    return notes + _implausible_fit_notes(nominal, fit.errors.subset(fit.keep))
-
-
-def length_notes(nominal: RobotModel, fit: Fit) -> list[str]:
-    """Notes naming link lengths identified far from ``nominal``'s. A note, not a refusal: a
-    length tied to another (d2 and d3 of parallel axes, d6 and the tool's z) can move along the
-    tie with the model's kinematics exact (from a start 1.55 rad off in alpha2: d2 -26 m,
-    d3 +26 m, error to the truth 1e-9 m)."""
-    return _implausible_length_notes(nominal, fit.model)
-
-
 def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, outlier_k: float | None,
              keep: np.ndarray | None = None, kin: ChainKinematics | None = None, rank_deficit: int = 0,
              sigma_pos: float | None = None, sigma_rot: float | None = None,
@@ -555,43 +523,3 @@ def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, 
                      sigma_rot=options.sigma_rot if sigma_rot is None else sigma_rot, loss=options.loss,
                      loss_scale=options.loss_scale, outlier_k=outlier_k, keep=keep, kin=kin,
                      rank_deficit=rank_deficit, warm=warm, refit=refit)
-
-
-def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]:
-    """A note when the calibrated model leaves errors on its calibration rows that no robot and
-    instrument give (:data:`IMPLAUSIBLE_REACH_FRACTION` of the reach, :data:`IMPLAUSIBLE_ROT_RAD`):
-    the fit ran, but on data that do not belong to this robot as read."""
-    reach = _robot_memo("reach", robot, (), lambda: _reach(robot))
-    pos = after.position["rms"]
-    rot = after.rotation["rms"] if after.rotation is not None else 0.0
-    what, check = [], []
-    if pos > IMPLAUSIBLE_REACH_FRACTION * reach:
-        what.append(f"a position RMS error of {pos * 1e3:.4g} mm ({100 * pos / reach:.0f} % of the robot's "
-                    f"reach {reach * 1e3:.0f} mm)")
-        check.append("the joint units (degrees read as radians, or radians as degrees), the joint order "
-                     "and the robot")
-    if rot > IMPLAUSIBLE_ROT_RAD:
-        what.append(f"an orientation RMS error of {rot:.3g} rad")
-        check.append("the orientation columns (quaternion order w, x, y, z; --euler sequence; a rotation "
-                     "vector read as angles: --convention ur; angle units) and the tool frame")
-    if not what:
-        return []
-    return [f"the calibrated model does not describe these measurements: on the calibration rows it "
-            f"leaves {' and '.join(what)}; check {', and '.join(check)}"]
-
-
-def _implausible_length_notes(nominal: RobotModel, calibrated: RobotModel) -> list[str]:
-    """A note naming the link lengths (d, a of the joints) identified further than
-    :data:`IMPLAUSIBLE_LENGTH_FRACTION` of the reach from their nominal values: no robot is built
-    that far from its drawing (positions in metres named _mm shrink a UR5's 425 mm link to
-    0.6 mm and the fit converges at the noise; the URDF of another robot model)."""
-    reach = _robot_memo("reach", nominal, (), lambda: _reach(nominal))
-    far = [(p.name, b - a) for p, a, b in zip(nominal.parameters, nominal.values, calibrated.values)
-           if p.group == "joint" and p.unit == "m" and abs(b - a) > IMPLAUSIBLE_LENGTH_FRACTION * reach
-           and not (p.kind == "d" and nominal.prismatic[p.joint - 1])]   # (a slide's offset: any)
-    if not far:
-        return []
-    shown = ", ".join(f"{name} {dev * 1e3:+.1f} mm" for name, dev in far)
-    return [f"identified link lengths far from the URDF's: {shown} (more than "
-            f"{100 * IMPLAUSIBLE_LENGTH_FRACTION:g} % of the robot's reach {reach * 1e3:.0f} mm); check the "
-            f"length unit of the positions (metres named _mm?) and that the URDF is this robot's"]

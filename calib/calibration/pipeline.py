@@ -45,9 +45,10 @@ import numpy as np
 from calib.calibration.accuracy import accuracy_after, accuracy_before
 from calib.calibration.consistency import consistency_notes
 from calib.calibration.diagnose import misreadings
-from calib.calibration.fit import fit_with, implausibility, length_notes, method_notes
+from calib.calibration.fit import fit_with, method_notes
 from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
+from calib.calibration.plausibility import compliance_refusal, implausibility, length_notes
 from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.result import CalibrationResult, _parameter_table
 from calib.calibration.statistics import statistics_notes, statistics_stage
@@ -265,7 +266,7 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
                                  sigma_rot_given=opts.sigma_rot is not None)
     causes = misreadings(setup, fit, opts, implausible=bool(implausible) or fit.solver.status != "converged")
     implausible = causes + implausible
-    notes += list(fit.notes) + implausible + length_notes(robot, fit)
+    notes += list(fit.notes) + implausible + length_notes(robot, fit.model)
     status, message = fit.solver.status, fit.solver.message
     if implausible and (status == "converged" or causes):
         status, message = "implausible", implausible[0]
@@ -274,7 +275,11 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     stats = statistics_stage(setup, fit, problem)
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
              stats.predicted_holdout["position_rms"] * 1e3)
-    notes += statistics_notes(stats) + compliance_notes(fit.model, fit.free, stats.covariance) + \
+    # physics that contradicts itself (a joint turning against its load) is refused
+    physics = compliance_refusal(fit.model, fit.free, stats.covariance)
+    if physics and status == "converged":
+        status, message = "implausible", physics[0]
+    notes += statistics_notes(stats) + physics + compliance_notes(fit.model, fit.free, stats.covariance) + \
         payload_note(fit.model, problem)
     stages.start("cross-validation")
     cross, cv_notes = held_out_error(setup, fit, problem, selection, opts.folds, opts.lm)

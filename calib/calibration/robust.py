@@ -350,34 +350,3 @@ def _judge_trimmed(everything, problem, x, keep, rows, k, levels, given, red, op
                f"orientation columns and that the URDF is this robot's")
         return Judgement((), True, x, fsp, fsr, trimmed=True, breakdown=why)
     return Judgement(tuple(new), too_many, x_t if (new and not too_many) else x, fsp, fsr, trimmed=True)
-
-
-def too_many_gross(flagged: int, rows: int) -> str:
-    """Why the data are refused when the outlier passes together flag more than
-    TRIMMED_MAX_OUTLIER_SHARE of the calibration rows (each pass judges only the rows kept by
-    the last: 16 gross of 40 position-only rows, then 18 good ones, left 6 rows fitted
-    exactly)."""
-    return (f"the data are inconsistent: the outlier check would leave out {flagged} of {rows} rows, more "
-            f"than the half that gross rows can be among consistent data; check the joint columns "
-            f"(order, units), the orientation columns and that the URDF is this robot's")
-
-
-def leftover_gross(everything: Problem, x: np.ndarray, keep: np.ndarray, red: tuple[float, float],
-                   levels: tuple[float, float], given: tuple[float | None, float | None]) -> str:
-    """Why the least-squares fit at x of the kept rows cannot be trusted when, after the outlier
-    check, its estimated noise levels ``levels`` (m, rad) are still more than
-    ROBUST_CHECK_INFLATION times the robust ones (the median absolute residual): many rows are
-    gross by amounts that no fit separates from the others (60 of 100 rows 5 mm off: noise
-    estimated 2.2 mm, 1.4-2.1 times the robust level, none flagged), else empty. given : the
-    noise levels the user gave (None: estimated; given levels are judged by the chi-square test)."""
-    est = [(g, lvl) for g, lvl in zip(("position", "orientation"), levels)]
-    rsp, rsr = robust_sigmas(everything, x, keep, *red)
-    ratios = [(g, lvl / r) for (g, lvl), r, giv in zip(est, (rsp, rsr), given)
-              if giv is None and (g == "position" or everything.has_orientation)]
-    worst = max(ratios, key=lambda gr: gr[1], default=None)
-    if worst is None or worst[1] <= ROBUST_CHECK_INFLATION:
-        return ""
-    return (f"the data are inconsistent: after the outlier check the {worst[0]} noise estimated from the "
-            f"residuals is {worst[1]:.2g} times that of the median residual, so many rows are gross (more "
-            f"than half of them, or gross by amounts the check cannot separate); check the joint columns "
-            f"(order, units), the orientation columns and that the URDF is this robot's")

@@ -24,6 +24,7 @@ from calib.calibration.accuracy import target_rows
 from calib.calibration.fit import _vce_fixed_point, fit_with
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
+from calib.calibration.plausibility import COMPLIANCE_REFUSAL_SIGMAS, negative_compliances
 from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.validation import (_standard_error, fold_labels, fold_normal_equations, held_out_summary,
                                           newton_held_out)
@@ -93,12 +94,10 @@ def compliance_notes(model: RobotModel, free, covariance: np.ndarray) -> list[st
     if not model.has_compliance:
         return []
     notes = []
-    std = dict(zip(free, np.sqrt(np.maximum(np.diag(covariance), 0.0))))
-    neg = []
-    for name, c in zip(model.compliance_names, model.compliances()):
-        s = std.get(name)
-        if s is not None and s > 0 and c < -NEGATIVE_COMPLIANCE_SIGMAS * s:
-            neg.append(f"{name} = {c * 1e6:.4g} urad/(N m), {-c / s:.1f} std below zero")
+    # (beyond COMPLIANCE_REFUSAL_SIGMAS the calibration is refused, its sentence names them)
+    neg = [f"{name} = {c * 1e6:.4g} urad/(N m), {z:.1f} std below zero"
+           for name, c, z in negative_compliances(model, free, covariance, NEGATIVE_COMPLIANCE_SIGMAS)
+           if z <= COMPLIANCE_REFUSAL_SIGMAS]
     if neg:
         notes.append("negative joint compliance: " + "; ".join(neg) + ". A joint does not turn against the "
                      "load it carries: the gravity direction or the payload (mass, centre of mass) is likely "

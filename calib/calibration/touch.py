@@ -28,8 +28,8 @@ from typing import Sequence
 import numpy as np
 
 from calib.dataclass_code import dataclass
-from calib.calibration.fit import _implausible_length_notes
 from calib.calibration.options import VCE_MAX_ITERATIONS, VCE_RTOL
+from calib.calibration.plausibility import chain_implausibility, length_notes
 from calib.calibration.touch_design import (MEAS_FRAME_MIN_ROWS, MIN_ROWS, PARAM_CHOICES, SCALE_ADVICE, SIGMA_TOUCH_M,  # noqa: F401
                                             TouchIdentifiability, check_touch_design, consistent_rows,
                                             touch_identifiability)
@@ -370,7 +370,7 @@ def _result(robot, data, given, ident, fitted: _Fitted, nominal_scale: bool) -> 
         normals[planes] = plane_normals(start.plane_refs[planes], F[planes, 0], F[planes, 1])[0]
     calibrated = fitted.start_robot.with_values(prob.full(x))
     status, message = sol.status, sol.message
-    notes = _implausible_length_notes(robot, calibrated)
+    notes = chain_implausibility(robot, calibrated, "position")     # (the one rule: calib.calibration.plausibility)
     what = {"touch": "touch residuals", "position": "measured positions", "rotation": "measured rotations"}
     for g in prob.slices:
         est = levels[g][0]
@@ -395,7 +395,7 @@ def _result(robot, data, given, ident, fitted: _Fitted, nominal_scale: bool) -> 
         covariance=cov, solver=sol, n_rows=data.n_rows, n_residuals=len(r), status=status,
         message=message, groups=groups, n_measured=data.n_measured, nominal_scale=bool(ident.scale_free
                                                                                       and nominal_scale),
-        notes=_frame_note(robot, fitted.start_robot))
+        notes=_frame_note(robot, fitted.start_robot) + tuple(length_notes(robot, calibrated)))
 
 
 def _frame_note(robot: RobotModel, start: RobotModel) -> tuple[str, ...]:
