@@ -48,7 +48,8 @@ from calib.calibration.diagnose import misreadings
 from calib.calibration.fit import fit_with, method_notes
 from calib.calibration.options import resolve_options
 from calib.calibration.parameters import choose_parameters
-from calib.calibration.plausibility import compliance_refusal, implausibility, length_notes
+from calib.calibration.plausibility import (compliance_refusal, implausibility, length_notes,
+                                            validation_implausibility)
 from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.result import CalibrationResult, _parameter_table
 from calib.calibration.statistics import statistics_notes, statistics_stage
@@ -286,6 +287,12 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     notes += cv_notes
     errors = fit.errors             # (made from the kept residuals: once for both uses below)
     accuracy = accuracy_after(accuracy, fit.model, errors, val, robot.targets, kin)
+    # validation figures that cannot be right (positions in another unit) are refused
+    units = validation_implausibility(fit.model, val, accuracy.val_rows, errors.subset(fit.keep),
+                                      accuracy.validation_after)
+    if units and status == "converged":
+        status, message = "implausible", units[0]
+    notes += units
 
     nz = fit.noise
     # a measurement frame estimated from the data is the instrument's: the robot's base frame in

@@ -2,7 +2,7 @@
 
 Every data kind goes through them: pose, position and multi-target rows through
 :func:`calib.calibrate` (:func:`implausibility` on the fit, :func:`compliance_refusal` after the
-statistics), touch rows through :func:`calib.calibrate_touch` (:func:`chain_implausibility`).
+statistics, :func:`validation_implausibility` on the validation rows), touch rows through :func:`calib.calibrate_touch` (:func:`chain_implausibility`).
 A result any of them finds implausible is not called converged (status "implausible"): the CLI
 writes nothing and exits 3, unless ``--accept-implausible`` (docs/refusals.md lists them all).
 
@@ -26,6 +26,8 @@ writes nothing and exits 3, unless ``--accept-implausible`` (docs/refusals.md li
   than the outlier check can separate from the others.
 * **The physics** (:func:`compliance_refusal`): a joint compliance far below zero (a joint does
   not turn against the load it carries: the gravity direction or the payload is wrong).
+* **The validation figures** (:func:`validation_implausibility`): validation rows that err by
+  thousands of times the calibration rows and fit in another length unit.
 
 ``scripts/bench_plausibility.py`` measures the refusals of honest calibrations and the catch
 rate of the wrong classes.
@@ -50,7 +52,8 @@ from calib.solvers.problem import CHI2_ESCAPE, Problem
 __all__ = ["CHAIN_REACH_FRACTION", "CHAIN_ROT_RAD", "LENGTH_FRACTION", "ANGLE_RAD", "COMPLIANCE_REFUSAL_SIGMAS",
            "IMPLAUSIBLE_REACH_FRACTION", "IMPLAUSIBLE_ROT_RAD", "ChainDeviation", "chain_deviation",
            "chain_implausibility", "length_notes", "residual_implausibility", "implausibility",
-           "leftover_gross", "too_many_gross", "negative_compliances", "compliance_refusal"]
+           "leftover_gross", "too_many_gross", "negative_compliances", "compliance_refusal",
+           "VALIDATION_RATIO", "VALIDATION_EXPLAINED", "validation_implausibility"]
 
 # ---------------------------------------------------------------------- the chain
 #: A calibrated chain whose tool points lie farther than this fraction of the robot's reach (RMS
@@ -355,3 +358,42 @@ def compliance_refusal(model: RobotModel, free: Sequence[str], covariance: np.nd
             f"X,Y,Z points down, e.g. 0,0,-9.81 for a robot standing on the floor), or the payload (mass, "
             f"centre of mass in the tool frame), or the URDF's masses; fix them, or --accept-implausible "
             f"writes the result"]
+
+
+# ---------------------------------------------------------------------- the validation figures
+#: Validation rows whose position RMS error after calibration is more than this many times the
+#: calibration rows' are checked for positions in another length unit: honest validation rows
+#: of the same set-up err by 1-3 times the calibration rows (more where they lie outside the
+#: calibrated poses, never tens of times); positions in metres under _mm columns by 10,000 times
+#: (653 mm against 0.03 mm).
+VALIDATION_RATIO = 30.0
+#: Rescaled positions explain the validation errors when they bring them within this factor of
+#: the calibration rows' RMS.
+VALIDATION_EXPLAINED = 5.0
+
+
+def validation_implausibility(model: RobotModel, val, targets, cal_after, val_after) -> list[str]:
+    """A sentence when the validation rows ``val`` (:class:`calib.Measurements`; targets: (N,)
+    each row's target index, or None) err by more than :data:`VALIDATION_RATIO` times the
+    calibration rows (``cal_after``, ``val_after``: the calibrated ``model``'s
+    :class:`~calib.calibration.accuracy.AccuracyStats` on each) and positions in another length
+    unit (x1000, x0.001) bring them within :data:`VALIDATION_EXPLAINED` times: the validation
+    figures as read cannot be right, the sentence names the unit; else []."""
+    if val is None or val_after is None or not val_after.n_poses:
+        return []
+    from calib.calibration.accuracy import pose_errors      # (accuracy imports nothing of this module)
+
+    cal_rms, val_rms = cal_after.position["rms"], val_after.position["rms"]
+    if not val_rms > VALIDATION_RATIO * cal_rms:
+        return []
+    where = f" of {val.source}" if val.source is not None else ""
+    for factor, was, unit in ((1e3, "metres but were read as millimetres", "x_m, y_m, z_m"),
+                              (1e-3, "millimetres but were read as metres", "x_mm, y_mm, z_mm")):
+        e = pose_errors(model, val.q, val.position * factor, val.rotation, targets=targets).position["rms"]
+        if e <= VALIDATION_EXPLAINED * cal_rms:
+            return [f"the validation rows' positions{where} look in {was}: after calibration they err by "
+                    f"{val_rms * 1e3:.4g} mm RMS, {val_rms / cal_rms:.3g} times the calibration rows' "
+                    f"{cal_rms * 1e3:.4g} mm, and by {e * 1e3:.4g} mm in the other unit; name their columns "
+                    f"{unit} (the validation figures as read cannot be right), or --accept-implausible "
+                    f"writes the result with them"]
+    return []
