@@ -50,7 +50,7 @@ from calib.solvers.lm import LMOptions, levenberg_marquardt
 from calib.solvers.problem import CHI2_ESCAPE, Problem
 
 __all__ = ["CHAIN_REACH_FRACTION", "CHAIN_ROT_RAD", "LENGTH_FRACTION", "ANGLE_RAD", "COMPLIANCE_REFUSAL_SIGMAS",
-           "IMPLAUSIBLE_REACH_FRACTION", "IMPLAUSIBLE_ROT_RAD", "ChainDeviation", "chain_deviation",
+           "IMPLAUSIBLE_REACH_FRACTION", "IMPLAUSIBLE_ROT_RAD", "ChainDeviation", "move_bound", "chain_deviation",
            "chain_implausibility", "length_notes", "residual_implausibility", "implausibility",
            "leftover_gross", "too_many_gross", "negative_compliances", "compliance_refusal",
            "VALIDATION_RATIO", "VALIDATION_EXPLAINED", "validation_implausibility"]
@@ -124,10 +124,39 @@ def _pose_rms(R_a, p_a, R_b, p_b) -> tuple[float, float | None]:
     return pos, rot
 
 
+def move_bound(nominal: RobotModel, calibrated: RobotModel, measure: str, reach: float) -> ChainDeviation:
+    """An upper bound of :func:`chain_deviation` from the parameters' moves alone, without
+    kinematics: each length moves the tool by at most its move; each angle of joint i turns it by
+    at most its move (wrapped), about an axis no farther from it than the lengths from joint i
+    on (the larger of each |d| + |a| before and after the move, a slide's travel added) and the
+    tool's offset. Rigorous for the geometry (the joint terms are the same in both models)."""
+    n = calibrated.n_joints
+    lengths = np.zeros(n)           # (per joint: the larger of its |d| + |a| before and after)
+    turns = np.zeros(n)             # (per joint: its angles' moves, wrapped)
+    moved = 0.0
+    for p, a, b in zip(calibrated.parameters, nominal.values, calibrated.values):
+        if p.group != "joint":
+            continue
+        if p.unit == "m":
+            lengths[p.joint - 1] += max(abs(a), abs(b))
+            moved += abs(b - a)
+        else:
+            turns[p.joint - 1] += abs(_wrapped(b - a))
+    slides = calibrated.prismatic       # (a slide's travel adds to its length: at most its limits, else pi m)
+    lengths[slides] += np.where(np.isfinite(calibrated.lower), np.abs(calibrated.lower), math.pi)[slides] + \
+        np.where(np.isfinite(calibrated.upper), np.abs(calibrated.upper), math.pi)[slides]
+    tool = max(float(np.linalg.norm(calibrated.T_flange_tool(k)[:3, 3])) for k in range(calibrated.n_targets))
+    levers = np.cumsum(lengths[::-1])[::-1] + tool          # (from joint i on)
+    return ChainDeviation(moved + float(turns @ levers), float(turns.sum()) if measure == "pose" else None,
+                          False, reach)
+
+
 def chain_deviation(nominal: RobotModel, calibrated: RobotModel, measure: str) -> ChainDeviation | None:
     """How far ``calibrated``'s chain places the tool (each target) from ``nominal``'s chain.
 
-    Both models' tool poses at :data:`CHAIN_CONFIGURATIONS` random configurations (seed 0)
+    First a bound from the parameters' moves alone (:func:`move_bound`): within the thresholds,
+    that bound is returned. Else both
+    models' tool poses at :data:`CHAIN_CONFIGURATIONS` random configurations (seed 0)
     are compared: first with the nominal chain (the ``joint`` parameters at ``nominal``'s values)
     in ``calibrated``'s frames, the figures an upper bound; when they are beyond the thresholds,
     again with that chain's measurement and tool frames (u, v) re-fitted to ``calibrated``'s
@@ -139,6 +168,9 @@ def chain_deviation(nominal: RobotModel, calibrated: RobotModel, measure: str) -
         return None
     reach = _robot_memo("reach", nominal, (), lambda: _reach(nominal))
     joint = np.array([p.group == "joint" for p in calibrated.parameters])
+    bound = move_bound(nominal, calibrated, measure, reach)      # (no kinematics: most calibrations stop here)
+    if not bound.implausible:
+        return bound
     values = np.where(joint, nominal.values, calibrated.values)
     hybrid = calibrated.with_values(values)
     Q = nominal.random_configurations(CHAIN_CONFIGURATIONS, 0)
