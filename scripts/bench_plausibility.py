@@ -17,7 +17,8 @@ points, calib.calibrate_touch). Each is calibrated with calib's defaults (``cali
 
 The wrong classes, each on every arm (``--wrong`` runs per class and arm): a joint counted the
 other way (one random revolute joint's values negated), a joint counted from another zero (+90
-degrees; not the last joint, whose zero the tool frame's rotation takes exactly), another robot's URDF (the measured robot: the same arm with every link length scaled
+degrees; not the first or the last joint, whose zeros the measurement and the tool frame's
+rotations take exactly), another robot's URDF (the measured robot: the same arm with every link length scaled
 by 1.25-1.4, or UR10 rows on the UR5 URDF and UR5 rows on the UR10 URDF), positions in metres
 read as millimetres, and compliance with the gravity direction flipped (UR10, 10 kg payload,
 true compliances of a few urad/(N m)). Caught when refused.
@@ -197,10 +198,11 @@ def wrong_run(cls: str, arm: str, robot, others: dict, seed: int):
     m = calib.simulate_measurements(true, robot.random_configurations(60, rng), sigma_pos=0.03e-3,
                                     sigma_rot=0.001, rng=rng)
     if cls == "joint sign" or cls == "joint zero":
-        # (the last joint's zero is no error: the tool frame's rotation about its axis takes it,
-        # the model calibrated then is exact)
+        # (the first and the last joint's zeros are no error of the model: the measurement
+        # frame's rotation about the first axis and the tool frame's about the last take them,
+        # and the model calibrated then is exact in those frames)
         revolute = np.flatnonzero(~robot.prismatic)
-        j = int(rng.choice(revolute[:-1] if cls == "joint zero" else revolute))
+        j = int(rng.choice(revolute[1:-1] if cls == "joint zero" else revolute))
         q = m.q.copy()
         q[:, j] = -q[:, j] if cls == "joint sign" else q[:, j] - math.pi / 2
         m = replace(m, q=q)

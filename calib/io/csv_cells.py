@@ -30,8 +30,9 @@ from __future__ import annotations
 import csv
 import io
 import re
+from typing import Sequence
 
-__all__ = ["FORMULA_LEADS", "spreadsheet_cell", "read_cell", "csv_field", "comment_line", "csv_records"]
+__all__ = ["FORMULA_LEADS", "spreadsheet_cell", "read_cell", "csv_field", "comment_line", "csv_records", "csv_text"]
 
 #: The characters that make a spreadsheet read a cell as a formula (OWASP, above).
 FORMULA_LEADS = frozenset("=+-@\t\r\n")
@@ -94,4 +95,30 @@ def csv_records(rows) -> str:
     quoted = csv.writer(buf, lineterminator="\n", quoting=csv.QUOTE_ALL)
     for row in rows:
         (quoted if any(isinstance(c, str) and "\r" in c for c in row) else plain).writerow(row)
+    return buf.getvalue()
+
+
+def csv_text(header: Sequence[str], rows, comment: str | None = None,
+             text_columns: Sequence[int] | None = None) -> str:
+    """CSV text (comma separated, ``\\n`` line ends): ``#`` comment lines, the header, the rows.
+    Every header cell, and the cells of ``text_columns`` (indices; None: every column), are
+    written so that no spreadsheet runs them as a formula (:mod:`calib.io.csv_cells`); the other
+    columns hold numbers calib formatted."""
+    buf = io.StringIO()
+    if comment is not None:
+        for line in str(comment).splitlines() or [""]:
+            buf.write(comment_line(line) + "\n")
+    records = [[spreadsheet_cell(str(h)) for h in header]]
+    if text_columns is None:
+        records += ([spreadsheet_cell(c) for c in row] for row in rows)
+    elif len(text_columns):
+        text_columns = list(text_columns)
+        for row in rows:
+            row = list(row)
+            for k in text_columns:
+                row[k] = spreadsheet_cell(row[k])
+            records.append(row)
+    else:
+        records += rows
+    buf.write(csv_records(records))
     return buf.getvalue()

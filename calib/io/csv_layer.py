@@ -35,7 +35,7 @@ import numpy as np
 
 from calib.dataclass_code import dataclass
 from calib.errors import MeasurementFormatError, ParameterError
-from calib.io.csv_cells import read_cell
+from calib.io.csv_cells import csv_text, read_cell
 from calib.io.csv_lines import (READ_BYTES_PER_FILE_BYTE, WHITESPACE, _records, available_memory,  # noqa: F401
                                 check_size, parse_number, read_lines, split_fields)
 from calib.io.csv_header import ANGLE_UNITS, LENGTH_UNITS, ORIENTATIONS, POSITION_COLUMNS, Column, Header
@@ -579,33 +579,3 @@ def joint_columns(joint_names: Sequence[str], prismatic, q, angle_unit: str, len
     scale = np.where(prismatic, LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit])
     header = [f"{name}_{length_unit if p else angle_unit}" for name, p in zip(joint_names, prismatic)]
     return header, q / scale
-
-
-def csv_text(header: Sequence[str], rows, comment: str | None = None,
-             text_columns: Sequence[int] | None = None) -> str:
-    """CSV text (comma separated, ``\\n`` line ends): ``#`` comment lines, the header, the rows.
-    Every header cell, and the cells of ``text_columns`` (indices; None: every column), are
-    written so that no spreadsheet runs them as a formula (:mod:`calib.io.csv_cells`); the other
-    columns hold numbers calib formatted."""
-    from io import StringIO
-
-    from calib.io.csv_cells import comment_line, csv_records, spreadsheet_cell
-
-    buf = StringIO()
-    if comment is not None:
-        for line in str(comment).splitlines() or [""]:
-            buf.write(comment_line(line) + "\n")
-    records = [[spreadsheet_cell(str(h)) for h in header]]
-    if text_columns is None:
-        records += ([spreadsheet_cell(c) for c in row] for row in rows)
-    elif len(text_columns):
-        text_columns = list(text_columns)
-        for row in rows:
-            row = list(row)
-            for k in text_columns:
-                row[k] = spreadsheet_cell(row[k])
-            records.append(row)
-    else:
-        records += rows
-    buf.write(csv_records(records))
-    return buf.getvalue()
