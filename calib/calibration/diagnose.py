@@ -111,11 +111,11 @@ def _rotvec_alternatives(m: Measurements):
                rotation_from_rotvec(triple[:, order]))
 
 
-def alternatives(m: Measurements, zeros: bool = False):
+def alternatives(m: Measurements, conventions: bool = False):
     """(sentence, measurements, length scale) for each common misreading of ``m`` undone: the
     orientation (by how it was read: :attr:`Measurements.orientation`), two joint columns of the
-    same kind swapped, a revolute joint counted the other way (another convention's sign), with
-    ``zeros`` also from another zero (+-90, 180 degrees), revolute joint units (degrees <->
+    same kind swapped, with ``conventions`` a revolute joint counted the other way (another
+    convention's sign) or from another zero (+-90, 180 degrees), revolute joint units (degrees <->
     radians), position units (metres <-> mm; the length scale is the factor the positions were
     multiplied by, else 1)."""
     if m.rotation is not None and m.orientation is not None:
@@ -137,12 +137,12 @@ def alternatives(m: Measurements, zeros: bool = False):
                 q[:, [i, j]] = q[:, [j, i]]
                 yield (f"the joint columns {names[i]!r} and {names[j]!r} look swapped: check the joint "
                        f"order of the file against the URDF's chain", replace(m, q=q), 1.0)
-    for i in np.flatnonzero(~pr):
-        q = m.q.copy()
-        q[:, i] = -q[:, i]
-        yield (f"the values of joint {names[i]!r} look counted the other way than the URDF's axis (another "
-               f"convention's sign): negate that column", replace(m, q=q), 1.0)
-    if zeros:
+    if conventions:
+        for i in np.flatnonzero(~pr):
+            q = m.q.copy()
+            q[:, i] = -q[:, i]
+            yield (f"the values of joint {names[i]!r} look counted the other way than the URDF's axis (another "
+                   f"convention's sign): negate that column", replace(m, q=q), 1.0)
         for i in np.flatnonzero(~pr):
             for deg in (90, -90, 180):
                 q = m.q.copy()
@@ -205,7 +205,9 @@ def misreadings(setup: Setup, fit: Fit, options: CalibrationOptions, *, implausi
     opts = replace(options, cv=0, sigma_pos=None, sigma_rot=None)
     _, (p0, r0) = _screen(setup, setup.cal)
     screened = []
-    for sentence, alt, scale in alternatives(setup.cal, zeros=implausible):
+    # (a joint's sign and zero only for a refused fit: the chain rule finds what they do; noisy
+    # data, a camera's, do not pay 4 screens per joint)
+    for sentence, alt, scale in alternatives(setup.cal, conventions=implausible):
         try:
             alt_setup, (p1, r1) = _screen(setup, alt)
         except CalibError:
