@@ -151,7 +151,18 @@ def honest_run(arm: str, robot, seed: int, kind: str):
         return touch_run(nominal, true, rng)
     m, what = honest_measurements(nominal, true, rng, kind, noise)
     res = calib.calibrate(nominal if kind != "targets" else robot, m)
-    return res.status, res.message, what + f", deviations {scale * 1e3:.2g} mm"
+    return res.status, res.message, what + f", deviations {scale * 1e3:.2g} mm", \
+        margin(res.nominal, res.robot, "pose" if kind == "pose" else "position")
+
+
+def margin(nominal, calibrated, measure: str) -> float:
+    """The calibrated chain's distance from the URDF's over the chain rule's threshold (an upper
+    bound below 1: calib.calibration.plausibility.chain_deviation)."""
+    from calib.calibration.plausibility import CHAIN_REACH_FRACTION, CHAIN_ROT_RAD, chain_deviation
+
+    dev = chain_deviation(nominal, calibrated, measure)
+    return max(dev.position / (CHAIN_REACH_FRACTION * dev.reach),
+               0.0 if dev.rotation is None else dev.rotation / CHAIN_ROT_RAD)
 
 
 def touch_run(nominal, true, rng):
@@ -163,7 +174,7 @@ def touch_run(nominal, true, rng):
     sigma = math.exp(rng.uniform(math.log(0.01e-3), math.log(0.1e-3)))
     sim = simulate_touch(true, feats, [15, 12, 12], sigma=sigma, rng=rng)
     res = calib.calibrate_touch(nominal, sim.data)
-    return res.status, res.message, f"touch, 39 rows, {sigma * 1e3:.3g} mm"
+    return res.status, res.message, f"touch, 39 rows, {sigma * 1e3:.3g} mm", margin(nominal, res.robot, "position")
 
 
 def wrong_run(cls: str, arm: str, robot, others: dict, seed: int):
@@ -247,10 +258,12 @@ def main() -> None:
     t0 = time.perf_counter()
     refused, counts, messages = defaultdict(int), defaultdict(int), []
     by_rule = defaultdict(int)
+    ratios = []
     for i in range(args.runs):
         arm = ARMS[i % len(ARMS)]
         kind = "touch" if i % 10 == 9 else KINDS[(i // len(ARMS)) % len(KINDS)]
-        status, message, what = honest_run(arm, robots[arm], args.seed * 100_000 + i, kind)
+        status, message, what, ratio = honest_run(arm, robots[arm], args.seed * 100_000 + i, kind)
+        ratios.append(ratio)
         counts[(arm, kind)] += 1
         if status == "implausible":
             refused[(arm, kind)] += 1
@@ -267,9 +280,13 @@ def main() -> None:
         print(f"  {arm:<8} refused: {', '.join(cells)}")
     for r in RULES:
         print(f"  by {r}: {by_rule[r]} ({100 * by_rule[r] / max(args.runs, 1):.2f} %)")
+    if ratios:
+        print(f"  the chain rule's margin: honest chains at most {max(ratios):.2f} of its threshold "
+              f"(median {float(np.median(ratios)):.3f}; upper bounds)")
 
     caught = defaultdict(int)
     total = defaultdict(int)
+    caught_by = defaultdict(lambda: defaultdict(int))
     for cls in WRONG:
         for arm in (("ur10",) if cls == "gravity flipped" else ARMS):
             for k in range(args.wrong):
@@ -277,11 +294,14 @@ def main() -> None:
                                                   + ARMS.index(arm))
                 total[cls] += 1
                 caught[cls] += status == "implausible"
+                if status == "implausible":
+                    caught_by[cls][rule(message)] += 1
                 if status != "implausible":
                     messages.append(f"  missed: {cls} on {arm} ({what}): status {status}")
     print("wrong classes caught (refused):")
     for cls in WRONG:
-        print(f"  {cls:<22} {caught[cls]}/{total[cls]}")
+        by = ", ".join(f"{n} by {r}" for r, n in caught_by[cls].items())
+        print(f"  {cls:<22} {caught[cls]}/{total[cls]}" + (f" ({by})" if by else ""))
 
     if not args.no_real:
         print("real data (defaults):")
