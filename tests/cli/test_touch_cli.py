@@ -428,6 +428,15 @@ def test_simulate_touch_counts_are_bounded(urdf, tmp_path, capsys):
     code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", out, "--constraint", "point:50",
                        "--poses", 5000)
     assert code == 2 and "250,000 touch rows, at most 100,000" in err and not out.exists()
+    from calib import CalibError, load_robot
+    from calib.model.touch import Feature
+    from calib.model.touch_simulate import simulate_touch
+
+    robot = load_robot(urdf, tool_frame="tool0")
+    with pytest.raises(CalibError, match="101 features: at most 100 per simulation"):
+        simulate_touch(robot, [Feature("point", f"P{k}") for k in range(101)], [1] * 101)
+    with pytest.raises(CalibError, match="150,000 touch rows in all: at most 100,000"):
+        simulate_touch(robot, [Feature("point", "P1"), Feature("point", "P2")], [100_000, 50_000])
     code, out_text, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", out, "--constraint",
                               "point:2", "--poses", 5)
     assert code == 0, err
