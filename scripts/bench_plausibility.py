@@ -24,7 +24,8 @@ read as millimetres, and compliance with the gravity direction flipped (UR10, 10
 true compliances of a few urad/(N m)). Caught when refused.
 
 The real data: every real set of ../shared/realdata (read as scripts/bench_realdata.py reads
-them: whole files and their 5 folds' calibration rows) and examples/tiago_qualisys (the whole
+them, with the inertial URDF where there is one: whole files and their 5 folds' calibration
+rows) and examples/tiago_qualisys (the whole
 file and each target alone), each calibrated with the defaults: none may be refused.
 
 Prints the refusals per arm and kind, the refusal rate (target: 0, at most 1 %), the catch rate
@@ -233,7 +234,10 @@ def real_sets():
         if not folder.is_dir():
             print(f"note: {folder} absent: its real set skipped")
             continue
-        robot = calib.load_robot(folder / f"{name}.urdf")
+        # (the inertial URDF where there is one, as scripts/bench_realdata.py: the same geometry
+        # with the link masses, which the default joint terms' compliance candidate uses)
+        inertial = folder / f"{name}_inertial.urdf"
+        robot = calib.load_robot(inertial if inertial.is_file() else folder / f"{name}.urdf")
         sets.append((name, robot, calib.read_measurements(folder / f"{name}.csv", robot)))
         for k in range(5):
             m = calib.read_measurements(folder / "folds" / f"{name}_fold{k}.csv", robot)

@@ -277,11 +277,11 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
              stats.predicted_holdout["position_rms"] * 1e3)
     # physics that contradicts itself (a joint turning against its load) is refused
-    physics = compliance_refusal(fit.model, fit.free, stats.covariance)
+    physics = compliance_refusal(fit.model, fit.free, stats.covariance, problem.Q)
     if physics and status == "converged":
         status, message = "implausible", physics[0]
-    notes += statistics_notes(stats) + physics + compliance_notes(fit.model, fit.free, stats.covariance) + \
-        payload_note(fit.model, problem)
+    notes += statistics_notes(stats) + physics + \
+        compliance_notes(fit.model, fit.free, stats.covariance, refused=bool(physics)) + payload_note(fit.model, problem)
     stages.start("cross-validation")
     cross, cv_notes = held_out_error(setup, fit, problem, selection, opts.folds, opts.lm)
     notes += cv_notes

@@ -52,7 +52,7 @@ from calib.solvers.problem import CHI2_ESCAPE, Problem
 __all__ = ["CHAIN_REACH_FRACTION", "CHAIN_ROT_RAD", "LENGTH_FRACTION", "ANGLE_RAD", "COMPLIANCE_REFUSAL_SIGMAS",
            "IMPLAUSIBLE_REACH_FRACTION", "IMPLAUSIBLE_ROT_RAD", "ChainDeviation", "move_bound", "chain_deviation",
            "chain_implausibility", "length_notes", "residual_implausibility", "implausibility",
-           "leftover_gross", "too_many_gross", "negative_compliances", "compliance_refusal",
+           "leftover_gross", "too_many_gross", "negative_compliances", "compliance_refusal", "COMPLIANCE_LOAD_SHARE",
            "VALIDATION_RATIO", "VALIDATION_EXPLAINED", "validation_implausibility"]
 
 # ---------------------------------------------------------------------- the chain
@@ -87,11 +87,17 @@ IMPLAUSIBLE_REACH_FRACTION = 0.05
 IMPLAUSIBLE_ROT_RAD = 0.1
 
 # ---------------------------------------------------------------------- the physics
-#: A free joint compliance more than this many standard deviations below zero refuses the
-#: calibration (a note names those beyond 3: calib.calibration.terms.NEGATIVE_COMPLIANCE_SIGMAS).
-#: At 5, a compliance whose truth is zero is refused once in 3.5 million, seven joints once in
-#: 500,000; the gravity sign flipped put a UR5's c2 202 standard deviations below zero.
+#: Free joint compliances more than this many standard deviations below zero refuse the
+#: calibration when their joints carry more than COMPLIANCE_LOAD_SHARE of the gravity torque
+#: (RMS over the calibration rows, of the sum over the free compliances): joints that carry a
+#: real part of the load turn against it, which a gravity pointing the wrong way gives (every
+#: loaded joint: a UR10's c2 150-200 standard deviations below zero, c3 60) or a wrong payload.
+#: A compliance far below zero on a joint that carries almost nothing (the real iiwa's c7, 6
+#: std, on 0.1 % of the torque: its column, the torque times the joint's, is so small that it
+#: takes large values for little effect) absorbs another error instead: a note
+#: (calib.calibration.terms.NEGATIVE_COMPLIANCE_SIGMAS, from 3 std), as below 5 std.
 COMPLIANCE_REFUSAL_SIGMAS = 5.0
+COMPLIANCE_LOAD_SHARE = 0.1
 
 
 def _wrapped(x: float) -> float:
@@ -375,18 +381,25 @@ def negative_compliances(model: RobotModel, free: Sequence[str], covariance: np.
     return out
 
 
-def compliance_refusal(model: RobotModel, free: Sequence[str], covariance: np.ndarray) -> list[str]:
-    """A sentence when a fitted compliance is more than :data:`COMPLIANCE_REFUSAL_SIGMAS`
-    standard deviations below zero (physics that contradicts itself: a joint turning against the
-    load it carries), naming them, the likely causes and the way through; else []."""
+def compliance_refusal(model: RobotModel, free: Sequence[str], covariance: np.ndarray, Q: np.ndarray) -> list[str]:
+    """A sentence when fitted compliances more than :data:`COMPLIANCE_REFUSAL_SIGMAS` standard
+    deviations below zero are those of joints carrying more than :data:`COMPLIANCE_LOAD_SHARE`
+    of the gravity torque at the calibration rows' configurations Q (N, n) (physics that
+    contradicts itself: the joints carrying the load turn against it), naming them, the likely
+    causes and the way through; else []."""
     neg = negative_compliances(model, free, covariance, COMPLIANCE_REFUSAL_SIGMAS)
     if not neg:
+        return []
+    load = dict(zip(model.compliance_names, np.sqrt(np.mean(model.gravity.torques(Q) ** 2, axis=0))))
+    total = sum(load[n] for n in model.compliance_names if n in free)
+    if not sum(load[n] for n, _, _ in neg) > COMPLIANCE_LOAD_SHARE * total:
         return []
     shown = "; ".join(f"{n} = {c * 1e6:.4g} urad/(N m), {z:.0f} std below zero" for n, c, z in neg)
     g = model.gravity
     gravity = "" if g is None else f" (given: {', '.join(f'{x:g}' for x in g.gravity)} m/s^2 in the URDF's root frame)"
-    return [f"the fitted joint compliances are significantly negative: {shown}; a joint does not turn "
-            f"against the load it carries: the gravity direction{gravity} is likely wrong (--gravity "
+    share = sum(load[n] for n, _, _ in neg) / total
+    return [f"the fitted joint compliances are significantly negative: {shown} (joints carrying "
+            f"{100 * share:.0f} % of the gravity torque); a joint does not turn against the load it carries: the gravity direction{gravity} is likely wrong (--gravity "
             f"X,Y,Z points down, e.g. 0,0,-9.81 for a robot standing on the floor), or the payload (mass, "
             f"centre of mass in the tool frame), or the URDF's masses; fix them, or --accept-implausible "
             f"writes the result"]

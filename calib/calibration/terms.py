@@ -24,7 +24,7 @@ from calib.calibration.accuracy import target_rows
 from calib.calibration.fit import _vce_fixed_point, fit_with
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
-from calib.calibration.plausibility import COMPLIANCE_REFUSAL_SIGMAS, negative_compliances
+from calib.calibration.plausibility import negative_compliances
 from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.validation import (_standard_error, fold_labels, fold_normal_equations, held_out_summary,
                                           newton_held_out)
@@ -86,18 +86,17 @@ def placeholder_masses(robot: RobotModel) -> str | None:
     return None
 
 
-def compliance_notes(model: RobotModel, free, covariance: np.ndarray) -> list[str]:
+def compliance_notes(model: RobotModel, free, covariance: np.ndarray, *, refused: bool = False) -> list[str]:
     """Notes on the fitted compliances of ``model`` (a model with compliance; [] without): each
     free compliance more than NEGATIVE_COMPLIANCE_SIGMAS standard deviations below zero (free,
-    covariance: the fit's free parameter names and their covariance, SI), and placeholder masses
-    in the URDF that gives the gravity torques."""
+    covariance: the fit's free parameter names and their covariance, SI; not when ``refused``:
+    the refusal's sentence names them, calib.calibration.plausibility.compliance_refusal), and
+    placeholder masses in the URDF that gives the gravity torques."""
     if not model.has_compliance:
         return []
     notes = []
-    # (beyond COMPLIANCE_REFUSAL_SIGMAS the calibration is refused, its sentence names them)
-    neg = [f"{name} = {c * 1e6:.4g} urad/(N m), {z:.1f} std below zero"
-           for name, c, z in negative_compliances(model, free, covariance, NEGATIVE_COMPLIANCE_SIGMAS)
-           if z <= COMPLIANCE_REFUSAL_SIGMAS]
+    neg = [] if refused else [f"{name} = {c * 1e6:.4g} urad/(N m), {z:.1f} std below zero"
+                              for name, c, z in negative_compliances(model, free, covariance, NEGATIVE_COMPLIANCE_SIGMAS)]
     if neg:
         notes.append("negative joint compliance: " + "; ".join(neg) + ". A joint does not turn against the "
                      "load it carries: the gravity direction or the payload (mass, centre of mass) is likely "
