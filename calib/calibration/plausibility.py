@@ -135,15 +135,21 @@ def move_bound(nominal: RobotModel, calibrated: RobotModel, measure: str, reach:
     kinematics: each length moves the tool by at most its move; each angle of joint i turns it by
     at most its move (wrapped), about an axis no farther from it than the lengths from joint i
     on (the larger of each |d| + |a| before and after the move, a slide's travel added) and the
-    tool's offset. Rigorous for the geometry (the joint terms are the same in both models)."""
+    tool's offset; a periodic joint error turns its joint by at most the sum of its
+    coefficients' moves. A model with compliance gets no bound (infinite: its deflections need
+    the gravity torques)."""
     n = calibrated.n_joints
     lengths = np.zeros(n)           # (per joint: the larger of its |d| + |a| before and after)
     turns = np.zeros(n)             # (per joint: its angles' moves, wrapped)
     moved = 0.0
+    if calibrated.has_compliance:       # (its deflections need the torques: no bound without them)
+        return ChainDeviation(math.inf, math.inf if measure == "pose" else None, False, reach)
     for p, a, b in zip(calibrated.parameters, nominal.values, calibrated.values):
-        if p.group != "joint":
+        if p.group == "periodic":         # (a periodic joint error turns its joint by at most its moves)
+            turns[p.joint - 1] += abs(b - a)
+        elif p.group != "joint":
             continue
-        if p.unit == "m":
+        elif p.unit == "m":
             lengths[p.joint - 1] += max(abs(a), abs(b))
             moved += abs(b - a)
         else:
@@ -163,8 +169,8 @@ def chain_deviation(nominal: RobotModel, calibrated: RobotModel, measure: str) -
     First a bound from the parameters' moves alone (:func:`move_bound`): within the thresholds,
     that bound is returned. Else both
     models' tool poses at :data:`CHAIN_CONFIGURATIONS` random configurations (seed 0)
-    are compared: first with the nominal chain (the ``joint`` parameters at ``nominal``'s values)
-    in ``calibrated``'s frames, the figures an upper bound; when they are beyond the thresholds,
+    are compared: first with the nominal chain (the ``joint`` parameters, and the joint terms
+    of compliance and periodic errors, at ``nominal``'s values) in ``calibrated``'s frames, the figures an upper bound; when they are beyond the thresholds,
     again with that chain's measurement and tool frames (u, v) re-fitted to ``calibrated``'s
     poses (by LM): what no choice of the instrument's and the tool's frames explains. measure :
     "pose" (positions and orientations compared) or "position". None when the two models do
@@ -173,7 +179,8 @@ def chain_deviation(nominal: RobotModel, calibrated: RobotModel, measure: str) -
     if nominal.names != calibrated.names:
         return None
     reach = _robot_memo("reach", nominal, (), lambda: _reach(nominal))
-    joint = np.array([p.group == "joint" for p in calibrated.parameters])
+    # (the chain and the joint terms: a URDF's robot has none, and a calibration's are small)
+    joint = np.array([p.group in ("joint", "compliance", "periodic") for p in calibrated.parameters])
     bound = move_bound(nominal, calibrated, measure, reach)      # (no kinematics: most calibrations stop here)
     if not bound.implausible:
         return bound
@@ -211,6 +218,9 @@ def _moved_parameters(nominal: RobotModel, calibrated: RobotModel, reach: float)
     (wrapped to [-pi, pi)) against ANGLE_RAD."""
     out = []
     for p, a, b in zip(nominal.parameters, nominal.values, calibrated.values):
+        if p.group == "periodic":
+            out.append((abs(b - a) / ANGLE_RAD, p.name, f"{p.name} {b - a:+.3f} rad (a periodic joint error)"))
+            continue
         if p.group != "joint" or (p.kind == "d" and nominal.prismatic[p.joint - 1]):
             continue
         if p.unit == "m":
@@ -243,6 +253,7 @@ def chain_implausibility(nominal: RobotModel, calibrated: RobotModel, measure: s
     if dev.rotation is not None and dev.rotation > CHAIN_ROT_RAD:
         far += f" and {dev.rotation:.3g} rad"
     angles = any(t[1].startswith(("theta", "alpha", "beta")) for t in beyond)
+    terms = any(t[2].endswith("(a periodic joint error)") for t in beyond)
     lengths = any(t[1].startswith(("d", "a")) and not t[1].startswith("alpha") for t in beyond)
     sign = ("a joint's sign or zero convention differs from the URDF's (the controller counts a joint the "
             "other way, or from another zero: the fit turns and flips axes to follow it)")
@@ -253,6 +264,9 @@ def chain_implausibility(nominal: RobotModel, calibrated: RobotModel, measure: s
         causes = [sign, other]
     else:
         causes = [sign, other, "the positions' length unit"]
+    if terms:       # (joint terms fitted to what the data cannot tell from the geometry)
+        causes.insert(0, "joint terms (periodic errors, compliance) with too few rows to determine them: "
+                         "calibrate without them, or with --terms auto")
     return [f"the calibrated robot is not the URDF's: with the measurement and tool frames re-fitted its "
             f"chain still places the tool {far} RMS from the URDF's chain over the workspace (a built arm: "
             f"within {CHAIN_REACH_FRACTION * reach * 1e3:.0f} mm, {100 * CHAIN_REACH_FRACTION:g} % of the "
