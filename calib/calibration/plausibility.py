@@ -109,8 +109,9 @@ def _wrapped(x: float) -> float:
 class ChainDeviation:
     """How far a calibrated chain is from the URDF's (see :func:`chain_deviation`):
     position (m) and rotation (rad; None for position data) RMS over the configurations, with
-    the frames re-fitted when ``registered`` (else with the calibrated model's own frames, an
-    upper bound of the re-fitted figures); reach (m) of the nominal model."""
+    the frames re-fitted when ``registered`` (else with the calibrated model's own frames, or
+    :func:`move_bound`'s bound: upper bounds of the re-fitted figures); reach (m) of the
+    nominal model."""
 
     position: float
     rotation: float | None
@@ -167,10 +168,10 @@ def chain_deviation(nominal: RobotModel, calibrated: RobotModel, measure: str) -
     """How far ``calibrated``'s chain places the tool (each target) from ``nominal``'s chain.
 
     First a bound from the parameters' moves alone (:func:`move_bound`): within the thresholds,
-    that bound is returned. Else both
-    models' tool poses at :data:`CHAIN_CONFIGURATIONS` random configurations (seed 0)
-    are compared: first with the nominal chain (the ``joint`` parameters, and the joint terms
-    of compliance and periodic errors, at ``nominal``'s values) in ``calibrated``'s frames, the figures an upper bound; when they are beyond the thresholds,
+    that bound is returned. Else both models' tool poses at :data:`CHAIN_CONFIGURATIONS` random
+    configurations (seed 0) are compared: first with the nominal chain (the ``joint``
+    parameters, and the joint terms of compliance and periodic errors, at ``nominal``'s values)
+    in ``calibrated``'s frames, the figures an upper bound; when they are beyond the thresholds,
     again with that chain's measurement and tool frames (u, v) re-fitted to ``calibrated``'s
     poses (by LM): what no choice of the instrument's and the tool's frames explains. measure :
     "pose" (positions and orientations compared) or "position". None when the two models do
