@@ -164,11 +164,12 @@ def move_bound(nominal: RobotModel, calibrated: RobotModel, measure: str, reach:
                           False, reach)
 
 
-def chain_deviation(nominal: RobotModel, calibrated: RobotModel, measure: str) -> ChainDeviation | None:
+def chain_deviation(nominal: RobotModel, calibrated: RobotModel, measure: str, *,
+                    bound: bool = True) -> ChainDeviation | None:
     """How far ``calibrated``'s chain places the tool (each target) from ``nominal``'s chain.
 
-    First a bound from the parameters' moves alone (:func:`move_bound`): within the thresholds,
-    that bound is returned. Else both models' tool poses at :data:`CHAIN_CONFIGURATIONS` random
+    First (unless ``bound`` is False) a bound from the parameters' moves alone
+    (:func:`move_bound`): within the thresholds, that bound is returned. Else both models' tool poses at :data:`CHAIN_CONFIGURATIONS` random
     configurations (seed 0) are compared: first with the nominal chain (the ``joint``
     parameters, and the joint terms of compliance and periodic errors, at ``nominal``'s values)
     in ``calibrated``'s frames, the figures an upper bound; when they are beyond the thresholds,
@@ -182,9 +183,10 @@ def chain_deviation(nominal: RobotModel, calibrated: RobotModel, measure: str) -
     reach = _robot_memo("reach", nominal, (), lambda: _reach(nominal))
     # (the chain and the joint terms: a URDF's robot has none, and a calibration's are small)
     joint = np.array([p.group in ("joint", "compliance", "periodic") for p in calibrated.parameters])
-    bound = move_bound(nominal, calibrated, measure, reach)      # (no kinematics: most calibrations stop here)
-    if not bound.implausible:
-        return bound
+    if bound:       # (no kinematics: most calibrations stop here)
+        moves = move_bound(nominal, calibrated, measure, reach)
+        if not moves.implausible:
+            return moves
     values = np.where(joint, nominal.values, calibrated.values)
     hybrid = calibrated.with_values(values)
     Q = nominal.random_configurations(CHAIN_CONFIGURATIONS, 0)
