@@ -23,7 +23,8 @@ import numpy as np
 
 from calib.calibration.accuracy.errors import pose_errors, target_rows
 from calib.calibration.estimators.base import Fit
-from calib.calibration.estimators.least_squares import fit_with, implausibility, length_notes
+from calib.calibration.estimators.least_squares import fit_with
+from calib.calibration.plausibility import chain_implausibility, implausibility, length_notes
 from calib.calibration.frames import median
 from calib.calibration.options import CalibrationOptions
 from calib.calibration.prepare import Setup, prepare
@@ -111,11 +112,13 @@ def _rotvec_alternatives(m: Measurements):
                rotation_from_rotvec(triple[:, order]))
 
 
-def alternatives(m: Measurements):
+def alternatives(m: Measurements, conventions: bool = False):
     """(sentence, measurements, length scale) for each common misreading of ``m`` undone: the
     orientation (by how it was read: :attr:`Measurements.orientation`), two joint columns of the
-    same kind swapped, revolute joint units (degrees <-> radians), position units (metres <->
-    mm; the length scale is the factor the positions were multiplied by, else 1)."""
+    same kind swapped, with ``conventions`` a revolute joint counted the other way (another
+    convention's sign) or from another zero (+-90, 180 degrees), revolute joint units (degrees <->
+    radians), position units (metres <-> mm; the length scale is the factor the positions were
+    multiplied by, else 1)."""
     if m.rotation is not None and m.orientation is not None:
         rot = []
         if m.orientation.startswith("euler:"):
@@ -135,6 +138,19 @@ def alternatives(m: Measurements):
                 q[:, [i, j]] = q[:, [j, i]]
                 yield (f"the joint columns {names[i]!r} and {names[j]!r} look swapped: check the joint "
                        f"order of the file against the URDF's chain", replace(m, q=q), 1.0)
+    if conventions:
+        for i in np.flatnonzero(~pr):
+            q = m.q.copy()
+            q[:, i] = -q[:, i]
+            yield (f"the values of joint {names[i]!r} look counted the other way than the URDF's axis (another "
+                   f"convention's sign): negate that column", replace(m, q=q), 1.0)
+        for i in np.flatnonzero(~pr):
+            for deg in (90, -90, 180):
+                q = m.q.copy()
+                q[:, i] += math.radians(deg)
+                yield (f"the values of joint {names[i]!r} look counted from another zero than the URDF's "
+                       f"(another convention's, {-deg:+d} deg from it): add {deg:+d} deg to that column",
+                       replace(m, q=q), 1.0)
     if not pr.all():
         for factor, sentence in ((math.pi / 180, "the revolute joint values look in degrees but were read as "
                                   "radians: name the columns <joint>_deg"),
@@ -179,19 +195,22 @@ def misreadings(setup: Setup, fit: Fit, options: CalibrationOptions, *, implausi
     rotation, neither larger; positions compared in the units of the rows as read); the
     survivors (at most :data:`MAX_FITS`, best first) are fitted. A fit of the rows as read that
     moved link lengths far from the URDF's (positions in metres named _mm shrink the robot and
-    fit to the noise) is also checked; there a misreading is named when its fit keeps the
-    lengths near the URDF's at no larger noise. (Touch data: none; their measured rows are
-    judged by the fit's outlier check.)"""
+    fit to the noise), or whose chain is not the URDF's robot (a joint counted the other way:
+    the fit flips axes and fits to the noise), is also checked; there a misreading is named
+    when its fit keeps the chain the URDF's at no larger noise."""
     if setup.touch is not None:
         return []
     pos, rot = _noise(fit)
-    far = bool(length_notes(setup.nominal, fit))
+    far = bool(length_notes(setup.nominal, fit.model)) or \
+        (implausible and bool(chain_implausibility(setup.nominal, fit.model, setup.measure)))
     if not (implausible or far or pos > SUSPECT_POS_M or rot > SUSPECT_ROT_RAD):
         return []
     opts = replace(options, cv=0, sigma_pos=None, sigma_rot=None)
     _, (p0, r0) = _screen(setup, setup.cal)
     screened = []
-    for sentence, alt, scale in alternatives(setup.cal):
+    # (a joint's sign and zero only for a refused fit: the chain rule finds what they do; noisy
+    # data, a camera's, do not pay 4 screens per joint)
+    for sentence, alt, scale in alternatives(setup.cal, conventions=implausible):
         try:
             alt_setup, (p1, r1) = _screen(setup, alt)
         except CalibError:
@@ -208,16 +227,17 @@ def misreadings(setup: Setup, fit: Fit, options: CalibrationOptions, *, implausi
             continue
         a_pos, a_rot = _noise(alt_fit)
         gain = max(pos * scale / max(a_pos, 1e-300), rot / max(a_rot, 1e-300) if a_rot else 1.0)
-        better = gain >= MISREADING_GAIN or (far and not length_notes(setup.nominal, alt_fit))
+        better = gain >= MISREADING_GAIN or far     # (the chain of a plausible fit: checked below)
         worse = a_pos > 1.2 * pos * scale or a_rot > 1.2 * rot
         if not better or worse or alt_fit.solver.status != "converged" or \
                 implausibility(setup.nominal, alt_fit, sigma_pos_given=False, sigma_rot_given=False):
             continue
         shown = f"{a_pos * 1e3:.3g} mm" + (f", {a_rot:.3g} rad" if a_rot else "")
         was = f"{pos * 1e3:.3g} mm" + (f", {rot:.3g} rad" if a_rot else "")
-        if far and not length_notes(setup.nominal, alt_fit):
-            shown += " with the link lengths near the URDF's"
         if scale != 1.0:
-            was += " in the units as read, with link lengths far from the URDF's" if far else " in the units as read"
+            was += " in the units as read"
+        if far:
+            shown += " with the URDF's chain"
+            was += (", " if scale != 1.0 else " ") + "with a chain far from the URDF's"
         found.append((gain, f"likely cause: {sentence} (the data then fit to {shown} instead of {was})"))
     return [s for _, s in sorted(found, key=lambda g: -g[0])]

@@ -59,17 +59,6 @@ LOCAL_MINIMUM_RATIO = 0.9
 #: origin are refused (wrong units or gross errors): the longest-range laser trackers measure
 #: to 160 m (Leica AT403, 320 m diameter), so 200 m bounds any tracker or camera set-up.
 TRACKER_RANGE_M = 200.0
-#: A calibrated model whose calibration rows keep a position RMS error above this fraction of
-#: the robot's reach, or an orientation RMS error above IMPLAUSIBLE_ROT_RAD, does not describe
-#: the data (a joint column in radians read as degrees leaves 60 % of a UR5's reach): a note
-#: says so. Real set-ups stay far below (a camera on a UR5 with an unmodelled gear error: 2 mm,
-#: 0.2 % of its reach, and 0.01 rad).
-IMPLAUSIBLE_REACH_FRACTION = 0.05
-IMPLAUSIBLE_ROT_RAD = 0.1
-#: A joint's length parameter (d, a) identified further than this fraction of the reach from its
-#: nominal value gets a note (no robot is built so far from its drawing; joint offsets and
-#: twists can be off by any angle, and the frames by any distance).
-IMPLAUSIBLE_LENGTH_FRACTION = 0.1
 #: Below this many residual components per free parameter (a mean leverage above 10 %), the
 #: outlier check always judges the rows against a robust (Huber) fit: a least-squares fit of
 #: few rows spreads gross errors over the others and inflates the noise estimate until none

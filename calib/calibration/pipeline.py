@@ -56,10 +56,12 @@ from calib.calibration.accuracy.errors import AccuracyStats, BeforeAfter, accura
 from calib.calibration.accuracy.validation import consistency_notes
 from calib.calibration.diagnose import misreadings
 from calib.calibration.estimators.base import Estimate
-from calib.calibration.estimators.least_squares import implausibility, length_notes, method_notes
+from calib.calibration.estimators.least_squares import method_notes
 from calib.calibration.estimators.resolve import resolve_estimator
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
+from calib.calibration.plausibility import (compliance_refusal, implausibility, length_notes,
+                                            validation_implausibility)
 from calib.calibration.prepare import Setup, prepare, with_gravity_for
 from calib.calibration.result import CalibrationResult, parameter_table
 from calib.calibration.accuracy.statistics import Statistics, group_fits, statistics_notes, statistics_stage
@@ -173,15 +175,25 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
         fit_notes = list(stats.refusals) + fit_notes
     log.info("statistics: rank %d, predicted held-out RMS %.4g mm", stats.rank,
              (stats.predicted_holdout or stats.predicted)["position_rms"] * 1e3)
-    notes += fit_notes + statistics_notes(stats) + compliance_notes(est.fit.model, est.fit.free, stats.covariance) \
+    # physics that contradicts itself (a joint turning against its load) is refused
+    physics = [] if setup.touch is not None else compliance_refusal(est.fit.model, est.fit.free, stats.covariance,
+                                                                     est.problem.Q)
+    notes += fit_notes + statistics_notes(stats) + physics \
+        + compliance_notes(est.fit.model, est.fit.free, stats.covariance, refused=bool(physics)) \
         + payload_note(est.fit.model, est.problem)
     stages.start("cross-validation")
     cross, cv_notes = held_out_error(setup, est.fit, est.problem, est.selection, opts.folds, opts.lm)
     errors = est.fit.errors             # (made from the kept residuals: once for both uses below)
     accuracy = accuracy_after(accuracy, est.fit.model, errors, setup.val, setup.nominal.targets, kin)
+    # validation figures that cannot be right (positions in another unit) are refused
+    units = validation_implausibility(est.fit.model, setup.val, accuracy.val_rows, errors.subset(est.fit.keep),
+                                      accuracy.validation_after)
+    refusal = next(iter(physics + units), None)
+    if refusal is not None and status == "converged":
+        status, message = "implausible", refusal
     stages.start("done")
     return make_result(setup, est, stats, opts, accuracy=accuracy, errors=errors, cross=cross,
-                       status=(status, message), notes=notes + cv_notes, wall_time=time.perf_counter() - t0)
+                       status=(status, message), notes=notes + cv_notes + units, wall_time=time.perf_counter() - t0)
 
 
 def prepare_stage(robot: RobotModel, measurements: Measurements, validation: Measurements | None,
@@ -222,7 +234,7 @@ def verdict(setup: Setup, est: Estimate, opts: CalibrationOptions) -> tuple[str,
                                  sigma_touch_given=opts.sigma_touch is not None)
     causes = misreadings(setup, fit, opts, implausible=bool(implausible) or fit.solver.status != "converged")
     implausible = causes + implausible
-    notes = list(fit.notes) + implausible + length_notes(setup.nominal, fit)
+    notes = list(fit.notes) + implausible + length_notes(setup.nominal, fit.model)
     status, message = fit.solver.status, fit.solver.message
     if implausible and (status == "converged" or causes):
         status, message = "implausible", implausible[0]

@@ -123,6 +123,8 @@ def prepare(robot: RobotModel, measurements: Measurements, validation: Measureme
             notes.append(f"the {val.n_poses} 'val' rows of the measurements are held out; the "
                          f"validation statistics use the separate validation set")
         val = validation
+    val, uncalibrated = _calibrated_targets_only(cal, val)
+    notes += uncalibrated
     if val is not None and val.n_poses == 0:
         val = None
     measure = "pose" if cal.has_orientation else "position"
@@ -137,6 +139,25 @@ def prepare(robot: RobotModel, measurements: Measurements, validation: Measureme
     _check_enough_rows(start, cal, measure, measurements.source)
     return Setup(robot, start, cal, val, measure, rebased, suspect,
                  kin if start is robot else ChainKinematics(start)), notes
+
+
+def _calibrated_targets_only(cal: Measurements, val: Measurements | None) -> tuple[Measurements | None, list[str]]:
+    """The validation rows without those of targets that have no calibration rows, and a note
+    for each such target: its offset is never calibrated (it stays where the model puts it), so
+    its rows would measure that, not the calibration (a target measured only in validation rows
+    put 40.7 mm into a validation summary of 0.05 mm ones)."""
+    if val is None or val.target is None or cal.target is None:
+        return val, []
+    have = set(cal.target_ids)
+    missing = [t for t in val.target_ids if t not in have]
+    if not missing:
+        return val, []
+    ids = np.asarray(val.target, dtype=object)
+    out = np.isin(ids, missing)
+    notes = [f"target {t}: no calibration rows, not calibrated (its offset stays the model's); its "
+             f"{int(np.count_nonzero(ids == t))} validation row(s) are left out of the validation "
+             f"summary" for t in missing]
+    return val.subset(~out), notes
 
 
 def _check_enough_rows(start: RobotModel, cal: Measurements, measure: str, source) -> None:

@@ -24,6 +24,7 @@ from calib.calibration.estimators.base import vce_fixed_point
 from calib.calibration.estimators.least_squares import fit_with
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
+from calib.calibration.plausibility import negative_compliances
 from calib.calibration.prepare import prepare, with_gravity_for
 from calib.calibration.accuracy.validation import (standard_error, fold_labels, fold_normal_equations, held_out_summary,
                                           newton_held_out)
@@ -85,20 +86,17 @@ def placeholder_masses(robot: RobotModel) -> str | None:
     return None
 
 
-def compliance_notes(model: RobotModel, free, covariance: np.ndarray) -> list[str]:
+def compliance_notes(model: RobotModel, free, covariance: np.ndarray, *, refused: bool = False) -> list[str]:
     """Notes on the fitted compliances of ``model`` (a model with compliance; [] without): each
     free compliance more than NEGATIVE_COMPLIANCE_SIGMAS standard deviations below zero (free,
-    covariance: the fit's free parameter names and their covariance, SI), and placeholder masses
-    in the URDF that gives the gravity torques."""
+    covariance: the fit's free parameter names and their covariance, SI; not when ``refused``:
+    the refusal's sentence names them, calib.calibration.plausibility.compliance_refusal), and
+    placeholder masses in the URDF that gives the gravity torques."""
     if not model.has_compliance:
         return []
     notes = []
-    std = dict(zip(free, np.sqrt(np.maximum(np.diag(covariance), 0.0))))
-    neg = []
-    for name, c in zip(model.compliance_names, model.compliances()):
-        s = std.get(name)
-        if s is not None and s > 0 and c < -NEGATIVE_COMPLIANCE_SIGMAS * s:
-            neg.append(f"{name} = {c * 1e6:.4g} urad/(N m), {-c / s:.1f} std below zero")
+    neg = [] if refused else [f"{name} = {c * 1e6:.4g} urad/(N m), {z:.1f} std below zero"
+                              for name, c, z in negative_compliances(model, free, covariance, NEGATIVE_COMPLIANCE_SIGMAS)]
     if neg:
         notes.append("negative joint compliance: " + "; ".join(neg) + ". A joint does not turn against the "
                      "load it carries: the gravity direction or the payload (mass, centre of mass) is likely "

@@ -180,7 +180,8 @@ def parse_constraints(text: str):
     """``point:N,plane:N,sphere:RADIUS_MM,measured:N`` -> (features (N point ids P1.., N planes
     A.. (faces of one cube, perpendicular in threes), a sphere S1.. of each radius), the number of
     rows measured by an instrument)."""
-    from calib.model.touch import Feature
+    from calib.model.touch import MAX_SPHERE_RADIUS_M, Feature
+    from calib.model.touch_simulate import MAX_FEATURES, MAX_ROWS
 
     features = []
     counts = {"point": 0, "plane": 0, "sphere": 0, "measured": 0}
@@ -195,8 +196,18 @@ def parse_constraints(text: str):
             raise ParameterError(f"--constraint: {part.strip()!r} is not point:N, plane:N, sphere:RADIUS_MM "
                                  f"or measured:N (N a positive count, RADIUS_MM a positive radius in mm)")
         if kind == "measured":
-            counts["measured"] += int(number)
+            counts["measured"] += int(number) if number <= MAX_ROWS else MAX_ROWS + 1
+            if counts["measured"] > MAX_ROWS:
+                raise ParameterError(f"--constraint {text!r}: more than {MAX_ROWS:,} measured rows")
             continue
+        if len(features) + (1 if kind == "sphere" else number) > MAX_FEATURES:
+            raise ParameterError(f"--constraint {text!r}: {len(features) + (1 if kind == 'sphere' else number):,.0f} "
+                                 f"features, at most {MAX_FEATURES} (each is reached by inverse kinematics from "
+                                 f"many starts, about a second per feature of 100 rows; a touch calibration "
+                                 f"fits 3 unknowns per feature)")
+        if kind == "sphere" and number * 1e-3 > MAX_SPHERE_RADIUS_M:
+            raise ParameterError(f"--constraint: sphere:{value.strip()} mm is larger than any sphere a robot touches "
+                                 f"(at most {MAX_SPHERE_RADIUS_M * 1e3:g} mm)")
         if kind == "sphere":
             counts["sphere"] += 1
             features.append(Feature("sphere", f"S{counts['sphere']}", radius=number * 1e-3))
@@ -222,6 +233,11 @@ def simulate_touch_file(args, robot, true_robot, rng, outputs, out_csv, describe
     from calib.model.touch_simulate import simulate_touch
 
     features, n_measured = parse_constraints(args.constraint)
+    from calib.model.touch_simulate import MAX_ROWS
+
+    if args.poses * len(features) > MAX_ROWS:
+        raise ParameterError(f"--poses {args.poses} rows for each of {len(features)} features: "
+                             f"{args.poses * len(features):,} touch rows, at most {MAX_ROWS:,} per simulation")
     sim = simulate_touch(true_robot, features, [args.poses] * len(features),
                          sigma=args.sigma_pos_mm * 1e-3, rng=rng)
     data = sim.data

@@ -218,7 +218,13 @@ class RobotModel:
         if not isinstance(offsets, Mapping):
             raise ParameterError(f"offsets must map each target id to its position (x, y, z) in metres, "
                                  f"got {type(offsets).__name__}")
-        ids = tuple(str(t) for t in offsets)
+        bad = [t for t in offsets if not isinstance(t, str) or not t]
+        if bad:
+            raise ParameterError(f"with_target_offsets: target ids are non-empty strings (the ids of the "
+                                 f"measurements' target column, e.g. {{'A': (0.1, 0, 0.05), 'B': ...}}), got "
+                                 f"{bad[0]!r} ({type(bad[0]).__name__}); expected keys such as "
+                                 f"{', '.join(repr(str(t)) for t in list(offsets)[:4])}")
+        ids = tuple(offsets)
         if len(ids) < 2:
             raise ParameterError(f"with_target_offsets: give two or more targets (got {len(ids)}); one "
                                  f"target is the tool frame itself (move it with the tool frame's URDF "

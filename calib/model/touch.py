@@ -37,6 +37,10 @@ FEATURE_UNKNOWNS = {"point": ("x", "y", "z"), "plane": ("a", "b", "d"), "sphere"
 FEATURE_UNITS = {"x": "m", "y": "m", "z": "m", "a": "rad", "b": "rad", "d": "m"}
 #: Residual components per row of each kind.
 RESIDUAL_SIZE = {"point": 3, "plane": 1, "sphere": 1}
+#: The largest sphere radius (metres): no sphere a robot touches is larger (over a 2 m reach a
+#: sphere of 1 km departs from a plane by 0.5 mm: give such a surface as a plane). A radius of
+#: 1e300 overflowed the closed-form start (its square) with a traceback.
+MAX_SPHERE_RADIUS_M = 1000.0
 
 
 @dataclass(frozen=True)
@@ -55,9 +59,9 @@ class Feature:
             raise DataError(f"a {self.kind} id must be a non-empty string, got {self.id!r}")
         if self.kind == "sphere":
             if (self.radius is None or isinstance(self.radius, bool) or not isinstance(self.radius, (int, float, np.number))
-                    or not np.isfinite(self.radius) or self.radius <= 0):
-                raise DataError(f"sphere {self.id!r}: expected a positive finite radius in metres, "
-                                f"got {self.radius!r}")
+                    or not np.isfinite(self.radius) or not 0 < self.radius <= MAX_SPHERE_RADIUS_M):
+                raise DataError(f"sphere {self.id!r}: expected a positive radius in metres, at most "
+                                f"{MAX_SPHERE_RADIUS_M:g} m (larger spheres are planes to a robot), got {self.radius!r}")
         elif self.radius is not None:
             raise DataError(f"{self.kind} {self.id!r}: only a sphere has a radius")
 

@@ -36,6 +36,12 @@ IK_TOL = 1e-10
 STARTS_PER_ROW = 12
 #: A probe touching a plane: the sine of its angle to the plane, at least (about 17 degrees).
 PROBE_MIN_SIN = 0.3
+#: The most features and touch rows one simulation makes: each feature is placed and reached by
+#: inverse kinematics from many random starts (about a second per feature of 100 rows), and a
+#: touch calibration fits 3 unknowns per feature (100 features: 300, beside the robot's);
+#: ``point:100000`` ran for days without a word.
+MAX_FEATURES = 100
+MAX_ROWS = 100_000
 #: Simulated joint values stay this far inside each limit (rad, or m for prismatic joints; at
 #: most 1 % of the range): a real controller's soft limits refuse a value on the limit itself.
 LIMIT_MARGIN = 1e-3
@@ -119,10 +125,15 @@ def simulate_touch(true_robot: RobotModel, features: Sequence[Feature], rows: Se
     if not isinstance(features, (list, tuple)) or not features or not all(isinstance(f, Feature) for f in features):
         raise DataError("features must be a non-empty list of Feature values (calib.Feature)")
     features = tuple(features)
+    if len(features) > MAX_FEATURES:
+        raise DataError(f"{len(features)} features: at most {MAX_FEATURES} per simulation (each is reached by "
+                        f"inverse kinematics from many starts; a touch calibration fits 3 unknowns per feature)")
     if (not isinstance(rows, (list, tuple, np.ndarray)) or len(rows) != len(features)
-            or not all(isinstance(r, (int, np.integer)) and not isinstance(r, bool) and 1 <= r <= 100_000
+            or not all(isinstance(r, (int, np.integer)) and not isinstance(r, bool) and 1 <= r <= MAX_ROWS
                        for r in rows)):
-        raise DataError(f"rows must give a number of rows (1 to 100,000) for each of the {len(features)} features")
+        raise DataError(f"rows must give a number of rows (1 to {MAX_ROWS:,}) for each of the {len(features)} features")
+    if sum(int(r) for r in rows) > MAX_ROWS:
+        raise DataError(f"{sum(int(r) for r in rows):,} touch rows in all: at most {MAX_ROWS:,} per simulation")
     cand = _candidate_points(true_robot, rng)
     K = len(features)
     truth, refs, normals = np.zeros((K, 3)), np.tile(np.eye(3), (K, 1, 1)), np.zeros((K, 3))

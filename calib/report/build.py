@@ -166,6 +166,16 @@ def residuals_csv_chunks(rows: ReportRows) -> list[bytes]:
     fmt = ",".join("%d" if n in ("row", "outlier") else "%s" if cols[n].dtype.kind in "OUS" else "%.9g"
                    for n in names) + "\n"
     values = [cols[n].astype(int) if n == "outlier" else cols[n] for n in names]
+    # text cells (file, set, target, pose_id) as cells no spreadsheet runs as a formula, quoted
+    # where they hold a comma or a quote (calib.io.csv.cells); their distinct values once each
+    from calib.io.csv.cells import csv_field
+
+    for k, n in enumerate(names):
+        if cols[n].dtype.kind in "OUS":
+            col = cols[n].tolist()
+            safe = {t: csv_field(str(t)) for t in set(col)}
+            if any(safe[t] != t for t in safe):
+                values[k] = np.array([safe[t] for t in col], dtype=object)
     out = [("# per-row residuals of a calib report: p_model - p_measured (mm) and the rotation vector of "
             "R_model R_measured^T (rad) in the meas frame\n" + ",".join(names) + "\n").encode("utf-8")]
     for s in range(0, rows.n_rows, _CSV_CHUNK_ROWS):

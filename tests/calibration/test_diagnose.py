@@ -98,7 +98,7 @@ def test_clean_data_are_not_checked_and_noisy_data_get_no_cause(ur5, monkeypatch
     robot, meas, _ = ur5
     calls = []
     original = diagnose.alternatives
-    monkeypatch.setattr(diagnose, "alternatives", lambda m: calls.append(1) or original(m))
+    monkeypatch.setattr(diagnose, "alternatives", lambda m, **kw: calls.append(1) or original(m, **kw))
     assert calib.calibrate(robot, meas, params="base", cv=0).status == "converged"
     assert calls == []
     true = calib.apply_deviations(robot, calib.random_deviations(robot, 0.5e-3, 3))

@@ -90,7 +90,7 @@ def test_the_outlier_passes_together_never_leave_out_more_than_half(acc, world):
     more: 34 of 40 left out, the 6 rows fitted exactly, refused as inconsistent. Later passes
     now judge few rows against the Huber fit (the trimmed fit is for the first judgement), and
     the passes together may never leave out more than half of the rows."""
-    from calib.calibration.estimators.robust import too_many_gross
+    from calib.calibration.plausibility import too_many_gross
 
     robot, true, truth = world
     run = acc.judge(robot, true, truth[False], 40, False, 0.4, 1022, {"params": "base", "cv": 0})

@@ -155,18 +155,34 @@ def test_terms_auto_leaves_small_data_as_they_were(bundled_robot):
         calib.calibrate(bundled_robot, m, periodic=1)
 
 
-def test_negative_compliance_gets_a_note():
-    robot = calib.load_robot("ur10")
+def _negative_c3(robot, payload, c3):
     rng = np.random.default_rng(2)
-    payload = Payload(8.0, np.array([0.0, 0.0, 0.1]))
-    true = with_gravity(robot, payload=payload, values=[0, 4e-6, -6e-6, 5e-6, 0, 0])
+    true = with_gravity(robot, payload=payload, values=[0, 4e-6, c3, 5e-6, 0, 0])
     m = calib.simulate_measurements(true, robot.random_configurations(150, rng), sigma_pos=SIGMA_POS,
                                     sigma_rot=SIGMA_ROT, rng=rng)
-    res = calib.calibrate(robot, m, method="lm", params="base", cv=0, compliance=True, payload=payload)
-    notes = [n for n in res.notes if n.startswith("negative joint compliance")]
-    assert len(notes) == 1 and "c3 = -6" in notes[0] and "c2" not in notes[0]
-    sig = float(re.search(r"c3 = \S+ urad/\(N m\), (\S+) std below zero", notes[0]).group(1))
+    return calib.calibrate(robot, m, method="lm", params="base", cv=0, compliance=True, payload=payload)
+
+
+def test_negative_compliance_is_refused_and_a_borderline_one_gets_a_note():
+    """A compliance far below zero (c3 = -6 urad/(N m), tens of std) refuses the calibration
+    (issue 43: physics that contradicts itself), naming it and not c2; one 3 to 5 std below
+    zero gets the note (the same rows, c3 set so that its estimate lands 4 std below zero)."""
+    robot = calib.load_robot("ur10")
+    payload = Payload(8.0, np.array([0.0, 0.0, 0.1]))
+    res = _negative_c3(robot, payload, -6e-6)
+    assert res.status == "implausible"
+    assert res.message.startswith("the fitted joint compliances are significantly negative: c3 = -6")
+    assert "c2" not in res.message and not any(n.startswith("negative joint compliance") for n in res.notes)
+    sig = float(re.search(r"c3 = \S+ urad/\(N m\), (\S+) std below zero", res.message).group(1))
     assert sig > 10                     # 6 urad/(N m) at a std of ~0.05
+    c3 = res.parameter("c3")
+    noise = c3.identified + 6e-6                # (the rows' own pull on c3: the same in the next fit)
+    res = _negative_c3(robot, payload, -4 * c3.std - noise)
+    assert res.status == "converged"
+    notes = [n for n in res.notes if n.startswith("negative joint compliance")]
+    assert len(notes) == 1 and "c2" not in notes[0]
+    sig = float(re.search(r"c3 = \S+ urad/\(N m\), (\S+) std below zero", notes[0]).group(1))
+    assert 3.5 < sig < 4.5
 
 
 def test_placeholder_masses_get_a_note(tmp_path):

@@ -488,7 +488,7 @@ def test_two_nests_under_one_name_that_bend_the_robot_are_refused():
     data = TouchData(np.vstack([sim.data.q, Q[ok]]), np.concatenate([sim.data.feature, np.zeros(ok.sum(), int)]),
                      sim.data.features)
     res = calibrate(robot, data, cv=0)
-    assert res.status == "implausible" and "the calibrated model is not this robot" in res.message
+    assert res.status == "implausible" and "the calibrated robot is not the URDF's" in res.message
     assert "two features touched under one name" in res.message
 
 

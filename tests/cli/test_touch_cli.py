@@ -408,3 +408,37 @@ def test_measured_rows_too_few_to_estimate_their_noise_are_refused(urdf, tmp_pat
     assert code == 0, err
     pos = next(g for g in json.loads((tmp_path / "r4.json").read_text())["groups"] if g["name"] == "position")
     assert not pos["noise_given"] and pos["redundancy"] > 2 and 0.005 < pos["noise_estimated_mm"] < 0.05
+
+
+def test_simulate_touch_counts_are_bounded(urdf, tmp_path, capsys):
+    """--constraint point:100000 ran for minutes (days: 100 rows of each by inverse kinematics)
+    with no output; point:1e12 looped. Now exit 2 at once naming the bound, nothing written;
+    the clean twin (point:2) writes its 2 x 5 rows."""
+    import time
+
+    out = tmp_path / "t.csv"
+    for spec, what in (("point:100000", "100,000 features, at most 100"),
+                       ("point:1e12", "1,000,000,000,000 features, at most 100"),
+                       ("point:60,plane:50", "110 features, at most 100"),
+                       ("measured:1e9,point:2", "more than 100,000 measured rows"),
+                       ("sphere:1e300", "larger than any sphere a robot touches")):
+        t = time.perf_counter()
+        code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", out, "--constraint", spec)
+        assert code == 2 and what in err and err.count("\n") == 1 and not out.exists(), err
+        assert time.perf_counter() - t < 10
+    code, _, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", out, "--constraint", "point:50",
+                       "--poses", 5000)
+    assert code == 2 and "250,000 touch rows, at most 100,000" in err and not out.exists()
+    from calib import CalibError, load_robot
+    from calib.model.touch import Feature
+    from calib.model.touch_simulate import simulate_touch
+
+    robot = load_robot(urdf, tool_frame="tool0")
+    with pytest.raises(CalibError, match="101 features: at most 100 per simulation"):
+        simulate_touch(robot, [Feature("point", f"P{k}") for k in range(101)], [1] * 101)
+    with pytest.raises(CalibError, match="150,000 touch rows in all: at most 100,000"):
+        simulate_touch(robot, [Feature("point", "P1"), Feature("point", "P2")], [100_000, 50_000])
+    code, out_text, err = run(capsys, "simulate", urdf, "--tool-frame", "tool0", "-o", out, "--constraint",
+                              "point:2", "--poses", 5)
+    assert code == 0, err
+    assert out_text.startswith(f"Simulated 10 touch rows of {urdf} -> {out}")

@@ -92,6 +92,29 @@ def test_bad_input_names_file_row_column(ur10, tmp_path, header, line, row, colu
     assert "\n" not in str(e)
 
 
+def test_a_sphere_radius_of_1e300_is_a_one_line_error(ur10, tmp_path, capsys):
+    """A sphere radius of 1e300 mm: an OverflowError traceback (its square in the closed-form
+    start). Now the reader's one-line error naming the file, row and column, exit 2 from the
+    command line with nothing written; Feature refuses it too. The clean twin (50 mm) reads and
+    its radius is the file's."""
+    from calib.cli.main import main
+
+    path = tmp_path / "big.csv"
+    path.write_text(f"{JOINTS},sphere,radius_mm\n0,0,0,0,0,0,S,1e300\n0,0,0,0,0,10,S,1e300\n")
+    with pytest.raises(MeasurementFormatError, match=r"sphere 'S': radius 1e\+300 is larger than any sphere a "
+                                                     r"robot touches \(1e\+06 in the column's unit") as info:
+        read_touch(path, ur10)
+    assert (info.value.row, info.value.column) == (2, "radius_mm") and "\n" not in str(info.value)
+    with pytest.raises(CalibError, match="at most 1000 m"):
+        Feature("sphere", "S", radius=1e300)
+    code = main(["calibrate", erd_urdf("ur10"), str(path), "--tool-frame", "tool0", "-o", str(tmp_path / "c.urdf")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "row 2, column 'radius_mm'" in err
+    assert not (tmp_path / "c.urdf").exists()
+    path.write_text(f"{JOINTS},sphere,radius_mm\n0,0,0,0,0,0,S,50\n0,0,0,0,0,10,S,50\n")
+    assert read_touch(path, ur10).features[0].radius == pytest.approx(0.05, abs=1e-15)
+
+
 def test_one_sphere_one_radius(ur10, tmp_path):
     path = tmp_path / "bad.csv"
     path.write_text(f"{JOINTS},sphere,radius_mm\n0,0,0,0,0,0,S,50\n0,0,0,0,0,10,S,50.5\n")

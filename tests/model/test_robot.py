@@ -197,3 +197,19 @@ def test_input_never_modified(tmp_path):
     before = p.read_bytes()
     load_robot(p)
     assert p.read_bytes() == before
+
+
+def test_target_offsets_with_keys_that_are_not_ids_are_refused():
+    """with_target_offsets({1: ..., 2: ...}) (integer keys) raised a bare KeyError; now a
+    ParameterError naming the expected keys. String ids give the targets."""
+    from calib import CalibError
+
+    robot = load_robot(BUNDLED_URDF)
+    with pytest.raises(CalibError, match=r"target ids are non-empty strings .* got 1 \(int\); expected keys such "
+                                         r"as '1', '2'") as info:
+        robot.with_target_offsets({1: (0.1, 0, 0), 2: (0, 0.1, 0)})
+    assert type(info.value).__name__ == "ParameterError"
+    model = robot.with_target_offsets({"1": (0.1, 0, 0), "2": (0, 0.1, 0)})
+    assert model.targets == ("1", "2")
+    np.testing.assert_allclose(model.T_flange_tool(1)[:3, 3] - model.T_flange_tool(0)[:3, 3],
+                               robot.T_flange_tool()[:3, :3] @ np.array([-0.1, 0.1, 0]), atol=1e-15)

@@ -14,7 +14,7 @@ import numpy as np
 from calib.calibration.accuracy.errors import registered_residuals, target_rows
 from calib.calibration.accuracy.validation import data_consistency
 from calib.calibration.estimators.base import Fit, GroupFit
-from calib.calibration.options import IMPLAUSIBLE_LENGTH_FRACTION
+from calib.calibration.plausibility import LENGTH_FRACTION as IMPLAUSIBLE_LENGTH_FRACTION
 from calib.calibration.prepare import Setup, reach_of
 from calib.calibration.accuracy.validation import row_traces
 from calib.calibration.accuracy.workspace import (predict_workspace, predicted_tool_error, propagate_covariance, propagated,

@@ -5,16 +5,13 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Sequence
+from dataclasses import dataclass, replace
+from typing import Sequence
 
 import numpy as np
 
-from calib.calibration.accuracy.errors import AccuracyStats, target_rows
+from calib.calibration.accuracy.errors import target_rows
 from calib.calibration.options import (
-    IMPLAUSIBLE_LENGTH_FRACTION,
-    IMPLAUSIBLE_REACH_FRACTION,
-    IMPLAUSIBLE_ROT_RAD,
     ROBUST_CHECK_BELOW_COMPONENTS_PER_PARAM,
     STEP_START_MU0,
     TRIMMED_MAX_OUTLIER_SHARE,
@@ -23,20 +20,19 @@ from calib.calibration.options import (
     WARM_MU0,
     CalibrationOptions,
 )
-from calib.calibration.prepare import Setup, reach_of, robot_memo, robot_reach
+from calib.calibration.plausibility import leftover_gross, too_many_gross
+from calib.calibration.prepare import Setup
 from calib.calibration.estimators.base import (Estimate, Fit, Linearised, check_group_redundancy, linearised,
                                                noise_estimate, vce_fixed_point)
 from calib.calibration.estimators.outlier import Outlier
-from calib.calibration.estimators.robust import (can_trim, components, flag_outliers, judge_rows, leftover_gross,
-                                                 levels_of, robust_sigmas, too_many_gross)
+from calib.calibration.estimators.robust import can_trim, components, flag_outliers, judge_rows, levels_of, robust_sigmas
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, SIGMA_TOUCH_M
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
 from calib.calibration.estimators.solver import Solver, check_local_minimum, solve_logged, solver_for
 from calib.solvers.lm import LMTrace, SolverResult
-from calib.solvers.inverse import normal_inverse
 from calib.solvers.blocks import GROUPS
-from calib.solvers.problem import CHI2_ESCAPE, NormalEquations, Problem
+from calib.solvers.problem import Problem
 
 
 log = logging.getLogger(__name__)
@@ -336,85 +332,6 @@ def method_notes(setup: Setup, method: str) -> list[str]:
     return []
 
 
-def implausibility(nominal: RobotModel, fit: Fit, *, sigma_pos_given: bool,
-                   sigma_rot_given: bool, sigma_touch_given: bool = False) -> list[str]:
-    """Why the fit's result cannot be trusted, one sentence each (empty when it can): residuals
-    far above given noise levels (every uncertainty and prediction is that much too small),
-    errors no robot and instrument give. A calibration with any of these is not called converged
-    (status "implausible"). sigma_pos_given / sigma_rot_given: which noise levels the user gave
-    (each group is judged against its own; sigma_touch_given: the touch rows' noise)."""
-    notes = list(fit.refusals)
-    nz = fit.noise
-    given = [("position", nz.chi2_pos)] if sigma_pos_given else []
-    if sigma_rot_given and nz.chi2_rot is not None:
-        given.append(("orientation", nz.chi2_rot))
-    if sigma_touch_given and nz.chi2_touch is not None:
-        given.append(("touch", nz.chi2_touch))
-    worst = max(given, key=lambda g: g[1], default=None)
-    if worst is not None and fit.solver.status == "converged" and worst[1] > CHI2_ESCAPE:
-        notes.append(f"the fit converged but its {worst[0]} residuals are {math.sqrt(worst[1]):.1f} times the "
-                     f"given noise (reduced chi^2 {worst[1]:.3g}): a wrong sigma, or errors the model "
-                     f"does not describe; omit the noise levels to estimate them from the data")
-    # judged on the rows the fit kept: a gross row it flagged is not the model's failure
-    return notes + _implausible_fit_notes(nominal, fit.errors.subset(fit.keep)) + length_refusals(nominal, fit)
-
-
-def length_notes(nominal: RobotModel, fit: Fit) -> list[str]:
-    """Notes naming link lengths identified far from ``nominal``'s. A note, not a refusal: a
-    length tied to another (d2 and d3 of parallel axes, d6 and the tool's z) can move along the
-    tie with the model's kinematics exact (from a start 1.55 rad off in alpha2: d2 -26 m,
-    d3 +26 m, error to the truth 1e-9 m); :func:`length_refusals` refuses the lengths that move
-    the tool positions."""
-    return _implausible_length_notes(nominal, fit.model)
-
-
-def length_refusals(nominal: RobotModel, fit: Fit) -> list[str]:
-    """The one rule on link lengths far from the URDF's, for every kind of data: lengths
-    identified further than IMPLAUSIBLE_LENGTH_FRACTION of the reach from ``nominal``'s
-    (:func:`length_notes`) that carry the fit are refused. They carry it when, put back to the
-    URDF's values, no other parameter (and no rigid motion of the meas frame) brings the tool
-    positions over random configurations back within that fraction of the reach (RMS) of the
-    calibrated ones (an LM fit of those positions): a tie moves lengths, not the tool (d2 -26 m
-    and d3 +26 m of parallel axes, d6 +172 mm against the tool's z: a note). Two nests touched
-    under one point's name were explained by an arm whose a2 and a3 shrank by 630 and 580 mm,
-    fitted to the noise: refused. One sentence, else empty."""
-    far = _far_lengths(nominal, fit.model)
-    if not far:
-        return []
-    from calib.calibration.accuracy.workspace import workspace_configurations
-    from calib.solvers.lm import LMOptions, levenberg_marquardt
-
-    model = fit.model
-    Q = workspace_configurations(nominal)
-    values = model.values.copy()
-    for name, _ in far:
-        values[model.index(name)] = nominal.value(name)
-    reset = model.with_values(values)
-    p_cal = ChainKinematics(model).frame_poses(Q)[1]
-    others = [k for k, p in enumerate(reset.parameters) if p.name not in dict(far) and p.group != "compliance"]
-    problem = Problem(ChainKinematics(reset), Q, p_cal, None, reset.values, others, 1e-3, 1.0)
-    sol = levenberg_marquardt(problem, reset.values[others], options=LMOptions(max_iterations=50))
-    moved = float(np.sqrt(2.0 * sol.cost / len(Q))) * 1e-3
-    reach = reach_of(nominal)
-    if moved <= IMPLAUSIBLE_LENGTH_FRACTION * reach:
-        return []
-    shown = ", ".join(f"{name} {dev * 1e3:+.1f} mm" for name, dev in far)
-    return [f"the calibrated model is not this robot: its link lengths far from the URDF's ({shown}) carry the "
-            f"fit, the tool positions {moved * 1e3:.4g} mm (RMS over random configurations) from any model with "
-            f"the URDF's lengths, more than {100 * IMPLAUSIBLE_LENGTH_FRACTION:g} % of the robot's reach "
-            f"{reach * 1e3:.0f} mm; check the length unit of the positions, that the URDF is this robot's, and "
-            f"rows that contradict each other (two features touched under one name)"]
-
-
-def _far_lengths(nominal: RobotModel, calibrated: RobotModel) -> list[tuple[str, float]]:
-    """(name, deviation) of the link lengths (d, a) identified further than
-    IMPLAUSIBLE_LENGTH_FRACTION of the reach from ``nominal``'s (a slide's offset: any)."""
-    reach = reach_of(nominal)
-    return [(p.name, b - a) for p, a, b in zip(nominal.parameters, nominal.values, calibrated.values)
-            if p.group == "joint" and p.unit == "m" and abs(b - a) > IMPLAUSIBLE_LENGTH_FRACTION * reach
-            and not (p.kind == "d" and nominal.prismatic[p.joint - 1])]
-
-
 def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, outlier_k: float | None,
              keep: np.ndarray | None = None, kin: ChainKinematics | None = None, rank_deficit: int = 0,
              sigma_pos: float | None = None, sigma_rot: float | None = None,
@@ -507,43 +424,3 @@ class LeastSquares:
                            options.lm_variant)
         return fit_stage(setup, free, solve, sigma_pos=levels[0], sigma_rot=levels[1], outlier_k=None, keep=keep,
                          kin=kin)
-
-
-def _implausible_fit_notes(robot: RobotModel, after: AccuracyStats) -> list[str]:
-    """A note when the calibrated model leaves errors on its calibration rows that no robot and
-    instrument give (:data:`IMPLAUSIBLE_REACH_FRACTION` of the reach, :data:`IMPLAUSIBLE_ROT_RAD`):
-    the fit ran, but on data that do not belong to this robot as read."""
-    reach = robot_memo("reach", robot, (), lambda: robot_reach(robot))
-    pos = after.position["rms"]
-    rot = after.rotation["rms"] if after.rotation is not None else 0.0
-    what, check = [], []
-    if pos > IMPLAUSIBLE_REACH_FRACTION * reach:
-        what.append(f"a position RMS error of {pos * 1e3:.4g} mm ({100 * pos / reach:.0f} % of the robot's "
-                    f"reach {reach * 1e3:.0f} mm)")
-        check.append("the joint units (degrees read as radians, or radians as degrees), the joint order "
-                     "and the robot")
-    if rot > IMPLAUSIBLE_ROT_RAD:
-        what.append(f"an orientation RMS error of {rot:.3g} rad")
-        check.append("the orientation columns (quaternion order w, x, y, z; --euler sequence; a rotation "
-                     "vector read as angles: --convention ur; angle units) and the tool frame")
-    if not what:
-        return []
-    return [f"the calibrated model does not describe these measurements: on the calibration rows it "
-            f"leaves {' and '.join(what)}; check {', and '.join(check)}"]
-
-
-def _implausible_length_notes(nominal: RobotModel, calibrated: RobotModel) -> list[str]:
-    """A note naming the link lengths (d, a of the joints) identified further than
-    :data:`IMPLAUSIBLE_LENGTH_FRACTION` of the reach from their nominal values: no robot is built
-    that far from its drawing (positions in metres named _mm shrink a UR5's 425 mm link to
-    0.6 mm and the fit converges at the noise; the URDF of another robot model)."""
-    reach = robot_memo("reach", nominal, (), lambda: robot_reach(nominal))
-    far = [(p.name, b - a) for p, a, b in zip(nominal.parameters, nominal.values, calibrated.values)
-           if p.group == "joint" and p.unit == "m" and abs(b - a) > IMPLAUSIBLE_LENGTH_FRACTION * reach
-           and not (p.kind == "d" and nominal.prismatic[p.joint - 1])]   # (a slide's offset: any)
-    if not far:
-        return []
-    shown = ", ".join(f"{name} {dev * 1e3:+.1f} mm" for name, dev in far)
-    return [f"identified link lengths far from the URDF's: {shown} (more than "
-            f"{100 * IMPLAUSIBLE_LENGTH_FRACTION:g} % of the robot's reach {reach * 1e3:.0f} mm); check the "
-            f"length unit of the positions (metres named _mm?) and that the URDF is this robot's"]

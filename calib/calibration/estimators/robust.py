@@ -456,38 +456,3 @@ def _levels_text(everything, levels) -> str:
         unit = {"position": ("mm", 1e3), "rotation": ("rad", 1.0), "touch": ("mm", 1e3)}
         return ", ".join(f"{g} {levels[GROUPS.index(g)] * unit[g][1]:.3g} {unit[g][0]}" for g in everything.groups)
     return f"{levels[0] * 1e3:.3g} mm" + (f", {levels[1]:.3g} rad" if everything.has_orientation else "")
-
-
-def too_many_gross(flagged: int, rows: int) -> str:
-    """Why the data are refused when the outlier passes together flag more than
-    TRIMMED_MAX_OUTLIER_SHARE of the calibration rows (each pass judges only the rows kept by
-    the last: 16 gross of 40 position-only rows, then 18 good ones, left 6 rows fitted
-    exactly)."""
-    return (f"the data are inconsistent: the outlier check would leave out {flagged} of {rows} rows, more "
-            f"than the half that gross rows can be among consistent data; check the joint columns "
-            f"(order, units), the orientation columns and that the URDF is this robot's")
-
-
-def leftover_gross(everything: Problem, x: np.ndarray, keep: np.ndarray, red: tuple[float, ...],
-                   levels: tuple[float, ...], given: tuple[float | None, ...]) -> str:
-    """Why the least-squares fit at x of the kept rows cannot be trusted when, after the outlier
-    check, its estimated noise levels ``levels`` (see :func:`levels_of`) are still more than
-    ROBUST_CHECK_INFLATION times the robust ones (the median absolute residual): many rows are
-    gross by amounts that no fit separates from the others (60 of 100 rows 5 mm off: noise
-    estimated 2.2 mm, 1.4-2.1 times the robust level, none flagged), else empty. given : the
-    noise levels the user gave (None: estimated; given levels are judged by the chi-square test)."""
-    names = ("position", "orientation", "touch")
-    robust = robust_sigmas(everything, x, keep, red)
-    if isinstance(everything, BlockProblem):
-        present = [GROUPS[k] in everything.groups for k in range(3)]
-    else:
-        present = [True, everything.has_orientation]
-    ratios = [(g, lvl / r) for g, lvl, r, giv, here in zip(names, levels, robust, given, present)
-              if giv is None and here]
-    worst = max(ratios, key=lambda gr: gr[1], default=None)
-    if worst is None or worst[1] <= ROBUST_CHECK_INFLATION:
-        return ""
-    return (f"the data are inconsistent: after the outlier check the {worst[0]} noise estimated from the "
-            f"residuals is {worst[1]:.2g} times that of the median residual, so many rows are gross (more "
-            f"than half of them, or gross by amounts the check cannot separate); check the joint columns "
-            f"(order, units), the orientation columns and that the URDF is this robot's")

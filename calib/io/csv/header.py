@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from calib.errors import MeasurementFormatError
+from calib.io.csv.cells import read_cell
 
 if TYPE_CHECKING:
     from calib.io.csv.options import ReadOptions, Spec
@@ -181,7 +182,7 @@ class Vocabulary:
     def known(self, written: str) -> bool:
         """Whether a header name (as written) names one of these columns, even with a wrong or
         missing unit suffix (used to find the header line after a preamble)."""
-        name = written.strip()
+        name = read_cell(written.strip())
         m = _UNIT_IN_BRACKETS.match(name)
         low = (f"{m.group(1)}_{m.group(2)}" if m and m.group(1) else name).lower()
         if low in self.plain or low in self.suffixed:
@@ -231,7 +232,9 @@ class Header:
 
             lookalike = unread_group([renames.get(r.strip().lower(), r.strip()) for r in names], self._classify)
         for index, raw in enumerate(names):
-            name = raw.strip()
+            # (a name as calib writes it for spreadsheets, a quote before a formula lead, read
+            # back: calib.io.csv.cells; blanks around it dropped, a name's own kept)
+            name = read_cell(raw.strip())
             if name.lower() in renames:
                 self.renamed.append(name.lower())
                 name = renames[name.lower()]

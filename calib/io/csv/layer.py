@@ -25,7 +25,6 @@ Errors are :class:`calib.MeasurementFormatError`: one line naming the file, row 
 """
 from __future__ import annotations
 
-import csv
 from operator import methodcaller
 from pathlib import Path
 from typing import Sequence
@@ -33,6 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from calib.errors import MeasurementFormatError, ParameterError
+from calib.io.csv.cells import csv_text, read_cell  # noqa: F401  (csv_text: importable from here too)
 from calib.io.csv.lines import WHITESPACE, parse_number, records, split_fields
 from calib.io.csv.header import ANGLE_UNITS, LENGTH_UNITS, ORIENTATIONS, POSITION_COLUMNS, Column, Header
 from calib.io.csv.options import ReadOptions, Spec, Table
@@ -147,7 +147,8 @@ def _parse_rows(path: Path, spec: Spec, header: Header, delimiter: str, ncols: i
         for key, v in got[0].items():
             values[key][start:start + len(chunk)] = v
         for key, v in got[1].items():
-            labels[key].extend(v)
+            # (an id as calib writes it for spreadsheets, a quote before a formula lead: csv/cells.py)
+            labels[key].extend(map(read_cell, v) if any(t[:1] == "'" for t in v) else v)
         del chunk, got
     return values, labels, rows
 
@@ -375,17 +376,3 @@ def joint_columns(joint_names: Sequence[str], prismatic, q, angle_unit: str, len
     scale = np.where(prismatic, LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit])
     header = [f"{name}_{length_unit if p else angle_unit}" for name, p in zip(joint_names, prismatic)]
     return header, q / scale
-
-
-def csv_text(header: Sequence[str], rows, comment: str | None = None) -> str:
-    """CSV text (comma separated, ``\\n`` line ends): ``#`` comment lines, the header, the rows."""
-    from io import StringIO
-
-    buf = StringIO()
-    if comment is not None:
-        for line in str(comment).splitlines() or [""]:
-            buf.write(f"# {line}".rstrip() + "\n")
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(header)
-    writer.writerows(rows)
-    return buf.getvalue()

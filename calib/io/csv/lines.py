@@ -110,7 +110,15 @@ def read_lines(path: Path) -> list[str]:
                                      row=row) from None
     del data        # (a million rows: each copy of the file held at once costs 250 MB)
     if "\r" in text:
-        text = text.replace("\r\n", "\n").replace("\r", "\n")
+        if '"' in text and text.count("\r") != text.count("\r\n"):
+            # a carriage return of its own in a quoted field is the field's (a name that begins
+            # with one, as calib writes it: calib.io.csv.cells): line ends converted outside
+            # quotes only (between an even number of quotes from the start)
+            parts = text.split('"')
+            parts[::2] = [p.replace("\r\n", "\n").replace("\r", "\n") for p in parts[::2]]
+            text = '"'.join(parts)
+        else:
+            text = text.replace("\r\n", "\n").replace("\r", "\n")
     return text.split("\n")
 
 

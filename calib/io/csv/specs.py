@@ -255,7 +255,8 @@ def write_measurements(path: str | Path, measurements: Measurements, *, angle_un
     header += [name for name, t in zip(("set", "target", "pose_id", "name"), texts) if t is not None]
     rows = [[("" if v != v else repr(float(v))) for v in values[k]] + [str(t[k]) for t in texts if t is not None]
             for k in range(m.n_poses)]
-    atomic_write_text(path, csv_text(header, rows, comment))
+    n_text = sum(t is not None for t in texts)
+    atomic_write_text(path, csv_text(header, rows, comment, range(len(header) - n_text, len(header))))
 
 
 # ====================================================================== poses
@@ -284,7 +285,7 @@ def write_poses(path: str | Path, robot, q: np.ndarray, *, angle_unit: str = "de
         raise ParameterError(f"length_unit must be 'mm' or 'm', got {length_unit!r}")
     header, values = joint_columns(robot.joint_names, robot.prismatic, q, angle_unit, length_unit)
     atomic_write_text(path, csv_text(header, [[repr(float(v)) for v in row] for row in values],
-                                     comment))
+                                     comment, ()))
 
 
 def read_poses(path: str | Path, robot, *, options: ReadOptions | None = None) -> np.ndarray:
@@ -400,4 +401,5 @@ def write_compensation(path: str | Path, result, *, angle_unit: str = "deg",
                     f"{math.degrees(result.frame_rotation_std[k]):.4g}"]
         row.append("" if result.status[k] == "ok" and not framed else result.describe(k))
         rows.append(row)
-    atomic_write_text(path, csv_text(header, rows, comment))
+    text = [header.index("status"), len(header) - 1]     # (status and detail: the rest are numbers)
+    atomic_write_text(path, csv_text(header, rows, comment, text))

@@ -169,7 +169,7 @@ def read_touch(csv_path: str | Path, robot, *, probe_radius: float = 0.0,
     file, row and column on any departure from the format.
     """
     from calib.checks import check_number, check_path
-    from calib.model.touch import Feature, TouchData
+    from calib.model.touch import MAX_SPHERE_RADIUS_M, Feature, TouchData
 
     path = check_path(csv_path, "csv_path")
     check_number(probe_radius, "probe_radius (m)", minimum=0.0, maximum=1.0)
@@ -223,6 +223,12 @@ def read_touch(csv_path: str | Path, robot, *, probe_radius: float = 0.0,
             if not np.isfinite(r) or r <= 0:
                 raise MeasurementFormatError(path, f"sphere {key[1]!r} needs a positive radius, got "
                                                    f"{'none' if np.isnan(r) else repr(_shown(t, r))}",
+                                             row=int(row), column=t.names["radius"])
+            if r > MAX_SPHERE_RADIUS_M:
+                raise MeasurementFormatError(path, f"sphere {key[1]!r}: radius {_shown(t, r)!r} is larger than "
+                                                   f"any sphere a robot touches ({_shown(t, MAX_SPHERE_RADIUS_M):g} "
+                                                   f"in the column's unit; larger ones are planes to a robot: "
+                                                   f"give such a surface as a plane, or check the unit)",
                                              row=int(row), column=t.names["radius"])
             first = radii.setdefault(key, (r, int(row)))
             if abs(first[0] - r) > RADIUS_TOL:

@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.errors import CalibError, MeasurementFormatError
+from calib.io.csv.cells import read_cell
 from calib.model.chain import JOINT_KINDS, U_NAMES, ChainJoint, v_names
 from calib.model.robot import RobotModel
 from calib.model.spatial import inverse, zyx_parameters, zyx_transform
@@ -72,31 +73,34 @@ def mdh_csv_text(robot: RobotModel, *, std: dict[str, float] | None = None, comm
     """The MDH CSV of ``robot``'s geometry (see the module docstring); ``std`` maps parameter
     names (theta1, u_x, v_x@A, ...) to standard deviations in SI units, adding the std columns
     (empty where a name is absent). ``comments`` are written first, one ``#`` line each."""
+    from calib.io.csv.cells import comment_line, csv_records, spreadsheet_cell
+
     t = robot.mdh_table()
     with_std = std is not None
     out = io.StringIO()
     for line in comments:
-        out.write(f"# {line}\n")
-    w = csv.writer(out, lineterminator="\n")
-    w.writerow(MDH_COLUMNS + (_STD_COLUMNS if with_std else ()))
+        out.write(comment_line(line) + "\n")
+    records = [list(MDH_COLUMNS + (_STD_COLUMNS if with_std else ()))]
     n_j, n_f = len(_JOINT_COLS), len(_FRAME_COLS)
 
     def frame_row(item, name, T, names):
         x = zyx_parameters(T)
-        row = [item, name, ""] + [""] * n_j + [_cell(v, u) for v, (_, u) in zip(x, _FRAME_COLS)]
+        row = [item, spreadsheet_cell(name), ""] + [""] * n_j + [_cell(v, u) for v, (_, u) in zip(x, _FRAME_COLS)]
         if with_std:
             row += [""] * n_j + [_cell(std.get(p), u) for p, (_, u) in zip(names, _FRAME_COLS)]
-        w.writerow(row)
+        records.append(row)
 
     frame_row("base", robot.base_frame, robot.T_meas_base(), list(U_NAMES))
     for i, joint in enumerate(robot.joints, start=1):
         vals = [t[k][i - 1] for k in ("theta", "d", "a", "alpha", "beta")]
-        row = ["joint", joint.name, joint.kind] + [_cell(v, u) for v, (_, u) in zip(vals, _JOINT_COLS)] + [""] * n_f
+        row = ["joint", spreadsheet_cell(joint.name), joint.kind] + \
+            [_cell(v, u) for v, (_, u) in zip(vals, _JOINT_COLS)] + [""] * n_f
         if with_std:
             row += [_cell(std.get(f"{k}{i}"), u) for k, u in _JOINT_COLS] + [""] * n_f
-        w.writerow(row)
+        records.append(row)
     for k, target in enumerate(robot.targets or (None,)):
         frame_row("tool", target or robot.tool_frame, robot.T_flange_tool(k), robot.v_names(k))
+    out.write(csv_records(records))
     return out.getvalue()
 
 
@@ -110,7 +114,8 @@ def read_mdh_csv(path: str | Path) -> RobotModel:
 
     path = check_path(path, "path")
     try:
-        text = path.read_text(encoding="utf-8")
+        with open(path, encoding="utf-8", newline="") as fh:     # (a quoted name's own carriage return kept)
+            text = fh.read()
     except (OSError, UnicodeDecodeError) as exc:
         raise MeasurementFormatError(path, f"cannot be read: {getattr(exc, 'strerror', None) or exc}") from None
     return parse_mdh_csv(text, path)
@@ -118,11 +123,18 @@ def read_mdh_csv(path: str | Path) -> RobotModel:
 
 def parse_mdh_csv(text: str, path: str | Path | None = None) -> RobotModel:
     """:func:`read_mdh_csv` of the file's ``text`` (``path`` names it in errors)."""
-    lines = text.splitlines()
+    # (lines end at \n or \r\n: a quoted name may hold a carriage return, or a line end across lines)
+    lines = [line[:-1] if line.endswith("\r") else line for line in text.split("\n")]
     rows = [(n, line) for n, line in enumerate(lines, start=1) if line.strip() and not line.lstrip().startswith("#")]
     if not rows:
         raise MeasurementFormatError(path, "no header: expected the columns " + ",".join(MDH_COLUMNS))
-    parsed = list(csv.reader([line for _, line in rows]))
+    reader = csv.reader([line for _, line in rows])
+    parsed, starts, used = [], [], 0
+    for record in reader:       # (each record with the file line it starts on)
+        parsed.append(record)
+        starts.append((rows[used][0], None))
+        used = reader.line_num
+    rows = starts
     header = [h.strip() for h in parsed[0]]
     missing = [c for c in MDH_COLUMNS if c not in header]
     if missing:
@@ -147,7 +159,10 @@ def parse_mdh_csv(text: str, path: str | Path | None = None) -> RobotModel:
     joints, table, bases, tools = [], [], [], []
     for (line, _), r in zip(rows[1:], parsed[1:]):
         item = r[col["item"]].strip() if len(r) > col["item"] else ""
-        name = r[col["name"]].strip() if len(r) > col["name"] else ""
+        # (a name as written: a leading quote that kept a spreadsheet from running it dropped,
+        # surrounding blanks of a hand-edited file dropped, the name's own blanks kept)
+        name = read_cell(r[col["name"]]) if len(r) > col["name"] else ""
+        name = name if name != r[col["name"]] else name.strip()
         if item == "joint":
             kind = r[col["type"]].strip() if len(r) > col["type"] else ""
             if kind not in JOINT_KINDS:
