@@ -187,12 +187,11 @@ def run(args: argparse.Namespace) -> int:
         return _calibrate(args, plots)
 
 
-def _calibrate(args: argparse.Namespace, plots) -> int:
-    """:func:`run` of measured rows; ``plots``: the :class:`calib.cli.plot_worker.PlotWorker` that
-    draws the plots of --plots and --html (None without them)."""
-    import calib
+def _outputs(args: argparse.Namespace):
+    """The outputs of a calibration of measured rows, their options checked before any work:
+    (the Outputs set, the URDF, the JSON report, the HTML page (each or None), the plots' paths,
+    the report's identity fields)."""
     from calib.io.urdf.reader import robot_path
-    from calib.io.urdf.writer import check_writable
 
     for flag, value in (("--probe-radius-mm", args.probe_radius_mm), ("--sigma-touch-mm", args.sigma_touch_mm),
                         ("--nominal-scale", args.nominal_scale or None)):
@@ -214,7 +213,16 @@ def _calibrate(args: argparse.Namespace, plots) -> int:
         from calib.report.build import PLOT_FILES
 
         plot_paths = outputs.add_folder(args.plots, PLOT_FILES, "--plots")
+    return outputs, out_urdf, out_report, out_html, plot_paths, meta
 
+
+def _calibrate(args: argparse.Namespace, plots) -> int:
+    """:func:`run` of measured rows; ``plots``: the :class:`calib.cli.plot_worker.PlotWorker` that
+    draws the plots of --plots and --html (None without them)."""
+    import calib
+    from calib.io.urdf.writer import check_writable
+
+    outputs, out_urdf, out_report, out_html, plot_paths, meta = _outputs(args)
     robot = load(args)
     payload, gravity = compliance_options(args)
     if (payload is not None or gravity is not None) and not args.compliance:
