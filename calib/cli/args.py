@@ -584,7 +584,7 @@ def is_touch_input(args: argparse.Namespace) -> bool:
     from calib.errors import CalibError
     from calib.io.csv.touch import is_touch_file
 
-    if getattr(args, "tracker", None) is not None or not Path(args.measurements).is_file():
+    if getattr(args, "tracker", None) is not None or args.measurements is None or not Path(args.measurements).is_file():
         return False
     try:
         return is_touch_file(args.measurements, getattr(args, "header_line", None),
