@@ -121,7 +121,7 @@ def read_bag(path: str | Path, robot, options: BagOptions) -> Measurements:
     message) for anything the module docstrings refuse, and for a bag without a still pose.
     """
     from calib.io.bag.rows import still_rows
-    from calib.io.bag.stream import open_bag, read_streams
+    from calib.io.bag.stream import open_bag, read_streams, stamp_text
     from calib.model.robot import check_robot
 
     path = check_path(path, "path")
@@ -147,7 +147,7 @@ def read_bag(path: str | Path, robot, options: BagOptions) -> Measurements:
         raise MeasurementFormatError(path, f"topic {ptopic}, message {pose.index[far]}: no joint sample of "
                                            f"{options.joints} within --max-gap {options.max_gap_s:g} s "
                                            f"{'on both sides of' if options.sampling == 'linear' else 'of'} its stamp "
-                                           f"{pose.t_ns[far] * 1e-9:.6f} s")
+                                           f"{stamp_text(pose.t_ns[far])} s")
     if len(rows.q) == 0:
         raise MeasurementFormatError(path, f"no still pose: {rows.periods} still period(s) of at least "
                                            f"{options.min_still_s:g} s in {options.joints} (joint speed at most "

@@ -31,7 +31,8 @@ import numpy as np
 from calib.errors import MeasurementFormatError
 from calib.io.urdf.packages import ros_extra
 
-__all__ = ["JOINT_STATE", "POSE_TYPES", "TF_MESSAGE", "JointSamples", "PoseSamples", "read_streams", "open_bag"]
+__all__ = ["JOINT_STATE", "POSE_TYPES", "TF_MESSAGE", "JointSamples", "PoseSamples", "read_streams", "open_bag",
+           "stamp_text"]
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped",
@@ -118,6 +119,12 @@ def _connections(reader, path: Path, topic: str, types: tuple[str, ...], option:
     return conns
 
 
+def stamp_text(t_ns: int) -> str:
+    """A stamp in ns as seconds, every digit exact: ``1700000000.050000000``."""
+    t_ns = int(t_ns)
+    return f"{t_ns // 1_000_000_000}.{t_ns % 1_000_000_000:09d}"
+
+
 def _stamp(header) -> int:
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
@@ -177,7 +184,7 @@ def _check_samples(path: Path, topic: str, t: np.ndarray, index: np.ndarray, val
     zero = np.flatnonzero(t <= 0)
     if len(zero):
         raise MeasurementFormatError(path, f"topic {topic}, message {index[zero[0]]}: header stamp "
-                                           f"{t[zero[0]] * 1e-9:.9g} s: expected the time of the reading (the publisher "
+                                           f"{stamp_text(t[zero[0]]).rstrip('0').rstrip('.')} s: expected the time of the reading (the publisher "
                                            f"does not stamp its messages)")
     bad = ~np.isfinite(values).all(axis=1)
     if bad.any():
@@ -187,8 +194,8 @@ def _check_samples(path: Path, topic: str, t: np.ndarray, index: np.ndarray, val
     back = np.flatnonzero(dt < 0)
     if len(back):
         k = int(back[0])
-        raise MeasurementFormatError(path, f"topic {topic}, message {index[k + 1]}: header stamp {t[k + 1] * 1e-9:.9f} s "
-                                           f"is earlier than message {index[k]}'s ({t[k] * 1e-9:.9f} s): stamps out of "
+        raise MeasurementFormatError(path, f"topic {topic}, message {index[k + 1]}: header stamp {stamp_text(t[k + 1])} s "
+                                           f"is earlier than message {index[k]}'s ({stamp_text(t[k])} s): stamps out of "
                                            f"order{f' ({len(back)} times)' if len(back) > 1 else ''}")
     keep = np.ones(len(t), bool)
     for k in np.flatnonzero(dt == 0):
@@ -196,7 +203,7 @@ def _check_samples(path: Path, topic: str, t: np.ndarray, index: np.ndarray, val
             keep[k + 1] = False
         else:
             raise MeasurementFormatError(path, f"topic {topic}, messages {index[k]} and {index[k + 1]} have the same "
-                                               f"header stamp {t[k] * 1e-9:.9f} s and different values: expected one "
+                                               f"header stamp {stamp_text(t[k])} s and different values: expected one "
                                                f"reading per stamp")
     return keep
 
@@ -230,7 +237,9 @@ def read_streams(path: Path, reader, *, joints: str, chain: tuple[str, ...], urd
                 if len(msg.position) != len(names):
                     raise MeasurementFormatError(path, f"topic {joints}, message {k}: {len(msg.position)} positions "
                                                        f"for {len(names)} names")
-                jt.append(_stamp(msg.header)), jq.append(np.asarray(msg.position)[take]), ji.append(k)
+                jt.append(_stamp(msg.header))
+                jq.append(np.asarray(msg.position)[take])
+                ji.append(k)
                 continue
             found = _instrument(path, msg, conn.msgtype, ptopic, k, want, seen)
             for t, position, quaternion, f in found:
@@ -239,7 +248,10 @@ def read_streams(path: Path, reader, *, joints: str, chain: tuple[str, ...], urd
                 elif f != frame:
                     raise MeasurementFormatError(path, f"topic {ptopic}, message {k}: frame_id {f!r}, while earlier "
                                                        f"messages are in {frame!r}: expected one instrument frame")
-                pt.append(t), pp.append(position), pq.append(quaternion), pi.append(k)
+                pt.append(t)
+                pp.append(position)
+                pq.append(quaternion)
+                pi.append(k)
     except MeasurementFormatError:
         raise
     except Exception as exc:           # a damaged bag fails while it is read, in any of its libraries
