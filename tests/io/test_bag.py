@@ -262,3 +262,47 @@ def test_bag_options_are_checked_once():
     assert BagOptions(pose="tracker/pose").pose == "/tracker/pose"
     with pytest.raises(MeasurementFormatError, match="file not found"):
         read_bag("/nonexistent.bag", calib.load_robot(BUNDLED_URDF), BagOptions(pose="/p"))
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_messages_read_in_place_are_rosbags_own_decoding(tmp_path, truth, monkeypatch, fmt):
+    """calib.io.bag.layout reads a message's stamp and numbers in place when its layout is one
+    rosbags decoded: a campaign whose joint states alternate between two name orders (two
+    layouts) reads to the same arrays, bit for bit, as with every message decoded by rosbags."""
+    from calib.io.bag import stream
+    from calib.io.bag.layout import Layouts
+
+    robot, true, Q = truth
+    ts = typestore(fmt)
+    joints, poses = campaign(robot, Q[:4], T_of=true.T_meas_tool)
+    order = np.arange(robot.n_joints)[::-1]
+    messages = []
+    for i, (t, q) in enumerate(joints):
+        names, q = (robot.joint_names, q) if i % 2 else ([robot.joint_names[j] for j in order], np.asarray(q)[order])
+        msgtype, msg = joint_state(ts, t, names, q)
+        messages.append(("/joint_states", msgtype, t, msg))
+    for t, T in poses:
+        msgtype, msg = pose_stamped(ts, t, "tracker", T)
+        messages.append(("/tracker/pose", msgtype, t, msg))
+    bag = write_bag(bag_path(tmp_path, fmt), fmt, sorted(messages, key=lambda m: m[2]), ts)
+
+    def streams():
+        reader = stream.open_bag(bag)
+        try:
+            return stream.read_streams(bag, reader, joints="/joint_states", chain=tuple(robot.joint_names),
+                                       urdf_joints=robot.joint_names, pose="/tracker/pose")
+        finally:
+            reader.close()
+
+    learned = []
+    original = Layouts.learn
+    monkeypatch.setattr(Layouts, "learn", lambda self, *a, **k: (original(self, *a, **k), learned.append(len(self.known))))
+    fast = streams()
+    assert max(learned) == 2                       # (two joint layouts; the pose topic's one)
+    monkeypatch.setattr(Layouts, "learn", lambda self, *a, **k: None)
+    slow = streams()
+    for a, b in ((fast[0].t_ns, slow[0].t_ns), (fast[0].q, slow[0].q), (fast[0].index, slow[0].index),
+                 (fast[1].t_ns, slow[1].t_ns), (fast[1].position, slow[1].position),
+                 (fast[1].quaternion, slow[1].quaternion)):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(fast[0].q[-1], Q[3], atol=1e-15, rtol=0)

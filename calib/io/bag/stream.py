@@ -23,12 +23,14 @@ message (1-based, in the topic's order) where one applies.
 """
 from __future__ import annotations
 
+from array import array
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from calib.errors import MeasurementFormatError
+from calib.io.bag.layout import Layouts
 from calib.io.urdf.packages import ros_extra
 
 __all__ = ["JOINT_STATE", "POSE_TYPES", "TF_MESSAGE", "JointSamples", "PoseSamples", "read_streams", "open_bag",
@@ -63,23 +65,6 @@ class PoseSamples:
     quaternion: np.ndarray
     index: np.ndarray
     frame: str
-
-
-class _Grow:
-    """Rows of ``width`` floats appended one at a time into a growing array (no per-row object)."""
-
-    def __init__(self, width: int, dtype=float):
-        self.data = np.empty((1024, width), dtype)
-        self.n = 0
-
-    def append(self, row) -> None:
-        if self.n == len(self.data):
-            self.data = np.concatenate([self.data, np.empty_like(self.data)])
-        self.data[self.n] = row
-        self.n += 1
-
-    def array(self) -> np.ndarray:
-        return self.data[:self.n].copy()
 
 
 def open_bag(path: Path):
@@ -208,6 +193,85 @@ def _check_samples(path: Path, topic: str, t: np.ndarray, index: np.ndarray, val
     return keep
 
 
+class _Stream:
+    """One topic's samples as read: stamps (ns), message numbers and rows of ``width`` float64,
+    kept compactly (16 bytes and 8 per number a sample, no object per sample)."""
+
+    def __init__(self, width: int):
+        self.t, self.k, self.values, self.width = array("q"), array("q"), bytearray(), width
+
+    def add(self, t: int, k: int, values) -> None:
+        self.t.append(t)
+        self.k.append(k)
+        self.values += values
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def arrays(self):
+        return (np.array(self.t, np.int64), np.frombuffer(bytes(self.values), "<f8").reshape(-1, self.width).copy(),
+                np.array(self.k, np.int64))
+
+
+class _Topics:
+    """The joint and instrument messages of a bag, each decoded in place when its layout is known
+    (:class:`calib.io.bag.layout.Layouts`), else by rosbags."""
+
+    def __init__(self, path: Path, reader, *, joints: str, chain, urdf_joints, ptopic: str, want):
+        self.path, self.reader, self.joints, self.ptopic, self.want = path, reader, joints, ptopic, want
+        self.jmap = _JointMap(path, joints, chain, frozenset(urdf_joints))
+        self.all = np.arange(len(chain))
+        self.joint, self.pose = _Stream(len(chain)), _Stream(7)
+        self.jlay, self.play = Layouts(reader.is2), Layouts(reader.is2)
+        self.frame, self.seen = None, set()
+
+    def on_joint(self, raw, k: int) -> None:
+        hit = self.jlay.read(raw)
+        if hit is None:
+            msg = self.reader.deserialize(raw, JOINT_STATE)
+            names = tuple(msg.name)
+            take = self.jmap(names, k)
+            if len(msg.position) != len(names) and take is not None:
+                raise MeasurementFormatError(self.path, f"topic {self.joints}, message {k}: {len(msg.position)} "
+                                                        f"positions for {len(names)} names")
+            t, position = _stamp(msg.header), np.asarray(msg.position, "<f8")
+            self.jlay.learn(raw, t, position, take)
+            hit = (t, position.tobytes(), take)
+        t, values, take = hit
+        if take is not None:
+            self.joint.add(t, k, values if np.array_equal(take, self.all) and len(values) == 8 * len(take)
+                           else np.frombuffer(values, "<f8")[take].tobytes())
+
+    def on_pose(self, raw, k: int, msgtype: str) -> None:
+        hit = self.play.read(raw) if msgtype != TF_MESSAGE else None
+        if hit is not None:
+            self.pose.add(hit[0], k, hit[1])
+            return
+        msg = self.reader.deserialize(raw, msgtype)
+        for t, position, quaternion, frame in _instrument(msg, msgtype, self.want, self.seen):
+            if self.frame is None:
+                self.frame = frame
+            elif frame != self.frame:
+                raise MeasurementFormatError(self.path, f"topic {self.ptopic}, message {k}: frame_id {frame!r}, while "
+                                                        f"earlier messages are in {self.frame!r}: expected one "
+                                                        f"instrument frame")
+            values = np.array(position + quaternion, "<f8")
+            if msgtype != TF_MESSAGE:
+                self.play.learn(raw, t, values)
+            self.pose.add(t, k, values.tobytes())
+
+
+def _messages(reader, connections):
+    """(connection, raw) of ``connections`` in the bag's order: straight from the one storage
+    reader when there is one (AnyReader's merge of several readers costs a heap step a message)."""
+    if len(reader.readers) == 1:
+        for conn, _, raw in reader.readers[0].messages(connections=connections):
+            yield conn, raw
+    else:
+        for conn, _, raw in reader.messages(connections=connections):
+            yield conn, raw
+
+
 def read_streams(path: Path, reader, *, joints: str, chain: tuple[str, ...], urdf_joints, pose: str | None = None,
                  tf: tuple[str, str] | None = None) -> tuple[JointSamples, PoseSamples]:
     """Stream the joint states of ``joints`` (the ``chain``'s joints in chain order; every name
@@ -217,72 +281,48 @@ def read_streams(path: Path, reader, *, joints: str, chain: tuple[str, ...], urd
     jconns = _connections(reader, path, joints, (JOINT_STATE,), "--joints")
     ptopic, ptypes = (pose, POSE_TYPES) if pose is not None else ("/tf", (TF_MESSAGE,))
     pconns = _connections(reader, path, ptopic, ptypes, "--pose" if pose is not None else "--tf")
-    jmap = _JointMap(path, joints, chain, frozenset(urdf_joints))
-    n = len(chain)
-    jt, jq, ji = _Grow(1, np.int64), _Grow(n), _Grow(1, np.int64)
-    pt, pp, pq, pi = _Grow(1, np.int64), _Grow(3), _Grow(4), _Grow(1, np.int64)
+    topics = _Topics(path, reader, joints=joints, chain=chain, urdf_joints=urdf_joints, ptopic=ptopic,
+                     want=tf and (tf[0].lstrip("/"), tf[1].lstrip("/")))
     counts = {joints: 0, ptopic: 0}
-    frame, seen = None, set()
-    want = tf and (tf[0].lstrip("/"), tf[1].lstrip("/"))
     try:
-        for conn, _, raw in reader.messages(connections=jconns + pconns):
+        for conn, raw in _messages(reader, jconns + pconns):
             counts[conn.topic] += 1
-            k = counts[conn.topic]
-            msg = reader.deserialize(raw, conn.msgtype)
-            if conn.topic == joints and conn.msgtype == JOINT_STATE:
-                names = tuple(msg.name)
-                take = jmap(names, k)
-                if take is None:
-                    continue
-                if len(msg.position) != len(names):
-                    raise MeasurementFormatError(path, f"topic {joints}, message {k}: {len(msg.position)} positions "
-                                                       f"for {len(names)} names")
-                jt.append(_stamp(msg.header))
-                jq.append(np.asarray(msg.position)[take])
-                ji.append(k)
-                continue
-            found = _instrument(path, msg, conn.msgtype, ptopic, k, want, seen)
-            for t, position, quaternion, f in found:
-                if frame is None:
-                    frame = f
-                elif f != frame:
-                    raise MeasurementFormatError(path, f"topic {ptopic}, message {k}: frame_id {f!r}, while earlier "
-                                                       f"messages are in {frame!r}: expected one instrument frame")
-                pt.append(t)
-                pp.append(position)
-                pq.append(quaternion)
-                pi.append(k)
+            if conn.topic == joints:
+                topics.on_joint(raw, counts[joints])
+            else:
+                topics.on_pose(raw, counts[ptopic], conn.msgtype)
     except MeasurementFormatError:
         raise
     except Exception as exc:           # a damaged bag fails while it is read, in any of its libraries
         raise MeasurementFormatError(path, f"not a readable ROS bag: {_said(exc)} (after "
                                            f"{sum(counts.values())} messages of {joints} and {ptopic})") from None
-    if ji.n == 0:
+    if not len(topics.joint):
         raise MeasurementFormatError(path, f"topic {joints}: no message names the chain's joints "
                                            f"({', '.join(chain)}) among {counts[joints]} messages")
-    if pi.n == 0:
+    if not len(topics.pose):
         what = (f"no transform {tf[0]} -> {tf[1]} (nor the reverse) among its {counts[ptopic]} messages; it has "
-                f"{', '.join(sorted(f'{a} -> {b}' for a, b in seen)[:20]) or 'none'}" if tf else "no message")
+                f"{', '.join(sorted(f'{a} -> {b}' for a, b in topics.seen)[:20]) or 'none'}" if tf else "no message")
         raise MeasurementFormatError(path, f"topic {ptopic}: {what}")
-    joint = JointSamples(t_ns=jt.array()[:, 0], q=jq.array(), index=ji.array()[:, 0])
-    keep = _check_samples(path, joints, joint.t_ns, joint.index, joint.q)
-    joint = JointSamples(t_ns=joint.t_ns[keep], q=joint.q[keep], index=joint.index[keep])
-    t, p, q, idx = pt.array()[:, 0], pp.array(), pq.array(), pi.array()[:, 0]
-    keep = _check_samples(path, ptopic, t, idx, np.hstack([p, q]))
+    t, q, idx = topics.joint.arrays()
+    keep = _check_samples(path, joints, t, idx, q)
+    joint = JointSamples(t_ns=t[keep], q=q[keep], index=idx[keep])
+    t, pq, idx = topics.pose.arrays()
+    keep = _check_samples(path, ptopic, t, idx, pq)
+    p, q = pq[:, :3], pq[:, 3:]
     norm = np.linalg.norm(q, axis=1)
     off = np.flatnonzero(np.abs(norm - 1) > QUATERNION_NORM_TOL)
     if len(off):
         raise MeasurementFormatError(path, f"topic {ptopic}, message {idx[off[0]]}: orientation quaternion of norm "
                                            f"{norm[off[0]]:.6g}: expected a unit quaternion")
     return joint, PoseSamples(t_ns=t[keep], position=p[keep], quaternion=(q / norm[:, None])[keep],
-                              index=idx[keep], frame=frame or "")
+                              index=idx[keep], frame=topics.frame or "")
 
 
-def _instrument(path: Path, msg, msgtype: str, topic: str, k: int, want, seen: set) -> list:
+def _instrument(msg, msgtype: str, want, seen: set) -> list:
     """The poses one instrument message gives: [(stamp ns, position, quaternion xyzw, frame)]."""
     if msgtype != TF_MESSAGE:
         position, quaternion = _pose_of(msg, msgtype)
-        return [(_stamp(msg.header), position, quaternion, msg.header.frame_id.lstrip("/"))]
+        return [(_stamp(msg.header), tuple(position), tuple(quaternion), msg.header.frame_id.lstrip("/"))]
     out = []
     for tr in msg.transforms:
         pair = (tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/"))
@@ -290,7 +330,7 @@ def _instrument(path: Path, msg, msgtype: str, topic: str, k: int, want, seen: s
             position, quaternion = _pose_of(tr, "TransformStamped")
             if pair != want:
                 position, quaternion = _inverse(position, quaternion)
-            out.append((_stamp(tr.header), position, quaternion, want[0]))
+            out.append((_stamp(tr.header), tuple(position), tuple(quaternion), want[0]))
         elif len(seen) < 1000:
             seen.add(pair)
     return out
