@@ -313,7 +313,7 @@ def _load_robot(args, outputs, out_urdf):
     (the UR case: ur_description's default_kinematics.yaml, :func:`kinematics_path`) and returns
     (its path, the line to print), or (None, "") for any other description. A chain that cannot be
     written in the file is refused here, before the fit."""
-    from calib.cli.args import robot_description
+    from calib.cli.args import print_notes, robot_description
     from calib.io.urdf.xacro_file import XacroText
 
     description = robot_description(args, args.robot)
@@ -338,6 +338,7 @@ def _load_robot(args, outputs, out_urdf):
     def stage(urdf_text: str):
         exported = export_calibration(UrdfText(path=description.path, text=urdf_text), "ur-yaml")
         outputs.stage(out, exported.text)
+        print_notes(f"{out}: {note}" for note in exported.notes)
         how = f"--xacro-arg {arg}:={out} (xacro {arg}:={out})" if arg else f"it in place of {source}"
         return out, (f"{out}: the calibrated kinematics, in the format of {source}, which {args.robot} reads; "
                      f"expand {args.robot} with {how} for the calibrated robot in ROS\n")
