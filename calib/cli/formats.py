@@ -13,11 +13,12 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add ``formats`` to ``subparsers``; it runs :func:`run`."""
-    p = subparsers.add_parser("formats", help="the column rules of measurement files and the vendor "
-                                              "conventions (--convention)",
+    p = subparsers.add_parser("formats", help="the column rules of measurement files, the vendor "
+                                              "conventions (--convention), ROS bags and xacros",
                               description="Print every column rule of calib's measurement, poses and "
-                                          "targets files, and the table of vendor conventions that "
-                                          "--convention NAME reads.",
+                                          "targets files, the table of vendor conventions that "
+                                          "--convention NAME reads, and how ROS bags (--bag) and "
+                                          "xacro robot descriptions are read.",
                               formatter_class=HelpFormatter)
     p.add_argument("--markdown", action="store_true",
                    help="print only the conventions table, in Markdown (as in README.md)")
@@ -29,5 +30,11 @@ def run(args: argparse.Namespace) -> int:
     """Print the help page (or the Markdown table); returns 0."""
     from calib.io.csv.conventions import format_help, markdown_table
 
-    sys.stdout.write(markdown_table() if args.markdown else format_help())
+    if args.markdown:
+        sys.stdout.write(markdown_table())
+        return EXIT_OK
+    from calib.io.bag.reader import FORMAT_HELP as BAGS
+    from calib.io.urdf.xacro_file import FORMAT_HELP as XACROS
+
+    sys.stdout.write(format_help() + "\n" + BAGS + "\n" + XACROS)
     return EXIT_OK

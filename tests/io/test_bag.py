@@ -306,3 +306,11 @@ def test_messages_read_in_place_are_rosbags_own_decoding(tmp_path, truth, monkey
                  (fast[1].quaternion, slow[1].quaternion)):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_allclose(fast[0].q[-1], Q[3], atol=1e-15, rtol=0)
+
+
+def test_calib_formats_lists_bags(capsys):
+    """calib formats says how bags are read (topics, types, still poses, rows)."""
+    assert main(["formats"]) == 0
+    out = capsys.readouterr().out
+    assert "ROS bags (calibrate --bag FILE" in out and "sensor_msgs/JointState" in out and "--still VEL" in out
+    assert calib.read_bag is read_bag and calib.BagOptions is BagOptions

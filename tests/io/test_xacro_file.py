@@ -388,3 +388,11 @@ def test_a_ur_xacro_gets_its_calibrated_kinematics_file(tmp_path, capsys):
     np.testing.assert_allclose(got[:, :3, 3], want[:, :3, 3], atol=1e-9, rtol=0)
     np.testing.assert_allclose(got[:, :3, :3], want[:, :3, :3], atol=1e-9, rtol=0)
     assert np.abs(_poses(calibrated, Q) - _poses(nominal, Q)).max() > 1e-4         # (it did move)
+
+
+def test_calib_formats_lists_xacros(capsys):
+    """calib formats says how xacros are expanded and where packages are found."""
+    assert main(["formats"]) == 0
+    out = capsys.readouterr().out
+    assert "Robot descriptions as xacros" in out and "--xacro-arg NAME:=VALUE" in out and "AMENT_PREFIX_PATH" in out
+    assert calib.expand_xacro is expand_xacro and calib.RosPackages is RosPackages

@@ -25,10 +25,34 @@ from calib.checks import check_path
 from calib.errors import MeasurementFormatError, ParameterError
 from calib.model.measurements import Measurements
 
-__all__ = ["BagOptions", "read_bag", "SAMPLINGS"]
+__all__ = ["BagOptions", "read_bag", "SAMPLINGS", "FORMAT_HELP"]
 
 #: How the joints are taken at an instrument stamp (:func:`calib.io.bag.rows.joints_at`).
 SAMPLINGS = ("linear", "nearest")
+#: What ``calib formats`` says of bags.
+FORMAT_HELP = """\
+ROS bags (calibrate --bag FILE, in place of MEAS.csv; no ROS installation: pip install 'calib[ros]'):
+Files: a ROS 1 .bag file; a ROS 2 bag, its folder (metadata.yaml) or its one .db3 (sqlite3) or
+  .mcap file. Read with rosbags, the message definitions taken from the bag; only the two topics'
+  messages are read, one at a time.
+Joints: --joints TOPIC (default /joint_states), sensor_msgs/JointState: name[], position[] in rad
+  (m for prismatic joints), header.stamp. Every name must be a joint of the URDF; a message naming
+  none of the chain's joints (a gripper's) is skipped, one naming only some of them is an error.
+Instrument: --pose TOPIC, geometry_msgs/PoseStamped (or PoseWithCovarianceStamped,
+  TransformStamped): the measured frame's pose in the instrument's frame (header.frame_id, one
+  frame for the whole bag), metres, quaternion; or --tf PARENT:CHILD, the /tf transform of CHILD
+  (the measured frame) in PARENT (the instrument's frame; recorded the other way round it is
+  inverted).
+Stamps: header stamps, in order on each topic (the same stamp twice only with the same values).
+Rows: one per pose the robot held still: every joint turning at most --still VEL deg/s (mm/s
+  for prismatic joints; default 0.1) over 50 ms, for at least --min-still S seconds (default
+  0.5). A row is the mean of the instrument's samples in that still period (rotations by their
+  chordal mean) with the joints at their stamps, --joint-sampling linear (between the joint
+  samples before and after, both within --max-gap S, default 0.1 s) or nearest (within
+  --max-gap); samples taken while the robot moved are not used (a note counts them). Rows are
+  numbered by the pose topic's message number of their first sample. Joint readings beyond a
+  limit by more than --limit-tolerance are errors, as in CSV files.
+"""
 #: Stamps at or after this (seconds since 1970, 2000-01-01) are dates; before, a simulated clock.
 _DATES_FROM_S = 946684800.0
 

@@ -39,7 +39,24 @@ from calib.errors import CalibError, ParameterError, URDFError
 from calib.io.urdf.packages import RosPackages
 from calib.io.urdf.reader import UrdfText
 
-__all__ = ["XacroText", "expand_xacro", "is_xacro_path", "parse_xacro_arg", "XACRO_TIMEOUT_S"]
+__all__ = ["XacroText", "expand_xacro", "is_xacro_path", "parse_xacro_arg", "XACRO_TIMEOUT_S", "FORMAT_HELP"]
+
+#: What ``calib formats`` says of xacros.
+FORMAT_HELP = """\
+Robot descriptions as xacros (ROBOT.urdf.xacro wherever a URDF is taken; no ROS installation:
+pip install 'calib[ros]'):
+Expansion: ROS's own xacro (PyPI 'xacro'), as `xacro ROBOT.urdf.xacro NAME:=VALUE ...` expands
+  it in ROS: --xacro-arg NAME:=VALUE (repeatable) gives its arguments.
+Packages: $(find NAME) and package://NAME/... are the folder of --package NAME=DIR (repeatable),
+  else of the package holding the xacro (the nearest package.xml above it), else of
+  ROS_PACKAGE_PATH (ROS 1, crawled as rospack does), else of AMENT_PREFIX_PATH (ROS 2, the ament
+  index: PREFIX/share/NAME). An unknown package is an error; a missing mesh file a note.
+Mesh paths: package:// and file:// paths are kept as written, in the calibrated URDF too.
+Output: calibrate writes the calibrated URDF; when the xacro takes its kinematics from a UR
+  kinematics YAML (ur_description's config/<type>/default_kinematics.yaml, through
+  xacro.load_yaml), also CALIBRATED.kinematics.yaml, the calibrated file in that format, to
+  expand the xacro with in its place (kinematics_params:=CALIBRATED.kinematics.yaml).
+"""
 
 #: Seconds the expansion may take before it is stopped (a description expands in well under one).
 XACRO_TIMEOUT_S = 120.0
