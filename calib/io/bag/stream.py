@@ -209,8 +209,9 @@ class _Stream:
         return len(self.t)
 
     def arrays(self):
-        return (np.array(self.t, np.int64), np.frombuffer(bytes(self.values), "<f8").reshape(-1, self.width).copy(),
-                np.array(self.k, np.int64))
+        values = np.frombuffer(self.values, "<f8").reshape(-1, self.width).copy()
+        self.values = bytearray()
+        return np.array(self.t, np.int64), values, np.array(self.k, np.int64)
 
 
 class _Topics:
