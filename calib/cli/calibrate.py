@@ -333,13 +333,16 @@ def _load_robot(args, outputs, out_urdf):
         raise ParameterError(f"{args.robot} takes its kinematics from {source} (a UR kinematics file), and the "
                              f"calibration of {robot.tool_frame!r} in {robot.base_frame!r} cannot be written in one: "
                              f"{exc}") from None
-    arg = next((name for name, value in description.args if value and Path(value).resolve() == source), None)
+    # (the argument that named it: xacro reads a relative path from the xacro's folder)
+    arg = next((name for name, value in description.args
+                if value and source in ((description.path.parent / value).resolve(), Path(value).resolve())), None)
 
     def stage(urdf_text: str):
         exported = export_calibration(UrdfText(path=description.path, text=urdf_text), "ur-yaml")
         outputs.stage(out, exported.text)
         print_notes(f"{out}: {note}" for note in exported.notes)
-        how = f"--xacro-arg {arg}:={out} (xacro {arg}:={out})" if arg else f"it in place of {source}"
+        where = out.resolve()           # (absolute: xacro reads a relative path from the xacro's folder)
+        how = f"--xacro-arg {arg}:={where} (xacro {arg}:={where})" if arg else f"it in place of {source}"
         return out, (f"{out}: the calibrated kinematics, in the format of {source}, which {args.robot} reads; "
                      f"expand {args.robot} with {how} for the calibrated robot in ROS\n")
     return robot, stage
