@@ -59,13 +59,18 @@ def check_measurement_input(args: argparse.Namespace) -> None:
     if bag is None:
         given = [flag for name, flag in (("pose", "--pose"), ("tf", "--tf")) if getattr(args, name, None)]
         if given:
-            raise ParameterError(f"{' and '.join(given)} read a ROS bag: give it with --bag FILE")
+            raise ParameterError(f"{' and '.join(given)} {'is' if len(given) == 1 else 'are'} for a ROS bag: give it "
+                                 f"with --bag FILE")
         return
+    if (args.pose is None) == (args.tf is None):
+        raise ParameterError(f"--bag {bag}: give the instrument's pose as a topic (--pose TOPIC) or as a /tf transform "
+                             f"(--tf PARENT:CHILD), one of the two")
     given = [flag for name, flag in _CSV_ONLY if getattr(args, name, None) is not None]
     if getattr(args, "join", "key") != "key":
         given.append("--join")
     if given:
-        raise ParameterError(f"{', '.join(given)} read CSV files, not a ROS bag (--bag {bag})")
+        raise ParameterError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for CSV files, not a ROS bag "
+                             f"(--bag {bag})")
 
 
 def bag_options(args: argparse.Namespace):

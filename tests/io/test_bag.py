@@ -314,3 +314,20 @@ def test_calib_formats_lists_bags(capsys):
     out = capsys.readouterr().out
     assert "ROS bags (calibrate --bag FILE" in out and "sensor_msgs/JointState" in out and "--still VEL" in out
     assert calib.read_bag is read_bag and calib.BagOptions is BagOptions
+
+
+def test_bag_options_on_the_command_line_are_checked_first(tmp_path, capsys):
+    """MEAS.csv or --bag, once; --pose / --tf only with --bag, one of them; CSV options refused
+    with a bag: one line, exit 2, before the robot is read (a missing URDF is not the error)."""
+    robot, out = tmp_path / "absent.urdf", tmp_path / "x.urdf"
+    for extra, want in (([], "give the measurements: MEAS.csv, or a ROS bag"),
+                        (["m.csv", "--bag", "b.bag", "--pose", "/p"], "give the measurements once"),
+                        (["m.csv", "--pose", "/p"], "--pose is for a ROS bag"),
+                        (["--bag", "b.bag"], "--bag b.bag: give the instrument's pose"),
+                        (["--bag", "b.bag", "--pose", "/p", "--tf", "a:b"], "one of the two"),
+                        (["--bag", "b.bag", "--pose", "/p", "--key", "P", "--euler", "ZYX"],
+                         "--euler, --key are for CSV files, not a ROS bag")):
+        assert main(["calibrate", str(robot), *extra, "-o", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and want in err, (extra, err)
+    assert not out.exists()
