@@ -19,7 +19,7 @@ _CSV_ONLY = (("rename", "--rename"), ("euler", "--euler"), ("convention", "--con
 def add_bag(p: argparse.ArgumentParser) -> None:
     """--bag and the options that read it, in their own help group (--max-gap and
     --limit-tolerance are the file-format group's, shared)."""
-    from calib.io.bag.reader import SAMPLINGS
+    from calib.choices import BAG_SAMPLINGS as SAMPLINGS
 
     g = p.add_argument_group("ROS bag (in place of MEAS.csv; docs/ros.md)")
     g.add_argument("--bag", metavar="FILE", default=None,

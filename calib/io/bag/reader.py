@@ -22,13 +22,14 @@ from pathlib import Path
 import numpy as np
 
 from calib.checks import check_path
+from calib.choices import BAG_SAMPLINGS
 from calib.errors import MeasurementFormatError, ParameterError
 from calib.model.measurements import Measurements
 
 __all__ = ["BagOptions", "read_bag", "SAMPLINGS", "FORMAT_HELP"]
 
 #: How the joints are taken at an instrument stamp (:func:`calib.io.bag.rows.joints_at`).
-SAMPLINGS = ("linear", "nearest")
+SAMPLINGS = BAG_SAMPLINGS
 #: What ``calib formats`` says of bags.
 FORMAT_HELP = """\
 ROS bags (calibrate --bag FILE, in place of MEAS.csv; no ROS installation: pip install 'calib[ros]'):
