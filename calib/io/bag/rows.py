@@ -37,8 +37,7 @@ class StillRows:
     t_s : (R,) the mean stamp of the row's instrument samples, seconds (the bag's clock);
     first : (R,) int, the index (into the instrument samples) of each row's first sample;
     n_samples : (R,) int; moving : instrument samples outside every still period;
-    periods : still periods found (with or without instrument samples); far : None, or the index
-    (into the instrument samples) of the first still sample without joint samples within the gap.
+    periods : the number of still periods found (with or without instrument samples).
     """
 
     q: np.ndarray
@@ -88,11 +87,11 @@ def joints_at(t: np.ndarray, t_s: np.ndarray, q: np.ndarray, max_gap_s: float, m
         pick = np.where(dr <= dl, right, left)
         bad = np.flatnonzero(np.minimum(dl, dr) > max_gap_s)
         return q[pick], (int(bad[0]) if len(bad) else None)
-    exact = dr == 0
+    exact = dr == 0                                   # (at a joint sample's stamp: that sample)
     bad = np.flatnonzero(~exact & ((dl > max_gap_s) | (dr > max_gap_s)))
-    span = np.where(exact, 1.0, t_s[right] - t_s[left])
-    w = np.where(exact, 1.0, np.where(span > 0, dl / np.where(span > 0, span, 1.0), 0.0))[:, None]
-    out = np.where(np.isfinite(w), (1 - w) * q[left] + w * q[right], q[right])
+    span = t_s[right] - t_s[left]
+    w = np.divide(dl, span, out=np.ones_like(dl), where=(span > 0) & np.isfinite(dl))[:, None]
+    out = np.where(exact[:, None], q[right], (1 - w) * q[left] + w * q[right])
     return out, (int(bad[0]) if len(bad) else None)
 
 
@@ -117,8 +116,13 @@ def still_rows(joint_t_s, joint_q, pose_t_s, position, quaternion, *, limit, min
     rotation = np.empty((R, 3, 3))
     for r, (s, c) in enumerate(zip(starts, counts)):
         rotation[r] = Rotation.from_quat(quaternion[use[s:s + c]]).mean().as_matrix()
-    mean = lambda a: np.add.reduceat(a, starts, axis=0) / counts.reshape((-1,) + (1,) * (a.ndim - 1)) \
-        if R else np.zeros((0,) + a.shape[1:])
+
+    def mean(a: np.ndarray) -> np.ndarray:
+        """(R, ...) the mean of each row's samples of ``a`` (in ``use`` order)."""
+        if not R:
+            return np.zeros((0,) + a.shape[1:])
+        return np.add.reduceat(a, starts, axis=0) / counts.reshape((-1,) + (1,) * (a.ndim - 1))
+
     return StillRows(q=mean(q), position=mean(position[use]), rotation=rotation, t_s=mean(pose_t_s[use]),
                      first=use[starts] if R else np.zeros(0, int), n_samples=counts, moving=len(pose_t_s) - len(use),
                      periods=len(periods)), None
