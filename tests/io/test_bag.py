@@ -95,6 +95,15 @@ def test_the_command_line_calibrates_a_bag_as_the_csv(tmp_path, truth, capsys):
 
     report = json.loads((tmp_path / "bag.json").read_text())
     assert report["provenance"]["inputs"]["measurements"]["path"].endswith(".mcap")
+    # evaluate takes the bag too: the calibrated model's accuracy on it, as on the CSV file (to 1e-9 mm)
+    results = []
+    capsys.readouterr()
+    for data in (["--bag", str(bag), "--pose", "/tracker/pose"], [str(csv)]):
+        assert main(["evaluate", str(tmp_path / "bag.urdf"), *data, "--json"]) == 0
+        results.append(json.loads(capsys.readouterr().out))
+    assert results[0]["measurements"] == str(bag) and results[0]["all"]["n_poses"] == 14
+    for key in ("rms", "max"):
+        assert results[0]["all"]["position_mm"][key] == pytest.approx(results[1]["all"]["position_mm"][key], abs=1e-9)
 
 
 def test_tf_transforms_read_as_the_pose_topic_either_way_round(tmp_path, truth):
