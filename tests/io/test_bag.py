@@ -340,3 +340,22 @@ def test_bag_options_on_the_command_line_are_checked_first(tmp_path, capsys):
         err = capsys.readouterr().err
         assert len(err.strip().splitlines()) == 1 and want in err, (extra, err)
     assert not out.exists()
+
+
+def test_without_the_ros_extra_the_error_names_it(tmp_path):
+    """Without rosbags importable, calibrate --bag says which extra to install (exit 2, one line)."""
+    import os
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    (tmp_path / "shadow" / "rosbags").mkdir(parents=True)
+    (tmp_path / "shadow" / "rosbags" / "__init__.py").write_text("raise ImportError('no rosbags here')\n")
+    (tmp_path / "b.bag").write_bytes(b"#ROSBAG V2.0\n")
+    env = dict(os.environ, PYTHONPATH=f"{tmp_path / 'shadow'}{os.pathsep}{ROOT}")
+    run = subprocess.run([sys.executable, "-m", "calib", "calibrate", str(BUNDLED_URDF), "--bag", "b.bag", "--pose",
+                          "/p", "-o", "x.urdf"], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1, run.stderr
+    assert "b.bag: reading a ROS bag needs the optional 'ros' dependencies" in run.stderr
+    assert "pip install 'calib[ros]'" in run.stderr and not (tmp_path / "x.urdf").exists()
