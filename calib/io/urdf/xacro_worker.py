@@ -11,13 +11,10 @@ folder}}``; one JSON object on stdout, ``{"urdf": text, "files": [paths read]}``
 text, "package": name or null, "file": the file being expanded or null}``. This file imports
 nothing of calib (it runs as a script).
 """
+import contextlib
+import json
+import os
 import sys
-
-del sys.path[0]        # (this file's folder: its neighbours are calib modules, not top-level ones)
-
-import contextlib  # noqa: E402
-import json  # noqa: E402
-import os  # noqa: E402
 
 
 def _expand(request: dict) -> dict:
@@ -52,6 +49,11 @@ def _expand(request: dict) -> dict:
 
 
 def main() -> int:
+    # run as a script, this file's folder is sys.path[0]: its neighbours are calib's modules, which
+    # must not stand in for top-level ones when xacro imports its own (only then: a module that
+    # imports this one keeps its sys.path)
+    if sys.path and os.path.abspath(sys.path[0] or ".") == os.path.dirname(os.path.abspath(__file__)):
+        del sys.path[0]
     request = json.load(sys.stdin)
     sys.stdout.write(json.dumps(_expand(request)))
     return 0
