@@ -110,8 +110,8 @@ class BagOptions:
             raise ParameterError("give the instrument's pose as a topic (--pose TOPIC) or as a /tf transform "
                                  "(--tf PARENT:CHILD): one of the two")
         if self.tf is not None:
-            parent, sep, child = str(self.tf).partition(":")
-            if not isinstance(self.tf, str) or not sep or not parent.strip() or not child.strip() \
+            parent, sep, child = str(self.tf).partition(":") if isinstance(self.tf, str) else ("", "", "")
+            if not sep or not parent.strip() or not child.strip() \
                     or parent.strip() == child.strip():
                 raise ParameterError(f"tf must be PARENT:CHILD, two frame names (the instrument's frame and the "
                                      f"measured one), got {self.tf!r:.60}")
@@ -119,7 +119,7 @@ class BagOptions:
             object.__setattr__(self, name, _number(getattr(self, name), name))
         for name in ("still_rad_s", "still_m_s"):
             object.__setattr__(self, name, _number(getattr(self, name), name, positive=True))
-        if self.sampling not in SAMPLINGS:
+        if not isinstance(self.sampling, str) or self.sampling not in SAMPLINGS:
             raise ParameterError(f"sampling must be one of {', '.join(SAMPLINGS)}, got {self.sampling!r:.60}")
         tol = _number(self.limit_tolerance, "limit_tolerance")
         if tol > 1:

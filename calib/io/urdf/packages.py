@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping
 
+from calib.checks import check_path
 from calib.errors import CalibError, ParameterError, URDFError
 
 __all__ = ["RosPackages", "parse_package_option", "package_name_of", "ros_extra"]
@@ -102,6 +103,17 @@ class RosPackages:
     ros_package_path: tuple[Path, ...] = ()
     ament_prefix_path: tuple[Path, ...] = ()
 
+    def __post_init__(self):
+        for name in ("given", "ros_package_path", "ament_prefix_path"):
+            value = getattr(self, name)
+            pairs = name == "given"
+            ok = isinstance(value, tuple) and all(
+                isinstance(v, tuple) and len(v) == 2 and isinstance(v[0], str) and isinstance(v[1], Path)
+                if pairs else isinstance(v, Path) for v in value)
+            if not ok:
+                raise ParameterError(f"{name} must be a tuple of {'(name, Path) pairs' if pairs else 'Paths'} "
+                                     f"(RosPackages.from_options makes one), got {value!r:.60}")
+
     @classmethod
     def from_options(cls, packages: Mapping[str, str | Path] | Iterable[str] | None = None, *,
                      environ: Mapping[str, str] | None = None) -> "RosPackages":
@@ -113,17 +125,24 @@ class RosPackages:
             given = []
         elif isinstance(packages, Mapping):
             given = [parse_package_option(f"{k}={v}") for k, v in packages.items()]
-        elif isinstance(packages, (str, bytes)):
+        elif isinstance(packages, (str, bytes)) or not isinstance(packages, Iterable):
             raise ParameterError(f"packages must be a mapping name -> folder or NAME=DIR texts, got {packages!r:.60}")
         else:
             given = [parse_package_option(t) for t in packages]
+        if environ is not None and not isinstance(environ, Mapping):
+            raise ParameterError(f"environ must be a mapping of environment variables, got {environ!r:.60}")
         env = os.environ if environ is None else environ
+        for name in ("ROS_PACKAGE_PATH", "AMENT_PREFIX_PATH"):
+            if not isinstance(env.get(name, ""), str):
+                raise ParameterError(f"environ[{name!r}] must be a text of folders, got {env.get(name)!r:.60}")
         return cls(given=tuple(given), ros_package_path=_split_paths(env.get("ROS_PACKAGE_PATH")),
                    ament_prefix_path=_split_paths(env.get("AMENT_PREFIX_PATH")))
 
     def table(self, description: Path | None = None) -> dict[str, Path]:
         """Every package these locations know, name -> folder, first match winning (the module
         docstring's order); ``description``: the file whose own package is looked for."""
+        if description is not None:
+            description = check_path(description, "description")
         found: dict[str, Path] = {}
         for prefix in reversed(self.ament_prefix_path):        # (the first prefix wins)
             index = prefix / AMENT_PACKAGES

@@ -123,7 +123,7 @@ def _args(args) -> tuple[tuple[str, str], ...]:
         for k, _ in items:
             parse_xacro_arg(f"{k}:=")
         return tuple(items)
-    if isinstance(args, (str, bytes)):
+    if isinstance(args, (str, bytes)) or not isinstance(args, Iterable):
         raise ParameterError(f"args must be a mapping name -> value or NAME:=VALUE texts, got {args!r:.60}")
     return tuple(parse_xacro_arg(t) for t in args)
 
