@@ -50,6 +50,9 @@ _HOME = {
     "io.csv.touch": ("read_touch", "write_touch"),
     "io.exports.export": ("ExportResult", "export_calibration"),
     "io.exports.mdh": ("read_mdh_csv",),
+    "io.urdf.xacro_file": ("XacroText", "expand_xacro"),
+    "io.urdf.packages": ("RosPackages",),
+    "io.bag.reader": ("BagOptions", "read_bag"),
     "memo": ("clear_caches",),
 }
 _MODULE_OF = {name: module for module, names in _HOME.items() for name in names}
@@ -88,4 +91,5 @@ __all__ = [
     "PaperLMOptions", "PaperLMResult", "paper_cross_lm", "paper_lm",
     "Feature", "FeatureFit", "TouchData", "read_touch", "simulate_touch", "write_touch",
     "ExportResult", "export_calibration", "read_mdh_csv", "clear_caches",
+    "XacroText", "expand_xacro", "RosPackages", "BagOptions", "read_bag",
 ]

@@ -27,3 +27,5 @@ EXPORT_FORMATS = ("ur-yaml", "joint-origins-yaml", "mdh-csv")
 #: Universal Robots types whose joint limits calib holds (``--ur-type``;
 #: :data:`calib.io.urdf.ur_description.JOINT_LIMITS`: ur_description's config/<type>/joint_limits.yaml).
 UR_TYPES = ("ur3", "ur3e", "ur5", "ur5e", "ur10", "ur10e", "ur16e", "ur20", "ur30")
+#: How the joints are taken at an instrument stamp of a ROS bag (:mod:`calib.io.bag.rows`, ``--joint-sampling``).
+BAG_SAMPLINGS = ("linear", "nearest")

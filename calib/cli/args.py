@@ -356,74 +356,6 @@ positions are in mm, orientations in rad. Exit codes: 0 success, 2 bad input (on
 stderr, no file written)."""
 
 
-def add_robot(p: argparse.ArgumentParser) -> None:
-    """The ROBOT.urdf positional argument (a URDF, a robot name, or a UR kinematics YAML with
-    --ur-type: :func:`add_ur_type`)."""
-    p.add_argument("robot", metavar="ROBOT.urdf",
-                   help="URDF of the robot (the nominal model), or a robot name example-robot-data "
-                        "knows (ur5, panda, ...), or a UR kinematics YAML (ROBOT.yaml, with --ur-type); "
-                        "a calibrated URDF written by calib brings its own base and tool frames")
-    add_ur_type(p)
-
-
-# ---------------------------------------------------------------------- UR kinematics YAML
-#: The attributes of the subcommands' namespaces that name a robot description.
-_ROBOT_ARGUMENTS = ("robot", "calibrated", "nominal")
-
-
-def add_ur_type(p: argparse.ArgumentParser) -> None:
-    """--ur-type: a robot argument given as a UR kinematics YAML is read as the URDF
-    ur_description builds from it for that type (:func:`robot_description`)."""
-    from calib.choices import UR_TYPES
-
-    p.add_argument("--ur-type", choices=UR_TYPES, default=None, metavar="TYPE",
-                   help="the robot is given as a UR kinematics YAML (ROBOT.yaml: ur_description's "
-                        "config/TYPE/default_kinematics.yaml, or the robot's own factory calibration "
-                        "that ur_calibration extracts from its controller): its type, for the joint "
-                        f"limits ({', '.join(UR_TYPES)}); the model is the URDF ur_description's xacro "
-                        "builds from it (base frame base_link, tool frame tool0)")
-
-
-def _is_ur_kinematics(value) -> bool:
-    from pathlib import Path
-
-    return isinstance(value, str) and Path(value).suffix.lower() in (".yaml", ".yml")
-
-
-def robot_description(args: argparse.Namespace, value):
-    """The robot argument ``value`` as the readers take it: unchanged (a URDF path or a robot
-    name), or for a UR kinematics YAML (``.yaml`` / ``.yml``) the URDF ur_description builds from
-    it for ``--ur-type`` (:func:`calib.io.urdf.ur_description.ur_description`). ParameterError for a
-    YAML without --ur-type, and for --ur-type when no robot argument of the command is a YAML."""
-    from calib.errors import ParameterError
-
-    ur_type = getattr(args, "ur_type", None)
-    given = [v for v in (getattr(args, a, None) for a in _ROBOT_ARGUMENTS) if v is not None]
-    if ur_type is not None and not any(_is_ur_kinematics(v) for v in given):
-        raise ParameterError(f"--ur-type {ur_type} names the type of a UR kinematics YAML (ROBOT.yaml), and "
-                             f"{' and '.join(map(str, given)) or 'no robot argument'} "
-                             f"{'is' if len(given) < 2 else 'are'} not one: give the YAML, or leave --ur-type "
-                             f"out for a URDF")
-    if not _is_ur_kinematics(value):
-        return value
-    if ur_type is None:
-        from calib.choices import UR_TYPES
-
-        raise ParameterError(f"{value}: a UR kinematics YAML needs the robot's type: --ur-type "
-                             f"{{{','.join(UR_TYPES)}}}")
-    from calib.io.urdf.ur_description import ur_description
-
-    return ur_description(value, ur_type)
-
-
-def urdf_only(value, what: str) -> None:
-    """Refuse a UR kinematics YAML where a command needs a URDF (``what``: the argument and why)."""
-    if _is_ur_kinematics(value):
-        from calib.errors import ParameterError
-
-        raise ParameterError(f"{value}: {what}, not a UR kinematics YAML")
-
-
 def add_verbose(p: argparse.ArgumentParser, *, top: bool = False,
                 help: str = "log progress on stderr (-vv: also the nominal model)") -> None:
     """-v / --verbose: on the main parser (``top``) it counts from 0; on a subcommand's it adds
@@ -503,21 +435,6 @@ def meta_inputs(values) -> dict:
     return {("meta" if k == 0 else f"meta {k + 1}"): f for k, f in enumerate(files)}
 
 
-def load(args: argparse.Namespace):
-    """The robot of ``args.robot`` (a URDF, a robot name, or a UR kinematics YAML with --ur-type)
-    with the frames of --base-frame / --tool-frame (logged)."""
-    from calib.io.urdf.reader import load_robot
-
-    log = logging.getLogger("calib.cli")
-    robot = load_robot(robot_description(args, args.robot), base_frame=args.base_frame,
-                       tool_frame=args.tool_frame)
-    log.info("robot %s: %d joints (%s), base frame %r, tool frame %r, %d parameters",
-             args.robot, robot.n_joints, ", ".join(robot.joint_names), robot.base_frame,
-             robot.tool_frame, robot.n_params)
-    log.debug("nominal model:\n%s", robot.describe())
-    return robot
-
-
 def read(path, robot, args: argparse.Namespace, tracker=None, *, joined: bool = True):
     """The measurements of ``path`` for ``robot``, read with the file-format options (its notes
     on stderr)."""
@@ -573,7 +490,7 @@ def is_touch_input(args: argparse.Namespace) -> bool:
     from calib.errors import CalibError
     from calib.io.csv.touch import is_touch_file
 
-    if getattr(args, "tracker", None) is not None or not Path(args.measurements).is_file():
+    if getattr(args, "tracker", None) is not None or args.measurements is None or not Path(args.measurements).is_file():
         return False
     try:
         options = read_options(args, joined=False)

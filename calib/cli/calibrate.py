@@ -7,9 +7,9 @@ import logging
 import sys
 from pathlib import Path
 
-from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_progress,
-                            add_report_options, add_robot, add_verbose, check_measurement_link,
-                            compliance_options, count, load, parse_meta, positive, progress_enabled, read)
+from calib.cli.bag import add_bag, bag_file, check_measurement_input, read_bag_args
+from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_progress, add_report_options, add_verbose, check_measurement_link, compliance_options, count, parse_meta, positive, progress_enabled, read)
+from calib.cli.robot_args import add_robot, load
 from calib.cli.output import Outputs, json_text, refuse_implausible, status_exit
 from calib.cli.progress import working
 from calib.errors import DataError, ParameterError
@@ -82,7 +82,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("calibrate", help="identify the parameters, write the calibrated URDF",
                        description=_CAL_DESC, epilog=_CAL_EPILOG, formatter_class=HelpFormatter)
     add_robot(p)
-    p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: calib formats, docs/formats.md)")
+    p.add_argument("measurements", metavar="MEAS.csv", nargs="?", default=None,
+                   help="measurement CSV (format: calib formats, docs/formats.md); or a ROS bag with --bag")
     p.add_argument("-o", "--output", required=True, metavar="CALIBRATED.urdf",
                    help="calibrated URDF to write (must differ from ROBOT.urdf)")
     p.add_argument("--method", choices=METHODS, default="search-lm",
@@ -154,6 +155,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "NAME_to_<root> whose child is the URDF's root link (the robot's base frame "
                         "stays where it was; docs/model.md, Frames and units)")
     add_file_format(p, tracker=True)
+    add_bag(p)
     add_frames(p)
     g = add_compliance(p, "calibrate")
     g.add_argument("--periodic", action="store_true",
@@ -193,11 +195,8 @@ def _outputs(args: argparse.Namespace):
     the report's identity fields)."""
     from calib.io.urdf.reader import robot_path
 
-    for flag, value in (("--probe-radius-mm", args.probe_radius_mm), ("--sigma-touch-mm", args.sigma_touch_mm),
-                        ("--nominal-scale", args.nominal_scale or None)):
-        if value is not None:
-            raise ParameterError(f"{flag} applies to touch files (rows naming point, plane or sphere)")
-    outputs = Outputs([robot_path(args.robot), args.measurements, args.validate, args.tracker])
+    _refuse_touch_options(args)
+    outputs = Outputs([robot_path(args.robot), args.measurements, args.validate, args.tracker, args.bag])
     out_urdf = outputs.add(args.output)
     out_report = outputs.add(args.report) if args.report else None
     meta = parse_meta(args.meta)
@@ -223,7 +222,7 @@ def _calibrate(args: argparse.Namespace, plots) -> int:
     from calib.io.urdf.writer import check_writable
 
     outputs, out_urdf, out_report, out_html, plot_paths, meta = _outputs(args)
-    robot = load(args)
+    robot, kinematics = _load_robot(args, outputs, out_urdf)
     payload, gravity = compliance_options(args)
     if (payload is not None or gravity is not None) and not args.compliance:
         raise ParameterError("--payload-kg and --gravity only matter with --compliance")
@@ -235,7 +234,7 @@ def _calibrate(args: argparse.Namespace, plots) -> int:
     check_measurement_link(args.measurement_link, robot)
     log.info("the calibrated URDF will hold tool frame %r in base frame %r", frames.tool_frame,
              frames.base_frame)
-    meas = read(args.measurements, robot, args, args.tracker)
+    meas = read(args.measurements, robot, args, args.tracker) if args.bag is None else read_bag_args(args, robot)
     validation = read(args.validate, robot, args, joined=False) if args.validate else None
     out_residuals = None
     if out_report is not None:
@@ -255,9 +254,9 @@ def _calibrate(args: argparse.Namespace, plots) -> int:
                                      payload=payload, gravity=gravity, lm_variant=args.lm_variant,
                                      estimator=args.estimator, periodic=args.periodic, terms=args.terms)
     except DataError as exc:  # about the data as a whole (too few poses): name the file
-        if str(exc).startswith(str(args.measurements)):
+        if str(exc).startswith(str(args.measurements or args.bag)):
             raise
-        raise DataError(f"{args.measurements}: {exc}") from None
+        raise DataError(f"{args.measurements or args.bag}: {exc}") from None
     log.info("calibration: %s after %d iterations, %.3f s", result.status, result.iterations,
              result.wall_time)
     if result.status == "implausible" and not args.accept_implausible:
@@ -269,6 +268,7 @@ def _calibrate(args: argparse.Namespace, plots) -> int:
                              f"frame {robot.base_frame!r}); nothing written")
     urdf_text, frames = result.urdf_text(measurement_link=args.measurement_link)
     outputs.stage(out_urdf, urdf_text)
+    out_kinematics, kinematics_line = kinematics(urdf_text)
     if out_sidecar is not None and result.robot.has_joint_terms:
         outputs.stage(out_sidecar, json_text(result.compliance_record()))
     stale = None
@@ -286,18 +286,74 @@ def _calibrate(args: argparse.Namespace, plots) -> int:
                               out_urdf=out_urdf, frames=frames, images=images, plots=plots)
     outputs.commit()
 
-    written = [out_urdf] + [p for p in (out_sidecar, out_report, out_residuals, out_html) if p is not None] + \
+    written = [out_urdf] + [p for p in (out_kinematics, out_sidecar, out_report, out_residuals, out_html) if p] + \
               [p for p in plot_paths.values() if p in outputs.data]
     sys.stdout.write(text + "\n\nwrote " + ", ".join(str(p) for p in written) + "\n"
                      + f"{out_urdf}: calibrated kinematics of tool frame {frames.tool_frame!r} in "
                        f"base frame {frames.base_frame!r} (standing for {frames.nominal_tool_frame!r} "
                        f"and {frames.nominal_base_frame!r} of {args.robot}; evaluate and compensate "
-                       f"use them by default)\n" + _targets_line(out_urdf, frames))
+                       f"use them by default)\n" + _targets_line(out_urdf, frames) + kinematics_line)
     if stale is not None:
         sys.stdout.write(f"removed {stale}: an earlier calibration's joint terms, which this geometry-only "
                          f"calibration does not have\n")
     return status_exit(result.status, result.message)
 
+
+
+def _refuse_touch_options(args) -> None:
+    for flag, value in (("--probe-radius-mm", args.probe_radius_mm), ("--sigma-touch-mm", args.sigma_touch_mm),
+                        ("--nominal-scale", args.nominal_scale or None)):
+        if value is not None:
+            raise ParameterError(f"{flag} applies to touch files (rows naming point, plane or sphere)")
+    check_measurement_input(args)
+
+
+def kinematics_path(out_urdf: Path) -> Path:
+    """CALIBRATED.kinematics.yaml beside CALIBRATED.urdf: the calibrated parameter file of a xacro
+    that takes its kinematics from one."""
+    return out_urdf.with_name(out_urdf.stem + ".kinematics.yaml")
+
+
+def _load_robot(args, outputs, out_urdf):
+    """The robot of ``args`` (:func:`calib.cli.robot_args.load`) and a function that, given the calibrated
+    URDF's text, stages the calibrated parameter file of a xacro that takes its kinematics from one
+    (the UR case: ur_description's default_kinematics.yaml, :func:`kinematics_path`) and returns
+    (its path, the line to print), or (None, "") for any other description. A chain that cannot be
+    written in the file is refused here, before the fit."""
+    from calib.cli.args import print_notes
+    from calib.cli.robot_args import robot_description
+    from calib.io.urdf.xacro_file import XacroText
+
+    description = robot_description(args, args.robot)
+    robot = load(args, description)
+    source = description.kinematics_file() if isinstance(description, XacroText) else None
+    if source is None:
+        return robot, lambda urdf_text: (None, "")
+    from calib.errors import CalibError
+    from calib.io.exports.export import export_calibration
+    from calib.io.urdf.reader import UrdfText
+
+    outputs.inputs.append(source)                 # (never overwritten)
+    out = outputs.add(kinematics_path(out_urdf))
+    try:
+        export_calibration(description, "ur-yaml", base_frame=robot.base_frame, tool_frame=robot.tool_frame)
+    except CalibError as exc:
+        raise ParameterError(f"{args.robot} takes its kinematics from {source} (a UR kinematics file), and the "
+                             f"calibration of {robot.tool_frame!r} in {robot.base_frame!r} cannot be written in one: "
+                             f"{exc}") from None
+    # (the argument that named it: xacro reads a relative path from the xacro's folder)
+    arg = next((name for name, value in description.args
+                if value and source in ((description.path.parent / value).resolve(), Path(value).resolve())), None)
+
+    def stage(urdf_text: str):
+        exported = export_calibration(UrdfText(path=description.path, text=urdf_text), "ur-yaml")
+        outputs.stage(out, exported.text)
+        print_notes(f"{out}: {note}" for note in exported.notes)
+        where = out.resolve()           # (absolute: xacro reads a relative path from the xacro's folder)
+        how = f"--xacro-arg {arg}:={where} (xacro {arg}:={where})" if arg else f"it in place of {source}"
+        return out, (f"{out}: the calibrated kinematics, in the format of {source}, which {args.robot} reads; "
+                     f"expand {args.robot} with {how} for the calibrated robot in ROS\n")
+    return robot, stage
 
 
 def _targets_line(out_urdf, frames) -> str:
@@ -338,7 +394,7 @@ def _report_stage(args, result, meas, validation, outputs, *, meta, plot_paths, 
         progress.update()
         report = build_report(
             result, meas, validation, command_line=["calib", *args.argv],
-            inputs={"robot": robot_path_of(args), "measurements": args.measurements, "tracker": args.tracker,
+            inputs={"robot": robot_path_of(args), "measurements": args.measurements or bag_file(args.bag), "tracker": args.tracker,
                     "validation": args.validate, **meta_inputs(args.meta)},
             outputs={"calibrated_urdf": out_urdf, "report": out_report, "html": out_html,
                      "residuals": out_residuals},

@@ -9,9 +9,8 @@ import logging
 import sys
 from pathlib import Path
 
-from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_ur_type, add_verbose,
-                            nonnegative, print_notes, read_options, robot_description, urdf_only,
-                            with_compliance_file)
+from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_verbose, nonnegative, print_notes, read_options, with_compliance_file)
+from calib.cli.robot_args import add_ur_type, robot_description, urdf_only
 from calib.cli.output import EXIT_NOT_CONVERGED, EXIT_OK, PROG, Outputs, command_line
 from calib.errors import ParameterError
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from calib.cli.args import (COMMON_EPILOG, HelpFormatter, add_compliance, add_file_format, add_frames, add_progress,
-                            add_report_options, add_robot, add_verbose, load, parse_meta, read,
-                            robot_description, with_compliance_file)
+from calib.cli.bag import add_bag, bag_file, check_measurement_input, read_bag_args
+from calib.cli.args import (COMMON_EPILOG, HelpFormatter, add_compliance, add_file_format, add_frames, add_progress, add_report_options, add_verbose, parse_meta, read, with_compliance_file)
+from calib.cli.robot_args import add_robot, load, robot_description
 from calib.cli.output import EXIT_OK, PROG, json_text
 from calib.errors import ParameterError
 
@@ -45,7 +45,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("evaluate", help="accuracy of a model against measurements",
                        description=_EVAL_DESC, epilog=_EVAL_EPILOG, formatter_class=HelpFormatter)
     add_robot(p)
-    p.add_argument("measurements", metavar="MEAS.csv", help="measurement CSV (format: calib formats, docs/formats.md)")
+    p.add_argument("measurements", metavar="MEAS.csv", nargs="?", default=None,
+                   help="measurement CSV (format: calib formats, docs/formats.md); or a ROS bag with --bag")
     p.add_argument("--json", action="store_true",
                    help="print one JSON object: n_poses, position_mm and rotation_rad statistics "
                         "(mean, rms, max, min) for all, cal and val rows")
@@ -58,6 +59,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     add_report_options(p, residuals=False)
     add_progress(p)
     add_file_format(p, tracker=True)
+    add_bag(p)
     add_frames(p)
     g = add_compliance(p, "evaluate")
     g.add_argument("--nominal", metavar="NOMINAL.urdf", default=None,
@@ -160,7 +162,9 @@ def _evaluate(args: argparse.Namespace, plots) -> int:
     from calib.cli.output import Outputs
     from calib.io.urdf.reader import robot_path
 
-    outputs = Outputs([robot_path(args.robot), args.measurements, args.tracker, args.compliance, args.nominal])
+    check_measurement_input(args)
+    source = args.measurements or args.bag
+    outputs = Outputs([robot_path(args.robot), args.measurements, args.tracker, args.compliance, args.nominal, args.bag])
     out_html = outputs.add(args.html) if args.html else None
     plot_paths = {}
     if args.plots:
@@ -177,7 +181,7 @@ def _evaluate(args: argparse.Namespace, plots) -> int:
         raise ParameterError(f"{args.measurements}: a touch file (rows naming a point, plane or sphere): evaluate "
                              f"compares measured poses; calib calibrate ROBOT.urdf {args.measurements} reports "
                              f"its touch residuals")
-    meas = read(args.measurements, robot, args, args.tracker)
+    meas = read(args.measurements, robot, args, args.tracker) if args.bag is None else read_bag_args(args, robot)
     rows = [("all rows", calib.evaluate(robot, meas))]
     if meas.sets is not None:
         for label, part in (("calibration rows (cal)", meas.calibration()),
@@ -191,7 +195,7 @@ def _evaluate(args: argparse.Namespace, plots) -> int:
         _write_report(args, robot, meas, outputs, out_html, plot_paths, meta, plots)
     if args.json:
         keys = {"all rows": "all", "calibration rows (cal)": "cal", "validation rows (val)": "val"}
-        out = {"robot": str(args.robot), "measurements": str(args.measurements),
+        out = {"robot": str(args.robot), "measurements": str(source),
                "base_frame": robot.base_frame, "tool_frame": robot.tool_frame,
                "joints": list(robot.joint_names),
                "compliance": None if args.compliance is None else str(args.compliance)}
@@ -201,7 +205,7 @@ def _evaluate(args: argparse.Namespace, plots) -> int:
         sys.stdout.write(json_text(out))
         return EXIT_OK
     sys.stdout.write(f"Accuracy of {args.robot} (tool frame {robot.tool_frame!r} in base frame "
-                     f"{robot.base_frame!r}) against {args.measurements}:\n\n"
+                     f"{robot.base_frame!r}) against {source}:\n\n"
                      + format_accuracy_table(rows + [(f"target {t}", st) for t, st in per_target]) + "\n"
                      + getattr(args, "_verdict", "")
                      + ("".join(f"wrote {p}\n" for p in getattr(args, "_written", []))))
@@ -225,7 +229,7 @@ def _write_report(args, robot, meas, outputs, out_html, plot_paths, meta, plots)
         plots.submit(rows, tolerance_m=None if args.tolerance_mm is None else args.tolerance_mm * 1e-3)
         progress.update()
         report = build_accuracy_report(robot, meas, command_line=["calib", *args.argv],
-                                       inputs={"robot": robot_path(args.robot), "measurements": args.measurements,
+                                       inputs={"robot": robot_path(args.robot), "measurements": args.measurements or bag_file(args.bag),
                                                "tracker": args.tracker, **meta_inputs(args.meta)},
                                        meta=meta, tolerance_mm=args.tolerance_mm, residuals="none", rows=rows)
         tol = report["certificate"]["tolerance"]
@@ -237,7 +241,7 @@ def _write_report(args, robot, meas, outputs, out_html, plot_paths, meta, plots)
         images = plots.images(progress=lambda k, n: progress.set(1 + round(5 * k / n)))
         if out_html is not None:
             text = (f"Accuracy of {args.robot} (tool frame {robot.tool_frame!r} in base frame {robot.base_frame!r}) "
-                    f"against {args.measurements}")
+                    f"against {args.measurements or args.bag}")
             outputs.stage(out_html, render_html(report, text, images))
         for name, path in plot_paths.items():
             if name in images:

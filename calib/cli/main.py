@@ -173,10 +173,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # and Pinocchio, so a signal may land here too
         parser = build_parser(_named_command(argv))
         try:
-            args, extra = parser.parse_known_args(argv)
-            if extra:  # reported by the subcommand's parser, so that its usage line is shown
-                sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-                sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+            args = parse_arguments(parser, argv)
         except SystemExit as exc:  # --help, --version (0) and usage errors (2)
             return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else EXIT_INPUT)
         args.argv = argv
@@ -210,6 +207,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         if handler is not None:
             root_log.removeHandler(handler)
             root_log.setLevel(logging.NOTSET)
+
+
+def parse_arguments(parser: argparse.ArgumentParser, argv) -> argparse.Namespace:
+    """``argv`` parsed by the command's ``parser`` (:func:`build_parser`); arguments left over are
+    reported by the subcommand's parser, so that its usage line is shown (SystemExit 2)."""
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        extra = _late_positionals(sub.choices[args.command], args, list(extra))
+        if extra:
+            sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
+
+
+def _late_positionals(parser: argparse.ArgumentParser, args: argparse.Namespace, extra: list[str]) -> list[str]:
+    """The arguments left over once the optional positionals (nargs "?": MEAS.csv of calibrate and
+    evaluate, which --bag replaces) that argparse left empty are filled from them, in order:
+    argparse fills such a positional only from the run of positionals it parses it with, so
+    ``ROBOT --ur-type ur5e MEAS.csv`` left MEAS.csv over (python/cpython#59317)."""
+    for action in parser._actions:
+        if not action.option_strings and action.nargs == "?" and getattr(args, action.dest, None) is None \
+                and extra and not extra[0].startswith("-"):
+            setattr(args, action.dest, extra.pop(0))
+    return extra
 
 
 def main_entry() -> None:

@@ -6,8 +6,8 @@ import argparse
 import logging
 import sys
 
-from calib.cli.args import (HelpFormatter, add_frames, add_progress, add_targets, add_ur_type, add_verbose, count,
-                            positive, positive_int, progress_enabled, robot_description, with_targets)
+from calib.cli.args import (HelpFormatter, add_frames, add_progress, add_targets, add_verbose, count, positive, positive_int, progress_enabled, with_targets)
+from calib.cli.robot_args import add_ur_type, robot_description
 from calib.cli.output import EXIT_OK, Outputs, command_line
 from calib.cli.progress import Progress, stage
 

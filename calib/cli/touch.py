@@ -11,7 +11,8 @@ import argparse
 import logging
 import sys
 
-from calib.cli.args import load, read_options
+from calib.cli.args import read_options
+from calib.cli.robot_args import load
 from calib.cli.output import Outputs, command_line, json_text, refuse_implausible, status_exit
 from calib.errors import CalibError, ParameterError
 
@@ -271,4 +272,4 @@ def simulate_touch_file(args, robot, true_robot, rng, outputs, out_csv, describe
     return "\n".join(lines)
 
 
-__all__ = ["is_touch_input", "run_touch", "parse_constraints", "simulate_touch_file"]
+__all__ = ["run_touch", "parse_constraints", "simulate_touch_file"]

@@ -521,7 +521,9 @@ def _readme_commands(path: Path, runnable: bool = False) -> list[str]:
     blocks = re.split(r"```sh run[^\n]*\n" if runnable else r"```sh\n", text)[1:]
     if runnable:
         blocks += text.split("```sh\n")[1:]
-    return [line for block in blocks for line in block.split("```")[0].splitlines() if line.strip()]
+    # (a line ending in a backslash continues on the next: one command)
+    return [line for block in blocks for line in block.split("```")[0].replace("\\\n", " ").splitlines()
+            if line.strip()]
 
 
 def test_readme_opens_with_the_two_setup_commands_and_ci_runs_the_test_one():
@@ -537,7 +539,7 @@ def test_readme_opens_with_the_two_setup_commands_and_ci_runs_the_test_one():
 
 
 def test_every_calib_command_in_the_docs_parses():
-    from calib.cli.main import build_parser
+    from calib.cli.main import build_parser, parse_arguments
 
     docs = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "examples").glob("**/README.md"))]
     shown = [c for doc in docs for c in _readme_commands(doc, runnable=True)]
@@ -548,7 +550,7 @@ def test_every_calib_command_in_the_docs_parses():
     for command in calib_commands:
         argv = shlex.split(command)
         assert argv[0] == "calib"
-        parser.parse_args(argv[1:])   # exits (fails the test) on an unknown option
+        parse_arguments(parser, argv[1:])   # exits (fails the test) on an unknown option
 
 
 _NUMBER = re.compile(r"-?\d+\.?\d*(?:e[-+]?\d+)?")

@@ -29,7 +29,8 @@ HOSTILE = [None, "x", "", float("nan"), float("inf"), -1, 0, 10 ** 30, [], {}, (
 #: are not fuzzed (they take what calib computed), their public methods are.
 BUILT_BY_CALIB = {"IdentifiabilityReport", "CalibrationResult", "ParameterEstimate", "TargetAccuracy",
                   "RecordedFrames", "PoseDesign", "CompensationResult", "PaperLMResult", "GravityModel",
-                  "CompensationTargets", "AccuracyStats", "ExportResult", "MeasurementFrame", "FeatureFit"}
+                  "CompensationTargets", "AccuracyStats", "ExportResult", "MeasurementFrame", "FeatureFit",
+                  "XacroText"}
 #: Per call: a result slower than this is a failure (10**30 poses, rounds, candidates...).
 CALL_LIMIT_S = 10
 
@@ -64,6 +65,21 @@ def table(tmp_path_factory):
     (d / "log.csv").write_text("time_s,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n0,0,0,0,0,0,0\n0.01,1,0,0,0,0,0\n")
     (d / "trk.csv").write_text("time_s,point,target,x_mm,y_mm,z_mm\n0.002,P1_A,A,441,0,-36.5\n")
     timed = calib.ReadOptions(join="nearest-time", time="time_s", max_gap=0.005)
+    # a xacro and a bag (issue 41): the description's own URDF, wrapped; a short ROS 2 bag
+    (d / "robot.urdf.xacro").write_text(BUNDLED_URDF.read_text().replace(
+        "<robot ", '<robot xmlns:xacro="http://www.ros.org/wiki/xacro" ', 1))
+    xacro_text = calib.expand_xacro(d / "robot.urdf.xacro")
+    from rosbag_writer import T0_NS, joint_state, pose_stamped, typestore, write_bag
+
+    ts = typestore("mcap")
+    bag_messages = []
+    for i in range(100):                      # 1 s still at meas.q[0], the pose measured 8 times
+        msgtype, msg = joint_state(ts, T0_NS + 10 ** 7 * i, robot.joint_names, meas.q[0])
+        bag_messages.append(("/joint_states", msgtype, T0_NS + 10 ** 7 * i, msg))
+    for i in range(1, 9):
+        msgtype, msg = pose_stamped(ts, T0_NS + 10 ** 8 * i + 10 ** 6, "tracker", T[0])
+        bag_messages.append(("/pose", msgtype, T0_NS + 10 ** 8 * i + 10 ** 6, msg))
+    bag = write_bag(d / "bag", "mcap", sorted(bag_messages, key=lambda m: m[2]), ts)
     t = {
         "load_robot": (calib.load_robot, dict(urdf_path=BUNDLED_URDF)),
         "robot_path": (calib.robot_path, dict(robot=BUNDLED_URDF)),
@@ -123,6 +139,15 @@ def table(tmp_path_factory):
         "export_calibration": (calib.export_calibration, dict(urdf_path=BUNDLED_URDF, format="mdh-csv", output=d / "e.csv")),
         "read_mdh_csv": (calib.read_mdh_csv, dict(path=d / "mdh.csv")),
         "clear_caches": (calib.clear_caches, {}),
+        "expand_xacro": (calib.expand_xacro, dict(path=d / "robot.urdf.xacro", args={"a": "1"}, packages={})),
+        "RosPackages": (calib.RosPackages, {}),
+        "RosPackages.from_options": (calib.RosPackages.from_options, dict(packages={"p": d}, environ={})),
+        "RosPackages.table": (calib.RosPackages.from_options(environ={}).table, dict(description=d / "robot.urdf.xacro")),
+        "RosPackages.searched": (calib.RosPackages().searched, {}),
+        "XacroText.document": (xacro_text.document, {}),
+        "XacroText.kinematics_file": (xacro_text.kinematics_file, {}),
+        "BagOptions": (calib.BagOptions, dict(pose="/pose", min_still_s=0.2)),
+        "read_bag": (calib.read_bag, dict(path=bag, robot=robot, options=calib.BagOptions(pose="/pose", min_still_s=0.2))),
         # methods of the values the API returns
         "TouchData.subset": (touch.subset, dict(keep=np.ones(touch.n_rows, bool))),
         "TouchData.rows_of": (touch.rows_of, dict(k=0)),

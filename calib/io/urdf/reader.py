@@ -252,6 +252,9 @@ def read_urdf_chain(urdf_path: str | Path | UrdfText, base_frame: str | None = N
     """
     text = urdf_path.text if isinstance(urdf_path, UrdfText) else None
     path = urdf_path.path if text is not None else robot_path(check_path(urdf_path, "urdf_path"))
+    if text is None and path.suffix.lower() == ".xacro":
+        raise URDFError(path, "is a xacro: expand it first, calib.expand_xacro(path, args={...}, packages={...}) "
+                              "(the command line does it: --xacro-arg NAME:=VALUE, --package NAME=DIR)")
     for name, frame in (("base_frame", base_frame), ("tool_frame", tool_frame)):
         if frame is not None and not (isinstance(frame, str) and frame):
             raise ParameterError(f"{name} must be a frame name (a non-empty str) or None, got {frame!r}")
