@@ -36,7 +36,7 @@ from calib.design.collision import CollisionModel, check_cell_robot, MIN_STEP
 from calib.design.feasible import Feasibility, feasible_pool, held_still, plan_limits, still_joints
 from calib.design.poses import PoseDesign, design_from_pool, design_poses
 from calib.design.shorten import shorten
-from calib.design.tour import Travel, connect, move_times, order_poses, path_travel, random_travel, unwrapped
+from calib.design.tour import Travel, path_travel, random_travel, route
 from calib.errors import DataError, ParameterError
 from calib.io.cell import DEFAULT_CELL, Cell
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, weighted_jacobian
@@ -51,10 +51,6 @@ __all__ = ["MeasurementPlan", "plan_measurements", "measurement_model", "predict
 EVALUATION_CONFIGURATIONS = 300
 #: The share by which the predicted error may grow for shorter travel (:mod:`calib.design.shorten`).
 TRAVEL_BUDGET = 0.05
-#: Re-orderings tried when a move finds no waypoints (the move's pair then forbidden).
-REORDERS = 4
-#: The cost (seconds) standing for a forbidden move in the order.
-FORBIDDEN = 1e6
 
 
 @dataclass(frozen=True, eq=False)
@@ -283,7 +279,7 @@ def plan_measurements(robot: RobotModel, n: int, cell: Cell | None = None, *, ge
     still = still_joints(robot, cell, F[sel])
     Q = held_still(robot, cell, collision, F[sel], vis_sel, still,
                    home if home is not None else np.clip(np.median(F[sel], axis=0), lo, hi))
-    path, names, measured, order = _route(collision, travel, Q, home, feas.candidates[feas.free])
+    path, names, measured, order = route(collision, travel, Q, home, feas.candidates[feas.free])
     timings["order and moves"] = time.perf_counter() - t
     tick(total, total)
     poses = path[measured]
@@ -345,49 +341,3 @@ def _information(model, F, visible, parameters, measure, sigma_pos, sigma_rot, e
         Je = pose_jacobian(kin, Q_eval, cols, targets=t_eval)[2][:, :3, :]
         G.append(np.einsum("nki,nkj->ij", Je, Je) / len(Q_eval))
     return A, np.array(G)
-
-
-def _route(collision, travel: Travel, Q: np.ndarray, home, free_pool: np.ndarray):
-    """(path, names, measured, order): the poses Q in visiting order with the waypoints of the
-    moves that need them (:mod:`calib.design.tour`); ``order`` the poses' indices into Q in
-    visiting order. A move no waypoint frees is forbidden and the poses ordered again."""
-    n = len(Q)
-    offset = 0 if home is None else 1
-    nodes = Q if home is None else np.vstack([home, Q])
-    D = move_times(travel, nodes)
-    width = max(2, len(str(n)))
-    known: dict = {}
-    for _ in range(REORDERS + 1):
-        order = order_poses(D, home=home is not None)
-        ids = list(order) + ([0] if home is not None else [])
-        seq = unwrapped(travel, nodes[ids], fixed_first=home is not None)
-        labels, number = [], 0
-        for i in ids:
-            if home is not None and i == 0:
-                labels.append("home")
-            else:
-                number += 1
-                labels.append(f"P{number:0{width}d}")
-        entries = [(seq[0], labels[0], labels[0] != "home")]
-        blocked = []
-        for k in range(1, len(seq)):
-            key = (seq[k - 1].tobytes(), seq[k].tobytes())
-            if key not in known:
-                known[key] = connect(collision, travel, seq[k - 1], seq[k], free_pool)
-            vias = known[key]
-            if vias is None:
-                blocked.append((ids[k - 1], ids[k]))
-                continue
-            entries += [(v, f"{labels[k - 1]}_via{j + 1}", False) for j, v in enumerate(vias)]
-            entries.append((seq[k], labels[k], labels[k] != "home"))
-        if not blocked:
-            break
-        for i, j in blocked:
-            D[i, j] = D[j, i] = FORBIDDEN
-    else:
-        raise DataError(f"no collision-free move was found between some of the poses after {REORDERS} "
-                        f"re-orderings: lower the clearances, or draw more candidates")
-    path = np.array([e[0] for e in entries])
-    names = [e[1] for e in entries]
-    measured = np.array([e[2] for e in entries], bool)
-    return path, names, measured, np.array([i - offset for i in ids if home is None or i != 0], int)

@@ -27,13 +27,19 @@ import math
 
 import numpy as np
 
-__all__ = ["Travel", "move_times", "unwrapped", "order_poses", "path_travel", "connect", "random_travel"]
+from calib.errors import DataError
+
+__all__ = ["Travel", "move_times", "unwrapped", "order_poses", "path_travel", "connect", "random_travel", "route"]
 
 #: The lazy roadmap of a blocked move: its configurations, the neighbours each is joined to, and
 #: the shortest paths tried.
 ROADMAP_NODES = 400
 ROADMAP_NEIGHBOURS = 12
 ROADMAP_ROUNDS = 40
+#: Re-orderings tried when a move finds no waypoints (the move's pair then forbidden), and the
+#: cost (seconds) standing for a forbidden move in the order.
+REORDERS = 4
+FORBIDDEN = 1e6
 #: A velocity limit used when the URDF gives none (rad/s, m/s).
 DEFAULT_SPEED = 1.0
 
@@ -290,3 +296,51 @@ def _shortcut(model, nodes: np.ndarray, path: list[int], known: dict) -> list[in
             keep.append(path[j])
         i = j
     return keep
+
+
+def route(collision, travel: Travel, Q: np.ndarray, home, free_pool: np.ndarray):
+    """(path, names, measured, order): the poses Q in visiting order with the waypoints of the
+    moves that need them (:mod:`calib.design.tour`); ``order`` the poses' indices into Q in
+    visiting order. A move no waypoint frees is forbidden and the poses ordered again (at most
+    :data:`REORDERS` times). Poses are named ``P01`` ... in visiting order, waypoints after the
+    pose they leave (``P03_via1``), the home ``home``. ``collision``: the collision model."""
+    n = len(Q)
+    offset = 0 if home is None else 1
+    nodes = Q if home is None else np.vstack([home, Q])
+    D = move_times(travel, nodes)
+    width = max(2, len(str(n)))
+    known: dict = {}
+    for _ in range(REORDERS + 1):
+        order = order_poses(D, home=home is not None)
+        ids = list(order) + ([0] if home is not None else [])
+        seq = unwrapped(travel, nodes[ids], fixed_first=home is not None)
+        labels, number = [], 0
+        for i in ids:
+            if home is not None and i == 0:
+                labels.append("home")
+            else:
+                number += 1
+                labels.append(f"P{number:0{width}d}")
+        entries = [(seq[0], labels[0], labels[0] != "home")]
+        blocked = []
+        for k in range(1, len(seq)):
+            key = (seq[k - 1].tobytes(), seq[k].tobytes())
+            if key not in known:
+                known[key] = connect(collision, travel, seq[k - 1], seq[k], free_pool)
+            vias = known[key]
+            if vias is None:
+                blocked.append((ids[k - 1], ids[k]))
+                continue
+            entries += [(v, f"{labels[k - 1]}_via{j + 1}", False) for j, v in enumerate(vias)]
+            entries.append((seq[k], labels[k], labels[k] != "home"))
+        if not blocked:
+            break
+        for i, j in blocked:
+            D[i, j] = D[j, i] = FORBIDDEN
+    else:
+        raise DataError(f"no collision-free move was found between some of the poses after {REORDERS} "
+                        f"re-orderings: lower the clearances, or draw more candidates")
+    path = np.array([e[0] for e in entries])
+    names = [e[1] for e in entries]
+    measured = np.array([e[2] for e in entries], bool)
+    return path, names, measured, np.array([i - offset for i in ids if home is None or i != 0], int)

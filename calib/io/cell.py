@@ -27,6 +27,7 @@ The file (lengths in millimetres, angles in degrees, as the key names say; every
         axis: [0, 0, 1]            # the direction it faces (an SMR's opening), tool frame
         cone_deg: 30               # its acceptance: half-angle around axis
     touch:                         # touch features instead of an instrument
+      tip_mm: [0, 0, 150]          # the probe's tip in the tool frame (default: the tool frame)
       probe_radius_mm: 0           # a ball tip's radius (planes)
       nests:
         - name: N1
@@ -270,7 +271,8 @@ class Cell:
     instrument : a :class:`Tracker` or :class:`Camera`, or None (no line of sight is checked:
         an instrument that needs none, or touch data). targets : the :class:`Target` s it
         measures (several: each pose measures those it sees). features : touch features
-        (:class:`Nest`, :class:`PlaneRegion`); probe_radius : metres.
+        (:class:`Nest`, :class:`PlaneRegion`); tip : (3,) metres, the probe's tip in the tool
+        frame; probe_radius : metres.
     workspace : a :class:`Box` the tool point (and the targets) stay in, or None. forbidden :
         boxes the robot keeps ``clearance`` from. floor : nothing of the robot within
         ``clearance`` of the base frame's xy-plane or below it. joint_margin : radians (metres
@@ -284,6 +286,7 @@ class Cell:
     instrument: Tracker | None = None
     targets: tuple = ()
     features: tuple = ()
+    tip: np.ndarray = field(default_factory=lambda: np.zeros(3))
     probe_radius: float = 0.0
     workspace: Box | None = None
     forbidden: tuple = ()
@@ -312,6 +315,7 @@ class Cell:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < 1:
                 raise DataError(f"{name} must be a number in [0, 1) (metres or radians), got {v!r}")
+        _frozen(self, tip=_point(self.tip, "touch tip"))
         if self.home is not None:
             h = np.array(self.home, float)
             if h.ndim != 1 or not np.isfinite(h).all():
@@ -473,13 +477,13 @@ def read_cell(path: str | Path) -> Cell:
         if "targets" in top else ()
     if instrument is not None and not targets:
         targets = (Target("T1", np.zeros(3)),)
-    features, probe = (), 0.0
+    features, probe, tip = (), 0.0, np.zeros(3)
     if "touch" in top:
-        features, probe = _touch(r, top["touch"])
+        features, probe, tip = _touch(r, top["touch"])
     kw = _cell_options(r, top["cell"]) if "cell" in top else {}
     node = next((top[k] for k in ("touch", "targets", "tracker", "camera") if k in top), root)
     return r.checked(node, "cell", lambda: Cell(instrument=instrument, targets=targets, features=features,
-                                                 probe_radius=probe, source=path, **kw))
+                                                 tip=tip, probe_radius=probe, source=path, **kw))
 
 
 def _instrument(r: _Reader, node, kind: str) -> Tracker:
@@ -518,8 +522,9 @@ def _target(r: _Reader, node, key: str) -> Target:
 
 
 def _touch(r: _Reader, node) -> tuple[tuple, float]:
-    m = r.mapping(node, "touch", ("probe_radius_mm", "nests", "planes"))
+    m = r.mapping(node, "touch", ("tip_mm", "probe_radius_mm", "nests", "planes"))
     probe = r.number(m["probe_radius_mm"], "touch.probe_radius_mm", 1e-3, 0.0) if "probe_radius_mm" in m else 0.0
+    tip = r.numbers(m["tip_mm"], "touch.tip_mm", 3, 1e-3) if "tip_mm" in m else np.zeros(3)
     features = []
     for group, cls in (("nests", Nest), ("planes", PlaneRegion)):
         if group not in m:
@@ -544,7 +549,7 @@ def _touch(r: _Reader, node) -> tuple[tuple, float]:
             features.append(r.checked(item, key, lambda: cls(**kw)))
     if not features:
         r.fail(node, "touch", "expected nests or planes (or both)")
-    return tuple(features), probe
+    return tuple(features), probe, tip
 
 
 def _cell_options(r: _Reader, node) -> dict:
