@@ -41,6 +41,8 @@ __all__ = ["CollisionModel", "Obstacle", "ALWAYS_SAMPLES"]
 
 #: Random configurations of the "always in collision" test of the self pairs.
 ALWAYS_SAMPLES = 200
+#: Pairs due within this share of a move are looked at together (conservative advancement).
+BATCH = 0.01
 #: The floor's extent (metres): a slab this wide and half as thick under the base frame's xy-plane.
 FLOOR_SIZE = 100.0
 #: The smallest clearance a move is checked at (metres): the steps of a move are at most this.
@@ -362,24 +364,29 @@ class CollisionModel:
         due = [(0.0, k) for k in range(len(bounds))]
         heapq.heapify(due)
         req = coal.DistanceRequest()
-        t_now = None
         while due:
             t, k = heapq.heappop(due)
-            if t != t_now:
-                pin.updateGeometryPlacements(self.model, self.data, self.geom, self.gdata,
-                                             self.full(q0 + (q1 - q0) * t))
-                t_now = t
-            a, b = self._pairs[k]
-            m = float(self._margins[k])
-            Ma, Mb = self.gdata.oMg[a], self.gdata.oMg[b]
-            L = coal.distance(self._hull[a], _transform(Ma.rotation, Ma.translation), self._hull[b],
-                              _transform(Mb.rotation, Mb.translation), req, coal.DistanceResult())
-            if L <= m:
-                if pin.computeCollision(self.geom, self.gdata, k):
-                    return False
-                L = m
-            if t < 1.0 and bounds[k] > 0:
-                heapq.heappush(due, (min(1.0, t + (L - m / 2) / float(bounds[k])), k))
+            # every pair due within BATCH of t is looked at here (early is safe: it covers on
+            # from t), sharing the kinematics and the shapes' placements
+            batch = [k]
+            while due and due[0][0] <= t + BATCH:
+                batch.append(heapq.heappop(due)[1])
+            pin.updateGeometryPlacements(self.model, self.data, self.geom, self.gdata, self.full(q0 + (q1 - q0) * t))
+            placed: dict = {}
+            for k in batch:
+                a, b = self._pairs[k]
+                for g in (a, b):
+                    if g not in placed:
+                        M = self.gdata.oMg[g]
+                        placed[g] = _transform(M.rotation, M.translation)
+                m = float(self._margins[k])
+                L = coal.distance(self._hull[a], placed[a], self._hull[b], placed[b], req, coal.DistanceResult())
+                if L <= m:
+                    if pin.computeCollision(self.geom, self.gdata, k):
+                        return False
+                    L = m
+                if t < 1.0 and bounds[k] > 0:
+                    heapq.heappush(due, (min(1.0, t + (L - m / 2) / float(bounds[k])), k))
         return True
 
     def beams_free(self, starts: np.ndarray, ends: np.ndarray, radius: float) -> bool:

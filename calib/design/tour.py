@@ -303,7 +303,7 @@ def route(collision, travel: Travel, Q: np.ndarray, home, free_pool: np.ndarray)
     moves that need them (:mod:`calib.design.tour`); ``order`` the poses' indices into Q in
     visiting order. A move no waypoint frees is forbidden and the poses ordered again (at most
     :data:`REORDERS` times). Poses are named ``P01`` ... in visiting order, waypoints after the
-    pose they leave (``P03_via1``), the home ``home``. ``collision``: the collision model."""
+    pose they leave (``P03_via1``), the home ``home`` and, at the end, ``home_end``. ``collision``: the collision model."""
     n = len(Q)
     offset = 0 if home is None else 1
     nodes = Q if home is None else np.vstack([home, Q])
@@ -315,13 +315,13 @@ def route(collision, travel: Travel, Q: np.ndarray, home, free_pool: np.ndarray)
         ids = list(order) + ([0] if home is not None else [])
         seq = unwrapped(travel, nodes[ids], fixed_first=home is not None)
         labels, number = [], 0
-        for i in ids:
+        for at, i in enumerate(ids):
             if home is not None and i == 0:
-                labels.append("home")
+                labels.append("home" if at == 0 else "home_end")
             else:
                 number += 1
                 labels.append(f"P{number:0{width}d}")
-        entries = [(seq[0], labels[0], labels[0] != "home")]
+        entries = [(seq[0], labels[0], not labels[0].startswith("home"))]
         blocked = []
         for k in range(1, len(seq)):
             key = (seq[k - 1].tobytes(), seq[k].tobytes())
@@ -332,7 +332,7 @@ def route(collision, travel: Travel, Q: np.ndarray, home, free_pool: np.ndarray)
                 blocked.append((ids[k - 1], ids[k]))
                 continue
             entries += [(v, f"{labels[k - 1]}_via{j + 1}", False) for j, v in enumerate(vias)]
-            entries.append((seq[k], labels[k], labels[k] != "home"))
+            entries.append((seq[k], labels[k], not labels[k].startswith("home")))
         if not blocked:
             break
         for i, j in blocked:

@@ -81,7 +81,10 @@ CONE_RAD = math.radians(30.0)
 
 
 def _unit(v, what: str) -> np.ndarray:
-    v = np.asarray(v, float)
+    try:
+        v = np.asarray(v, float)
+    except (TypeError, ValueError):
+        raise DataError(f"{what}: expected a non-zero direction (x, y, z)") from None
     n = float(np.linalg.norm(v))
     if v.shape != (3,) or not np.isfinite(v).all() or n < 1e-12:
         raise DataError(f"{what}: expected a non-zero direction (x, y, z)")
@@ -89,7 +92,10 @@ def _unit(v, what: str) -> np.ndarray:
 
 
 def _point(v, what: str) -> np.ndarray:
-    v = np.array(v, float)
+    try:
+        v = np.array(v, float)
+    except (TypeError, ValueError):
+        raise DataError(f"{what}: expected a point (x, y, z) in metres") from None
     if v.shape != (3,) or not np.isfinite(v).all():
         raise DataError(f"{what}: expected a point (x, y, z) in metres")
     v.setflags(write=False)
@@ -298,6 +304,19 @@ class Cell:
     source: Path | None = None
 
     def __post_init__(self):
+        if self.instrument is not None and not isinstance(self.instrument, Tracker):
+            raise DataError(f"instrument must be a Tracker, a Camera or None, got {type(self.instrument).__name__}")
+        for name, cls in (("targets", Target), ("features", Nest), ("forbidden", Box)):
+            value = getattr(self, name)
+            if not isinstance(value, (tuple, list)) or not all(isinstance(v, cls) for v in value):
+                raise DataError(f"{name} must be a tuple of {cls.__name__} values, got {value!r:.60}")
+            object.__setattr__(self, name, tuple(value))
+        if self.workspace is not None and not isinstance(self.workspace, Box):
+            raise DataError(f"workspace must be a Box or None, got {type(self.workspace).__name__}")
+        if not isinstance(self.floor, bool):
+            raise DataError(f"floor must be True or False, got {self.floor!r:.40}")
+        if self.source is not None and not isinstance(self.source, (str, Path)):
+            raise DataError(f"source must be a path or None, got {type(self.source).__name__}")
         if self.instrument is not None and self.features:
             raise DataError("a cell has an instrument or touch features, not both: plan them separately")
         if self.targets and self.instrument is None:
@@ -314,17 +333,20 @@ class Cell:
         for name in ("probe_radius", "joint_margin", "clearance", "self_clearance"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < 1:
-                raise DataError(f"{name} must be a number in [0, 1) (metres or radians), got {v!r}")
-        _frozen(self, tip=_point(self.tip, "touch tip"))
+                raise DataError(f"{name} must be a number in [0, 1) (metres or radians), got {v!r:.40}")
+        try:
+            tip = np.array(self.tip, float)
+        except (TypeError, ValueError):
+            tip = None
+        _frozen(self, tip=_point(tip, "touch tip"))
         if self.home is not None:
-            h = np.array(self.home, float)
-            if h.ndim != 1 or not np.isfinite(h).all():
+            try:
+                h = np.array(self.home, float)
+            except (TypeError, ValueError):
+                h = np.zeros((0, 0))
+            if h.ndim != 1 or not len(h) or not np.isfinite(h).all():
                 raise DataError("home: expected one finite joint value per joint")
             _frozen(self, home=h)
-        object.__setattr__(self, "targets", tuple(self.targets))
-        object.__setattr__(self, "features", tuple(self.features))
-        object.__setattr__(self, "forbidden", tuple(self.forbidden))
-
 
     def home_configuration(self, prismatic: np.ndarray) -> np.ndarray | None:
         """(n,) rad / m: :attr:`home` for a robot whose joints ``prismatic`` (n,) bool are

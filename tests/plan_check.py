@@ -1,0 +1,190 @@
+"""Independent checks of a measurement plan (issue 40), for the tests and scripts/bench_plan.py.
+
+Nothing here uses calib.design: the collision model is built afresh from the URDF with
+Pinocchio's own loader (``pinocchio.buildModelsFromUrdf`` with its package folders), its pairs
+chosen by this module's own rule (every pair of links not joined by a joint, less those in
+collision at every one of 200 random configurations, as MoveIt's setup assistant drops "always"
+pairs), with no security margin; the floor is checked on the shapes' vertices (meshes) and
+corners (boxes); the line of sight by a coal capsule against every link's shape. The moves are
+interpolated at a fixed step of the joints.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+#: Where the KUKA KR16-2 description is kept (read in place; tests skip without it).
+KR16_URDF = Path(__file__).resolve().parents[3] / "shared" / "vendor" / "kuka_kr16_support" / "urdf" / "kr16_2.urdf"
+if not KR16_URDF.is_file():
+    KR16_URDF = Path("/work/shared/vendor/kuka_kr16_support/urdf/kr16_2.urdf")
+
+
+def kr16_urdf() -> Path:
+    """The KR16-2 URDF of /work/shared/vendor (ROS-Industrial kuka_experimental, e78bbd1), or a
+    skip when the folder is absent."""
+    if not KR16_URDF.is_file():
+        pytest.skip(f"the KUKA KR16-2 description is not at {KR16_URDF} (shared vendor files absent)")
+    return KR16_URDF
+
+
+def package_dirs(urdf: Path) -> list[str]:
+    """The folders above a URDF (its package's parent holds the package:// folder)."""
+    return [str(p) for p in Path(urdf).resolve().parents]
+
+
+class Independent:
+    """A collision model of the URDF built without calib (module docstring)."""
+
+    def __init__(self, urdf, joint_names, base_frame: str, samples: int = 200):
+        import pinocchio as pin
+
+        self.pin = pin
+        self.model, self.geom, _ = pin.buildModelsFromUrdf(str(urdf), package_dirs=package_dirs(urdf),
+                                                           geometry_types=[pin.GeometryType.COLLISION,
+                                                                           pin.GeometryType.VISUAL])
+        self.data = self.model.createData()
+        self.ids = [self.model.getJointId(n) for n in joint_names]
+        self.base = self.model.getFrameId(base_frame)
+        # links joined by a joint: a shape's link is its parent frame's; joined when one's parent
+        # joint is the other's joint's parent, or both hang from one joint
+        objs = self.geom.geometryObjects
+        pairs = []
+        for a, b in itertools.combinations(range(len(objs)), 2):
+            ja, jb = objs[a].parentJoint, objs[b].parentJoint
+            if ja == jb or self.model.parents[ja] == jb or self.model.parents[jb] == ja:
+                continue
+            pairs.append((a, b))
+        rng = np.random.default_rng(7)
+        lo = np.maximum(self.model.lowerPositionLimit, -math.pi)
+        hi = np.minimum(self.model.upperPositionLimit, math.pi)
+        always = np.ones(len(pairs), bool)
+        for a, b in pairs:
+            self.geom.addCollisionPair(pin.CollisionPair(a, b))
+        gd = pin.GeometryData(self.geom)
+        neutral = pin.neutral(self.model)
+        for _ in range(samples):
+            q = neutral.copy()
+            for j in self.ids:
+                k = self.model.joints[j].idx_q
+                q[k] = rng.uniform(lo[k], hi[k])
+            pin.computeCollisions(self.model, self.data, self.geom, gd, q, False)
+            always &= np.array([r.isCollision() for r in gd.collisionResults])
+        self.geom.removeAllCollisionPairs()
+        for (a, b), alw in zip(pairs, always):
+            if not alw:
+                self.geom.addCollisionPair(pin.CollisionPair(a, b))
+        self.gdata = pin.GeometryData(self.geom)
+        self.neutral = neutral
+        moving = set(self.ids)
+        self.moving = []
+        for g, obj in enumerate(objs):
+            j = obj.parentJoint
+            while j != 0 and j not in moving:
+                j = self.model.parents[j]
+            self.moving.append(j != 0)
+        self.points = [self._points(obj.geometry) for obj in objs]
+
+    @staticmethod
+    def _points(shape) -> np.ndarray:
+        import coal
+
+        if isinstance(shape, coal.BVHModelBase):
+            return np.asarray(shape.vertices(), float)
+        if isinstance(shape, coal.Box):
+            h = np.asarray(shape.halfSide)
+            return np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * h
+        shape.computeLocalAABB()
+        c, r = np.asarray(shape.aabb_center), shape.aabb_radius
+        return c + r * np.vstack([np.eye(3), -np.eye(3)])
+
+    def full(self, q: np.ndarray) -> np.ndarray:
+        out = self.neutral.copy()
+        for j, v in zip(self.ids, q):
+            out[self.model.joints[j].idx_q] = v
+        return out
+
+    def collides(self, q: np.ndarray) -> bool:
+        return bool(self.pin.computeCollisions(self.model, self.data, self.geom, self.gdata, self.full(q), True))
+
+    def lowest(self, q: np.ndarray) -> float:
+        """The lowest point of the moving shapes above the base frame's xy-plane (m)."""
+        pin = self.pin
+        pin.framesForwardKinematics(self.model, self.data, self.full(q))
+        pin.updateGeometryPlacements(self.model, self.data, self.geom, self.gdata)
+        oMb = self.data.oMf[self.base]
+        low = math.inf
+        for g, pts in enumerate(self.points):
+            if self.moving[g]:
+                M = oMb.actInv(self.gdata.oMg[g])
+                low = min(low, float((pts @ M.rotation.T + M.translation)[:, 2].min()))
+        return low
+
+    def beam_blocked(self, q: np.ndarray, start: np.ndarray, end: np.ndarray, radius: float) -> bool:
+        """Whether a capsule from start to end (base frame, m) touches a shape of the robot."""
+        import coal
+
+        pin = self.pin
+        pin.framesForwardKinematics(self.model, self.data, self.full(q))
+        pin.updateGeometryPlacements(self.model, self.data, self.geom, self.gdata)
+        oMb = self.data.oMf[self.base]
+        a, b = oMb.act(np.asarray(start, float)), oMb.act(np.asarray(end, float))
+        u = (b - a) / np.linalg.norm(b - a)
+        helper = np.eye(3)[int(np.argmin(np.abs(u)))]
+        x = np.cross(helper, u)
+        x /= np.linalg.norm(x)
+        R = np.column_stack([x, np.cross(u, x), u])
+        capsule = coal.Capsule(radius, float(np.linalg.norm(b - a)))
+        tf = coal.Transform3s(R, (a + b) / 2)
+        for g, obj in enumerate(self.geom.geometryObjects):
+            M = self.gdata.oMg[g]
+            if coal.collide(capsule, tf, obj.geometry, coal.Transform3s(M.rotation, M.translation),
+                            coal.CollisionRequest(), coal.CollisionResult()):
+                return True
+        return False
+
+    def path_problems(self, path: np.ndarray, step_deg: float = 0.25, boxes=()) -> list[str]:
+        """Every collision, floor contact or box entry along the straight joint moves of
+        ``path`` (m, n), each move at steps of at most ``step_deg`` of any joint."""
+        out = []
+        step = math.radians(step_deg)
+        for k in range(len(path) - 1):
+            a, b = path[k], path[k + 1]
+            n = max(1, int(math.ceil(np.abs(b - a).max() / step)))
+            for s in range(n + 1):
+                q = a + (b - a) * (s / n)
+                if self.collides(q):
+                    out.append(f"move {k}: self-collision at step {s} of {n}")
+                    break
+                if self.lowest(q) < 0.0:
+                    out.append(f"move {k}: below the floor at step {s} of {n}")
+                    break
+                hit = self._in_boxes(boxes)
+                if hit:
+                    out.append(f"move {k}: inside {hit} at step {s} of {n}")
+                    break
+        return out
+
+    def _in_boxes(self, boxes) -> str | None:
+        """A box (calib.io.cell.Box, base frame) a moving shape touches (coal, no margin), at
+        the placements last computed."""
+        import coal
+
+        if not boxes:
+            return None
+        oMb = self.data.oMf[self.base]
+        for box in boxes:
+            c = oMb.act(np.asarray(box.centre, float))
+            tb = coal.Transform3s(oMb.rotation, c)
+            shape = coal.Box(*np.asarray(box.size, float))
+            for g, obj in enumerate(self.geom.geometryObjects):
+                if not self.moving[g]:
+                    continue
+                M = self.gdata.oMg[g]
+                if coal.collide(shape, tb, obj.geometry, coal.Transform3s(M.rotation, M.translation),
+                                coal.CollisionRequest(), coal.CollisionResult()):
+                    return box.name
+        return None
