@@ -188,3 +188,50 @@ class Independent:
                                 coal.CollisionRequest(), coal.CollisionResult()):
                     return box.name
         return None
+
+
+def touch_rows_of(plan, nominal, truth, rng):
+    """The touch data a robot ``truth`` records running a touch plan made with ``nominal``: from
+    each planned configuration it is jogged until its tool point is where the nominal one was
+    (on the feature), that point moved by the touch noise (plan.sigma per axis); the joints
+    recorded there (calib.model.touch_simulate.reach_positions from the planned ones)."""
+    from calib.model.kinematics import ChainKinematics
+    from calib.model.touch import TouchData
+    from calib.model.touch_simulate import reach_positions
+
+    target = ChainKinematics(nominal).frame_poses(plan.data.q)[1]
+    target = target + rng.normal(0.0, plan.sigma, target.shape)
+    Q, ok = reach_positions(truth, target, starts=plan.data.q, margin=0.0)
+    assert ok.all(), "the true robot did not reach every planned touch"
+    return TouchData(Q, plan.data.feature, plan.data.features, plan.data.probe_radius,
+                     joint_names=plan.data.joint_names)
+
+
+def touch_errors(plan, nominal, seeds, *, deviation=1e-3):
+    """The calibrated error of ``seeds`` simulated runs of a touch plan (calib.calibrate_touch at
+    the plan's params and noise): for the TCP, |tool offset error| (m); for "auto", the tool
+    positions' RMS error over 300 random configurations after a rigid registration, the truth's
+    scale held nominal (the longest length unperturbed: the gauge nominal_scale assumes)."""
+    import calib
+    from calib.calibration.touch_accuracy import registered_error
+    from calib.calibration.workspace import workspace_configurations
+
+    Qw = workspace_configurations(nominal, 300, 0)
+    out = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        if plan.params == "tool":
+            truth = nominal.with_changes(**{n: float(rng.normal(0.0, 2e-3)) for n in ("v_x", "v_y", "v_z")})
+        else:
+            dev = calib.random_deviations(nominal, deviation, rng)
+            lengths = [k for k, p in enumerate(nominal.parameters) if p.unit == "m" and p.group == "joint"]
+            dev[nominal.names[max(lengths, key=lambda k: abs(nominal.values[k]))]] = 0.0
+            truth = calib.apply_deviations(nominal, dev)
+        data = touch_rows_of(plan, nominal, truth, rng)
+        res = calib.calibrate_touch(nominal, data, params=plan.params, sigma=plan.sigma, cv=0, outlier_k=None,
+                                    nominal_scale=plan.params == "auto")
+        if plan.params == "tool":
+            out.append(float(np.linalg.norm(res.robot.T_flange_tool()[:3, 3] - truth.T_flange_tool()[:3, 3])))
+        else:
+            out.append(registered_error(res.robot, truth, Qw, "rigid"))
+    return np.array(out)

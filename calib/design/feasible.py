@@ -29,7 +29,7 @@ import numpy as np
 from calib.design.sight import aim, in_view, target_frames
 from calib.model.kinematics import ChainKinematics
 
-__all__ = ["Feasibility", "plan_limits", "feasible_pool", "still_joints", "held_still"]
+__all__ = ["Feasibility", "plan_limits", "feasible_pool"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,52 +149,3 @@ def _beam(inst, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     end = target - u * min(inst.standoff, length / 2)
     return start, end
 
-
-def still_joints(robot, cell, Q: np.ndarray) -> np.ndarray:
-    """(n,) bool: the joints that move no target (neither its position nor the direction it
-    faces) at any of the configurations Q (N, n): a target on the last joint's axis facing
-    along it does not see that joint. Tested exactly: the targets' frames with the joint turned
-    by one radian either way equal them to 1e-9 m and 1e-9. Without an instrument (the tool's
-    pose measured) none."""
-    n = robot.n_joints
-    out = np.zeros(n, bool)
-    if cell.instrument is None or len(Q) == 0:
-        return out
-    kin = ChainKinematics(robot)
-    P, A = target_frames(kin, Q, cell.targets)
-    for j in range(n):
-        if robot.prismatic[j]:
-            continue
-        same = True
-        for step in (1.0, -1.0):
-            Qj = np.array(Q, float)
-            Qj[:, j] += step
-            Pj, Aj = target_frames(kin, Qj, cell.targets)
-            same &= bool(np.abs(Pj - P).max() < 1e-9 and np.abs(Aj - A).max() < 1e-9)
-        out[j] = same
-    return out
-
-
-def held_still(robot, cell, collision, Q: np.ndarray, visible: np.ndarray, still: np.ndarray,
-               value: np.ndarray) -> np.ndarray:
-    """Q (N, n) with the joints ``still`` (n,) bool at ``value`` (n,) where the pose stays
-    feasible there (no collision, the targets ``visible`` (N, K) it measures still in sight):
-    the measurements are the same (:func:`still_joints`) and those joints do not travel. A pose
-    that would not stay feasible keeps its own values."""
-    Q = np.array(Q, float)
-    if not still.any():
-        return Q
-    inst = cell.instrument
-    kin = ChainKinematics(robot)
-    for i in range(len(Q)):
-        q = Q[i].copy()
-        q[still] = value[still]
-        if collision.collides(q):
-            continue
-        if inst is not None:
-            P, _ = target_frames(kin, q[None], cell.targets)
-            if not all(collision.beams_free(*(x[None] for x in _beam(inst, P[0, k])), inst.beam / 2)
-                       for k in np.flatnonzero(visible[i])):
-                continue
-        Q[i] = q
-    return Q

@@ -33,7 +33,7 @@ import numpy as np
 from calib.calibration.workspace import propagate_covariance, workspace_configurations
 from calib.checks import check_int, check_number, check_rng
 from calib.design.collision import CollisionModel, check_cell_robot, MIN_STEP
-from calib.design.feasible import Feasibility, feasible_pool, held_still, plan_limits, still_joints
+from calib.design.feasible import Feasibility, feasible_pool, plan_limits
 from calib.design.poses import PoseDesign, design_from_pool, design_poses
 from calib.design.shorten import shorten
 from calib.design.tour import Travel, path_travel, random_travel, route
@@ -66,8 +66,8 @@ class MeasurementPlan:
     over as many candidates without the cell. accuracy : {"plan" / "unconstrained": {"joint
     limits" / "cell": (position m, rotation rad or None)}} (:func:`predicted_error`). travel,
     random_travel : seconds of the path and of a random order's mean (of the same poses).
-    still : the joints that move no target, held at one value where the pose allows it
-    (:func:`calib.design.feasible.held_still`: they would travel for nothing). feasibility : the
+    shortened : what :mod:`calib.design.shorten` exchanged ("swaps", and "error": the predicted
+    errors (joint limits, cell) before and after). feasibility : the
     candidates' checks. collision : one line on the collision model. cell, measure, elapsed,
     timings ({stage: seconds}).
     """
@@ -87,7 +87,6 @@ class MeasurementPlan:
     feasibility: Feasibility = field(repr=False)
     collision: str
     shortened: dict
-    still: tuple
     cell: Cell = field(repr=False)
     measure: str
     steps: tuple
@@ -134,9 +133,7 @@ class MeasurementPlan:
                          f"predicted error {100 * (e1[0] / e0[0] - 1):+.1f} % (joint limits), "
                          f"{100 * (e1[1] / e0[1] - 1):+.1f} % (cell) of the optimal selection's")
         lines.append(f"  travel: {self.travel:.1f} s of joint moves at the URDF's velocity limits (a random order: "
-                     f"{self.random_travel:.1f} s); {self.n_waypoints} waypoints"
-                     + (f"; {', '.join(self.still)} held still (no target moves with "
-                        f"{'it' if len(self.still) == 1 else 'them'})" if self.still else ""))
+                     f"{self.random_travel:.1f} s); {self.n_waypoints} waypoints")
         return "\n".join(lines)
 
 
@@ -276,9 +273,7 @@ def plan_measurements(robot: RobotModel, n: int, cell: Cell | None = None, *, ge
     tick(candidates + 3 * total // 10, total)
 
     t = time.perf_counter()
-    still = still_joints(robot, cell, F[sel])
-    Q = held_still(robot, cell, collision, F[sel], vis_sel, still,
-                   home if home is not None else np.clip(np.median(F[sel], axis=0), lo, hi))
+    Q = F[sel]
     path, names, measured, order = route(collision, travel, Q, home, feas.candidates[feas.free])
     timings["order and moves"] = time.perf_counter() - t
     tick(total, total)
@@ -287,8 +282,7 @@ def plan_measurements(robot: RobotModel, n: int, cell: Cell | None = None, *, ge
         robot=model, q=poses, names=tuple(names[k] for k in np.flatnonzero(measured)),
         visible=vis_sel[order], path=path, path_names=tuple(names), measured=measured, design=design,
         unconstrained=free, accuracy=accuracy, travel=path_travel(travel, path),
-        random_travel=random_travel(travel, Q, np.random.default_rng(0), home), shortened=short, still=tuple(
-            name for name, s in zip(robot.joint_names, still) if s),
+        random_travel=random_travel(travel, Q, np.random.default_rng(0), home), shortened=short,
         feasibility=feas, collision=collision.describe(), cell=cell, measure=measure,
         steps=(max(cell.clearance, MIN_STEP), max(cell.self_clearance, MIN_STEP)),
         elapsed=time.perf_counter() - t_start, timings=timings)

@@ -81,11 +81,11 @@ def move_times(travel: Travel, Q: np.ndarray) -> np.ndarray:
     return travel.times(Q[:, None, :], Q[None, :, :])
 
 
-def unwrapped(travel: Travel, path: np.ndarray, *, fixed_first: bool = False) -> np.ndarray:
+def unwrapped(travel: Travel, path: np.ndarray, *, fixed_first: bool = False, fixed_last: bool = False) -> np.ndarray:
     """The configurations of ``path`` (m, n) with each wrapping joint's angles chosen among their
     representatives within the limits (angle + 2 pi k) so that the joint's total turning
-    ``sum |dq|`` is least (dynamic programming over the path, joint by joint); ``fixed_first``:
-    the first configuration stays as given (a home configuration)."""
+    ``sum |dq|`` is least (dynamic programming over the path, joint by joint); ``fixed_first``,
+    ``fixed_last``: the first or last configuration stays as given (a home configuration)."""
     out = np.array(path, float)
     m = len(out)
     if m < 2:
@@ -94,7 +94,7 @@ def unwrapped(travel: Travel, path: np.ndarray, *, fixed_first: bool = False) ->
         lo, hi = travel.lower[j], travel.upper[j]
         reps = []
         for k, a in enumerate(out[:, j]):
-            if fixed_first and k == 0:
+            if (fixed_first and k == 0) or (fixed_last and k == m - 1):
                 reps.append(np.array([a]))
                 continue
             base = a - 2 * math.pi * math.floor((a - lo) / (2 * math.pi))
@@ -219,7 +219,8 @@ def random_travel(travel: Travel, Q: np.ndarray, rng, home: np.ndarray | None = 
         path = Q[rng.permutation(len(Q))]
         if home is not None:
             path = np.vstack([home, path, home])
-        out.append(path_travel(travel, unwrapped(travel, path, fixed_first=home is not None)))
+        out.append(path_travel(travel, unwrapped(travel, path, fixed_first=home is not None,
+                                                 fixed_last=home is not None)))
     return float(np.mean(out))
 
 
@@ -313,7 +314,7 @@ def route(collision, travel: Travel, Q: np.ndarray, home, free_pool: np.ndarray)
     for _ in range(REORDERS + 1):
         order = order_poses(D, home=home is not None)
         ids = list(order) + ([0] if home is not None else [])
-        seq = unwrapped(travel, nodes[ids], fixed_first=home is not None)
+        seq = unwrapped(travel, nodes[ids], fixed_first=home is not None, fixed_last=home is not None)
         labels, number = [], 0
         for at, i in enumerate(ids):
             if home is not None and i == 0:
