@@ -43,9 +43,8 @@ class Independent:
         import pinocchio as pin
 
         self.pin = pin
-        self.model, self.geom, _ = pin.buildModelsFromUrdf(str(urdf), package_dirs=package_dirs(urdf),
-                                                           geometry_types=[pin.GeometryType.COLLISION,
-                                                                           pin.GeometryType.VISUAL])
+        self.model, self.geom = pin.buildModelsFromUrdf(str(urdf), package_dirs=package_dirs(urdf),
+                                                        geometry_types=pin.GeometryType.COLLISION)
         self.data = self.model.createData()
         self.ids = [self.model.getJointId(n) for n in joint_names]
         self.base = self.model.getFrameId(base_frame)
@@ -143,6 +142,7 @@ class Independent:
             M = self.gdata.oMg[g]
             if coal.collide(capsule, tf, obj.geometry, coal.Transform3s(M.rotation, M.translation),
                             coal.CollisionRequest(), coal.CollisionResult()):
+                self.last_blocker = obj.name
                 return True
         return False
 
@@ -235,3 +235,148 @@ def touch_errors(plan, nominal, seeds, *, deviation=1e-3):
         else:
             out.append(registered_error(res.robot, truth, Qw, "rigid"))
     return np.array(out)
+
+
+# ====================================================================== the acceptance of issue 40
+#: The cells of the acceptance plans: a tracker facing the robot, a box beside it, a home.
+ACCEPTANCE_CELLS = {
+    "ur10": """\
+tracker:
+  position_mm: [2500, 300, 900]
+  range_mm: [800, 20000]
+targets:
+  - {name: SMR1, offset_mm: [0, 0, 60], cone_deg: 30}
+cell:
+  forbidden:
+    - {name: table, min_mm: [500, -1200, 0], max_mm: [1200, -500, 500]}
+  home_deg: [0, -90, 0, -90, 0, 0]
+""",
+    "panda": """\
+tracker:
+  position_mm: [2000, 0, 700]
+  range_mm: [500, 20000]
+targets:
+  - {name: SMR1, offset_mm: [0, 0, 130], cone_deg: 30}
+cell:
+  forbidden:
+    - {name: box, min_mm: [400, -700, 0], max_mm: [800, -350, 300]}
+""",
+    "kr16": """\
+tracker:
+  position_mm: [3000, 500, 1200]
+  range_mm: [800, 20000]
+targets:
+  - {name: SMR1, offset_mm: [0, 0, 80], cone_deg: 30}
+cell:
+  forbidden:
+    - {name: fixture, min_mm: [800, -1500, 0], max_mm: [1500, -800, 600]}
+  home_deg: [0, -90, 90, 0, 0, 0]
+""",
+}
+
+
+def acceptance_robot(name: str):
+    """(URDF path, robot) of an acceptance robot: UR10 (tool0) and Panda from
+    example-robot-data, the KR16-2 of the vendor folder (a skip without it)."""
+    import calib
+
+    if name == "kr16":
+        urdf = kr16_urdf()
+        return urdf, calib.load_robot(urdf)
+    import example_robot_data as erd
+
+    urdf = erd.load(name).urdf
+    return urdf, calib.load_robot(urdf, tool_frame="tool0" if name == "ur10" else None)
+
+
+def acceptance_figures(name: str, folder: Path, *, n: int = 50, candidates: int = 10000, step_deg: float = 0.25,
+                       seed: int = 0) -> dict:
+    """Plan ``n`` poses of ``candidates`` for an acceptance robot in its cell and check the plan
+    without calib's collision code: the figures of issue 40's acceptance (dict)."""
+    import calib
+    from calib.design.plan import plan_measurements
+    from calib.io.programs import joint_program_texts, read_program
+    from calib.model.kinematics import ChainKinematics
+
+    urdf, robot = acceptance_robot(name)
+    (folder / f"{name}.yaml").write_text(ACCEPTANCE_CELLS[name])
+    cell = calib.read_cell(folder / f"{name}.yaml")
+    plan = plan_measurements(robot, n, cell, candidates=candidates, seed=seed)
+    check = Independent(urdf, robot.joint_names, robot.base_frame)
+    inst, target = cell.instrument, cell.targets[0]
+    R, p = ChainKinematics(robot).frame_poses(plan.q)
+    points = p + R @ target.offset
+    axes = R @ target.axis
+    to = inst.position - points
+    dist = np.linalg.norm(to, axis=1)
+    cone = np.degrees(np.arccos(np.clip(np.einsum("ni,ni->n", axes, to) / dist, -1, 1)))
+    # (u: from the target toward the instrument; the beam from the head's surface to standoff
+    # before the target)
+    blocked = sum(check.beam_blocked(q, inst.position - u * inst.head / 2, x + u * inst.standoff, inst.beam / 2)
+                  for q, x, u in zip(plan.q, points, to / dist[:, None]))
+    pose_collisions = sum(check.collides(q) for q in plan.q)
+    lowest = min(check.lowest(q) for q in plan.path)
+    problems = check.path_problems(plan.path, step_deg, cell.forbidden)
+    programs = {}
+    if robot.n_joints == 6:
+        for vendor, suffix, options in (("ur", ".script", None), ("kuka", ".src", None), ("abb", ".mod", None),
+                                        ("fanuc", ".ls", {"j23_factor": 0.0})):
+            texts = joint_program_texts(vendor, folder / f"{name}{suffix}", robot, plan.path,
+                                        names=list(plan.path_names), options=options)
+            for path, text in texts.items():
+                Path(path).write_text(text)
+            read = folder / f"{name}{'.dat' if vendor == 'kuka' else suffix}"
+            q = np.array([t.q for t in read_program(read, robot, options=options).targets])
+            programs[vendor] = float(np.abs(q - plan.path).max()) if q.shape == plan.path.shape else math.inf
+    a = plan.accuracy
+    return {"robot": name, "poses": plan.n_poses, "candidates": candidates, "feasible": plan.feasibility.n_feasible,
+            "elapsed_s": plan.elapsed, "pose_collisions": int(pose_collisions), "move_problems": problems,
+            "lowest_mm": lowest * 1e3, "range_ok": bool(np.all((dist >= inst.range[0]) & (dist <= inst.range[1]))),
+            "cone_max_deg": float(cone.max()), "cone_deg": math.degrees(target.cone), "sight_blocked": int(blocked),
+            "error_cell_mm": a["plan"]["cell"][0] * 1e3, "error_cell_free_mm": a["unconstrained"]["cell"][0] * 1e3,
+            "error_limits_mm": a["plan"]["joint limits"][0] * 1e3,
+            "error_limits_free_mm": a["unconstrained"]["joint limits"][0] * 1e3,
+            "travel_s": plan.travel, "random_travel_s": plan.random_travel, "waypoints": plan.n_waypoints,
+            "programs_max_rad": programs, "timings": plan.timings}
+
+
+#: The cube of the touch acceptance: three faces through a corner, 15 rows each.
+CUBE_CELL = """\
+touch:
+  tip_mm: [0, 0, 150]
+  planes:
+    - {name: top, point_mm: [700, 100, 400], normal: [0, 0, 1], size_mm: [150, 150], cone_deg: 25, poses: 15}
+    - {name: front, point_mm: [600, 100, 300], normal: [-1, 0, 0], size_mm: [150, 150], cone_deg: 25, poses: 15}
+    - {name: side, point_mm: [700, 0, 300], normal: [0, -1, 0], size_mm: [150, 150], cone_deg: 25, poses: 15}
+cell:
+  forbidden:
+    - {name: cube, min_mm: [600, 0, 200], max_mm: [800, 200, 400]}
+  clearance_mm: 10
+"""
+#: The TCP case: one nest, 8 rows within a 30 degree cone.
+NEST_CELL = """\
+touch:
+  tip_mm: [0, 0, 150]
+  nests:
+    - {name: N1, position_mm: [700, 200, 300], normal: [0, 0, 1], cone_deg: 30, poses: 8}
+cell:
+  home_deg: [0, -90, 0, -90, 0, 0]
+"""
+
+
+def touch_acceptance(folder: Path, cell_text: str, name: str, seeds=range(10)) -> dict:
+    """A touch plan on the UR10 (tool0, a 150 mm probe) and its simulated calibrations (module
+    docstring of touch_errors): the predicted error, the calibrated ones, their RMS ratio."""
+    import calib
+    from calib.design.touch_plan import plan_touch, probe_model
+
+    urdf, robot = acceptance_robot("ur10")
+    (folder / f"{name}.yaml").write_text(cell_text)
+    cell = calib.read_cell(folder / f"{name}.yaml")
+    plan = plan_touch(robot, cell, seed=0)
+    errors = touch_errors(plan, probe_model(robot, cell), seeds)
+    check = Independent(urdf, robot.joint_names, robot.base_frame)
+    return {"name": name, "rows": plan.data.n_rows, "params": plan.params, "free": len(plan.free),
+            "predicted_mm": plan.predicted * 1e3, "what": plan.what, "errors_mm": errors * 1e3,
+            "ratio": float(np.sqrt(np.mean(errors ** 2)) / plan.predicted), "elapsed_s": plan.elapsed,
+            "move_problems": check.path_problems(plan.path, 0.5, cell.forbidden)}
