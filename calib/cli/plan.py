@@ -147,7 +147,8 @@ def _programs(args, robot, outputs: Outputs) -> list[tuple[str, list[Path]]]:
 def run(args: argparse.Namespace) -> int:
     """Run ``calib plan`` with parsed arguments; returns the exit code."""
     from calib.cli.progress import Progress, stage
-    from calib.io.cell import DEFAULT_CELL, read_cell
+    from calib.io.cell import DEFAULT_CELL
+    from calib.io.cell_file import read_cell
     from calib.io.urdf.collision import collision_geometry
     from calib.io.urdf.reader import load_robot
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from calib.errors import DataError, ParameterError
 
-__all__ = ["CollisionModel", "Obstacle", "ALWAYS_SAMPLES"]
+__all__ = ["CollisionModel", "Obstacle", "ALWAYS_SAMPLES", "checked_geometry", "check_cell_robot"]
 
 #: Random configurations of the "always in collision" test of the self pairs.
 ALWAYS_SAMPLES = 200
@@ -441,6 +441,25 @@ def _frame_along(z: np.ndarray) -> np.ndarray:
     x = np.cross(helper, z)
     x /= np.linalg.norm(x)
     return np.column_stack([x, np.cross(z, x), z])
+
+
+def checked_geometry(robot, geometry):
+    """``geometry`` if it is a pinocchio.GeometryModel of ``robot``'s URDF model, or the URDF's
+    collision geometry loaded (:func:`calib.io.urdf.collision.collision_geometry`) for None;
+    ParameterError otherwise."""
+    import pinocchio as pin
+
+    if geometry is None:
+        from calib.io.urdf.collision import collision_geometry
+
+        return collision_geometry(robot)
+    if not isinstance(geometry, pin.GeometryModel):
+        raise ParameterError(f"geometry must be a pinocchio.GeometryModel (calib.io.urdf.collision.collision_geometry) "
+                             f"or None, got {type(geometry).__name__}")
+    njoints = robot.source.model.njoints
+    if any(g.parentJoint >= njoints for g in geometry.geometryObjects):
+        raise ParameterError("geometry is not of the robot's URDF model: its shapes name joints the model lacks")
+    return geometry
 
 
 def check_cell_robot(robot) -> None:

@@ -32,7 +32,7 @@ import numpy as np
 
 from calib.calibration.workspace import propagate_covariance, workspace_configurations
 from calib.checks import check_int, check_number, check_rng
-from calib.design.collision import CollisionModel, check_cell_robot, MIN_STEP
+from calib.design.collision import CollisionModel, check_cell_robot, checked_geometry, MIN_STEP
 from calib.design.feasible import Feasibility, feasible_pool, plan_limits
 from calib.design.poses import PoseDesign, design_from_pool, design_poses
 from calib.design.shorten import shorten
@@ -101,8 +101,12 @@ class MeasurementPlan:
     def n_waypoints(self) -> int:
         return int((~self.measured).sum()) - (2 if self.cell.home is not None else 0)
 
-    def accuracy_loss(self, where: str = "joint limits") -> float:
-        """The plan's predicted position error over the unconstrained selection's, less 1."""
+    def accuracy_loss(self, where: str = "cell") -> float:
+        """The plan's predicted position error over the unconstrained selection's, less 1, over
+        ``where``: "cell" (the configurations the cell allows) or "joint limits"."""
+        from calib.checks import check_choice
+
+        check_choice(where, "where", ("cell", "joint limits"))
         return self.accuracy["plan"][where][0] / self.accuracy["unconstrained"][where][0] - 1.0
 
     def format(self) -> str:
@@ -203,38 +207,20 @@ def plan_measurements(robot: RobotModel, n: int, cell: Cell | None = None, *, ge
     a pose cannot be reached without collision; :class:`calib.ParameterError` for bad options.
     """
     t_start = time.perf_counter()
-    check_robot(robot)
-    check_cell_robot(robot)
-    cell = DEFAULT_CELL if cell is None else cell
-    if not isinstance(cell, Cell):
-        raise ParameterError(f"cell must be a calib.io.cell.Cell (calib.read_cell) or None, got {type(cell).__name__}")
-    if cell.features:
-        raise ParameterError("the cell holds touch features: plan them with calib.design.touch_plan.plan_touch")
-    check_int(n, "n", minimum=1, maximum=10_000)
-    check_int(candidates, "candidates", minimum=n, maximum=1_000_000)
-    measure = measure or ("position" if cell.instrument is not None else "pose")
-    if measure not in ("pose", "position"):
-        raise ParameterError(f"measure must be 'pose' or 'position', got {measure!r}")
-    check_number(sigma_pos, "sigma_pos", minimum=1e-12, maximum=1.0)
-    check_number(sigma_rot, "sigma_rot", minimum=1e-12, maximum=1.0)
-    check_number(travel_budget, "travel_budget", minimum=0.0, maximum=1.0)
-    rng = check_rng(seed, "seed")
-    tick = progress or (lambda done, total: None)
+    cell, measure, rng, tick = _checked(robot, n, cell, candidates, criterion, measure, sigma_pos, sigma_rot,
+                                        travel_budget, exchange_passes, progress, seed)
     timings = {}
     model = measurement_model(robot, cell)
     home = cell.home_configuration(robot.prismatic)
 
     t = time.perf_counter()
-    if geometry is None:
-        from calib.io.urdf.collision import collision_geometry
-
-        geometry = collision_geometry(robot)
-    collision = CollisionModel(robot, geometry, cell)
+    collision = CollisionModel(robot, checked_geometry(robot, geometry), cell)
     timings["collision model"] = time.perf_counter() - t
     lo, hi, wrap = plan_limits(robot, cell.joint_margin)
     if home is not None:
         _check_home(collision, home, lo, hi, cell)
-    total = candidates + 4 * max(1, candidates // 10)
+    step = max(1, candidates // 10)            # (the stages after the candidates' checks)
+    total = candidates + 4 * step
     feas = feasible_pool(robot, cell, collision, candidates, rng, lambda d, _: tick(d, total))
     timings.update(feas.elapsed)
     if feas.n_feasible < n:
@@ -248,11 +234,11 @@ def plan_measurements(robot: RobotModel, n: int, cell: Cell | None = None, *, ge
     design = design_from_pool(model, n, feas.candidates[feas.feasible], visible=visible, criterion=criterion,
                               measure=measure, seed=rng, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
                               exchange_passes=exchange_passes)
-    tick(candidates + total // 5, total)
+    tick(candidates + step, total)
     free = design_poses(model, n, candidates=candidates, criterion=criterion, measure=measure, seed=rng,
                         sigma_pos=sigma_pos, sigma_rot=sigma_rot, exchange_passes=exchange_passes)
     timings["selection"] = time.perf_counter() - t
-    tick(candidates + 2 * total // 5, total)
+    tick(candidates + 2 * step, total)
 
     t = time.perf_counter()
     F = feas.candidates[feas.feasible]
@@ -270,7 +256,7 @@ def plan_measurements(robot: RobotModel, n: int, cell: Cell | None = None, *, ge
     accuracy = _accuracy(model, F[sel], design, free, vis_sel if K > 1 else None, measure, sigma_pos, sigma_rot,
                          Q_cell)
     timings["prediction"] = time.perf_counter() - t
-    tick(candidates + 3 * total // 10, total)
+    tick(candidates + 3 * step, total)
 
     t = time.perf_counter()
     Q = F[sel]
@@ -286,6 +272,35 @@ def plan_measurements(robot: RobotModel, n: int, cell: Cell | None = None, *, ge
         feasibility=feas, collision=collision.describe(), cell=cell, measure=measure,
         steps=(max(cell.clearance, MIN_STEP), max(cell.self_clearance, MIN_STEP)),
         elapsed=time.perf_counter() - t_start, timings=timings)
+
+
+def _checked(robot, n, cell, candidates, criterion, measure, sigma_pos, sigma_rot, travel_budget, exchange_passes,
+             progress, seed):
+    """The options of :func:`plan_measurements` checked: (cell, measure, rng, tick)."""
+    from calib.choices import POSE_CRITERIA
+
+    check_robot(robot)
+    check_cell_robot(robot)
+    cell = DEFAULT_CELL if cell is None else cell
+    if not isinstance(cell, Cell):
+        raise ParameterError(f"cell must be a calib.io.cell.Cell (calib.read_cell) or None, got {type(cell).__name__}")
+    if cell.features:
+        raise ParameterError("the cell holds touch features: plan them with calib.design.touch_plan.plan_touch")
+    check_int(n, "n", minimum=1, maximum=10_000)
+    check_int(candidates, "candidates", minimum=n, maximum=1_000_000)
+    if measure is None:
+        measure = "position" if cell.instrument is not None else "pose"
+    if not isinstance(measure, str) or measure not in ("pose", "position"):
+        raise ParameterError(f"measure must be 'pose' or 'position', got {measure!r:.40}")
+    check_number(sigma_pos, "sigma_pos", minimum=1e-12, maximum=1.0)
+    check_number(sigma_rot, "sigma_rot", minimum=1e-12, maximum=1.0)
+    check_number(travel_budget, "travel_budget", minimum=0.0, maximum=1.0)
+    if not isinstance(criterion, str) or criterion.upper() not in POSE_CRITERIA:
+        raise ParameterError(f"unknown criterion {criterion!r:.40}: expected one of {', '.join(POSE_CRITERIA)}")
+    check_int(exchange_passes, "exchange_passes", minimum=0, maximum=1000)
+    if progress is not None and not callable(progress):
+        raise ParameterError(f"progress must be None or a function progress(done, total), got {progress!r:.60}")
+    return cell, measure, check_rng(seed, "seed"), progress or (lambda done, total: None)
 
 
 def _check_home(collision: CollisionModel, home: np.ndarray, lo, hi, cell: Cell) -> None:

@@ -37,7 +37,7 @@ import numpy as np
 from calib.calibration.touch_design import SIGMA_TOUCH_M, touch_identifiability
 from calib.calibration.workspace import workspace_configurations
 from calib.checks import check_choice, check_int, check_number, check_rng
-from calib.design.collision import CollisionModel, check_cell_robot
+from calib.design.collision import CollisionModel, check_cell_robot, checked_geometry
 from calib.design.feasible import plan_limits
 from calib.design.sight import joint_columns
 from calib.design.tour import Travel, path_travel, random_travel, route
@@ -201,17 +201,14 @@ def plan_touch(robot: RobotModel, cell: Cell, *, geometry=None, candidates: int 
         raise ParameterError("plan_touch needs a cell with touch features (nests or planes)")
     check_int(candidates, "candidates", minimum=1, maximum=100_000)
     check_number(sigma, "sigma", minimum=1e-9, maximum=1.0)
-    params = params or ("tool" if all(f.kind == "point" for f in cell.features) else "auto")
+    if params is None:
+        params = "tool" if all(f.kind == "point" for f in cell.features) else "auto"
     check_choice(params, "params", ("tool", "auto"))
     if params == "tool" and not any(f.kind == "point" for f in cell.features):
         raise ParameterError("params 'tool' (the TCP) needs a nest touched from several orientations; planes "
                              "alone calibrate with params 'auto'")
     rng = check_rng(seed, "seed")
-    if geometry is None:
-        from calib.io.urdf.collision import collision_geometry
-
-        geometry = collision_geometry(robot)
-    collision = CollisionModel(robot, geometry, cell)
+    collision = CollisionModel(robot, checked_geometry(robot, geometry), cell)
     robot = probe_model(robot, cell)
     lo, hi, wrap = plan_limits(robot, cell.joint_margin)
     home = cell.home_configuration(robot.prismatic)

@@ -1,4 +1,4 @@
-"""The cell file of ``calib plan`` (calib.io.cell): YAML in mm and degrees read into SI values of
+"""The cell file of ``calib plan`` (calib.io.cell, calib.io.cell_file): YAML in mm and degrees read into SI values of
 the base frame, every error one line naming the file, the line and the key."""
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 import calib
-from calib.io.cell import DEFAULT_CELL, Box, Camera, Cell, Nest, PlaneRegion, Target, Tracker, read_cell
+from calib.io.cell import DEFAULT_CELL, Box, Camera, Cell, Nest, PlaneRegion, Target, Tracker
+from calib.io.cell_file import read_cell
 
 FULL = """\
 # a tracker cell

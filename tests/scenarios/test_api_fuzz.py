@@ -29,7 +29,8 @@ HOSTILE = [None, "x", "", float("nan"), float("inf"), -1, 0, 10 ** 30, [], {}, (
 #: are not fuzzed (they take what calib computed), their public methods are.
 BUILT_BY_CALIB = {"IdentifiabilityReport", "CalibrationResult", "ParameterEstimate", "TargetAccuracy",
                   "RecordedFrames", "PoseDesign", "CompensationResult", "PaperLMResult", "GravityModel",
-                  "CompensationTargets", "AccuracyStats", "ExportResult", "MeasurementFrame"}
+                  "CompensationTargets", "AccuracyStats", "ExportResult", "MeasurementFrame", "MeasurementPlan",
+                  "TouchPlan"}
 #: Per call: a result slower than this is a failure (10**30 poses, rounds, candidates...).
 CALL_LIMIT_S = 10
 
@@ -64,6 +65,20 @@ def table(tmp_path_factory):
     (d / "log.csv").write_text("time_s,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n0,0,0,0,0,0,0\n0.01,1,0,0,0,0,0\n")
     (d / "trk.csv").write_text("time_s,point,target,x_mm,y_mm,z_mm\n0.002,P1_A,A,441,0,-36.5\n")
     timed = calib.ReadOptions(join="nearest-time", time="time_s", max_gap=0.005)
+    # a plan (issue 40): a UR5 of example-robot-data (collision meshes), a tracker, few candidates
+    from calib.io.cell import Nest, Target, Tracker
+    from conftest import erd_urdf
+
+    ur5 = calib.load_robot(erd_urdf("ur5"), tool_frame="tool0")
+    tracker = dict(instrument=Tracker([2.0, 0.0, 0.7]), targets=(Target("S", [0.0, 0.0, 0.05]),),
+                   home=np.radians([0.0, -90.0, 0.0, -90.0, 0.0, 0.0]))
+    cell = calib.Cell(**tracker)
+    (d / "cell.yaml").write_text("tracker:\n  position_mm: [2000, 0, 700]\n")
+    plan_kw = dict(robot=ur5, n=10, cell=cell, candidates=80, seed=0, exchange_passes=0, travel_budget=0.0)
+    plan = calib.plan_measurements(**plan_kw)
+    nest = calib.Cell(features=(Nest("N", [0.4, 0.0, 0.3], poses=3),), tip=np.array([0.0, 0.0, 0.15]))
+    touch_kw = dict(robot=ur5, cell=nest, candidates=25, seed=0)
+    tplan = calib.plan_touch(**touch_kw)
     t = {
         "load_robot": (calib.load_robot, dict(urdf_path=BUNDLED_URDF)),
         "robot_path": (calib.robot_path, dict(robot=BUNDLED_URDF)),
@@ -123,6 +138,13 @@ def table(tmp_path_factory):
         "export_calibration": (calib.export_calibration, dict(urdf_path=BUNDLED_URDF, format="mdh-csv", output=d / "e.csv")),
         "read_mdh_csv": (calib.read_mdh_csv, dict(path=d / "mdh.csv")),
         "clear_caches": (calib.clear_caches, {}),
+        "Cell": (calib.Cell, tracker),
+        "read_cell": (calib.read_cell, dict(path=d / "cell.yaml")),
+        "plan_measurements": (calib.plan_measurements, plan_kw),
+        "plan_touch": (calib.plan_touch, touch_kw),
+        "MeasurementPlan.format": (plan.format, {}),
+        "MeasurementPlan.accuracy_loss": (plan.accuracy_loss, dict(where="cell")),
+        "TouchPlan.format": (tplan.format, {}),
         # methods of the values the API returns
         "TouchData.subset": (touch.subset, dict(keep=np.ones(touch.n_rows, bool))),
         "TouchData.rows_of": (touch.rows_of, dict(k=0)),

@@ -277,6 +277,8 @@ def write_poses(path: str | Path, robot, q: np.ndarray, *, angle_unit: str = "de
     check_robot(robot)
     q = check_configurations(q, robot.n_joints, "q")
     if names is not None:
+        if not isinstance(names, (list, tuple, np.ndarray)) or not all(isinstance(n, str) for n in names):
+            raise ParameterError(f"names must be a list of {len(q)} names (text), got {names!r:.60}")
         names = [str(n) for n in names]
         if len(names) != len(q) or len(set(names)) != len(names) or \
                 any(not n.strip() or any(c in n for c in ',"\n#') for n in names):
