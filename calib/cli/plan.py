@@ -221,15 +221,18 @@ def _comment(args, robot, cell, plan, touch: bool) -> str:
     if touch:
         lines.append(f"Touch each feature at its rows; the tool point is the probe's tip at "
                      f"({', '.join(f'{v * 1e3:g}' for v in cell.tip)}) mm in {robot.tool_frame}; record the joints "
-                     f"at contact; calibrate with calib calibrate ROBOT.urdf THIS.csv --params {plan.params}")
+                     f"at contact; calibrate with calib calibrate {args.robot} {Path(args.output).name} --params "
+                     f"{plan.params}")
         lines.append(f"Predicted error {plan.predicted * 1e3:.4f} mm: {plan.what}")
     else:
         if cell.instrument is not None:
             lines.append(f"Measure at each row the targets {', '.join(t.name for t in cell.targets)} at offsets "
                          + "; ".join(f"{t.name} ({', '.join(f'{v * 1e3:g}' for v in t.offset)}) mm"
                                      for t in cell.targets) + f" in {robot.tool_frame}")
-        lines.append("Name the instrument's points as the point column, then: calib calibrate ROBOT.urdf THIS.csv "
-                     "--tracker TRACKER.csv --key point")
+        frames = "".join(f" --{k.replace('_', '-')} {v}" for k, v in (("base_frame", args.base_frame),
+                                                                      ("tool_frame", args.tool_frame)) if v)
+        lines.append(f"Name the instrument's points as the point column, then: calib calibrate {args.robot} "
+                     f"{Path(args.output).name} --tracker TRACKER.csv --key point{frames}")
         a = plan.accuracy
         lines.append(f"Predicted error over the cell {a['plan']['cell'][0] * 1e3:.4f} mm (unconstrained selection "
                      f"{a['unconstrained']['cell'][0] * 1e3:.4f} mm); travel {plan.travel:.1f} s")

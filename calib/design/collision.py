@@ -431,7 +431,7 @@ class CollisionModel:
                 + (f", {n_always} in collision at every sampled configuration: "
                    + ", ".join(f"{self.geom.geometryObjects[a].name}/{self.geom.geometryObjects[b].name}"
                                for a, b in self.always) if n_always else "")
-                + f" left out); {len(self.obstacles)} obstacles"
+                + f" left out); {len(self.obstacles)} obstacle{'s' if len(self.obstacles) != 1 else ''}"
                 + (f" ({', '.join(o.name for o in self.obstacles)})" if self.obstacles else ""))
 
 

@@ -62,11 +62,13 @@ class Feasibility:
 
 
 def plan_limits(robot, margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(lower, upper, wrap) (n,): the joint limits less ``margin`` (rad; metres for prismatic
-    joints: the same number), unlimited joints at -pi .. pi, and which revolute joints have a
-    full turn of range left (they turn the short way, :mod:`calib.design.tour`)."""
-    lo = np.where(np.isfinite(robot.lower), robot.lower + margin, -math.pi)
-    hi = np.where(np.isfinite(robot.upper), robot.upper - margin, math.pi)
+    """(lower, upper, wrap) (n,): the joint limits less ``margin`` (rad; a prismatic joint the
+    same number of millimetres as the margin has degrees, as the cell file gives it), unlimited
+    joints at -pi .. pi, and which revolute joints have a full turn of range left (they turn the
+    short way, :mod:`calib.design.tour`)."""
+    m = np.where(np.asarray(robot.prismatic, bool), margin * (180.0 / math.pi) * 1e-3, margin)
+    lo = np.where(np.isfinite(robot.lower), robot.lower + m, -math.pi)
+    hi = np.where(np.isfinite(robot.upper), robot.upper - m, math.pi)
     unlimited = ~np.isfinite(robot.lower) | ~np.isfinite(robot.upper)
     wrap = ~np.asarray(robot.prismatic, bool) & ((hi - lo >= 2 * math.pi) | unlimited)
     if unlimited.any():

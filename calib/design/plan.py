@@ -69,7 +69,8 @@ class MeasurementPlan:
     shortened : what :mod:`calib.design.shorten` exchanged ("swaps", and "error": the predicted
     errors (joint limits, cell) before and after). feasibility : the
     candidates' checks. collision : one line on the collision model. cell, measure, elapsed,
-    timings ({stage: seconds}).
+    timings ({stage: seconds}). steps : (cell, links) metres: the clearances the moves are checked
+    at (each pair kept at least half of it apart along every move).
     """
 
     robot: RobotModel = field(repr=False)
@@ -119,8 +120,8 @@ class MeasurementPlan:
         lines = [f"Plan: {self.n_poses} poses of {len(self.feasibility.candidates)} candidates "
                  f"(criterion {self.design.criterion}, {what}) in {self.elapsed:.1f} s",
                  f"  cell: {self.feasibility.summary()}",
-                 f"  collisions: {self.collision}; moves checked at steps of at most {self.steps[0] * 1e3:g} mm "
-                 f"(cell) and {self.steps[1] * 1e3:g} mm (links)",
+                 f"  collisions: {self.collision}; along every move the links keep at least "
+                 f"{self.steps[0] * 500:g} mm from the cell and {self.steps[1] * 500:g} mm from each other",
                  f"{'':<40}{'plan':>12}{'unconstrained':>16}",
                  f"{'D = log det':<40}{d['D']:>12.4g}{u['D']:>16.4g}",
                  f"{'condition number':<40}{d['condition_number']:>12.4g}{u['condition_number']:>16.4g}"]

@@ -100,7 +100,8 @@ class TouchPlan:
         return self.data.q
 
     def format(self) -> str:
-        lines = [f"Touch plan: {self.data.n_rows} rows on {len(self.data.features)} features "
+        k = len(self.data.features)
+        lines = [f"Touch plan: {self.data.n_rows} rows on {k} feature{'s' if k > 1 else ''} "
                  f"(params {self.params}: {len(self.free)} robot parameters) in {self.elapsed:.1f} s"]
         for f, (ok, drawn) in self.reached.items():
             lines.append(f"  {f}: {ok} of {drawn} approaches reachable and free of collisions")

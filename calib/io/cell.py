@@ -281,8 +281,9 @@ class Cell:
         frame; probe_radius : metres.
     workspace : a :class:`Box` the tool point (and the targets) stay in, or None. forbidden :
         boxes the robot keeps ``clearance`` from. floor : nothing of the robot within
-        ``clearance`` of the base frame's xy-plane or below it. joint_margin : radians (metres
-        for prismatic joints) kept inside each limit. self_clearance : metres between links.
+        ``clearance`` of the base frame's xy-plane or below it. joint_margin : radians kept inside
+        each limit (a prismatic joint: as many millimetres as the margin has degrees).
+        self_clearance : metres between links.
     home : (n,) joint values where the program starts and ends, or None: radians, and for a
         prismatic joint the millimetres of the file times pi / 180 (the file does not know which
         joints are prismatic: :meth:`home_configuration` converts them).

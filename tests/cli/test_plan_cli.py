@@ -59,7 +59,7 @@ def test_the_plan_prints_its_figures_and_writes_every_file(planned):
         assert (d / name).is_file() and f"wrote {d / name}" in out
     assert (d / "plan.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     text = (d / "plan.csv").read_text()
-    assert "--tracker TRACKER.csv --key point" in text
+    assert "plan.csv --tracker TRACKER.csv --key point --tool-frame tool0" in text
     header = [line for line in text.splitlines() if not line.startswith("#")][0]
     assert header.startswith("point,shoulder_pan_joint_deg,")
 
