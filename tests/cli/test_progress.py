@@ -68,11 +68,11 @@ def test_every_imported_package_is_declared():
             elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
                 imported.add(node.module.split(".")[0])
     third_party = sorted(m for m in imported if m not in sys.stdlib_module_names and m != "calib")
-    assert third_party == ["example_robot_data", "jinja2", "lxml", "matplotlib", "numpy", "pinocchio", "scipy",
-                           "threadpoolctl", "yaml"]
+    assert third_party == ["coal", "example_robot_data", "jinja2", "lxml", "matplotlib", "mpl_toolkits", "numpy",
+                           "pinocchio", "scipy", "threadpoolctl", "yaml"]
     # cmeel wheels (Pinocchio, example-robot-data) install their modules under cmeel.prefix,
     # which packages_distributions() does not map
-    cmeel = {"pinocchio": ["pin"], "example_robot_data": ["example-robot-data"]}
+    cmeel = {"pinocchio": ["pin"], "example_robot_data": ["example-robot-data"], "coal": ["coal"]}
     for module in third_party:
         names = {d.lower().replace("_", "-") for d in dists.get(module) or cmeel.get(module, [])}
         assert names & declared, (module, names)
