@@ -120,3 +120,68 @@ def test_options_are_checked():
 
     with pytest.raises(calib.ParameterError, match="a plan needs a robot loaded from a URDF"):
         plan_measurements(replace(robot, source=None), 10)
+
+
+def test_a_camera_sees_every_target_in_its_field_of_view():
+    from calib.io.cell import Camera
+
+    robot = calib.load_robot(erd_urdf("ur5"), tool_frame="tool0")
+    cam = Camera([1.8, 0.0, 0.6], look_at=[0.3, 0.0, 0.4], fov=(math.radians(50), math.radians(40)), range=(0.5, 4.0))
+    cell = Cell(instrument=cam, targets=(Target("M", [0.0, 0.0, 0.03], cone=math.radians(40)),))
+    plan = plan_measurements(robot, 12, cell, candidates=1500, seed=1)
+    R, p = ChainKinematics(robot).frame_poses(plan.q)
+    x = p + R @ cell.targets[0].offset
+    z = cam.look_at - cam.position
+    z /= np.linalg.norm(z)
+    xc = np.cross(-cam.up, z)
+    xc /= np.linalg.norm(xc)
+    yc = np.cross(z, xc)
+    v = x - cam.position
+    depth = v @ z
+    assert np.all(depth > 0)
+    assert np.all(np.abs(v @ xc) <= np.tan(math.radians(25)) * depth + 1e-9)
+    assert np.all(np.abs(v @ yc) <= np.tan(math.radians(20)) * depth + 1e-9)
+    assert plan.feasibility.rejected.get("out of view", 0) > 0
+
+
+def test_several_targets_each_pose_measures_those_it_sees():
+    """Two SMRs facing different ways: every pose sees at least one; the prediction counts the
+    rows of those it sees only (a pose seeing both informs more than one seeing one)."""
+    robot = calib.load_robot(erd_urdf("ur5"), tool_frame="tool0")
+    cell = Cell(instrument=Tracker([2.0, 0.3, 0.7], range=(0.6, 20.0)),
+                targets=(Target("A", [0.0, 0.0, 0.05], axis=[0, 0, 1]), Target("B", [0.05, 0.0, 0.0], axis=[1, 0, 0])))
+    plan = plan_measurements(robot, 12, cell, candidates=1500, seed=2)
+    assert plan.robot.targets == ("A", "B")
+    assert plan.visible.shape == (12, 2) and plan.visible.any(axis=1).all()
+    R, p = ChainKinematics(robot).frame_poses(plan.q)
+    for k, t in enumerate(cell.targets):
+        x = p + R @ t.offset
+        a = R @ t.axis
+        to = cell.instrument.position - x
+        cos = np.einsum("ni,ni->n", a, to) / np.linalg.norm(to, axis=1)
+        assert np.all(cos[plan.visible[:, k]] >= math.cos(t.cone) - 1e-12)
+    from calib.design.plan import predicted_error
+
+    params = plan.design.parameters
+    Qe = plan.robot.random_configurations(40, 0)
+    both = predicted_error(plan.robot, plan.q, params, "position", 2e-5, 2e-3, Qe, np.ones((12, 2), bool))[0]
+    seen = predicted_error(plan.robot, plan.q, params, "position", 2e-5, 2e-3, Qe, plan.visible)[0]
+    assert seen >= both
+
+
+def test_selection_over_a_pool_with_every_target_seen_is_the_plain_one():
+    """design_from_pool with every target visible selects as design_poses does over the same
+    pool; a target hidden in every pose makes its rows count for nothing."""
+    from calib.design.poses import design_from_pool
+
+    robot = calib.load_robot(erd_urdf("ur5"), tool_frame="tool0").with_target_offsets(
+        {"A": [0, 0, 0.05], "B": [0.05, 0, 0]})
+    pool = robot.random_configurations(300, 0)
+    a = design_from_pool(robot, 10, pool, measure="position", seed=0)
+    b = design_from_pool(robot, 10, pool, visible=np.ones((300, 2), bool), measure="position", seed=0)
+    np.testing.assert_array_equal(a.indices, b.indices)
+    only_a = np.column_stack([np.ones(300, bool), np.zeros(300, bool)])
+    c = design_from_pool(robot, 10, pool, visible=only_a, measure="position", seed=0)
+    assert c.criteria["D"] < a.criteria["D"]
+    with pytest.raises(calib.ParameterError, match="every candidate must measure at least one target"):
+        design_from_pool(robot, 10, pool, visible=np.zeros((300, 2), bool), measure="position")
