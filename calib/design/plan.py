@@ -24,7 +24,6 @@ its points, so that ``calib calibrate ... --tracker FILE --key point`` joins the
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field, replace
 

@@ -14,7 +14,6 @@ import pytest
 import calib
 from calib.design.plan import measurement_model, plan_measurements
 from calib.io.cell import Box, Cell, Target, Tracker
-from calib.io.urdf.collision import collision_geometry
 from calib.model.kinematics import ChainKinematics
 
 from conftest import erd_urdf

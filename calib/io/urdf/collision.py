@@ -62,9 +62,8 @@ def collision_geometry(robot, package_dirs=()):
     text = etree.tostring(source.document.tree, encoding="unicode")
     from_file = path.suffix.lower() == ".urdf" and path.is_file()
     dirs = package_dirs_for(path, text, package_dirs)
-    said: list[str] = []
     try:
-        with captured_c_output() as said:
+        with captured_c_output():      # (assimp and the parser write to C stdout and stderr)
             if from_file:
                 geom = pin.buildGeomFromUrdf(source.model, str(path), pin.GeometryType.COLLISION, package_dirs=dirs)
             else:
