@@ -200,7 +200,11 @@ def _stage_outputs(args, robot, model, cell, plan, touch, out, picture, programs
     else:
         from calib.io.csv.specs import write_poses
 
-        outputs.stage_from_file(out, lambda p: write_poses(p, robot, plan.q, names=plan.names, comment=comment))
+        sees = None
+        if len(cell.targets) > 1:       # (each pose measures the targets it sees)
+            sees = {"sees": [" ".join(t.name for t, v in zip(cell.targets, row) if v) for row in plan.visible]}
+        outputs.stage_from_file(out, lambda p: write_poses(p, robot, plan.q, names=plan.names, comment=comment,
+                                                           extra=sees))
     for vendor, paths in programs:
         options = {"j23_factor": args.j23_factor} if vendor == "fanuc" else {}
         texts = joint_program_texts(vendor, paths[0], robot, plan.path, names=list(plan.path_names), options=options)
@@ -231,6 +235,10 @@ def _comment(args, robot, cell, plan, touch: bool) -> str:
                                      for t in cell.targets) + f" in {robot.tool_frame}")
         frames = "".join(f" --{k.replace('_', '-')} {v}" for k, v in (("base_frame", args.base_frame),
                                                                       ("tool_frame", args.tool_frame)) if v)
+        if len(cell.targets) > 1:
+            lines.append("Each row measures the targets its sees column names (the others are out of sight there); give the instrument's rows the point "
+                         "and a target column (or names such as P01_A and --target-from "
+                         "'(?P<key>P\\d+)_(?P<target>\\w+)')")
         lines.append(f"Name the instrument's points as the point column, then: calib calibrate {args.robot} "
                      f"{Path(args.output).name} --tracker TRACKER.csv --key point{frames}")
         a = plan.accuracy

@@ -146,3 +146,18 @@ def test_a_seven_axis_arm_has_no_six_axis_program(tmp_path):
                          "--program", tmp_path / "plan.script")
     assert code == 2 and "a ur program holds six robot axes; the chain has 7 joints" in err
     assert not (tmp_path / "plan.csv").exists()
+
+
+def test_a_plan_of_several_targets_names_those_each_pose_sees(tmp_path):
+    (tmp_path / "two.yaml").write_text("tracker:\n  position_mm: [2000, 300, 700]\ntargets:\n"
+                                       "  - {name: A, offset_mm: [0, 0, 50], axis: [0, 0, 1]}\n"
+                                       "  - {name: B, offset_mm: [50, 0, 0], axis: [1, 0, 0]}\n")
+    code, out, err = run("plan", erd_urdf("ur5"), "--tool-frame", "tool0", "--poses", 10, "--candidates", 1000,
+                         "-o", tmp_path / "two.csv", "--cell", tmp_path / "two.yaml")
+    assert code == 0, err
+    lines = [line for line in (tmp_path / "two.csv").read_text().splitlines() if not line.startswith("#")]
+    assert lines[0].startswith("point,sees,shoulder_pan_joint_deg,")
+    sees = [line.split(",")[1] for line in lines[1:]]
+    assert len(sees) == 10 and all(s in ("A", "B", "A B") for s in sees)
+    robot = calib.load_robot(erd_urdf("ur5"), tool_frame="tool0")
+    assert calib.read_poses(tmp_path / "two.csv", robot).shape == (10, 6)
