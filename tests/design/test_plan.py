@@ -184,3 +184,12 @@ def test_selection_over_a_pool_with_every_target_seen_is_the_plain_one():
     assert c.criteria["D"] < a.criteria["D"]
     with pytest.raises(calib.ParameterError, match="every candidate must measure at least one target"):
         design_from_pool(robot, 10, pool, visible=np.zeros((300, 2), bool), measure="position")
+
+
+def test_the_same_seed_gives_the_same_plan():
+    robot = calib.load_robot(erd_urdf("ur5"), tool_frame="tool0")
+    a, b = (plan_measurements(robot, 10, CELL, candidates=400, seed=5) for _ in range(2))
+    np.testing.assert_array_equal(a.path, b.path)
+    assert a.path_names == b.path_names
+    c = plan_measurements(robot, 10, CELL, candidates=400, seed=6)
+    assert c.path.shape != a.path.shape or not np.array_equal(c.path, a.path)
