@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_verbose, nonnegative, print_notes, read_options, with_compliance_file)
-from calib.cli.robot_args import add_ur_type, robot_description, urdf_only
+from calib.cli.inputs import add_ur_type, robot_description, urdf_only
 from calib.cli.output import EXIT_NOT_CONVERGED, EXIT_OK, PROG, Outputs, command_line
 from calib.errors import ParameterError
 
