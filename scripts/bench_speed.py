@@ -81,6 +81,9 @@ BEFORE_27 = {"calibrate_100_cpu_ms": 9.1, "calibrate_25_ms": 31.6, "first_25_ms"
              "iiwa_auto_ms": 412.0}
 TARGET_27 = {"calibrate_100_ms": 7.0, "calibrate_25_ms": 25.0, "first_ratio": 3.0, "process_ratio": 1.3,
              "help_ratio": 1.5, "select_100k_s": 10.0, "iiwa_ms": 100.0, "iiwa_compliance_ms": 200.0}
+#: Issue 38 item 4: a library that leaves its host alone (no dataclasses hook, no malloc tuning)
+#: may cost the command's start-up up to 1.7x import pinocchio.
+TARGET_38_PROCESS_RATIO = 1.7
 REALDATA = ROOT.parent / "shared" / "realdata" / "iiwa7_optical"
 
 def _env() -> dict:
@@ -467,7 +470,8 @@ def print_process(p: dict) -> None:
     print(f"issue 27: calib calibrate / import pinocchio {p['calibrate'] / p['pinocchio']:.2f}x on 100 simulated "
           f"poses (before {BEFORE_27['process_ratio']:g}x), {p['example'] / p['pinocchio']:.2f}x on the bundled "
           f"example (examples/brtirus0707a: 100 + 200 validation rows, {p['example']:.3f} s; "
-          f"target <= {TARGET_27['process_ratio']:g}x); calib --help / import numpy "
+          f"target <= {TARGET_38_PROCESS_RATIO:g}x, issue 38; {TARGET_27['process_ratio']:g}x in issue 27 with the "
+          f"start-up workarounds issue 38 removed); calib --help / import numpy "
           f"{p['help'] / p['numpy']:.2f}x (target <= {TARGET_27['help_ratio']:g}x)")
     c = p["cpu"]
     print(f"the same in CPU time (user + system; less sensitive to the machine's load): calib calibrate "
