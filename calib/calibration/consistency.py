@@ -1,8 +1,26 @@
-"""Data that disagree with themselves: when many calibration rows are flagged as outliers (more
-than :data:`INCONSISTENT_SHARE` of them), the predictions of the fit describe only rows like the
-kept ones. :func:`data_consistency` measures the held-out error of every row, flagged ones
-included, and tries the commonest cause, a moved instrument, on the flagged rows;
-:func:`consistency_notes` says so first in the result.
+"""Data that disagree with themselves.
+
+**The data-consistency rule** (issue 39; the refusals and notes it gives are phrased here, what
+they measure by the outlier check, :mod:`calib.calibration.estimators.robust`):
+
+* refused (status "implausible", the CLI's exit 3) only when more than half of the calibration
+  rows lie beyond ``outlier_k`` sigma of the fit of the rows that agree best (the high-breakdown
+  fit, its noise levels from those rows): past the breakdown point of any outlier check, no fit
+  can tell which rows are the good ones (:func:`inconsistent_rows`, :func:`too_many_flagged`).
+  Honest heavy tails (Student-t noise, a few noisier rows, model error in the residuals) never
+  put half of the rows there: scripts/bench_refusal.py measures it (0 of 208 simulated heavy-
+  tailed calibrations refused, every class it exists for still refused);
+* a note with the figures (:func:`heavy_tails_note`) when the least-squares noise level is more
+  than ROBUST_CHECK_INFLATION times the robust one (1.4826 MAD) after the outlier check: heavy
+  tails, which until issue 39 were refused (real tracker and probed-frame sets, RMS/MAD 1.4-1.9,
+  kurtosis 5-14, although their fits were the best of all tools);
+* every refusal says what it measured and the ways through (:data:`WAYS_THROUGH`).
+
+When many calibration rows are flagged as outliers (more than :data:`INCONSISTENT_SHARE` of
+them), the predictions of the fit describe only rows like the kept ones.
+:func:`data_consistency` measures the held-out error of every row, flagged ones included, and
+tries the commonest cause, a moved instrument, on the flagged rows; :func:`consistency_notes`
+says so first in the result.
 
 A kept row's held-out error is its leave-one-out residual, (I - H_ii)^-1 r_i with H_ii its block
 of the hat matrix (exact for the linearised fit, also for a MAP fit with its posterior
@@ -19,7 +37,52 @@ from calib.calibration.validation import held_out_factors
 from calib.solvers.problem import Problem
 
 __all__ = ["INCONSISTENT_SHARE", "MOVED_FRAME_FACTOR", "held_out_residuals", "data_consistency",
-           "consistency_notes"]
+           "consistency_notes", "WAYS_THROUGH", "inconsistent_rows", "too_many_flagged", "heavy_tails_note"]
+
+#: What a refusal of the data-consistency rule offers (the API's option, then the CLI's flag).
+WAYS_THROUGH = ("if the data are what they should be, fit with a robust loss (loss='huber', --loss huber), which "
+                "weighs far rows down instead of refusing them, or write the outputs for inspection "
+                "(--accept-implausible)")
+#: What to check first when the data are inconsistent.
+_CHECK = "check the joint columns (order, units), the orientation columns and that the URDF is this robot's"
+
+
+def _levels_text(sigma_pos: float, sigma_rot: float | None) -> str:
+    return f"{sigma_pos * 1e3:.3g} mm" + ("" if sigma_rot is None else f", {sigma_rot:.3g} rad")
+
+
+def inconsistent_rows(flagged: int, rows: int, k: float, core: tuple[float, float | None],
+                      fitted: tuple[float, float | None]) -> str:
+    """The refusal when ``flagged`` of the ``rows`` kept calibration rows lie beyond ``k`` sigma
+    of the fit of the rows that agree best, more than half of them. core : (m, rad or None)
+    the noise levels of those rows; fitted : those of the least-squares fit of every row."""
+    return (f"the data are inconsistent: {flagged} of {rows} rows lie more than {k:g} sigma "
+            f"({_levels_text(*core)}) from the fit of the rows that agree best, more than the half "
+            f"that gross rows can be among consistent data (the least-squares fit of every row leaves "
+            f"{_levels_text(*fitted)}); {_CHECK}; {WAYS_THROUGH}")
+
+
+def too_many_flagged(flagged: int, rows: int) -> str:
+    """The refusal when the outlier passes together would leave out ``flagged`` of the ``rows``
+    calibration rows, more than half of them."""
+    return (f"the data are inconsistent: the outlier check would leave out {flagged} of {rows} rows, more "
+            f"than the half that gross rows can be among consistent data; {_CHECK}; {WAYS_THROUGH}")
+
+
+def heavy_tails_note(ratios: Sequence[tuple[str, float]], kurtosis: Sequence[tuple[str, float]], rows: int,
+                     beyond: int, k: float) -> str:
+    """The note of a fit whose residuals are heavy-tailed but consistent (the rule above):
+    ratios : (group, least-squares noise level over the robust one) of the groups estimated;
+    kurtosis : (group, the whitened residual components' kurtosis, 3 for normal noise); rows :
+    the rows kept; beyond : how many of them lie beyond ``k`` sigma of the fit of the rows that
+    agree best."""
+    figures = "; ".join(f"{g} noise {r:.2g} times the median residual's, kurtosis {c:.3g}"
+                        for (g, r), (_, c) in zip(ratios, kurtosis))
+    return (f"heavy-tailed residuals ({figures}; normal noise gives 1 and 3): more rows lie far out than "
+            f"normal noise puts there, but only {beyond} of {rows} rows lie beyond {k:g} sigma of the fit of "
+            f"the rows that agree best (more than half would make the data inconsistent), so the calibration "
+            f"stands. Its noise levels and predicted errors are RMS figures, which the tails raise; a robust "
+            f"loss (--loss huber) weighs the far rows down")
 
 #: More flagged calibration rows than this share: the data disagree with themselves.
 INCONSISTENT_SHARE = 0.1

@@ -190,6 +190,7 @@ class _FitRun:
         # residuals' own
         self.fixed_point = self.two_groups and loss == "linear" and solve.lm_variant != "paper"
         self.robust_levels = (self.sp, self.sr)       # (the outlier check's robust noise levels)
+        self.trimmed_last = False       # (the rows now kept were judged against the high-breakdown fit)
         self._last_lin = None
 
     def problem(self) -> Problem:
@@ -291,6 +292,7 @@ class _FitRun:
                             options=self.solve.options, trace=self.trace)
         self.x, self.robust_levels = judged.x, (judged.sigma_pos, judged.sigma_rot)
         new, too_many = list(judged.outliers), judged.too_many
+        self.trimmed_last = judged.trimmed
         if judged.breakdown:
             self.refusals.append(judged.breakdown)
         elif too_many:
@@ -311,11 +313,13 @@ class _FitRun:
             self.suspect = None
             if back.any():
                 self.keep |= back
+                self.trimmed_last = False
                 return True
         if not new:
             return False
         self.outliers += new
         self.keep &= ~np.isin(cal.rows, [o.row for o in new])
+        self.trimmed_last = False
         return True
 
     def finish(self) -> tuple[Fit, Problem]:
@@ -337,15 +341,14 @@ class _FitRun:
             sol = replace(sol, status=self.stuck.status, message=self.stuck.message)
         lin = self.linearised(problem, x)
         noise = noise_estimate(problem, lin, self.estimate, self.vce_total)
+        notes = list(self.notes)
         if self.estimate and self.outlier_k is not None and self.loss == "linear" and not self.refusals \
                 and self.refit and can_trim(everything, self.keep, len(x)):
             # (where half of the rows cannot determine the parameters, the median residual cannot
             # say what the noise is either: the real TIAGo marker rows, 27 for 33 parameters, were
             # refused as inconsistent, the least-squares noise 2.2x the median residual's)
-            self.refusals.append(leftover_gross(everything, x, self.keep, (lin.red_pos, lin.red_rot),
-                                                (self.sp, self.sr), self.given))
+            notes += self.tails(problem, x, lin)
         model = start.with_values(problem.full(x))
-        notes = list(self.notes)
         if self.outliers:
             notes.append(f"{len(self.outliers)} outlier rows removed and the fit repeated without them: rows "
                          + ", ".join(str(o.row) for o in self.outliers))
@@ -356,6 +359,29 @@ class _FitRun:
                   notes=tuple(notes), unremoved=self.unremoved,
                   refusals=tuple(r for r in dict.fromkeys(self.refusals) if r))
         return fit, problem
+
+
+    def tails(self, problem: Problem, x: np.ndarray, lin: Linearised) -> list[str]:
+        """The data-consistency rule on the final fit (:mod:`calib.calibration.consistency`):
+        heavy tails (the least-squares noise level above ROBUST_CHECK_INFLATION times the robust
+        one) are judged against the high-breakdown fit where the passes did not judge these rows
+        there (a refusal when more than half of them lie far from it), else noted with their
+        figures."""
+        cal, everything = self.setup.cal, self.everything
+        tails = leftover_gross(everything, x, self.keep, (lin.red_pos, lin.red_rot), (self.sp, self.sr),
+                               self.given, self.outlier_k)
+        if not tails.heavy:
+            return []
+        beyond = len(self.outliers)
+        if not self.trimmed_last:
+            judged = judge_rows(everything, problem, x, self.keep, cal.rows, self.outlier_k, given=self.given,
+                                red=(lin.red_pos, lin.red_rot), few=True, options=self.solve.options,
+                                trace=self.trace)
+            if judged.breakdown:
+                self.refusals.append(judged.breakdown)
+                return []
+            beyond += len(judged.outliers)
+        return [replace(tails, rows=cal.n_poses, beyond=beyond).note()]
 
 
 def _solve_logged(solve: Solver, problem: Problem, x, trace, first, loose: bool = False,
