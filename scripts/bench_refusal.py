@@ -103,8 +103,10 @@ BAD = [
     ("metres read as millimetres", "bundled", 60, True, "m-as-mm"),
     ("another robot's URDF (UR5 on Kinova data)", "kinova", 50, True, "urdf:ur5"),
     ("another robot's URDF (Kinova on UR5 data)", "ur5", 40, False, "urdf:kinova"),
-    ("55 % of rows 5 mm off", "bundled", 100, True, "gross0.55"),
-    ("60 % of rows 5 mm off", "bundled", 40, False, "gross0.6"),
+    ("55 % of 100 full poses 5 mm off", "bundled", 100, True, "gross0.55"),
+    ("55 % of 50 full poses 5 mm off", "bundled", 50, True, "gross0.55"),
+    ("55 % of 40 positions 5 mm off", "bundled", 40, False, "gross0.55"),
+    ("60 % of 40 positions 5 mm off", "bundled", 40, False, "gross0.6"),
 ]
 
 _ROBOTS: dict = {}
