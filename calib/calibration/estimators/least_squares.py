@@ -31,6 +31,7 @@ from calib.calibration.estimators.base import Estimate, Fit, Linearised, lineari
 from calib.calibration.estimators.outlier import Outlier
 from calib.calibration.estimators.robust import (can_trim, flag_outliers, judge_rows, leftover_gross, robust_sigmas,
                                       too_many_gross)
+from calib.errors import DataError
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -108,7 +109,7 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
               sigma_rot: float | None, loss: str = "linear", loss_scale: float = 3.0,
               outlier_k: float | None = 5.0, keep: np.ndarray | None = None,
               kin: ChainKinematics | None = None, rank_deficit: int = 0,
-              warm: bool = False, refit: bool = True) -> tuple[Fit, Problem]:
+              warm: bool = False, refit: bool = True, choose_weights: bool = False) -> tuple[Fit, Problem]:
     """The fit stage: identify ``free`` on the calibration rows of ``setup``.
 
     sigma_pos (m) / sigma_rot (rad): the noise per axis, or None to estimate it from the residuals
@@ -130,11 +131,15 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     least-squares fit's before the check (the message says so), the noise levels (re-estimated
     from a linearisation there for pose data), the noise estimate and covariance are those at
     the robust solution.
+    choose_weights : for pose data with both noise levels estimated, the orientation's weight
+    chosen by cross-validated held-out position error once the rows are judged
+    (:mod:`calib.calibration.estimators.weights`; a note says when it is not the variance
+    components').
     Returns the :class:`Fit` and the final weighted problem on the kept rows.
     """
     return _FitRun(setup, free, solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss=loss, loss_scale=loss_scale,
                    outlier_k=outlier_k, keep=keep, kin=kin, rank_deficit=rank_deficit, warm=warm,
-                   refit=refit).run()
+                   refit=refit, choose_weights=choose_weights).run()
 
 
 class _FitRun:
@@ -145,7 +150,7 @@ class _FitRun:
     def __init__(self, setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: float | None,
                  sigma_rot: float | None, loss: str, loss_scale: float, outlier_k: float | None,
                  keep: np.ndarray | None, kin: ChainKinematics | None, rank_deficit: int, warm: bool,
-                 refit: bool):
+                 refit: bool, choose_weights: bool = False):
         cal, start = setup.cal, setup.start
         kin = kin or ChainKinematics(start)
         self.setup, self.solve, self.loss, self.outlier_k, self.refit = setup, solve, loss, outlier_k, refit
@@ -191,6 +196,8 @@ class _FitRun:
         self.fixed_point = self.two_groups and loss == "linear" and solve.lm_variant != "paper"
         self.robust_levels = (self.sp, self.sr)       # (the outlier check's robust noise levels)
         self.trimmed_last = False       # (the rows now kept were judged against the high-breakdown fit)
+        self.choose_weights = choose_weights
+        self.weight_choice = None       # (a WeightChoice when the orientation's weight was changed)
         self._last_lin = None
 
     def problem(self) -> Problem:
@@ -221,7 +228,31 @@ class _FitRun:
                 break
             if not self.judge():
                 break
+        if self.choose_weights:
+            self.rotation_weight()
         return self.finish()
+
+    def rotation_weight(self) -> None:
+        """The orientation's weight chosen by cross-validated held-out position error
+        (:func:`~calib.calibration.estimators.weights.choose_rotation_weight`) for pose data with
+        both noise levels estimated, least squares: when another than the variance components'
+        is chosen, the orientation is held at that level and the fit re-weighted (its position
+        level estimated again)."""
+        if not (self.two_groups and self.given == (None, None) and self.loss == "linear" and self.refit
+                and self.sol is not None and self.sol.status == "converged" and self.solve.lm_variant != "paper"):
+            return
+        from calib.calibration.estimators.weights import choose_rotation_weight
+
+        try:
+            choice = choose_rotation_weight(self.problem(), self.x)
+        except DataError:
+            return
+        if choice.factor == 1.0:
+            return
+        self.weight_choice = choice
+        self.sr *= choice.factor
+        self.given = (None, self.sr)
+        self.weighted_fits()
 
     def take_back_unrefitted(self) -> None:
         """``refit`` False: the rows now kept and their levels, at the robust solution; the frame
@@ -341,6 +372,12 @@ class _FitRun:
             sol = replace(sol, status=self.stuck.status, message=self.stuck.message)
         lin = self.linearised(problem, x)
         noise = noise_estimate(problem, lin, self.estimate, self.vce_total)
+        if self.weight_choice is not None:
+            # the orientation weighted as noisier than it is: its noise as its residuals give it
+            # (the covariance stays the weighting's, an upper bound of the fit's own)
+            actual = problem.sigma_rot * math.sqrt(max(noise.chi2_rot, 0.0))
+            noise = replace(noise, rotation=actual, chi2_rot=1.0, chi2=noise.chi2 - lin.ne.rss_rot + lin.red_rot)
+            self.notes.append(self.weight_choice.note(problem.sigma_rot, actual))
         notes = list(self.notes)
         if self.estimate and self.outlier_k is not None and self.loss == "linear" and not self.refusals \
                 and self.refit and can_trim(everything, self.keep, len(x)):
@@ -359,7 +396,6 @@ class _FitRun:
                   notes=tuple(notes), unremoved=self.unremoved,
                   refusals=tuple(r for r in dict.fromkeys(self.refusals) if r))
         return fit, problem
-
 
     def tails(self, problem: Problem, x: np.ndarray, lin: Linearised) -> list[str]:
         """The data-consistency rule on the final fit (:mod:`calib.calibration.consistency`):
@@ -455,16 +491,16 @@ def length_notes(nominal: RobotModel, fit: Fit) -> list[str]:
 def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, outlier_k: float | None,
              keep: np.ndarray | None = None, kin: ChainKinematics | None = None, rank_deficit: int = 0,
              sigma_pos: float | None = None, sigma_rot: float | None = None,
-             warm: bool = False, refit: bool = True) -> tuple[Fit, Problem]:
+             warm: bool = False, refit: bool = True, choose_weights: bool = False) -> tuple[Fit, Problem]:
     """:func:`fit_stage` of ``free`` with the solver, loss and noise levels of ``options``
-    (sigma_pos / sigma_rot: given instead of the options' ones when not None; warm, refit: see
-    :func:`fit_stage`)."""
+    (sigma_pos / sigma_rot: given instead of the options' ones when not None; warm, refit,
+    choose_weights: see :func:`fit_stage`)."""
     solve = solver_for(setup, free, options.method, options.lm, options.max_rounds, options.fixed_rounds,
                         options.lm_variant)
     return fit_stage(setup, free, solve, sigma_pos=options.sigma_pos if sigma_pos is None else sigma_pos,
                      sigma_rot=options.sigma_rot if sigma_rot is None else sigma_rot, loss=options.loss,
                      loss_scale=options.loss_scale, outlier_k=outlier_k, keep=keep, kin=kin,
-                     rank_deficit=rank_deficit, warm=warm, refit=refit)
+                     rank_deficit=rank_deficit, warm=warm, refit=refit, choose_weights=choose_weights)
 
 
 @dataclass(frozen=True, eq=False)
@@ -487,7 +523,7 @@ class LeastSquares:
         if warm:
             setup = replace(setup, start=self.start, suspect=self.suspect)
         fit, problem = fit_with(setup, choice.free, options, outlier_k=options.outlier_k, kin=kin,
-                                rank_deficit=choice.deficit, warm=warm)
+                                rank_deficit=choice.deficit, warm=warm, choose_weights=True)
         return Estimate(fit, problem, choice.label, {"kind": self.name, "param_set": choice.label})
 
     def refit(self, setup: Setup, free: Sequence[str], options: CalibrationOptions, kin: ChainKinematics, *,
