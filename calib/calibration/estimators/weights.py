@@ -70,7 +70,7 @@ class WeightChoice:
                 f"{p1 * 1e3:.4g} mm ({100 * (pf / p1 - 1):+.1f} %), orientation {rf:.4g} rad instead of "
                 f"{r1:.4g} rad ({100 * (rf / r1 - 1):+.1f} %): the orientations hold errors the positions "
                 f"do not share (a camera's bias, model error); standard deviations and predictions are "
-                f"computed at this weighting (on the safe side)")
+                f"those of a fit so weighted")
 
 
 #: The conventional fixed weighting (FIGAROH's, and what a millimetre and a centiradian suggest):
