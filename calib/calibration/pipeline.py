@@ -46,6 +46,7 @@ from calib.calibration.consistency import consistency_notes
 from calib.calibration.diagnose import misreadings
 from calib.calibration.estimators.base import Estimate
 from calib.calibration.estimators.least_squares import implausibility, length_notes, method_notes
+from calib.calibration.estimators.readable import parameter_notes
 from calib.calibration.estimators.resolve import resolve_estimator
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
@@ -192,7 +193,9 @@ def verdict(setup: Setup, est: Estimate, opts: CalibrationOptions) -> tuple[str,
                                  sigma_rot_given=opts.sigma_rot is not None)
     causes = misreadings(setup, fit, opts, implausible=bool(implausible) or fit.solver.status != "converged")
     implausible = causes + implausible
-    notes = list(fit.notes) + implausible + length_notes(setup.nominal, fit)
+    far = length_notes(setup.nominal, fit)
+    # (the parameters a user reads as the robot's: moved far, or a prior group not calibrated)
+    notes = list(fit.notes) + implausible + (far or parameter_notes(setup.nominal, fit, est.record))
     status, message = fit.solver.status, fit.solver.message
     # (a fit stopped at its iteration limit whose result the checks find implausible is refused
     # as a converged one is: nothing worth writing for inspection; 8 rows of rotation vectors read
