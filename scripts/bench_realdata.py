@@ -73,7 +73,7 @@ GROSS_TIAGO_ROWS = (31, 32, 33)
 METHODS = ("defaults", "ls-ident", "offsets", "eb-map", "compliance", "periodic", "both", "terms-auto")
 #: Diagnostics, run only when named in --methods: EB-MAP and LS-ident with every row kept (no
 #: outlier check), to see what the outlier stage costs or gains on held-out rows.
-DIAGNOSTICS = ("eb-map-all-rows", "ls-ident-all-rows", "fixed-weights")
+DIAGNOSTICS = ("eb-map-all-rows", "ls-ident-all-rows", "fixed-weights", "huber")
 #: FIGAROH 1.0.2 on the same folds (pooled held-out position RMS, mm: full model, joint
 #: offsets): from ../shared/realdata/README.md, and for TIAGo M1 as this script's --figaroh
 #: measured it (the issue's 4.18 mm came from another split; --figaroh reproduces the README's
@@ -144,6 +144,7 @@ def fit(method: str, robot, m):
               "ls-ident-all-rows": {"params": "base", "outlier_k": None},
               "compliance": {"compliance": True}, "periodic": {"periodic": True},
               "fixed-weights": {"params": "base", "sigma_pos": 1e-3, "sigma_rot": 1e-2},
+              "huber": {"loss": "huber"},
               "both": {"compliance": True, "periodic": True}, "terms-auto": {"terms": "auto"}}.get(method, {})
     res = calib.calibrate(robot, m, **kwargs)
     if method == "terms-auto":
