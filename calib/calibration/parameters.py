@@ -86,26 +86,6 @@ def _identifiable_set_of(robot: RobotModel, Q: np.ndarray, measure: str, weights
                        lambda: identifiable_set(robot, Q, measure, *weights, targets))
 
 
-def tied_length_notes(robot: RobotModel, Q: np.ndarray, measure: str, weights: tuple[float, float],
-                      targets: np.ndarray | None, free) -> list[str]:
-    """A note naming the link lengths that the identifiable set ``free`` (frames' offsets first:
-    :func:`identifiable_set`) holds at their nominal values because a frame offset is tied to
-    them and takes their share, where the structural parameters first would have freed them
-    instead (robot, Q (N, n), measure, weights (m, rad), targets: as for the identifiable set)."""
-    lengths = {p.name for p in robot.parameters if p.group == "joint" and p.unit == "m"
-               and not (p.kind == "d" and robot.prismatic[p.joint - 1])}
-    held = lengths - set(free)
-    if not held:
-        return []
-    structural_first = identifiable_names(robot, Q, measure=measure, sigma_pos=weights[0], sigma_rot=weights[1],
-                                          targets=targets)
-    tied = [n for n in robot.names if n in held and n in structural_first]
-    if not tied:
-        return []
-    return [f"link lengths tied to a frame offset held at their nominal values, the frame taking their "
-            f"share (the calibrated lengths read as the robot's): {', '.join(tied)}"]
-
-
 def select_parameters(robot: RobotModel, params, Q: np.ndarray, measure: str, sigma_pos: float = SIGMA_POS_M,
                       sigma_rot: float = SIGMA_ROT_RAD,
                       targets: np.ndarray | None = None) -> tuple[str, tuple[str, ...]]:
@@ -287,8 +267,6 @@ def choose_parameters(setup: Setup, options: CalibrationOptions, source=None) ->
     else:
         label, free = select_parameters(start, want, cal.q, setup.measure, *weights, target_rows(start, cal))
     derived = want in ("auto", "map") or (isinstance(want, str) and want.strip().lower() == "base")
-    if label in ("base", "auto"):
-        notes += tied_length_notes(start, cal.q, setup.measure, weights, target_rows(start, cal), free)
     check_data_rank(start, cal, setup.measure, free, derived=derived, sigma_pos=weights[0], sigma_rot=weights[1])
     n_free = len(free)
     spare = cal.n_poses * setup.components_per_pose - n_free

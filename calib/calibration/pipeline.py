@@ -41,12 +41,12 @@ import logging
 import time
 from typing import Sequence
 
-from calib.calibration.accuracy import accuracy_after, accuracy_before
+from calib.calibration.accuracy import accuracy_after, accuracy_before, target_rows
 from calib.calibration.consistency import consistency_notes
 from calib.calibration.diagnose import misreadings
 from calib.calibration.estimators.base import Estimate
 from calib.calibration.estimators.least_squares import implausibility, length_notes, method_notes
-from calib.calibration.estimators.readable import parameter_notes
+from calib.calibration.estimators.readable import parameter_notes, tied_length_notes
 from calib.calibration.estimators.resolve import resolve_estimator
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
@@ -147,6 +147,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     setup, prepare_notes = prepare_stage(robot, measurements, validation, opts, payload, gravity)
     choice = choose_parameters(setup, opts, source=measurements.source)
     notes += prepare_notes + list(choice.notes)
+    if choice.label in ("base", "auto"):        # (which link lengths a frame offset took the tie of)
+        notes += tied_length_notes(setup.start, setup.cal.q, setup.measure, opts.weights,
+                                   target_rows(setup.start, setup.cal), choice.free)
     kin = setup.kin or ChainKinematics(setup.start)
     # the errors before calibration first: the fit's kinematics start at the nominal values when
     # the frames were not moved

@@ -13,7 +13,8 @@ Two things make it misleading without a line saying so:
   nothing).
 
 Which side of a tie between a frame offset and a link length takes the value is decided where
-the parameter set is chosen (:func:`calib.calibration.parameters.identifiable_set`: the frame).
+the parameter set is chosen (:func:`calib.calibration.parameters.identifiable_set`: the frame);
+:func:`tied_length_notes` names the lengths held for it.
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ import math
 import numpy as np
 
 from calib.calibration.estimators.base import Fit
+from calib.model.identifiability import identifiable_names
 from calib.model.robot import RobotModel
 
 #: A link length (d, a) moved further than this from its nominal value is named (m): several
@@ -83,3 +85,23 @@ def parameter_notes(nominal: RobotModel, fit: Fit, record: dict, skip=()) -> lis
                      f"joint errors, a flexible tool, the instrument) or a tie among parameters more often than "
                      f"for the robot: the calibrated model predicts the poses, but read these values with care")
     return notes
+
+
+def tied_length_notes(robot: RobotModel, Q: np.ndarray, measure: str, weights: tuple[float, float],
+                      targets: np.ndarray | None, free) -> list[str]:
+    """A note naming the link lengths that the identifiable set ``free`` (frames' offsets first:
+    :func:`identifiable_set`) holds at their nominal values because a frame offset is tied to
+    them and takes their share, where the structural parameters first would have freed them
+    instead (robot, Q (N, n), measure, weights (m, rad), targets: as for the identifiable set)."""
+    lengths = {p.name for p in robot.parameters if p.group == "joint" and p.unit == "m"
+               and not (p.kind == "d" and robot.prismatic[p.joint - 1])}
+    held = lengths - set(free)
+    if not held:
+        return []
+    structural_first = identifiable_names(robot, Q, measure=measure, sigma_pos=weights[0], sigma_rot=weights[1],
+                                          targets=targets)
+    tied = [n for n in robot.names if n in held and n in structural_first]
+    if not tied:
+        return []
+    return [f"link lengths tied to a frame offset held at their nominal values, the frame taking their "
+            f"share (the calibrated lengths read as the robot's): {', '.join(tied)}"]
