@@ -78,11 +78,12 @@ def heavy_tails_note(ratios: Sequence[tuple[str, float]], kurtosis: Sequence[tup
     agree best."""
     figures = "; ".join(f"{g} noise {r:.2g} times the median residual's, kurtosis {c:.3g}"
                         for (g, r), (_, c) in zip(ratios, kurtosis))
+    far = "no row lies" if beyond == 0 else f"only {beyond} of {rows} rows lie"
     return (f"heavy-tailed residuals ({figures}; normal noise gives 1 and 3): more rows lie far out than "
-            f"normal noise puts there, but only {beyond} of {rows} rows lie beyond {k:g} sigma of the fit of "
-            f"the rows that agree best (more than half would make the data inconsistent), so the calibration "
-            f"stands. Its noise levels and predicted errors are RMS figures, which the tails raise; a robust "
-            f"loss (--loss huber) weighs the far rows down")
+            f"normal noise puts there, but {far} beyond {k:g} sigma of the fit of the rows that agree best "
+            f"(more than half would make the data inconsistent), so the calibration stands. Its noise levels "
+            f"and predicted errors are RMS figures, which the tails raise; a robust loss (--loss huber) weighs "
+            f"the far rows down")
 
 #: More flagged calibration rows than this share: the data disagree with themselves.
 INCONSISTENT_SHARE = 0.1

@@ -564,7 +564,8 @@ def resolve_terms(robot: RobotModel, measurements: Measurements, options: Calibr
         return options, [f"joint terms not judged: {exc}"], None
     if not choice.table:
         return options, [], None
-    summary = ", ".join(f"{t.label} {t.position_rms * 1e3:.4g} mm" for t in choice.table)
+    summary = ", ".join(f"{t.label} {t.position_rms * 1e3:.4g} mm"
+                        + ("" if t.workspace_rms is None else f" ({t.workspace_rms * 1e3:.3g})") for t in choice.table)
     note = (f"joint terms chosen by {choice.folds}-fold cross-validation: {choice.label} ({choice.reason}; "
-            f"held-out position RMS {summary})")
+            f"held-out position RMS (predicted over the workspace) {summary})")
     return replace(options, compliance=choice.compliance, periodic=choice.periodic), [note], choice

@@ -116,8 +116,9 @@ def reason(table, row_scores: dict, best: TermScore) -> str:
     if best is geo:
         text = "no term group beat the geometry by the margin" + (" without costing the workspace" if cost else "")
     else:
-        text = (f"{best.label} had the lowest cross-validated score of the candidates and beat the geometry by "
-                f"more than {TERMS_MIN_SE:g} paired standard errors")
+        left = " left" if any(too_costly(t, geo) for t in winners) else ""
+        text = (f"{best.label} had the lowest cross-validated score of the candidates{left} and beat the geometry "
+                f"by more than {TERMS_MIN_SE:g} paired standard errors")
     return text + (f" ({cost})" if cost else "")
 
 
