@@ -14,7 +14,14 @@ the noise estimate with them. The rows are judged instead against
 
 More than half of the rows flagged against the high-breakdown fit (its breakdown point) means
 data inconsistent with the model: :attr:`Judgement.breakdown` says so, and the fit stage
-refuses the result (status "implausible"). scripts/accept_gross_rows.py measures it all.
+refuses the result (status "implausible"). The noise levels those rows are judged by come from
+the rows the trimmed fit fits, then from the rows within k sigma of it until that set settles
+(issue 39: from every kept row they sat in the gross rows where those are more than half).
+scripts/accept_gross_rows.py measures it all. Heavy tails of the final fit (a least-squares
+noise level far above the robust one) are measured here (:class:`Tails`,
+:func:`leftover_gross`) and noted, not refused: the data-consistency rule and the texts of its
+refusals and note are in :mod:`calib.calibration.plausibility`, beside the other rules
+(scripts/bench_refusal.py measures its false refusals).
 
 The noise levels are a tuple in the problem's order: (sigma_pos, sigma_rot) of a
 :class:`~calib.solvers.problem.Problem`, (sigma_pos, sigma_rot, sigma_touch) of a
