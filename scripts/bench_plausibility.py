@@ -62,7 +62,7 @@ WRONG = ("joint sign", "joint zero", "another robot's URDF", "metres as mm", "gr
 
 #: The rules a refusal comes from, told by its message (calib/calibration/plausibility.py).
 RULES = ("the chain (issue 43)", "the residuals", "the physics (compliance)", "the validation figures",
-         "a misreading named (diagnose)", "the data's consistency (issue 39's, unchanged)")
+         "a misreading named (diagnose)", "the data's consistency (issue 39)", "the touch design", "another rule")
 
 
 def rule(message: str) -> str:
@@ -72,10 +72,12 @@ def rule(message: str) -> str:
                      ("the fit converged but its", RULES[1]),
                      ("the fitted joint compliances", RULES[2]),
                      ("the validation rows' positions", RULES[3]),
-                     ("likely cause:", RULES[4])):
+                     ("likely cause:", RULES[4]),
+                     ("the data are inconsistent", RULES[5]),
+                     ("the design cannot calibrate this robot", RULES[6])):
         if message.startswith(start):
             return r
-    return RULES[5]
+    return RULES[7]
 
 
 def load(name: str):

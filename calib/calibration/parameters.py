@@ -60,11 +60,20 @@ def identifiable_set(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: 
     they are also a valid choice at ``robot``; the rank is ``robot``'s. targets: (N,) each
     row's target index for a multi-target model.
 
-    With several targets, their v parameters come first in the priority: the last joint's
-    parameters they are tied to are held instead (a rigid motion of the flange that every
-    target's v absorbs exactly), never coordinates of single targets (a gauge that turns singular
-    as the fit moves)."""
-    first = [p.name for p in robot.parameters if p.group == "v"] if robot.targets else None
+    The frames' offsets come first in the priority (the tool's v_x, v_y, v_z, then u_x, u_y,
+    u_z): where a frame offset and a link length are tied (u_z and d1, v_z and the last joint's
+    d), the frame takes the value and the link length stays nominal, as EB-MAP's flat frame prior
+    does (users read link lengths as the robot's: a Panda's d7 moved -8.9 mm and its d1 -4.8 mm
+    with nothing saying that the tool and the base frame had moved instead, issue 39). Joint
+    offsets and twists keep their place before the frames' rotations (the joint terms' columns
+    are their joints' theta columns, which the choice of the terms takes from the geometric fit).
+    With several targets, every target's v comes first: the last joint's parameters they are
+    tied to are held instead (a rigid motion of the flange that every target's v absorbs
+    exactly), never coordinates of single targets (a gauge that turns singular as the fit
+    moves)."""
+    first = [p.name for p in robot.parameters if p.group == "v"] if robot.targets else []
+    first += [p.name for g in ("v", "u") for p in robot.parameters
+              if p.group == g and p.unit == "m" and p.name not in first]
     ideal = identifiable_names(idealised(robot), Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,
                                targets=targets, priority=first)
     return identifiable_names(robot, Q, measure=measure, sigma_pos=sigma_pos, sigma_rot=sigma_rot,

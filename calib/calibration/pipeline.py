@@ -52,11 +52,12 @@ from typing import Sequence
 
 import numpy as np
 
-from calib.calibration.accuracy.errors import AccuracyStats, BeforeAfter, accuracy_after, accuracy_before
+from calib.calibration.accuracy.errors import AccuracyStats, BeforeAfter, accuracy_after, accuracy_before, target_rows
 from calib.calibration.accuracy.validation import consistency_notes
 from calib.calibration.diagnose import misreadings
 from calib.calibration.estimators.base import Estimate
 from calib.calibration.estimators.least_squares import method_notes
+from calib.calibration.estimators.readable import parameter_notes, tied_length_notes
 from calib.calibration.estimators.resolve import resolve_estimator
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
@@ -163,6 +164,9 @@ def calibrate(robot: RobotModel, measurements: Measurements, method: str = "sear
     setup, prepare_notes = prepare_stage(robot, measurements, validation, opts, payload, gravity)
     choice = choose_parameters(setup, opts, source=measurements.source)
     notes += prepare_notes + list(choice.notes)
+    if setup.touch is None and choice.label in ("base", "auto"):    # (which link lengths a frame offset took the tie of)
+        notes += tied_length_notes(setup.start, setup.cal.q, setup.measure, opts.weights,
+                                   target_rows(setup.start, setup.cal), choice.free)
     kin = setup.kin or ChainKinematics(setup.start)
     accuracy = before_stage(setup, kin)
     stages.start("fit")
@@ -234,9 +238,14 @@ def verdict(setup: Setup, est: Estimate, opts: CalibrationOptions) -> tuple[str,
                                  sigma_touch_given=opts.sigma_touch is not None)
     causes = misreadings(setup, fit, opts, implausible=bool(implausible) or fit.solver.status != "converged")
     implausible = causes + implausible
-    notes = list(fit.notes) + implausible + length_notes(setup.nominal, fit.model)
+    far = length_notes(setup.nominal, fit.model)
+    # (the parameters a user reads as the robot's: moved far, or a prior group not calibrated)
+    notes = list(fit.notes) + implausible + (far or parameter_notes(setup.nominal, fit, est.record))
     status, message = fit.solver.status, fit.solver.message
-    if implausible and (status == "converged" or causes):
+    # (a fit stopped at its iteration limit whose result the checks find implausible is refused
+    # as a converged one is: nothing worth writing for inspection; 8 rows of rotation vectors read
+    # as angles: 1.13 rad of orientation error left, the outputs written)
+    if implausible and (status in ("converged", "max_iterations") or causes):
         status, message = "implausible", implausible[0]
     return status, message, notes
 

@@ -8,10 +8,12 @@ joint terms (gravity compliance, periodic joint errors) by cross-validated held-
 * :func:`choose_terms`: for data with many residual components per parameter, the geometric
   model, + compliance (when the URDF has real link masses), + periodic, + both, each fitted at
   the noise levels and kept rows of the geometric fit (one Gauss-Newton step from its solution)
-  and scored by K-fold cross-validated held-out error on the same rows and folds; a term group
-  is kept only when its held-out score beats the geometric model's by more than
-  ``TERMS_MIN_SE`` standard errors of their paired row-by-row difference. Returns the chosen
-  groups and the table of scores (:class:`TermsChoice`).
+  and scored by K-fold cross-validated held-out error on the same rows and folds; the rule
+  (:mod:`calib.calibration.estimators.term_selection`, issue 39): the candidates are alternatives,
+  the lowest score wins and is kept only when it beats the geometric model's by more than
+  ``TERMS_MIN_SE`` standard errors of their paired row-by-row difference, and does not predict
+  the error over the workspace worse than the geometry does. Returns the chosen groups and the
+  table of scores (:class:`TermsChoice`).
 """
 from __future__ import annotations
 
@@ -21,6 +23,8 @@ import numpy as np
 
 from calib.calibration.accuracy.errors import target_rows
 from calib.calibration.estimators.base import vce_fixed_point
+from calib.calibration.estimators.term_selection import (TERMS_MIN_SE, TermScore, comparisons, pick_terms, reason,
+                                                         workspace_costs)
 from calib.calibration.estimators.least_squares import fit_with
 from calib.calibration.options import CalibrationOptions, resolve_options
 from calib.calibration.parameters import choose_parameters
@@ -49,10 +53,6 @@ PAYLOAD_STEP = 0.1
 #: per parameter of the largest candidate (geometry + both term groups): the term groups add
 #: 5 parameters per joint, and cross-validation needs many rows to judge them.
 TERMS_MIN_COMPONENTS_PER_PARAM = 20.0
-#: A term group is kept when it lowers the cross-validated score by more than this many
-#: standard errors of the paired row-by-row difference (one-sided: a chance win of two standard
-#: errors happens ~2 % of the time).
-TERMS_MIN_SE = 2.0
 #: The LM tolerance of choose_terms' geometric fit (calibrate's default 1e-12), which stops before
 #: its last step (LMOptions.last_step False): that fit gives the noise levels, the rows kept and the
 #: point the candidates are linearised at, not the estimates (calibrate's fit of the chosen model
@@ -157,23 +157,6 @@ def payload_note(model: RobotModel, problem: Problem) -> list[str]:
 
 
 @dataclass(frozen=True)
-class TermScore:
-    """One candidate of :func:`choose_terms`: its label, term groups, number of free parameters,
-    cross-validated held-out position RMS (m) and rotation RMS (rad, None for position data),
-    mean whitened squared held-out error per row (``score``) and the standard error of its
-    paired difference from the geometric model's (``se_vs_geometry``)."""
-
-    label: str
-    compliance: bool
-    periodic: bool
-    n_free: int
-    position_rms: float
-    rotation_rms: float | None
-    score: float
-    se_vs_geometry: float
-
-
-@dataclass(frozen=True)
 class TermsChoice:
     """What :func:`choose_terms` returns: the chosen groups (``compliance``, ``periodic``), the
     candidates' scores (``table``, smallest first; () when the data were too few to judge),
@@ -202,16 +185,19 @@ class TermsChoice:
                     "geometry")
 
     def format(self) -> str:
-        lines = [f"joint terms ({self.folds}-fold cross-validation on the same rows and folds; kept when the "
-                 f"score beats the geometry's by more than {TERMS_MIN_SE:g} paired standard errors): "
-                 f"{self.label}"] if self.table else [f"joint terms: {self.label} ({self.reason})"]
+        lines = [f"joint terms ({self.folds}-fold cross-validation on the same rows and folds; the lowest score "
+                 f"kept when it beats the geometry's by more than {TERMS_MIN_SE:g} paired standard errors and "
+                 f"does not cost the workspace more than it gains): {self.label}"] if self.table else \
+            [f"joint terms: {self.label} ({self.reason})"]
         if self.table:
-            lines.append(f"  {'candidate':<24}{'params':>7}{'score':>10}{'se':>8}{'pos rms/mm':>12}{'rot rms/mrad':>14}")
+            lines.append(f"  {'candidate':<24}{'params':>7}{'score':>10}{'se':>8}{'pos rms/mm':>12}{'rot rms/mrad':>14}"
+                         f"{'workspace/mm':>14}")
             for t in self.table:
                 rot = "-" if t.rotation_rms is None else f"{t.rotation_rms * 1e3:.4f}"
+                ws = "-" if t.workspace_rms is None else f"{t.workspace_rms * 1e3:.4f}"
                 mark = "  <- chosen" if t.label == self.label else ""
                 lines.append(f"  {t.label:<24}{t.n_free:>7}{t.score:>10.3f}{t.se_vs_geometry:>8.3f}"
-                             f"{t.position_rms * 1e3:>12.4f}{rot:>14}{mark}")
+                             f"{t.position_rms * 1e3:>12.4f}{rot:>14}{ws:>14}{mark}")
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -219,7 +205,9 @@ class TermsChoice:
                 "folds": self.folds, "reason": self.reason, "min_se": TERMS_MIN_SE, "rows_judged": self.rows,
                 "candidates": [{"label": t.label, "n_free": t.n_free, "score": t.score,
                                 "se_vs_geometry": t.se_vs_geometry, "position_rms_mm": t.position_rms * 1e3,
-                                "rotation_rms_rad": t.rotation_rms} for t in self.table]}
+                                "rotation_rms_rad": t.rotation_rms,
+                                "workspace_position_rms_mm": None if t.workspace_rms is None else t.workspace_rms * 1e3}
+                               for t in self.table]}
 
 
 def _has_masses(robot: RobotModel) -> bool:
@@ -232,7 +220,7 @@ def _has_masses(robot: RobotModel) -> bool:
 def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 5, payload=None,
                  gravity=None, options: CalibrationOptions | None = None, seed: int = 0) -> TermsChoice:
     """Choose the joint terms (compliance, periodic errors) by K-fold cross-validated held-out
-    error (module docstring).
+    error (module docstring; the rule: :func:`~calib.calibration.estimators.term_selection.pick_terms`).
 
     robot : the nominal model (its URDF's masses decide whether compliance is a candidate);
     measurements : the ``cal`` rows are used; folds : K (>= 2); payload, gravity : as for
@@ -262,7 +250,21 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
     if cal.n_poses > TERMS_MAX_ROWS:
         judged_rows = TERMS_MAX_ROWS
         measurements = cal.subset(np.linspace(0, cal.n_poses - 1, TERMS_MAX_ROWS).round().astype(int))
-    # each candidate's model and parameter set (its identifiable set), the geometric one's fitted
+    setups, frees, geo_opts = _candidate_setups(robot, measurements, cands, base, payload, gravity)
+    fit, problem = _geometric_fit(setups[0], frees[0], geo_opts)
+    table, rows, start_of = _judged(cands, setups, frees, fit, problem, base, folds, seed)
+    best = pick_terms(table, rows)
+    why = reason(table, rows, best)
+    if judged_rows is not None:
+        why += f"; judged on {judged_rows:,} evenly spaced of the {cal.n_poses:,} calibration rows"
+    return TermsChoice(best.compliance, best.periodic, tuple(table), folds, why, judged_rows,
+                       start_of(best.label), tuple(o.row for o in fit.outliers))
+
+
+def _candidate_setups(robot: RobotModel, measurements: Measurements, cands, base: CalibrationOptions, payload,
+                      gravity):
+    """Each candidate's prepared setup and parameter set (its identifiable set), and the geometric
+    one's options: (setups, frees, options)."""
     setups, frees = [], []
     for label, c, p in cands:
         opts = resolve_options(robot, measurements, method=base.method, params="base", sigma_pos=base.sigma_pos,
@@ -284,24 +286,35 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
             setup, _ = prepare(model, measurements, None, False)
         setups.append(setup)
         frees.append(choose_parameters(setup, opts).free)
-    # the geometric fit: noise levels and outlier check, its LM stopped at TERMS_FIT_FTOL (see there)
-    geo_opts = replace(geo_opts, lm=options_with(geo_opts.lm, ftol=max(geo_opts.lm.ftol, TERMS_FIT_FTOL),
-                                                 last_step=False))
-    fit, problem = fit_with(setups[0], frees[0], geo_opts, outlier_k=geo_opts.outlier_k, kin=setups[0].kin,
-                            refit=False)
+    return setups, frees, geo_opts
+
+
+def _geometric_fit(setup, free, opts: CalibrationOptions):
+    """The geometric fit: noise levels and outlier check, its LM stopped at TERMS_FIT_FTOL (see
+    there); a DataError when it does not converge."""
+    opts = replace(opts, lm=options_with(opts.lm, ftol=max(opts.lm.ftol, TERMS_FIT_FTOL), last_step=False))
+    fit, problem = fit_with(setup, free, opts, outlier_k=opts.outlier_k, kin=setup.kin, refit=False)
     if fit.solver.status != "converged":
         # (its noise levels and rows would whiten every candidate: a fit stuck in a local
         # minimum gave sigma_rot 1.03 rad, refused as a given level, a ParameterError
         # naming an option the user had not given)
         raise DataError(f"the geometric fit did not converge ({fit.solver.status})")
+    return fit, problem
+
+
+def _judged(cands, setups, frees, fit, problem, base: CalibrationOptions, folds: int, seed: int):
+    """Every candidate scored: (the :class:`TermScore` table with the workspace figures, the row
+    scores by label, a function of a label giving that candidate's start values for calibrate's
+    fit).
+
+    Every candidate is linearised at the geometric solution, the terms at zero (a model that
+    holds them all: at zero terms its geometric columns are the geometric model's): the
+    candidates' fits and their K-fold refits are Gauss-Newton steps from there on the same rows,
+    folds (seed) and whitening, so their row scores pair up. The terms move the fit by little
+    (the real iiwa rows: nonlinear fits of each candidate chose the same, their scores within
+    5e-5 relative): one Jacobian pass instead of a fit and a pass per candidate; a close call
+    where the terms are large is scored again where they are."""
     sp, sr, keep = problem.sigma_pos, problem.sigma_rot, fit.keep
-    # every candidate linearised at the geometric solution, the terms at zero (a model that holds
-    # them all: at zero terms its geometric columns are the geometric model's): the
-    # candidates' fits and their K-fold refits are Gauss-Newton steps from there on the same
-    # rows, folds (seed) and whitening, so their row scores pair up. The terms move the fit by
-    # little (the real iiwa rows: nonlinear fits of each candidate chose the same, their scores
-    # within 5e-5 relative): one Jacobian pass instead of a fit and a pass per candidate; a close
-    # call where the terms are large is scored again where they are (below)
     big = setups[-1]
     union = list(dict.fromkeys(n for free in frees for n in free))
     start = warm_start(big.start, dict(zip(fit.free, fit.model.values[fit.model.indices(fit.free)])), union)
@@ -341,17 +354,18 @@ def choose_terms(robot: RobotModel, measurements: Measurements, *, folds: int = 
         scored.update(again)
         linearised_at.update(dict.fromkeys(again, (ne_u, x_u)))
         table, rows = _table(cands, frees, scored)
-    best = pick_terms(table, rows)
-    start_values = scored[best.label][1]
-    if reweigh:
-        start_values = _step_at_own_levels(*linearised_at[best.label], x0, union, cols[best.label], (sp, sr),
-                                           (base.sigma_pos is None, base.sigma_rot is None))
-    reason = (f"{best.label} beat the smaller candidates by more than {TERMS_MIN_SE:g} paired standard errors"
-              if best is not table[0] else "no term group beat the geometry by the margin")
-    if judged_rows is not None:
-        reason += f"; judged on {judged_rows:,} evenly spaced of the {cal.n_poses:,} calibration rows"
-    return TermsChoice(best.compliance, best.periodic, tuple(table), folds, reason, judged_rows,
-                       start_values, tuple(o.row for o in fit.outliers))
+    A = sum(Jw.reshape(-1, len(union)).T @ Jw.reshape(-1, len(union)) for _, Jw in blocks)
+    ws = workspace_costs(start, union, cols, A, {k: v[1] for k, v in scored.items()}, blocks, sp,
+                         {t.label: t.position_rms for t in table}, big.cal.q[keep])
+    table = [replace(t, workspace_rms=ws.get(t.label)) for t in table]
+
+    def start_of(label):
+        if not reweigh:
+            return scored[label][1]
+        return _step_at_own_levels(*linearised_at[label], x0, union, cols[label], (sp, sr),
+                                   (base.sigma_pos is None, base.sigma_rot is None))
+
+    return table, rows, start_of
 
 
 def _union_blocks(problem: Problem, fit, lin: Problem, union: list, start: RobotModel,
@@ -501,7 +515,7 @@ def _table(cands, frees, scored) -> tuple[list, dict]:
 def _close_call(table, rows: dict, per_row: float) -> bool:
     """Whether a comparison of :func:`pick_terms` is decided by a margin within twice the
     linearisation's curvature per row ``per_row`` of either side."""
-    return any(abs(margin) <= 2.0 * per_row for _, margin in _comparisons(table, rows))
+    return any(abs(m) <= 2.0 * per_row for _, m in comparisons(table, rows))
 
 
 def warm_start(start: RobotModel, values: dict, free) -> RobotModel:
@@ -513,31 +527,6 @@ def warm_start(start: RobotModel, values: dict, free) -> RobotModel:
     out = start.values.copy()
     out[start.indices(names)] = [values[n] for n in names]
     return start.with_values(out)
-
-
-def pick_terms(table, row_scores: dict) -> TermScore:
-    """The rule of :func:`choose_terms`: from the geometric model (``table[0]``), move to a larger
-    candidate (in order of size) when its mean row score is lower than the current choice's by more
-    than TERMS_MIN_SE standard errors of their paired row-by-row difference (``row_scores``: label ->
-    (n,) whitened squared held-out errors on the same rows)."""
-    best = table[0]
-    for t, margin in _comparisons(table, row_scores):
-        if margin > 0:
-            best = t
-    return best
-
-
-def _comparisons(table, row_scores: dict):
-    """The comparisons of :func:`pick_terms` in its order: (candidate, margin), the margin its
-    mean row score's lead over the current choice less TERMS_MIN_SE standard errors of their
-    paired difference; the choice moves to the candidate when the margin is positive."""
-    best = table[0]
-    for t in sorted(table[1:], key=lambda t: t.n_free):
-        d = row_scores[best.label] - row_scores[t.label]
-        margin = float(np.mean(d) - TERMS_MIN_SE * standard_error(d))
-        yield t, margin
-        if margin > 0:
-            best = t
 
 
 #: The values of calibrate's ``terms`` option.
@@ -573,7 +562,8 @@ def resolve_terms(robot: RobotModel, measurements: Measurements, options: Calibr
         return options, [f"joint terms not judged: {exc}"], None
     if not choice.table:
         return options, [], None
-    summary = ", ".join(f"{t.label} {t.position_rms * 1e3:.4g} mm" for t in choice.table)
+    summary = ", ".join(f"{t.label} {t.position_rms * 1e3:.4g} mm"
+                        + ("" if t.workspace_rms is None else f" ({t.workspace_rms * 1e3:.3g})") for t in choice.table)
     note = (f"joint terms chosen by {choice.folds}-fold cross-validation: {choice.label} ({choice.reason}; "
-            f"held-out position RMS {summary})")
+            f"held-out position RMS (predicted over the workspace) {summary})")
     return replace(options, compliance=choice.compliance, periodic=choice.periodic), [note], choice

@@ -163,8 +163,8 @@ def refuse_implausible(report_text: str, message: str) -> int:
     """An implausible calibration refused (nothing written): its report on stdout, one line on
     stderr naming why, exit 3."""
     sys.stdout.write(report_text + "\n")
-    sys.stderr.write(f"{PROG}: error: the calibration cannot be trusted: {message}; nothing written "
-                     f"(--accept-implausible writes the outputs for inspection)\n")
+    way = "" if "--accept-implausible" in message else " (--accept-implausible writes the outputs for inspection)"
+    sys.stderr.write(f"{PROG}: error: the calibration cannot be trusted: {message}; nothing written{way}\n")
     return EXIT_NOT_CONVERGED
 
 

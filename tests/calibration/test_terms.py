@@ -415,3 +415,90 @@ def test_the_union_pass_from_the_geometric_pass_is_the_unions_own(monkeypatch):
     np.testing.assert_allclose(ours.A, own.A, rtol=0, atol=1e-14 * np.abs(own.A).max())
     np.testing.assert_allclose(ours.g, own.g, rtol=0, atol=1e-14 * np.abs(own.g).max())
     np.testing.assert_allclose([ours.rss_pos, ours.rss_rot], [own.rss_pos, own.rss_rot], rtol=1e-12)
+
+
+# ====================================================================== the rule (issue 39, item 4)
+def _scores(rng, n, means):
+    """Row scores of the candidates: label -> (n,) paired (shared row effects plus each mean)."""
+    common = rng.gamma(2.0, 1.0, n)
+    return {label: common + mean + rng.normal(0.0, 0.05, n) for label, mean in means.items()}
+
+
+def _table(rows, ws=None):
+    from calib.calibration.estimators.term_selection import TermScore
+    from calib.calibration.accuracy.validation import standard_error
+
+    groups = {"geometry": (False, False), "+compliance": (True, False), "+periodic": (False, True),
+              "+compliance+periodic": (True, True)}
+    geo = rows["geometry"]
+    return [TermScore(label, *groups[label], 30 + 6 * i, float(np.sqrt(np.mean(r))) * 1e-4, None, float(np.mean(r)),
+                      standard_error(r - geo), None if ws is None else ws[label])
+            for i, (label, r) in enumerate(rows.items())]
+
+
+def test_the_candidates_are_alternatives_the_lowest_score_wins():
+    """Compliance and periodic errors both beat the geometry, periodic by more, but not by the
+    margin over compliance: tried in order of size, compliance was kept (the issue's 2 of 20
+    periodic-only truths); compared with each other, the lower score wins. + both, lower still
+    by a hair, does not beat periodic alone by the margin and is not kept."""
+    from calib.calibration.estimators.term_selection import pick_terms
+
+    rows = _scores(np.random.default_rng(1), 300, {"geometry": 0.30, "+compliance": 0.10, "+periodic": 0.095,
+                                                   "+compliance+periodic": 0.094})
+    assert pick_terms(_table(rows), rows).label == "+periodic"
+    rows = _scores(np.random.default_rng(1), 300, {"geometry": 0.30, "+compliance": 0.10, "+periodic": 0.095,
+                                                   "+compliance+periodic": 0.0})
+    assert pick_terms(_table(rows), rows).label == "+compliance+periodic"   # (beats both by the margin)
+    rows = _scores(np.random.default_rng(1), 300, {"geometry": 0.30, "+compliance": 0.299, "+periodic": 0.298})
+    assert pick_terms(_table(rows), rows).label == "geometry"
+
+
+def test_terms_that_cost_the_workspace_more_than_they_gain_are_not_chosen():
+    """The real iiwa: + compliance + periodic had the lowest score (0.45 mm held out against
+    + compliance's 0.47) but predicted 2.1 mm over the workspace against the geometry's 0.6 mm:
+    not chosen, and the reason says what it would cost; + compliance, within the geometry's
+    workspace figure, is."""
+    from calib.calibration.estimators.term_selection import pick_terms, reason
+
+    rows = _scores(np.random.default_rng(2), 500, {"geometry": 0.30, "+compliance": 0.10, "+periodic": 0.2,
+                                                   "+compliance+periodic": 0.05})
+    table = _table(rows, ws={"geometry": 0.6e-3, "+compliance": 0.5e-3, "+periodic": 2.2e-3,
+                             "+compliance+periodic": 2.1e-3})
+    best = pick_terms(table, rows)
+    assert best.label == "+compliance"
+    text = reason(table, rows, best)
+    assert "+compliance+periodic predicts 2.1 mm over the workspace against the geometry's 0.6 mm" in text
+    assert "not chosen" in text
+    # a cost below the gain at the calibration configurations: chosen, the cost said
+    table = _table(rows, ws={"geometry": 0.6e-3, "+compliance": 0.5e-3, "+periodic": 2.2e-3,
+                             "+compliance+periodic": 0.6e-3 + 1e-7})
+    best = pick_terms(table, rows)
+    assert best.label == "+compliance+periodic"
+    assert "+compliance+periodic predicts 0.6 mm over the workspace" in reason(table, rows, best)
+
+
+def test_a_shoulder_run_out_is_taken_for_periodic_errors_not_compliance():
+    """UR10, 300 full poses, once-per-turn errors of the shoulder and the elbow alone (gravity's
+    torque turns with the same angles: a compliance explains part of them): + compliance and
+    + periodic both beat the geometry, periodic with the lower score; tried in order of size the
+    rule kept compliance (seed 1008 of scripts/bench_terms.py). The periodic errors are chosen,
+    with every candidate's workspace figure in the table."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+    try:
+        import bench_terms
+    finally:
+        sys.path.pop(0)
+    robot = calib.load_robot("ur10")
+    rng = np.random.default_rng(1008)
+    true = bench_terms.truth(robot, "shoulder run-out", rng, 100e-6, 50e-6)
+    m = calib.simulate_measurements(true, robot.random_configurations(300, rng), sigma_pos=0.05e-3,
+                                    sigma_rot=0.0005, rng=rng)
+    choice = choose_terms(robot, m)
+    assert choice.label == "+periodic"
+    scores = {t.label: t.score for t in choice.table}
+    assert scores["+periodic"] < scores["+compliance"] < scores["geometry"]
+    assert all(t.workspace_rms is not None and t.workspace_rms > 0 for t in choice.table)
+    assert "workspace/mm" in choice.format()

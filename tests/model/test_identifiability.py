@@ -63,14 +63,16 @@ def test_too_few_poses_lowers_the_rank(bundled_robot):
 def test_fixed_set_does_not_depend_on_the_start(bundled_robot):
     """Linearised at a perturbed model (the paper's deviations), the raw priority-ordered QR fixes
     beta2, u_gamma, v_beta; calibrate's identifiable set picks the partners on the idealised model
-    and fixes the same seven as at the nominal one (issue 15, item 5)."""
+    and fixes the same seven as at the nominal one (issue 15, item 5). Of a frame offset and a
+    link length tied, the link length is fixed (u_z for d1, v_x for a6, v_z for d6: issue 39,
+    item 3); d3 stays tied to d2, the rotations to the joint offsets and twists."""
     from calib.calibration.parameters import identifiable_set
     from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations
 
     perturbed = apply_deviations(bundled_robot, PAPER_DEVIATIONS)
     Q = bundled_robot.random_configurations(100, 0)
     fixed = {m: set(m.names) - set(identifiable_set(m, Q, "pose")) for m in (bundled_robot, perturbed)}
-    assert fixed[bundled_robot] == fixed[perturbed] == {"d3", "u_z", "u_alpha", "v_x", "v_z", "v_alpha", "v_gamma"}
+    assert fixed[bundled_robot] == fixed[perturbed] == {"d3", "d1", "u_alpha", "a6", "d6", "v_alpha", "v_gamma"}
     raw = set(perturbed.names) - set(calib.analyze_identifiability(perturbed, Q).identifiable)
     assert {"beta2", "u_gamma", "v_beta"} <= raw     # what the start-dependent choice would fix
 

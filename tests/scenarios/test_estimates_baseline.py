@@ -3,7 +3,9 @@
 
 The reference values in tests/data/speed_baseline.json were written by ``compute_baseline`` with
 the code of commit d51ca26 (``python tests/test_speed_baseline.py --record`` rewrites them; do
-that only for a deliberate change of results).
+that only for a deliberate change of results), and recorded again for issue 39, item 3: of a
+frame offset and a link length tied, the frame is fitted (u_z, v_x, v_z instead of d1, a6, d6),
+the calibrated kinematics the same to 4.4e-16 m and rad, the cost and predictions to 4e-13.
 """
 from __future__ import annotations
 

@@ -402,7 +402,7 @@ def test_real_tiago_marker_five_fold_beats_least_squares_and_offsets(tiago_real)
     """Issue 22's acceptance on the project's own real data: marker M1 without its gross tenth
     configuration, 5 folds by configuration (i % 5, as scripts/bench_realdata.py). The default
     (EB-MAP on these few rows) is at least 5 % below the better of joint offsets only and least
-    squares on the identifiable set (3.86 mm; offsets 4.29, least squares 4.73; FIGAROH 1.0.2
+    squares on the identifiable set (3.86 mm; offsets 4.29, least squares 4.79; FIGAROH 1.0.2
     4.39 / 4.29 on the same folds), and predicts its own held-out error within x1.3."""
     robot, meas = tiago_real
     m1 = replace(meas.subset(np.array([t == "M1" for t in meas.target])), target=None)

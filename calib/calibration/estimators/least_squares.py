@@ -20,12 +20,14 @@ from calib.calibration.options import (
     WARM_MU0,
     CalibrationOptions,
 )
-from calib.calibration.plausibility import leftover_gross, too_many_gross
+from calib.calibration.plausibility import too_many_gross
 from calib.calibration.prepare import Setup
 from calib.calibration.estimators.base import (Estimate, Fit, Linearised, check_group_redundancy, linearised,
                                                noise_estimate, vce_fixed_point)
 from calib.calibration.estimators.outlier import Outlier
-from calib.calibration.estimators.robust import can_trim, components, flag_outliers, judge_rows, levels_of, robust_sigmas
+from calib.calibration.estimators.robust import (can_trim, components, flag_outliers, judge_rows, leftover_gross, levels_of,
+                                                 robust_sigmas)
+from calib.errors import DataError
 from calib.model.identifiability import SIGMA_POS_M, SIGMA_ROT_RAD, SIGMA_TOUCH_M
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel
@@ -42,7 +44,8 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
               sigma_rot: float | None, loss: str = "linear", loss_scale: float = 3.0,
               outlier_k: float | None = 5.0, keep: np.ndarray | None = None,
               kin: ChainKinematics | None = None, rank_deficit: int = 0,
-              warm: bool = False, refit: bool = True, sigma_touch: float | None = None) -> tuple[Fit, Problem]:
+              warm: bool = False, refit: bool = True, sigma_touch: float | None = None,
+              choose_weights: bool = False) -> tuple[Fit, Problem]:
     """The fit stage: identify ``free`` on the calibration rows of ``setup`` (with touch rows, and
     the features' unknowns: a :class:`~calib.solvers.blocks.BlockProblem` of the setup's blocks).
 
@@ -66,11 +69,15 @@ def fit_stage(setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: fl
     least-squares fit's before the check (the message says so), the noise levels (re-estimated
     from a linearisation there for pose data), the noise estimate and covariance are those at
     the robust solution.
+    choose_weights : for pose data with both noise levels estimated, the orientation's weight
+    chosen by cross-validated held-out position error once the rows are judged
+    (:mod:`calib.calibration.estimators.weights`; a note says when it is not the variance
+    components').
     Returns the :class:`Fit` and the final weighted problem on the kept rows.
     """
     return _FitRun(setup, free, solve, sigma_pos=sigma_pos, sigma_rot=sigma_rot, loss=loss, loss_scale=loss_scale,
                    outlier_k=outlier_k, keep=keep, kin=kin, rank_deficit=rank_deficit, warm=warm,
-                   refit=refit, sigma_touch=sigma_touch).run()
+                   refit=refit, sigma_touch=sigma_touch, choose_weights=choose_weights).run()
 
 
 class _FitRun:
@@ -81,7 +88,7 @@ class _FitRun:
     def __init__(self, setup: Setup, free: Sequence[str], solve: Solver, *, sigma_pos: float | None,
                  sigma_rot: float | None, loss: str, loss_scale: float, outlier_k: float | None,
                  keep: np.ndarray | None, kin: ChainKinematics | None, rank_deficit: int, warm: bool,
-                 refit: bool, sigma_touch: float | None = None):
+                 refit: bool, sigma_touch: float | None = None, choose_weights: bool = False):
         cal, start = setup.cal, setup.start
         kin = kin or ChainKinematics(start)
         self.setup, self.solve, self.loss, self.outlier_k, self.refit = setup, solve, loss, outlier_k, refit
@@ -132,6 +139,9 @@ class _FitRun:
         # residuals' own
         self.fixed_point = self.two_groups and loss == "linear" and solve.lm_variant != "paper"
         self.robust_levels = self.lv       # (the outlier check's robust noise levels)
+        self.trimmed_last = False       # (the rows now kept were judged against the high-breakdown fit)
+        self.choose_weights = choose_weights
+        self.weight_choice = None       # (a WeightChoice when the orientation's weight was changed)
         self._last_lin = None
 
     def problem(self) -> Problem:
@@ -164,7 +174,32 @@ class _FitRun:
                 break
             if not self.judge():
                 break
+        if self.choose_weights:
+            self.rotation_weight()
         return self.finish()
+
+    def rotation_weight(self) -> None:
+        """The orientation's weight chosen by cross-validated held-out position error
+        (:func:`~calib.calibration.estimators.weights.choose_rotation_weight`) for pose data with
+        both noise levels estimated, least squares: when another than the variance components'
+        is chosen, the orientation is held at that level and the fit re-weighted (its position
+        level estimated again)."""
+        if not (self.setup.touch is None and self.two_groups and self.given == (None, None)
+                and self.loss == "linear" and self.refit and self.sol is not None
+                and self.sol.status == "converged" and self.solve.lm_variant != "paper"):
+            return
+        from calib.calibration.estimators.weights import choose_rotation_weight
+
+        try:
+            choice = choose_rotation_weight(self.problem(), self.x)
+        except DataError:
+            return
+        if choice.factor == 1.0:
+            return
+        self.weight_choice = choice
+        self.lv = (self.lv[0], self.lv[1] * choice.factor)
+        self.given = (None, self.lv[1])
+        self.weighted_fits()
 
     def take_back_unrefitted(self) -> None:
         """``refit`` False: the rows now kept and their levels, at the robust solution; the frame
@@ -230,6 +265,7 @@ class _FitRun:
                             options=self.solve.options, trace=self.trace)
         self.x, self.robust_levels = judged.x, judged.levels
         new, too_many = list(judged.outliers), judged.too_many
+        self.trimmed_last = judged.trimmed
         if judged.breakdown:
             self.refusals.append(judged.breakdown)
         elif too_many:
@@ -250,11 +286,13 @@ class _FitRun:
             self.suspect = None
             if back.any():
                 self.keep |= back
+                self.trimmed_last = False
                 return True
         if not new:
             return False
         self.outliers += new
         self.keep &= ~np.isin(rows, [o.row for o in new])
+        self.trimmed_last = False
         return True
 
     def finish(self) -> tuple[Fit, Problem]:
@@ -278,15 +316,17 @@ class _FitRun:
         if self.setup.touch is not None and sol.status != "diverged":
             check_group_redundancy(lin, everything.groups, self.given)
         noise = noise_estimate(problem, lin, self.estimate, self.vce_total)
+        covariance = lin.inverse
+        if self.weight_choice is not None:
+            noise, covariance = self.reweighted(problem, lin, noise)
+        notes = list(self.notes)
         if self.estimate and self.outlier_k is not None and self.loss == "linear" and not self.refusals \
                 and self.refit and can_trim(everything, self.keep, len(x)):
             # (where half of the rows cannot determine the parameters, the median residual cannot
             # say what the noise is either: the real TIAGo marker rows, 27 for 33 parameters, were
             # refused as inconsistent, the least-squares noise 2.2x the median residual's)
-            self.refusals.append(leftover_gross(everything, x, self.keep, lin.redundancies(len(self.lv)),
-                                                self.lv, self.given))
+            notes += self.tails(problem, x, lin)
         model = start.with_values(problem.full(x))
-        notes = list(self.notes)
         if self.outliers:
             notes.append(f"{len(self.outliers)} outlier rows removed and the fit repeated without them: rows "
                          + ", ".join(str(o.row) for o in self.outliers))
@@ -294,10 +334,43 @@ class _FitRun:
         # (least squares: the cost from the normal equations of the noise estimate)
         cost = lin.ne.cost if problem.loss == "linear" else 0.5 * float(np.sum(problem.residuals(x) ** 2))
         fit = Fit(model, self.free, replace(sol, cost=cost), self.keep, tuple(self.outliers), noise,
-                  self.trace.iterations, covariance=lin.inverse, full_rank=lin.full_rank, all_rows=everything,
+                  self.trace.iterations, covariance=covariance, full_rank=lin.full_rank, all_rows=everything,
                   notes=tuple(notes), unremoved=self.unremoved,
                   refusals=tuple(r for r in dict.fromkeys(self.refusals) if r))
         return fit, problem
+
+    def reweighted(self, problem: Problem, lin: Linearised, noise):
+        """The noise estimate and covariance of a fit whose orientation was weighted as noisier
+        than it is (:meth:`rotation_weight`): its noise as its residuals give it, and the
+        covariance of a fit so weighted (A^-1 (A_pos + c A_rot) A^-1, c its residuals' reduced
+        chi-square: the weighting's own A^-1 overstated the orientation error 1.4 times); the
+        note says so."""
+        c = max(noise.chi2_rot, 0.0)
+        actual = problem.sigma_rot * math.sqrt(c)
+        noise = replace(noise, rotation=actual, chi2_rot=1.0, chi2=noise.chi2 - lin.ne.rss_rot + lin.red_rot)
+        covariance = lin.inverse @ (noise.chi2_pos * lin.ne.A_pos + c * lin.ne.A_rot) @ lin.inverse
+        self.notes.append(self.weight_choice.note(problem.sigma_rot, actual))
+        return noise, covariance
+
+    def tails(self, problem: Problem, x: np.ndarray, lin: Linearised) -> list[str]:
+        """The data-consistency rule on the final fit (:mod:`calib.calibration.plausibility`):
+        heavy tails (the least-squares noise level above ROBUST_CHECK_INFLATION times the robust
+        one) are judged against the high-breakdown fit where the passes did not judge these rows
+        there (a refusal when more than half of them lie far from it), else noted with their
+        figures."""
+        everything, red = self.everything, lin.redundancies(len(self.lv))
+        tails = leftover_gross(everything, x, self.keep, red, self.lv, self.given, self.outlier_k)
+        if not tails.heavy:
+            return []
+        beyond = len(self.outliers)
+        if not self.trimmed_last:
+            judged = judge_rows(everything, problem, x, self.keep, self.rows, self.outlier_k, given=self.given,
+                                red=red, few=True, options=self.solve.options, trace=self.trace)
+            if judged.breakdown:
+                self.refusals.append(judged.breakdown)
+                return []
+            beyond += len(judged.outliers)
+        return [replace(tails, rows=len(self.rows), beyond=beyond).note()]
 
 
 #: A feature of touch data that loses this share of its rows to the outlier check is named.
@@ -335,16 +408,17 @@ def method_notes(setup: Setup, method: str) -> list[str]:
 def fit_with(setup: Setup, free: Sequence[str], options: CalibrationOptions, *, outlier_k: float | None,
              keep: np.ndarray | None = None, kin: ChainKinematics | None = None, rank_deficit: int = 0,
              sigma_pos: float | None = None, sigma_rot: float | None = None,
-             warm: bool = False, refit: bool = True) -> tuple[Fit, Problem]:
+             warm: bool = False, refit: bool = True, choose_weights: bool = False) -> tuple[Fit, Problem]:
     """:func:`fit_stage` of ``free`` with the solver, loss and noise levels of ``options``
-    (sigma_pos / sigma_rot: given instead of the options' ones when not None; warm, refit: see
-    :func:`fit_stage`)."""
+    (sigma_pos / sigma_rot: given instead of the options' ones when not None; warm, refit,
+    choose_weights: see :func:`fit_stage`)."""
     solve = solver_for(setup, free, options.method, options.lm, options.max_rounds, options.fixed_rounds,
                         options.lm_variant)
     return fit_stage(setup, free, solve, sigma_pos=options.sigma_pos if sigma_pos is None else sigma_pos,
                      sigma_rot=options.sigma_rot if sigma_rot is None else sigma_rot, loss=options.loss,
                      loss_scale=options.loss_scale, outlier_k=outlier_k, keep=keep, kin=kin,
-                     rank_deficit=rank_deficit, warm=warm, refit=refit, sigma_touch=options.sigma_touch)
+                     rank_deficit=rank_deficit, warm=warm, refit=refit, sigma_touch=options.sigma_touch,
+                     choose_weights=choose_weights)
 
 
 @dataclass(frozen=True, eq=False)
@@ -368,7 +442,7 @@ class LeastSquares:
         if warm:
             setup = replace(setup, start=self.start, suspect=self.suspect)
         fit, problem = fit_with(setup, choice.free, options, outlier_k=options.outlier_k, kin=kin,
-                                rank_deficit=choice.deficit, warm=warm)
+                                rank_deficit=choice.deficit, warm=warm, choose_weights=True)
         if setup.touch is not None and fit.solver.status != "diverged":
             return self.second_pass(setup, choice, options, kin, fit, problem)
         return Estimate(fit, problem, choice.label, {"kind": self.name, "param_set": choice.label}, choice=choice)
