@@ -12,7 +12,10 @@ string (the syntax is documented in docs/index.md, "How these pages stay true"):
   ``-m "not slow"``, keeps the structure checks below); ``slow`` on a block: run in a fresh
   folder, as a test of its own. ``bench``: minutes
   of a benchmark: run only with ``--docs-bench``. ``needs=../shared/realdata``: skipped where
-  the folder beside the repository is absent (``CALIB_DOCS_SHARED`` names it elsewhere).
+  the folder beside the repository is absent (``CALIB_DOCS_SHARED`` names it elsewhere; in a
+  worktree, e.g. ``CALIB_DOCS_SHARED=/work/shared``); on a quick block it starts a part of the
+  document that runs as a test of its own, in a fresh folder, up to the next block with
+  ``needs=`` (the blocks before it run, and are checked, where the folder is absent).
   A line ``NAME=...`` assigning a shell variable stays set for the document's later blocks.
 - ```` ```text output ````: the first fenced block after a run block with this mark is what the
   block prints (stdout and stderr together). Its lines must appear in that order among the printed
@@ -311,9 +314,18 @@ def _cases():
     for path in DOCS:
         runs = [b for b in parse_blocks(path) if "run" in b.marks]
         name = str(path.relative_to(ROOT))
-        quick = tuple(k for k, b in enumerate(runs) if not {"slow", "bench"} & set(b.marks))
-        if quick:       # (slow too: they run the command line, tens of processes; CI runs them)
-            yield pytest.param(path, quick, id=name, marks=pytest.mark.slow)
+        parts, part = [], None      # the quick blocks; a block with needs= starts a part of its own
+        for k, b in enumerate(runs):
+            if {"slow", "bench"} & set(b.marks):
+                continue
+            if part is None or "needs" in b.marks:
+                part = []
+                parts.append(part)
+            part.append(k)
+        for part in parts:      # (slow too: they run the command line, tens of processes; CI runs them)
+            first = runs[part[0]]
+            yield pytest.param(path, tuple(part), id=f"{name}:{first.line}" if "needs" in first.marks else name,
+                               marks=pytest.mark.slow)
         for k, b in enumerate(runs):
             if "bench" in b.marks:
                 yield pytest.param(path, (k,), id=f"{name}:{b.line}", marks=pytest.mark.bench)
