@@ -202,9 +202,19 @@ def _renumber(shown: str, numbers: list[str], printed: tuple, timed: list[bool])
         if m.group() == "...":
             return m.group()
         s, p, t = next(it)
-        return s if t or abs(float(p) - float(s)) <= _tolerance(s) else _format_like(s, float(p))
+        if t or abs(float(p) - float(s)) <= _tolerance(s):
+            return s
+        # the printed text where the shown one is as precise (give or take the trailing zero a %g
+        # format drops): a number padded to the shown digits was never printed
+        return p if _significant(p) <= _significant(s) + 1 else _format_like(s, float(p))
 
     return re.sub(rf"\.\.\.|{_NUMBER}", repl, shown)
+
+
+def _significant(number: str) -> int:
+    """The significant digits of a number as written: 0.0088 -> 2, 3.140e-13 -> 4, 25 -> 2."""
+    digits = re.sub(r"\D", "", number.lower().partition("e")[0])
+    return max(len(digits.lstrip("0")), 1)
 
 
 def _format_like(shown: str, value: float) -> str:
@@ -368,6 +378,14 @@ def test_shown_lines_match_in_order_numbers_to_the_digits_shown():
     assert compare(shown, PRINTED) == ([], shown)
 
 
+def test_the_update_takes_the_printed_text_unless_the_page_shows_fewer_digits():
+    printed = "largest joint change joint1 0.276 deg, joint2 -3.105912923 deg, joint3 0.008812 deg, r 3.14e-13 mm"
+    shown = "largest joint change joint1 0.1175 deg, joint2 -3.10074777 deg, joint3 0.0071 deg, r 2e-13 mm"
+    problems, updated = compare([shown], printed)
+    assert problems and updated == ["largest joint change joint1 0.276 deg, joint2 -3.105912923 deg, "
+                                    "joint3 0.0088 deg, r 3e-13 mm"]
+
+
 @pytest.mark.parametrize("shown", [
     "predicted RMS error (Cramer-Rao): position 0.01072 mm, orientation 0.000424 rad",  # one digit
     "predicted RMS error (Cramer-Rao): position 0.0108 mm, orientation 0.000423 rad",   # rounded wrong
@@ -394,6 +412,7 @@ def test_number_forms():
     assert _tolerance("25") == pytest.approx(0.5)
     assert _format_like("4.0e-4", 4.27e-4) == "4.3e-4" and _format_like("0.0100", 0.01234) == "0.0123"
     assert _format_like("1.2e-05", 3.456e-6) == "3.5e-06"
+    assert _significant("0.0088") == 2 and _significant("-3.140e-13") == 4 and _significant("0") == 1
     # digits inside names are text: theta1 stays theta1, v_x@M3 stays v_x@M3
     assert compare(["theta1 -0.0035"], "theta1 -0.003507")[0] == []
     assert compare(["theta2 -0.0035"], "theta1 -0.003507")[0]
