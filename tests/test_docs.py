@@ -441,6 +441,15 @@ def test_readme_is_short_and_opens_with_the_setup_commands():
     assert [b.body for b in sh[:2]] == [[c] for c in SETUP_COMMANDS]
 
 
+def test_the_index_lists_every_page():
+    """docs/index.md's contents link every page of docs/ (a page added without it is found by
+    no reader of the index)."""
+    text = (ROOT / "docs" / "index.md").read_text()
+    contents = text[text.index("## Contents"):text.index("## How these pages stay true")]
+    linked = set(re.findall(r"\]\(([\w-]+\.md)\)", contents))
+    assert linked == {p.name for p in (ROOT / "docs").glob("*.md")} - {"index.md"}
+
+
 def _slug(heading: str) -> str:
     """GitHub's anchor of a heading: lower case, punctuation but - and _ dropped, spaces to -."""
     return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
