@@ -5,7 +5,7 @@ string (the syntax is documented in docs/index.md, "How these pages stay true"):
 
 - ```` ```sh run ````: a shell block run by bash (```` ```python run ````: by ``python``) in the
   document's working directory (a temporary folder holding copies of robots/, examples/ and
-  scripts/, and calib/ as a link), with ``calib`` and ``python`` the interpreter running the
+  scripts/, and calib/ and tests/ as links), with ``calib`` and ``python`` the interpreter running the
   tests and this checkout on ``PYTHONPATH``. Every
   command must exit 0 (``set -e``), or the block ends with the status ``exit=N`` names.
   The blocks of a document run as one test with the ``slow`` mark (the inner loop,
@@ -246,12 +246,13 @@ def shims(tmp_path_factory) -> Path:
 
 
 def _workdir(tmp: Path) -> Path:
-    """``tmp/repo``: the copies and the package link; ``tmp/shared`` links the folder beside the
+    """``tmp/repo``: the copies and the links; ``tmp/shared`` links the folder beside the
     repository (``../shared``: the real data sets) where it exists."""
     path = tmp / "repo"
     for name in COPIED:
         shutil.copytree(ROOT / name, path / name, ignore=shutil.ignore_patterns("__pycache__"))
     (path / "calib").symlink_to(ROOT / "calib")
+    (path / "tests").symlink_to(ROOT / "tests")      # (scripts/bench_bag.py writes bags with its helpers)
     if SHARED.is_dir():
         (tmp / "shared").symlink_to(SHARED)
     return path
