@@ -7,9 +7,8 @@ import logging
 import sys
 from pathlib import Path
 
-from calib.cli.bag import add_bag, bag_file, check_measurement_input, read_bag_args
+from calib.cli.inputs import add_bag, add_robot, bag_file, check_measurement_input, load, read_bag_args
 from calib.cli.args import (HelpFormatter, add_compliance, add_file_format, add_frames, add_progress, add_report_options, add_verbose, check_measurement_link, compliance_options, count, parse_meta, positive, progress_enabled, read)
-from calib.cli.robot_args import add_robot, load
 from calib.cli.output import Outputs, json_text, refuse_implausible, status_exit
 from calib.cli.progress import working
 from calib.errors import DataError, ParameterError
@@ -315,13 +314,13 @@ def kinematics_path(out_urdf: Path) -> Path:
 
 
 def _load_robot(args, outputs, out_urdf):
-    """The robot of ``args`` (:func:`calib.cli.robot_args.load`) and a function that, given the calibrated
+    """The robot of ``args`` (:func:`calib.cli.inputs.load`) and a function that, given the calibrated
     URDF's text, stages the calibrated parameter file of a xacro that takes its kinematics from one
     (the UR case: ur_description's default_kinematics.yaml, :func:`kinematics_path`) and returns
     (its path, the line to print), or (None, "") for any other description. A chain that cannot be
     written in the file is refused here, before the fit."""
     from calib.cli.args import print_notes
-    from calib.cli.robot_args import robot_description
+    from calib.cli.inputs import robot_description
     from calib.io.urdf.xacro_file import XacroText
 
     description = robot_description(args, args.robot)

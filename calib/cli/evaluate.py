@@ -4,9 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from calib.cli.bag import add_bag, bag_file, check_measurement_input, read_bag_args
+from calib.cli.inputs import (add_bag, add_robot, bag_file, check_measurement_input, load, read_bag_args, robot_description)
 from calib.cli.args import (COMMON_EPILOG, HelpFormatter, add_compliance, add_file_format, add_frames, add_progress, add_report_options, add_verbose, parse_meta, read, with_compliance_file)
-from calib.cli.robot_args import add_robot, load, robot_description
 from calib.cli.output import EXIT_OK, PROG, json_text
 from calib.errors import ParameterError
 

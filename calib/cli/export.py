@@ -7,7 +7,7 @@ import sys
 
 from calib.choices import EXPORT_FORMATS
 from calib.cli.args import COMMON_EPILOG, HelpFormatter, add_frames, add_verbose, print_notes
-from calib.cli.robot_args import add_ur_type, robot_description
+from calib.cli.inputs import add_ur_type, robot_description
 from calib.cli.output import EXIT_OK, PROG, Outputs
 from calib.errors import ParameterError
 

@@ -5,7 +5,7 @@ import argparse
 import sys
 
 from calib.cli.args import (COMMON_EPILOG, HelpFormatter, add_compliance, add_frames, add_targets, add_verbose, compliance_options, count, positive_int, with_targets)
-from calib.cli.robot_args import add_robot, load
+from calib.cli.inputs import add_robot, load
 from calib.cli.output import EXIT_OK, json_text
 from calib.errors import CalibError, ParameterError
 

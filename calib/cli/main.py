@@ -5,6 +5,7 @@
     calib calibrate ROBOT.urdf MEAS.csv -o calibrated.urdf
     calib evaluate ROBOT.urdf MEAS.csv          accuracy of a model against measurements
     calib select-poses ROBOT.urdf -n N -o poses.csv       configurations worth measuring
+    calib plan ROBOT.urdf --poses N -o plan.csv --cell CELL.yaml   a plan the robot can run
     calib compensate CALIBRATED.urdf NOMINAL.urdf TARGETS.csv -o corrected.csv
     calib export CALIBRATED.urdf --format ur-yaml -o kinematics.yaml   for the user's stack
     calib formats                               column rules and vendor conventions
@@ -48,8 +49,8 @@ log = logging.getLogger(__name__)
 #: The subcommands, in the order ``calib --help`` lists them: each is the module
 #: ``calib.cli.<name>`` (``select-poses``: ``select_poses``), imported when its parser is built
 #: (a command line that names one loads that one only).
-COMMAND_NAMES = ("identifiability", "simulate", "calibrate", "evaluate", "select-poses", "compensate", "export",
-                 "formats")
+COMMAND_NAMES = ("identifiability", "simulate", "calibrate", "evaluate", "select-poses", "plan", "compensate",
+                 "export", "formats")
 
 
 def command_module(name: str):

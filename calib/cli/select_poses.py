@@ -7,7 +7,7 @@ import logging
 import sys
 
 from calib.cli.args import (HelpFormatter, add_frames, add_progress, add_targets, add_verbose, count, positive, positive_int, progress_enabled, with_targets)
-from calib.cli.robot_args import add_ur_type, robot_description
+from calib.cli.inputs import add_ur_type, robot_description
 from calib.cli.output import EXIT_OK, Outputs, command_line
 from calib.cli.progress import Progress, stage
 
@@ -35,7 +35,10 @@ Prints the criteria of the selection against random sets of N poses, and writes 
 CSV of joint values (degrees; millimetres for prismatic joints), one row per pose. Move the robot
 to each row, measure the tool pose, and add the columns x_mm, y_mm, z_mm (and qw, qx, qy, qz)
 to obtain a measurement file for `calib calibrate`. The advantage over random poses is largest
-with few poses (20 to 30 for a 6-axis arm)."""
+with few poses (20 to 30 for a 6-axis arm).
+
+The poses are not checked for collisions, the floor, the instrument's line of sight or travel:
+`calib plan` plans poses a robot can run in its cell, and writes its program (docs/plan.md)."""
 
 _SELECT_EPILOG = """\
 examples:

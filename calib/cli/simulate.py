@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from calib.cli.args import (COMMON_EPILOG, HelpFormatter, add_compliance, add_frames, add_targets, add_verbose, compliance_options, count, nonnegative, positive_int, with_targets)
-from calib.cli.robot_args import add_robot, load
+from calib.cli.inputs import add_robot, load
 from calib.cli.output import EXIT_OK, Outputs, command_line
 from calib.errors import CalibError, ParameterError
 

@@ -12,7 +12,7 @@ import logging
 import sys
 
 from calib.cli.args import read_options
-from calib.cli.robot_args import load
+from calib.cli.inputs import load
 from calib.cli.output import Outputs, command_line, json_text, refuse_implausible, status_exit
 from calib.errors import CalibError, ParameterError
 

@@ -99,7 +99,7 @@ from calib.model.jacobian import MEASURES
 from calib.design.pose_search import exchange_pass, greedy_d, low_precision
 from calib.model.robot import RobotModel
 
-__all__ = ["CRITERIA", "PoseDesign", "design_poses", "select_poses"]
+__all__ = ["CRITERIA", "PoseDesign", "design_poses", "design_from_pool", "select_poses"]
 
 #: Selection criteria of :func:`select_poses` (see the module docstring).
 CRITERIA = POSE_CRITERIA
@@ -228,10 +228,47 @@ def design_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion
     crit = _check_options(n, candidates, criterion, measure, sigma_pos, sigma_rot, exchange_passes)
     if progress is not None and not callable(progress):
         raise ParameterError(f"progress must be None or a function progress(done, total), got {progress!r:.60}")
-    total = 2 + exchange_passes
-    tick = progress if progress is not None else (lambda done, total: None)
     rng = check_rng(seed, "seed")
     pool = robot.random_configurations(candidates, rng)
+    return _design(robot, n, pool, None, rng, crit, measure, sigma_pos, sigma_rot, exchange_passes, progress, t0)
+
+
+@api_call
+def design_from_pool(robot: RobotModel, n: int, pool: np.ndarray, *, visible: np.ndarray | None = None,
+                     criterion: str = "D", measure: str = "pose", seed=None, sigma_pos: float = SIGMA_POS_M,
+                     sigma_rot: float = SIGMA_ROT_RAD, exchange_passes: int = 10, progress=None) -> PoseDesign:
+    """:func:`design_poses` over given candidates: ``pool`` (M, n_joints) rad / m (e.g. the
+    configurations a cell allows: :func:`calib.design.plan.plan_measurements`).
+
+    visible : None (every pose measures every target), or (M, K) bool for a model of K targets:
+        which targets each candidate measures (a target out of the instrument's sight gives no
+        rows: its rows of the candidate's block are zero). ``seed`` draws the random baseline
+        subsets only. Other parameters as :func:`design_poses`.
+    """
+    t0 = time.perf_counter()
+    check_robot(robot)
+    pool = check_configurations(pool, robot.n_joints, "pool")
+    crit = _check_options(n, len(pool), criterion, measure, sigma_pos, sigma_rot, exchange_passes)
+    if progress is not None and not callable(progress):
+        raise ParameterError(f"progress must be None or a function progress(done, total), got {progress!r:.60}")
+    if visible is not None:
+        visible = np.asarray(visible)
+        if visible.dtype != bool or visible.shape != (len(pool), robot.n_targets):
+            raise ParameterError(f"visible must be a ({len(pool)}, {robot.n_targets}) bool array, got "
+                                 f"{visible.dtype} {visible.shape}")
+        if not visible.any(axis=1).all():
+            raise ParameterError("visible: every candidate must measure at least one target")
+    return _design(robot, n, np.array(pool, float), visible, check_rng(seed, "seed"), crit, measure, sigma_pos,
+                   sigma_rot, exchange_passes, progress, t0)
+
+
+def _design(robot, n, pool, visible, rng, crit, measure, sigma_pos, sigma_rot, exchange_passes, progress,
+            t0) -> PoseDesign:
+    """The selection of :func:`design_poses` from ``pool`` (candidates' rows of the targets not
+    ``visible`` zeroed)."""
+    candidates = len(pool)
+    total = 2 + exchange_passes
+    tick = progress if progress is not None else (lambda done, total: None)
     report = analyze_identifiability(robot, pool, measure=measure, sigma_pos=sigma_pos,
                                      sigma_rot=sigma_rot)
     k = (6 if measure == "pose" else 3) * robot.n_targets
@@ -241,7 +278,7 @@ def design_poses(robot: RobotModel, n: int, *, candidates: int = 2000, criterion
                         f"parameters identifiable from {measure} measurements need; select at least "
                         f"{-(-r // k)} poses (several times more for accuracy)")
     cols = robot.indices(report.identifiable)
-    A, scale = _scaled_blocks(robot, pool, measure, sigma_pos, sigma_rot, cols, None)
+    A, scale = _scaled_blocks(robot, pool, measure, sigma_pos, sigma_rot, cols, None, visible)
     tick(1, total)
 
     sel = greedy_d(A, n)
@@ -300,13 +337,15 @@ def _check_options(n, candidates, criterion, measure, sigma_pos, sigma_rot, pass
 
 
 def _scaled_blocks(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: float,
-                   sigma_rot: float, cols: np.ndarray, scale: np.ndarray | None):
+                   sigma_rot: float, cols: np.ndarray, scale: np.ndarray | None,
+                   visible: np.ndarray | None = None):
     """(blocks (N, k, r), scale (r,)): the noise-weighted Jacobian of configurations Q restricted
     to ``cols``, columns divided by ``scale`` (default: computed from Q, the RMS per pose).
     With K targets each configuration's block holds every target's rows (k = 6 K or 3 K).
     Computed in chunks of configurations written into the one (N k, r) array (the Jacobian of
     all the parameters and its weighted copy stay the size of a chunk; the values are those of
-    one evaluation of the whole pool)."""
+    one evaluation of the whole pool). ``visible`` (N, K) bool: the rows of the targets a
+    configuration does not measure are zero (the scale is then computed from the rows measured)."""
     K = robot.n_targets
     k = (6 if measure == "pose" else 3) * K
     J = np.empty((len(Q) * k, len(cols)))
@@ -316,6 +355,9 @@ def _scaled_blocks(robot: RobotModel, Q: np.ndarray, measure: str, sigma_pos: fl
         targets = np.tile(np.arange(K), len(Qc)) if robot.targets else None
         np.take(weighted_jacobian(robot, np.repeat(Qc, K, axis=0), measure, sigma_pos, sigma_rot, targets),
                 cols, axis=1, out=J[s * k:(s + len(Qc)) * k])
+    if visible is not None:
+        # (row t of a configuration's block belongs to target t // (k / K))
+        J.reshape(len(Q), K, k // K, len(cols))[~np.asarray(visible, bool)] = 0.0
     if scale is None:
         # each column's sum of squares as numpy adds a contiguous column (pairwise)
         scale = np.sqrt(np.array([np.sum(np.ascontiguousarray(J[:, c]) ** 2) for c in range(len(cols))])

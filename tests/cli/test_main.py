@@ -16,7 +16,8 @@ from calib.cli.main import COMMAND_NAMES, build_parser, command_module, main
 from conftest import BUNDLED_URDF, ROOT
 
 #: The subcommands as ``calib --help`` lists them.
-NAMES = ["identifiability", "simulate", "calibrate", "evaluate", "select-poses", "compensate", "export", "formats"]
+NAMES = ["identifiability", "simulate", "calibrate", "evaluate", "select-poses", "plan", "compensate", "export",
+         "formats"]
 
 
 def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:

@@ -70,13 +70,13 @@ def test_every_imported_package_is_declared():
     third_party = sorted(m for m in imported if m not in sys.stdlib_module_names and m != "calib")
     # (xacro: the ros extra's, imported only by the child process of calib.io.urdf.xacro_worker; rospkg
     # and rosbags, the extra's others, are imported by name through calib.io.urdf.packages.ros_extra)
-    assert third_party == ["example_robot_data", "jinja2", "lxml", "matplotlib", "numpy", "pinocchio", "scipy",
-                           "threadpoolctl", "xacro", "yaml"]
+    assert third_party == ["coal", "example_robot_data", "jinja2", "lxml", "matplotlib", "mpl_toolkits", "numpy",
+                           "pinocchio", "scipy", "threadpoolctl", "xacro", "yaml"]
     declared |= {re.split(r"[<>=!~ \[]", d)[0].lower() for d in
                  tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]["ros"]}
     # cmeel wheels (Pinocchio, example-robot-data) install their modules under cmeel.prefix,
     # which packages_distributions() does not map
-    cmeel = {"pinocchio": ["pin"], "example_robot_data": ["example-robot-data"]}
+    cmeel = {"pinocchio": ["pin"], "example_robot_data": ["example-robot-data"], "coal": ["coal"]}
     for module in third_party:
         names = {d.lower().replace("_", "-") for d in dists.get(module) or cmeel.get(module, [])}
         assert names & declared, (module, names)

@@ -30,7 +30,7 @@ HOSTILE = [None, "x", "", float("nan"), float("inf"), -1, 0, 10 ** 30, [], {}, (
 BUILT_BY_CALIB = {"IdentifiabilityReport", "CalibrationResult", "ParameterEstimate", "TargetAccuracy",
                   "RecordedFrames", "PoseDesign", "CompensationResult", "PaperLMResult", "GravityModel",
                   "CompensationTargets", "AccuracyStats", "ExportResult", "MeasurementFrame", "FeatureFit",
-                  "XacroText"}
+                  "XacroText", "MeasurementPlan", "TouchPlan"}
 #: Per call: a result slower than this is a failure (10**30 poses, rounds, candidates...).
 CALL_LIMIT_S = 10
 
@@ -80,6 +80,20 @@ def table(tmp_path_factory):
         msgtype, msg = pose_stamped(ts, T0_NS + 10 ** 8 * i + 10 ** 6, "tracker", T[0])
         bag_messages.append(("/pose", msgtype, T0_NS + 10 ** 8 * i + 10 ** 6, msg))
     bag = write_bag(d / "bag", "mcap", sorted(bag_messages, key=lambda m: m[2]), ts)
+    # a plan (issue 40): a UR5 of example-robot-data (collision meshes), a tracker, few candidates
+    from calib.io.cell import Nest, Target, Tracker
+    from conftest import erd_urdf
+
+    ur5 = calib.load_robot(erd_urdf("ur5"), tool_frame="tool0")
+    tracker = dict(instrument=Tracker([2.0, 0.0, 0.7]), targets=(Target("S", [0.0, 0.0, 0.05]),),
+                   home=np.radians([0.0, -90.0, 0.0, -90.0, 0.0, 0.0]))
+    cell = calib.Cell(**tracker)
+    (d / "cell.yaml").write_text("tracker:\n  position_mm: [2000, 0, 700]\n")
+    plan_kw = dict(robot=ur5, n=10, cell=cell, candidates=80, seed=0, exchange_passes=0, travel_budget=0.0)
+    plan = calib.plan_measurements(**plan_kw)
+    nest = calib.Cell(features=(Nest("N", [0.4, 0.0, 0.3], poses=3),), tip=np.array([0.0, 0.0, 0.15]))
+    touch_kw = dict(robot=ur5, cell=nest, candidates=25, seed=0)
+    tplan = calib.plan_touch(**touch_kw)
     t = {
         "load_robot": (calib.load_robot, dict(urdf_path=BUNDLED_URDF)),
         "robot_path": (calib.robot_path, dict(robot=BUNDLED_URDF)),
@@ -148,6 +162,13 @@ def table(tmp_path_factory):
         "XacroText.kinematics_file": (xacro_text.kinematics_file, {}),
         "BagOptions": (calib.BagOptions, dict(pose="/pose", min_still_s=0.2)),
         "read_bag": (calib.read_bag, dict(path=bag, robot=robot, options=calib.BagOptions(pose="/pose", min_still_s=0.2))),
+        "Cell": (calib.Cell, tracker),
+        "read_cell": (calib.read_cell, dict(path=d / "cell.yaml")),
+        "plan_measurements": (calib.plan_measurements, plan_kw),
+        "plan_touch": (calib.plan_touch, touch_kw),
+        "MeasurementPlan.format": (plan.format, {}),
+        "MeasurementPlan.accuracy_loss": (plan.accuracy_loss, dict(where="cell")),
+        "TouchPlan.format": (tplan.format, {}),
         # methods of the values the API returns
         "TouchData.subset": (touch.subset, dict(keep=np.ones(touch.n_rows, bool))),
         "TouchData.rows_of": (touch.rows_of, dict(k=0)),

@@ -261,7 +261,8 @@ def write_measurements(path: str | Path, measurements: Measurements, *, angle_un
 
 # ====================================================================== poses
 def write_poses(path: str | Path, robot, q: np.ndarray, *, angle_unit: str = "deg",
-                length_unit: str = "mm", comment: str | None = None) -> None:
+                length_unit: str = "mm", comment: str | None = None, names=None,
+                name_column: str = "point", extra=None) -> None:
     """Write configurations as a "poses to measure" CSV (format: module docstring), atomically.
 
     Parameters
@@ -272,6 +273,11 @@ def write_poses(path: str | Path, robot, q: np.ndarray, *, angle_unit: str = "de
     angle_unit : "deg" or "rad" (revolute and continuous joints).
     length_unit : "mm" or "m" (prismatic joints).
     comment : text written first as ``#`` comment lines.
+    names : None, or one name per row (distinct, non-empty text without commas or quotes),
+        written first in the column ``name_column``: the key the instrument's file gives the
+        same points, for a join (``calibrate ... --tracker FILE --key point``).
+    extra : None, or {column: one text per row} written after the names (no commas, quotes or
+        '#'; readers ignore such columns), e.g. the targets a plan's pose sees.
     """
     from calib.checks import check_configurations, check_path
     from calib.model.robot import check_robot
@@ -279,13 +285,35 @@ def write_poses(path: str | Path, robot, q: np.ndarray, *, angle_unit: str = "de
     check_path(path, "path")
     check_robot(robot)
     q = check_configurations(q, robot.n_joints, "q")
+    if names is not None:
+        if not isinstance(names, (list, tuple, np.ndarray)) or not all(isinstance(n, str) for n in names):
+            raise ParameterError(f"names must be a list of {len(q)} names (text), got {names!r:.60}")
+        names = [str(n) for n in names]
+        if len(names) != len(q) or len(set(names)) != len(names) or \
+                any(not n.strip() or any(c in n for c in ',"\n#') for n in names):
+            raise ParameterError(f"names must be {len(q)} distinct names without commas, quotes or '#'")
+        if not isinstance(name_column, str) or not name_column.isidentifier():
+            raise ParameterError(f"name_column must be a column name, got {name_column!r}")
+    extra = {} if extra is None else extra
+    if not isinstance(extra, dict) or not all(
+            isinstance(k, str) and k.isidentifier() and isinstance(v, (list, tuple)) and len(v) == len(q)
+            and all(isinstance(x, str) and not any(c in x for c in ',"\n#') for x in v) for k, v in extra.items()):
+        raise ParameterError(f"extra must map column names to {len(q)} texts each (no commas, quotes or '#')")
     if not isinstance(angle_unit, str) or angle_unit not in ANGLE_UNITS:
         raise ParameterError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
     if not isinstance(length_unit, str) or length_unit not in LENGTH_UNITS:
         raise ParameterError(f"length_unit must be 'mm' or 'm', got {length_unit!r}")
     header, values = joint_columns(robot.joint_names, robot.prismatic, q, angle_unit, length_unit)
-    atomic_write_text(path, csv_text(header, [[repr(float(v)) for v in row] for row in values],
-                                     comment, ()))
+    rows = [[repr(float(v)) for v in row] for row in values]
+    if extra:
+        header = list(extra) + header
+        rows = [[extra[k][i] for k in extra] + row for i, row in enumerate(rows)]
+    if names is not None:
+        header = [name_column] + header
+        rows = [[name] + row for name, row in zip(names, rows)]
+    # (the text columns, names and extra texts, escaped for spreadsheets as every cell calib writes)
+    n_text = len(extra) + (names is not None)
+    atomic_write_text(path, csv_text(header, rows, comment, range(n_text)))
 
 
 def read_poses(path: str | Path, robot, *, options: ReadOptions | None = None) -> np.ndarray:
