@@ -5,14 +5,17 @@ string (the syntax is documented in docs/index.md, "How these pages stay true"):
 
 - ```` ```sh run ````: a shell block run by bash (```` ```python run ````: by ``python``) in the
   document's working directory (a temporary folder holding copies of robots/, examples/ and
-  scripts/, and calib/ as a link), with ``calib`` and ``python`` the interpreter running the
+  scripts/, and calib/ and tests/ as links), with ``calib`` and ``python`` the interpreter running the
   tests and this checkout on ``PYTHONPATH``. Every
   command must exit 0 (``set -e``), or the block ends with the status ``exit=N`` names.
   The blocks of a document run as one test with the ``slow`` mark (the inner loop,
   ``-m "not slow"``, keeps the structure checks below); ``slow`` on a block: run in a fresh
   folder, as a test of its own. ``bench``: minutes
   of a benchmark: run only with ``--docs-bench``. ``needs=../shared/realdata``: skipped where
-  the folder beside the repository is absent (``CALIB_DOCS_SHARED`` names it elsewhere).
+  the folder beside the repository is absent (``CALIB_DOCS_SHARED`` names it elsewhere; in a
+  worktree, e.g. ``CALIB_DOCS_SHARED=/work/shared``); on a quick block it starts a part of the
+  document that runs as a test of its own, in a fresh folder, up to the next block with
+  ``needs=`` (the blocks before it run, and are checked, where the folder is absent).
   A line ``NAME=...`` assigning a shell variable stays set for the document's later blocks.
 - ```` ```text output ````: the first fenced block after a run block with this mark is what the
   block prints (stdout and stderr together). Its lines must appear in that order among the printed
@@ -199,9 +202,19 @@ def _renumber(shown: str, numbers: list[str], printed: tuple, timed: list[bool])
         if m.group() == "...":
             return m.group()
         s, p, t = next(it)
-        return s if t or abs(float(p) - float(s)) <= _tolerance(s) else _format_like(s, float(p))
+        if t or abs(float(p) - float(s)) <= _tolerance(s):
+            return s
+        # the printed text where the shown one is as precise (give or take the trailing zero a %g
+        # format drops): a number padded to the shown digits was never printed
+        return p if _significant(p) <= _significant(s) + 1 else _format_like(s, float(p))
 
     return re.sub(rf"\.\.\.|{_NUMBER}", repl, shown)
+
+
+def _significant(number: str) -> int:
+    """The significant digits of a number as written: 0.0088 -> 2, 3.140e-13 -> 4, 25 -> 2."""
+    digits = re.sub(r"\D", "", number.lower().partition("e")[0])
+    return max(len(digits.lstrip("0")), 1)
 
 
 def _format_like(shown: str, value: float) -> str:
@@ -233,12 +246,13 @@ def shims(tmp_path_factory) -> Path:
 
 
 def _workdir(tmp: Path) -> Path:
-    """``tmp/repo``: the copies and the package link; ``tmp/shared`` links the folder beside the
+    """``tmp/repo``: the copies and the links; ``tmp/shared`` links the folder beside the
     repository (``../shared``: the real data sets) where it exists."""
     path = tmp / "repo"
     for name in COPIED:
         shutil.copytree(ROOT / name, path / name, ignore=shutil.ignore_patterns("__pycache__"))
     (path / "calib").symlink_to(ROOT / "calib")
+    (path / "tests").symlink_to(ROOT / "tests")      # (scripts/bench_bag.py writes bags with its helpers)
     if SHARED.is_dir():
         (tmp / "shared").symlink_to(SHARED)
     return path
@@ -311,9 +325,18 @@ def _cases():
     for path in DOCS:
         runs = [b for b in parse_blocks(path) if "run" in b.marks]
         name = str(path.relative_to(ROOT))
-        quick = tuple(k for k, b in enumerate(runs) if not {"slow", "bench"} & set(b.marks))
-        if quick:       # (slow too: they run the command line, tens of processes; CI runs them)
-            yield pytest.param(path, quick, id=name, marks=pytest.mark.slow)
+        parts, part = [], None      # the quick blocks; a block with needs= starts a part of its own
+        for k, b in enumerate(runs):
+            if {"slow", "bench"} & set(b.marks):
+                continue
+            if part is None or "needs" in b.marks:
+                part = []
+                parts.append(part)
+            part.append(k)
+        for part in parts:      # (slow too: they run the command line, tens of processes; CI runs them)
+            first = runs[part[0]]
+            yield pytest.param(path, tuple(part), id=f"{name}:{first.line}" if "needs" in first.marks else name,
+                               marks=pytest.mark.slow)
         for k, b in enumerate(runs):
             if "bench" in b.marks:
                 yield pytest.param(path, (k,), id=f"{name}:{b.line}", marks=pytest.mark.bench)
@@ -356,6 +379,14 @@ def test_shown_lines_match_in_order_numbers_to_the_digits_shown():
     assert compare(shown, PRINTED) == ([], shown)
 
 
+def test_the_update_takes_the_printed_text_unless_the_page_shows_fewer_digits():
+    printed = "largest joint change joint1 0.276 deg, joint2 -3.105912923 deg, joint3 0.008812 deg, r 3.14e-13 mm"
+    shown = "largest joint change joint1 0.1175 deg, joint2 -3.10074777 deg, joint3 0.0071 deg, r 2e-13 mm"
+    problems, updated = compare([shown], printed)
+    assert problems and updated == ["largest joint change joint1 0.276 deg, joint2 -3.105912923 deg, "
+                                    "joint3 0.0088 deg, r 3e-13 mm"]
+
+
 @pytest.mark.parametrize("shown", [
     "predicted RMS error (Cramer-Rao): position 0.01072 mm, orientation 0.000424 rad",  # one digit
     "predicted RMS error (Cramer-Rao): position 0.0108 mm, orientation 0.000423 rad",   # rounded wrong
@@ -382,6 +413,7 @@ def test_number_forms():
     assert _tolerance("25") == pytest.approx(0.5)
     assert _format_like("4.0e-4", 4.27e-4) == "4.3e-4" and _format_like("0.0100", 0.01234) == "0.0123"
     assert _format_like("1.2e-05", 3.456e-6) == "3.5e-06"
+    assert _significant("0.0088") == 2 and _significant("-3.140e-13") == 4 and _significant("0") == 1
     # digits inside names are text: theta1 stays theta1, v_x@M3 stays v_x@M3
     assert compare(["theta1 -0.0035"], "theta1 -0.003507")[0] == []
     assert compare(["theta2 -0.0035"], "theta1 -0.003507")[0]
@@ -408,6 +440,15 @@ def test_readme_is_short_and_opens_with_the_setup_commands():
     assert len(text.splitlines()) <= 200
     sh = [b for b in parse_blocks(ROOT / "README.md") if b.lang == "sh" and "run" not in b.marks]
     assert [b.body for b in sh[:2]] == [[c] for c in SETUP_COMMANDS]
+
+
+def test_the_index_lists_every_page():
+    """docs/index.md's contents link every page of docs/ (a page added without it is found by
+    no reader of the index)."""
+    text = (ROOT / "docs" / "index.md").read_text()
+    contents = text[text.index("## Contents"):text.index("## How these pages stay true")]
+    linked = set(re.findall(r"\]\(([\w-]+\.md)\)", contents))
+    assert linked == {p.name for p in (ROOT / "docs").glob("*.md")} - {"index.md"}
 
 
 def _slug(heading: str) -> str:

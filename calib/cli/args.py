@@ -171,7 +171,8 @@ def add_file_format(p: argparse.ArgumentParser, *, tracker: bool = False) -> Non
                    help="the instrument's file as its software exports it (the tracker file of "
                         "--tracker, else the measurement file): leica (Q0..Q3 a quaternion, Q0 the "
                         "scalar; X [mm] ...), spatialanalyzer (no header line: Collection Group Target "
-                        "X Y Z, // comments; give --length-unit); `calib formats` lists them")
+                        "X Y Z, // comments; give --length-unit); `calib formats` lists them, docs/instruments.md "
+                        "shows them")
     g.add_argument("--columns", metavar="NAMES", type=_columns, default=None,
                    help="the column names of a file without a header line, in order, comma separated "
                         "(e.g. 'point,x_mm,y_mm,z_mm'): the instrument's file, as --instrument")
@@ -369,7 +370,7 @@ def add_report_options(p: argparse.ArgumentParser, *, residuals: bool = True) ->
     p.add_argument("--meta", action="append", default=None, metavar="KEY=VALUE,...|FILE.yaml|FILE.json",
                    help="identity fields of the HTML and JSON report, e.g. robot_serial=R123,instrument="
                         "'AT960 #4711',operator=J. Doe, or a YAML / JSON file of such fields (a mapping); "
-                        "may be repeated")
+                        "may be repeated (the fields: docs/certificate.md)")
     p.add_argument("--tolerance-mm", type=positive, default=None, metavar="T",
                    help="position tolerance of the report's verdict (mm): pass when every position error of "
                         "the held-out rows (without them: the calibration rows without the outliers) is "

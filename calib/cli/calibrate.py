@@ -135,7 +135,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--html", metavar="REPORT.html", default=None,
                    help="write one self-contained HTML report, a calibration certificate (identity, "
                         "verdict, accuracy, per-axis and ISO 9283 tables, parameters with expanded "
-                        "uncertainties, plots; no external links) for a person or a customer")
+                        "uncertainties, plots; no external links) for a person or a customer "
+                        "(docs/certificate.md)")
     add_report_options(p)
     add_progress(p)
     p.add_argument("--probe-radius-mm", type=positive, default=None, metavar="R",

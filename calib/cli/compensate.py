@@ -46,6 +46,7 @@ TARGETS.csv (comments with #, one header row, units in the column names as in me
 
 Other columns are ignored (listed on stderr). Semicolon or tab separators with decimal commas,
 --rename and --limit-tolerance work as for measurement files (calib formats; docs/formats.md).
+The controller's frames, configurations and programs: docs/compensation.md.
 
 A robot program instead of TARGETS.csv (by its suffix: KUKA .dat, ABB .mod, URScript .script,
 FANUC .ls): -o names a corrected copy of the same kind, every other character kept. Joint
