@@ -4,6 +4,7 @@ statement, those inside functions too), so a lazy import cannot hide an upward d
 from __future__ import annotations
 
 import ast
+from functools import lru_cache
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "calib"
@@ -23,6 +24,12 @@ def _module_name(path: Path) -> str:
     return ".".join(parts)
 
 
+@lru_cache(maxsize=None)
+def _tree(path: Path) -> ast.Module:
+    """The module's syntax tree, parsed once for all the checks (read only)."""
+    return ast.parse(path.read_text())
+
+
 def _modules() -> dict[str, Path]:
     return {_module_name(p): p for p in PACKAGE.rglob("*.py")}
 
@@ -32,7 +39,7 @@ def _imports(path: Path, name: str, known: set[str], typing: bool = False) -> se
     is a module), at any depth; those under ``if TYPE_CHECKING:`` only with ``typing``."""
     is_pkg = path.name == "__init__.py"
     out = set()
-    tree = ast.parse(path.read_text())
+    tree = _tree(path)
     # imports for type annotations only (``if TYPE_CHECKING:``) are no dependency at run time
     typing_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If)
                    and getattr(block.test, "id", getattr(block.test, "attr", None)) == "TYPE_CHECKING"
@@ -70,8 +77,10 @@ def _wing(module: str) -> str:
     return parts[1] if len(parts) > 1 and parts[1] in WINGS else ""
 
 
+@lru_cache(maxsize=None)
 def _graph(typing: bool = False) -> dict[str, set[str]]:
-    """Module -> the calib modules it imports (with ``typing``, its TYPE_CHECKING imports too)."""
+    """Module -> the calib modules it imports (with ``typing``, its TYPE_CHECKING imports too);
+    built once per kind for all the checks (read only)."""
     mods = _modules()
     known = set(mods)
     # calib/__init__.py loads the public names lazily by name (PEP 562), not by import statements
@@ -146,7 +155,7 @@ def test_no_module_exceeds_600_lines():
 def test_no_function_exceeds_100_lines():
     long = []
     for m, p in _modules().items():
-        for node in ast.walk(ast.parse(p.read_text())):
+        for node in ast.walk(_tree(p)):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 100:
                 long.append(f"{m}.{node.name}: {node.end_lineno - node.lineno + 1}")
     assert sorted(long) == []
@@ -172,7 +181,7 @@ def test_no_private_name_is_imported_across_modules():
     inside (dunders such as __version__ are public)."""
     found = []
     for m, p in _modules().items():
-        for node in ast.walk(ast.parse(p.read_text())):
+        for node in ast.walk(_tree(p)):
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("calib"):
                 for a in node.names:
                     if a.name.startswith("_") and not a.name.startswith("__") \
@@ -186,7 +195,7 @@ def test_frozen_instances_are_written_in_post_init_only():
     values computed from an immutable instance are cached properties, not writes into it."""
     found = []
     for m, p in _modules().items():
-        tree = ast.parse(p.read_text())
+        tree = _tree(p)
         for fn in ast.walk(tree):
             if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)) or fn.name == "__post_init__":
                 continue
@@ -208,7 +217,7 @@ def test_module_level_caches_are_memos():
     for m, p in _modules().items():
         if _wing(m) == "cli":
             continue
-        tree = ast.parse(p.read_text())
+        tree = _tree(p)
         for node in tree.body:
             target = node.targets[0] if isinstance(node, ast.Assign) else node.target if isinstance(node, ast.AnnAssign) else None
             value = getattr(node, "value", None)

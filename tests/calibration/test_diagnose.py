@@ -70,6 +70,7 @@ def test_quaternion_written_scalar_last_is_named(ur5, tmp_path):
     assert res.message.startswith("likely cause: the quaternion columns look written in the order (x, y, z, w)")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case, fragment", [
     ("swap45", "the joint columns 'wrist_1_joint' and 'wrist_2_joint' look swapped"),
     ("swap23", "the joint columns 'shoulder_lift_joint' and 'elbow_joint' look swapped"),

@@ -197,6 +197,7 @@ def test_equals_least_squares_when_data_swamp_the_model(bundled_robot):
         assert abs(eb.robot.value(name) - ls.robot.value(name)) < std[name], name
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which, n", [("ur5", 15), ("bundled", 25)])
 def test_closer_to_truth_than_least_squares_on_few_rows(which, n, ur5, bundled_robot):
     """15-30 full poses, ~1 mm deviations, 1 mm / 5 mrad noise: averaged over 8 seeds, the

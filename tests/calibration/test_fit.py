@@ -167,6 +167,7 @@ def test_clean_rows_skip_the_trimmed_fit(bundled_robot, monkeypatch):
     assert calls == []
 
 
+@pytest.mark.slow
 def test_an_implausible_fit_is_not_called_converged_and_the_cli_exits_3(tmp_path, capsys):
     """Quaternions written x, y, z, w and read as w, x, y, z: the fit "converged" with 1.4 rad
     left and exit 0, flagged by a note only. Now status "implausible" (success False), and the

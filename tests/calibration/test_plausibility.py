@@ -47,6 +47,7 @@ def _from_truth(model, true, n=50):
 
 
 # ---------------------------------------------------------------------- a joint's sign
+@pytest.mark.slow
 def test_a_joint_read_with_the_opposite_sign_is_refused_naming_it(ur5, tmp_path, capsys):
     """A UR5 whose wrist_2 values are negated (another URDF's convention): the fit flipped axes
     and moved a2 by -850 mm to follow it, fitting to the noise, and exit 0 with a note; the URDF
@@ -90,6 +91,7 @@ def _tool_point(robot):
     return robot.with_changes(v_x=0.05, v_y=-0.03, v_z=0.08)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["pose", "position", "targets", "touch"])
 def test_another_robots_measurements_are_refused_for_every_data_kind(kind, ur5, ur10):
     """UR10 rows on the UR5 URDF: the UR5 URDF was rewritten with UR10 link lengths (a2 +188
@@ -192,6 +194,7 @@ def test_a_parameter_its_data_hardly_see_is_judged_by_what_it_moves(ur5):
     assert len(sentence) == 1 and "theta5 +0.500 rad (+29 deg)" in sentence[0]
 
 
+@pytest.mark.slow
 def test_joint_terms_fitted_to_too_few_rows_are_judged_with_the_chain():
     """The real TIAGo example with --compliance --periodic asked for (35 configurations for 83
     parameters): the fit reached the noise with periodic errors of 1.6 rad on joint 7 and its

@@ -26,6 +26,7 @@ def ur5():
     return calib.load_robot(erd.load("ur5").urdf)
 
 
+@pytest.mark.slow
 def test_few_rows_default_to_map_and_beat_least_squares(ur5):
     """20 rows of a UR5 (4 residual components per identifiable parameter): the default is the
     EB-MAP estimate, closer to the truth than least squares on the identifiable set over 8 seeds

@@ -168,6 +168,7 @@ def refusal_bench():
     return module
 
 
+@pytest.mark.slow
 def test_heavy_tailed_honest_rows_are_noted_not_refused(refusal_bench):
     """Issue 39, item 1: 100 full Panda poses, each row with probability 0.2 measured 4 times
     noisier (a contaminated normal, kurtosis 5-10): the least-squares noise came out 1.5-1.8

@@ -73,6 +73,7 @@ def test_simulated_rows_touch_their_features_within_limits():
     np.testing.assert_allclose(N @ N.T, np.eye(3), atol=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["ur10", "panda"])
 def test_planes_and_sphere_recover_the_truth_to_the_cramer_rao_prediction(name):
     robot, true, sim, Qt = _case(name, PLANES, 1)
@@ -114,6 +115,7 @@ def test_points_recover_the_truth_up_to_the_scale():
     assert registered_error(res.robot, true, Qt) > 3 * e_sim
 
 
+@pytest.mark.slow
 def test_identifiability_of_touch_data():
     robot, _, sim, _ = _case("ur10", POINTS, 0)
     ident = touch_identifiability(robot, sim.data)
@@ -230,6 +232,7 @@ def test_noise_given_or_estimated_and_an_implausible_given_noise():
     assert "times the given noise" in small.message
 
 
+@pytest.mark.slow
 def test_large_errors_free_what_the_idealised_model_ties():
     """Errors of 5 mm / 10 mrad put the tool point millimetres off the last axis: its offset
     theta6 then moves the tool point, and a5, alpha5 untie. The set decided at the idealised

@@ -256,6 +256,7 @@ def _arm_case(robot, seed, bunched, n=40):
     return true, simulate_measurements(true, Q, sigma_pos=0.05e-3, sigma_rot=1e-4, rng=rng)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["tiago", "kinova", "panda", "z1"])
 def test_workspace_prediction_on_other_arms(name):
     """A prismatic torso (TIAGo), continuous joints (Kinova), 7 axes (Panda), limited ranges (Z1):

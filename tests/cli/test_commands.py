@@ -69,6 +69,7 @@ def _run_captured(argv):
     return code, out.getvalue(), err.getvalue()
 
 
+@pytest.mark.slow
 def test_simulate_writes_noisy_measurements_of_the_true_model(job, bundled_robot):
     d, res = job
     code, out, err = res["sim_cal"]
@@ -241,6 +242,7 @@ def _console_script() -> str:
     return found
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("launcher", ["module", "script"])
 def test_runs_as_a_program(launcher, tmp_path):
     cmd = [sys.executable, "-m", "calib"] if launcher == "module" else [_console_script()]

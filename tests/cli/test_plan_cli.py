@@ -48,6 +48,7 @@ def planned(tmp_path_factory):
     return d, run(*argv)
 
 
+@pytest.mark.slow
 def test_the_plan_prints_its_figures_and_writes_every_file(planned):
     d, (code, out, err) = planned
     assert (code, err) == (0, ""), err

@@ -32,6 +32,7 @@ def _rows(n: int, seed: int = 0) -> ReportRows:
                       columns=MappingProxyType({"time_s": np.arange(n, dtype=float)}))   # (as Measurements)
 
 
+@pytest.mark.slow
 def test_worker_draws_the_images_of_the_process_itself():
     """Byte for byte the PNGs plot_rows draws here (drift included), in its order, with progress
     calls counting up to the 5 plots."""
@@ -46,6 +47,7 @@ def test_worker_draws_the_images_of_the_process_itself():
     assert worker._proc.returncode == 0
 
 
+@pytest.mark.slow
 def test_threaded_process_starts_a_new_interpreter_with_the_same_images():
     """A process with threads is not forked (a fork copies their locks, not the threads): the
     worker is then a new interpreter (subprocess.Popen), drawing the same images."""
@@ -66,6 +68,7 @@ def test_threaded_process_starts_a_new_interpreter_with_the_same_images():
     assert images == plot_rows(rows) and len(images) == 5 and worker._proc.returncode == 0
 
 
+@pytest.mark.slow
 def test_worker_imports_matplotlib_without_the_property_docstrings():
     """In a new interpreter the worker's import writes no property table into the artists'
     set() docstrings (Line2D.set's is several thousand characters otherwise): the 40 % of the

@@ -4,6 +4,8 @@ from __future__ import annotations
 import io
 import math
 
+import pytest
+
 from calib.cli.main import main
 from calib.cli.progress import Progress, format_eta, working
 from conftest import BUNDLED_URDF, ROOT
@@ -48,6 +50,7 @@ def test_verbose_calibrate_logs_each_stage(capsys, tmp_path):
         assert fragment in err, fragment
 
 
+@pytest.mark.slow
 def test_every_imported_package_is_declared():
     """Item 5 of issue 12: each third-party module calib imports comes from a distribution
     listed in pyproject.toml's dependencies."""

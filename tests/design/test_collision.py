@@ -86,6 +86,7 @@ def test_a_box_through_the_base_is_refused(ur5):
         CollisionModel(robot, geom, Cell(forbidden=(Box("column", [-0.1, -0.1, 0.0], [0.1, 0.1, 2.0]),)))
 
 
+@pytest.mark.slow
 def test_moves_passed_have_no_contact_at_a_fine_step(ur5):
     """20 moves between random collision-free configurations: those passed are free when checked
     by the independent model at 0.25 degree steps (no margin), and at least one is refused."""

@@ -33,6 +33,7 @@ def planned():
     return robot, plan, check
 
 
+@pytest.mark.slow
 def test_every_pose_and_move_is_free_when_checked_independently(planned):
     robot, plan, check = planned
     assert plan.n_poses == 20 and plan.path[0] == pytest.approx(CELL.home) and plan.path[-1] == pytest.approx(CELL.home)
@@ -121,6 +122,7 @@ def test_options_are_checked():
         plan_measurements(replace(robot, source=None), 10)
 
 
+@pytest.mark.slow
 def test_a_camera_sees_every_target_in_its_field_of_view():
     from calib.io.cell import Camera
 
@@ -143,6 +145,7 @@ def test_a_camera_sees_every_target_in_its_field_of_view():
     assert plan.feasibility.rejected.get("out of view", 0) > 0
 
 
+@pytest.mark.slow
 def test_several_targets_each_pose_measures_those_it_sees():
     """Two SMRs facing different ways: every pose sees at least one; the prediction counts the
     rows of those it sees only (a pose seeing both informs more than one seeing one)."""
@@ -186,6 +189,7 @@ def test_selection_over_a_pool_with_every_target_seen_is_the_plain_one():
         design_from_pool(robot, 10, pool, visible=np.zeros((300, 2), bool), measure="position")
 
 
+@pytest.mark.slow
 def test_the_same_seed_gives_the_same_plan():
     robot = calib.load_robot(erd_urdf("ur5"), tool_frame="tool0")
     a, b = (plan_measurements(robot, 10, CELL, candidates=400, seed=5) for _ in range(2))

@@ -67,6 +67,7 @@ def _reference_selection(A, n, criterion, passes):
     return greedy, sel
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("criterion", ["D", "O1"])
 @pytest.mark.parametrize("measure", ["pose", "position"])
 def test_leverage_updates_select_what_direct_log_dets_select(robot, criterion, measure, monkeypatch):
@@ -120,6 +121,7 @@ def test_bounds_carried_over_a_swap_hold_at_the_new_information():
     assert np.median(root[:, 1:] / exact) < 3.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("criterion", ["D", "O1", "O4"])
 def test_a_pass_limited_to_the_last_swap_selects_what_full_passes_select(criterion):
     robot = _robot("bundled")

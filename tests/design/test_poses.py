@@ -23,6 +23,7 @@ def robot(request):
     return _robot(request.param)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("measure", ["pose", "position"])
 @pytest.mark.parametrize("criterion", ["D", "O1", "O4"])
 def test_criterion_beats_every_random_set(robot, criterion, measure):
@@ -96,6 +97,7 @@ def test_bad_options_raise_calib_errors():
     assert issubclass(DataError, CalibError) and issubclass(ParameterError, CalibError)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["bundled", "ur5"])
 def test_calibration_on_selected_poses_beats_random_poses(name):
     """Validation RMS over 200 noise-free poses, 6 draws (truth, noise, pose sets), N = 20."""

@@ -27,6 +27,7 @@ def tcp():
     return robot, plan_touch(robot, NEST, seed=0)
 
 
+@pytest.mark.slow
 def test_the_nest_is_touched_from_eight_orientations_within_the_cone(tcp):
     robot, plan = tcp
     model = probe_model(robot, NEST)

@@ -52,6 +52,7 @@ def _equivalent_csv(folder, truth):
     return path
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_a_bag_calibrates_to_the_numbers_of_the_equivalent_csv(tmp_path, truth, fmt):
     """Each format: one row per held pose, at the pose's joints (1e-12 rad: the joints of a still
@@ -76,6 +77,7 @@ def test_a_bag_calibrates_to_the_numbers_of_the_equivalent_csv(tmp_path, truth, 
     assert dp < 1e-6, dp
 
 
+@pytest.mark.slow
 def test_the_command_line_calibrates_a_bag_as_the_csv(tmp_path, truth, capsys):
     """calib calibrate --bag writes the URDF the CSV file gives (every number to 1e-9), and a report
     whose measurements input is the bag's data file."""
@@ -106,6 +108,7 @@ def test_the_command_line_calibrates_a_bag_as_the_csv(tmp_path, truth, capsys):
         assert results[0]["all"]["position_mm"][key] == pytest.approx(results[1]["all"]["position_mm"][key], abs=1e-9)
 
 
+@pytest.mark.slow
 def test_tf_transforms_read_as_the_pose_topic_either_way_round(tmp_path, truth):
     """--tf tracker:tool reads the /tf transforms tracker -> tool; recorded the other way round
     (tool -> tracker) they are inverted: the same rows (1e-12)."""
@@ -127,6 +130,7 @@ def test_tf_transforms_read_as_the_pose_topic_either_way_round(tmp_path, truth):
         np.testing.assert_allclose(m.q, want.q, atol=1e-12, rtol=0)
 
 
+@pytest.mark.slow
 def test_a_row_is_the_mean_of_a_still_poses_samples(tmp_path, truth):
     """With noise on each instrument sample (0.05 mm, 0.1 mrad), a row is the mean of its still
     period's samples: the position mean of exactly the samples taken within the period (1e-12),
@@ -273,6 +277,7 @@ def test_bag_options_are_checked_once():
         read_bag("/nonexistent.bag", calib.load_robot(BUNDLED_URDF), BagOptions(pose="/p"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_messages_read_in_place_are_rosbags_own_decoding(tmp_path, truth, monkeypatch, fmt):
     """calib.io.bag.layout reads a message's stamp and numbers in place when its layout is one

@@ -131,6 +131,7 @@ except KeyboardInterrupt:
 """
 
 
+@pytest.mark.slow
 def test_interrupts_while_the_files_are_written_leave_nothing(tmp_path):
     """Three Ctrl-C 0.15 s apart while four files are written in threads (each fsync 0.5 s): the
     clean-up is not cut short by the later ones; no output and no temporary file is left (with

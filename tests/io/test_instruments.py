@@ -291,6 +291,7 @@ def test_calib_formats_lists_the_presets(capsys):
         assert word in text
 
 
+@pytest.mark.slow
 def test_make_examples_writes_the_bundled_files(tmp_path):
     """examples/instruments/, the files docs/instruments.md runs its commands on (tests/test_docs.py
     runs them), are what make_examples.py writes."""

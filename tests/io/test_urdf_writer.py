@@ -191,6 +191,7 @@ def _write_case(case, small_urdf, tmp_path, seed=1):
 
 
 # ====================================================================== kinematics
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ALL_CASES, ids=[c[0] for c in ALL_CASES])
 def test_written_urdf_reproduces_calibrated_kinematics(case, small_urdf, tmp_path):
     src, nominal, robot, out = _write_case(case, small_urdf, tmp_path)

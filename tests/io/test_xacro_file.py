@@ -169,6 +169,7 @@ def test_packages_on_ros_package_path_and_the_ament_index(arm, tmp_path):
         RosPackages.from_options(["arm_meshes=/nonexistent/folder"])
 
 
+@pytest.mark.slow
 def test_calibrate_a_xacro_as_its_urdf(arm, tmp_path, capsys):
     """calib calibrate ROBOT.urdf.xacro --xacro-arg --package: the calibrated model of the
     hand-written URDF's calibration (tool poses to 1e-12 m) and parameters (1e-12); the calibrated

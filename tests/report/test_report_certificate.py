@@ -230,6 +230,7 @@ def test_envelope_keeps_each_bins_extremes_and_thinning_keeps_the_worst():
     assert set(np.argsort(e)[-300:]) <= set(idx)                 # the worst tenth kept
 
 
+@pytest.mark.slow
 def test_plots_of_200k_rows(tmp_path):
     images = plot_rows(_synthetic_rows(200_000), tolerance_m=0.2e-3)
     assert sorted(images) == ["error_histograms.png", "error_map.png", "orientation_errors.png",
@@ -383,6 +384,7 @@ def test_drift_against_time_and_iso_groups_by_pose_id(bundled_robot):
     assert "Drift during the measurement" in page and "ISO 9283" in page
 
 
+@pytest.mark.slow
 def test_touch_report_per_feature_before_and_after(capsys, tmp_path):
     """A touch file (three planes and a sphere: one residual component per row) gets the same
     report: the rows' RMS before and after are the fit's printed figures, per feature too, with

@@ -57,6 +57,7 @@ def _visible(page, selector: str) -> bool:
     return page.locator(selector).first.is_visible()
 
 
+@pytest.mark.slow
 def test_screen_shows_the_terminal_block_print_hides_it_and_keeps_the_signatures(certificate):
     from playwright.sync_api import sync_playwright
 
@@ -81,6 +82,7 @@ def test_screen_shows_the_terminal_block_print_hides_it_and_keeps_the_signatures
             browser.close()
 
 
+@pytest.mark.slow
 def test_printed_pdf_has_the_signature_block_and_no_terminal_output(certificate, tmp_path):
     from pypdf import PdfReader
 

@@ -219,6 +219,7 @@ def table(tmp_path_factory):
     return t, d
 
 
+@pytest.mark.slow
 def test_the_fuzz_covers_every_public_name(table):
     """Every callable of calib.__all__ (exceptions aside) has an entry, or is a value calib
     builds whose public methods have entries."""
@@ -255,6 +256,7 @@ def _call(fn, kwargs, bare, label, name, value):
         signal.alarm(0)
 
 
+@pytest.mark.slow
 def test_api_fuzz_never_raises_a_bare_exception(table, monkeypatch):
     """3,000-odd calls (2 s): a CalibError or success, a finite model, within the call limit."""
     t, d = table

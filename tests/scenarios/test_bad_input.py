@@ -342,6 +342,7 @@ def big_csv(tmp_path_factory):
     return _simulated_csv(tmp_path_factory, "hostile_big", "big.csv", 20_000, 5)[0] / "big.csv"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_signal_ends_with_one_line_and_no_partial_files(signum, code, big_csv, out):
     """A real signal to a real process, sent once it logs that the fit started (-v): the last
@@ -418,6 +419,7 @@ def test_gross_row_left_out_of_the_frame_estimate_and_flagged(sim):
             assert abs(p.identified - q.identified) < 3 * q.std + 1e-9, p.name
 
 
+@pytest.mark.slow
 def test_data_that_do_not_fit_the_robot_get_a_note_not_silence(sim):
     """Every joint value divided by 57.3 (a radian column named _deg): within the limits, so
     the reader cannot tell. The fit leaves errors of a third of a metre; it said only that it
@@ -457,6 +459,7 @@ def test_data_that_do_not_fit_the_robot_get_a_note_not_silence(sim):
                                 "tool frame"))
 
 
+@pytest.mark.slow
 def test_positions_in_metres_named_mm_get_a_note(sim):
     """Positions in metres in _mm columns: 1000 times too small, the fit shrinks the robot (a2
     by 350 mm, d4 by 364 mm) and converges at 3e-5 mm, exit 0 and nothing said. The identified
