@@ -7,6 +7,8 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import importlib.util  # noqa: E402
+import sys  # noqa: E402
 from functools import lru_cache  # noqa: E402
 from pathlib import Path
 
@@ -14,6 +16,22 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 BUNDLED_URDF = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
+
+def load_script(name: str):
+    """``scripts/NAME.py`` as a module, for the tests of a benchmark's functions: registered in
+    ``sys.modules`` as NAME (a dataclass there looks its module up), with ``scripts/`` on the
+    path while it loads (the benchmarks import their sibling ``_bench``)."""
+    folder = ROOT / "scripts"
+    spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    sys.path.insert(0, str(folder))
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(folder))
+    return module
+
 
 #: (name, URDF path getter, tool frame or None for the default)
 ERD_ARMS = [("ur5", None), ("ur10", "tool0"), ("panda", None), ("kinova", None), ("xarm7", None)]

@@ -2,29 +2,18 @@
 test of issue 23 on a few seeds (scripts/accept_gross_rows.py runs 30 seeds of every case)."""
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import calib
-
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "accept_gross_rows.py"
+from conftest import load_script
 
 
 @pytest.fixture(scope="module")
 def acc():
-    sys.path.insert(0, str(SCRIPT.parent))          # (the script imports scripts/_bench.py)
-    try:
-        spec = importlib.util.spec_from_file_location("accept_gross_rows", SCRIPT)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules["accept_gross_rows"] = module       # (its dataclass looks its module up)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(SCRIPT.parent))
-    return module
+    return load_script("accept_gross_rows")
 
 
 @pytest.fixture(scope="module")
@@ -157,15 +146,7 @@ def test_a_refusal_of_the_outlier_stage_holds_for_the_regularised_default(acc, w
 
 @pytest.fixture(scope="module")
 def refusal_bench():
-    sys.path.insert(0, str(SCRIPT.parent))
-    try:
-        spec = importlib.util.spec_from_file_location("bench_refusal", SCRIPT.parent / "bench_refusal.py")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules["bench_refusal"] = module
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(SCRIPT.parent))
-    return module
+    return load_script("bench_refusal")
 
 
 @pytest.mark.slow

@@ -2,30 +2,18 @@
 calib/calibration/estimators/weights.py; scripts/bench_weights.py runs the study)."""
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import calib
 import calib.calibration.estimators.weights as weights
-
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "bench_weights.py"
+from conftest import load_script
 
 
 @pytest.fixture(scope="module")
 def bench():
-    sys.path.insert(0, str(SCRIPT.parent))          # (the script imports scripts/_bench.py)
-    try:
-        spec = importlib.util.spec_from_file_location("bench_weights", SCRIPT)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules["bench_weights"] = module
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(SCRIPT.parent))
-    return module
+    return load_script("bench_weights")
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ import calib
 from calib.cli.main import main
 from calib.model.simulate import PAPER_DEVIATIONS, apply_deviations
 
-from conftest import BUNDLED_URDF, ROOT
+from conftest import BUNDLED_URDF, ROOT, load_script
 
 URDF = str(BUNDLED_URDF)
 #: The seven relations of Section 4.2: unidentifiable parameter -> the parameter it is tied to.
@@ -597,13 +597,10 @@ def test_make_tracker_example_writes_the_bundled_joint_and_tracker_files(tmp_pat
     """examples/tracker/joints.csv and tracker.csv are smr.csv as a controller and a tracker
     write it (scripts/make_tracker_example.py), and the join reads them back into smr.csv's rows
     to the rounding of the two exports."""
-    import importlib.util
 
     import calib
 
-    spec = importlib.util.spec_from_file_location("make_tracker_example", ROOT / "scripts" / "make_tracker_example.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("make_tracker_example")
     ex = ROOT / "examples" / "tracker"
     assert module.split(ex / "smr.csv", tmp_path / "j.csv", tmp_path / "t.csv") == 50
     assert (tmp_path / "j.csv").read_text() == (ex / "joints.csv").read_text()

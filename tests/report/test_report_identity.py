@@ -14,11 +14,9 @@ from __future__ import annotations
 import csv
 import datetime
 import hashlib
-import importlib.util
 import json
 import os
 import re
-import sys
 from pathlib import Path
 
 import pytest
@@ -30,26 +28,18 @@ from calib.cli.main import main
 from calib.errors import ParameterError
 from calib.io.report_meta import read_meta
 from calib.units import format_number
+from conftest import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
-SCRIPT = ROOT / "scripts" / "render_certificate.py"
 BUNDLED = ROOT / "robots" / "brtirus0707a" / "brtirus0707a.urdf"
 EXAMPLE = ROOT / "examples" / "brtirus0707a" / "measurements.csv"
 #: A number printed with a minus sign: the sign and its digits (not a date's or an id's dash).
 SIGNED = re.compile(r"(?<![\w.:-])-(\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)(?![\w.])")
 
 
-def _load_script():
-    spec = importlib.util.spec_from_file_location("render_certificate", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["render_certificate"] = module
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.fixture(scope="module")
 def render():
-    return _load_script()
+    return load_script("render_certificate")
 
 
 def run(capsys, *argv):

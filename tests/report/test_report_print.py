@@ -11,30 +11,18 @@ instead where ``CALIB_REQUIRE_BROWSER=1`` (.ci/run sets it when Chromium is inst
 """
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import re
-import sys
 import unicodedata
-from pathlib import Path
 
 import pytest
 
 from calib.cli.main import main
-
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "render_certificate.py"
-
-
-def _load_script():
-    spec = importlib.util.spec_from_file_location("render_certificate", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["render_certificate"] = module
-    spec.loader.exec_module(module)
-    return module
+from conftest import load_script
 
 
-RENDER = _load_script()
+RENDER = load_script("render_certificate")
 _MISSING = RENDER.browser_missing()
 if _MISSING is None:
     try:

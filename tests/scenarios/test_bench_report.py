@@ -1,27 +1,16 @@
 """scripts/bench_report.py: the headless Chromium it times runs with the flags this machine needs."""
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 
-pytestmark = pytest.mark.slow
+from conftest import load_script
 
-SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
+pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
 def bench_report():
-    sys.path.insert(0, str(SCRIPTS))          # (the script imports its sibling _bench)
-    try:
-        spec = importlib.util.spec_from_file_location("bench_report", SCRIPTS / "bench_report.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(SCRIPTS))
-    return module
+    return load_script("bench_report")
 
 
 def test_chromium_runs_headless_without_quic_or_background_network(bench_report, tmp_path):

@@ -4,27 +4,20 @@ The full run (63 x 63 convergence grid) lives in the script; these checks take s
 """
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import load_script
+
 #: End-to-end studies: skipped by the fast inner loop (pytest -m "not slow"), run in CI.
 pytestmark = pytest.mark.slow
-
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "reproduce_paper.py"
 
 
 @pytest.fixture(scope="module")
 def rp():
-    spec = importlib.util.spec_from_file_location("reproduce_paper", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["reproduce_paper"] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script("reproduce_paper")
 
 
 @pytest.fixture(scope="module")
