@@ -288,9 +288,10 @@ def test_cross_validation_predicts_held_out_rows_exactly_on_noise_free_data():
     assert res.group("touch").cv_rms < 1e-5 and res.cross_validation.folds == 6
 
 
-def _mixed_case(name, seed, tmp_path):
-    """Issue 24's mixed file: 2 points x 10 touch rows and 15 position rows measured by an
-    instrument standing 1.6 m away (its frame turned 34 degrees), written and read back."""
+def _mixed_case(name, seed, tmp_path, position_only=True):
+    """Issue 24's mixed file: 2 points x 10 touch rows and 15 position rows (full poses with
+    ``position_only=False``) measured by an instrument standing 1.6 m away (its frame turned 34
+    degrees), written and read back."""
     from dataclasses import replace
 
     from scipy.spatial.transform import Rotation
@@ -306,7 +307,7 @@ def _mixed_case(name, seed, tmp_path):
     true = replace(true, T_meas_base_ref=X @ true.T_meas_base_ref)
     sim = simulate_touch(true, [Feature("point", "P1"), Feature("point", "P2")], [10, 10], sigma=0.02e-3, rng=rng)
     meas = simulate_measurements(true, robot.random_configurations(15, rng), sigma_pos=0.05e-3,
-                                 position_only=True, rng=rng)
+                                 sigma_rot=1e-3, position_only=position_only, rng=rng)
     write_touch(tmp_path / "mixed.csv", replace(sim.data, measured=meas), robot)
     data = read_touch(tmp_path / "mixed.csv", robot)
     assert (data.n_rows, data.n_measured) == (20, 15)
@@ -354,6 +355,18 @@ def test_touch_rows_mixed_with_measured_rows_recover_the_truth(name, tmp_path):
     assert len(note) == 1
     moved = float(note[0].split("rows: ")[1].split(" mm")[0])
     assert abs(moved - 1.6e3) < 0.1e3, res.notes
+
+
+def test_touch_rows_mixed_with_measured_full_poses_estimate_three_noise_levels(tmp_path):
+    """Measured rows with orientations in a touch file (docs/touch.md allows them): three groups,
+    each with its noise level (the noise estimation's fixed point, written for two, ended in a
+    traceback); the tool positions err as predicted."""
+    robot, true, sim, data, Qt = _mixed_case("ur10", 1, tmp_path, position_only=False)
+    res = _touch(robot, data, cv=0)
+    assert res.success and [g.name for g in res.groups] == ["touch", "position", "rotation"]
+    for group, truth in (("touch", 0.02e-3), ("position", 0.05e-3), ("rotation", 1e-3)):
+        assert 0.6 < res.group(group).estimated / truth < 1.4, group
+    assert registered_error(res.robot, true, Qt, "none") <= 1.5 * predicted_tool_error(res, Qt, "none")
 
 
 def replace_measured(data, measured):

@@ -136,8 +136,9 @@ class _FitRun:
         # the levels where the estimation stops, from one linearisation (vce_fixed_point): a
         # re-fit that follows the weights confirms them; the paper's LM as printed ignores the
         # weights, and the estimation then ran to its limit of re-fits, its levels not its
-        # residuals' own
-        self.fixed_point = self.two_groups and loss == "linear" and solve.lm_variant != "paper"
+        # residuals' own. Pose rows only: with touch rows (three groups) each re-fit is one step
+        self.fixed_point = (self.two_groups and setup.touch is None and loss == "linear"
+                            and solve.lm_variant != "paper")
         self.robust_levels = self.lv       # (the outlier check's robust noise levels)
         self.trimmed_last = False       # (the rows now kept were judged against the high-breakdown fit)
         self.choose_weights = choose_weights
