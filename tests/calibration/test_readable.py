@@ -27,7 +27,7 @@ def test_the_frame_takes_a_tie_with_a_link_length():
     for name in ("d1", "a6", "d6"):
         assert res.robot.value(name) == robot.value(name)
     note = next(n for n in res.notes if n.startswith("link lengths tied to a frame offset held"))
-    assert note.endswith(": d1, d6, a6")
+    assert ": d1, d6, a6 (the data cannot tell them from the base and tool frames" in note
     # the structural partners fitted instead (the set before): the same calibrated kinematics
     before = tuple(n for n in res.free if n not in ("u_z", "v_x", "v_z")) + ("d1", "a6", "d6")
     other = calib.calibrate(robot, m, params=list(before))
@@ -48,7 +48,7 @@ def test_a_panda_keeps_its_base_and_flange_lengths():
     res = calib.calibrate(robot, m, cv=0)
     assert res.estimator["kind"] == "least-squares"
     assert not {"d1", "d7", "a7"} & set(res.free) and {"u_z", "v_x", "v_z"} <= set(res.free)
-    assert any(n.startswith("link lengths tied to a frame offset") and n.endswith("d1, d7, a7") for n in res.notes)
+    assert any(n.startswith("link lengths tied to a frame offset") and ": d1, d7, a7 (" in n for n in res.notes)
 
 
 def test_a_length_moved_several_millimetres_is_named():

@@ -104,4 +104,6 @@ def tied_length_notes(robot: RobotModel, Q: np.ndarray, measure: str, weights: t
     if not tied:
         return []
     return [f"link lengths tied to a frame offset held at their nominal values, the frame taking their "
-            f"share (the calibrated lengths read as the robot's): {', '.join(tied)}"]
+            f"share (the calibrated lengths read as the robot's): {', '.join(tied)} (the data cannot tell "
+            f"them from the base and tool frames' offsets, which carry the difference: the written base "
+            f"and tool joints, not the arm's own links)"]
