@@ -14,9 +14,11 @@ import math
 import numpy as np
 
 from calib.io.cell import Camera
+from calib.model.chain import joint_variable_names
+from calib.model.jacobian import damped_step
 from calib.model.kinematics import ChainKinematics
 
-__all__ = ["joint_columns", "target_frames", "in_view", "aim", "AIM_ITERATIONS"]
+__all__ = ["target_frames", "in_view", "aim", "AIM_ITERATIONS"]
 
 #: Damped least-squares iterations of :func:`aim` and their damping (radians).
 AIM_ITERATIONS = 25
@@ -24,13 +26,6 @@ AIM_DAMPING = 0.05
 #: The share of the cone the aimed directions are spread over (the rest is margin: the target's
 #: position moves while the wrist turns).
 AIM_SPREAD = 0.8
-
-
-def joint_columns(robot) -> np.ndarray:
-    """The parameter indices whose Jacobian columns are the joints' (theta_i, or d_i for a
-    prismatic joint), in chain order."""
-    return np.array([robot.index(f"d{i + 1}" if robot.prismatic[i] else f"theta{i + 1}")
-                     for i in range(robot.n_joints)])
 
 
 def target_frames(kin: ChainKinematics, Q: np.ndarray, targets) -> tuple[np.ndarray, np.ndarray]:
@@ -79,7 +74,7 @@ def aim(robot, Q: np.ndarray, instrument, targets, lower: np.ndarray, upper: np.
     the target's axis is left free), clamped to [lower, upper] (n,) at every step. Returns
     (N, n) configurations; :func:`in_view` says which succeeded."""
     kin = ChainKinematics(robot)
-    cols = joint_columns(robot)
+    cols = robot.indices(joint_variable_names(robot.joints))
     Q = np.clip(np.array(Q, float), lower, upper)
     N, K = len(Q), len(targets)
     which = np.arange(N) % K
@@ -108,7 +103,5 @@ def aim(robot, Q: np.ndarray, instrument, targets, lower: np.ndarray, upper: np.
         Jw = J[:, 3:, :]
         proj = np.eye(3)[None] - a[:, :, None] * a[:, None, :]
         PJ = proj @ Jw
-        JJ = PJ @ PJ.transpose(0, 2, 1) + AIM_DAMPING ** 2 * np.eye(3)
-        dq = np.einsum("nji,nj->ni", PJ, np.linalg.solve(JJ, err[:, :, None])[:, :, 0])
-        Q = np.clip(Q + dq, lower, upper)
+        Q = np.clip(Q + damped_step(PJ, err, AIM_DAMPING), lower, upper)
     return Q

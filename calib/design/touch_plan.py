@@ -40,10 +40,11 @@ from calib.calibration.accuracy.workspace import workspace_configurations
 from calib.checks import check_choice, check_int, check_number, check_rng
 from calib.design.collision import CollisionModel, check_cell_robot, checked_geometry
 from calib.design.feasible import plan_limits
-from calib.design.sight import joint_columns
 from calib.design.tour import Travel, path_travel, random_travel, route
 from calib.errors import DataError, ParameterError
 from calib.io.cell import Cell
+from calib.model.chain import joint_variable_names
+from calib.model.jacobian import damped_step
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel, check_robot
 from calib.model.touch import Feature, TouchData, frame_with_normal
@@ -143,7 +144,7 @@ def reach(robot: RobotModel, points: np.ndarray, axes: np.ndarray, lower: np.nda
     axis projected out) from ``starts`` random starts per target, clamped to the limits at
     every step."""
     kin = ChainKinematics(robot)
-    cols = joint_columns(robot)
+    cols = robot.indices(joint_variable_names(robot.joints))
     M, n = len(points), robot.n_joints
     Q_out, ok = np.zeros((M, n)), np.zeros(M, bool)
     for _ in range(starts):
@@ -165,9 +166,7 @@ def reach(robot: RobotModel, points: np.ndarray, axes: np.ndarray, lower: np.nda
             proj = np.eye(3)[None] - z[:, :, None] * z[:, None, :]
             Jt = np.concatenate([J[:, :3, :], proj @ J[:, 3:, :]], axis=1)
             e = np.concatenate([e_pos, e_rot], axis=1)
-            JJ = Jt @ Jt.transpose(0, 2, 1) + IK_DAMPING ** 2 * np.eye(6)
-            dq = np.einsum("nji,nj->ni", Jt, np.linalg.solve(JJ, e[:, :, None])[:, :, 0])
-            Q = np.clip(Q + dq, lower, upper)
+            Q = np.clip(Q + damped_step(Jt, e, IK_DAMPING), lower, upper)
         R, p = kin.frame_poses(Q)
         angle = np.arccos(np.clip(np.einsum("ni,ni->n", R[:, :, 2], A), -1.0, 1.0))
         hit = (np.linalg.norm(P - p, axis=1) < 1e-8) & (angle < 1e-6)

@@ -75,6 +75,12 @@ def v_names(target: str | None = None) -> tuple[str, ...]:
     return tuple(f"v_{k}{suffix}" for k in _FRAME_KINDS)
 
 
+def joint_variable_names(joints: Sequence[ChainJoint]) -> list[str]:
+    """The parameter each joint variable adds to, in chain order: ``theta<i>``, or ``d<i>`` for a
+    prismatic joint (a parameter Jacobian's columns there are the joint Jacobian's)."""
+    return [f"d{i}" if j.is_prismatic else f"theta{i}" for i, j in enumerate(joints, start=1)]
+
+
 def make_parameters(n_joints: int, beta_joints: Iterable[int],
                     targets: Sequence[str] = ()) -> tuple[Parameter, ...]:
     """The parameter list in the order of Eq. (23): theta, d, a, alpha, beta, u, v.

@@ -53,7 +53,7 @@ import pinocchio as pin
 
 from calib.checks import check_configurations
 from calib.errors import CalibError, ParameterError
-from calib.model.chain import UrdfSource
+from calib.model.chain import UrdfSource, joint_variable_names
 from calib.model.robot import RobotModel, check_robot
 
 #: Standard gravity, m/s^2, along -z of the URDF root frame by default.
@@ -296,8 +296,7 @@ class ComplianceTerm:
     def __init__(self, robot: RobotModel):
         self.gravity_model: GravityModel = robot.gravity
         self.c_idx = self.idx = robot.indices(robot.compliance_names)
-        self.q_cols = robot.indices([f"d{i}" if j.is_prismatic else f"theta{i}"
-                                     for i, j in enumerate(robot.joints, start=1)])
+        self.q_cols = robot.indices(joint_variable_names(robot.joints))
 
     def torques(self, Q: np.ndarray) -> np.ndarray:
         """(N, n) gravity torques at Q (N, n), cached by content in the gravity model."""

@@ -73,3 +73,11 @@ def identification_jacobian(robot: RobotModel, Q: np.ndarray, measure: str = "po
     if measure == "position":
         J = J[:, :3]
     return J.reshape(-1, J.shape[2])
+
+
+def damped_step(J: np.ndarray, e: np.ndarray, damping: float) -> np.ndarray:
+    """The damped least-squares step dq (N, n) = J^T (J J^T + damping^2 I)^-1 e of N problems at
+    once, J (N, m, n), e (N, m): the iterations of the inverse kinematics (touch rows, aiming a
+    target, reaching a feature) take it."""
+    JJ = J @ J.transpose(0, 2, 1) + damping ** 2 * np.eye(J.shape[1])
+    return np.einsum("nji,nj->ni", J, np.linalg.solve(JJ, e[:, :, None])[:, :, 0])

@@ -24,6 +24,8 @@ import numpy as np
 
 from calib.checks import check_int, check_number, check_rng
 from calib.errors import DataError
+from calib.model.chain import joint_variable_names
+from calib.model.jacobian import damped_step
 from calib.model.kinematics import ChainKinematics
 from calib.model.robot import RobotModel, check_robot
 from calib.model.touch import Feature, TouchData, frame_with_normal
@@ -69,7 +71,7 @@ def reach_positions(robot: RobotModel, targets: np.ndarray, rng=None, attempts: 
     them). Returns (Q (M, n), reached (M,) bool)."""
     kin = ChainKinematics(robot)
     n = robot.n_joints
-    cols = np.array([robot.index(f"d{i + 1}" if robot.prismatic[i] else f"theta{i + 1}") for i in range(n)])
+    cols = robot.indices(joint_variable_names(robot.joints))
     lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
     hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
     inset = np.minimum(margin, 0.01 * (hi - lo))
@@ -88,10 +90,7 @@ def reach_positions(robot: RobotModel, targets: np.ndarray, rng=None, attempts: 
             e = targets[todo] - p
             if np.all(np.einsum("ij,ij->i", e, e) < IK_TOL ** 2):
                 break
-            Jp = J[:, :3]
-            JJ = Jp @ Jp.transpose(0, 2, 1) + IK_DAMPING ** 2 * np.eye(3)
-            dq = np.einsum("nji,nj->ni", Jp, np.linalg.solve(JJ, e[:, :, None])[:, :, 0])
-            Q = np.clip(Q + dq, lo, hi)
+            Q = np.clip(Q + damped_step(J[:, :3], e, IK_DAMPING), lo, hi)
         p = kin.frame_poses(Q)[1]
         hit = np.linalg.norm(targets[todo] - p, axis=1) < 1e-9
         Q_out[todo[hit]], ok[todo[hit]] = Q[hit], True
