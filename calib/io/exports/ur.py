@@ -12,30 +12,9 @@ The format (``ur_description/config/<type>/default_kinematics.yaml``)::
       wrist_3:   {...}
       hash: calib_...
 
-How ``ur_description`` uses it, the template rule this module inverts, quoted from
-``urdf/ur_macro.xacro`` of Universal_Robots_ROS2_Description 2.4.5 (the same lines in earlier
-versions and in ROS 1's universal_robot ur_description; the links and joints carry the prefix
-``${tf_prefix}``, left out here; :mod:`calib.io.urdf.ur_description` quotes the whole chain)::
-
-    <joint name="base_link-base_link_inertia" type="fixed"> ... <origin xyz="0 0 0" rpy="0 0 ${pi}" />
-    <joint name="shoulder_pan_joint" type="revolute">
-      <parent link="base_link_inertia" />
-      <child link="shoulder_link" />
-      <origin xyz="${shoulder_x} ${shoulder_y} ${shoulder_z}" rpy="${shoulder_roll} ${shoulder_pitch} ${shoulder_yaw}" />
-      <axis xyz="0 0 1" />
-    ... shoulder_lift_joint (upper_arm_*), elbow_joint (forearm_*), wrist_1_joint (wrist_1_*),
-    ... wrist_2_joint (wrist_2_*), wrist_3_joint (wrist_2_link -> wrist_3_link, wrist_3_*)
-    <joint name="wrist_3-flange" type="fixed">
-      <parent link="wrist_3_link" />
-      <child link="flange" />
-      <origin xyz="0 0 0" rpy="0 ${-pi/2.0} ${-pi/2.0}" />
-    </joint>
-    <joint name="flange-tool0" type="fixed">
-      <!-- default toolframe - X+ left, Y+ up, Z+ front -->
-      <origin xyz="0 0 0" rpy="${pi/2.0} 0 ${pi/2.0}"/>
-      <parent link="flange"/>
-      <child link="tool0"/>
-    </joint>
+How ``ur_description`` uses it: the template rule this module inverts is ``urdf/ur_macro.xacro``
+of Universal_Robots_ROS2_Description 2.4.5, quoted with its source in
+:mod:`calib.io.urdf.ur_description` (which builds the nominal URDF from such a file). In short:
 
 * ``base_link`` -> ``base_link_inertia``: a fixed joint ``rpy="0 0 pi"``;
 * six revolute joints in series, ``shoulder_pan_joint`` (parent ``base_link_inertia``, child
