@@ -194,11 +194,7 @@ def ur_kinematics(chain: UrdfChain, flange_frame: str | None = None) -> UrKinema
     module docstring). Raises :class:`calib.ChainError` for a chain that is not UR-like,
     :class:`calib.FrameNotFound` for an unknown ``flange_frame``."""
     model = chain.model
-    data = model.createData()
-    q0 = chain.configuration(np.zeros(len(chain.joints)))
-    pin.computeJointJacobians(model, data, q0)
-    pin.updateFramePlacements(model, data)
-    oMb = data.oMf[chain.base_frame_id]
+    data, oMb = chain.at_zero()
     J, axes_local = [], []
     for jid in chain.joint_ids:
         J.append(oMb.actInv(data.oMi[jid]).homogeneous)          # T_base_joint at q = 0

@@ -116,6 +116,14 @@ class UrdfChain:
                 qf[jm.idx_q] = q[k]
         return qf
 
+    def at_zero(self):
+        """(data, oMb): Pinocchio's data of the model at the chain's zero configuration, its joint
+        Jacobians and frame placements computed, and the base frame's placement there."""
+        data = self.model.createData()
+        pin.computeJointJacobians(self.model, data, self.configuration(np.zeros(len(self.joints))))
+        pin.updateFramePlacements(self.model, data)
+        return data, data.oMf[self.base_frame_id]
+
     def T_meas_tool(self, Q: np.ndarray) -> np.ndarray:
         """(N, 4, 4) pose of the tool frame in the base (meas) frame by Pinocchio, for Q (N, n)."""
         data = self.model.createData()
@@ -376,11 +384,7 @@ def chain_axes(chain: UrdfChain) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     Jacobians: a joint's twist gives its axis direction and, for a revolute joint, a point on it.
     """
     model = chain.model
-    data = model.createData()
-    q0 = chain.configuration(np.zeros(len(chain.joints)))
-    pin.computeJointJacobians(model, data, q0)
-    pin.updateFramePlacements(model, data)
-    oMb = data.oMf[chain.base_frame_id]
+    data, oMb = chain.at_zero()
     pts, dirs = [], []
     for jid, joint in zip(chain.joint_ids, chain.joints):
         col = pin.getJointJacobian(model, data, jid, pin.WORLD)[:, model.joints[jid].idx_v]
