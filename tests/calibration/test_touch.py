@@ -288,15 +288,15 @@ def test_cross_validation_predicts_held_out_rows_exactly_on_noise_free_data():
     assert res.group("touch").cv_rms < 1e-5 and res.cross_validation.folds == 6
 
 
-def _mixed_case(name, seed, tmp_path, position_only=True):
-    """Issue 24's mixed file: 2 points x 10 touch rows and 15 position rows (full poses with
-    ``position_only=False``) measured by an instrument standing 1.6 m away (its frame turned 34
-    degrees), written and read back."""
+def _mixed(name, seed, position_only=True, gross=0):
+    """Issue 24's mixed data: 2 points x 10 touch rows (0.02 mm) and 15 position rows (0.05 mm;
+    full poses, 1 mrad, with ``position_only=False``) measured by an instrument standing 1.6 m
+    away (its frame turned 34 degrees), the first ``gross`` measured rows moved 5 mm in random
+    directions (slipped reflectors). Returns (robot, true, sim, data, 500 test configurations)."""
     from dataclasses import replace
 
     from scipy.spatial.transform import Rotation
 
-    from calib.io.csv.touch import read_touch, write_touch
     from calib.model.simulate import simulate_measurements
 
     robot = _robot(name)
@@ -308,10 +308,23 @@ def _mixed_case(name, seed, tmp_path, position_only=True):
     sim = simulate_touch(true, [Feature("point", "P1"), Feature("point", "P2")], [10, 10], sigma=0.02e-3, rng=rng)
     meas = simulate_measurements(true, robot.random_configurations(15, rng), sigma_pos=0.05e-3,
                                  sigma_rot=1e-3, position_only=position_only, rng=rng)
-    write_touch(tmp_path / "mixed.csv", replace(sim.data, measured=meas), robot)
+    if gross:
+        pos = meas.position.copy()
+        d = rng.normal(size=(gross, 3))
+        pos[:gross] += 5e-3 * d / np.linalg.norm(d, axis=1)[:, None]
+        meas = replace(meas, position=pos)
+    return robot, true, sim, replace(sim.data, measured=meas), robot.random_configurations(500, rng)
+
+
+def _mixed_case(name, seed, tmp_path, position_only=True):
+    """:func:`_mixed`'s data written to a touch file and read back."""
+    from calib.io.csv.touch import read_touch, write_touch
+
+    robot, true, sim, data, Qt = _mixed(name, seed, position_only)
+    write_touch(tmp_path / "mixed.csv", data, robot)
     data = read_touch(tmp_path / "mixed.csv", robot)
     assert (data.n_rows, data.n_measured) == (20, 15)
-    return robot, true, sim, data, robot.random_configurations(500, rng)
+    return robot, true, sim, data, Qt
 
 
 @pytest.mark.parametrize("name", ["ur10", "panda"])
@@ -403,31 +416,6 @@ def test_too_few_measured_rows_to_locate_the_instrument_are_refused(tmp_path):
 
 
 # ---------------------------------------------------------------- one pipeline (issue 38 item 1)
-def _mixed_gross(seed, gross=5):
-    """2 points x 10 touch rows and 15 measured positions (0.05 mm) of an instrument 1.6 m away,
-    the first ``gross`` measured rows moved 5 mm in random directions (slipped reflectors)."""
-    from dataclasses import replace
-
-    from scipy.spatial.transform import Rotation
-
-    from calib.model.simulate import simulate_measurements
-
-    robot = _robot("ur10")
-    rng = np.random.default_rng(seed)
-    true = apply_deviations(robot, random_deviations(robot, 0.5e-3, rng))
-    X = np.eye(4)
-    X[:3, :3], X[:3, 3] = Rotation.from_rotvec([0.1, -0.3, 0.5]).as_matrix(), [1.5, -0.4, 0.2]
-    true = replace(true, T_meas_base_ref=X @ true.T_meas_base_ref)
-    sim = simulate_touch(true, [Feature("point", "P1"), Feature("point", "P2")], [10, 10], sigma=0.02e-3, rng=rng)
-    meas = simulate_measurements(true, robot.random_configurations(15, rng), sigma_pos=0.05e-3,
-                                 position_only=True, rng=rng)
-    pos = meas.position.copy()
-    d = rng.normal(size=(gross, 3))
-    pos[:gross] += 5e-3 * d / np.linalg.norm(d, axis=1)[:, None]
-    data = replace(sim.data, measured=replace(meas, position=pos))
-    return robot, true, data, robot.random_configurations(500, rng)
-
-
 @pytest.mark.parametrize("seed", [0, 1])
 def test_gross_measured_rows_mixed_with_touch_rows_are_flagged_as_in_a_pose_file(seed):
     """5 of 15 measured rows moved 5 mm in a file mixing touch and measured rows: the one outlier
@@ -438,7 +426,7 @@ def test_gross_measured_rows_mixed_with_touch_rows_are_flagged_as_in_a_pose_file
     against 0.03-0.04 mm clean, status converged (seeds 0-2)."""
     from dataclasses import replace
 
-    robot, true, data, Qt = _mixed_gross(seed)
+    robot, true, _, data, Qt = _mixed("ur10", seed, gross=5)
     res = calibrate(robot, data, cv=0)
     assert res.success and sorted(o.row for o in res.outliers) == sorted(data.measured.rows[:5].tolist())
     assert all(o.position_error > 3e-3 for o in res.outliers)
