@@ -231,16 +231,15 @@ def wrong_run(cls: str, arm: str, robot, others: dict, seed: int):
 
 def real_sets():
     """(name, robot, measurements) of the real sets and their folds' calibration rows."""
+    from bench_realdata import realdata_robot
+
     sets = []
     for name in ("rokae_cobot_lt50", "iiwa7_optical"):
         folder = REALDATA / name
         if not folder.is_dir():
             print(f"note: {folder} absent: its real set skipped")
             continue
-        # (the inertial URDF where there is one, as scripts/bench_realdata.py: the same geometry
-        # with the link masses, which the default joint terms' compliance candidate uses)
-        inertial = folder / f"{name}_inertial.urdf"
-        robot = calib.load_robot(inertial if inertial.is_file() else folder / f"{name}.urdf")
+        robot = realdata_robot(folder, name)
         sets.append((name, robot, calib.read_measurements(folder / f"{name}.csv", robot)))
         for k in range(5):
             m = calib.read_measurements(folder / "folds" / f"{name}_fold{k}.csv", robot)

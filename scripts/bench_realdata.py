@@ -190,6 +190,16 @@ def run(name: str, robot, folds, methods) -> dict[str, Score]:
     return scores
 
 
+def realdata_robot(folder: Path, name: str):
+    """The robot of the real set ``name`` in ``folder``: its inertial URDF where there is one (the
+    same geometry with the link masses, which the default joint terms' compliance candidate
+    uses), else its URDF."""
+    import calib
+
+    inertial = folder / f"{name}_inertial.urdf"
+    return calib.load_robot(inertial if inertial.is_file() else folder / f"{name}.urdf")
+
+
 def realdata_sets(data: Path):
     """(name, robot, folds) of the sets in ../shared/realdata that are present."""
     import calib
@@ -199,8 +209,7 @@ def realdata_sets(data: Path):
         if not folder.is_dir():
             print(f"{name}: skipped ({folder} absent)")
             continue
-        inertial = folder / f"{name}_inertial.urdf"
-        robot = calib.load_robot(inertial if inertial.is_file() else folder / f"{name}.urdf")
+        robot = realdata_robot(folder, name)
         folds = [calib.read_measurements(folder / "folds" / f"{name}_fold{k}.csv", robot) for k in range(FOLDS)]
         yield name, robot, folds
 
